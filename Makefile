@@ -1,0 +1,30 @@
+# `make test` and `make demo` bootstrap everything: system packages, .venv, the package.
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+
+.PHONY: test demo setup sysdeps bench clean
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e '.[test]'
+	touch $(STAMP)
+
+sysdeps:
+	@bash scripts/ensure_system_deps.sh
+
+setup: sysdeps $(STAMP)
+
+test: setup
+	$(PY) -m pytest -n 2 -q
+
+demo: setup
+	$(VENV)/bin/freqbrdf demo
+
+bench: setup
+	$(PY) benchmarks/bench_sh.py
+
+clean:
+	rm -rf $(VENV) build *.egg-info src/*.egg-info

@@ -1,0 +1,26 @@
+#!/usr/bin/env bash
+# Debian packages freqbrdf needs at run time. Installs them when missing and we are root;
+# otherwise prints exactly what to install and fails.
+set -euo pipefail
+
+missing=()
+# Mitsuba's CPU variant (llvm_ad_rgb) JIT-compiles with a system libLLVM >= 17.
+if ! ls /usr/lib/*/libLLVM-1[7-9].so* /usr/lib/*/libLLVM-2[0-9].so* /usr/lib/libLLVM-1[7-9].so* >/dev/null 2>&1; then
+    missing+=(libllvm19)
+fi
+
+if [ ${#missing[@]} -eq 0 ]; then
+    exit 0
+fi
+
+if [ "$(id -u)" -eq 0 ] && command -v apt-get >/dev/null 2>&1; then
+    echo "freqbrdf: installing Debian packages: ${missing[*]}"
+    export DEBIAN_FRONTEND=noninteractive
+    apt-get update -qq
+    apt-get install -y -qq "${missing[@]}"
+else
+    echo "freqbrdf: missing system packages: ${missing[*]}" >&2
+    echo "Install them with:  sudo apt-get install ${missing[*]}" >&2
+    echo "(Mitsuba 3's CPU renderer needs libLLVM 17 or newer.)" >&2
+    exit 1
+fi
