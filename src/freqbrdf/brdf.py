@@ -1,0 +1,408 @@
+"""The reflection model in frequency space (METHOD.md §2 and §3.6, appendix A and C).
+
+Reflection is modelled as in Ramamoorthi and Hanrahan: in the mirror parameterisation the
+specular part of the radiance leaving a texel towards w_o is the incoming light, seen in the mirror
+direction of w_o, convolved with an isotropic BRDF kernel whose SH coefficients are
+exp(-(alpha l)^2) (appendix eq. 13). Three forward models build on it, from most to least accurate:
+
+- angular:        L(w_o) = F(theta_o) G1(theta_o) [sum_lm k_l c^in_lm Y_lm(w_o)] + d E / pi
+- SH coefficients: c_lm  = R0 k_l c^refl_lm + d E / pi * u_lm
+- power spectrum: S(l)   = R0^2 k_l^2 S_refl(l) for l >= 1; l = 0 from the summed amplitudes
+
+with k_l the (band-limit compensated) BRDF kernel, d = (1 - m) b the diffuse albedo, E the
+irradiance and u the SH fit of a constant 1 on the texel's own samples (see `constant_fit_coeffs`).
+
+Parameters live in two equivalent forms: the Principled ones a user edits (base colour, roughness,
+metallic) and the microfacet ones the models are linear in (diffuse albedo, R0, alpha).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from freqbrdf import sh
+from freqbrdf.config import FitConfig
+
+ALPHA_MIN = 1e-3  # alpha = roughness^2 is clamped here: alpha = 0 is a delta lobe, not a kernel
+DIELECTRIC_F0 = 0.04  # normal-incidence reflectance of the Principled BRDF's dielectric (eta 1.5)
+
+
+@dataclass(frozen=True)
+class PrincipledParams:
+    """Principled BRDF parameters per texel, all in [0, 1]."""
+
+    base_color: np.ndarray  # (T, 3) linear RGB
+    roughness: np.ndarray  # (T,)
+    metallic: np.ndarray  # (T,)
+
+
+@dataclass(frozen=True)
+class MicrofacetParams:
+    """Torrance-Sparrow parameters (appendix eqs. 7-11): Lambertian + Schlick/GGX specular lobe."""
+
+    diffuse_albedo: np.ndarray  # (T, 3) = (1 - metallic) * base_color
+    specular_r0: np.ndarray  # (T, 3) normal-incidence Fresnel reflectance R0
+    alpha: np.ndarray  # (T,) GGX width = roughness^2, >= ALPHA_MIN
+
+
+# --------------------------------------------------------------------------------------------
+# Principled <-> Torrance-Sparrow
+
+
+def alpha_from_roughness(roughness: np.ndarray) -> np.ndarray:
+    """alpha = roughness^2 (appendix eq. 11), clamped to ALPHA_MIN."""
+    return np.maximum(np.square(roughness), ALPHA_MIN)
+
+
+def microfacet_from_principled(params: PrincipledParams) -> MicrofacetParams:
+    """Appendix eqs. 7-11: K_d = (1 - m) b, R0 = 0.04 + (b - 0.04) m per channel, alpha = r^2."""
+    metallic = params.metallic[:, None]  # (T, 1)
+    return MicrofacetParams(
+        diffuse_albedo=(1.0 - metallic) * params.base_color,
+        specular_r0=DIELECTRIC_F0 + (params.base_color - DIELECTRIC_F0) * metallic,
+        alpha=alpha_from_roughness(params.roughness),
+    )
+
+
+def principled_from_microfacet(
+    mf: MicrofacetParams, grid_size: int = 129, refine_iterations: int = 40
+) -> PrincipledParams:
+    """Invert the Principled mapping: (diffuse albedo, R0) -> (base colour, metallic); r = sqrt(alpha).
+
+    Six numbers (d and R0 for three channels) against four unknowns (b, m), so this is a bounded
+    least-squares problem in reflectance units:
+
+        minimise over m in [0, 1], b in [0, 1]^3:
+            sum_c ((1 - m) b_c - d_c)^2 + (0.04 (1 - m) + m b_c - R0_c)^2.
+
+    For fixed m each b_c is a one-dimensional convex quadratic, so its bounded minimiser is the
+    clipped unconstrained one; what remains is a smooth 1-D profile in m. We scan it on a grid,
+    refine the two lowest grid minima by golden-section search and keep the lower. Consistent
+    inputs (from `microfacet_from_principled`) are inverted exactly; others are projected to the
+    closest valid Principled parameters.
+
+    The forward map is not injective: eliminating b gives, per channel, the quadratic
+    0.04 u^2 - (R0_c + d_c) u + d_c = 0 in u = 1 - m, whose roots are 1 - m and b_c / 0.04. For an
+    achromatic base colour b < 0.04 both roots are valid for every channel, so (b, m) and
+    (0.04 (1 - m), 1 - b / 0.04) render identically. Such pairs are genuinely indistinguishable;
+    we return the less metallic one (near-black dielectrics are common, metals with R0 < 0.04 are
+    not). For any channel above 0.04 the second root leaves [0, 1] and the inverse is unique.
+    """
+    diffuse = np.asarray(mf.diffuse_albedo, dtype=np.float64)  # (T, 3)
+    r0 = np.asarray(mf.specular_r0, dtype=np.float64)  # (T, 3)
+    n_texels = diffuse.shape[0]
+    metallic = np.empty(n_texels)
+    chunk = 4096  # bounds the (chunk, grid, 3) scan to a few MB
+    for start in range(0, n_texels, chunk):
+        rows = slice(start, start + chunk)
+        metallic[rows] = _solve_metallic(diffuse[rows], r0[rows], grid_size, refine_iterations)
+    base_color, _ = _base_color_for_metallic(metallic[:, None], diffuse, r0)
+    base_color, metallic = _prefer_dielectric(base_color, metallic, diffuse, r0)
+    return PrincipledParams(
+        base_color=base_color, roughness=np.sqrt(np.asarray(mf.alpha, dtype=np.float64)), metallic=metallic
+    )
+
+
+def _base_color_for_metallic(
+    metallic: np.ndarray, diffuse: np.ndarray, r0: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Bounded least-squares base colour for given metallic, and the misfit summed over channels.
+
+    metallic (..., 1) broadcasts against diffuse, r0 (..., 3); returns ((..., 3), (...)).
+    """
+    dielectric = 1.0 - metallic
+    specular_target = r0 - DIELECTRIC_F0 * dielectric  # what m * b must explain
+    base_color = np.clip(
+        (dielectric * diffuse + metallic * specular_target) / (dielectric**2 + metallic**2), 0.0, 1.0
+    )
+    misfit = np.sum(
+        (dielectric * base_color - diffuse) ** 2 + (metallic * base_color - specular_target) ** 2, axis=-1
+    )
+    return base_color, misfit
+
+
+def _solve_metallic(diffuse: np.ndarray, r0: np.ndarray, grid_size: int, refine_iterations: int) -> np.ndarray:
+    """Global minimiser over [0, 1] of the profiled misfit; diffuse, r0 (T, 3) -> (T,)."""
+    grid = np.linspace(0.0, 1.0, grid_size)
+    _, misfit = _base_color_for_metallic(grid[None, :, None], diffuse[:, None, :], r0[:, None, :])  # (T, G)
+    # Grid local minima (end points count when lower than their single neighbour).
+    padded = np.pad(misfit, ((0, 0), (1, 1)), constant_values=np.inf)
+    is_local_min = (misfit <= padded[:, :-2]) & (misfit < padded[:, 2:])
+    ranked = np.argsort(np.where(is_local_min, misfit, np.inf), axis=1, kind="stable")[:, :2]  # (T, 2)
+    # The profile has at most two basins (the two roots above): refine both, keep the better.
+    step = 1.0 / (grid_size - 1)
+    lo = np.clip(grid[ranked] - step, 0.0, 1.0)
+    hi = np.clip(grid[ranked] + step, 0.0, 1.0)
+    candidates = _golden_section(lo, hi, diffuse[:, None, :], r0[:, None, :], refine_iterations)  # (T, 2)
+    _, candidate_misfit = _base_color_for_metallic(candidates[..., None], diffuse[:, None, :], r0[:, None, :])
+    best = np.argmin(candidate_misfit, axis=1)
+    return np.take_along_axis(candidates, best[:, None], axis=1)[:, 0]
+
+
+def _golden_section(
+    lo: np.ndarray, hi: np.ndarray, diffuse: np.ndarray, r0: np.ndarray, iterations: int
+) -> np.ndarray:
+    """Vectorised golden-section minimisation of the profiled misfit on [lo, hi] (same shapes)."""
+    inv_phi = (math.sqrt(5.0) - 1.0) / 2.0
+    left = hi - inv_phi * (hi - lo)
+    right = lo + inv_phi * (hi - lo)
+    _, f_left = _base_color_for_metallic(left[..., None], diffuse, r0)
+    _, f_right = _base_color_for_metallic(right[..., None], diffuse, r0)
+    for _ in range(iterations):
+        go_left = f_left < f_right
+        hi = np.where(go_left, right, hi)
+        lo = np.where(go_left, lo, left)
+        new_left = hi - inv_phi * (hi - lo)
+        new_right = lo + inv_phi * (hi - lo)
+        # One of the two interior points survives; only the other needs a new evaluation.
+        probe = np.where(go_left, new_left, new_right)
+        _, f_probe = _base_color_for_metallic(probe[..., None], diffuse, r0)
+        right, f_right, left, f_left = (
+            np.where(go_left, left, new_right),
+            np.where(go_left, f_left, f_probe),
+            np.where(go_left, probe, right),
+            np.where(go_left, f_probe, f_right),
+        )
+    return 0.5 * (lo + hi)
+
+
+def _prefer_dielectric(
+    base_color: np.ndarray, metallic: np.ndarray, diffuse: np.ndarray, r0: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Resolve the two-to-one ambiguity of dark achromatic colours towards the lower metallic."""
+    grey = base_color.mean(axis=1)
+    has_twin = (np.ptp(base_color, axis=1) <= 1e-6) & (grey < DIELECTRIC_F0)  # grey and dark only
+    twin_metallic = np.clip(1.0 - grey / DIELECTRIC_F0, 0.0, 1.0)
+    twin_base, twin_misfit = _base_color_for_metallic(twin_metallic[:, None], diffuse, r0)
+    _, misfit = _base_color_for_metallic(metallic[:, None], diffuse, r0)
+    # An exact tie up to rounding: a twin that is worse by more is a different, worse fit.
+    scale = np.sum(diffuse**2 + r0**2, axis=1)
+    take_twin = has_twin & (twin_metallic < metallic) & (twin_misfit <= misfit + 1e-14 * scale)
+    return np.where(take_twin[:, None], twin_base, base_color), np.where(take_twin, twin_metallic, metallic)
+
+
+# --------------------------------------------------------------------------------------------
+# Fresnel, shadowing-masking, the BRDF kernel
+
+
+def schlick_fresnel(cos_theta: np.ndarray, r0: np.ndarray) -> np.ndarray:
+    """F = R0 + (1 - R0)(1 - cos theta)^5 (appendix eq. 10); broadcasts cos_theta against r0."""
+    return r0 + (1.0 - r0) * (1.0 - np.clip(cos_theta, 0.0, 1.0)) ** 5
+
+
+def smith_g1_ggx(cos_theta: np.ndarray, alpha: np.ndarray) -> np.ndarray:
+    """Exact Smith G1 of the GGX (Trowbridge-Reitz) distribution; broadcasts cos_theta with alpha.
+
+    G1 = 1 / (1 + Lambda), Lambda = (sqrt(1 + alpha^2 tan^2 theta) - 1) / 2, written as
+    2 cos / (cos + sqrt(cos^2 + alpha^2 sin^2)) so that grazing angles need no tan (-> 0 at 90°).
+    Directions below the horizon are fully masked.
+    """
+    cos_theta = np.clip(cos_theta, 0.0, 1.0)
+    sin2_theta = 1.0 - cos_theta**2
+    denominator = cos_theta + np.sqrt(cos_theta**2 + np.square(alpha) * sin2_theta)
+    return 2.0 * cos_theta / np.maximum(denominator, np.finfo(np.float64).tiny)  # 0 / 0 only if alpha = 0
+
+
+def shadowed_light(mirrored_radiance: np.ndarray, cos_theta: np.ndarray, alpha: np.ndarray) -> np.ndarray:
+    """Incoming light attenuated by shadowing G1(theta_i) before convolution (appendix eq. 6).
+
+    In the mirror parameterisation the light sample paired with view w_o arrives from the mirror
+    direction of w_o, so theta_i = theta_o: the shadowing factor is G1 of the view's own cosine.
+    mirrored_radiance (T, V, 3), cos_theta (T, V), alpha (T,) -> (T, V, 3). Fit SH to the result
+    to get `incoming_coeffs` for `predict_angular(..., masking=True)`.
+    """
+    return mirrored_radiance * smith_g1_ggx(cos_theta, alpha[:, None])[..., None]
+
+
+def band_limit_sigma(n_views: int) -> float:
+    """Width of the environment low-pass that suppresses aliasing: sigma = 1 / floor(sqrt(N))."""
+    return 1.0 / math.isqrt(n_views)
+
+
+def brdf_kernel(alpha: np.ndarray, lmax: int, sigma: float = 0.0) -> np.ndarray:
+    """BRDF filter per degree, exp(-(alpha^2 - sigma^2) l^2); alpha (T,) -> (T, lmax + 1).
+
+    With sigma = 0 this is the Gaussian exp(-(alpha l)^2) of appendix eq. 13. With sigma > 0 the
+    environment is assumed low-passed by exp(-(sigma l)^2) before it was sampled (band limit), and
+    this kernel divides that blur back out, so kernel * exp(-(sigma l)^2) = exp(-(alpha l)^2).
+
+    When alpha < sigma the exponent is positive: the kernel exceeds 1 and grows with l, i.e. the
+    material is sharper than the blur applied to the light. sigma ~ 1/floor(sqrt(N)) is about the
+    finest width N views can resolve (appendix C), so such a texel is below the resolvable
+    roughness: its prediction extrapolates detail the low-passed light does not contain and
+    amplifies the fitted coefficients' noise in high degrees. The kernel is deliberately not
+    clamped (that would break the identity above); flag these texels with
+    `min_resolvable_alpha` instead of trusting their roughness.
+    """
+    degrees = np.arange(lmax + 1)
+    return np.exp(-(np.square(alpha)[..., None] - sigma**2) * degrees**2)
+
+
+def _kernel_per_coeff(alpha: np.ndarray, lmax: int, sigma: float) -> np.ndarray:
+    """brdf_kernel spread to every flat SH index: (T,) -> (T, K)."""
+    return brdf_kernel(alpha, lmax, sigma)[:, sh.sh_degrees(lmax)]
+
+
+# --------------------------------------------------------------------------------------------
+# The diffuse term seen through the fit
+
+
+def constant_fit_coeffs(directions: np.ndarray, weights: np.ndarray, fit: FitConfig) -> np.ndarray:
+    """SH fit of the constant 1 on each texel's samples: directions (T, V, 3), weights (T, V) -> (T, K).
+
+    The fit is linear, so a texel's Lambertian radiance d E / pi (constant over w_o) contributes
+    exactly d E / pi times these coefficients to its fitted SH. On a well-covered sphere without
+    regularisation that is sqrt(4 pi) in l = 0 only; on a sparse, hemispherical, holey sample set
+    the degree penalty shrinks the DC term and leaks into l > 0. The prototype's d E / sqrt(pi) in
+    the DC coefficient alone is half the full-sphere value and ignores both effects: on such sample
+    sets the fitted DC is about 1.5-1.7x larger. Cheaper in a pipeline: append a column of ones to
+    the values of the observation fit, which shares its factorisation.
+    """
+    ones = np.ones(weights.shape + (1,))
+    result = sh.fit_sh(
+        directions,
+        weights,
+        ones,
+        lmax=fit.lmax,
+        reg_lambda=fit.reg_lambda,
+        regulariser=fit.regulariser,
+        scale_lambda_with_weight=fit.scale_lambda_with_weight,
+    )
+    return result.coeffs[:, 0, :]
+
+
+def _diffuse_radiance(mf: MicrofacetParams, irradiance: np.ndarray) -> np.ndarray:
+    """Lambertian radiance d E / pi, (T, 3)."""
+    return mf.diffuse_albedo * irradiance / np.pi
+
+
+# --------------------------------------------------------------------------------------------
+# Forward models
+
+
+def predict_angular(
+    mf: MicrofacetParams,
+    directions: np.ndarray,
+    incoming_coeffs: np.ndarray,
+    irradiance: np.ndarray,
+    *,
+    fresnel: bool = True,
+    masking: bool = True,
+    sigma: float = 0.0,
+    basis: np.ndarray | None = None,
+) -> np.ndarray:
+    """Radiance at the observed view directions: (T, V, 3).
+
+    L(w_o) = F(theta_o) G1(theta_o) [sum_lm k_l c^in_lm Y_lm(w_o)] + d E / pi.
+
+    directions (T, V, 3) unit view directions in the texel's local frame (z = normal);
+    incoming_coeffs (T, 3, K) SH fit of the mirrored incoming light on the same samples; for the
+    shadowing-masking extension (appendix eq. 6) fit it to `shadowed_light(...)` and keep
+    masking=True; irradiance (T, 3). fresnel=False uses F = R0, masking=False uses G1 = 1.
+    basis (T, V, K) = sh.eval_sh(directions, lmax) may be passed to reuse it across calls.
+    """
+    lmax = sh.lmax_of(incoming_coeffs.shape[-1])
+    if basis is None:
+        basis = sh.eval_sh(directions, lmax)
+    filtered_coeffs = incoming_coeffs * _kernel_per_coeff(mf.alpha, lmax, sigma)[:, None, :]  # (T, 3, K)
+    filtered = basis @ np.swapaxes(filtered_coeffs, 1, 2)  # (T, V, 3)
+    cos_theta = directions[..., 2]  # (T, V)
+    r0 = mf.specular_r0[:, None, :]  # (T, 1, 3)
+    specular_weight = schlick_fresnel(cos_theta[..., None], r0) if fresnel else r0
+    if masking:
+        specular_weight = specular_weight * smith_g1_ggx(cos_theta, mf.alpha[:, None])[..., None]
+    return specular_weight * filtered + _diffuse_radiance(mf, irradiance)[:, None, :]
+
+
+def predict_sh_coeffs(
+    mf: MicrofacetParams,
+    reflected_coeffs: np.ndarray,
+    irradiance: np.ndarray,
+    constant_fit: np.ndarray,
+    *,
+    sigma: float = 0.0,
+) -> np.ndarray:
+    """Fitted SH coefficients of the outgoing radiance: (T, 3, K).
+
+    c_lm = R0 k_l c^refl_lm + (d E / pi) u_lm, with reflected_coeffs (T, 3, K) the SH fit of the
+    mirrored light, irradiance (T, 3) and constant_fit u (T, K) from `constant_fit_coeffs` on the
+    same samples. The diffuse part is essentially l = 0, but taken through the fit so that it
+    matches what fitting the observations produces (Fresnel and masking are not modelled here:
+    they are products in the angular domain, not per-coefficient factors).
+    """
+    lmax = sh.lmax_of(reflected_coeffs.shape[-1])
+    kernel = _kernel_per_coeff(mf.alpha, lmax, sigma)  # (T, K)
+    specular = mf.specular_r0[:, :, None] * kernel[:, None, :] * reflected_coeffs
+    return specular + _diffuse_radiance(mf, irradiance)[:, :, None] * constant_fit[:, None, :]
+
+
+def predict_power_spectrum(
+    mf: MicrofacetParams,
+    reflected_spectrum: np.ndarray,
+    irradiance: np.ndarray,
+    constant_fit: np.ndarray,
+    *,
+    sigma: float = 0.0,
+) -> np.ndarray:
+    """Power spectrum of the outgoing radiance: (T, 3, lmax + 1).
+
+    S(l) = R0^2 k_l^2 S_refl(l) for l >= 1, reflected_spectrum (T, 3, lmax + 1) = power spectrum
+    of the mirrored light's fit. At l = 0 there is one coefficient, so the diffuse and specular
+    parts add as amplitudes, not as powers: S(0) = (R0 k_0 sqrt(S_refl(0)) + (d E / pi) u_00)^2,
+    using that the DC coefficient of a radiance fit is non-negative. constant_fit (T, K) as in
+    `predict_sh_coeffs`; its leakage into l > 0 is neglected here, because it would add cross terms
+    with the light's coefficients, which a power spectrum no longer has.
+    """
+    lmax = reflected_spectrum.shape[-1] - 1
+    kernel = brdf_kernel(mf.alpha, lmax, sigma)  # (T, lmax + 1)
+    r0 = mf.specular_r0[:, :, None]  # (T, 3, 1)
+    spectrum = np.square(r0 * kernel[:, None, :]) * reflected_spectrum
+    dc_amplitude = mf.specular_r0 * kernel[:, :1] * np.sqrt(reflected_spectrum[..., 0]) + _diffuse_radiance(
+        mf, irradiance
+    ) * constant_fit[:, :1]
+    spectrum[..., 0] = np.square(dc_amplitude)
+    return spectrum
+
+
+# --------------------------------------------------------------------------------------------
+# Sampling theory (appendix C)
+
+
+def resolvable_degree(n_views: int) -> int:
+    """Highest SH degree N views resolve: the largest integer l* with l* < sqrt(N) (strict)."""
+    if n_views < 1:
+        raise ValueError(f"n_views must be positive, got {n_views}")
+    root = math.isqrt(n_views)
+    return root - 1 if root * root == n_views else root
+
+
+def min_resolvable_alpha(lstar: int, attenuation: float = 0.5) -> float:
+    """alpha' = sqrt(-ln t) / l* (appendix eq. 12): the kernel exp(-(alpha l*)^2) equals t there.
+
+    Materials with alpha < alpha' keep more than t of their amplitude above l*, where N views
+    alias; their roughness cannot be told apart in (0, alpha'] from spectra.
+    With N = 400 views and t = 0.5: l* = 19 gives 0.0438, l* = 20 = sqrt(N) gives 0.0416. The
+    appendix quotes "alpha' ~ 0.07", which neither reproduces (eq. 12 gives 0.07 only for l* = 12).
+    """
+    if not 0.0 < attenuation < 1.0:
+        raise ValueError(f"attenuation must lie in (0, 1), got {attenuation}")
+    return math.sqrt(-math.log(attenuation)) / lstar
+
+
+def min_resolvable_roughness(lstar: int, attenuation: float = 0.5) -> float:
+    """The Principled roughness at the bound: sqrt(alpha')."""
+    return math.sqrt(min_resolvable_alpha(lstar, attenuation))
+
+
+def views_needed(alpha: float, attenuation: float = 0.5) -> int:
+    """Fewest views N whose resolvable degree reaches l* = sqrt(-ln t) / alpha (rounded up).
+
+    N must exceed l*^2 (l* < sqrt(N)), so N = ceil(l*)^2 + 1; this is the appendix's N ~ alpha^-2.
+    """
+    if alpha <= 0.0:
+        raise ValueError(f"alpha must be positive, got {alpha}")
+    lstar = math.ceil(math.sqrt(-math.log(attenuation)) / alpha)
+    return lstar * lstar + 1

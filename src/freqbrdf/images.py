@@ -1,0 +1,350 @@
+"""Image input and output: linear HDR radiance in, EXR / Radiance HDR / PNG out.
+
+Everything inside freqbrdf is linear radiance in float32 arrays ``(H, W, 3)`` with row 0 at the
+top of the picture. Readers accept OpenEXR (RGB, RGBA or a single channel such as Y; half or
+float), Radiance ``.hdr`` (RGBE, flat or run-length encoded) and, with a warning, 8-bit PNG/JPEG
+(decoded from sRGB). Every writer is atomic: a failed write leaves no file behind.
+"""
+
+from __future__ import annotations
+
+import re
+import warnings
+from pathlib import Path
+
+import numba
+import numpy as np
+import OpenEXR
+from PIL import Image, UnidentifiedImageError
+
+from freqbrdf.errors import InputError
+from freqbrdf.fileio import atomic_path
+
+HDR_SUFFIXES = (".exr", ".hdr")
+LDR_SUFFIXES = (".png", ".jpg", ".jpeg")
+IMAGE_SUFFIXES = HDR_SUFFIXES + LDR_SUFFIXES
+
+
+# --- sRGB transfer function (IEC 61966-2-1), the only definition in the package -------------------
+
+
+def srgb_to_linear(encoded: np.ndarray) -> np.ndarray:
+    """Decode sRGB values in [0, 1] to linear values in [0, 1] (float32, same shape)."""
+    encoded = np.clip(np.asarray(encoded, dtype=np.float32), 0.0, 1.0)
+    return np.where(
+        encoded <= 0.04045, encoded / 12.92, ((encoded + 0.055) / 1.055) ** 2.4
+    ).astype(np.float32)
+
+
+def linear_to_srgb(linear: np.ndarray) -> np.ndarray:
+    """Encode linear values to sRGB display values in [0, 1]; input is clipped to [0, 1] first."""
+    linear = np.clip(np.asarray(linear, dtype=np.float32), 0.0, 1.0)
+    return np.where(
+        linear <= 0.0031308, linear * 12.92, 1.055 * linear ** (1.0 / 2.4) - 0.055
+    ).astype(np.float32)
+
+
+# --- reading --------------------------------------------------------------------------------------
+
+
+def read_image(path: str | Path, validate: bool = False) -> np.ndarray:
+    """Read an image as linear radiance ``(H, W, 3)`` float32.
+
+    Single-channel images are repeated into RGB; an alpha channel is ignored (see `read_mask`).
+    PNG/JPEG are decoded from sRGB with a warning: 8-bit images clip highlights, so HDR input is
+    preferred. With ``validate=True`` non-finite or negative pixels raise `InputError` saying how
+    many there are and where the first one is.
+    """
+    path = Path(path)
+    pixels, is_srgb = _read_pixels(path)  # (H, W, C)
+    channels = pixels.shape[2]
+    rgb = pixels[..., :3] if channels >= 3 else np.repeat(pixels[..., :1], 3, axis=2)
+    if is_srgb:
+        warnings.warn(
+            f"{path.name}: 8-bit sRGB image linearised as radiance; clipped highlights and "
+            "quantisation bias the result, HDR input (.exr, .hdr) is preferred",
+            UserWarning,
+            stacklevel=2,
+        )
+        rgb = srgb_to_linear(rgb)
+    rgb = np.ascontiguousarray(rgb, dtype=np.float32)
+    if validate:
+        _check_finite_non_negative(path, rgb)
+    return rgb
+
+
+def read_mask(path: str | Path) -> np.ndarray:
+    """Read a mask ``(H, W)`` bool: alpha > 0.5 when the image has a non-constant alpha channel,
+    otherwise mean colour > 0.5 (of full scale for PNG/JPEG, of 1.0 for HDR files).
+    """
+    pixels, _ = _read_pixels(Path(path))  # (H, W, C); no sRGB decoding: masks are not radiance
+    channels = pixels.shape[2]
+    has_alpha = channels in (2, 4)
+    if has_alpha and np.ptp(pixels[..., -1]) > 0:
+        return pixels[..., -1] > 0.5
+    colour = pixels[..., :-1] if has_alpha else pixels
+    return colour.mean(axis=2) > 0.5
+
+
+def _read_pixels(path: Path) -> tuple[np.ndarray, bool]:
+    """All channels of the file ``(H, W, C)`` float32, and whether they are sRGB-encoded."""
+    suffix = path.suffix.lower()
+    if suffix not in IMAGE_SUFFIXES:
+        raise InputError(
+            path, f"unsupported image type {path.suffix!r} (supported: {', '.join(IMAGE_SUFFIXES)})"
+        )
+    if not path.exists():
+        raise InputError(path, "file does not exist")
+    if not path.is_file():
+        raise InputError(path, "is not a file")
+    if suffix == ".exr":
+        return _read_exr(path), False
+    if suffix == ".hdr":
+        return _read_rgbe(path), False
+    return _read_ldr(path), True
+
+
+def _read_exr(path: Path) -> np.ndarray:
+    try:
+        with OpenEXR.File(str(path), separate_channels=True) as exr:
+            planes = {name: channel.pixels for name, channel in exr.channels().items()}
+    except Exception as err:  # OpenEXR raises RuntimeError or ValueError on damaged files
+        raise InputError(path, f"not a readable OpenEXR file ({err})") from None
+    if all(name in planes for name in "RGB"):
+        names = ["R", "G", "B"] + (["A"] if "A" in planes else [])
+    elif len(planes) == 1:
+        names = list(planes)  # a single channel (Y, or any name) is a grey image
+    else:
+        raise InputError(
+            path, f"needs channels R, G, B or a single channel; found {', '.join(sorted(planes))}"
+        )
+    return np.stack([planes[name].astype(np.float32) for name in names], axis=2)
+
+
+def _read_ldr(path: Path) -> np.ndarray:
+    try:
+        with Image.open(path) as image:
+            image.load()
+            if image.mode.startswith("I"):  # 16-bit greyscale PNG
+                return (np.asarray(image, dtype=np.float32) / 65535.0)[..., None]
+            if image.mode not in ("L", "LA", "RGB", "RGBA"):
+                has_alpha = "A" in image.mode or "transparency" in image.info
+                image = image.convert("RGBA" if has_alpha else "RGB")
+            pixels = np.asarray(image, dtype=np.float32) / 255.0
+    except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as err:
+        raise InputError(path, f"not a readable {path.suffix[1:].upper()} image ({err})") from None
+    return pixels if pixels.ndim == 3 else pixels[..., None]
+
+
+def _check_finite_non_negative(path: Path, rgb: np.ndarray) -> None:
+    problems = []
+    non_finite = ~np.isfinite(rgb).all(axis=2)
+    negative = (rgb < 0).any(axis=2)  # NaN compares False, so the two sets are disjoint
+    for bad, what in ((non_finite, "non-finite"), (negative, "negative")):
+        count = int(bad.sum())
+        if count:
+            row, col = np.argwhere(bad)[0]
+            problems.append(f"{count} {what} pixel(s), first at row {row}, column {col}")
+    if problems:
+        raise InputError(path, "; ".join(problems))
+
+
+# --- Radiance RGBE (.hdr) -------------------------------------------------------------------------
+
+_RGBE_RESOLUTION = re.compile(rb"-Y (\d+) \+X (\d+)")
+_MIN_RUN = 4  # shorter repeats are cheaper as literals
+
+
+def _read_rgbe(path: Path) -> np.ndarray:
+    data = path.read_bytes()
+    if not data.startswith(b"#?"):
+        raise InputError(path, "not a Radiance HDR file (missing '#?' signature)")
+    header_end = data.find(b"\n\n")
+    if header_end < 0:
+        raise InputError(path, "truncated Radiance HDR header")
+    exposure = 1.0
+    for line in data[:header_end].split(b"\n")[1:]:
+        if line.startswith(b"FORMAT=") and line.strip() != b"FORMAT=32-bit_rle_rgbe":
+            raise InputError(path, f"unsupported pixel format {line[7:].decode(errors='replace')}")
+        if line.startswith(b"EXPOSURE="):  # stored values were multiplied by each EXPOSURE
+            try:
+                exposure *= float(line[9:])
+            except ValueError:
+                problem = f"bad header line {line.decode(errors='replace')!r}"
+                raise InputError(path, problem) from None
+    if not exposure > 0:
+        raise InputError(path, f"EXPOSURE must be positive, got {exposure}")
+    line_end = data.find(b"\n", header_end + 2)
+    match = _RGBE_RESOLUTION.fullmatch(data[header_end + 2 : line_end].strip())
+    if line_end < 0 or match is None:
+        raise InputError(path, "unsupported Radiance HDR orientation (only '-Y H +X W')")
+    height, width = int(match[1]), int(match[2])
+    rgbe = np.empty((height, width, 4), dtype=np.uint8)
+    end = _decode_rgbe(np.frombuffer(data, dtype=np.uint8), line_end + 1, rgbe)
+    if end < 0:
+        raise InputError(path, "corrupt or truncated Radiance HDR pixel data")
+    # Radiance's colr_color: channel = (mantissa + 0.5) * 2^(exponent - 136); exponent 0 is black.
+    exponent = rgbe[..., 3].astype(np.int32)
+    scale = np.where(exponent > 0, np.ldexp(1.0, exponent - 136), 0.0) / exposure
+    return ((rgbe[..., :3] + 0.5) * scale[..., None]).astype(np.float32)
+
+
+@numba.njit(cache=True)
+def _decode_rgbe(data, start, out):  # data (bytes,) uint8; out (H, W, 4) uint8
+    """Decode flat or new-style run-length scanlines into ``out``; returns end offset or -1."""
+    height, width = out.shape[0], out.shape[1]
+    size = data.shape[0]
+    pos = start
+    for row in range(height):
+        is_rle = (
+            8 <= width < 32768
+            and pos + 4 <= size
+            and data[pos] == 2
+            and data[pos + 1] == 2
+            and data[pos + 2] < 128
+        )
+        if not is_rle:  # flat scanline: 4 bytes per pixel
+            if pos + 4 * width > size:
+                return -1
+            for col in range(width):
+                for channel in range(4):
+                    out[row, col, channel] = data[pos + 4 * col + channel]
+            pos += 4 * width
+            continue
+        if (np.int64(data[pos + 2]) << 8 | data[pos + 3]) != width:
+            return -1
+        pos += 4
+        for channel in range(4):  # each channel of the scanline is run-length coded separately
+            col = 0
+            while col < width:
+                if pos >= size:
+                    return -1
+                count = np.int64(data[pos])
+                pos += 1
+                if count > 128:  # a run: one byte repeated count - 128 times
+                    count -= 128
+                    if col + count > width or pos >= size:
+                        return -1
+                    for k in range(count):
+                        out[row, col + k, channel] = data[pos]
+                    pos += 1
+                else:  # count literal bytes
+                    if count == 0 or col + count > width or pos + count > size:
+                        return -1
+                    for k in range(count):
+                        out[row, col + k, channel] = data[pos + k]
+                    pos += count
+                col += count
+    return pos
+
+
+@numba.njit(cache=True)
+def _encode_rgbe_rle(rgbe, out):  # rgbe (H, W, 4) uint8; out (bytes,) uint8 large enough
+    """New-style run-length encoding (as Radiance writes it); returns the number of bytes."""
+    height, width = rgbe.shape[0], rgbe.shape[1]
+    pos = 0
+    for row in range(height):
+        out[pos] = 2
+        out[pos + 1] = 2
+        out[pos + 2] = width >> 8
+        out[pos + 3] = width & 255
+        pos += 4
+        for channel in range(4):
+            values = rgbe[row, :, channel]
+            cur = 0
+            while cur < width:
+                # find the next run of at least _MIN_RUN equal bytes, starting at run_start
+                run_start = cur
+                run_length = 0
+                while run_start < width:
+                    run_length = 1
+                    while (
+                        run_start + run_length < width
+                        and run_length < 127
+                        and values[run_start + run_length] == values[run_start]
+                    ):
+                        run_length += 1
+                    if run_length >= _MIN_RUN:
+                        break
+                    run_start += run_length
+                while cur < run_start:  # literals up to the run
+                    count = min(run_start - cur, 128)
+                    out[pos] = count
+                    out[pos + 1 : pos + 1 + count] = values[cur : cur + count]
+                    pos += 1 + count
+                    cur += count
+                if run_start < width:
+                    out[pos] = 128 + run_length
+                    out[pos + 1] = values[run_start]
+                    pos += 2
+                    cur = run_start + run_length
+    return pos
+
+
+def write_hdr(path: str | Path, image: np.ndarray) -> None:
+    """Write linear radiance ``(H, W, 3)`` as run-length encoded Radiance RGBE (0.4 % precision).
+
+    RGBE stores non-negative values below 2^127 only; anything else raises ValueError.
+    """
+    rgb = np.asarray(image, dtype=np.float64)
+    if rgb.ndim != 3 or rgb.shape[2] != 3:
+        raise ValueError(f"write_hdr needs an (H, W, 3) array, got shape {rgb.shape}")
+    if not np.isfinite(rgb).all() or (rgb < 0).any() or rgb.max(initial=0.0) >= 2.0**127:
+        raise ValueError("RGBE stores finite values in [0, 2^127) only")
+    height, width = rgb.shape[:2]
+    # Radiance's setcolr: a shared exponent from the brightest channel, mantissas in [0, 256).
+    brightest = rgb.max(axis=2)
+    fraction, exponent = np.frexp(brightest)
+    visible = brightest > 1e-32
+    scale = np.where(visible, fraction * 256.0 / np.where(visible, brightest, 1.0), 0.0)
+    rgbe = np.empty((height, width, 4), dtype=np.uint8)
+    rgbe[..., :3] = np.clip(np.floor(rgb * scale[..., None]), 0, 255)
+    rgbe[..., 3] = np.where(visible, exponent + 128, 0)
+    header = f"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y {height} +X {width}\n".encode()
+    if 8 <= width < 32768:
+        buffer = np.empty(height * (4 + 4 * (width + width // 128 + 1)), dtype=np.uint8)
+        body = buffer[: _encode_rgbe_rle(rgbe, buffer)].tobytes()
+    else:  # run-length coding is only defined for these widths
+        body = rgbe.tobytes()
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(header + body)
+
+
+# --- writing EXR and PNG --------------------------------------------------------------------------
+
+
+def write_exr(path: str | Path, image: np.ndarray) -> None:
+    """Write ``(H, W)``, ``(H, W, 1)`` (channel Y) or ``(H, W, 3)`` (R, G, B) as ZIP-compressed EXR.
+
+    A float16 array is stored as half, anything else as float32.
+    """
+    pixels = np.asarray(image)
+    if pixels.ndim == 3 and pixels.shape[2] == 1:
+        pixels = pixels[..., 0]
+    pixel_type = np.float16 if pixels.dtype == np.float16 else np.float32
+    if pixels.ndim == 2:
+        planes = {"Y": np.ascontiguousarray(pixels, dtype=pixel_type)}
+    elif pixels.ndim == 3 and pixels.shape[2] == 3:
+        planes = {
+            name: np.ascontiguousarray(pixels[..., index], dtype=pixel_type)
+            for index, name in enumerate("RGB")
+        }
+    else:
+        raise ValueError(f"write_exr needs (H, W), (H, W, 1) or (H, W, 3), got {pixels.shape}")
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    with atomic_path(path) as tmp:
+        with OpenEXR.File(header, planes) as exr:
+            exr.write(str(tmp))
+
+
+def write_png(path: str | Path, image: np.ndarray) -> None:
+    """Write display values in [0, 1] (already sRGB-encoded, e.g. by `linear_to_srgb`) as 8-bit PNG.
+
+    Accepts ``(H, W)``, ``(H, W, 3)`` or ``(H, W, 4)``; values are clipped to [0, 1], NaN is black.
+    """
+    pixels = np.asarray(image, dtype=np.float32)
+    if not (pixels.ndim == 2 or (pixels.ndim == 3 and pixels.shape[2] in (3, 4))):
+        raise ValueError(f"write_png needs (H, W), (H, W, 3) or (H, W, 4), got {pixels.shape}")
+    quantised = np.round(np.nan_to_num(np.clip(pixels, 0.0, 1.0)) * 255.0).astype(np.uint8)
+    with atomic_path(path) as tmp:
+        Image.fromarray(quantised).save(tmp, format="PNG")

@@ -1,0 +1,451 @@
+"""Real spherical harmonics: evaluation, regularised fitting, spectra, filtering, rotation.
+
+Convention (appendix eqs. 14-16, METHOD.md §2). Polar axis +z, theta = acos(z), phi = atan2(y, x);
+flat index k = l*l + l + m, m = -l..l, K = (lmax + 1)^2 coefficients.
+
+    Y_lm = sqrt(2) N_lm P_l^m(cos theta) cos(m phi)       m > 0
+    Y_l0 =         N_l0 P_l^0(cos theta)
+    Y_lm = sqrt(2) N_l|m| P_l^|m|(cos theta) sin(|m| phi)  m < 0
+    N_lm = sqrt((2l + 1) / (4 pi) (l - m)! / (l + m)!)
+
+with P_l^m the associated Legendre function WITHOUT the Condon-Shortley phase (-1)^m, so the
+basis is orthonormal on the sphere and the degree-1 functions are +sqrt(3 / 4 pi) times
+(y, z, x) for m = -1, 0, 1. In terms of scipy's complex harmonics (which carry the phase),
+Y_lm = sqrt(2) (-1)^m Re Y_l^m for m > 0 and sqrt(2) (-1)^m Im Y_l^|m| for m < 0.
+
+Evaluation uses the normalised three-term recurrences for P_l^m / sin^m(theta) and builds
+sin^m(theta) cos(m phi), sin^m(theta) sin(m phi) as the real and imaginary parts of (x + i y)^m,
+so no trigonometric functions or factorials are evaluated and every intermediate stays bounded
+(stable to high degree, float32 or float64).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+from freqbrdf.config import RegulariserKind
+
+# SHFit.status values
+FIT_OK = 0
+FIT_UNDERDETERMINED = 1  # fewer weighted samples than K (or a rank-deficient sample set)
+FIT_EMPTY = 2  # no weighted sample at all: coefficients are zero
+
+# A Cholesky pivot below this fraction of its diagonal entry marks the normal equations as
+# numerically singular (cond >~ 1e11); such texels are re-solved by an SVD least-squares solve.
+_PIVOT_RTOL = 1e-11
+# Texels per parallel work item in the fit kernel: large enough to amortise the scratch buffers.
+_FIT_CHUNK = 256
+
+
+def num_coeffs(lmax: int) -> int:
+    """K = (lmax + 1)^2: the number of real SH up to and including degree lmax."""
+    if lmax < 0:
+        raise ValueError(f"lmax must be >= 0, got {lmax}")
+    return (lmax + 1) ** 2
+
+
+def sh_degrees(lmax: int) -> np.ndarray:
+    """The degree l of each flat index: (K,) int64, e.g. [0, 1, 1, 1, 2, ...]."""
+    return np.repeat(np.arange(lmax + 1), 2 * np.arange(lmax + 1) + 1)
+
+
+def lmax_of(n_coeffs: int) -> int:
+    """Inverse of `num_coeffs`; raises ValueError when n_coeffs is not a perfect square."""
+    lmax = math.isqrt(n_coeffs) - 1
+    if lmax < 0 or num_coeffs(lmax) != n_coeffs:
+        raise ValueError(f"{n_coeffs} SH coefficients is not (lmax + 1)^2 for any lmax")
+    return lmax
+
+
+# --------------------------------------------------------------------------------------------
+# Evaluation
+
+
+@functools.lru_cache(maxsize=None)
+def _legendre_tables(lmax: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Recurrence factors for Q_lm = sqrt(2 - delta_m0) N_lm P_l^m / sin^m(theta).
+
+    diag (lmax+1,):            Q_mm = diag[m] Q_{m-1,m-1}, Q_00 = diag[0] = 1 / sqrt(4 pi)
+    a, b (lmax+1, lmax+1):     Q_lm = a[l, m] (z Q_{l-1,m} - b[l, m] Q_{l-2,m}) for l >= m + 2
+    and Q_{m+1,m} = sqrt(2m + 3) z Q_mm. The sqrt(2) of the real basis is folded into diag[1]
+    so every m > 0 inherits it through the (linear) recurrences.
+    """
+    m = np.arange(1, lmax + 1, dtype=np.float64)
+    diag = np.empty(lmax + 1)
+    diag[0] = 1.0 / math.sqrt(4.0 * math.pi)
+    diag[1:] = np.sqrt((2.0 * m + 1.0) / (2.0 * m))
+    if lmax >= 1:
+        diag[1] *= math.sqrt(2.0)
+    a = np.zeros((lmax + 1, lmax + 1))
+    b = np.zeros((lmax + 1, lmax + 1))
+    for order in range(lmax + 1):
+        for degree in range(order + 2, lmax + 1):
+            l2, m2 = degree * degree, order * order
+            a[degree, order] = math.sqrt((4.0 * l2 - 1.0) / (l2 - m2))
+            b[degree, order] = math.sqrt(((degree - 1) ** 2 - m2) / (4.0 * (degree - 1) ** 2 - 1.0))
+    return diag, a, b
+
+
+@numba.njit(fastmath=True, cache=True)
+def _sh_block(x, y, z, n, lmax, diag, rec_a, rec_b, out, scratch):
+    """All K real SH at n unit directions (x, y, z: (>= n,)), written to out[:, :n] (K, >= n).
+
+    Every loop runs over the directions innermost, so it vectorises. scratch (5, >= n) holds
+    Q_mm, the two previous Q_lm of the degree recurrence, and Re/Im (x + i y)^m.
+    """
+    q_mm, q_a, q_b, cos_m, sin_m = scratch[0], scratch[1], scratch[2], scratch[3], scratch[4]
+    for s in range(n):
+        q_mm[s] = diag[0]
+        cos_m[s] = 1.0  # Re (x + i y)^m = sin^m(theta) cos(m phi)
+        sin_m[s] = 0.0  # Im (x + i y)^m = sin^m(theta) sin(m phi)
+    for m in range(lmax + 1):
+        if m > 0:
+            for s in range(n):
+                q_mm[s] *= diag[m]
+                cos_prev = cos_m[s]
+                cos_m[s] = x[s] * cos_prev - y[s] * sin_m[s]
+                sin_m[s] = x[s] * sin_m[s] + y[s] * cos_prev
+        # q_a holds Q_{l-2,m}, q_b holds Q_{l-1,m}; the new Q_lm overwrites q_a, then they swap.
+        q_prev2, q_prev = q_a, q_b
+        for s in range(n):
+            q_prev[s] = q_mm[s]
+        for degree in range(m, lmax + 1):
+            if degree == m + 1:
+                factor = math.sqrt(2.0 * m + 3.0)
+                for s in range(n):
+                    q_prev2[s] = factor * z[s] * q_prev[s]
+                q_prev2, q_prev = q_prev, q_prev2
+            elif degree > m + 1:
+                a, b = rec_a[degree, m], rec_b[degree, m]
+                for s in range(n):
+                    q_prev2[s] = a * (z[s] * q_prev[s] - b * q_prev2[s])
+                q_prev2, q_prev = q_prev, q_prev2
+            centre = degree * degree + degree
+            if m == 0:
+                for s in range(n):
+                    out[centre, s] = q_prev[s]
+            else:
+                for s in range(n):
+                    out[centre + m, s] = q_prev[s] * cos_m[s]
+                    out[centre - m, s] = q_prev[s] * sin_m[s]
+
+
+_EVAL_BLOCK = 64  # directions per work item of eval_sh
+
+
+@numba.njit(parallel=True, fastmath=True, cache=True)
+def _eval_sh_kernel(directions, lmax, diag, rec_a, rec_b, out):
+    n_directions = directions.shape[0]
+    n_coeffs = out.shape[1]
+    for block in numba.prange((n_directions + _EVAL_BLOCK - 1) // _EVAL_BLOCK):
+        start = block * _EVAL_BLOCK
+        n = min(_EVAL_BLOCK, n_directions - start)
+        xyz = np.empty((3, _EVAL_BLOCK))
+        for s in range(n):
+            for axis in range(3):
+                xyz[axis, s] = directions[start + s, axis]
+        values = np.empty((n_coeffs, _EVAL_BLOCK))
+        _sh_block(xyz[0], xyz[1], xyz[2], n, lmax, diag, rec_a, rec_b, values, np.empty((5, _EVAL_BLOCK)))
+        for s in range(n):
+            for k in range(n_coeffs):
+                out[start + s, k] = values[k, s]
+
+
+def eval_sh(directions: np.ndarray, lmax: int) -> np.ndarray:
+    """Real SH at unit directions: (..., 3) -> (..., K), float32 for float32 input else float64.
+
+    Directions are not renormalised (off-unit input gives the harmonic polynomials' values).
+    """
+    directions = np.asarray(directions)
+    if directions.shape[-1] != 3:
+        raise ValueError(f"directions must have a trailing axis of 3, got shape {directions.shape}")
+    dtype = np.float32 if directions.dtype == np.float32 else np.float64
+    flat = np.ascontiguousarray(directions.reshape(-1, 3), dtype=dtype)
+    out = np.empty((flat.shape[0], num_coeffs(lmax)), dtype=dtype)
+    _eval_sh_kernel(flat, lmax, *_legendre_tables(lmax), out)
+    return out.reshape(directions.shape[:-1] + (out.shape[1],))
+
+
+# --------------------------------------------------------------------------------------------
+# Spectra and filters
+
+
+def power_spectrum(coeffs: np.ndarray) -> np.ndarray:
+    """S(l) = sum_m c_lm^2 (appendix eq. 17, no normalisation): (..., K) -> (..., lmax + 1)."""
+    coeffs = np.asarray(coeffs)
+    lmax = lmax_of(coeffs.shape[-1])
+    return np.add.reduceat(np.square(coeffs), np.arange(lmax + 1) ** 2, axis=-1)
+
+
+def gaussian_lowpass(coeffs: np.ndarray, sigma: float) -> np.ndarray:
+    """Multiply each degree by exp(-(sigma l)^2): (..., K) -> (..., K)."""
+    coeffs = np.asarray(coeffs)
+    degrees = sh_degrees(lmax_of(coeffs.shape[-1]))
+    return coeffs * np.exp(-np.square(sigma * degrees)).astype(np.result_type(coeffs, np.float32))
+
+
+def sphere_quadrature(degree: int) -> tuple[np.ndarray, np.ndarray]:
+    """Gauss-Legendre (in cos theta) x uniform (in phi) quadrature on the unit sphere.
+
+    Exact for polynomials of total degree <= ``degree`` restricted to the sphere, e.g. for the
+    product of two SH of degree <= degree / 2. Returns directions (N, 3) and weights (N,)
+    summing to 4 pi, N = (degree // 2 + 1) (degree + 1).
+    """
+    cos_theta, gl_weights = np.polynomial.legendre.leggauss(degree // 2 + 1)
+    n_phi = degree + 1
+    phi = 2.0 * np.pi * np.arange(n_phi) / n_phi
+    sin_theta = np.sqrt(1.0 - cos_theta**2)
+    directions = np.stack(
+        [
+            np.outer(sin_theta, np.cos(phi)),
+            np.outer(sin_theta, np.sin(phi)),
+            np.repeat(cos_theta[:, None], n_phi, axis=1),
+        ],
+        axis=-1,
+    ).reshape(-1, 3)
+    weights = np.repeat(gl_weights * (2.0 * np.pi / n_phi), n_phi)
+    return directions, weights
+
+
+def rotation_matrix_sh(rotation: np.ndarray, lmax: int) -> np.ndarray:
+    """The (K, K) block-diagonal matrix D with rotate_sh(c, rotation) = c @ D.T.
+
+    D[j, i] = integral of Y_j(w) Y_i(R^T w) dw, computed with a quadrature that is exact for these
+    degree-2 lmax products, so it is exact to rounding for any degree.
+    """
+    rotation = np.asarray(rotation, dtype=np.float64)
+    if rotation.shape != (3, 3):
+        raise ValueError(f"rotation must be (3, 3), got {rotation.shape}")
+    if not np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-6) or np.linalg.det(rotation) < 0:
+        raise ValueError("rotation must be a proper rotation matrix (orthonormal, det +1)")
+    directions, weights = sphere_quadrature(2 * lmax)
+    basis = eval_sh(directions, lmax)  # (N, K)
+    rotated_basis = eval_sh(directions @ rotation, lmax)  # (N, K): Y_i(R^T w_n)
+    matrix = (basis * weights[:, None]).T @ rotated_basis
+    degrees = sh_degrees(lmax)
+    matrix[degrees[:, None] != degrees[None, :]] = 0.0  # rotations never mix degrees
+    return matrix
+
+
+def rotate_sh(coeffs: np.ndarray, rotation: np.ndarray) -> np.ndarray:
+    """Coefficients of the rotated function g(w) = f(R^T w): (..., K) -> (..., K).
+
+    ``rotation`` (3, 3) maps directions of f's frame to g's frame (g(R w) = f(w)), e.g. an
+    object-to-world rotation turns object-frame coefficients into world-frame ones.
+    """
+    coeffs = np.asarray(coeffs)
+    matrix = rotation_matrix_sh(rotation, lmax_of(coeffs.shape[-1]))
+    return coeffs @ matrix.T.astype(np.result_type(coeffs, np.float32))
+
+
+# --------------------------------------------------------------------------------------------
+# Regularised least-squares fit (appendix eqs. 19-20, App. B)
+
+
+@dataclass
+class SHFit:
+    coeffs: np.ndarray  # (T, C, K) float32 when all inputs are float32, else float64
+    n_samples: np.ndarray  # (T,) int32: samples with positive weight and finite data
+    status: np.ndarray  # (T,) uint8: FIT_OK, FIT_UNDERDETERMINED or FIT_EMPTY
+
+
+def regulariser_weights(lmax: int, regulariser: RegulariserKind) -> np.ndarray:
+    """reg(l) per flat index (K,): e^l ("exponential", the paper's), 1 ("constant"), 0 ("none")."""
+    degrees = sh_degrees(lmax).astype(np.float64)
+    if regulariser == "exponential":
+        return np.exp(degrees)
+    if regulariser == "constant":
+        return np.ones_like(degrees)
+    if regulariser == "none":
+        return np.zeros_like(degrees)
+    raise ValueError(f"unknown regulariser {regulariser!r}; choose 'exponential', 'constant' or 'none'")
+
+
+@numba.njit(parallel=True, fastmath=True, cache=True)
+def _fit_kernel(
+    directions, weights, values, lmax, diag, rec_a, rec_b, reg, reg_lambda, scale_by_weight,
+    coeffs, n_samples, solved,
+):
+    """Per texel: assemble the regularised normal equations in float64, Cholesky, solve all C.
+
+    The weighted design matrix is kept transposed, (K, V) with only the n valid samples, so the
+    Gram entries and right-hand sides are contiguous dot products. ``solved[t]`` is False when
+    the Cholesky factorisation met a (numerically) non-positive pivot.
+    """
+    n_texels, n_views = weights.shape
+    n_channels = values.shape[2]
+    n_coeffs = reg.shape[0]
+    n_chunks = (n_texels + _FIT_CHUNK - 1) // _FIT_CHUNK
+    for chunk in numba.prange(n_chunks):
+        xyz = np.empty((3, n_views))  # the texel's usable sample directions
+        sample_weights = np.empty(n_views)
+        scratch = np.empty((5, n_views))
+        design = np.empty((n_coeffs, n_views))  # (K, V): w_i Y_k(w_i)
+        targets = np.empty((n_channels, n_views))  # (C, V): w_i f_i
+        gram = np.empty((n_coeffs, n_coeffs))  # lower triangle, overwritten by its Cholesky factor
+        solution = np.empty(n_coeffs)
+        for t in range(chunk * _FIT_CHUNK, min((chunk + 1) * _FIT_CHUNK, n_texels)):
+            n = 0
+            weight_sq_sum = 0.0
+            for v in range(n_views):
+                w = np.float64(weights[t, v])
+                usable = w > 0.0
+                for axis in range(3):
+                    usable = usable and np.isfinite(directions[t, v, axis])
+                for c in range(n_channels):
+                    usable = usable and np.isfinite(values[t, v, c])
+                if not usable:
+                    continue
+                for axis in range(3):
+                    xyz[axis, n] = directions[t, v, axis]
+                for c in range(n_channels):
+                    targets[c, n] = w * values[t, v, c]
+                sample_weights[n] = w
+                weight_sq_sum += w * w
+                n += 1
+            _sh_block(xyz[0], xyz[1], xyz[2], n, lmax, diag, rec_a, rec_b, design, scratch)
+            for k in range(n_coeffs):
+                for s in range(n):
+                    design[k, s] *= sample_weights[s]
+            n_samples[t] = n
+            if n == 0:
+                for c in range(n_channels):
+                    for k in range(n_coeffs):
+                        coeffs[t, c, k] = 0.0
+                solved[t] = True
+                continue
+            lam = reg_lambda * weight_sq_sum if scale_by_weight else reg_lambda
+            for i in range(n_coeffs):
+                for j in range(i + 1):
+                    acc = 0.0
+                    for s in range(n):
+                        acc += design[i, s] * design[j, s]
+                    gram[i, j] = acc
+                gram[i, i] += lam * reg[i]
+            # In-place Cholesky G = L L^T (lower triangle).
+            ok = True
+            for j in range(n_coeffs):
+                pivot = gram[j, j]
+                for k in range(j):
+                    pivot -= gram[j, k] * gram[j, k]
+                if not pivot > _PIVOT_RTOL * gram[j, j]:
+                    ok = False
+                    break
+                gram[j, j] = math.sqrt(pivot)
+                for i in range(j + 1, n_coeffs):
+                    acc = gram[i, j]
+                    for k in range(j):
+                        acc -= gram[i, k] * gram[j, k]
+                    gram[i, j] = acc / gram[j, j]
+            solved[t] = ok
+            if not ok:
+                continue
+            for c in range(n_channels):
+                for i in range(n_coeffs):  # forward: L y = Y^T W^2 f
+                    acc = 0.0
+                    for s in range(n):
+                        acc += design[i, s] * targets[c, s]
+                    for k in range(i):
+                        acc -= gram[i, k] * solution[k]
+                    solution[i] = acc / gram[i, i]
+                for i in range(n_coeffs - 1, -1, -1):  # backward: L^T c = y
+                    acc = solution[i]
+                    for k in range(i + 1, n_coeffs):
+                        acc -= gram[k, i] * solution[k]
+                    solution[i] = acc / gram[i, i]
+                for k in range(n_coeffs):
+                    coeffs[t, c, k] = solution[k]
+
+
+def _solve_by_svd(directions, weights, values, lmax, reg_lambda, reg, scale_lambda_with_weight):
+    """Min-norm solution of one texel's regularised problem by SVD least squares.
+
+    directions (V, 3), weights (V,), values (V, C). Stacks [w Y; sqrt(lambda_eff reg)] against
+    [w f; 0]; with no regulariser this is the minimum-norm weighted least-squares solution.
+    Returns coeffs (C, K) and the numerical rank of the stacked system.
+    """
+    usable = (weights > 0) & np.isfinite(directions).all(-1) & np.isfinite(values).all(-1)
+    w = weights[usable].astype(np.float64)
+    lam = reg_lambda * np.sum(w * w) if scale_lambda_with_weight else reg_lambda
+    reg_diagonal = lam * reg
+    design = eval_sh(directions[usable].astype(np.float64), lmax) * w[:, None]  # (n, K)
+    targets = values[usable].astype(np.float64) * w[:, None]  # (n, C)
+    design = np.concatenate([design, np.diag(np.sqrt(reg_diagonal))], axis=0)
+    targets = np.concatenate([targets, np.zeros((reg_diagonal.shape[0], targets.shape[1]))], axis=0)
+    solution, _, rank, _ = np.linalg.lstsq(design, targets, rcond=None)
+    return solution.T, rank
+
+
+def fit_sh(
+    directions: np.ndarray,
+    weights: np.ndarray,
+    values: np.ndarray,
+    lmax: int,
+    reg_lambda: float,
+    regulariser: RegulariserKind = "exponential",
+    scale_lambda_with_weight: bool = True,
+) -> SHFit:
+    """Per-texel weighted, degree-regularised SH least squares.
+
+    Minimises, per texel and channel c,
+
+        sum_i w_i^2 (sum_k x_ck Y_k(d_i) - f_ic)^2 + lambda_eff sum_k reg(l_k) x_ck^2,
+
+    with reg(l) = e^l, 1 or 0 (`regulariser_weights`) and lambda_eff = reg_lambda * sum_i w_i^2
+    when ``scale_lambda_with_weight`` (the penalty then has the same strength relative to the data
+    term whatever the number of views or their weights: doubling every sample leaves the solution
+    unchanged) or lambda_eff = reg_lambda otherwise (the paper's absolute lambda).
+
+    directions (T, V, 3) unit; weights (T, V), a sample counts only where w > 0 (and its direction
+    and values are finite); values (T, V, C). The normal equations (Y^T W^2 Y + lambda_eff R) are
+    factorised once per texel (Cholesky, float64) and serve all C right-hand sides.
+
+    Robustness: a texel without samples gets zeros and FIT_EMPTY; one with fewer samples than K
+    gets FIT_UNDERDETERMINED (its regularised solution is still well defined). Where the normal
+    equations are numerically singular (no regulariser and too few or degenerate samples), the
+    texel is solved by SVD least squares instead, which returns the minimum-norm solution, and is
+    flagged FIT_UNDERDETERMINED when that system is rank deficient.
+    """
+    directions = np.asarray(directions)
+    weights = np.asarray(weights)
+    values = np.asarray(values)
+    if directions.ndim != 3 or directions.shape[-1] != 3:
+        raise ValueError(f"directions must be (T, V, 3), got {directions.shape}")
+    if weights.shape != directions.shape[:2] or values.shape[:2] != directions.shape[:2] or values.ndim != 3:
+        raise ValueError(
+            f"shape mismatch: directions {directions.shape}, weights {weights.shape}, values {values.shape}"
+        )
+    if reg_lambda < 0:
+        raise ValueError(f"reg_lambda must be >= 0, got {reg_lambda}")
+    reg = regulariser_weights(lmax, regulariser)
+    n_texels, _ = weights.shape
+    n_coeffs = num_coeffs(lmax)
+    all_float32 = all(a.dtype == np.float32 for a in (directions, weights, values))
+    out_dtype = np.float32 if all_float32 else np.float64
+
+    def as_kernel_input(array):
+        # float32 and float64 pass through without a copy; anything else becomes float64
+        return np.ascontiguousarray(array if array.dtype in (np.float32, np.float64) else array.astype(np.float64))
+
+    coeffs = np.empty((n_texels, values.shape[2], n_coeffs), dtype=out_dtype)
+    n_samples = np.empty(n_texels, dtype=np.int32)
+    solved = np.empty(n_texels, dtype=np.bool_)
+    _fit_kernel(
+        as_kernel_input(directions), as_kernel_input(weights), as_kernel_input(values),
+        lmax, *_legendre_tables(lmax), reg, float(reg_lambda), bool(scale_lambda_with_weight),
+        coeffs, n_samples, solved,
+    )
+    status = np.where(n_samples == 0, FIT_EMPTY, np.where(n_samples < n_coeffs, FIT_UNDERDETERMINED, FIT_OK))
+    status = status.astype(np.uint8)
+    for t in np.flatnonzero(~solved):
+        coeffs[t], rank = _solve_by_svd(
+            directions[t], weights[t], values[t], lmax, reg_lambda, reg, scale_lambda_with_weight
+        )
+        if rank < n_coeffs:
+            status[t] = max(status[t], FIT_UNDERDETERMINED)
+    return SHFit(coeffs=coeffs, n_samples=n_samples, status=status)

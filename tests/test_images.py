@@ -1,0 +1,247 @@
+"""Image I/O: EXR / Radiance HDR / PNG round trips, cross-checks, bad input, atomic writes."""
+
+import warnings
+
+import numpy as np
+import OpenEXR
+import pytest
+
+from freqbrdf.errors import InputError
+from freqbrdf.images import (
+    linear_to_srgb,
+    read_image,
+    read_mask,
+    srgb_to_linear,
+    write_exr,
+    write_hdr,
+    write_png,
+)
+
+
+def hdr_test_image(height=37, width=53, seed=0):
+    """Radiance over five decades, with constant rows (long runs) and black pixels."""
+    rng = np.random.default_rng(seed)
+    radiance = (rng.random((height, width, 3)) ** 6 * 1e4).astype(np.float32)
+    radiance[3:9] = 2.5
+    radiance[10, :10] = 0.0
+    return radiance
+
+
+def exr_channels(path):
+    with OpenEXR.File(str(path), separate_channels=True) as exr:
+        return {name: channel.pixels for name, channel in exr.channels().items()}
+
+
+# --- EXR -------------------------------------------------------------------------------------
+
+
+def test_exr_float_rgb_round_trip_is_exact(tmp_path):
+    radiance = hdr_test_image()
+    write_exr(tmp_path / "a.exr", radiance)
+    assert sorted(exr_channels(tmp_path / "a.exr")) == ["B", "G", "R"]
+    back = read_image(tmp_path / "a.exr")
+    assert back.dtype == np.float32 and back.shape == radiance.shape
+    np.testing.assert_array_equal(back, radiance)
+
+
+def test_exr_half_and_single_channel(tmp_path):
+    grey = hdr_test_image()[..., 0].astype(np.float16)
+    write_exr(tmp_path / "y.exr", grey[..., None])
+    channels = exr_channels(tmp_path / "y.exr")
+    assert list(channels) == ["Y"] and channels["Y"].dtype == np.float16
+    back = read_image(tmp_path / "y.exr")
+    assert back.shape == grey.shape + (3,)
+    for channel in range(3):
+        np.testing.assert_array_equal(back[..., channel], grey.astype(np.float32))
+
+
+def test_exr_rgba_drops_alpha_and_single_odd_channel_is_grey(tmp_path):
+    rng = np.random.default_rng(1)
+    planes = {name: rng.random((6, 7)).astype(np.float32) for name in "RGBA"}
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    with OpenEXR.File(header, dict(planes)) as exr:  # File() swaps in Channel objects
+        exr.write(str(tmp_path / "rgba.exr"))
+    back = read_image(tmp_path / "rgba.exr")
+    np.testing.assert_array_equal(back, np.stack([planes[c] for c in "RGB"], axis=2))
+    with OpenEXR.File(header, {"Z": planes["A"]}) as exr:
+        exr.write(str(tmp_path / "z.exr"))
+    np.testing.assert_array_equal(read_image(tmp_path / "z.exr")[..., 2], planes["A"])
+    np.testing.assert_array_equal(read_mask(tmp_path / "rgba.exr"), planes["A"] > 0.5)
+
+
+# --- Radiance HDR ------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("width", [53, 5])  # 5 < 8: written flat, not run-length encoded
+def test_hdr_round_trip_within_rgbe_precision(tmp_path, width):
+    radiance = hdr_test_image(width=width)
+    write_hdr(tmp_path / "a.hdr", radiance)
+    back = read_image(tmp_path / "a.hdr")
+    assert back.shape == radiance.shape and back.dtype == np.float32
+    # Shared exponent, 8-bit mantissas, centre-of-bin decoding: error <= 1/256 of the brightest
+    # channel of the pixel.
+    brightest = radiance.max(axis=2, keepdims=True)
+    assert np.all(np.abs(back - radiance) <= brightest / 256 * 1.0001)
+    assert np.all(back[10, :10] == 0)
+
+
+def test_hdr_run_length_encoding_compresses_constant_rows(tmp_path):
+    flat = np.full((16, 64, 3), 0.75, dtype=np.float32)
+    write_hdr(tmp_path / "flat.hdr", flat)
+    assert (tmp_path / "flat.hdr").stat().st_size < 16 * 64 * 4 / 10
+    np.testing.assert_allclose(read_image(tmp_path / "flat.hdr"), flat, rtol=1 / 256)
+
+
+def test_hdr_decodes_hand_made_run_length_scanline(tmp_path):
+    # One 8-pixel scanline, each channel coded per the Radiance spec: R a run of 8 x 64,
+    # G 8 literals, B a run of 4 then 4 literals, E a run of 8 x 129 (exponent 1).
+    green = list(range(10, 90, 10))
+    scanline = [2, 2, 0, 8, 128 + 8, 64, 8, *green, 128 + 4, 0, 4, 1, 2, 3, 4, 128 + 8, 129]
+    (tmp_path / "hand.hdr").write_bytes(
+        b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\nEXPOSURE=2\n\n-Y 1 +X 8\n" + bytes(scanline)
+    )
+    expected_mantissas = np.stack([[64] * 8, green, [0, 0, 0, 0, 1, 2, 3, 4]], axis=1)
+    expected = (expected_mantissas + 0.5) * 2.0 ** (129 - 136) / 2  # EXPOSURE divides out
+    np.testing.assert_allclose(read_image(tmp_path / "hand.hdr")[0], expected, rtol=1e-6)
+
+
+def test_hdr_agrees_with_mitsuba_bitmap(tmp_path):
+    """An independent RGBE implementation (Mitsuba's) reads our files and writes ones we read."""
+    import mitsuba as mi  # Bitmap I/O needs no variant
+
+    radiance = hdr_test_image()
+    brightest = radiance.max(axis=2, keepdims=True)
+    write_hdr(tmp_path / "ours.hdr", radiance)
+    # Mitsuba decodes without the half-bin offset: allow one full mantissa step.
+    theirs = np.array(mi.Bitmap(str(tmp_path / "ours.hdr")))
+    assert np.all(np.abs(theirs - radiance) <= brightest / 128 * 1.0001)
+    mi.Bitmap(radiance).write(str(tmp_path / "mitsuba.hdr"))
+    assert np.all(np.abs(read_image(tmp_path / "mitsuba.hdr") - radiance) <= brightest / 128)
+
+
+# --- PNG / JPEG and sRGB --------------------------------------------------------------------------
+
+
+def test_srgb_transfer_functions():
+    linear = np.linspace(0, 1, 1001, dtype=np.float32)
+    np.testing.assert_allclose(srgb_to_linear(linear_to_srgb(linear)), linear, atol=1e-6)
+    # Reference points of IEC 61966-2-1 and continuity at the linear segment's end.
+    np.testing.assert_allclose(linear_to_srgb(np.array([0.0, 0.18, 0.5, 1.0])),
+                               [0.0, 0.46135613, 0.73535698, 1.0], atol=1e-6)
+    below, above = srgb_to_linear(np.array([0.04045 - 1e-6, 0.04045 + 1e-6]))
+    assert abs(above - below) < 1e-6
+    assert np.all(np.diff(linear_to_srgb(linear)) > 0)
+
+
+def test_png_round_trip_linearises_with_warning(tmp_path):
+    linear = np.clip(hdr_test_image()[..., :3] / 1e4, 0, 1)
+    write_png(tmp_path / "a.png", linear_to_srgb(linear))
+    with pytest.warns(UserWarning, match=r"a\.png.*HDR"):
+        back = read_image(tmp_path / "a.png")
+    assert back.shape == linear.shape and back.dtype == np.float32
+    quantised = np.round(linear_to_srgb(linear) * 255) / 255
+    np.testing.assert_allclose(back, srgb_to_linear(quantised), atol=1e-6)
+
+
+def test_grey_png_and_jpeg_read_as_rgb(tmp_path):
+    from PIL import Image
+
+    grey = np.tile(np.arange(0, 256, 4, dtype=np.uint8), (8, 1))
+    Image.fromarray(grey).save(tmp_path / "g.png")
+    Image.fromarray(np.stack([grey] * 3, axis=2)).save(tmp_path / "g.jpg", quality=95)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        png, jpeg = read_image(tmp_path / "g.png"), read_image(tmp_path / "g.jpg")
+    assert png.shape == jpeg.shape == (8, 64, 3)
+    np.testing.assert_allclose(png[..., 1], srgb_to_linear(grey / 255.0), atol=1e-6)
+    np.testing.assert_allclose(jpeg, png, atol=0.03)  # JPEG is lossy
+
+
+def test_read_mask_from_grey_and_alpha(tmp_path):
+    from PIL import Image
+
+    inside = np.zeros((10, 12), dtype=bool)
+    inside[2:7, 3:9] = True
+    Image.fromarray(np.where(inside, 255, 0).astype(np.uint8)).save(tmp_path / "m.png")
+    np.testing.assert_array_equal(read_mask(tmp_path / "m.png"), inside)
+    rgba = np.zeros((10, 12, 4), dtype=np.uint8)
+    rgba[..., :3] = 255  # white everywhere: the alpha channel carries the mask
+    rgba[..., 3] = np.where(inside, 255, 0)
+    Image.fromarray(rgba).save(tmp_path / "cutout.png")
+    np.testing.assert_array_equal(read_mask(tmp_path / "cutout.png"), inside)
+
+
+# --- bad input ----------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", ["a.exr", "a.hdr", "a.png", "a.jpg"])
+def test_missing_and_corrupt_files_raise_input_error(tmp_path, name):
+    with pytest.raises(InputError, match=name.replace(".", r"\.") + ".*does not exist"):
+        read_image(tmp_path / name)
+    (tmp_path / name).write_bytes(b"#?RADIANCE\n" + bytes(range(256)) * 3)
+    with pytest.raises(InputError, match=name.replace(".", r"\.")) as err:
+        read_image(tmp_path / name)
+    assert err.value.path == tmp_path / name
+
+
+def test_truncated_files_raise_input_error(tmp_path):
+    write_exr(tmp_path / "t.exr", hdr_test_image())
+    write_hdr(tmp_path / "t.hdr", hdr_test_image())
+    for path in (tmp_path / "t.exr", tmp_path / "t.hdr"):
+        path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+        with pytest.raises(InputError, match=path.name):
+            read_image(path)
+
+
+def test_unsupported_extension(tmp_path):
+    (tmp_path / "a.tif").write_bytes(b"II*\0")
+    with pytest.raises(InputError, match=r"a\.tif.*unsupported image type '\.tif'"):
+        read_image(tmp_path / "a.tif")
+
+
+def test_validate_reports_count_and_first_bad_pixel(tmp_path):
+    radiance = np.ones((5, 6, 3), dtype=np.float32)
+    radiance[1, 4, 2] = np.nan
+    radiance[3, 0, 0] = np.inf
+    radiance[2, 5, 1] = -0.5
+    write_exr(tmp_path / "bad.exr", radiance)
+    assert np.isnan(read_image(tmp_path / "bad.exr")[1, 4, 2])  # without validate: as stored
+    with pytest.raises(InputError) as err:
+        read_image(tmp_path / "bad.exr", validate=True)
+    message = str(err.value)
+    assert "bad.exr" in message
+    assert "2 non-finite pixel(s), first at row 1, column 4" in message
+    assert "1 negative pixel(s), first at row 2, column 5" in message
+
+
+# --- atomic writes -------------------------------------------------------------------------------
+
+
+def test_failed_writes_leave_nothing_behind(tmp_path, monkeypatch):
+    target = tmp_path / "out.exr"
+    write_exr(target, np.zeros((4, 4, 3), np.float32))
+    before = target.read_bytes()
+
+    def broken_write(self, filename):
+        open(filename, "wb").write(b"partial")
+        raise RuntimeError("disk full")
+
+    monkeypatch.setattr(OpenEXR.File, "write", broken_write)
+    with pytest.raises(RuntimeError, match="disk full"):
+        write_exr(target, np.ones((4, 4, 3), np.float32))
+    assert target.read_bytes() == before  # the old file survives intact
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.exr"]  # no temporary left
+
+    with pytest.raises(ValueError):
+        write_exr(tmp_path / "two.exr", np.zeros((4, 4, 2), np.float32))
+    with pytest.raises(ValueError):
+        write_hdr(tmp_path / "neg.hdr", -np.ones((4, 4, 3), np.float32))
+    with pytest.raises(ValueError):
+        write_png(tmp_path / "five.png", np.zeros((4, 4, 5), np.float32))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.exr"]
+
+
+def test_writers_create_parent_folders(tmp_path):
+    write_png(tmp_path / "a" / "b" / "c.png", np.full((3, 3), 0.5))
+    write_hdr(tmp_path / "d" / "e.hdr", np.ones((3, 9, 3)))
+    assert (tmp_path / "a" / "b" / "c.png").is_file() and (tmp_path / "d" / "e.hdr").is_file()
