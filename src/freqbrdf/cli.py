@@ -6,6 +6,7 @@ import sys
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 
 from freqbrdf import __version__
 from freqbrdf.errors import InputError
@@ -42,13 +43,56 @@ def demo(out: str = typer.Option("out/demo", help="Output folder.")) -> None:
     raise typer.Exit(1)
 
 
+@app.command()
+def info(capture: str = typer.Argument(..., help="Capture folder or its transforms file.")) -> None:
+    """Summarise a capture: views, resolution, mesh, environment map, test set, ground truth."""
+    from rich.table import Table
+
+    from freqbrdf.capture import describe, load  # here: its imports would slow every command
+
+    table = Table(show_header=False, box=None)
+    for topic, text in describe(load(capture)):
+        table.add_row(f"[bold]{topic}[/bold]", escape(text))
+    Console().print(table)
+
+
+@app.command()
+def synth(
+    out: str = typer.Argument(..., help="Output folder (replaced as a whole when done)."),
+    mesh: str = typer.Option("bunny", help="Bundled mesh (plane, sphere, bunny) or a mesh file."),
+    envmap: str = typer.Option("forest", help="Bundled environment map name or an EXR/HDR file."),
+    materials: str = typer.Option("bands", help="Bundled material set or a material folder."),
+    views: int = typer.Option(32, help="Number of training views."),
+    resolution: int = typer.Option(256, help="Image width and height in pixels."),
+    spp: int = typer.Option(64, help="Samples per pixel."),
+    texture_res: int = typer.Option(512, help="Ground-truth texture resolution."),
+    cameras: str = typer.Option("hemisphere", help="hemisphere, sphere (Fibonacci) or random."),
+    seed: int = typer.Option(0, help="Seed of random cameras, test maps and render noise."),
+    test_envmaps: str = typer.Option("2", help="Test maps: names/paths 'A,B', or a count K."),
+    test_views: int = typer.Option(8, help="Number of test (relighting) views."),
+    format: str = typer.Option("ours", help="ours, or orb (the Stanford-ORB layout)."),
+) -> None:
+    """Render a synthetic capture of a known object with Mitsuba 3 (with ground truth)."""
+    from freqbrdf.synth import SynthSettings, synthesize  # imported here: it loads Mitsuba
+
+    settings = SynthSettings(
+        mesh=mesh, envmap=envmap, materials=materials, views=views, resolution=resolution,
+        spp=spp, texture_res=texture_res, cameras=cameras, seed=seed,
+        test_envmaps=int(test_envmaps) if test_envmaps.isdigit() else tuple(test_envmaps.split(",")),
+        test_views=test_views, format=format,
+    )
+    path = synthesize(out, settings)
+    Console().print(f"capture written to {escape(str(path))}")
+
+
 def main() -> None:
     try:
         app()
     except InputError as err:
         if _state["debug"]:
             raise
-        err_console.print(f"[red]error:[/red] {err}", highlight=False, soft_wrap=True)
+        # escape: file names may contain brackets, which rich would take for markup
+        err_console.print(f"[red]error:[/red] {escape(str(err))}", highlight=False, soft_wrap=True)
         sys.exit(2)
 
 

@@ -1,0 +1,263 @@
+"""Distant environment lighting in Mitsuba 3's ``envmap`` emitter convention, and its SH.
+
+Mitsuba 3.9 convention (read in src/emitters/envmap.cpp and verified against the emitter's
+``eval`` in tests/test_envmap.py). In the emitter's local frame a direction d, the direction
+light arrives FROM, has
+
+    u = atan2(d.x, -d.z) / (2 pi) wrapped into [0, 1),    v = acos(d.y) / pi,
+
+and the emitter's to_world maps local directions to world ones. The bitmap is not resampled:
+Mitsuba only appends periodic copies of the first/last column. Column j is centred at
+u = (j + 0.5) / W, while row i sits at v = i / (H - 1), so the first and last rows lie ON the poles.
+Radiance is bilinear between these samples, periodic in u.
+
+For spherical harmonics the map is read as samples on a Clenshaw-Curtis grid (rings at
+theta_i = pi i / (H - 1), both poles included) in the frame E with polar axis = local +y; see
+`_EMITTER_FROM_SH_FRAME`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import ducc0
+import numba
+import numpy as np
+
+from freqbrdf import sh
+from freqbrdf.errors import InputError
+
+# Degree for irradiance from SH: the clamped-cosine kernel's even coefficients decay like
+# l^(-5/2), so truncating at 20 leaves well under 1 % error for captured HDR maps (the test with
+# a bright, sharp-edged source measures the residual).
+IRRADIANCE_LMAX = 20
+
+# Columns are the axes of the SH frame E (polar axis z_E = local +y) in emitter-local coordinates:
+# x_E = -z_local, y_E = -x_local, z_E = +y_local (a proper rotation). A local direction with
+# Mitsuba angles (theta, phi_m) has E-frame azimuth phi_E = -phi_m.
+_EMITTER_FROM_SH_FRAME = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [-1.0, 0.0, 0.0]])
+
+
+@dataclass
+class Envmap:
+    radiance: np.ndarray  # (H, W, 3) float32 linear radiance, row 0 at the top (north pole, +y)
+    to_world: np.ndarray = field(default_factory=lambda: np.eye(4))  # (4, 4) emitter-to-world
+
+    def __post_init__(self):
+        self.radiance = np.ascontiguousarray(self.radiance, dtype=np.float32)
+        self.to_world = np.asarray(self.to_world, dtype=np.float64)
+        if self.radiance.ndim != 3 or self.radiance.shape[2] != 3 or min(self.radiance.shape[:2]) < 2:
+            raise ValueError(f"radiance must be (H, W, 3) with H, W >= 2, got {self.radiance.shape}")
+        if self.to_world.shape != (4, 4):
+            raise ValueError(f"to_world must be (4, 4), got {self.to_world.shape}")
+        rotation = self.rotation
+        if not np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-6) or np.linalg.det(rotation) < 0:
+            # Mitsuba would not renormalise a scaled direction before acos(d.y): only rotations
+            # keep the lat-long mapping meaningful.
+            raise ValueError("the linear part of to_world must be a rotation")
+
+    @property
+    def rotation(self) -> np.ndarray:
+        """The (3, 3) emitter-to-world rotation (translation is irrelevant for directions)."""
+        return self.to_world[:3, :3]
+
+
+def load_envmap(path: str | Path, to_world: np.ndarray | None = None) -> Envmap:
+    """Read an equirectangular HDR map (EXR or Radiance HDR) with a 2:1 aspect ratio.
+
+    Negative values, which lossy HDR encodings produce near black, are clamped to zero;
+    non-finite pixels are an InputError.
+    """
+    from freqbrdf.images import read_image
+
+    radiance = read_image(path)
+    height, width = radiance.shape[:2]
+    if width != 2 * height:
+        raise InputError(path, f"environment map must be 2:1 (width = 2 x height), got {width}x{height}")
+    if not np.isfinite(radiance).all():
+        raise InputError(path, f"{int(np.sum(~np.isfinite(radiance)))} non-finite values in the environment map")
+    return Envmap(np.maximum(radiance, 0.0), np.eye(4) if to_world is None else to_world)
+
+
+# --------------------------------------------------------------------------------------------
+# Lookup
+
+
+@numba.njit(parallel=True, fastmath=False, cache=True)
+def _lookup_kernel(radiance, world_to_local, directions, out):
+    height, width = radiance.shape[0], radiance.shape[1]
+    for n in numba.prange(directions.shape[0]):
+        dx, dy, dz = directions[n, 0], directions[n, 1], directions[n, 2]
+        lx = world_to_local[0, 0] * dx + world_to_local[0, 1] * dy + world_to_local[0, 2] * dz
+        ly = world_to_local[1, 0] * dx + world_to_local[1, 1] * dy + world_to_local[1, 2] * dz
+        lz = world_to_local[2, 0] * dx + world_to_local[2, 1] * dy + world_to_local[2, 2] * dz
+        u = math.atan2(lx, -lz) / (2.0 * math.pi)
+        u -= math.floor(u)
+        v = math.acos(min(max(ly, -1.0), 1.0)) / math.pi
+        x = u * width - 0.5  # column centres at u = (j + 0.5) / W
+        col = math.floor(x)
+        fx = x - col
+        col0 = int(col) % width
+        col1 = (col0 + 1) % width
+        y = v * (height - 1)  # rows at v = i / (H - 1)
+        row0 = min(int(y), height - 2)
+        fy = y - row0
+        for c in range(3):
+            top = (1.0 - fx) * radiance[row0, col0, c] + fx * radiance[row0, col1, c]
+            bottom = (1.0 - fx) * radiance[row0 + 1, col0, c] + fx * radiance[row0 + 1, col1, c]
+            out[n, c] = (1.0 - fy) * top + fy * bottom
+
+
+def lookup(envmap: Envmap, directions_world: np.ndarray) -> np.ndarray:
+    """Radiance arriving FROM unit world directions (..., 3) -> (..., 3) float32.
+
+    Exactly what Mitsuba's envmap emitter ``eval`` returns for a ray travelling along
+    -direction (bilinear, same sample positions), up to float32 rounding.
+    """
+    directions_world = np.asarray(directions_world)
+    if directions_world.shape[-1] != 3:
+        raise ValueError(f"directions must have a trailing axis of 3, got {directions_world.shape}")
+    flat = np.ascontiguousarray(directions_world.reshape(-1, 3), dtype=np.float64)
+    out = np.empty(flat.shape, dtype=np.float32)
+    _lookup_kernel(envmap.radiance, np.ascontiguousarray(envmap.rotation.T), flat, out)
+    return out.reshape(directions_world.shape)
+
+
+# --------------------------------------------------------------------------------------------
+# Spherical harmonics
+
+
+def _ducc_index(lmax: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For every flat real index: degree l, order m, and the index of a_l|m| in ducc0's layout."""
+    degrees = sh.sh_degrees(lmax)
+    orders = np.arange(sh.num_coeffs(lmax)) - degrees * (degrees + 1)
+    abs_orders = np.abs(orders)
+    # healpy-style storage: m-major, a_lm at m (2 lmax + 1 - m) / 2 + l
+    return degrees, orders, abs_orders * (2 * lmax + 1 - abs_orders) // 2 + degrees
+
+
+def _complex_to_real(alm: np.ndarray, lmax: int) -> np.ndarray:
+    """ducc0 complex a_lm (..., n_alm) of a real function -> our real coefficients (..., K).
+
+    ducc0's harmonics carry the Condon-Shortley phase, ours do not:
+    c_l0 = Re a_l0, c_lm = sqrt(2) (-1)^m Re a_lm, c_l,-m = -sqrt(2) (-1)^m Im a_lm (m > 0).
+    """
+    _, orders, index = _ducc_index(lmax)
+    picked = alm[..., index]
+    sign = np.where(np.abs(orders) % 2 == 1, -math.sqrt(2.0), math.sqrt(2.0))
+    return np.where(orders == 0, picked.real, np.where(orders > 0, sign * picked.real, -sign * picked.imag))
+
+
+def _real_to_complex(coeffs: np.ndarray, lmax: int) -> np.ndarray:
+    """Inverse of `_complex_to_real`: (..., K) -> (..., n_alm) complex128."""
+    degrees, orders, index = _ducc_index(lmax)
+    n_alm = (lmax + 1) * (lmax + 2) // 2
+    alm = np.zeros(coeffs.shape[:-1] + (n_alm,), dtype=np.complex128)
+    sign = np.where(np.abs(orders) % 2 == 1, -1.0, 1.0) / math.sqrt(2.0)
+    zonal, positive, negative = orders == 0, orders > 0, orders < 0
+    alm[..., index[zonal]] = coeffs[..., zonal]
+    alm[..., index[positive]] += sign[positive] * coeffs[..., positive]
+    alm[..., index[negative]] += -1j * sign[negative] * coeffs[..., negative]
+    return alm
+
+
+def _check_resolution(height: int, width: int, lmax: int) -> None:
+    if lmax > height - 2 or 2 * lmax + 1 > width:
+        raise ValueError(
+            f"a {width}x{height} map resolves degrees up to {min(height - 2, (width - 1) // 2)}, not {lmax}"
+        )
+
+
+def envmap_sh(envmap: Envmap, lmax: int) -> np.ndarray:
+    """SH coefficients (K, 3) float64 of the map in the WORLD frame (`freqbrdf.sh` basis).
+
+    The map is read as samples on a Clenshaw-Curtis grid (Mitsuba's rows sit on theta =
+    pi i / (H - 1)) and transformed exactly for its band limit with ducc0, then rotated from
+    the emitter's SH frame into the world frame. Needs lmax <= H - 2 and 2 lmax + 1 <= W.
+    """
+    height, width = envmap.radiance.shape[:2]
+    _check_resolution(height, width, lmax)
+    # Reversed columns run with increasing phi_E = 2 pi (j' + 0.5) / W.
+    sh_frame_maps = np.ascontiguousarray(envmap.radiance[:, ::-1, :].transpose(2, 0, 1), dtype=np.float64)
+    coeffs_sh_frame = np.stack(
+        [
+            _complex_to_real(
+                ducc0.sht.experimental.analysis_2d(
+                    map=channel[None], spin=0, lmax=lmax, geometry="CC", phi0=math.pi / width
+                )[0],
+                lmax,
+            )
+            for channel in sh_frame_maps
+        ]
+    )  # (3, K)
+    return sh.rotate_sh(coeffs_sh_frame, envmap.rotation @ _EMITTER_FROM_SH_FRAME).T
+
+
+def envmap_from_sh(
+    coeffs: np.ndarray, height: int, width: int | None = None, to_world: np.ndarray | None = None
+) -> Envmap:
+    """Inverse of `envmap_sh`: world-frame coefficients (K, 3) -> an Envmap (height, width).
+
+    The pixels are the band-limited function's exact values at Mitsuba's sample positions.
+    width defaults to 2 height.
+    """
+    coeffs = np.asarray(coeffs, dtype=np.float64)
+    lmax = sh.lmax_of(coeffs.shape[0])
+    width = 2 * height if width is None else width
+    envmap = Envmap(np.zeros((height, width, 3), np.float32), np.eye(4) if to_world is None else to_world)
+    _check_resolution(height, width, lmax)
+    coeffs_sh_frame = sh.rotate_sh(coeffs.T, (envmap.rotation @ _EMITTER_FROM_SH_FRAME).T)  # (3, K)
+    for c in range(3):
+        sh_frame_map = ducc0.sht.experimental.synthesis_2d(
+            alm=_real_to_complex(coeffs_sh_frame[c], lmax)[None], spin=0, lmax=lmax, geometry="CC",
+            ntheta=height, nphi=width, phi0=math.pi / width,
+        )[0]
+        envmap.radiance[..., c] = sh_frame_map[:, ::-1]
+    return envmap
+
+
+def lowpass_envmap(envmap: Envmap, sigma: float) -> Envmap:
+    """The map filtered by exp(-(sigma l)^2) in SH (the band limit of METHOD.md §3.4).
+
+    Degrees are kept up to where the filter falls below 1e-6 (l = 3.7 / sigma), or the map's
+    own limit if lower. sigma = 0 returns an unfiltered copy.
+    """
+    if sigma <= 0:
+        return Envmap(envmap.radiance.copy(), envmap.to_world.copy())
+    height, width = envmap.radiance.shape[:2]
+    lmax = min(math.ceil(math.sqrt(-math.log(1e-6)) / sigma), height - 2, (width - 1) // 2)
+    coeffs = sh.gaussian_lowpass(envmap_sh(envmap, lmax).T, sigma).T
+    return envmap_from_sh(coeffs, height, width, envmap.to_world)
+
+
+def clamped_cosine_coeffs(lmax: int) -> np.ndarray:
+    """Funk-Hecke eigenvalues a_l (lmax + 1,) of the kernel max(0, cos): E_lm = a_l L_lm.
+
+    a_l = 2 pi int_0^1 t P_l(t) dt: a_0 = pi, a_1 = 2 pi / 3, 0 for odd l > 1, and for even l
+    a_l = 2 pi (-1)^(l/2 - 1) / ((l + 2)(l - 1)) * binom(l, l/2) / 2^l.
+    """
+    kernel = np.zeros(lmax + 1)
+    kernel[0] = math.pi
+    if lmax >= 1:
+        kernel[1] = 2.0 * math.pi / 3.0
+    for degree in range(2, lmax + 1, 2):
+        kernel[degree] = (
+            2.0 * math.pi * (-1.0) ** (degree // 2 - 1) / ((degree + 2) * (degree - 1))
+            * math.comb(degree, degree // 2) / 2.0**degree
+        )
+    return kernel
+
+
+def irradiance(env_coeffs: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """E(n) = int L(w) max(0, n.w) dw from world-frame SH coefficients: (K, 3), (N, 3) -> (N, 3).
+
+    Exact for the band-limited part of L; the truncation error is that of the omitted degrees
+    (use lmax >= IRRADIANCE_LMAX). Output is float32 for float32 normals, else float64.
+    """
+    env_coeffs = np.asarray(env_coeffs)
+    lmax = sh.lmax_of(env_coeffs.shape[0])
+    irradiance_coeffs = env_coeffs * clamped_cosine_coeffs(lmax)[sh.sh_degrees(lmax)][:, None]  # (K, 3)
+    basis = sh.eval_sh(normals, lmax)  # (N, K)
+    return basis @ irradiance_coeffs.astype(basis.dtype)

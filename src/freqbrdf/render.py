@@ -1,0 +1,255 @@
+"""Mitsuba 3 scenes built from our arrays, and rendering helpers.
+
+Scenes are Python dicts in Mitsuba's own style; only the mesh is built as an ``mi.Mesh`` object
+because its buffers come from our arrays. The conventions that join our data to Mitsuba's are
+each proved by a test in tests/test_synth.py:
+
+- UVs: ours are OBJ's (origin bottom-left: texel row i, column j is centred at
+  uv = ((j + 0.5)/T, 1 - (i + 0.5)/T)); Mitsuba's ``bitmap`` reads texel row floor(v T), row 0
+  at v = 0. The mesh is therefore given texcoords (u, 1 - v), which is what Mitsuba's own OBJ
+  loader does, and texture arrays are passed unflipped.
+- Cameras: ours use OpenGL axes (x right, y up, looking down -z). Mitsuba's perspective camera
+  looks down +z with +y up, so its +x points to the image's left: to_world = c2w diag(-1, 1, -1, 1),
+  a half turn about the camera's y axis. Its principal point offset, in film-size units, moves
+  the optical axis to film coordinate 0.5 - offset, hence offset = 0.5 - c/size.
+- Environment maps: our ``Envmap`` is defined in Mitsuba's ``envmap`` convention, so it is handed
+  over as it is (radiance bitmap and to_world).
+
+Pixels are reconstructed with a ``box`` filter: each pixel is then the unbiased average of the
+radiance over its own footprint, which is what the observation stage assumes when it samples an
+image; a Gaussian filter would blend neighbouring pixels and widen silhouettes in the masks.
+"""
+
+from __future__ import annotations
+
+import glob
+import os
+import re
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from types import ModuleType
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:  # only attributes are used, so importing render stays cheap
+    from freqbrdf.camera import Camera
+    from freqbrdf.envmap import Envmap
+    from freqbrdf.materials import MaterialMaps
+    from freqbrdf.mesh import Mesh
+
+MITSUBA_VARIANT = "llvm_ad_rgb"
+DEFAULT_MAX_DEPTH = 8  # path length 8: seven bounces, enough for interreflections on a convex-ish object
+MIN_LLVM_VERSION = 17  # Dr.Jit's LLVM backend aborts with libLLVM 14-16
+_LIBLLVM_PATTERNS = (  # where Dr.Jit itself looks on Linux
+    "/usr/lib/x86_64-linux-gnu/libLLVM*.so*",
+    "/usr/lib/aarch64-linux-gnu/libLLVM*.so*",
+    "/usr/lib/libLLVM*.so*",
+)
+
+# OpenGL camera axes -> Mitsuba camera axes (x and z flip; see the module docstring).
+_GL_TO_MITSUBA_CAMERA = np.diag([-1.0, 1.0, -1.0, 1.0])
+
+
+def _newest_libllvm() -> tuple[int, str] | None:
+    """(major version, path) of the newest system libLLVM, or None if none is found."""
+    found = []
+    for pattern in _LIBLLVM_PATTERNS:
+        for path in glob.glob(pattern):
+            match = re.search(r"libLLVM[-.](?:so\.)?(\d+)", os.path.basename(path))
+            if match:
+                found.append((int(match.group(1)), path))
+    return max(found) if found else None
+
+
+def mitsuba() -> ModuleType:
+    """Import Mitsuba with the CPU variant ``llvm_ad_rgb`` set, or fail with what to install.
+
+    Dr.Jit picks the first libLLVM it finds; with several installed that may be an old one that
+    aborts the process, so unless DRJIT_LIBLLVM_PATH is set we point it at the newest.
+    """
+    if "DRJIT_LIBLLVM_PATH" not in os.environ:
+        newest = _newest_libllvm()
+        if newest is not None and newest[0] >= MIN_LLVM_VERSION:
+            os.environ["DRJIT_LIBLLVM_PATH"] = newest[1]
+        elif newest is not None:
+            raise RuntimeError(
+                f"Mitsuba's CPU renderer needs libLLVM >= {MIN_LLVM_VERSION}, found only "
+                f"{newest[1]}; install it with: sudo apt-get install libllvm19"
+            )
+    import mitsuba as mi
+
+    if mi.variant() != MITSUBA_VARIANT:
+        try:
+            mi.set_variant(MITSUBA_VARIANT)
+        except ImportError as err:
+            raise RuntimeError(
+                f"Mitsuba's {MITSUBA_VARIANT} variant needs libLLVM >= {MIN_LLVM_VERSION} "
+                "(install it with: sudo apt-get install libllvm19, or set DRJIT_LIBLLVM_PATH): "
+                f"{err}"
+            ) from err
+    return mi
+
+
+# ---------------------------------------------------------------------------------------------
+# Scene pieces, as Mitsuba dicts
+
+
+def principled_bsdf(materials: MaterialMaps) -> dict:
+    """A ``principled`` BSDF whose base colour, roughness and metallic are texture maps.
+
+    Base colour is linear RGB, so no sRGB decoding is wanted (Mitsuba applies none to float
+    tensors in RGB variants); roughness and metallic are data, hence ``raw``. Filtering is
+    bilinear between texel centres, which is where our texels hold their values; ``clamp``
+    wrapping keeps the edges of the UV square from bleeding into each other.
+    """
+    mi = mitsuba()
+
+    def texture(values: np.ndarray, raw: bool) -> dict:
+        if values.ndim == 2:
+            values = values[..., None]
+        return {
+            "type": "bitmap",
+            "data": mi.TensorXf(np.ascontiguousarray(values, dtype=np.float32)),
+            "raw": raw,
+            "filter_type": "bilinear",
+            "wrap_mode": "clamp",
+        }
+
+    return {
+        "type": "principled",
+        "base_color": texture(materials.base_color, raw=False),
+        "roughness": texture(materials.roughness, raw=True),
+        "metallic": texture(materials.metallic, raw=True),
+    }
+
+
+def mesh_shape(mesh: Mesh, bsdf: dict, name: str = "mesh"):
+    """An ``mi.Mesh`` holding our vertex positions, faces, normals and UVs, with ``bsdf``.
+
+    ``bsdf`` is used up: Mitsuba takes over the tensors of bitmap textures when it loads them.
+    """
+    mi = mitsuba()
+    props = mi.Properties()
+    props["bsdf"] = mi.load_dict(bsdf)
+    shape = mi.Mesh(
+        name,
+        vertex_count=len(mesh.vertices),
+        face_count=len(mesh.faces),
+        props=props,
+        has_vertex_normals=True,
+        has_vertex_texcoords=True,
+    )
+    # Mitsuba's bitmap puts v = 0 at the top row; ours (OBJ) at the bottom row.
+    texcoords = np.stack([mesh.uv[:, 0], 1.0 - mesh.uv[:, 1]], axis=-1)
+    params = mi.traverse(shape)
+    params["vertex_positions"] = mi.Float(np.asarray(mesh.vertices, np.float32).ravel())
+    params["faces"] = mi.UInt32(np.asarray(mesh.faces, np.uint32).ravel())
+    params["vertex_normals"] = mi.Float(np.asarray(mesh.normals, np.float32).ravel())
+    params["vertex_texcoords"] = mi.Float(texcoords.astype(np.float32).ravel())
+    params.update()
+    return shape
+
+
+def envmap_emitter(envmap: Envmap) -> dict:
+    """An ``envmap`` emitter showing our Envmap (same convention, so no conversion)."""
+    mi = mitsuba()
+    return {
+        "type": "envmap",
+        "bitmap": mi.Bitmap(np.ascontiguousarray(envmap.radiance, dtype=np.float32)),
+        "to_world": mi.ScalarTransform4f(np.asarray(envmap.to_world, np.float64)),
+    }
+
+
+def mitsuba_to_world(camera: Camera) -> np.ndarray:
+    """Mitsuba sensor to_world (4, 4) of an OpenGL camera-to-world matrix."""
+    return np.asarray(camera.camera_to_world, np.float64) @ _GL_TO_MITSUBA_CAMERA
+
+
+def perspective_sensor(camera: Camera, spp: int) -> dict:
+    """A pinhole ``perspective`` sensor reproducing ``camera`` exactly (square pixels only)."""
+    mi = mitsuba()
+    if not np.isclose(camera.fx, camera.fy, rtol=1e-6):
+        raise ValueError(
+            f"Mitsuba's perspective camera has square pixels; got fx={camera.fx}, fy={camera.fy}"
+        )
+    fov_x = np.degrees(2.0 * np.arctan(0.5 * camera.width / camera.fx))
+    return {
+        "type": "perspective",
+        "fov": float(fov_x),
+        "fov_axis": "x",
+        "principal_point_offset_x": float(0.5 - camera.cx / camera.width),
+        "principal_point_offset_y": float(0.5 - camera.cy / camera.height),
+        "to_world": mi.ScalarTransform4f(mitsuba_to_world(camera)),
+        "film": {
+            "type": "hdrfilm",
+            "width": int(camera.width),
+            "height": int(camera.height),
+            "pixel_format": "rgba",
+            "component_format": "float32",
+            "rfilter": {"type": "box"},
+        },
+        "sampler": {"type": "independent", "sample_count": int(spp)},
+    }
+
+
+def path_integrator(max_depth: int = DEFAULT_MAX_DEPTH) -> dict:
+    """Unidirectional path tracer; the environment stays visible behind the object, as in photos."""
+    return {"type": "path", "max_depth": int(max_depth), "hide_emitters": False}
+
+
+def build_scene(mesh: Mesh, bsdf: dict, envmap: Envmap, max_depth: int = DEFAULT_MAX_DEPTH):
+    """The scene: ``mesh`` with ``bsdf`` under ``envmap``, path traced. Sensors are per view."""
+    mi = mitsuba()
+    return mi.load_dict(
+        {
+            "type": "scene",
+            "integrator": path_integrator(max_depth),
+            "object": mesh_shape(mesh, bsdf),
+            "environment": envmap_emitter(envmap),
+        }
+    )
+
+
+# ---------------------------------------------------------------------------------------------
+# Rendering
+
+
+@dataclass(frozen=True)
+class RenderedView:
+    radiance: np.ndarray  # (H, W, 3) float32 linear: box-filtered pixel averages, envmap behind
+    coverage: np.ndarray  # (H, W) float32 in [0, 1]: fraction of the pixel covered by the scene's shapes
+
+
+def view_seed(seed: int, view_index: int) -> int:
+    """A 32-bit render seed per view, distinct across views and runs with different ``seed``."""
+    return int(np.random.SeedSequence([seed, view_index]).generate_state(1)[0])
+
+
+def render_view(scene, camera: Camera, spp: int, seed: int) -> RenderedView:
+    """Path-trace one view and measure the object's pixel coverage with a primary-ray pass."""
+    mi = mitsuba()
+    sensor = mi.load_dict(perspective_sensor(camera, spp))
+    rgba = np.array(mi.render(scene, sensor=sensor, spp=spp, seed=seed))
+    # The path tracer's alpha is 1 wherever the visible envmap is hit; the depth integrator's
+    # alpha is exactly "the camera ray hit a surface", averaged over the pixel's samples.
+    coverage_integrator = mi.load_dict({"type": "depth"})
+    depth_alpha = np.array(
+        mi.render(scene, sensor=sensor, spp=spp, seed=seed, integrator=coverage_integrator)
+    )
+    return RenderedView(
+        radiance=np.ascontiguousarray(rgba[..., :3], dtype=np.float32),
+        coverage=np.ascontiguousarray(np.clip(depth_alpha[..., 3], 0.0, 1.0), dtype=np.float32),
+    )
+
+
+def render_views(
+    scene, cameras: Sequence[Camera], spp: int, seed: int, first_index: int = 0
+) -> Iterator[RenderedView]:
+    """Render ``cameras`` one after another; view k gets ``view_seed(seed, first_index + k)``.
+
+    The scene is built once; each view only adds a sensor, and Dr.Jit reuses the compiled
+    kernels because a sensor's transform and intrinsics are not baked into them.
+    """
+    for index, camera in enumerate(cameras, start=first_index):
+        yield render_view(scene, camera, spp, view_seed(seed, index))

@@ -1,0 +1,350 @@
+"""The ``synth`` job: a synthetic capture of a known object, path traced with Mitsuba 3.
+
+A capture is what a real acquisition would give (HDR photographs, masks, camera poses, the mesh
+and the environment map) plus what only a synthetic one can: the ground-truth material maps
+(``gt/``) and test views under other environment maps with their reference renders.
+
+World axes are Mitsuba's and OBJ's: +y is up (the zenith of an environment map with identity
+to_world, and the normal of the bundled plane). Cameras sit on a sphere around the object's
+bounding sphere, looking at its centre, far enough that the bounding sphere fills
+``FRAME_FILL`` of the field of view.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+from freqbrdf import assets
+from freqbrdf.camera import Camera, look_at
+from freqbrdf.capture import (
+    GROUND_TRUTH_FOLDER,
+    ORB_NORMAL_FIXES,
+    TEST_TRANSFORMS_FILE,
+    TRANSFORMS_FILE,
+    Frame,
+    stanford_orb_envmap_to_world,
+    write_transforms,
+)
+from freqbrdf.envmap import Envmap, load_envmap, lookup
+from freqbrdf.errors import InputError
+from freqbrdf.fileio import atomic_directory
+from freqbrdf.images import write_exr, write_png
+from freqbrdf.materials import MaterialMaps, load_material_maps, resize, save_material_maps
+from freqbrdf.mesh import Mesh, load_mesh, save_obj
+from freqbrdf.render import DEFAULT_MAX_DEPTH, RenderedView, build_scene, principled_bsdf, render_views
+
+CameraLayout = Literal["hemisphere", "sphere", "random"]
+CaptureFormat = Literal["ours", "orb"]
+CAMERA_LAYOUTS: tuple[str, ...] = ("hemisphere", "sphere", "random")
+CAPTURE_FORMATS: tuple[str, ...] = ("ours", "orb")
+
+WORLD_UP = np.array([0.0, 1.0, 0.0])
+FIELD_OF_VIEW_DEG = 40.0  # horizontal = vertical: images are square
+FRAME_FILL = 0.9  # the bounding sphere's silhouette spans this fraction of the field of view
+GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
+
+
+@dataclass(frozen=True)
+class SynthSettings:
+    mesh: str = "bunny"  # bundled name or a mesh file
+    envmap: str = "forest"  # bundled name or an EXR/HDR file; lights the training views
+    materials: str = "bands"  # bundled name or a folder written by save_material_maps
+    views: int = 32
+    resolution: int = 256  # images are resolution x resolution pixels
+    spp: int = 64  # samples per pixel
+    texture_res: int = 512  # ground-truth maps are resampled to texture_res x texture_res
+    cameras: CameraLayout = "hemisphere"
+    seed: int = 0  # camera placement (random layouts) and Monte Carlo noise
+    # Environment maps of the test views: names/paths, or a count of bundled maps other than
+    # ``envmap`` chosen with ``seed``.
+    test_envmaps: tuple[str, ...] | int = 2
+    test_views: int = 8
+    format: CaptureFormat = "ours"
+    max_depth: int = DEFAULT_MAX_DEPTH
+
+
+# --- camera placement ------------------------------------------------------------------------
+
+
+def fibonacci_directions(count: int, hemisphere: bool) -> np.ndarray:
+    """Evenly spread unit directions ``(count, 3)`` on the sphere or the upper (+y) hemisphere.
+
+    The Fibonacci spiral: heights equally spaced in y (equal areas, by Archimedes) and
+    azimuths advancing by the golden angle.
+    """
+    index = np.arange(count) + 0.5
+    height = 1.0 - index / count if hemisphere else 1.0 - 2.0 * index / count  # (N,)
+    azimuth = GOLDEN_ANGLE * np.arange(count)
+    ring = np.sqrt(np.clip(1.0 - height**2, 0.0, 1.0))
+    return np.stack([ring * np.cos(azimuth), height, ring * np.sin(azimuth)], axis=1)
+
+
+def random_directions(count: int, hemisphere: bool, rng: np.random.Generator) -> np.ndarray:
+    """Uniformly random unit directions ``(count, 3)`` on the sphere or the upper hemisphere."""
+    directions = rng.normal(size=(count, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    if hemisphere:
+        directions[:, 1] = np.abs(directions[:, 1])
+    return directions
+
+
+def bounding_sphere(vertices: np.ndarray) -> tuple[np.ndarray, float]:
+    """Centre ``(3,)`` (of the bounding box) and radius enclosing all ``vertices`` ``(V, 3)``."""
+    centre = 0.5 * (vertices.min(axis=0) + vertices.max(axis=0))
+    return centre, float(np.linalg.norm(vertices - centre, axis=1).max())
+
+
+def orbit_cameras(
+    directions: np.ndarray, centre: np.ndarray, radius: float, resolution: int
+) -> list[Camera]:
+    """Square cameras at ``centre + distance * direction`` looking at ``centre``.
+
+    ``distance`` makes a sphere of ``radius`` fill ``FRAME_FILL`` of the field of view.
+    """
+    half_fov = np.radians(FIELD_OF_VIEW_DEG) / 2.0
+    distance = radius / np.sin(FRAME_FILL * half_fov)
+    cameras = []
+    for direction in directions:
+        # Straight above or below the object, world up cannot orient the image; use +z.
+        up = WORLD_UP if abs(direction @ WORLD_UP) < 0.999 else np.array([0.0, 0.0, 1.0])
+        pose = look_at(centre + distance * direction, centre, up)
+        cameras.append(Camera.from_fov(2.0 * half_fov, resolution, resolution, pose))
+    return cameras
+
+
+def camera_directions(layout: str, count: int, rng: np.random.Generator) -> np.ndarray:
+    """Training view directions ``(count, 3)``: Fibonacci on the hemisphere or sphere, or
+    uniformly random on the hemisphere."""
+    if layout == "random":
+        return random_directions(count, hemisphere=True, rng=rng)
+    return fibonacci_directions(count, hemisphere=layout == "hemisphere")
+
+
+# --- the job -----------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class SynthScene:
+    """Everything a capture is rendered from, resolved from the settings."""
+
+    mesh: Mesh
+    envmap: Envmap
+    envmap_path: Path
+    materials: MaterialMaps
+    cameras: list[Camera]  # training views
+    test_cameras: list[Camera]
+    test_envmap_paths: list[Path]  # one per test view
+
+
+def synthesize(out: str | Path, settings: SynthSettings = SynthSettings(), progress: bool = True) -> Path:
+    """Render a synthetic capture into the folder ``out`` (replaced as a whole, atomically).
+
+    Returns the path that `freqbrdf.capture.load` takes: ``out`` itself, or for the Stanford-ORB
+    layout its scene folder ``out/blender_HDR/synth``.
+    """
+    scene = prepare(settings)
+    out = Path(out)
+    with atomic_directory(out) as folder:
+        _render_and_write(folder, scene, settings, progress)
+    return out if settings.format == "ours" else out / "blender_HDR" / ORB_SCENE
+
+
+def prepare(settings: SynthSettings) -> SynthScene:
+    """Validate the settings, load the assets and place the cameras (deterministic in seed)."""
+    _check_settings(settings)
+    mesh = load_mesh(_asset(settings.mesh, assets.list_meshes(), assets.mesh_path))
+    envmap_path = _asset(settings.envmap, assets.list_envmaps(), assets.envmap_path)
+    envmap = load_envmap(envmap_path, np.eye(4))
+    materials = resize(
+        load_material_maps(_asset(settings.materials, assets.list_materials(), assets.material_dir)),
+        settings.texture_res,
+    )
+    # Independent streams, so that e.g. adding test views does not move the training cameras.
+    camera_rng, test_rng, envmap_rng = (
+        np.random.default_rng(stream) for stream in np.random.SeedSequence(settings.seed).spawn(3)
+    )
+    centre, radius = bounding_sphere(mesh.vertices)
+    cameras = orbit_cameras(
+        camera_directions(settings.cameras, settings.views, camera_rng), centre, radius,
+        settings.resolution,
+    )
+    test_directions = random_directions(
+        settings.test_views, hemisphere=settings.cameras != "sphere", rng=test_rng
+    )
+    test_cameras = orbit_cameras(test_directions, centre, radius, settings.resolution)
+    test_envmaps = _test_envmap_paths(settings, envmap_path, envmap_rng)
+    return SynthScene(
+        mesh=mesh,
+        envmap=envmap,
+        envmap_path=envmap_path,
+        materials=materials,
+        cameras=cameras,
+        test_cameras=test_cameras,
+        test_envmap_paths=[test_envmaps[k % len(test_envmaps)] for k in range(settings.test_views)],
+    )
+
+
+def _render_and_write(folder: Path, scene: SynthScene, settings: SynthSettings, progress: bool) -> None:
+    n_test = len(scene.test_cameras)
+    with Progress(
+        TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
+        disable=not progress,
+    ) as bar:
+        task = bar.add_task("rendering views", total=len(scene.cameras) + n_test)
+
+        def render(cameras, envmap, first_index):
+            """Render under ``envmap``; seeds continue across batches so no two views share one."""
+            # A fresh BSDF dict per scene: Mitsuba takes over the tensors of the one it loads.
+            bsdf = principled_bsdf(scene.materials)
+            views = render_views(
+                build_scene(scene.mesh, bsdf, envmap, settings.max_depth), cameras, settings.spp,
+                settings.seed, first_index,
+            )
+            for view in views:
+                bar.advance(task)
+                yield view
+
+        if settings.format == "ours":
+            _write_ours(folder, scene, render)
+        else:
+            _write_stanford_orb(folder, scene, render)
+
+
+def _write_view(image_path: Path, mask_path: Path, view: RenderedView) -> None:
+    write_exr(image_path, view.radiance)
+    write_png(mask_path, view.coverage)  # 8-bit coverage; read_mask thresholds it at 0.5
+
+
+def _write_ours(folder: Path, scene: SynthScene, render) -> None:
+    """``transforms.json``, images/, masks/, mesh.obj, envmap.exr, gt/, and the test set."""
+    save_obj(folder / "mesh.obj", scene.mesh)
+    write_exr(folder / "envmap.exr", scene.envmap.radiance)
+    save_material_maps(folder / GROUND_TRUTH_FOLDER, scene.materials)
+    frames = []
+    for index, view in enumerate(render(scene.cameras, scene.envmap, 0)):
+        frame = Frame(scene.cameras[index], folder / "images" / f"{index:04d}.exr",
+                      folder / "masks" / f"{index:04d}.png")
+        _write_view(frame.image_path, frame.mask_path, view)
+        frames.append(frame)
+    write_transforms(folder / TRANSFORMS_FILE, frames, mesh=folder / "mesh.obj",
+                     envmap=folder / "envmap.exr", envmap_to_world=scene.envmap.to_world,
+                     envmap_scale=1.0)
+    if not scene.test_cameras:
+        return
+    test_frames: list[Frame | None] = [None] * len(scene.test_cameras)
+    first_index = len(scene.cameras)
+    for light, source in enumerate(dict.fromkeys(scene.test_envmap_paths)):
+        envmap = load_envmap(source, np.eye(4))
+        envmap_file = folder / "test_envmaps" / f"{light}_{source.stem}.exr"
+        write_exr(envmap_file, envmap.radiance)
+        indices = [k for k, path in enumerate(scene.test_envmap_paths) if path == source]
+        cameras = [scene.test_cameras[k] for k in indices]
+        for k, view in zip(indices, render(cameras, envmap, first_index)):
+            frame = Frame(scene.test_cameras[k], folder / "test" / f"{k:04d}.exr",
+                          folder / "test_masks" / f"{k:04d}.png", envmap_file, envmap.to_world, 1.0)
+            _write_view(frame.image_path, frame.mask_path, view)
+            test_frames[k] = frame
+        first_index += len(indices)
+    write_transforms(folder / TEST_TRANSFORMS_FILE, test_frames)
+
+
+ORB_SCENE = "synth"
+
+
+def _write_stanford_orb(folder: Path, scene: SynthScene, render) -> None:
+    """``blender_HDR/synth`` and ``ground_truth/synth`` as Stanford-ORB lays them out.
+
+    Stanford-ORB has no map for its training views: a scene's light is the map of its first test
+    photograph, stored in that camera's frame. So the test split here is the test cameras under
+    the training light, and every map is resampled (bilinearly, once) into its camera's frame.
+    The whole capture is rendered under the resampled map of test view 0, exactly the light the
+    loader reconstructs. Relighting views under other maps (ORB's transforms_novel.json) are
+    not written: that file needs a per-frame ``scene_name``, which write_transforms lacks.
+    """
+    if not scene.test_cameras:
+        raise InputError(Path("synth settings"), "the Stanford-ORB layout needs test_views >= 1")
+    images = folder / "blender_HDR" / ORB_SCENE
+    truth = folder / "ground_truth" / ORB_SCENE
+    stored = []  # maps in each test camera's frame, as written
+    for index, camera in enumerate(scene.test_cameras):
+        to_world = stanford_orb_envmap_to_world(camera.camera_to_world)
+        stored.append(resample_envmap(scene.envmap, to_world))
+        write_exr(truth / "env_map" / f"{index:04d}.exr", stored[-1].radiance)
+    light = stored[0]
+    # ORB's OBJ normals are in Blender's Z-up axes, (x, y, z) -> (x, -z, y); the loader undoes it.
+    blender_normals = scene.mesh.normals @ ORB_NORMAL_FIXES[1]
+    save_obj(truth / "mesh_blender" / "mesh.obj", replace(scene.mesh, normals=blender_normals))
+    save_material_maps(truth / GROUND_TRUTH_FOLDER, scene.materials)
+    for split, cameras, first_index in (("train", scene.cameras, 0),
+                                        ("test", scene.test_cameras, len(scene.cameras))):
+        frames = []
+        for index, view in enumerate(render(cameras, light, first_index)):
+            image_path = images / split / f"{index:04d}.exr"
+            _write_view(image_path, images / f"{split}_mask" / f"{index:04d}.png", view)
+            frames.append(Frame(cameras[index], image_path))
+        write_transforms(images / f"transforms_{split}.json", frames)
+
+
+def resample_envmap(envmap: Envmap, to_world: np.ndarray) -> Envmap:
+    """The same light as ``envmap`` stored in another frame: the map whose Mitsuba to_world is
+    ``to_world`` (4, 4), each texel looked up (bilinearly) in the direction it stands for."""
+    height, width = envmap.radiance.shape[:2]
+    # Mitsuba's texel centres: u = (j + 0.5) / W from -z towards +x, v = i / (H - 1) from +y.
+    azimuth = 2.0 * np.pi * (np.arange(width) + 0.5) / width  # (W,)
+    polar = np.pi * np.arange(height) / (height - 1)  # (H,)
+    local = np.stack(
+        np.broadcast_arrays(
+            np.sin(polar)[:, None] * np.sin(azimuth)[None, :],
+            np.cos(polar)[:, None],
+            -np.sin(polar)[:, None] * np.cos(azimuth)[None, :],
+        ),
+        axis=-1,
+    )  # (H, W, 3)
+    world = local @ np.asarray(to_world, np.float64)[:3, :3].T
+    radiance = lookup(envmap, world.reshape(-1, 3)).reshape(height, width, 3)
+    return Envmap(radiance.astype(np.float32), np.asarray(to_world, np.float64))
+
+
+def _check_settings(settings: SynthSettings) -> None:
+    where = Path("synth settings")
+    positive = {
+        "views": settings.views, "resolution": settings.resolution, "spp": settings.spp,
+        "texture_res": settings.texture_res, "max_depth": settings.max_depth,
+    }
+    for name, value in positive.items():
+        if not (isinstance(value, int) and value >= 1):
+            raise InputError(where, f"{name} must be a positive integer, got {value!r}")
+    if settings.test_views < 0:
+        raise InputError(where, f"test_views must be >= 0, got {settings.test_views}")
+    if settings.cameras not in CAMERA_LAYOUTS:
+        raise InputError(where, f"cameras must be one of {', '.join(CAMERA_LAYOUTS)}, got {settings.cameras!r}")
+    if settings.format not in CAPTURE_FORMATS:
+        raise InputError(where, f"format must be one of {', '.join(CAPTURE_FORMATS)}, got {settings.format!r}")
+
+
+def _asset(name: str, bundled: list[str], bundled_path) -> Path:
+    """A bundled asset by name, otherwise ``name`` as a path (its loader reports if it is bad)."""
+    return bundled_path(name) if name in bundled else Path(name)
+
+
+def _test_envmap_paths(settings: SynthSettings, training: Path, rng: np.random.Generator) -> list[Path]:
+    if settings.test_views == 0:
+        return []
+    if isinstance(settings.test_envmaps, int):
+        others = [name for name in assets.list_envmaps() if assets.envmap_path(name) != training]
+        if not 1 <= settings.test_envmaps <= len(others):
+            raise InputError(
+                Path("synth settings"),
+                f"test_envmaps must be between 1 and {len(others)} (bundled maps other than the "
+                f"training one), got {settings.test_envmaps}",
+            )
+        chosen = rng.choice(len(others), size=settings.test_envmaps, replace=False)
+        return [assets.envmap_path(others[k]) for k in sorted(chosen)]
+    if not settings.test_envmaps:
+        raise InputError(Path("synth settings"), "test_envmaps is empty")
+    return [_asset(name, assets.list_envmaps(), assets.envmap_path) for name in settings.test_envmaps]
