@@ -20,14 +20,28 @@ class TexelConfig:
 
 
 @dataclass(frozen=True)
+class ObserveConfig:
+    """Per-texel samples from the photographs (METHOD.md §3.2)."""
+
+    # Beyond the paper: the object's own occlusion of the environment. A mirror direction that
+    # hits the object gets radiance 0 (interreflection ignored), and the irradiance loses the
+    # light of blocked directions, estimated with `occlusion_rays` cosine-weighted rays per texel.
+    # Off until it is shown to help (benchmarks/bench_observe.py measures it).
+    environment_occlusion: bool = False
+    occlusion_rays: int = 64
+
+
+@dataclass(frozen=True)
 class FitConfig:
     """The weighted, degree-regularised SH least squares (appendix eqs. 19-20, App. B)."""
 
     lmax: int = 5  # l*: (l*+1)^2 = 36 coefficients
-    reg_lambda: float = 1e-3  # lambda in  sum w^2 (Yc - f)^2 + lambda sum_lm e^l c_lm^2
+    # lambda in  sum w^2 (Yc - f)^2 + lambda_eff sum_lm e^l c_lm^2.  With the scaling below,
+    # lambda_eff = reg_lambda * sum_i w_i^2: the same relative strength whatever the number of
+    # views. 1.2e-4 equals the prototype's absolute 1e-3 at the median sum w^2 (8.6) of 64
+    # cameras spread over the sphere (measured, benchmarks/bench_sh.py's set-up).
+    reg_lambda: float = 1.2e-4
     regulariser: RegulariserKind = "exponential"
-    # Scale lambda by the texel's mean squared weight so its strength does not depend on the
-    # number of views (the prototype's lambda was absolute).
     scale_lambda_with_weight: bool = True
     # Band limit: the environment is low-passed with exp(-(sigma l)^2), sigma = 1/floor(sqrt(N)),
     # and the blur is divided back out of the BRDF kernel (prototype behaviour).
@@ -39,14 +53,43 @@ class FitConfig:
 class UncertaintyConfig:
     mode: Literal["calibrated", "paper"] = "calibrated"
     grid_res: int = 8  # R: R x R hypotheses (alpha_i = (i/(R-1))^2, k_j = j/(R-1))
-    temperature: float = 1e-5  # tau of the paper's likelihood exp(-(E - min E)/tau)
+    temperature: float = 1e-5  # tau of the paper's likelihood exp(-(E - min E)/tau)  (paper mode)
+    # Calibrated mode: noise std of each degree's amplitude sqrt(S(l)), relative to the light's
+    # RMS amplitude sqrt(sum_l S_refl(l)); the likelihood is exp(-misfit / (2 noise_level^2)).
+    noise_level: float = 0.02
+    ambiguous_entropy: float = 0.5  # texels above this normalised entropy are flagged ambiguous
+
+
+@dataclass(frozen=True)
+class EstimateConfig:
+    """Per-texel base colour, roughness and metallic from the observations (METHOD.md §3.7)."""
+
+    method: Literal["global", "paper"] = "global"  # exhaustive search (ours) or the prototype's Adam
+    forward_model: Literal["angular", "sh_coeffs", "spectrum"] = "angular"  # "global" is angular only
+    fresnel: bool = True  # Schlick F(theta_o); off: F = R0
+    masking: bool = True  # G1(theta_o) on the reflected light
+    shadowing: bool = True  # G1(theta_i) on the incoming light before its SH fit (appendix eq. 6)
+    # global: roughness grid (uniform in r on [0, 1]) and metallic grid, each refined by Brent.
+    roughness_grid: int = 33
+    metallic_grid: int = 11
+    shadowing_refreshes: int = 2  # global: re-fit the shadowed light at the estimate, search again
+    # paper: the prototype's Adam on the L1 loss, its initialisation and texture-space TV.
+    iterations: int = 100
+    learning_rate: float = 0.02
+    shadowing_refresh_every: int = 50
+    tv_weight: float = 1e-3
+    init_base_color: float = 0.5
+    init_roughness: float = 0.5
+    init_metallic: float = 0.5
 
 
 @dataclass(frozen=True)
 class Config:
     texels: TexelConfig = field(default_factory=TexelConfig)
+    observe: ObserveConfig = field(default_factory=ObserveConfig)
     fit: FitConfig = field(default_factory=FitConfig)
     uncertainty: UncertaintyConfig = field(default_factory=UncertaintyConfig)
+    estimate: EstimateConfig = field(default_factory=EstimateConfig)
     seed: int = 0
 
     def replace(self, **sections) -> "Config":
@@ -63,8 +106,9 @@ def preset(name: str = "default") -> Config:
         return Config()
     if name == "paper":
         return Config(
-            fit=FitConfig(scale_lambda_with_weight=False),
+            fit=FitConfig(reg_lambda=1e-3, scale_lambda_with_weight=False),
             uncertainty=UncertaintyConfig(mode="paper", grid_res=8, temperature=1e-5),
+            estimate=EstimateConfig(method="paper"),
         )
     raise ValueError(f"unknown preset {name!r}; choose 'default' or 'paper'")
 

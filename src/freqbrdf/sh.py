@@ -38,8 +38,8 @@ FIT_EMPTY = 2  # no weighted sample at all: coefficients are zero
 # A Cholesky pivot below this fraction of its diagonal entry marks the normal equations as
 # numerically singular (cond >~ 1e11); such texels are re-solved by an SVD least-squares solve.
 _PIVOT_RTOL = 1e-11
-# Texels per parallel work item in the fit kernel: large enough to amortise the scratch buffers.
-_FIT_CHUNK = 256
+# Texels factorised together in the fit kernel, one per SIMD lane (and one parallel work item).
+_LANES = 32
 
 
 def num_coeffs(lmax: int) -> int:
@@ -266,33 +266,49 @@ def regulariser_weights(lmax: int, regulariser: RegulariserKind) -> np.ndarray:
     raise ValueError(f"unknown regulariser {regulariser!r}; choose 'exponential', 'constant' or 'none'")
 
 
-@numba.njit(parallel=True, fastmath=True, cache=True)
+# Fast-math without the no-NaN/no-Inf assumptions, which would fold the isfinite tests to True.
+_FAST_FINITE_MATH = {"nsz", "arcp", "contract", "afn", "reassoc"}
+
+
+@numba.njit(parallel=True, fastmath=_FAST_FINITE_MATH, cache=True)
 def _fit_kernel(
     directions, weights, values, lmax, diag, rec_a, rec_b, reg, reg_lambda, scale_by_weight,
     coeffs, n_samples, solved,
 ):
-    """Per texel: assemble the regularised normal equations in float64, Cholesky, solve all C.
+    """Per texel: regularised normal equations in float64, one Cholesky for all C channels.
 
-    The weighted design matrix is kept transposed, (K, V) with only the n valid samples, so the
-    Gram entries and right-hand sides are contiguous dot products. ``solved[t]`` is False when
-    the Cholesky factorisation met a (numerically) non-positive pivot.
+    Per texel, the usable samples are compacted into an augmented design matrix
+    A = [w Y; w f] (K + C, n) with contiguous rows, so each Gram entry is one vectorised dot
+    product. Its upper triangle U (K, K + C) holds Y^T W^2 Y + lambda_eff R beside the
+    right-hand sides Y^T W^2 f. The factorisation then runs on _LANES texels at once with the
+    texel index innermost (the same operation sequence for every texel, so it vectorises without
+    reductions): eliminating the first K pivots in place turns U into the Cholesky factor and the
+    forward-substituted right-hand sides, leaving one back substitution.
+    ``solved[t]`` is False when a pivot was (numerically) non-positive.
     """
     n_texels, n_views = weights.shape
     n_channels = values.shape[2]
     n_coeffs = reg.shape[0]
-    n_chunks = (n_texels + _FIT_CHUNK - 1) // _FIT_CHUNK
-    for chunk in numba.prange(n_chunks):
-        xyz = np.empty((3, n_views))  # the texel's usable sample directions
-        sample_weights = np.empty(n_views)
-        scratch = np.empty((5, n_views))
-        design = np.empty((n_coeffs, n_views))  # (K, V): w_i Y_k(w_i)
-        targets = np.empty((n_channels, n_views))  # (C, V): w_i f_i
-        gram = np.empty((n_coeffs, n_coeffs))  # lower triangle, overwritten by its Cholesky factor
-        solution = np.empty(n_coeffs)
-        for t in range(chunk * _FIT_CHUNK, min((chunk + 1) * _FIT_CHUNK, n_texels)):
+    n_rows = n_coeffs + n_channels
+    padded_views = (n_views + 7) // 8 * 8  # dot products over a multiple of the SIMD width
+    n_groups = (n_texels + _LANES - 1) // _LANES
+    for group in numba.prange(n_groups):
+        xyz = np.empty((3, padded_views))  # one texel's usable sample directions
+        sample_weights = np.empty(padded_views)
+        scratch = np.empty((5, padded_views))
+        augmented = np.empty((n_rows, padded_views))  # rows: w_i Y_k(d_i), then w_i f_ic
+        upper = np.empty((n_coeffs, n_rows, _LANES))  # Gram | rhs, then Cholesky factor | R^-T b
+        gram_diagonal = np.empty((n_coeffs, _LANES))  # before elimination, for the pivot test
+        inv_diagonal = np.empty((n_coeffs, _LANES))  # 1 / diagonal of the Cholesky factor
+        solution = np.empty((n_coeffs, n_channels, _LANES))
+        lane_ok = np.empty(_LANES, dtype=np.bool_)
+        first = group * _LANES
+        n_lanes = min(_LANES, n_texels - first)
+        for lane in range(_LANES):
+            t = first + lane
             n = 0
             weight_sq_sum = 0.0
-            for v in range(n_views):
+            for v in range(n_views if lane < n_lanes else 0):
                 w = np.float64(weights[t, v])
                 usable = w > 0.0
                 for axis in range(3):
@@ -304,62 +320,70 @@ def _fit_kernel(
                 for axis in range(3):
                     xyz[axis, n] = directions[t, v, axis]
                 for c in range(n_channels):
-                    targets[c, n] = w * values[t, v, c]
+                    augmented[n_coeffs + c, n] = w * values[t, v, c]
                 sample_weights[n] = w
                 weight_sq_sum += w * w
                 n += 1
-            _sh_block(xyz[0], xyz[1], xyz[2], n, lmax, diag, rec_a, rec_b, design, scratch)
+            if lane < n_lanes:
+                n_samples[t] = n
+            lane_ok[lane] = n > 0
+            if n == 0:  # empty (or padding) lane: an identity system with zero rhs solves to 0
+                for j in range(n_coeffs):
+                    for i in range(n_rows):
+                        upper[j, i, lane] = 1.0 if i == j else 0.0
+                    gram_diagonal[j, lane] = 1.0
+                continue
+            _sh_block(xyz[0], xyz[1], xyz[2], n, lmax, diag, rec_a, rec_b, augmented, scratch)
+            n_padded = (n + 7) // 8 * 8
+            for k in range(n_rows):
+                for s in range(n, n_padded):
+                    augmented[k, s] = 0.0
             for k in range(n_coeffs):
                 for s in range(n):
-                    design[k, s] *= sample_weights[s]
-            n_samples[t] = n
-            if n == 0:
-                for c in range(n_channels):
-                    for k in range(n_coeffs):
-                        coeffs[t, c, k] = 0.0
-                solved[t] = True
-                continue
+                    augmented[k, s] *= sample_weights[s]
             lam = reg_lambda * weight_sq_sum if scale_by_weight else reg_lambda
-            for i in range(n_coeffs):
-                for j in range(i + 1):
-                    acc = 0.0
-                    for s in range(n):
-                        acc += design[i, s] * design[j, s]
-                    gram[i, j] = acc
-                gram[i, i] += lam * reg[i]
-            # In-place Cholesky G = L L^T (lower triangle).
-            ok = True
             for j in range(n_coeffs):
-                pivot = gram[j, j]
-                for k in range(j):
-                    pivot -= gram[j, k] * gram[j, k]
-                if not pivot > _PIVOT_RTOL * gram[j, j]:
-                    ok = False
-                    break
-                gram[j, j] = math.sqrt(pivot)
-                for i in range(j + 1, n_coeffs):
-                    acc = gram[i, j]
-                    for k in range(j):
-                        acc -= gram[i, k] * gram[j, k]
-                    gram[i, j] = acc / gram[j, j]
-            solved[t] = ok
-            if not ok:
-                continue
-            for c in range(n_channels):
-                for i in range(n_coeffs):  # forward: L y = Y^T W^2 f
+                for i in range(j, n_rows):
                     acc = 0.0
-                    for s in range(n):
-                        acc += design[i, s] * targets[c, s]
-                    for k in range(i):
-                        acc -= gram[i, k] * solution[k]
-                    solution[i] = acc / gram[i, i]
-                for i in range(n_coeffs - 1, -1, -1):  # backward: L^T c = y
-                    acc = solution[i]
-                    for k in range(i + 1, n_coeffs):
-                        acc -= gram[k, i] * solution[k]
-                    solution[i] = acc / gram[i, i]
+                    for s in range(n_padded):
+                        acc += augmented[j, s] * augmented[i, s]
+                    upper[j, i, lane] = acc
+                upper[j, j, lane] += lam * reg[j]
+                gram_diagonal[j, lane] = upper[j, j, lane]
+            lane_ok[lane] = True
+        # Right-looking Cholesky on the upper triangle; its row updates also carry the rhs.
+        # A failed lane continues with a unit pivot (finite garbage) and is re-solved by the caller.
+        for j in range(n_coeffs):
+            for lane in range(_LANES):
+                pivot = upper[j, j, lane]
+                if not (pivot > 0.0 and pivot > _PIVOT_RTOL * gram_diagonal[j, lane]):
+                    lane_ok[lane] = False
+                    pivot = 1.0
+                inv_diagonal[j, lane] = 1.0 / math.sqrt(pivot)
+            for i in range(j, n_rows):
+                for lane in range(_LANES):
+                    upper[j, i, lane] *= inv_diagonal[j, lane]
+            for i in range(j + 1, n_coeffs):
+                for k in range(i, n_rows):
+                    for lane in range(_LANES):
+                        upper[i, k, lane] -= upper[j, i, lane] * upper[j, k, lane]
+        # Back substitution R x = R^-T b.
+        for i in range(n_coeffs - 1, -1, -1):
+            for c in range(n_channels):
+                for lane in range(_LANES):
+                    solution[i, c, lane] = upper[i, n_coeffs + c, lane]
+            for k in range(i + 1, n_coeffs):
+                for c in range(n_channels):
+                    for lane in range(_LANES):
+                        solution[i, c, lane] -= upper[i, k, lane] * solution[k, c, lane]
+            for c in range(n_channels):
+                for lane in range(_LANES):
+                    solution[i, c, lane] *= inv_diagonal[i, lane]
+        for lane in range(n_lanes):
+            solved[first + lane] = lane_ok[lane] or n_samples[first + lane] == 0
+            for c in range(n_channels):
                 for k in range(n_coeffs):
-                    coeffs[t, c, k] = solution[k]
+                    coeffs[first + lane, c, k] = solution[k, c, lane]
 
 
 def _solve_by_svd(directions, weights, values, lmax, reg_lambda, reg, scale_lambda_with_weight):
