@@ -85,6 +85,62 @@ def synth(
     Console().print(f"capture written to {escape(str(path))}")
 
 
+@app.command()
+def observe(
+    capture: str = typer.Argument(..., help="Capture folder or its transforms file."),
+    out: str = typer.Option(..., "--out", help="Output folder (its files are replaced one by one)."),
+    texture_res: int = typer.Option(512, min=1, help="Texture resolution T (maps are T x T)."),
+    lmax: int = typer.Option(5, min=0, help="Degree l* of the per-texel SH fits."),
+    environment_occlusion: bool = typer.Option(
+        False, help="Trace the object's occlusion of its own environment (beyond the paper)."
+    ),
+    quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
+) -> None:
+    """Per-texel observations and SH spectra: observations.npz, coverage and visibility maps."""
+    import dataclasses
+    import json
+    from pathlib import Path
+
+    import numpy as np
+
+    from freqbrdf.capture import load
+    from freqbrdf.config import Config
+    from freqbrdf.fileio import atomic_path
+    from freqbrdf.observations import observe as observe_capture, write_maps
+    from freqbrdf.progress import Reporter
+
+    config = Config()
+    config = config.replace(
+        texels=dataclasses.replace(config.texels, texture_res=texture_res),
+        fit=dataclasses.replace(config.fit, lmax=lmax),
+        observe=dataclasses.replace(config.observe, environment_occlusion=environment_occlusion),
+    )
+    observations = observe_capture(load(capture), config, Reporter(enabled=not quiet))
+    folder = Path(out)
+    observations.save(folder / "observations.npz")
+    maps = write_maps(observations, folder)
+    summary = {
+        "capture": capture,
+        "texture_res": observations.texture_res,
+        "texels": observations.n_texels,
+        "views": observations.n_views,
+        "texels_with_samples": int((observations.n_samples > 0).sum()),
+        "median_samples_per_texel": float(np.median(observations.n_samples)),
+        "environment_occlusion": observations.environment_occlusion,
+        "config": config.to_dict(),
+        "timings_s": {stage: round(seconds, 4) for stage, seconds in observations.timings.items()},
+    }
+    with atomic_path(folder / "observations.json") as tmp:
+        tmp.write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    if not quiet:
+        written = ", ".join(path.name for path in [folder / "observations.npz", *maps])
+        Console().print(
+            f"{summary['texels_with_samples']} of {summary['texels']} texels observed "
+            f"(median {summary['median_samples_per_texel']:g} of {summary['views']} views); "
+            f"wrote {escape(written)}, observations.json to {escape(str(folder))}"
+        )
+
+
 def main() -> None:
     try:
         app()

@@ -72,7 +72,7 @@ class EstimateConfig:
     # global: roughness grid (uniform in r on [0, 1]) and metallic grid, each refined by Brent.
     roughness_grid: int = 33
     metallic_grid: int = 11
-    shadowing_refreshes: int = 2  # global: re-fit the shadowed light at the estimate, search again
+    shadowing_refreshes: int = 4  # global: re-fit the light shadowed nearer the fixed point, search again
     # paper: the prototype's Adam on the L1 loss, its initialisation and texture-space TV.
     iterations: int = 100
     learning_rate: float = 0.02

@@ -1,0 +1,120 @@
+"""Time the entropy map (freqbrdf.uncertainty) on T = 512 (262,144 texels), l* = 5, RGB.
+
+Inputs are synthetic spectra of the model itself: a natural-looking light spectrum
+S_refl(l) ~ (1 + l)^-2 with per-texel log-normal jitter, random materials (roughness and k_s
+uniform in [0, 1], per-channel k_s), a diffuse DC term, and amplitude noise of 1 % of the light's
+RMS amplitude. Both modes, R = 8 and R = 32, with and without returning the (N, R, R) likelihood.
+
+Prints the figures and saves them to benchmarks/results/bench_entropy.json. The first call loads
+(or compiles) the numba kernel and is reported separately; the warm figure is the median of
+REPEATS runs. Peak memory is the largest Python-visible allocation (tracemalloc) of one warm run.
+The machine is shared: the load average at the start is recorded with the figures, and so is a
+yardstick of its speed at the time, numpy's exp per element, to compare runs across machines.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import statistics
+import time
+import tracemalloc
+from pathlib import Path
+
+import numba
+import numpy as np
+
+from freqbrdf.config import UncertaintyConfig
+from freqbrdf.uncertainty import entropy_from_spectra
+
+RESULTS = Path(__file__).resolve().parent / "results" / "bench_entropy.json"
+TEXTURE_RES = 512
+LMAX = 5
+REPEATS = 5
+NOISE = 0.01
+
+
+def synthetic_spectra(n_texels: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """light, observed power spectra (N, 3, l*+1) float32 from the calibrated model plus noise."""
+    rng = np.random.default_rng(seed)
+    degrees = np.arange(LMAX + 1)
+    light = (1.0 + degrees) ** -2.0 * rng.lognormal(0.0, 0.3, (n_texels, 3, LMAX + 1))
+    alpha = rng.uniform(0.0, 1.0, n_texels) ** 2
+    specular = rng.uniform(0.0, 1.0, (n_texels, 3))
+    kernel = np.exp(-np.square(alpha)[:, None] * degrees**2)  # (N, l*+1)
+    amplitude = specular[..., None] * kernel[:, None, :] * np.sqrt(light)
+    rms = np.sqrt(light.sum(axis=2, keepdims=True))
+    amplitude += NOISE * rms * rng.standard_normal(amplitude.shape)
+    amplitude[..., 0] = specular * np.sqrt(light[..., 0]) + rng.uniform(0.0, 0.5, (n_texels, 3))
+    return light.astype(np.float32), np.square(amplitude).astype(np.float32)
+
+
+def median_seconds(run, repeats: int = REPEATS) -> float:
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        run()
+        times.append(time.perf_counter() - start)
+    return statistics.median(times)
+
+
+def numpy_exp_ns() -> float:
+    """Median nanoseconds per element of np.exp on 2^22 doubles: the machine's speed right now."""
+    values = -np.linspace(0.0, 30.0, 1 << 22)
+    return median_seconds(lambda: np.exp(values)) / values.size * 1e9
+
+
+def main() -> None:
+    n_texels = TEXTURE_RES * TEXTURE_RES
+    light, observed = synthetic_spectra(n_texels)
+    load_at_start = os.getloadavg()[0]
+    exp_ns_at_start = numpy_exp_ns()
+    runs = []
+    for mode in ("calibrated", "paper"):
+        for grid_res in (8, 32):
+            config = UncertaintyConfig(mode=mode, grid_res=grid_res)
+            for with_likelihood in (False, True):
+
+                def run():
+                    return entropy_from_spectra(light, observed, config=config, return_likelihood=with_likelihood)
+
+                start = time.perf_counter()
+                result = run()
+                first_call = time.perf_counter() - start
+                warm = median_seconds(run)
+                tracemalloc.start()
+                run()
+                _, peak_bytes = tracemalloc.get_traced_memory()
+                tracemalloc.stop()
+                entry = {
+                    "mode": mode,
+                    "grid_res": grid_res,
+                    "likelihood": with_likelihood,
+                    "first_call_s": round(first_call, 4),
+                    "warm_median_s": round(warm, 4),
+                    "peak_mib": round(peak_bytes / 2**20, 1),
+                    "entropy_mean": round(float(result.entropy.mean()), 4),
+                }
+                print(json.dumps(entry))
+                runs.append(entry)
+
+    result = {
+        "benchmark": "uncertainty: entropy map from SH power spectra",
+        "cpu_count": os.cpu_count(),
+        "numba_threads": numba.get_num_threads(),
+        "load_average_at_start": round(load_at_start, 2),
+        "numpy_exp_ns_per_element": {"start": round(exp_ns_at_start, 2), "end": round(numpy_exp_ns(), 2)},
+        "machine": platform.processor() or platform.machine(),
+        "texels": n_texels,
+        "lmax": LMAX,
+        "channels": 3,
+        "runs": runs,
+    }
+    print(json.dumps(result, indent=2))
+    RESULTS.parent.mkdir(parents=True, exist_ok=True)
+    RESULTS.write_text(json.dumps(result, indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,755 @@
+"""Per-texel base colour, roughness and metallic from the observations (METHOD.md §3.6-3.7).
+
+Two estimators of the same angular model (``brdf.predict_angular``), per texel and channel c
+
+    L_c(w) = F_c(theta) G1(theta) S_alpha,c(w) + d_c E_c / pi,
+    S_alpha,c(w) = sum_l k_alpha(l) P_c,l(w),   P_c,l(w) = sum_m c^in_c,lm Y_lm(w),
+
+with F = R0 + (1 - R0)(1 - cos)^5, R0 = 0.04 (1 - m) + b m, d = (1 - m) b and k the BRDF kernel
+(``brdf.brdf_kernel``, band-limit compensated). P, the incoming light's SH expansion split by
+degree, is computed once per light fit, so a new alpha costs l* + 1 multiply-adds per sample.
+
+- ``global`` (ours) minimises the weighted squared residual sum_v w_v^2 (L(w_v) - f_v)^2. Write
+  L = R0 X + Y + d e with X = G1 S (1 - (1 - cos)^5), Y = G1 S (1 - cos)^5, e = E / pi. For fixed
+  (alpha, m) the model is linear in b per channel, L = b (m X + (1 - m) e) + 0.04 (1 - m) X + Y,
+  so the best b is a clipped closed form computed from seven weighted moments of X, Y and f over
+  the views. Roughness is searched on a grid with the metallic profiled out (grid, then Brent) at
+  each node, and the best cell is refined by Brent: the global optimum in (b, m, r) up to the grid
+  resolution, with no step size and no local minima to fall into.
+- ``paper`` reproduces the authors' prototype: Adam (torch's defaults, lr 0.02, 100 iterations)
+  on the L1 loss of the cos-weighted residuals averaged over the whole T x T texture, parameters
+  clamped to [0, 1] after every step, texture-space total variation on the observed texels, and
+  any of the three forward models (angular, SH coefficients, power spectrum), with analytic
+  gradients. Initialisation is the prototype's: base colour, roughness and metallic all 0.5.
+
+Shadowing (appendix eq. 6) makes the light's SH fit depend on alpha. Both estimators freeze it
+and refresh it as the prototype does: the first search (or the first 49 Adam steps) uses the
+unshadowed light; a refresh re-fits the light shadowed at the current roughness. ``global``
+searches again after each of its ``shadowing_refreshes`` refreshes, shadowing at a secant
+prediction of the fixed point r = search(light shadowed at r); its estimate is the global optimum
+for the last frozen light. On model-generated data 4 refreshes reach ~1e-3 in roughness on the
+worst texels (median ~1e-8), 6 reach ~1e-6.
+
+Texels without a single sample are left unestimated (NaN, ``estimated`` False); the caller fills
+them for export.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numba
+import numpy as np
+
+from freqbrdf import brdf, sh, texels
+from freqbrdf.config import Config, EstimateConfig, FitConfig
+from freqbrdf.observations import Observations
+from freqbrdf.progress import SILENT, Reporter
+
+# Texels per parallel work item of the search: amortises the scratch buffers.
+_SEARCH_CHUNK = 64
+# Texels per block when expanding the light by degree: bounds the (block, V, K) SH basis.
+_PROJECTION_BLOCK = 8192
+# Brent's absolute tolerance on roughness and metallic; its relative part is sqrt(machine eps).
+# A grid minimum on the boundary of [0, 1] is kept when the loss rises this far inside, instead of
+# letting Brent creep towards the boundary in golden steps.
+_BRENT_XTOL = 1e-7
+_BRENT_MAX_EVALS = 60
+# torch.optim.Adam's defaults, which the prototype used.
+_ADAM_BETA1, _ADAM_BETA2, _ADAM_EPS = 0.9, 0.999, 1e-8
+_DIELECTRIC_F0 = brdf.DIELECTRIC_F0  # module constants, bound here for the numba kernels
+_ALPHA_MIN = brdf.ALPHA_MIN
+# The 8-neighbourhood of the prototype's 3 x 3 total-variation stencil (the centre adds zero).
+_NEIGHBOUR_OFFSETS = tuple((dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1) if (dr, dc) != (0, 0))
+
+
+@dataclass(eq=False)
+class MaterialEstimate:
+    """Principled parameters per texel of an Observations (N texels)."""
+
+    texture_res: int  # T
+    texel_index: np.ndarray  # (N,) int64 flat row-major index into the T x T texture
+    base_color: np.ndarray  # (N, 3) float64 linear RGB in [0, 1]; NaN where not estimated
+    roughness: np.ndarray  # (N,) float64 in [0, 1]; NaN where not estimated
+    metallic: np.ndarray  # (N,) float64 in [0, 1]; NaN where not estimated
+    estimated: np.ndarray  # (N,) bool: the texel had at least one sample
+    # (N,) weighted mean squared residual of the angular model under the final light,
+    # sum_v,c w_v^2 (L_c(w_v) - f_v,c)^2 / sum_v w_v^2 (channels summed); NaN where not estimated.
+    loss: np.ndarray
+    method: str  # "global" or "paper/<forward model>"
+    timings: dict = field(default_factory=dict)  # seconds per stage
+
+    @property
+    def n_texels(self) -> int:
+        return len(self.texel_index)
+
+    def principled(self) -> brdf.PrincipledParams:
+        return brdf.PrincipledParams(base_color=self.base_color, roughness=self.roughness, metallic=self.metallic)
+
+    def to_texture(self, values: np.ndarray, fill: float = np.nan) -> np.ndarray:
+        """Per-texel values (N,) or (N, C) as a (T, T) or (T, T, C) image, ``fill`` elsewhere."""
+        return texels.scatter(self, np.asarray(values), fill)  # scatter reads texture_res, texel_index
+
+    def textures(self) -> dict[str, np.ndarray]:
+        """base_color (T, T, 3), roughness and metallic (T, T): NaN off the estimated texels."""
+        keep = self.estimated[:, None]
+        return {
+            "base_color": self.to_texture(np.where(keep, self.base_color, np.nan)),
+            "roughness": self.to_texture(np.where(self.estimated, self.roughness, np.nan)),
+            "metallic": self.to_texture(np.where(self.estimated, self.metallic, np.nan)),
+        }
+
+
+def estimate(observations: Observations, config: Config = Config(), reporter: Reporter = SILENT) -> MaterialEstimate:
+    """Estimate base colour, roughness and metallic per texel with ``config.estimate.method``.
+
+    ``config.fit`` must be the fit the observations were made with: shadowing refreshes re-fit
+    the light with it.
+    """
+    settings = config.estimate
+    _validate(settings)
+    if settings.method == "global":
+        return _estimate_global(observations, config, reporter)
+    return _estimate_paper(observations, config, reporter)
+
+
+def angular_loss(
+    observations: Observations,
+    params: brdf.PrincipledParams,
+    config: Config = Config(),
+    light_coeffs: np.ndarray | None = None,
+) -> np.ndarray:
+    """(N,) the weighted mean squared residual of ``params`` (see `MaterialEstimate.loss`).
+
+    light_coeffs (N, 3, K): the incoming light's SH fit; default the unshadowed mirrored light.
+    Texels without samples get NaN.
+    """
+    settings = config.estimate
+    light = observations.mirrored_coeffs if light_coeffs is None else light_coeffs
+    mf = brdf.microfacet_from_principled(params)
+    loss = np.empty(observations.n_texels)
+    for rows in _blocks(observations.n_texels):
+        _squared_residual_kernel(
+            _degree_projections(observations.view_direction[rows], light[rows], observations.lmax),
+            observations.view_direction[rows, :, 2], observations.weight[rows], observations.observed[rows],
+            _diffuse_scale(observations)[rows], mf.specular_r0[rows], mf.diffuse_albedo[rows], mf.alpha[rows],
+            observations.sigma, settings.fresnel, settings.masking, loss[rows],
+        )
+    return np.where(observations.n_samples > 0, loss, np.nan)
+
+
+# ---------------------------------------------------------------------------------------------
+# Shared pieces
+
+
+def _validate(settings: EstimateConfig) -> None:
+    if settings.method not in ("global", "paper"):
+        raise ValueError(f"unknown estimator {settings.method!r}; choose 'global' or 'paper'")
+    if settings.forward_model not in ("angular", "sh_coeffs", "spectrum"):
+        raise ValueError(f"unknown forward model {settings.forward_model!r}")
+    if settings.method == "global" and settings.forward_model != "angular":
+        raise ValueError("the global estimator searches the angular model; use forward_model='angular'")
+    if settings.roughness_grid < 2 or settings.metallic_grid < 2:
+        raise ValueError("roughness_grid and metallic_grid need at least 2 nodes")
+    if settings.shadowing_refresh_every < 1 or settings.iterations < 0 or settings.shadowing_refreshes < 0:
+        raise ValueError("iterations and shadowing_refreshes must be >= 0, shadowing_refresh_every >= 1")
+
+
+def _blocks(n_texels: int):
+    for start in range(0, n_texels, _PROJECTION_BLOCK):
+        yield slice(start, min(start + _PROJECTION_BLOCK, n_texels))
+
+
+def _diffuse_scale(observations: Observations) -> np.ndarray:
+    """(N, 3) E / pi: the Lambertian radiance per unit diffuse albedo."""
+    return observations.irradiance.astype(np.float64) / np.pi
+
+
+def _shadowed_light_coeffs(observations: Observations, alpha: np.ndarray, fit: FitConfig) -> np.ndarray:
+    """(N, 3, K) SH fit of the mirrored light shadowed by G1(theta_i, alpha) (appendix eq. 6)."""
+    light = brdf.shadowed_light(observations.mirrored, observations.view_direction[..., 2], alpha)
+    return sh.fit_sh(
+        observations.view_direction, observations.weight, light.astype(np.float32), observations.lmax,
+        fit.reg_lambda, fit.regulariser, fit.scale_lambda_with_weight,
+    ).coeffs
+
+
+def _degree_projections(directions: np.ndarray, coeffs: np.ndarray, lmax: int) -> np.ndarray:
+    """P_c,l(w_v) = sum_m c_c,lm Y_lm(w_v): directions (n, V, 3), coeffs (n, 3, K) -> (n, 3, l*+1, V)."""
+    basis = sh.eval_sh(np.ascontiguousarray(directions, dtype=np.float32), lmax)  # (n, V, K)
+    out = np.empty((directions.shape[0], 3, lmax + 1, directions.shape[1]), dtype=np.float32)
+    _project_degrees_kernel(basis, np.ascontiguousarray(coeffs, dtype=np.float32), out)
+    return out
+
+
+@numba.njit(parallel=True, fastmath=True, cache=True)
+def _project_degrees_kernel(basis, coeffs, out):  # (n, V, K), (n, 3, K) -> out (n, 3, l*+1, V)
+    n_texels, n_views, _ = basis.shape
+    n_degrees = out.shape[2]
+    for t in numba.prange(n_texels):
+        for v in range(n_views):
+            for c in range(3):
+                for degree in range(n_degrees):
+                    acc = np.float32(0.0)
+                    for k in range(degree * degree, (degree + 1) * (degree + 1)):
+                        acc += basis[t, v, k] * coeffs[t, c, k]
+                    out[t, c, degree, v] = acc
+
+
+@numba.njit(fastmath=True, cache=True)
+def _g1_and_derivative(cos_theta, alpha):
+    """brdf.smith_g1_ggx for one sample (cos_theta > 0), and its derivative in alpha."""
+    sin2 = 1.0 - cos_theta * cos_theta
+    root = math.sqrt(cos_theta * cos_theta + alpha * alpha * sin2)
+    denominator = cos_theta + root
+    g1 = 2.0 * cos_theta / denominator
+    return g1, -g1 / denominator * alpha * sin2 / root
+
+
+@numba.njit(fastmath=True, cache=True)
+def _fill_kernel(alpha, sigma, kernel, kernel_derivative):
+    """brdf.brdf_kernel for one texel, and its derivative in alpha: -2 alpha l^2 k(l)."""
+    for degree in range(kernel.shape[0]):
+        kernel[degree] = math.exp(-(alpha * alpha - sigma * sigma) * degree * degree)
+        kernel_derivative[degree] = -2.0 * alpha * degree * degree * kernel[degree]
+
+
+@numba.njit(parallel=True, fastmath=True, cache=True)
+def _squared_residual_kernel(
+    proj, cos_theta, weight, observed, diffuse_scale, r0, diffuse, alpha, sigma, fresnel, masking, out
+):
+    """out[t] = sum_v,c w^2 (L - f)^2 / sum_v w^2 (0 without samples)."""
+    n_texels, n_views = weight.shape
+    n_degrees = proj.shape[2]
+    for t in numba.prange(n_texels):
+        kernel = np.empty(n_degrees)
+        kernel_derivative = np.empty(n_degrees)
+        _fill_kernel(alpha[t], sigma, kernel, kernel_derivative)
+        total = 0.0
+        weight_sq = 0.0
+        for v in range(n_views):
+            w = np.float64(weight[t, v])
+            if w <= 0.0:
+                continue
+            cos_v = np.float64(cos_theta[t, v])
+            g1 = _g1_and_derivative(cos_v, alpha[t])[0] if masking else 1.0
+            schlick = (1.0 - cos_v) ** 5 if fresnel else 0.0
+            for c in range(3):
+                filtered = 0.0
+                for degree in range(n_degrees):
+                    filtered += kernel[degree] * proj[t, c, degree, v]
+                fresnel_c = r0[t, c] + (1.0 - r0[t, c]) * schlick
+                residual = fresnel_c * g1 * filtered + diffuse[t, c] * diffuse_scale[t, c] - observed[t, v, c]
+                total += w * w * residual * residual
+            weight_sq += w * w
+        out[t] = total / weight_sq if weight_sq > 0.0 else 0.0
+
+
+# ---------------------------------------------------------------------------------------------
+# global: exhaustive search with a closed-form base colour
+
+
+def _estimate_global(observations: Observations, config: Config, reporter: Reporter) -> MaterialEstimate:
+    settings = config.estimate
+    timings = {"light": 0.0, "search": 0.0}
+    n_texels = observations.n_texels
+    estimated = observations.n_samples > 0
+    params = np.zeros((n_texels, 5))  # base colour RGB, roughness, metallic
+    loss = np.zeros(n_texels)
+    cos_theta = observations.view_direction[..., 2]
+    diffuse_scale = _diffuse_scale(observations)
+    # The light of pass 0 is unshadowed, i.e. shadowed at alpha = 0 (G1 = 1). Each further pass
+    # shadows it at a roughness closer to the fixed point r = search(light shadowed at r): a
+    # secant step on search(r) - r, which converges much faster than re-using the last estimate.
+    light = observations.mirrored_coeffs
+    shadow_roughness = np.zeros(n_texels)
+    previous_roughness = previous_residual = None
+    n_passes = 1 + (settings.shadowing_refreshes if settings.shadowing else 0)
+    with reporter.stage("estimating (global)", n_passes) as advance:
+        for pass_index in range(n_passes):
+            tick = time.perf_counter()
+            if pass_index > 0:
+                light = _shadowed_light_coeffs(observations, brdf.alpha_from_roughness(shadow_roughness), config.fit)
+            timings["light"] += time.perf_counter() - tick
+            tick = time.perf_counter()
+            for rows in _blocks(n_texels):
+                _global_search_kernel(
+                    _degree_projections(observations.view_direction[rows], light[rows], observations.lmax),
+                    cos_theta[rows], observations.weight[rows], observations.observed[rows], diffuse_scale[rows],
+                    observations.sigma, settings.fresnel, settings.masking, settings.roughness_grid,
+                    settings.metallic_grid, params[rows], loss[rows],
+                )
+            timings["search"] += time.perf_counter() - tick
+            residual = params[:, 3] - shadow_roughness
+            next_roughness = params[:, 3].copy()
+            if previous_residual is not None:
+                slope = residual - previous_residual
+                usable = np.abs(slope) > 1e-12
+                secant = shadow_roughness[usable] - residual[usable] * (
+                    shadow_roughness[usable] - previous_roughness[usable]) / slope[usable]
+                next_roughness[usable] = np.where((secant >= 0.0) & (secant <= 1.0), secant, next_roughness[usable])
+            previous_roughness, previous_residual = shadow_roughness, residual
+            shadow_roughness = next_roughness
+            advance(1)
+    timings["total"] = timings["light"] + timings["search"]
+    return _result(observations, params, loss, estimated, "global", timings)
+
+
+def _result(observations, params, loss, estimated, method, timings) -> MaterialEstimate:
+    unknown = ~estimated
+    params = params.copy()
+    params[unknown] = np.nan
+    return MaterialEstimate(
+        texture_res=observations.texture_res,
+        texel_index=observations.texel_index,
+        base_color=params[:, :3],
+        roughness=params[:, 3],
+        metallic=params[:, 4],
+        estimated=estimated,
+        loss=np.where(unknown, np.nan, loss),
+        method=method,
+        timings=timings,
+    )
+
+
+# Brent's bounded minimiser (golden section with parabolic steps, as scipy's fminbound) in
+# reverse communication: the caller evaluates the objective, so no function is passed around
+# (numba cannot cache functions taking functions). State slots of a (12,) float64 array:
+_LO, _HI, _X, _FX, _W, _FW, _V, _FV, _STEP, _PREV_STEP, _PROBE, _EVALS = range(12)
+_GOLDEN = 0.5 * (3.0 - math.sqrt(5.0))
+_SQRT_EPS = math.sqrt(2.2e-16)
+
+
+@numba.njit(fastmath=True, cache=True)
+def _brent_start(state, lower, upper):
+    """Begin minimising on [lower, upper]; returns the first point to evaluate."""
+    state[_LO], state[_HI] = lower, upper
+    state[_PROBE] = lower + _GOLDEN * (upper - lower)
+    state[_STEP] = state[_PREV_STEP] = 0.0
+    state[_EVALS] = 0.0
+    return state[_PROBE]
+
+
+@numba.njit(fastmath=True, cache=True)
+def _brent_next(state, f_probe):
+    """Take f at the last point; returns True with the next point in state[_PROBE], or False when
+    done, the best point being state[_X] with value state[_FX]."""
+    a, b, u = state[_LO], state[_HI], state[_PROBE]
+    if state[_EVALS] == 0.0:
+        state[_X] = state[_W] = state[_V] = u
+        state[_FX] = state[_FW] = state[_FV] = f_probe
+    else:
+        x, fx, w, fw, v, fv = state[_X], state[_FX], state[_W], state[_FW], state[_V], state[_FV]
+        if f_probe <= fx:
+            if u >= x:
+                a = x
+            else:
+                b = x
+            v, fv, w, fw, x, fx = w, fw, x, fx, u, f_probe
+        else:
+            if u < x:
+                a = u
+            else:
+                b = u
+            if f_probe <= fw or w == x:
+                v, fv, w, fw = w, fw, u, f_probe
+            elif f_probe <= fv or v == x or v == w:
+                v, fv = u, f_probe
+        state[_LO], state[_HI] = a, b
+        state[_X], state[_FX], state[_W], state[_FW], state[_V], state[_FV] = x, fx, w, fw, v, fv
+    state[_EVALS] += 1.0
+    x, fx, w, fw, v, fv = state[_X], state[_FX], state[_W], state[_FW], state[_V], state[_FV]
+    middle = 0.5 * (a + b)
+    tol1 = _SQRT_EPS * abs(x) + _BRENT_XTOL / 3.0
+    tol2 = 2.0 * tol1
+    if abs(x - middle) <= tol2 - 0.5 * (b - a) or state[_EVALS] >= _BRENT_MAX_EVALS:
+        return False
+    step, previous_step = state[_STEP], state[_PREV_STEP]
+    use_golden = True
+    if abs(previous_step) > tol1:  # try the parabola through x, w, v
+        r = (x - w) * (fx - fv)
+        q = (x - v) * (fx - fw)
+        p = (x - v) * q - (x - w) * r
+        q = 2.0 * (q - r)
+        if q > 0.0:
+            p = -p
+        q = abs(q)
+        older_step = previous_step
+        previous_step = step
+        if abs(p) < abs(0.5 * q * older_step) and q * (a - x) < p < q * (b - x):
+            step = p / q
+            use_golden = False
+            if (x + step - a) < tol2 or (b - x - step) < tol2:
+                step = tol1 if middle >= x else -tol1
+    if use_golden:
+        previous_step = (a - x) if x >= middle else (b - x)
+        step = _GOLDEN * previous_step
+    state[_STEP], state[_PREV_STEP] = step, previous_step
+    state[_PROBE] = x + (step if abs(step) >= tol1 else (tol1 if step >= 0.0 else -tol1))
+    return True
+
+
+@numba.njit(fastmath=True, cache=True)
+def _metallic_objective(metallic, args):
+    """Sum over channels of the weighted squared residual at the best base colour for this
+    metallic, from the moments; writes that base colour and the metallic into state[:4]."""
+    moments, constants, diffuse_scale, state = args
+    dielectric = 1.0 - metallic
+    kappa = _DIELECTRIC_F0 * dielectric  # R0 = kappa + m b
+    total = 0.0
+    for c in range(3):
+        s_x, s_y, s_xx, s_xy = moments[c, 0], moments[c, 1], moments[c, 2], moments[c, 3]
+        s_xf, s_yy, s_yf = moments[c, 4], moments[c, 5], moments[c, 6]
+        s_w, s_f, s_ff = constants[c, 0], constants[c, 1], constants[c, 2]
+        e = diffuse_scale[c]
+        # L = b A + B with A = m X + (1 - m) e, B = kappa X + Y: loss = q2 b^2 + 2 q1 b + q0.
+        q2 = metallic * metallic * s_xx + 2.0 * metallic * dielectric * e * s_x + dielectric * dielectric * e * e * s_w
+        q1 = metallic * (kappa * s_xx + s_xy - s_xf) + dielectric * e * (kappa * s_x + s_y - s_f)
+        q0 = kappa * kappa * s_xx + s_yy + s_ff + 2.0 * kappa * (s_xy - s_xf) - 2.0 * s_yf
+        base = min(max(-q1 / q2, 0.0), 1.0) if q2 > 0.0 else 0.0  # a 1-D convex quadratic: clip
+        total += (q2 * base + 2.0 * q1) * base + q0
+        state[c] = base
+    state[3] = metallic
+    return total
+
+
+@numba.njit(fastmath=True, cache=True)
+def _profile_metallic(moments, constants, diffuse_scale, state, brent_state, metallic_grid):
+    """min over (b, m) of the loss for fixed moments: metallic grid, then Brent in the best cell."""
+    args = (moments, constants, diffuse_scale, state)
+    best_m, best_f = 0.0, np.inf
+    for j in range(metallic_grid):
+        m = j / (metallic_grid - 1)
+        f = _metallic_objective(m, args)
+        if f < best_f:
+            best_m, best_f = m, f
+    inward = _BRENT_XTOL if best_m == 0.0 else -_BRENT_XTOL
+    if (best_m == 0.0 or best_m == 1.0) and _metallic_objective(best_m + inward, args) >= best_f:
+        return _metallic_objective(best_m, args)  # a pure dielectric or a pure metal
+    cell = 1.0 / (metallic_grid - 1)
+    m = _brent_start(brent_state, max(best_m - cell, 0.0), min(best_m + cell, 1.0))
+    while _brent_next(brent_state, _metallic_objective(m, args)):
+        m = brent_state[_PROBE]
+    m = brent_state[_X] if brent_state[_FX] < best_f else best_m
+    return _metallic_objective(m, args)  # leaves the winner's base colour and metallic in state
+
+
+@numba.njit(fastmath=True, cache=True)
+def _roughness_objective(roughness, args):
+    """Profiled loss at this roughness: min over base colour and metallic (written to state)."""
+    (n, cos_theta, schlick, omega, proj, values, sigma, fresnel, masking, kernel, kernel_derivative,
+     g1, filtered, moments, constants, diffuse_scale, state, metallic_brent, metallic_grid) = args
+    alpha = max(roughness * roughness, _ALPHA_MIN)
+    _fill_kernel(alpha, sigma, kernel, kernel_derivative)
+    for s in range(n):
+        g1[s] = _g1_and_derivative(cos_theta[s], alpha)[0] if masking else 1.0
+    for c in range(3):
+        for s in range(n):
+            filtered[s] = 0.0
+        for degree in range(kernel.shape[0]):
+            k = kernel[degree]
+            for s in range(n):
+                filtered[s] += k * proj[c, degree, s]
+        s_x = s_y = s_xx = s_xy = s_xf = s_yy = s_yf = 0.0
+        for s in range(n):
+            specular = g1[s] * filtered[s]
+            y = specular * schlick[s] if fresnel else 0.0
+            x = specular - y
+            f = values[c, s]
+            wx = omega[s] * x
+            wy = omega[s] * y
+            s_x += wx
+            s_y += wy
+            s_xx += wx * x
+            s_xy += wx * y
+            s_xf += wx * f
+            s_yy += wy * y
+            s_yf += wy * f
+        moments[c, 0], moments[c, 1], moments[c, 2], moments[c, 3] = s_x, s_y, s_xx, s_xy
+        moments[c, 4], moments[c, 5], moments[c, 6] = s_xf, s_yy, s_yf
+    return _profile_metallic(moments, constants, diffuse_scale, state, metallic_brent, metallic_grid)
+
+
+@numba.njit(parallel=True, fastmath=True, cache=True)
+def _global_search_kernel(
+    proj, cos_theta, weight, observed, diffuse_scale, sigma, fresnel, masking, roughness_grid, metallic_grid,
+    params, loss,
+):
+    """Per texel: the (base colour, roughness, metallic) of least weighted squared residual.
+
+    proj (n, 3, l*+1, V) float32 from `_degree_projections`; cos_theta, weight (n, V);
+    observed (n, V, 3); diffuse_scale (n, 3) E / pi. Writes params (n, 5) [b_rgb, r, m] and
+    loss (n,) (divided by sum_v w^2) for texels with samples; others are left untouched.
+    """
+    n_texels, n_views = weight.shape
+    n_degrees = proj.shape[2]
+    for chunk in numba.prange((n_texels + _SEARCH_CHUNK - 1) // _SEARCH_CHUNK):
+        # The texel's samples with w > 0, packed and with the views innermost (vectorised loops).
+        packed_cos = np.empty(n_views)
+        schlick = np.empty(n_views)
+        omega = np.empty(n_views)  # w^2
+        packed_proj = np.empty((3, n_degrees, n_views))
+        values = np.empty((3, n_views))
+        g1 = np.empty(n_views)
+        filtered = np.empty(n_views)
+        kernel = np.empty(n_degrees)
+        kernel_derivative = np.empty(n_degrees)
+        moments = np.empty((3, 7))
+        constants = np.empty((3, 3))
+        scale = np.empty(3)
+        state = np.empty(4)
+        roughness_brent = np.empty(12)
+        metallic_brent = np.empty(12)
+        for t in range(chunk * _SEARCH_CHUNK, min((chunk + 1) * _SEARCH_CHUNK, n_texels)):
+            n = 0
+            for v in range(n_views):
+                w = np.float64(weight[t, v])
+                if w <= 0.0:
+                    continue
+                packed_cos[n] = cos_theta[t, v]
+                schlick[n] = (1.0 - packed_cos[n]) ** 5
+                omega[n] = w * w
+                for c in range(3):
+                    values[c, n] = observed[t, v, c]
+                    for degree in range(n_degrees):
+                        packed_proj[c, degree, n] = proj[t, c, degree, v]
+                n += 1
+            if n == 0:
+                continue
+            for c in range(3):
+                s_w = s_f = s_ff = 0.0
+                for s in range(n):
+                    s_w += omega[s]
+                    s_f += omega[s] * values[c, s]
+                    s_ff += omega[s] * values[c, s] * values[c, s]
+                constants[c, 0], constants[c, 1], constants[c, 2] = s_w, s_f, s_ff
+                scale[c] = diffuse_scale[t, c]
+            args = (n, packed_cos, schlick, omega, packed_proj, values, sigma, fresnel, masking, kernel,
+                    kernel_derivative, g1, filtered, moments, constants, scale, state, metallic_brent, metallic_grid)
+            # Scan the roughness grid, then Brent in the best cell unless the loss rises inwards
+            # from a boundary node; keep the node if Brent does no better.
+            cell = 1.0 / (roughness_grid - 1)
+            best_r, best_f = 0.0, np.inf
+            for i in range(roughness_grid):
+                r = i / (roughness_grid - 1)
+                f = _roughness_objective(r, args)
+                if f < best_f:
+                    best_r, best_f = r, f
+            r = best_r
+            inward = _BRENT_XTOL if best_r == 0.0 else -_BRENT_XTOL
+            on_boundary = best_r == 0.0 or best_r == 1.0
+            if not on_boundary or _roughness_objective(best_r + inward, args) < best_f:
+                probe = _brent_start(roughness_brent, max(best_r - cell, 0.0), min(best_r + cell, 1.0))
+                while _brent_next(roughness_brent, _roughness_objective(probe, args)):
+                    probe = roughness_brent[_PROBE]
+                if roughness_brent[_FX] < best_f:
+                    r = roughness_brent[_X]
+            f = _roughness_objective(r, args)
+            params[t, 0], params[t, 1], params[t, 2] = state[0], state[1], state[2]
+            params[t, 3], params[t, 4] = r, state[3]
+            loss[t] = max(f, 0.0) / constants[0, 0]
+
+
+# ---------------------------------------------------------------------------------------------
+# paper: the prototype's Adam
+
+
+def _estimate_paper(observations: Observations, config: Config, reporter: Reporter) -> MaterialEstimate:
+    settings = config.estimate
+    timings = {"light": 0.0, "iterations": 0.0}
+    n_texels = observations.n_texels
+    estimated = observations.n_samples > 0
+    params = np.empty((n_texels, 5))  # base colour RGB, roughness, metallic
+    params[:, :3] = settings.init_base_color
+    params[:, 3] = settings.init_roughness
+    params[:, 4] = settings.init_metallic
+    first_moment = np.zeros_like(params)
+    second_moment = np.zeros_like(params)
+    neighbours = _texture_neighbours(observations.texture_res, observations.texel_index, estimated)
+    # The prototype's losses are means over the whole T x T texture (observed or not).
+    texture_texels = observations.texture_res**2
+    light = observations.mirrored_coeffs
+    target = observations.observed_coeffs
+    proj = None
+    tick = time.perf_counter()
+    if settings.forward_model == "angular":
+        proj = _degree_projections(observations.view_direction, light, observations.lmax)
+    timings["light"] += time.perf_counter() - tick
+
+    with reporter.stage("estimating (paper)", settings.iterations) as advance:
+        for iteration in range(settings.iterations):
+            # The prototype refreshes shadowing/masking before iterations 49, 99, ... (it + 1 = 50 k).
+            if (settings.shadowing or settings.masking) and (iteration + 1) % settings.shadowing_refresh_every == 0:
+                tick = time.perf_counter()
+                light, target, proj = _refresh(observations, config, params, light, target, proj)
+                timings["light"] += time.perf_counter() - tick
+            tick = time.perf_counter()
+            gradient = _data_gradient(observations, settings, params, light, target, proj, texture_texels)
+            gradient += _tv_gradient(params, neighbours, settings.tv_weight / (9.0 * texture_texels))
+            _adam_step(params, gradient, first_moment, second_moment, iteration + 1, settings.learning_rate)
+            timings["iterations"] += time.perf_counter() - tick
+            advance(1)
+
+    tick = time.perf_counter()
+    loss = angular_loss(observations, _principled(params), config, light)
+    timings["loss"] = time.perf_counter() - tick
+    timings["total"] = sum(timings.values())
+    return _result(observations, params, np.nan_to_num(loss), estimated, f"paper/{settings.forward_model}", timings)
+
+
+def _principled(params: np.ndarray) -> brdf.PrincipledParams:
+    return brdf.PrincipledParams(base_color=params[:, :3], roughness=params[:, 3], metallic=params[:, 4])
+
+
+def _refresh(observations, config, params, light, target, proj):
+    """Re-fit the light shadowed at the current roughness (and, for the spectral models, the
+    observations with the masking divided out), as the prototype does every 50 iterations."""
+    settings = config.estimate
+    alpha = brdf.alpha_from_roughness(params[:, 3])
+    if settings.shadowing:
+        light = _shadowed_light_coeffs(observations, alpha, config.fit)
+        if settings.forward_model == "angular":
+            proj = _degree_projections(observations.view_direction, light, observations.lmax)
+    if settings.masking and settings.forward_model != "angular":
+        g1 = brdf.smith_g1_ggx(observations.view_direction[..., 2], alpha[:, None])  # (N, V)
+        unmasked = observations.observed / np.maximum(g1, np.finfo(np.float32).tiny)[..., None]
+        fit = config.fit
+        target = sh.fit_sh(
+            observations.view_direction, observations.weight, unmasked.astype(np.float32), observations.lmax,
+            fit.reg_lambda, fit.regulariser, fit.scale_lambda_with_weight,
+        ).coeffs
+    return light, target, proj
+
+
+def _data_gradient(observations, settings, params, light, target, proj, texture_texels) -> np.ndarray:
+    """(N, 5) gradient of the prototype's mean L1 loss for the chosen forward model."""
+    mf = brdf.microfacet_from_principled(_principled(params))
+    lmax, sigma = observations.lmax, observations.sigma
+    diffuse_scale = _diffuse_scale(observations)  # (N, 3)
+    n_texels = observations.n_texels
+    if settings.forward_model == "angular":
+        grad_r0, grad_diffuse, grad_alpha = np.zeros((n_texels, 3)), np.zeros((n_texels, 3)), np.zeros(n_texels)
+        _angular_l1_gradient_kernel(
+            proj, observations.view_direction[..., 2], observations.weight, observations.observed, diffuse_scale,
+            mf.specular_r0, mf.diffuse_albedo, mf.alpha, sigma, settings.fresnel, settings.masking,
+            grad_r0, grad_diffuse, grad_alpha,
+        )
+        count = texture_texels * observations.n_views * 3
+    else:
+        constant = observations.constant_coeffs.astype(np.float64)  # (N, K)
+        kernel = brdf.brdf_kernel(mf.alpha, lmax, sigma)  # (N, l*+1)
+        degrees = np.arange(lmax + 1)
+        kernel_derivative = -2.0 * mf.alpha[:, None] * degrees**2 * kernel  # d kernel / d alpha
+        r0 = mf.specular_r0[:, :, None]  # (N, 3, 1)
+        if settings.forward_model == "sh_coeffs":
+            predicted = brdf.predict_sh_coeffs(mf, light, observations.irradiance, constant, sigma=sigma)
+            sign = np.sign(predicted - target)  # (N, 3, K)
+            per_coeff = sh.sh_degrees(lmax)
+            grad_r0 = np.sum(sign * kernel[:, None, per_coeff] * light, axis=2)
+            grad_diffuse = np.sum(sign * constant[:, None, :], axis=2) * diffuse_scale
+            grad_alpha = np.sum(sign * r0 * kernel_derivative[:, None, per_coeff] * light, axis=(1, 2))
+            count = texture_texels * 3 * sh.num_coeffs(lmax)
+        else:
+            light_spectrum = sh.power_spectrum(light)  # (N, 3, l*+1)
+            predicted = brdf.predict_power_spectrum(
+                mf, light_spectrum, observations.irradiance, constant, sigma=sigma
+            )
+            sign = np.sign(predicted - sh.power_spectrum(target))
+            # l >= 1: S = R0^2 k^2 S_refl.  l = 0: S = a^2, a = R0 k0 sqrt(S_refl(0)) + d E/pi u_00.
+            grad_r0 = np.sum(sign[..., 1:] * 2.0 * r0 * kernel[:, None, 1:] ** 2 * light_spectrum[..., 1:], axis=2)
+            grad_alpha = np.sum(
+                sign[..., 1:] * r0**2 * 2.0 * kernel[:, None, 1:] * kernel_derivative[:, None, 1:]
+                * light_spectrum[..., 1:], axis=(1, 2),
+            )
+            dc_light = np.sqrt(light_spectrum[..., 0])  # (N, 3)
+            amplitude = mf.specular_r0 * kernel[:, :1] * dc_light + mf.diffuse_albedo * diffuse_scale * constant[:, :1]
+            grad_r0 += sign[..., 0] * 2.0 * amplitude * kernel[:, :1] * dc_light
+            grad_diffuse = sign[..., 0] * 2.0 * amplitude * diffuse_scale * constant[:, :1]
+            count = texture_texels * 3 * (lmax + 1)
+    return _chain_to_principled(grad_r0, grad_diffuse, grad_alpha, params) / count
+
+
+def _chain_to_principled(grad_r0, grad_diffuse, grad_alpha, params) -> np.ndarray:
+    """Gradients in (R0 (N, 3), d (N, 3), alpha (N,)) to (base colour, roughness, metallic) (N, 5).
+
+    R0 = 0.04 + (b - 0.04) m, d = (1 - m) b, alpha = max(r^2, ALPHA_MIN) (no gradient when clamped,
+    as torch's clamp)."""
+    base, roughness, metallic = params[:, :3], params[:, 3], params[:, 4]
+    gradient = np.empty_like(params)
+    gradient[:, :3] = grad_r0 * metallic[:, None] + grad_diffuse * (1.0 - metallic[:, None])
+    gradient[:, 3] = grad_alpha * np.where(roughness**2 > brdf.ALPHA_MIN, 2.0 * roughness, 0.0)
+    gradient[:, 4] = np.sum(grad_r0 * (base - brdf.DIELECTRIC_F0) - grad_diffuse * base, axis=1)
+    return gradient
+
+
+@numba.njit(parallel=True, fastmath=True, cache=True)
+def _angular_l1_gradient_kernel(
+    proj, cos_theta, weight, observed, diffuse_scale, r0, diffuse, alpha, sigma, fresnel, masking,
+    grad_r0, grad_diffuse, grad_alpha,
+):
+    """Gradient of sum_v,c |w (L - f)| in R0, d and alpha per texel (accumulated into the grads)."""
+    n_texels, n_views = weight.shape
+    n_degrees = proj.shape[2]
+    for t in numba.prange(n_texels):
+        kernel = np.empty(n_degrees)
+        kernel_derivative = np.empty(n_degrees)
+        _fill_kernel(alpha[t], sigma, kernel, kernel_derivative)
+        for v in range(n_views):
+            w = np.float64(weight[t, v])
+            if w <= 0.0:
+                continue
+            cos_v = np.float64(cos_theta[t, v])
+            g1, g1_derivative = _g1_and_derivative(cos_v, alpha[t]) if masking else (1.0, 0.0)
+            schlick = (1.0 - cos_v) ** 5 if fresnel else 0.0
+            for c in range(3):
+                filtered = 0.0
+                filtered_derivative = 0.0
+                for degree in range(n_degrees):
+                    filtered += kernel[degree] * proj[t, c, degree, v]
+                    filtered_derivative += kernel_derivative[degree] * proj[t, c, degree, v]
+                fresnel_c = r0[t, c] + (1.0 - r0[t, c]) * schlick
+                residual = fresnel_c * g1 * filtered + diffuse[t, c] * diffuse_scale[t, c] - observed[t, v, c]
+                sign_w = w if residual > 0.0 else (-w if residual < 0.0 else 0.0)
+                grad_r0[t, c] += sign_w * (1.0 - schlick) * g1 * filtered
+                grad_diffuse[t, c] += sign_w * diffuse_scale[t, c]
+                grad_alpha[t] += sign_w * fresnel_c * (g1_derivative * filtered + g1 * filtered_derivative)
+
+
+def _texture_neighbours(texture_res: int, texel_index: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """(N, 8) indices of each masked texel's masked 8-neighbours in the texture, -1 where none."""
+    lookup = np.full(texture_res * texture_res, -1, dtype=np.int64)
+    lookup[texel_index[mask]] = np.flatnonzero(mask)
+    row, col = np.divmod(texel_index, texture_res)
+    neighbours = np.full((len(texel_index), len(_NEIGHBOUR_OFFSETS)), -1, dtype=np.int64)
+    for k, (d_row, d_col) in enumerate(_NEIGHBOUR_OFFSETS):
+        r, c = row + d_row, col + d_col
+        inside = mask & (r >= 0) & (r < texture_res) & (c >= 0) & (c < texture_res)
+        neighbours[inside, k] = lookup[r[inside] * texture_res + c[inside]]
+    return neighbours
+
+
+def _tv_gradient(params: np.ndarray, neighbours: np.ndarray, coefficient: float) -> np.ndarray:
+    """Gradient of coefficient * sum_x sum_(y in N8(x)) sum_p |params_y,p - params_x,p|.
+
+    This is the prototype's masked 3 x 3 L1 total variation averaged over 9 T^2 stencil entries
+    (coefficient = weight / (9 T^2)); each pair appears from both ends, hence the 2.
+    """
+    gradient = np.zeros_like(params)
+    for k in range(neighbours.shape[1]):
+        has = neighbours[:, k] >= 0
+        gradient[has] += 2.0 * coefficient * np.sign(params[has] - params[neighbours[has, k]])
+    return gradient
+
+
+def _adam_step(params, gradient, first_moment, second_moment, step: int, learning_rate: float) -> None:
+    """torch.optim.Adam's update (in place), then the prototype's clamps: |r|, all into [0, 1]."""
+    first_moment *= _ADAM_BETA1
+    first_moment += (1.0 - _ADAM_BETA1) * gradient
+    second_moment *= _ADAM_BETA2
+    second_moment += (1.0 - _ADAM_BETA2) * gradient**2
+    denominator = np.sqrt(second_moment) / math.sqrt(1.0 - _ADAM_BETA2**step) + _ADAM_EPS
+    params -= learning_rate / (1.0 - _ADAM_BETA1**step) * first_moment / denominator
+    params[:, 3] = np.abs(params[:, 3])
+    np.clip(params, 0.0, 1.0, out=params)

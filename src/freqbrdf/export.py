@@ -1,0 +1,308 @@
+"""Outputs of a fit: hole-free textures, EXR/PNG maps, a glTF 2.0 binary and ``summary.json``.
+
+Per-texel estimates become T x T textures in two fill steps, so that renderers and texture
+filtering never see holes or dark seams:
+
+1. Texels of the mesh's atlas without an estimate (no sample) take the value of the nearest
+   estimated texel in texture space (Euclidean distance transform).
+2. The atlas is grown ``config.texels.dilation_px`` rings into the empty texture space by
+   `texels.dilate` (mean of filled neighbours), so bilinear and mip-mapped lookups across chart
+   seams blend surface values. Texels farther from every chart take the mean over the atlas.
+
+The glTF follows its own conventions (glTF 2.0 spec, section 3.9 "Materials"):
+
+- ``baseColorTexture``: sRGB-encoded 8-bit PNG of the linear base colour;
+- ``metallicRoughnessTexture``: linear 8-bit PNG, roughness in G, metallic in B, R = 255. The spec
+  says R must be ignored; 255 is chosen because tools that pack occlusion into R (ORM textures)
+  then read "not occluded";
+- ``metallicFactor = roughnessFactor = 1`` (the textures carry the values);
+- UV origin at the image's top-left: our OBJ-style v (up) is flipped to 1 - v (trimesh's exporter
+  does this), and texture row 0, which is v = 1 in our convention, lands at v_glTF = 0;
+- vertex normals are included; samplers are bilinear with mip-maps and clamp to edge, as the
+  Mitsuba textures of `render.principled_bsdf`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import trimesh
+from matplotlib import colormaps
+from PIL import Image
+from scipy import ndimage
+
+from freqbrdf.config import Config
+from freqbrdf.estimate import MaterialEstimate
+from freqbrdf.fileio import atomic_directory, atomic_path
+from freqbrdf.images import linear_to_srgb, write_exr, write_png
+from freqbrdf.materials import MaterialMaps, save_material_maps
+from freqbrdf.mesh import Mesh
+from freqbrdf.observations import Observations
+from freqbrdf.texels import Texels, dilate
+from freqbrdf.uncertainty import Uncertainty, summary as uncertainty_summary
+
+# Values of a texture without a single estimated texel: mid grey, mid roughness, dielectric.
+FALLBACK_BASE_COLOR = 0.5
+FALLBACK_ROUGHNESS = 0.5
+FALLBACK_METALLIC = 0.0
+ENTROPY_RANGE = (0.0, 1.0)  # normalised entropy; the PNG maps this range onto the colour map
+ENTROPY_COLORMAP = "viridis"
+METALLIC_ROUGHNESS_R = 255  # unused channel of the glTF metallic-roughness texture (see above)
+# glTF sampler enums (OpenGL): LINEAR, LINEAR_MIPMAP_LINEAR, CLAMP_TO_EDGE.
+GL_LINEAR, GL_LINEAR_MIPMAP_LINEAR, GL_CLAMP_TO_EDGE = 9729, 9987, 33071
+
+FILES = {
+    "base_color": "base_color.exr",
+    "roughness": "roughness.exr",
+    "metallic": "metallic.exr",
+    "base_color_png": "base_color.png",
+    "roughness_png": "roughness.png",
+    "metallic_png": "metallic.png",
+    "entropy": "entropy.exr",
+    "entropy_png": "entropy.png",
+    "gltf": "material.glb",
+    "summary": "summary.json",
+}
+
+
+# ---------------------------------------------------------------------------------------------
+# From per-texel values to textures
+
+
+def fill_texture(texture: np.ndarray, atlas: np.ndarray, dilation_px: int, fallback: float) -> np.ndarray:
+    """Fill a (T, T) or (T, T, C) texture whose unknown texels are NaN; (T, T[, C]) float32 out.
+
+    Known texels are the finite ones inside ``atlas`` (T, T) bool; they are returned unchanged.
+    Atlas texels without a value take the nearest known texel's; then the atlas is dilated by
+    ``dilation_px`` rings; the remaining texels take the mean over the atlas. Without any known
+    texel the whole texture is ``fallback``.
+    """
+    texture = np.asarray(texture, np.float32)
+    values = texture if texture.ndim == 3 else texture[..., None]  # (T, T, C)
+    known = atlas & np.isfinite(values).all(axis=-1)
+    if not known.any():
+        return np.full(texture.shape, fallback, np.float32)
+    # Index of the nearest known texel for every texel (distance 0 for the known ones).
+    nearest = ndimage.distance_transform_edt(~known, return_distances=False, return_indices=True)
+    filled = np.full_like(values, np.nan)
+    filled[atlas] = values[nearest[0], nearest[1]][atlas]
+    filled = dilate(filled, atlas, dilation_px)
+    far = ~np.isfinite(filled).all(axis=-1)
+    filled[far] = filled[atlas].mean(axis=0)
+    return filled if texture.ndim == 3 else filled[..., 0]
+
+
+def material_textures(estimate: MaterialEstimate, dilation_px: int) -> MaterialMaps:
+    """The estimate as hole-free textures (see the module docstring); the atlas is its texels."""
+    atlas = _atlas_mask(estimate)
+    maps = estimate.textures()  # NaN off the estimated texels
+    return MaterialMaps(
+        base_color=fill_texture(maps["base_color"], atlas, dilation_px, FALLBACK_BASE_COLOR),
+        roughness=fill_texture(maps["roughness"], atlas, dilation_px, FALLBACK_ROUGHNESS),
+        metallic=fill_texture(maps["metallic"], atlas, dilation_px, FALLBACK_METALLIC),
+    )
+
+
+def entropy_texture(uncertainty: Uncertainty, estimate: MaterialEstimate, dilation_px: int) -> np.ndarray:
+    """(T, T) float32 normalised entropy, dilated across seams like the material maps.
+
+    ``uncertainty`` and ``estimate`` come from the same Observations (same texel order).
+    """
+    values = estimate.to_texture(uncertainty.entropy.astype(np.float32), fill=np.nan)
+    return fill_texture(values, _atlas_mask(estimate), dilation_px, fallback=ENTROPY_RANGE[1])
+
+
+# ---------------------------------------------------------------------------------------------
+# Writers (each atomic)
+
+
+def write_scalar_map(path: str | Path, texture: np.ndarray, colormap: str | None = None,
+                     value_range: tuple[float, float] = (0.0, 1.0)) -> None:
+    """Write a (T, T) scalar texture: ``.exr`` as float values, ``.png`` as an 8-bit picture.
+
+    The PNG maps ``value_range`` linearly onto grey (``colormap=None``) or onto a matplotlib colour
+    map (e.g. "viridis", "magma"); values outside the range are clipped, NaN is black.
+    """
+    path = Path(path)
+    texture = np.asarray(texture, np.float32)
+    if texture.ndim != 2:
+        raise ValueError(f"write_scalar_map needs a (T, T) texture, got shape {texture.shape}")
+    if path.suffix.lower() == ".exr":
+        write_exr(path, texture)
+        return
+    if path.suffix.lower() != ".png":
+        raise ValueError(f"write_scalar_map writes .exr or .png, not {path.name}")
+    low, high = value_range
+    normalised = np.clip((texture - low) / (high - low), 0.0, 1.0)
+    if colormap is None:
+        write_png(path, normalised)
+        return
+    rgb = colormaps[colormap](np.nan_to_num(normalised))[..., :3]
+    rgb[~np.isfinite(texture)] = 0.0
+    write_png(path, rgb)
+
+
+def write_material_previews(folder: str | Path, maps: MaterialMaps) -> None:
+    """``base_color.png`` (sRGB-encoded), ``roughness.png`` and ``metallic.png`` (grey, linear)."""
+    folder = Path(folder)
+    write_png(folder / FILES["base_color_png"], linear_to_srgb(maps.base_color))
+    write_scalar_map(folder / FILES["roughness_png"], maps.roughness)
+    write_scalar_map(folder / FILES["metallic_png"], maps.metallic)
+
+
+def write_gltf(path: str | Path, mesh: Mesh, maps: MaterialMaps) -> None:
+    """A glTF 2.0 binary of ``mesh`` with ``maps`` as its PBR metallic-roughness material."""
+    base_color = _to_uint8(linear_to_srgb(maps.base_color))  # (T, T, 3)
+    metallic_roughness = np.stack(
+        [
+            np.full(maps.roughness.shape, METALLIC_ROUGHNESS_R, np.uint8),
+            _to_uint8(maps.roughness),
+            _to_uint8(maps.metallic),
+        ],
+        axis=-1,
+    )
+    material = trimesh.visual.material.PBRMaterial(
+        name="freqbrdf",
+        baseColorTexture=Image.fromarray(base_color, "RGB"),
+        metallicRoughnessTexture=Image.fromarray(metallic_roughness, "RGB"),
+        metallicFactor=1.0,
+        roughnessFactor=1.0,
+    )
+    shape = trimesh.Trimesh(
+        vertices=np.asarray(mesh.vertices, np.float64),
+        faces=np.asarray(mesh.faces, np.int64),
+        vertex_normals=np.asarray(mesh.normals, np.float64),
+        # OBJ-style UVs (v up); trimesh's glTF exporter writes 1 - v.
+        visual=trimesh.visual.TextureVisuals(uv=np.asarray(mesh.uv, np.float64), material=material),
+        process=False,  # keep our vertices: merging would break UV seams
+    )
+    data = trimesh.exchange.gltf.export_glb(
+        trimesh.Scene(shape), include_normals=True, tree_postprocessor=_clamped_samplers
+    )
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(data)
+
+
+def write_json(path: str | Path, document: dict) -> None:
+    """Write ``document`` as indented JSON, atomically; NaN and infinities become null (strict JSON)."""
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(_json_ready(document), indent=2, allow_nan=False) + "\n", encoding="utf-8")
+
+
+def coverage(source: Texels | Observations, estimate: MaterialEstimate) -> dict:
+    """Coverage statistics: texels, fraction observed (estimated), mean views per texel."""
+    n_texels = estimate.n_texels
+    stats = {
+        "texture_res": estimate.texture_res,
+        "texels": n_texels,
+        "estimated_fraction": float(np.mean(estimate.estimated)) if n_texels else 0.0,
+    }
+    if isinstance(source, Observations):
+        samples = source.n_samples.astype(np.float64)
+        stats.update(
+            views=source.n_views,
+            observed_fraction=float(np.mean(samples > 0)) if n_texels else 0.0,
+            mean_views_per_texel=float(samples.mean()) if n_texels else 0.0,
+            mean_views_per_observed_texel=float(samples[samples > 0].mean()) if (samples > 0).any() else 0.0,
+        )
+    else:  # texels alone say nothing about views; "observed" means "has an estimate"
+        stats["observed_fraction"] = stats["estimated_fraction"]
+    return stats
+
+
+def write_fit_outputs(
+    out_dir: str | Path,
+    mesh: Mesh,
+    source: Texels | Observations,
+    estimate: MaterialEstimate,
+    uncertainty: Uncertainty | None = None,
+    config: Config = Config(),
+    timings: dict | None = None,
+) -> Path:
+    """Write the whole output folder of a fit (replaced as a whole, atomically); returns it.
+
+    ``source`` is the Texels or Observations the estimate was made on (same texel order).
+    Files: see ``FILES``; the entropy maps only with ``uncertainty``.
+    """
+    if not np.array_equal(source.texel_index, estimate.texel_index):
+        raise ValueError("the estimate was not made on these texels (texel_index differs)")
+    dilation = config.texels.dilation_px
+    maps = material_textures(estimate, dilation)
+    out_dir = Path(out_dir)
+    written = ["base_color", "roughness", "metallic", "base_color_png", "roughness_png", "metallic_png", "gltf"]
+    summary = {
+        "settings": config.to_dict(),
+        "timings": dict(timings or {}),
+        "coverage": coverage(source, estimate),
+        "estimate": {
+            "method": estimate.method,
+            "base_color_mean": _masked_mean(estimate.base_color, estimate.estimated),
+            "roughness_mean": _masked_mean(estimate.roughness, estimate.estimated),
+            "metallic_mean": _masked_mean(estimate.metallic, estimate.estimated),
+        },
+    }
+    with atomic_directory(out_dir) as folder:
+        save_material_maps(folder, maps)
+        write_material_previews(folder, maps)
+        write_gltf(folder / FILES["gltf"], mesh, maps)
+        if uncertainty is not None:
+            entropy = entropy_texture(uncertainty, estimate, dilation)
+            write_scalar_map(folder / FILES["entropy"], entropy)
+            write_scalar_map(folder / FILES["entropy_png"], entropy, ENTROPY_COLORMAP, ENTROPY_RANGE)
+            summary["uncertainty"] = uncertainty_summary(uncertainty)
+            summary["entropy_png"] = {"colormap": ENTROPY_COLORMAP, "range": list(ENTROPY_RANGE)}
+            written += ["entropy", "entropy_png"]
+        summary["files"] = [FILES[key] for key in written] + [FILES["summary"]]
+        write_json(folder / FILES["summary"], summary)
+    return out_dir
+
+
+# ---------------------------------------------------------------------------------------------
+# Helpers
+
+
+def _atlas_mask(estimate: MaterialEstimate) -> np.ndarray:
+    """(T, T) bool: the texels of the mesh (estimated or not)."""
+    return estimate.to_texture(np.ones(estimate.n_texels, bool), fill=False)
+
+
+def _to_uint8(values: np.ndarray) -> np.ndarray:
+    return np.round(np.clip(values, 0.0, 1.0) * 255.0).astype(np.uint8)
+
+
+def _clamped_samplers(tree: dict) -> None:
+    """trimesh writes no sampler (glTF's default is REPEAT): add one bilinear, mip-mapped sampler
+    that clamps to the edge, like the Mitsuba textures the estimate was made for."""
+    tree["samplers"] = [
+        {"magFilter": GL_LINEAR, "minFilter": GL_LINEAR_MIPMAP_LINEAR,
+         "wrapS": GL_CLAMP_TO_EDGE, "wrapT": GL_CLAMP_TO_EDGE}
+    ]
+    for texture in tree.get("textures", []):
+        texture["sampler"] = 0
+
+
+def _masked_mean(values: np.ndarray, keep: np.ndarray):
+    if not keep.any():
+        return None
+    mean = np.asarray(values)[keep].mean(axis=0)
+    return mean.tolist() if np.ndim(mean) else float(mean)
+
+
+def _json_ready(value):
+    """Plain Python types for json: numpy scalars and arrays converted, non-finite floats -> None."""
+    if isinstance(value, dict):
+        return {str(key): _json_ready(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_ready(item) for item in value]
+    if isinstance(value, np.ndarray):
+        return _json_ready(value.tolist())
+    if isinstance(value, (np.bool_, bool)):
+        return bool(value)
+    if isinstance(value, (np.integer, int)):
+        return int(value)
+    if isinstance(value, (np.floating, float)):
+        return float(value) if math.isfinite(value) else None
+    return value

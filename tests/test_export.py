@@ -1,0 +1,212 @@
+"""Fit outputs: hole-free textures, scalar maps, the glTF binary's conventions, the output folder."""
+
+from __future__ import annotations
+
+import io
+import json
+import struct
+
+import numpy as np
+import pytest
+from matplotlib import colormaps
+from PIL import Image
+
+from freqbrdf import export
+from freqbrdf.config import Config, TexelConfig
+from freqbrdf.estimate import MaterialEstimate
+from freqbrdf.images import read_image
+from freqbrdf.materials import MaterialMaps, load_material_maps
+from freqbrdf.mesh import plane_mesh, uv_sphere_mesh
+from freqbrdf.texels import rasterise
+from freqbrdf.uncertainty import FLAG_UNOBSERVED, Uncertainty, hypothesis_grid
+
+
+def test_fill_texture_nearest_inside_atlas_dilation_outside_and_mean_beyond():
+    size = 16
+    atlas = np.zeros((size, size), bool)
+    atlas[2:5, 1:11] = True  # one chart: rows 2-4, columns 1-10
+    texture = np.full((size, size), np.nan, np.float32)
+    texture[2:5, 1] = 1.0  # known at its left edge ...
+    texture[2:5, 10] = 5.0  # ... and right edge; the middle of the chart was never seen
+    filled = export.fill_texture(texture, atlas, dilation_px=2, fallback=-1.0)
+
+    assert np.isfinite(filled).all()
+    assert np.all(filled[2:5, 1] == 1.0) and np.all(filled[2:5, 10] == 5.0)  # known texels kept
+    assert np.all(filled[2:5, 2:6] == 1.0) and np.all(filled[2:5, 6:10] == 5.0)  # nearest known
+    assert filled[1, 1] == 1.0 and filled[3, 11] == 5.0  # first dilation ring: its neighbours
+    assert filled[0, 0] == pytest.approx(1.0)  # second ring
+    atlas_mean = filled[atlas].mean()
+    assert filled[10, 10] == pytest.approx(atlas_mean)  # beyond the dilation: the atlas mean
+    # A texel outside the atlas never counts as known, whatever it holds.
+    texture[12, 12] = 100.0
+    assert export.fill_texture(texture, atlas, 2, -1.0)[12, 12] == pytest.approx(atlas_mean)
+    # Nothing known: the fallback everywhere; channels are filled alike.
+    assert np.all(export.fill_texture(np.full((4, 4, 3), np.nan), np.ones((4, 4), bool), 2, 0.25) == 0.25)
+
+
+def test_write_scalar_map_grey_colormap_and_exr(tmp_path):
+    texture = np.array([[0.0, 0.5], [1.0, 2.0]], np.float32)
+    export.write_scalar_map(tmp_path / "map.exr", texture)
+    np.testing.assert_array_equal(read_image(tmp_path / "map.exr")[..., 0], texture)
+    export.write_scalar_map(tmp_path / "grey.png", texture)
+    assert np.array_equal(np.asarray(Image.open(tmp_path / "grey.png")), [[0, 128], [255, 255]])
+    export.write_scalar_map(tmp_path / "viridis.png", texture, "viridis", (0.0, 2.0))
+    pixels = np.asarray(Image.open(tmp_path / "viridis.png"))
+    expected = np.round(colormaps["viridis"](texture / 2.0)[..., :3] * 255)
+    assert np.abs(pixels.astype(int) - expected).max() <= 1
+    with pytest.raises(ValueError):
+        export.write_scalar_map(tmp_path / "map.jpg", texture)
+
+
+def read_glb(path):
+    """(JSON document, binary chunk) of a GLB file, by the container layout of glTF 2.0 §4.4."""
+    data = path.read_bytes()
+    magic, version, length = struct.unpack_from("<4sII", data, 0)
+    assert magic == b"glTF" and version == 2 and length == len(data)
+    json_length, json_type = struct.unpack_from("<I4s", data, 12)
+    assert json_type == b"JSON"
+    document = json.loads(data[20 : 20 + json_length])
+    offset = 20 + json_length
+    bin_length, bin_type = struct.unpack_from("<I4s", data, offset)
+    assert bin_type == b"BIN\x00"
+    return document, data[offset + 8 : offset + 8 + bin_length]
+
+
+def accessor_array(document, binary, index):
+    accessor = document["accessors"][index]
+    view = document["bufferViews"][accessor["bufferView"]]
+    assert accessor["componentType"] == 5126  # float32
+    width = {"VEC2": 2, "VEC3": 3}[accessor["type"]]
+    start = view.get("byteOffset", 0) + accessor.get("byteOffset", 0)
+    return np.frombuffer(binary, np.float32, accessor["count"] * width, start).reshape(-1, width)
+
+
+def texture_pixels(document, binary, texture_info):
+    image = document["images"][document["textures"][texture_info["index"]]["source"]]
+    assert image["mimeType"] == "image/png"
+    view = document["bufferViews"][image["bufferView"]]
+    start = view.get("byteOffset", 0)
+    return np.asarray(Image.open(io.BytesIO(binary[start : start + view["byteLength"]])))
+
+
+def test_gltf_follows_the_pbr_texture_and_uv_conventions(tmp_path):
+    mesh = plane_mesh()
+    size = 8
+    rng = np.random.default_rng(0)
+    maps = MaterialMaps(
+        rng.random((size, size, 3)).astype(np.float32),
+        rng.random((size, size)).astype(np.float32),
+        rng.random((size, size)).astype(np.float32),
+    )
+    export.write_gltf(tmp_path / "material.glb", mesh, maps)
+    document, binary = read_glb(tmp_path / "material.glb")
+
+    material = document["materials"][0]["pbrMetallicRoughness"]
+    assert material["metallicFactor"] == 1.0 and material["roughnessFactor"] == 1.0
+    # Base colour: sRGB-encoded 8-bit of the linear map, rows in image order (row 0 on top).
+    encoded = np.where(maps.base_color <= 0.0031308, 12.92 * maps.base_color,
+                       1.055 * maps.base_color ** (1 / 2.4) - 0.055)
+    base = texture_pixels(document, binary, material["baseColorTexture"])
+    assert np.abs(base.astype(int) - np.round(encoded * 255)).max() <= 1
+    # Metallic-roughness: linear, R = 255 (unused), G = roughness, B = metallic.
+    packed = texture_pixels(document, binary, material["metallicRoughnessTexture"])
+    assert np.all(packed[..., 0] == 255)
+    assert np.array_equal(packed[..., 1], np.round(maps.roughness * 255))
+    assert np.array_equal(packed[..., 2], np.round(maps.metallic * 255))
+
+    primitive = document["meshes"][0]["primitives"][0]
+    uv = accessor_array(document, binary, primitive["attributes"]["TEXCOORD_0"])
+    normals = accessor_array(document, binary, primitive["attributes"]["NORMAL"])
+    positions = accessor_array(document, binary, primitive["attributes"]["POSITION"])
+    np.testing.assert_allclose(positions, mesh.vertices, atol=1e-7)
+    # glTF's UV origin is the image's top-left: v flips, so our v = 1 (texture row 0) is glTF v = 0.
+    np.testing.assert_allclose(uv, np.stack([mesh.uv[:, 0], 1.0 - mesh.uv[:, 1]], axis=1), atol=1e-7)
+    np.testing.assert_allclose(normals, mesh.normals, atol=1e-7)
+    sampler = document["samplers"][0]
+    assert sampler["wrapS"] == sampler["wrapT"] == 33071  # CLAMP_TO_EDGE
+    assert all(texture["sampler"] == 0 for texture in document["textures"])
+
+
+def sphere_fit(texture_res: int = 32, seed: int = 0):
+    """A sphere's texels and an estimate on them with a third of the texels unobserved."""
+    mesh = uv_sphere_mesh(16, 8)
+    texels = rasterise(mesh, texture_res)
+    n_texels = texels.n_texels
+    rng = np.random.default_rng(seed)
+    estimated = rng.random(n_texels) > 0.33
+    nan_off = lambda values: np.where(estimated.reshape((-1,) + (1,) * (values.ndim - 1)), values, np.nan)
+    estimate = MaterialEstimate(
+        texture_res=texture_res,
+        texel_index=texels.texel_index,
+        base_color=nan_off(rng.random((n_texels, 3))),
+        roughness=nan_off(rng.random(n_texels)),
+        metallic=nan_off(rng.random(n_texels)),
+        estimated=estimated,
+        loss=nan_off(rng.random(n_texels)),
+        method="global",
+    )
+    return mesh, texels, estimate
+
+
+def test_write_fit_outputs_writes_a_complete_hole_free_folder(tmp_path):
+    mesh, texels, estimate = sphere_fit()
+    n_texels = texels.n_texels
+    grid = hypothesis_grid(8)
+    entropy = np.where(estimate.estimated, np.linspace(0, 1, n_texels), 1.0).astype(np.float32)
+    uncertainty = Uncertainty(
+        entropy=entropy,
+        flags=np.where(estimate.estimated, 0, FLAG_UNOBSERVED).astype(np.uint8),
+        likelihood=None,
+        best_alpha=np.zeros(n_texels, np.float32),
+        best_ks=np.zeros(n_texels, np.float32),
+        channel=np.zeros(n_texels, np.int8),
+        mode="calibrated",
+        grid=grid,
+    )
+    config = Config(texels=TexelConfig(texture_res=32, dilation_px=3))
+    out = export.write_fit_outputs(tmp_path / "fit", mesh, texels, estimate, uncertainty, config,
+                                   timings={"estimate": 1.5})
+
+    summary = json.loads((out / "summary.json").read_text())
+    assert sorted(summary["files"]) == sorted(path.name for path in out.iterdir())
+    assert summary["settings"]["texels"]["dilation_px"] == 3
+    assert summary["timings"] == {"estimate": 1.5}
+    assert summary["coverage"]["texels"] == n_texels
+    assert summary["coverage"]["observed_fraction"] == pytest.approx(estimate.estimated.mean())
+    assert summary["uncertainty"]["observed_texels"] == int(estimate.estimated.sum())
+
+    maps = load_material_maps(out)
+    for name in ("base_color", "roughness", "metallic"):
+        texture = getattr(maps, name)
+        assert np.isfinite(texture).all()
+        per_texel = texture.reshape(32 * 32, *texture.shape[2:])[texels.texel_index]
+        np.testing.assert_allclose(per_texel[estimate.estimated], getattr(estimate, name)[estimate.estimated],
+                                   rtol=1e-6)
+    saved_entropy = read_image(out / "entropy.exr")[..., 0].reshape(-1)[texels.texel_index]
+    np.testing.assert_allclose(saved_entropy, entropy, atol=1e-7)
+    assert Image.open(out / "entropy.png").size == (32, 32)
+    assert Image.open(out / "base_color.png").mode == "RGB"
+
+
+def test_write_fit_outputs_is_atomic_and_checks_the_texels(tmp_path, monkeypatch):
+    mesh, texels, estimate = sphere_fit()
+    out = tmp_path / "fit"
+    export.write_fit_outputs(out, mesh, texels, estimate)
+    before = sorted(path.name for path in out.iterdir())
+
+    def failing_gltf(*args, **kwargs):
+        raise RuntimeError("disk full")
+
+    monkeypatch.setattr(export, "write_gltf", failing_gltf)
+    with pytest.raises(RuntimeError):
+        export.write_fit_outputs(out, mesh, texels, estimate)
+    assert sorted(path.name for path in out.iterdir()) == before  # the old folder is untouched
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["fit"]  # no temporary left behind
+    _, other_texels, _ = sphere_fit(texture_res=16)
+    with pytest.raises(ValueError, match="texel_index"):
+        export.write_fit_outputs(out, mesh, other_texels, estimate)
+
+
+def test_write_json_is_strict_json(tmp_path):
+    export.write_json(tmp_path / "doc.json", {"a": np.float32(np.nan), "b": [np.inf, np.int64(3)], "c": np.ones(2)})
+    assert json.loads((tmp_path / "doc.json").read_text()) == {"a": None, "b": [None, 3], "c": [1.0, 1.0]}

@@ -1,0 +1,301 @@
+"""Tests of freqbrdf.uncertainty: the toy cases of the paper's Fig. 4, exposure invariance, dark
+texels, flags, and the fast kernel against a direct O(R^2 l*) evaluation of the grid.
+
+Spectra are built from the model itself: S_refl from a chosen light spectrum, S_out(l) =
+k_s^2 exp(-2 alpha^2 l^2) S_refl(l) (plus noise on the amplitudes), S_out(0) = specular plus
+diffuse amplitude, squared. These are unit tests of the mathematics; no rendering.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from freqbrdf import sh
+from freqbrdf import uncertainty as unc
+from freqbrdf.config import UncertaintyConfig
+from freqbrdf.observations import Observations
+
+LMAX = 5
+DEGREES = np.arange(LMAX + 1)
+SHARP_LIGHT = np.ones(LMAX + 1)  # flat spectrum: every degree carries power
+LOW_LIGHT = np.array([1.0, 0.6, 0.0, 0.0, 0.0, 0.0])  # only l <= 1
+CALIBRATED = UncertaintyConfig()
+PAPER = UncertaintyConfig(mode="paper")
+
+
+def model_spectra(light, alpha, specular, *, diffuse=0.3, noise=0.0, n=1, seed=0):
+    """light, observed (n, 3, l*+1): S_out = k^2 exp(-2 alpha^2 l^2) S_refl, noise on amplitudes
+    (std ``noise`` x the light's RMS amplitude), DC = (k sqrt(S_refl(0)) + diffuse)^2."""
+    rng = np.random.default_rng(seed)
+    light = np.broadcast_to(np.asarray(light, float), (n, 3, LMAX + 1)).copy()
+    amplitude = specular * np.exp(-(alpha**2) * DEGREES**2) * np.sqrt(light)
+    amplitude = amplitude + noise * np.sqrt(light.sum(-1, keepdims=True)) * rng.standard_normal(light.shape)
+    amplitude[..., 0] = np.broadcast_to(specular, light.shape)[..., 0] * np.sqrt(light[..., 0]) + diffuse
+    return light, np.square(amplitude)
+
+
+def naive_grid(light, observed, sigma, config):
+    """Direct evaluation: per texel and channel the full (R, R) grid summed over l, exact exp.
+
+    Returns entropy (N, 3) per channel, likelihood (N, 3, R, R) and misfit (N, 3, R, R).
+    """
+    grid = unc.hypothesis_grid(config.grid_res)
+    resolution = grid.resolution
+    alpha = grid.alpha[:, None, None]  # (R, 1, 1) rows
+    specular = grid.specular[None, :, None]  # (1, R, 1) columns
+    degrees = DEGREES[1:][None, None, :]
+    n_texels = light.shape[0]
+    entropy = np.empty((n_texels, 3))
+    likelihood = np.empty((n_texels, 3, resolution, resolution))
+    misfits = np.empty((n_texels, 3, resolution, resolution))
+    for texel in range(n_texels):
+        light_power = light[texel].sum(-1).mean()
+        for c in range(3):
+            s_refl, s_out = light[texel, c], np.maximum(observed[texel, c], 0.0)
+            if config.mode == "paper":
+                predicted = specular**2 * np.exp(-2 * alpha**2 * degrees**2) * s_refl[1:]
+                misfit = np.mean((predicted - s_out[1:]) ** 2, axis=-1) * s_out[0] ** 2
+                exponent = (misfit - misfit.min()) / config.temperature
+                prior = np.ones((resolution, resolution))
+            else:
+                kernel = np.exp(-(alpha**2 - sigma**2) * degrees**2)
+                predicted = specular * kernel * np.sqrt(s_refl[1:])
+                misfit = np.sum((predicted - np.sqrt(s_out[1:])) ** 2, axis=-1)
+                dc_excess = np.maximum(grid.specular * math.sqrt(s_refl[0]) - math.sqrt(s_out[0]), 0.0) ** 2
+                misfit = misfit + dc_excess[None, :]
+                noise = 2 * config.noise_level**2 * light_power
+                exponent = (misfit - misfit.min()) / noise if light_power > 0 else np.zeros_like(misfit)
+                prior = np.ones((resolution, resolution))
+                prior[:, 0] = 1.0 / resolution  # the k = 0 column is one material
+            posterior = prior * np.exp(-exponent)
+            posterior /= posterior.sum()
+            if config.mode == "paper":
+                masses = posterior.ravel()
+                n_hypotheses = resolution**2
+            else:
+                masses = np.concatenate([[posterior[:, 0].sum()], posterior[:, 1:].ravel()])
+                n_hypotheses = resolution * (resolution - 1) + 1
+            masses = masses[masses > 0]
+            entropy[texel, c] = -np.sum(masses * np.log(masses)) / math.log(n_hypotheses)
+            likelihood[texel, c] = posterior
+            misfits[texel, c] = misfit
+    return entropy, likelihood, misfits
+
+
+# --------------------------------------------------------------------------------------------
+# The toy cases of Fig. 4
+
+
+def test_sharp_light_is_certain_and_recovers_the_material():
+    alpha, specular = (4 / 7) ** 2, 6 / 7  # on the R = 8 grid
+    light, observed = model_spectra(SHARP_LIGHT, alpha, specular, noise=0.002)
+    result = unc.entropy_from_spectra(light, observed, config=CALIBRATED)
+    assert result.entropy[0] < 0.15
+    assert result.best_alpha[0] == pytest.approx(alpha)
+    assert result.best_ks[0] == pytest.approx(specular)
+    assert result.likelihood[0].max() > 0.5
+
+
+def test_low_frequency_light_gives_a_ridge_of_roughness_values():
+    alpha, specular = (4 / 7) ** 2, 6 / 7
+    sharp = unc.entropy_from_spectra(*model_spectra(SHARP_LIGHT, alpha, specular, noise=0.002))
+    low = unc.entropy_from_spectra(*model_spectra(LOW_LIGHT, alpha, specular, noise=0.002))
+    assert low.entropy[0] > sharp.entropy[0] + 0.2
+
+    # A ridge: many roughness rows hold a cell nearly as likely as the best one; sharp light
+    # singles out one or two rows.
+    def plausible_rows(result):
+        grid = result.likelihood[0]
+        return int(np.sum(grid.max(axis=1) > 0.1 * grid.max()))
+
+    assert plausible_rows(low) >= 5
+    assert plausible_rows(sharp) <= 2
+    # The paper's recipe sees it too, though its absolute tau makes the size exposure dependent.
+    paper_sharp = unc.entropy_from_spectra(*model_spectra(SHARP_LIGHT, alpha, specular, noise=0.002), config=PAPER)
+    paper_low = unc.entropy_from_spectra(*model_spectra(LOW_LIGHT, alpha, specular, noise=0.002), config=PAPER)
+    assert paper_low.entropy[0] > paper_sharp.entropy[0] + 0.1
+
+
+def test_weak_specular_relative_to_noise_is_uncertain():
+    config = UncertaintyConfig(noise_level=0.05)
+    alpha = (4 / 7) ** 2
+    strong = unc.entropy_from_spectra(*model_spectra(SHARP_LIGHT, alpha, 0.9, noise=0.05), config=config)
+    weak = unc.entropy_from_spectra(*model_spectra(SHARP_LIGHT, alpha, 0.15, noise=0.05), config=config)
+    assert weak.entropy[0] > 0.5
+    assert weak.entropy[0] > strong.entropy[0] + 0.25
+
+
+# --------------------------------------------------------------------------------------------
+# What the calibrated mode fixes
+
+
+def test_exposure_invariance_holds_in_calibrated_mode_and_fails_in_paper_mode():
+    rng = np.random.default_rng(3)
+    light, observed = model_spectra(
+        SHARP_LIGHT * np.exp(-0.3 * DEGREES), rng.uniform(0, 1, (40, 1, 1)) ** 2, rng.uniform(0, 1, (40, 3, 1)),
+        noise=0.01, n=40,
+    )
+    reference = unc.entropy_from_spectra(light, observed, config=CALIBRATED)
+    paper_reference = unc.entropy_from_spectra(light, observed, config=PAPER)
+    for kappa in (1e-3, 1e-1, 10.0, 1e3):
+        # images and environment scaled by kappa: every spectrum by kappa^2
+        scaled = unc.entropy_from_spectra(light * kappa**2, observed * kappa**2, config=CALIBRATED)
+        np.testing.assert_allclose(scaled.entropy, reference.entropy, atol=1e-5)
+        np.testing.assert_allclose(scaled.likelihood, reference.likelihood, atol=1e-5)
+        np.testing.assert_array_equal(scaled.channel, reference.channel)
+        paper = unc.entropy_from_spectra(light * kappa**2, observed * kappa**2, config=PAPER)
+        assert np.max(np.abs(paper.entropy - paper_reference.entropy)) > 0.1
+
+
+def test_dark_texel_under_sharp_light_is_certain_in_calibrated_mode_only():
+    light, observed = model_spectra(SHARP_LIGHT, 0.3, 0.0, diffuse=0.0, noise=0.002)
+    calibrated = unc.entropy_from_spectra(light, observed, config=CALIBRATED)
+    assert calibrated.entropy[0] < 0.1
+    assert calibrated.best_ks[0] == 0.0 and np.isnan(calibrated.best_alpha[0])  # no lobe, no roughness
+    paper = unc.entropy_from_spectra(light, observed, config=PAPER)
+    assert paper.entropy[0] > 0.9
+
+
+def test_band_limit_compensation_is_applied_in_calibrated_mode():
+    # Data made with the blurred light: the compensated kernel recovers the true alpha.
+    sigma, alpha, specular = 0.3, (4 / 7) ** 2, 6 / 7
+    blurred = SHARP_LIGHT * np.exp(-2 * sigma**2 * DEGREES**2)
+    light, _ = model_spectra(blurred, alpha, specular)
+    observed = model_spectra(SHARP_LIGHT, alpha, specular)[1]  # the sharp truth was observed
+    compensated = unc.entropy_from_spectra(light, observed, sigma=sigma, config=CALIBRATED)
+    uncompensated = unc.entropy_from_spectra(light, observed, sigma=0.0, config=CALIBRATED)
+    assert compensated.best_alpha[0] == pytest.approx(alpha)
+    assert uncompensated.best_alpha[0] < alpha
+
+
+# --------------------------------------------------------------------------------------------
+# The fast kernel against the direct evaluation
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    seed=st.integers(0, 2**31 - 1),
+    grid_res=st.integers(2, 10),
+    mode=st.sampled_from(["calibrated", "paper"]),
+    sigma=st.sampled_from([0.0, 0.1, 0.25]),
+)
+def test_fast_kernel_equals_direct_evaluation(seed, grid_res, mode, sigma):
+    rng = np.random.default_rng(seed)
+    n_texels = 7
+    light = rng.uniform(0.0, 1.0, (n_texels, 3, LMAX + 1)) * np.exp(-rng.uniform(0, 1) * DEGREES)
+    observed = light * rng.uniform(0.0, 1.0, (n_texels, 3, 1)) * np.exp(-rng.uniform(0, 2) * DEGREES)
+    observed += rng.uniform(0.0, 0.05, observed.shape)
+    config = UncertaintyConfig(mode=mode, grid_res=grid_res, noise_level=rng.uniform(0.01, 0.2),
+                               temperature=10 ** rng.uniform(-4, -1))
+    fast = unc.entropy_from_spectra(light, observed, sigma=sigma, config=config)
+    entropy, likelihood, misfit = naive_grid(light, observed, sigma if mode == "calibrated" else 0.0, config)
+
+    texels = np.arange(n_texels)
+    chosen = fast.channel.astype(int)
+    np.testing.assert_allclose(fast.entropy, entropy.min(axis=1), atol=2e-6)
+    np.testing.assert_allclose(entropy[texels, chosen], entropy.min(axis=1), atol=2e-6)
+    np.testing.assert_allclose(fast.likelihood, likelihood[texels, chosen], atol=2e-6)
+    # The arg-max cell has the least misfit of its channel's grid (k = 0: any row, same misfit).
+    col = np.abs(fast.grid.specular[None, :] - fast.best_ks[:, None]).argmin(axis=1)
+    row = np.abs(fast.grid.alpha[None, :] - np.nan_to_num(fast.best_alpha)[:, None]).argmin(axis=1)
+    best_misfit = misfit[texels, chosen, row, col]
+    lowest = misfit[texels, chosen].reshape(n_texels, -1).min(axis=1)
+    np.testing.assert_allclose(best_misfit, lowest, rtol=1e-9, atol=1e-15)
+
+
+# --------------------------------------------------------------------------------------------
+# Flags, the Observations entry point, summary, determinism
+
+
+def test_flags_mark_unobserved_few_samples_below_bound_and_ambiguous():
+    light, observed = model_spectra(SHARP_LIGHT, (2 / 7) ** 2, 6 / 7, noise=0.002, n=5)
+    light[3], observed[3] = 0.0, 0.0  # nothing observed
+    light[4, :, 1:] = 0.0  # no light above l = 0: nothing to tell hypotheses apart
+    observed[4, :, 1:] = 0.0
+    alpha_bound = np.array([0.1, 0.01, 0.01, 0.01, 0.01], np.float32)  # texel 0: (2/7)^2 = 0.08 < 0.1
+    fit_status = np.array([sh.FIT_OK, sh.FIT_UNDERDETERMINED, sh.FIT_OK, sh.FIT_EMPTY, sh.FIT_OK], np.uint8)
+    result = unc.entropy_from_spectra(light, observed, alpha_bound=alpha_bound, fit_status=fit_status)
+    expected = [unc.FLAG_BELOW_BOUND, unc.FLAG_FEW_SAMPLES, 0, unc.FLAG_UNOBSERVED, unc.FLAG_AMBIGUOUS]
+    np.testing.assert_array_equal(result.flags, expected)
+    assert result.entropy[3] == 1.0 and result.channel[3] == -1 and np.isnan(result.best_ks[3])
+    assert result.likelihood[3].sum() == pytest.approx(1.0)
+    assert result.entropy[4] > 0.99
+
+    stats = unc.summary(result)
+    assert stats["observed_texels"] == 4
+    assert stats["flagged_fraction"]["unobserved"] == pytest.approx(0.2)
+    assert stats["entropy_mean"] == pytest.approx(float(np.delete(result.entropy, 3).mean()), rel=1e-6)
+
+
+def _observations_from_spectra(light, observed, texel_index, texture_res):
+    """An Observations whose fits have the given spectra: sqrt(S(l)) in each degree's m = 0 term."""
+    n_texels = light.shape[0]
+    zero_index = DEGREES**2 + DEGREES  # flat index of (l, m = 0)
+
+    def coeffs(spectrum):
+        out = np.zeros((n_texels, 3, sh.num_coeffs(LMAX)), np.float32)
+        out[..., zero_index] = np.sqrt(spectrum)
+        return out
+
+    return Observations(
+        texture_res=texture_res, texel_index=texel_index, normal=np.zeros((n_texels, 3), np.float32),
+        view_direction=np.zeros((n_texels, 1, 3), np.float32), observed=np.zeros((n_texels, 1, 3), np.float32),
+        mirrored=np.zeros((n_texels, 1, 3), np.float32), weight=np.ones((n_texels, 1), np.float32),
+        visible=np.ones((n_texels, 1), bool), irradiance=np.ones((n_texels, 3), np.float32), lmax=LMAX,
+        sigma=0.0, observed_coeffs=coeffs(observed), mirrored_coeffs=coeffs(light),
+        constant_coeffs=np.zeros((n_texels, sh.num_coeffs(LMAX)), np.float32),
+        fit_status=np.zeros(n_texels, np.uint8), n_samples=np.full(n_texels, 64, np.int32),
+        alpha_bound=np.zeros(n_texels, np.float32), n_facing=np.full(n_texels, 64, np.int32),
+    )
+
+
+def test_entropy_map_from_observations_and_texture():
+    light, observed = model_spectra(SHARP_LIGHT, (4 / 7) ** 2, 6 / 7, noise=0.002, n=3)
+    observed[1] = model_spectra(LOW_LIGHT, (4 / 7) ** 2, 6 / 7)[1][0]
+    light[1] = LOW_LIGHT
+    observations = _observations_from_spectra(light, observed, np.array([0, 5, 15]), texture_res=4)
+    result = unc.entropy_map(observations)
+    direct = unc.entropy_from_spectra(light, observed)
+    np.testing.assert_allclose(result.entropy, direct.entropy, atol=1e-5)  # float32 coefficients
+    texture = result.to_texture(observations, "entropy", fill=-1.0)
+    assert texture.shape == (4, 4)
+    assert texture[1, 1] == result.entropy[1] and texture[3, 3] == result.entropy[2]
+    assert np.count_nonzero(texture == -1.0) == 13
+    assert result.to_texture(observations, "likelihood").shape == (4, 4, 8, 8)
+
+
+def test_likelihood_is_optional_and_results_are_deterministic():
+    rng = np.random.default_rng(11)
+    light, observed = model_spectra(SHARP_LIGHT, rng.uniform(0, 1, (3000, 1, 1)) ** 2,
+                                    rng.uniform(0, 1, (3000, 3, 1)), noise=0.02, n=3000)
+    config = UncertaintyConfig(grid_res=16)
+    first = unc.entropy_from_spectra(light, observed, config=config)
+    without = unc.entropy_from_spectra(light, observed, config=config, return_likelihood=False)
+    assert without.likelihood is None
+    np.testing.assert_array_equal(first.entropy, without.entropy)
+    np.testing.assert_array_equal(first.best_ks, without.best_ks)
+    threads = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        single = unc.entropy_from_spectra(light, observed, config=config)
+    finally:
+        numba.set_num_threads(threads)
+    for name in ("entropy", "flags", "likelihood", "best_alpha", "best_ks", "channel"):
+        np.testing.assert_array_equal(getattr(single, name), getattr(first, name))
+    np.testing.assert_allclose(first.likelihood.sum(axis=(1, 2)), 1.0, rtol=1e-5)
+
+
+def test_paper_preset_reproduces_the_published_grid():
+    from freqbrdf.config import preset
+
+    config = preset("paper").uncertainty
+    grid = unc.hypothesis_grid(config.grid_res)
+    assert (config.mode, config.grid_res, config.temperature) == ("paper", 8, 1e-5)
+    np.testing.assert_allclose(grid.alpha, (np.arange(8) / 7) ** 2)
+    np.testing.assert_allclose(grid.specular, np.arange(8) / 7)
