@@ -160,6 +160,16 @@ def test_capture_loads_back_with_the_cameras_mitsuba_rendered(tmp_path, layout):
         directions = fibonacci_directions(2000, hemisphere=False)
         relative = np.abs(lookup(captured.envmap, directions) - lookup(scene.envmap, directions))
         assert np.median(relative / np.maximum(lookup(scene.envmap, directions), 1e-3)) < 0.05
+        # The relighting views (transforms_novel.json) come back with their own light, placed in
+        # the world by their camera: the test map it was rendered under, up to one resampling.
+        assert len(captured.test_frames) == settings.test_views
+        for frame, camera, source in zip(captured.test_frames, scene.test_cameras, scene.test_envmap_paths):
+            np.testing.assert_allclose(frame.camera.camera_to_world, camera.camera_to_world, atol=1e-12)
+            assert frame.image_path.is_file() and frame.mask_path.is_file()
+            placed = load_envmap(frame.envmap_path, frame.envmap_to_world)
+            truth = lookup(load_envmap(source, np.eye(4)), directions)
+            relative = np.abs(lookup(placed, directions) - truth) / np.maximum(truth, 1e-3)
+            assert np.median(relative) < 0.05
 
 
 def test_synth_command_writes_a_capture_and_reports_bad_input(tmp_path, monkeypatch, capsys):

@@ -506,16 +506,21 @@ def write_transforms(
     envmap: str | Path | None = None,
     envmap_to_world: np.ndarray | None = None,
     envmap_scale: float | None = None,
+    frame_fields: Sequence[dict[str, Any]] | None = None,
 ) -> None:
     """Write a transforms file of our format, atomically; `load` reads back identical cameras.
 
     Paths are stored relative to the file's folder. ``mesh`` and ``envmap`` belong in
     ``transforms.json``; the test file ``transforms_test.json`` gives each frame its own
     ``envmap_path`` (and to_world and scale). Intrinsics shared by all frames go to the top level.
+    ``frame_fields`` (one dict per frame) adds or overrides keys of each frame's entry, e.g.
+    Stanford-ORB's ``scene_name`` with a ``file_path`` relative to that scene's folder.
     """
     path = Path(path)
     if not frames:
         raise ValueError("write_transforms needs at least one frame")
+    if frame_fields is not None and len(frame_fields) != len(frames):
+        raise ValueError(f"frame_fields has {len(frame_fields)} entries for {len(frames)} frames")
     folder = path.parent
 
     def relative(file: str | Path) -> str:
@@ -548,6 +553,8 @@ def write_transforms(
             to_world = np.eye(4) if frame.envmap_to_world is None else frame.envmap_to_world
             entry["envmap_to_world"] = np.asarray(to_world, dtype=np.float64).tolist()
             entry["envmap_scale"] = float(frame.envmap_scale)
+        if frame_fields is not None:
+            entry.update(frame_fields[len(entries)])
         entries.append(entry)
     document["frames"] = entries
     with atomic_path(path) as tmp:

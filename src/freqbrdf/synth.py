@@ -24,6 +24,7 @@ from freqbrdf.camera import Camera, look_at
 from freqbrdf.capture import (
     GROUND_TRUTH_FOLDER,
     ORB_NORMAL_FIXES,
+    ORB_NOVEL_FILE,
     TEST_TRANSFORMS_FILE,
     TRANSFORMS_FILE,
     Frame,
@@ -195,7 +196,10 @@ def _render_and_write(folder: Path, scene: SynthScene, settings: SynthSettings, 
         TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
         disable=not progress,
     ) as bar:
-        task = bar.add_task("rendering views", total=len(scene.cameras) + n_test)
+        # The Stanford-ORB layout renders the test cameras twice: under the training light (its
+        # test split) and under their own light (its novel-scene split).
+        n_test_renders = n_test if settings.format == "ours" else 2 * n_test
+        task = bar.add_task("rendering views", total=len(scene.cameras) + n_test_renders)
 
         def render(cameras, envmap, first_index):
             """Render under ``envmap``; seeds continue across batches so no two views share one."""
@@ -263,8 +267,10 @@ def _write_stanford_orb(folder: Path, scene: SynthScene, render) -> None:
     photograph, stored in that camera's frame. So the test split here is the test cameras under
     the training light, and every map is resampled (bilinearly, once) into its camera's frame.
     The whole capture is rendered under the resampled map of test view 0, exactly the light the
-    loader reconstructs. Relighting views under other maps (ORB's transforms_novel.json) are
-    not written: that file needs a per-frame ``scene_name``, which write_transforms lacks.
+    loader reconstructs. The relighting views under the other maps form ORB's novel-scene split:
+    each distinct map is one more scene ``synth_light<k>`` holding its test images and maps, and
+    ``transforms_novel.json`` names that scene per frame. Each novel view is rendered under its own
+    stored map, so the light the loader places is exactly the light that was rendered.
     """
     if not scene.test_cameras:
         raise InputError(Path("synth settings"), "the Stanford-ORB layout needs test_views >= 1")
@@ -288,6 +294,22 @@ def _write_stanford_orb(folder: Path, scene: SynthScene, render) -> None:
             _write_view(image_path, images / f"{split}_mask" / f"{index:04d}.png", view)
             frames.append(Frame(cameras[index], image_path))
         write_transforms(images / f"transforms_{split}.json", frames)
+
+    first_index = len(scene.cameras) + len(scene.test_cameras)
+    light_scene = {source: f"{ORB_SCENE}_light{light}"
+                   for light, source in enumerate(dict.fromkeys(scene.test_envmap_paths))}
+    novel_frames, novel_fields = [], []
+    for index, (camera, source) in enumerate(zip(scene.test_cameras, scene.test_envmap_paths)):
+        other = light_scene[source]
+        stored_map = resample_envmap(load_envmap(source, np.eye(4)),
+                                     stanford_orb_envmap_to_world(camera.camera_to_world))
+        write_exr(folder / "ground_truth" / other / "env_map" / f"{index:04d}.exr", stored_map.radiance)
+        image_path = folder / "blender_HDR" / other / "test" / f"{index:04d}.exr"
+        (view,) = render([camera], stored_map, first_index + index)
+        _write_view(image_path, image_path.parent.with_name("test_mask") / f"{index:04d}.png", view)
+        novel_frames.append(Frame(camera, image_path))
+        novel_fields.append({"scene_name": other, "file_path": f"test/{index:04d}.exr"})
+    write_transforms(images / ORB_NOVEL_FILE, novel_frames, frame_fields=novel_fields)
 
 
 def resample_envmap(envmap: Envmap, to_world: np.ndarray) -> Envmap:
