@@ -108,7 +108,7 @@ def smooth_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     for corner in range(3):
         np.add.at(accumulated, welded[faces[:, corner]], face_normals)
     normals = accumulated[welded]
-    return _unit_or_fallback(normals, np.array([0.0, 0.0, 1.0]))
+    return unit_or_fallback(normals, np.array([0.0, 0.0, 1.0]))
 
 
 def save_obj(path: str | Path, mesh: Mesh, comment: str | None = None) -> None:
@@ -228,7 +228,7 @@ def _read_geometry(path: Path):
     faces = np.concatenate(face_blocks)
     # Smooth normals over the merged mesh, so they are continuous across part boundaries too;
     # they also replace missing, zero or non-finite normals from the file.
-    normals = _unit_or_fallback(np.concatenate(normal_blocks), smooth_normals(vertices, faces))
+    normals = unit_or_fallback(np.concatenate(normal_blocks), smooth_normals(vertices, faces))
     # Parts are assumed to share one texture (as glTF primitives of one object do).
     uv = None if any(block is None for block in uv_blocks) else np.concatenate(uv_blocks)
     if uv is not None and not (np.isfinite(uv).all() and (uv >= 0).all() and (uv <= 1).all()):
@@ -262,7 +262,7 @@ def _check_geometry(path: Path, vertices: np.ndarray, faces: np.ndarray) -> None
         )
 
 
-def _unit_or_fallback(vectors: np.ndarray, fallback: np.ndarray) -> np.ndarray:
+def unit_or_fallback(vectors: np.ndarray, fallback: np.ndarray) -> np.ndarray:
     """Normalise rows; rows that are zero or non-finite take the fallback (row or array).
 
     Rows already of unit length (to 1e-12) are kept bit for bit, so that loading a saved mesh

@@ -36,7 +36,7 @@ import numba
 import numpy as np
 
 from freqbrdf.errors import InputError
-from freqbrdf.mesh import Mesh, _unit_or_fallback
+from freqbrdf.mesh import Mesh, unit_or_fallback
 
 INSIDE_TOLERANCE = 1e-9  # barycentric slack of the centre test: centres on shared edges stay covered
 STRICT_INSIDE = 1e-7  # barycentric margin for "strictly inside" when counting UV overlaps
@@ -103,7 +103,7 @@ def rasterise(mesh: Mesh, texture_res: int = 512, conservative: bool = True) -> 
     corners = np.asarray(mesh.vertices, np.float64)[mesh.faces]  # (F, 3, 3)
     geometric = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])  # (F, 3), 2 x area
     # Opposed vertex normals can cancel; the face's own normal is then the only sensible choice.
-    normal = _unit_or_fallback(shading, _unit_or_fallback(geometric[face_id], np.array([0.0, 0.0, 1.0])))
+    normal = unit_or_fallback(shading, unit_or_fallback(geometric[face_id], np.array([0.0, 0.0, 1.0])))
     tangent, bitangent = orthonormal_basis(normal)
 
     # The UV -> world map is affine per face, so every texel of a face covers the same world area.
