@@ -94,11 +94,17 @@ def test_sh_transform_rejects_degrees_beyond_the_map_resolution():
         em.envmap_sh(em.Envmap(np.ones((8, 16, 3))), 7)
 
 
-def test_lowpass_applies_the_gaussian_to_each_degree():
+@pytest.mark.parametrize("rotated", [False, True])
+def test_lowpass_applies_the_gaussian_to_each_degree(rotated):
+    # The filter runs in the map's own frame; a rotated emitter checks that it commutes with the
+    # rotation into the world frame, as a zonal filter must.
     rng = np.random.default_rng(6)
     lmax, sigma = 6, 0.25
     coeffs = rng.normal(size=(sh.num_coeffs(lmax), 3))
-    envmap = em.envmap_from_sh(coeffs, 32)
+    to_world = np.eye(4)
+    if rotated:
+        to_world[:3, :3] = Rotation.random(random_state=4).as_matrix()
+    envmap = em.envmap_from_sh(coeffs, 32, to_world=to_world)
     filtered = em.envmap_sh(em.lowpass_envmap(envmap, sigma), lmax)
     np.testing.assert_allclose(filtered, sh.gaussian_lowpass(coeffs.T, sigma).T, atol=1e-5)
 

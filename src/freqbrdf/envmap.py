@@ -177,21 +177,7 @@ def envmap_sh(envmap: Envmap, lmax: int) -> np.ndarray:
     pi i / (H - 1)) and transformed exactly for its band limit with ducc0, then rotated from
     the emitter's SH frame into the world frame. Needs lmax <= H - 2 and 2 lmax + 1 <= W.
     """
-    height, width = envmap.radiance.shape[:2]
-    _check_resolution(height, width, lmax)
-    # Reversed columns run with increasing phi_E = 2 pi (j' + 0.5) / W.
-    sh_frame_maps = np.ascontiguousarray(envmap.radiance[:, ::-1, :].transpose(2, 0, 1), dtype=np.float64)
-    coeffs_sh_frame = np.stack(
-        [
-            _complex_to_real(
-                ducc0.sht.experimental.analysis_2d(
-                    map=channel[None], spin=0, lmax=lmax, geometry="CC", phi0=math.pi / width
-                )[0],
-                lmax,
-            )
-            for channel in sh_frame_maps
-        ]
-    )  # (3, K)
+    coeffs_sh_frame = _analysis(envmap.radiance, lmax)  # (3, K)
     return sh.rotate_sh(coeffs_sh_frame, envmap.rotation @ _EMITTER_FROM_SH_FRAME).T
 
 
@@ -209,13 +195,45 @@ def envmap_from_sh(
     envmap = Envmap(np.zeros((height, width, 3), np.float32), np.eye(4) if to_world is None else to_world)
     _check_resolution(height, width, lmax)
     coeffs_sh_frame = sh.rotate_sh(coeffs.T, (envmap.rotation @ _EMITTER_FROM_SH_FRAME).T)  # (3, K)
+    envmap.radiance[...] = _synthesis(coeffs_sh_frame, height, width)
+    return envmap
+
+
+def _analysis(radiance: np.ndarray, lmax: int) -> np.ndarray:
+    """(H, W, 3) map -> (3, K) real SH coefficients in the emitter's SH frame (no rotation).
+
+    The map is read as samples on a Clenshaw-Curtis grid (Mitsuba's rows sit on theta =
+    pi i / (H - 1)) and transformed exactly for its band limit with ducc0.
+    """
+    height, width = radiance.shape[:2]
+    _check_resolution(height, width, lmax)
+    # Reversed columns run with increasing phi_E = 2 pi (j' + 0.5) / W.
+    sh_frame_maps = np.ascontiguousarray(radiance[:, ::-1, :].transpose(2, 0, 1), dtype=np.float64)
+    return np.stack(
+        [
+            _complex_to_real(
+                ducc0.sht.experimental.analysis_2d(
+                    map=channel[None], spin=0, lmax=lmax, geometry="CC", phi0=math.pi / width
+                )[0],
+                lmax,
+            )
+            for channel in sh_frame_maps
+        ]
+    )
+
+
+def _synthesis(coeffs_sh_frame: np.ndarray, height: int, width: int) -> np.ndarray:
+    """Inverse of `_analysis`: (3, K) SH-frame coefficients -> (H, W, 3) float32 map."""
+    lmax = sh.lmax_of(coeffs_sh_frame.shape[-1])
+    _check_resolution(height, width, lmax)
+    radiance = np.empty((height, width, 3), np.float32)
     for c in range(3):
         sh_frame_map = ducc0.sht.experimental.synthesis_2d(
             alm=_real_to_complex(coeffs_sh_frame[c], lmax)[None], spin=0, lmax=lmax, geometry="CC",
             ntheta=height, nphi=width, phi0=math.pi / width,
         )[0]
-        envmap.radiance[..., c] = sh_frame_map[:, ::-1]
-    return envmap
+        radiance[..., c] = sh_frame_map[:, ::-1]
+    return radiance
 
 
 def lowpass_envmap(envmap: Envmap, sigma: float) -> Envmap:
@@ -228,8 +246,10 @@ def lowpass_envmap(envmap: Envmap, sigma: float) -> Envmap:
         return Envmap(envmap.radiance.copy(), envmap.to_world.copy())
     height, width = envmap.radiance.shape[:2]
     lmax = min(math.ceil(math.sqrt(-math.log(1e-6)) / sigma), height - 2, (width - 1) // 2)
-    coeffs = sh.gaussian_lowpass(envmap_sh(envmap, lmax).T, sigma).T
-    return envmap_from_sh(coeffs, height, width, envmap.to_world)
+    # The filter is zonal, so it commutes with rotations: filter in the map's own SH frame and
+    # skip the two rotations to and from the world frame (dense and slow at high degree).
+    filtered = sh.gaussian_lowpass(_analysis(envmap.radiance, lmax), sigma)  # (3, K)
+    return Envmap(_synthesis(filtered, height, width), envmap.to_world.copy())
 
 
 def clamped_cosine_coeffs(lmax: int) -> np.ndarray:
