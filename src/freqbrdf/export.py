@@ -42,7 +42,14 @@ from freqbrdf.materials import MaterialMaps, save_material_maps
 from freqbrdf.mesh import Mesh
 from freqbrdf.observations import Observations
 from freqbrdf.texels import Texels, dilate
-from freqbrdf.uncertainty import Uncertainty, summary as uncertainty_summary
+from freqbrdf.uncertainty import (
+    FLAG_AMBIGUOUS,
+    FLAG_BELOW_BOUND,
+    FLAG_FEW_SAMPLES,
+    FLAG_UNOBSERVED,
+    Uncertainty,
+    summary as uncertainty_summary,
+)
 
 # Values of a texture without a single estimated texel: mid grey, mid roughness, dielectric.
 FALLBACK_BASE_COLOR = 0.5
@@ -63,7 +70,10 @@ FILES = {
     "metallic_png": "metallic.png",
     "entropy": "entropy.exr",
     "entropy_png": "entropy.png",
+    "flags_png": "flags.png",
     "gltf": "material.glb",
+    "spectra": "spectra.npz",
+    "uncertainty": "uncertainty.npz",
     "summary": "summary.json",
 }
 
@@ -221,11 +231,14 @@ def write_fit_outputs(
     uncertainty: Uncertainty | None = None,
     config: Config = Config(),
     timings: dict | None = None,
+    extra_summary: dict | None = None,
 ) -> Path:
     """Write the whole output folder of a fit (replaced as a whole, atomically); returns it.
 
     ``source`` is the Texels or Observations the estimate was made on (same texel order).
-    Files: see ``FILES``; the entropy maps only with ``uncertainty``.
+    Files: see ``FILES``; the entropy maps, ``flags.png`` and ``uncertainty.npz`` only with
+    ``uncertainty``, ``spectra.npz`` only when ``source`` is Observations. ``extra_summary`` is
+    merged into ``summary.json`` (e.g. the capture's path).
     """
     if not np.array_equal(source.texel_index, estimate.texel_index):
         raise ValueError("the estimate was not made on these texels (texel_index differs)")
@@ -254,14 +267,54 @@ def write_fit_outputs(
             write_scalar_map(folder / FILES["entropy_png"], entropy, ENTROPY_COLORMAP, ENTROPY_RANGE)
             summary["uncertainty"] = uncertainty_summary(uncertainty)
             summary["entropy_png"] = {"colormap": ENTROPY_COLORMAP, "range": list(ENTROPY_RANGE)}
-            written += ["entropy", "entropy_png"]
+            write_png(folder / FILES["flags_png"],
+                      flags_picture(estimate.to_texture(uncertainty.flags, fill=0), _atlas_mask(estimate)))
+            _save_npz(folder / FILES["uncertainty"], texel_index=estimate.texel_index,
+                      entropy=uncertainty.entropy, flags=uncertainty.flags,
+                      best_alpha=uncertainty.best_alpha, best_ks=uncertainty.best_ks,
+                      **({} if uncertainty.likelihood is None
+                         else {"likelihood": uncertainty.likelihood.astype(np.float16)}))
+            written += ["entropy", "entropy_png", "flags_png", "uncertainty"]
+        if isinstance(source, Observations):
+            _save_npz(folder / FILES["spectra"], texel_index=source.texel_index,
+                      observed_spectrum=source.observed_spectrum.astype(np.float32),
+                      mirrored_spectrum=source.mirrored_spectrum.astype(np.float32),
+                      n_samples=source.n_samples, sigma=np.float64(source.sigma),
+                      alpha_bound=source.alpha_bound.astype(np.float32))
+            written.append("spectra")
+        summary.update(extra_summary or {})
         summary["files"] = [FILES[key] for key in written] + [FILES["summary"]]
         write_json(folder / FILES["summary"], summary)
     return out_dir
 
 
+# Colours of flags.png, one per FLAG_* bit in priority order (the first set bit wins); texels
+# without a flag are white and texels off the atlas black.
+FLAG_COLOURS = {
+    FLAG_UNOBSERVED: (0.35, 0.35, 0.35),
+    FLAG_FEW_SAMPLES: (0.95, 0.55, 0.10),
+    FLAG_BELOW_BOUND: (0.20, 0.45, 0.90),
+    FLAG_AMBIGUOUS: (0.85, 0.15, 0.15),
+}
+
+
+def flags_picture(flags: np.ndarray, atlas: np.ndarray) -> np.ndarray:
+    """(T, T, 3) float32 picture of a (T, T) flag texture; ``atlas`` (T, T) bool: the mesh's texels."""
+    picture = np.zeros(flags.shape + (3,), np.float32)
+    picture[atlas] = 1.0
+    for bit, colour in reversed(FLAG_COLOURS.items()):  # reversed: higher priority painted last
+        picture[(flags & bit) != 0] = colour
+    return picture
+
+
 # ---------------------------------------------------------------------------------------------
 # Helpers
+
+
+def _save_npz(path: Path, **arrays) -> None:
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as handle:  # a file handle: np.savez would append ".npz" to the name
+            np.savez_compressed(handle, **arrays)
 
 
 def _atlas_mask(estimate: MaterialEstimate) -> np.ndarray:

@@ -1,0 +1,187 @@
+"""The whole job on one capture: observations -> estimate -> uncertainty -> textures; its folder.
+
+``fit`` runs the stages in memory (``FitResult``), ``write_fit`` writes the fit folder
+(``export.write_fit_outputs``: EXR maps, previews, material.glb, entropy and flags, spectra.npz,
+uncertainty.npz, summary.json with the capture's path), ``load_fit`` reads it back for the
+commands that work on a fit (evaluate, report, inpaint), and ``evaluate_fit`` scores a fit folder
+against its capture (texture metrics, relighting, and whether the entropy ranks the errors).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from freqbrdf import export, sparsification
+from freqbrdf.capture import Capture
+from freqbrdf.config import Config
+from freqbrdf.errors import InputError
+from freqbrdf.estimate import MaterialEstimate, estimate as estimate_materials
+from freqbrdf.images import read_image
+from freqbrdf.materials import MaterialMaps, load_material_maps, resize
+from freqbrdf.observations import Observations, observe
+from freqbrdf.progress import SILENT, Reporter
+from freqbrdf.relight import RelightSettings, evaluate as relight_evaluate, write_evaluation
+from freqbrdf.uncertainty import FLAG_UNOBSERVED, Uncertainty, entropy_map
+
+EVALUATION_FOLDER = "evaluation"
+SPARSIFICATION_PLOT = "sparsification.png"
+
+
+@dataclass(eq=False)
+class FitResult:
+    capture: Capture
+    observations: Observations
+    estimate: MaterialEstimate
+    uncertainty: Uncertainty
+    maps: MaterialMaps  # hole-free (T, T, ·) textures, as exported
+    timings: dict[str, float] = field(default_factory=dict)  # seconds per stage
+
+
+@dataclass(eq=False)
+class FitOutputs:
+    """A fit folder read back."""
+
+    folder: Path
+    summary: dict
+    maps: MaterialMaps  # (T, T, ·) textures
+    entropy: np.ndarray | None  # (T, T) float32, dilated like the maps; None without uncertainty
+    observed: np.ndarray  # (T, T) bool: texels with at least one sample
+    texel_index: np.ndarray  # (N,) flat indices of the mesh's texels (spectra.npz's order)
+    arrays: dict  # the per-texel arrays of spectra.npz and uncertainty.npz, (N, ...)
+
+    @property
+    def capture_path(self) -> Path | None:
+        path = self.summary.get("capture")
+        return None if path is None else Path(path)
+
+
+def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT) -> FitResult:
+    """Observe, estimate, compute the uncertainty and make the textures; seconds per stage."""
+    timings: dict[str, float] = {}
+    start = time.perf_counter()
+    observations = observe(capture, config, reporter)
+    timings["observe"] = time.perf_counter() - start
+    timings.update({f"observe.{stage}": seconds for stage, seconds in observations.timings.items()})
+
+    start = time.perf_counter()
+    estimate = estimate_materials(observations, config, reporter)
+    timings["estimate"] = time.perf_counter() - start
+
+    start = time.perf_counter()
+    uncertainty = entropy_map(observations, config.uncertainty)
+    timings["uncertainty"] = time.perf_counter() - start
+
+    start = time.perf_counter()
+    maps = export.material_textures(estimate, config.texels.dilation_px)
+    timings["textures"] = time.perf_counter() - start
+    timings["total"] = sum(seconds for stage, seconds in timings.items() if "." not in stage)
+    return FitResult(capture, observations, estimate, uncertainty, maps, timings)
+
+
+def write_fit(out_dir: str | Path, result: FitResult, config: Config = Config()) -> Path:
+    """Write the fit folder (replaced as a whole, atomically); returns it."""
+    start = time.perf_counter()
+    extra = {"capture": str(Path(result.capture.root).resolve()), "layout": result.capture.layout}
+    out = export.write_fit_outputs(
+        out_dir, result.capture.mesh, result.observations, result.estimate, result.uncertainty,
+        config, timings=result.timings, extra_summary=extra,
+    )
+    result.timings["write"] = time.perf_counter() - start
+    # The write time is known only after the folder exists: record it in place (atomically).
+    summary_path = out / export.FILES["summary"]
+    summary = json.loads(summary_path.read_text(encoding="utf-8"))
+    summary["timings"] = dict(result.timings)
+    export.write_json(summary_path, summary)
+    return out
+
+
+def load_fit(fit_dir: str | Path) -> FitOutputs:
+    """Read a fit folder written by `write_fit`; InputError naming what is missing or bad."""
+    folder = Path(fit_dir)
+    summary_path = folder / export.FILES["summary"]
+    if not folder.is_dir():
+        raise InputError(folder, "fit folder does not exist")
+    if not summary_path.is_file():
+        raise InputError(summary_path, "missing: this is not a fit folder written by `freqbrdf fit`")
+    try:
+        summary = json.loads(summary_path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise InputError(summary_path, f"unreadable: {err}") from None
+    if not isinstance(summary, dict):
+        raise InputError(summary_path, "must hold a JSON object")
+    maps = load_material_maps(folder)
+    entropy_path = folder / export.FILES["entropy"]
+    entropy = read_image(entropy_path)[..., 0] if entropy_path.is_file() else None
+    arrays: dict = {}
+    for name in ("spectra", "uncertainty"):
+        path = folder / export.FILES[name]
+        if path.is_file():
+            try:
+                with np.load(path) as data:
+                    arrays.update({key: data[key] for key in data.files})
+            except (OSError, ValueError) as err:
+                raise InputError(path, f"unreadable: {err}") from None
+    resolution = maps.resolution
+    if "texel_index" not in arrays:
+        raise InputError(folder / export.FILES["spectra"], "missing: the fit folder is incomplete")
+    texel_index = arrays["texel_index"]
+    if texel_index.size and (texel_index.min() < 0 or texel_index.max() >= resolution * resolution):
+        raise InputError(folder / export.FILES["spectra"], f"texel indices do not fit {resolution}x{resolution} maps")
+    observed = np.zeros(resolution * resolution, bool)
+    if "n_samples" in arrays:
+        observed[texel_index[arrays["n_samples"] > 0]] = True
+    return FitOutputs(folder, summary, maps, entropy, observed.reshape(resolution, resolution),
+                      texel_index, arrays)
+
+
+def evaluate_fit(fit_outputs: FitOutputs, capture: Capture, out_dir: str | Path | None = None,
+                 settings: RelightSettings = RelightSettings(), reporter: Reporter = SILENT) -> dict:
+    """Score a fit against its capture; writes ``<fit>/evaluation`` (or ``out_dir``).
+
+    - texture metrics on the observed texels when the capture has ground truth;
+    - relighting under the capture's test set (Stanford-ORB protocol) when it has one;
+    - the uncertainty's meaning: sparsification (AUSE, AURG) and Spearman rho of the entropy
+      against the per-texel roughness and base-colour errors (ground truth needed).
+    Returns the metrics document (also written as metrics.json).
+    """
+    out = Path(out_dir) if out_dir is not None else fit_outputs.folder / EVALUATION_FOLDER
+    evaluation = relight_evaluate(capture, fit_outputs.maps, fit_outputs.observed, settings, reporter)
+    metrics_path = write_evaluation(out, evaluation)
+    document = json.loads(metrics_path.read_text(encoding="utf-8"))
+    uncertainty_scores = _uncertainty_scores(fit_outputs, capture, out)
+    if uncertainty_scores is not None:
+        document["uncertainty"] = uncertainty_scores
+    document["fit"] = str(fit_outputs.folder.resolve())
+    document["capture"] = str(Path(capture.root).resolve())
+    export.write_json(metrics_path, document)
+    return document
+
+
+def _uncertainty_scores(fit_outputs: FitOutputs, capture: Capture, out: Path) -> dict | None:
+    """Sparsification of the entropy against per-texel errors on observed texels (needs GT)."""
+    arrays = fit_outputs.arrays
+    if capture.ground_truth is None or "entropy" not in arrays:
+        return None
+    truth = resize(capture.ground_truth, fit_outputs.maps.resolution)
+    index = fit_outputs.texel_index
+    observed = (arrays["flags"] & FLAG_UNOBSERVED) == 0
+    entropy = arrays["entropy"][observed]
+    flat = index[observed]
+    maps = fit_outputs.maps
+    errors = {
+        "roughness": np.abs(maps.roughness.ravel()[flat] - truth.roughness.ravel()[flat]),
+        "base_color": np.abs(maps.base_color.reshape(-1, 3)[flat] - truth.base_color.reshape(-1, 3)[flat]).mean(axis=1),
+        "metallic": np.abs(maps.metallic.ravel()[flat] - truth.metallic.ravel()[flat]),
+    }
+    results = {name: sparsification.sparsification(entropy, error) for name, error in errors.items()}
+    sparsification.plot(results, out / SPARSIFICATION_PLOT)
+    return {
+        "error_of": "absolute per-texel error on observed texels (base colour: mean over RGB)",
+        "plot": SPARSIFICATION_PLOT,
+        **{name: sparsification.to_dict(result) for name, result in results.items()},
+    }
