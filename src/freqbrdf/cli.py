@@ -97,24 +97,17 @@ def observe(
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
 ) -> None:
     """Per-texel observations and SH spectra: observations.npz, coverage and visibility maps."""
-    import dataclasses
     import json
     from pathlib import Path
 
     import numpy as np
 
     from freqbrdf.capture import load
-    from freqbrdf.config import Config
     from freqbrdf.fileio import atomic_path
     from freqbrdf.observations import observe as observe_capture, write_maps
     from freqbrdf.progress import Reporter
 
-    config = Config()
-    config = config.replace(
-        texels=dataclasses.replace(config.texels, texture_res=texture_res),
-        fit=dataclasses.replace(config.fit, lmax=lmax),
-        observe=dataclasses.replace(config.observe, environment_occlusion=environment_occlusion),
-    )
+    config = _config("default", texture_res, lmax, environment_occlusion=environment_occlusion)
     observations = observe_capture(load(capture), config, Reporter(enabled=not quiet))
     folder = Path(out)
     observations.save(folder / "observations.npz")
@@ -139,6 +132,171 @@ def observe(
             f"(median {summary['median_samples_per_texel']:g} of {summary['views']} views); "
             f"wrote {escape(written)}, observations.json to {escape(str(folder))}"
         )
+
+
+def _config(preset: str, texture_res: int | None = None, lmax: int | None = None, *,
+            estimator: str | None = None, model: str | None = None,
+            environment_occlusion: bool | None = None):
+    """The preset's Config with the options the user gave (None: keep the preset's value)."""
+    import dataclasses
+
+    from freqbrdf.config import PRESETS, preset as named_preset
+
+    if preset not in PRESETS:
+        raise typer.BadParameter(f"unknown preset {preset!r}; choose one of {', '.join(PRESETS)}")
+    config = named_preset(preset)
+    texels = dataclasses.replace(config.texels, **({} if texture_res is None else {"texture_res": texture_res}))
+    fit_settings = dataclasses.replace(config.fit, **({} if lmax is None else {"lmax": lmax}))
+    observe_settings = dataclasses.replace(
+        config.observe,
+        **({} if environment_occlusion is None else {"environment_occlusion": environment_occlusion}),
+    )
+    estimate_changes = {}
+    if estimator is not None:
+        estimate_changes["method"] = estimator
+    if model is not None:
+        estimate_changes["forward_model"] = model
+    return config.replace(texels=texels, fit=fit_settings, observe=observe_settings,
+                          estimate=dataclasses.replace(config.estimate, **estimate_changes))
+
+
+def _print_json(document: dict) -> None:
+    import json
+
+    typer.echo(json.dumps(document, indent=2, default=str))
+
+
+@app.command()
+def fit(
+    capture: str = typer.Argument(..., help="Capture folder or its transforms file."),
+    out: str = typer.Option(..., "--out", help="Output folder (replaced as a whole when done)."),
+    texture_res: int = typer.Option(None, min=1, help="Texture resolution T (default 512)."),
+    lmax: int = typer.Option(None, min=0, help="Degree l* of the per-texel SH fits (default 5)."),
+    estimator: str = typer.Option(None, help="global (ours, default) or paper (the prototype's Adam)."),
+    model: str = typer.Option(None, help="Forward model of `paper`: angular, sh_coeffs or spectrum."),
+    preset: str = typer.Option("default", help="default, or paper (the prototype's hyper-parameters)."),
+    quiet: bool = typer.Option(False, "--quiet", help="No progress bars or messages."),
+    json_output: bool = typer.Option(False, "--json", help="Print summary.json to stdout."),
+) -> None:
+    """Estimate base colour, roughness and metallic maps and their uncertainty; write EXR, glTF, PNG."""
+    import json
+    from pathlib import Path
+
+    from freqbrdf import pipeline
+    from freqbrdf.capture import load
+    from freqbrdf.progress import Reporter
+
+    if estimator not in (None, "global", "paper"):
+        raise typer.BadParameter(f"unknown estimator {estimator!r}; choose global or paper")
+    if model not in (None, "angular", "sh_coeffs", "spectrum"):
+        raise typer.BadParameter(f"unknown model {model!r}; choose angular, sh_coeffs or spectrum")
+    config = _config(preset, texture_res, lmax, estimator=estimator, model=model)
+    reporter = Reporter(enabled=not (quiet or json_output))
+    result = pipeline.fit(load(capture), config, reporter)
+    folder = pipeline.write_fit(out, result, config)
+    summary = json.loads((folder / "summary.json").read_text(encoding="utf-8"))
+    if json_output:
+        _print_json(summary)
+    elif not quiet:
+        coverage = summary["coverage"]
+        Console().print(
+            f"fit written to {escape(str(Path(out)))}: {coverage['observed_fraction']:.0%} of texels "
+            f"observed, mean entropy {summary['uncertainty']['entropy_mean']:.2f}, "
+            f"{result.timings['total']:.1f} s"
+        )
+
+
+@app.command()
+def uncertainty(
+    capture: str = typer.Argument(..., help="Capture folder or its transforms file."),
+    out: str = typer.Option(..., "--out", help="Output folder (replaced as a whole when done)."),
+    texture_res: int = typer.Option(None, min=1, help="Texture resolution T (default 512)."),
+    lmax: int = typer.Option(None, min=0, help="Degree l* of the per-texel SH fits (default 5)."),
+    preset: str = typer.Option("default", help="default (calibrated entropy) or paper."),
+    quiet: bool = typer.Option(False, "--quiet", help="No progress bars or messages."),
+    json_output: bool = typer.Option(False, "--json", help="Print the summary as JSON to stdout."),
+) -> None:
+    """Entropy map of the capture alone (no material estimate): entropy.exr/.png, flags, summary."""
+    import time
+
+    from freqbrdf import export
+    from freqbrdf.capture import load
+    from freqbrdf.fileio import atomic_directory
+    from freqbrdf.images import write_png
+    from freqbrdf.observations import observe as observe_capture
+    from freqbrdf.progress import Reporter
+    from freqbrdf.uncertainty import entropy_map, summary as uncertainty_summary
+
+    config = _config(preset, texture_res, lmax)
+    observations = observe_capture(load(capture), config, Reporter(enabled=not (quiet or json_output)))
+    start = time.perf_counter()
+    result = entropy_map(observations, config.uncertainty, return_likelihood=False)
+    seconds = time.perf_counter() - start
+    summary = {
+        "capture": capture,
+        "uncertainty": uncertainty_summary(result),
+        "timings": {**observations.timings, "uncertainty": seconds},
+        "settings": config.to_dict(),
+        "entropy_png": {"colormap": export.ENTROPY_COLORMAP, "range": list(export.ENTROPY_RANGE)},
+    }
+    atlas = observations.mask()
+    entropy = observations.to_texture(result.entropy.astype("float32"), fill=0.0)
+    with atomic_directory(out) as folder:
+        export.write_scalar_map(folder / export.FILES["entropy"], entropy)
+        export.write_scalar_map(folder / export.FILES["entropy_png"], entropy, export.ENTROPY_COLORMAP,
+                                export.ENTROPY_RANGE)
+        write_png(folder / export.FILES["flags_png"],
+                         export.flags_picture(observations.to_texture(result.flags, fill=0), atlas))
+        export.write_json(folder / "uncertainty.json", summary)
+    if json_output:
+        _print_json(summary)
+    elif not quiet:
+        Console().print(
+            f"mean entropy {summary['uncertainty']['entropy_mean']:.2f} over "
+            f"{summary['uncertainty']['observed_texels']} observed texels ({seconds * 1000:.0f} ms); "
+            f"wrote {escape(str(out))}"
+        )
+
+
+@app.command()
+def evaluate(
+    fit_dir: str = typer.Argument(..., metavar="FIT", help="Folder written by `freqbrdf fit`."),
+    capture: str = typer.Option(None, "--capture", help="Capture to score against (default: the fit's)."),
+    out: str = typer.Option(None, "--out", help="Output folder (default: FIT/evaluation)."),
+    spp: int = typer.Option(64, min=1, help="Samples per pixel of the relit renders."),
+    quiet: bool = typer.Option(False, "--quiet", help="No progress bars or messages."),
+    json_output: bool = typer.Option(False, "--json", help="Print metrics.json to stdout."),
+) -> None:
+    """Texture metrics vs ground truth, Stanford-ORB relighting scores, and AUSE/AURG of the entropy."""
+    from freqbrdf import pipeline
+    from freqbrdf.capture import load
+    from freqbrdf.progress import Reporter
+    from freqbrdf.relight import RelightSettings
+
+    outputs = pipeline.load_fit(fit_dir)
+    capture_path = capture or outputs.capture_path
+    if capture_path is None:
+        raise InputError(outputs.folder / "summary.json", "names no capture: pass --capture")
+    document = pipeline.evaluate_fit(outputs, load(capture_path), out, RelightSettings(spp=spp),
+                                     Reporter(enabled=not (quiet or json_output)))
+    if json_output:
+        _print_json(document)
+    elif not quiet:
+        lines = []
+        if document.get("texture"):
+            t = document["texture"]
+            lines.append(f"texture: base colour PSNR {t['base_color_psnr']:.2f} dB, roughness MAE "
+                         f"{t['roughness_mae']:.3f}, metallic MAE {t['metallic_mae']:.3f}")
+        if document["views"]:
+            r = document["relighting"]
+            lines.append(f"relighting ({len(document['views'])} views): PSNR-H {r['psnr_hdr']:.2f}, "
+                         f"PSNR-L {r['psnr_ldr']:.2f}, SSIM {r['ssim']:.3f}")
+        if "uncertainty" in document:
+            u = document["uncertainty"]["roughness"]
+            rho = "n/a" if u["spearman"] is None else f"{u['spearman']:.2f}"
+            lines.append(f"entropy vs roughness error: Spearman {rho}, AUSE {u['ause']:.3f}, AURG {u['aurg']:.3f}")
+        for line in lines:
+            Console().print(escape(line))
 
 
 def main() -> None:
