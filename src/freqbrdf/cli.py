@@ -37,10 +37,41 @@ def _root(
 
 
 @app.command()
-def demo(out: str = typer.Option("out/demo", help="Output folder.")) -> None:
-    """Render the bundled capture, fit it, and write the report (not yet available)."""
-    err_console.print("freqbrdf demo: not yet available (it lands with the demo issue).")
-    raise typer.Exit(1)
+def demo(
+    out: str = typer.Option("out/demo", "--out", help="Output folder."),
+    quiet: bool = typer.Option(False, "--quiet", help="No progress bars or messages."),
+    json_output: bool = typer.Option(False, "--json", help="Print the demo's results as JSON."),
+) -> None:
+    """Render the bundled capture (cached), fit it, evaluate it and write the report."""
+    from freqbrdf.demo import run_demo
+    from freqbrdf.progress import Reporter
+
+    result = run_demo(out, reporter=Reporter(enabled=not (quiet or json_output)))
+    if json_output:
+        _print_json(result)
+    elif not quiet:
+        texture, relit = result["texture"] or {}, result["relighting"] or {}
+        seconds = ", ".join(f"{step} {value:.0f} s" for step, value in result["timings"].items())
+        Console().print(escape(
+            f"base colour PSNR {texture.get('base_color_psnr', float('nan')):.2f} dB, roughness MAE "
+            f"{texture.get('roughness_mae', float('nan')):.3f}; relighting PSNR-H "
+            f"{relit.get('psnr_hdr', float('nan')):.2f} dB ({seconds})"
+        ))
+        Console().print(f"report: [bold]{escape(result['report'])}[/bold]")
+
+
+@app.command()
+def report(
+    fit_dir: str = typer.Argument(..., metavar="FIT", help="Folder written by `freqbrdf fit`."),
+    out: str = typer.Option(None, "--out", help="Output folder (default: FIT/report)."),
+    quiet: bool = typer.Option(False, "--quiet", help="No messages."),
+) -> None:
+    """Write report.html (maps, entropy, spectra, evaluation, 3D view); opens from disk, no network."""
+    from freqbrdf.report import write_report
+
+    path = write_report(fit_dir, out)
+    if not quiet:
+        Console().print(f"report: {escape(str(path))}")
 
 
 @app.command()

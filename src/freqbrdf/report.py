@@ -1,0 +1,336 @@
+"""``report.html``: one self-contained folder a person opens from disk to see a fit.
+
+Sections (each omitted with a note when its inputs are missing): an interactive 3D view of
+``material.glb`` with the entropy as a switchable overlay; the estimated maps beside the ground
+truth; the entropy map and its flags; SH power spectra of a few picked texels (incoming = the
+mirrored environment, outgoing = the observations, and the fitted specular reflection
+R0^2 k_alpha(l)^2 S_in(l)), as in the paper's teaser; the sparsification curves; relit images
+beside the references with their Stanford-ORB metrics; timings per stage.
+
+No network: the 3D viewer is the bundled, pinned ``<model-viewer>`` (``freqbrdf/web``), loaded as a
+classic script, and the glTF files are embedded as data URLs in ``models.js`` because Chromium does
+not let pages opened from file:// fetch other local files.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import json
+import shutil
+import tempfile
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+from matplotlib import colormaps
+
+from freqbrdf import brdf, export
+from freqbrdf.capture import load as load_capture
+from freqbrdf.errors import InputError
+from freqbrdf.fileio import atomic_directory
+from freqbrdf.images import linear_to_srgb, srgb_to_linear, write_png
+from freqbrdf.materials import MaterialMaps, resize
+from freqbrdf.mesh import Mesh
+from freqbrdf.pipeline import EVALUATION_FOLDER, SPARSIFICATION_PLOT, FitOutputs, load_fit
+
+REPORT_FOLDER = "report"
+REPORT_FILE = "report.html"
+VIEWER_SCRIPT = "model-viewer-umd.min.js"
+PICKED_TEXELS = 3  # most certain, median, least certain observed texel
+
+
+def write_report(fit_dir: str | Path, out_dir: str | Path | None = None) -> Path:
+    """Write ``<fit>/report/`` (or ``out_dir``), replaced as a whole; returns the HTML file."""
+    outputs = load_fit(fit_dir)
+    out = Path(out_dir) if out_dir is not None else outputs.folder / REPORT_FOLDER
+    capture = _capture_or_none(outputs)
+    with atomic_directory(out) as folder:
+        sections = [
+            _viewer_section(folder, outputs, capture.mesh if capture else None),
+            _maps_section(folder, outputs, capture.ground_truth if capture else None),
+            _entropy_section(folder, outputs),
+            _spectra_section(folder, outputs),
+            _evaluation_sections(folder, outputs),
+            _timings_section(outputs),
+        ]
+        (folder / REPORT_FILE).write_text(_page(outputs, sections), encoding="utf-8")
+    return out / REPORT_FILE
+
+
+# ---------------------------------------------------------------------------------------------
+# Sections: each returns HTML and writes the files it refers to into ``folder``.
+
+
+def _viewer_section(folder: Path, outputs: FitOutputs, mesh: Mesh | None) -> str:
+    glb = outputs.folder / export.FILES["gltf"]
+    if not glb.is_file():
+        return _missing("3D view", f"{glb.name} is missing")
+    models = {"material": glb.read_bytes()}
+    if mesh is not None and outputs.entropy is not None:
+        models["entropy"] = _entropy_glb(mesh, outputs.entropy)
+    shutil.copyfile(resources.files("freqbrdf") / "web" / VIEWER_SCRIPT, folder / VIEWER_SCRIPT)
+    urls = {name: "data:model/gltf-binary;base64," + base64.b64encode(data).decode("ascii")
+            for name, data in models.items()}
+    (folder / "models.js").write_text(f"window.FREQBRDF_MODELS = {json.dumps(urls)};\n", encoding="utf-8")
+    buttons = "".join(
+        f'<button type="button" data-model="{name}">{label}</button>'
+        for name, label in (("material", "material"), ("entropy", "entropy overlay")) if name in models
+    )
+    note = "" if "entropy" in models else '<p class="note">Entropy overlay unavailable (needs the capture\'s mesh and entropy.exr).</p>'
+    return f"""<section id="viewer"><h2>3D view</h2>
+<model-viewer id="model" camera-controls auto-rotate shadow-intensity="0" exposure="1"
+ alt="estimated material on the mesh" style="width:100%;height:420px;background:#222"></model-viewer>
+<div class="buttons">{buttons}</div>{note}
+<p class="note">Drag to orbit. The entropy overlay colours the surface by normalised entropy
+({export.ENTROPY_COLORMAP}, 0 = certain, 1 = uncertain).</p></section>"""
+
+
+def _maps_section(folder: Path, outputs: FitOutputs, truth: MaterialMaps | None) -> str:
+    estimated = _picture_set(folder, "estimated", outputs.maps)
+    rows = [("estimated", estimated)]
+    if truth is not None:
+        rows.append(("ground truth", _picture_set(folder, "truth", resize(truth, outputs.maps.resolution))))
+    header = "".join(f"<th>{name}</th>" for name in ("", "base colour", "roughness", "metallic"))
+    body = "".join(
+        "<tr><th>" + label + "</th>" + "".join(f'<td><img src="{src}" alt="{label} {name}"></td>'
+                                              for name, src in pictures.items()) + "</tr>"
+        for label, pictures in rows
+    )
+    note = "" if truth is not None else '<p class="note">No ground truth in this capture.</p>'
+    return f"""<section id="maps"><h2>Material maps</h2><table class="maps"><tr>{header}</tr>{body}</table>
+{note}<p class="note">Texture space (T = {outputs.maps.resolution}). Base colour sRGB-encoded;
+roughness and metallic grey, 0 black to 1 white. Unobserved texels are filled from their neighbours.</p></section>"""
+
+
+def _entropy_section(folder: Path, outputs: FitOutputs) -> str:
+    entropy_png = outputs.folder / export.FILES["entropy_png"]
+    flags_png = outputs.folder / export.FILES["flags_png"]
+    if not entropy_png.is_file():
+        return _missing("Uncertainty", "entropy.png is missing")
+    shutil.copyfile(entropy_png, folder / "entropy.png")
+    cells = ['<td><img src="entropy.png" alt="entropy map"></td>']
+    if flags_png.is_file():
+        shutil.copyfile(flags_png, folder / "flags.png")
+        cells.append('<td><img src="flags.png" alt="flags"></td>')
+    legend = "".join(
+        f'<span class="swatch" style="background:{_css(colour)}"></span>{name} '
+        for name, colour in _flag_legend()
+    )
+    stats = outputs.summary.get("uncertainty", {})
+    fractions = ", ".join(f"{name} {value:.1%}" for name, value in stats.get("flagged_fraction", {}).items())
+    return f"""<section id="uncertainty"><h2>Uncertainty</h2><table class="maps"><tr>{''.join(cells)}</tr></table>
+<p>Mean entropy {_number(stats.get('entropy_mean'))}, median {_number(stats.get('entropy_median'))}
+over {stats.get('observed_texels', '?')} observed texels ({html.escape(str(stats.get('mode', '?')))} mode).
+Flagged: {html.escape(fractions)}.</p><p class="note">Entropy: {export.ENTROPY_COLORMAP}, 0 certain to 1 uncertain.
+Flags (first set bit shown): {legend}</p></section>"""
+
+
+def _spectra_section(folder: Path, outputs: FitOutputs) -> str:
+    arrays = outputs.arrays
+    needed = ("observed_spectrum", "mirrored_spectrum", "entropy", "n_samples")
+    if not all(name in arrays for name in needed):
+        return _missing("SH power spectra", "spectra.npz or uncertainty.npz is missing")
+    observed = np.flatnonzero(arrays["n_samples"] > 0)
+    if len(observed) == 0:
+        return _missing("SH power spectra", "no texel was observed")
+    order = observed[np.argsort(arrays["entropy"][observed], kind="stable")]
+    picks = {"most certain": order[0], "median": order[len(order) // 2], "least certain": order[-1]}
+    _plot_spectra(folder / "spectra.png", outputs, picks)
+    return """<section id="spectra"><h2>SH power spectra of picked texels</h2>
+<img class="wide" src="spectra.png" alt="power spectra">
+<p class="note">Per degree l (luminance-weighted mean over RGB): incoming light (the mirrored environment,
+low-passed as fitted), outgoing radiance (the observations) and the fitted specular reflection
+R0&sup2; k<sub>&alpha;</sub>(l)&sup2; S<sub>in</sub>(l). A sharp material passes the incoming spectrum;
+a rough one cuts it off; where the incoming spectrum is flat and weak the roughness is not determined.</p></section>"""
+
+
+def _evaluation_sections(folder: Path, outputs: FitOutputs) -> str:
+    evaluation = outputs.folder / EVALUATION_FOLDER
+    metrics_path = evaluation / "metrics.json"
+    if not metrics_path.is_file():
+        return _missing("Evaluation", "run `freqbrdf evaluate FIT` first")
+    try:
+        metrics = json.loads(metrics_path.read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError) as err:
+        raise InputError(metrics_path, f"unreadable: {err}") from None
+    parts = []
+    texture = metrics.get("texture")
+    if texture:
+        parts.append(
+            f"<p>Texture space, {texture['texels']} observed texels: base colour PSNR "
+            f"{_number(texture['base_color_psnr'])} dB, roughness MAE {_number(texture['roughness_mae'], 3)}, "
+            f"metallic MAE {_number(texture['metallic_mae'], 3)}.</p>")
+    sparsification = evaluation / SPARSIFICATION_PLOT
+    if sparsification.is_file():
+        shutil.copyfile(sparsification, folder / SPARSIFICATION_PLOT)
+        parts.append(f'<h3>Sparsification</h3><img class="wide" src="{SPARSIFICATION_PLOT}" alt="sparsification curves">'
+                     '<p class="note">Remove the most uncertain texels first: a useful entropy lowers the mean '
+                     'error of the rest (AURG &gt; 0) and approaches the oracle (AUSE &rarr; 0).</p>')
+    views = metrics.get("views", [])
+    if views:
+        relit = metrics["relighting"]
+        rows = []
+        for view in views:
+            source = evaluation / view["comparison"]
+            name = f"relit_{view['index']:04d}.png"
+            if source.is_file():
+                shutil.copyfile(source, folder / name)
+            rows.append(f'<tr><td><img class="relit" src="{name}" alt="relit view {view["index"]}"></td>'
+                        f'<td>PSNR-H {_number(view.get("psnr_hdr"))}<br>PSNR-L {_number(view.get("psnr_ldr"))}'
+                        f'<br>SSIM {_number(view.get("ssim"), 3)}<br>LPIPS {_number(view.get("lpips"), 3)}'
+                        f'<br><span class="note">{html.escape(view["envmap"])}</span></td></tr>')
+        parts.append(
+            f"<h3>Relighting ({len(views)} views, Stanford-ORB protocol)</h3><p>Mean PSNR-H "
+            f"{_number(relit.get('psnr_hdr'))}, PSNR-L {_number(relit.get('psnr_ldr'))}, SSIM "
+            f"{_number(relit.get('ssim'), 3)}, LPIPS {_number(relit.get('lpips'), 3)}.</p>"
+            '<p class="note">Each row: reference | our estimate rendered by Mitsuba under the same light | error.</p>'
+            f'<table class="relit">{"".join(rows)}</table>')
+    return '<section id="evaluation"><h2>Evaluation</h2>' + "".join(parts) + "</section>"
+
+
+def _timings_section(outputs: FitOutputs) -> str:
+    timings = outputs.summary.get("timings", {})
+    if not timings:
+        return _missing("Timings", "summary.json has none")
+    rows = "".join(f"<tr><td>{html.escape(stage)}</td><td>{seconds:.2f} s</td></tr>"
+                   for stage, seconds in timings.items() if isinstance(seconds, (int, float)))
+    return f'<section id="timings"><h2>Timings</h2><table class="timings">{rows}</table></section>'
+
+
+# ---------------------------------------------------------------------------------------------
+# Helpers
+
+
+def _capture_or_none(outputs: FitOutputs):
+    """The fit's capture when it can still be read (the report is possible without it)."""
+    path = outputs.capture_path
+    if path is None or not path.exists():
+        return None
+    try:
+        return load_capture(path)
+    except InputError:
+        return None
+
+
+def _entropy_glb(mesh: Mesh, entropy: np.ndarray) -> bytes:
+    """The mesh coloured by the entropy colour map (matte), as glTF binary bytes."""
+    low, high = export.ENTROPY_RANGE
+    colour = colormaps[export.ENTROPY_COLORMAP](np.clip((entropy - low) / (high - low), 0.0, 1.0))[..., :3]
+    maps = MaterialMaps(
+        base_color=srgb_to_linear(colour.astype(np.float32)),  # write_gltf encodes to sRGB again
+        roughness=np.ones(entropy.shape, np.float32),
+        metallic=np.zeros(entropy.shape, np.float32),
+    )
+    with tempfile.TemporaryDirectory() as scratch:
+        path = Path(scratch) / "entropy.glb"
+        export.write_gltf(path, mesh, maps)
+        return path.read_bytes()
+
+
+def _picture_set(folder: Path, prefix: str, maps: MaterialMaps) -> dict[str, str]:
+    names = {"base_color": f"{prefix}_base_color.png", "roughness": f"{prefix}_roughness.png",
+             "metallic": f"{prefix}_metallic.png"}
+    write_png(folder / names["base_color"], linear_to_srgb(maps.base_color))
+    write_png(folder / names["roughness"], np.clip(maps.roughness, 0.0, 1.0))
+    write_png(folder / names["metallic"], np.clip(maps.metallic, 0.0, 1.0))
+    return names
+
+
+def _plot_spectra(path: Path, outputs: FitOutputs, picks: dict[str, int]) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from freqbrdf.fileio import atomic_path
+
+    arrays, maps = outputs.arrays, outputs.maps
+    luminance = np.array([0.2126, 0.7152, 0.0722])
+    sigma = float(arrays.get("sigma", 0.0))
+    figure, axes = plt.subplots(1, len(picks), figsize=(4.2 * len(picks), 3.3), squeeze=False)
+    for axis, (label, texel) in zip(axes[0], picks.items()):
+        flat = outputs.texel_index[texel]
+        roughness = float(maps.roughness.ravel()[flat])
+        metallic = float(maps.metallic.ravel()[flat])
+        base_color = maps.base_color.reshape(-1, 3)[flat].astype(np.float64)
+        r0 = brdf.DIELECTRIC_F0 * (1.0 - metallic) + base_color * metallic  # (3,)
+        incoming = arrays["mirrored_spectrum"][texel].astype(np.float64)  # (3, L)
+        outgoing = arrays["observed_spectrum"][texel].astype(np.float64)
+        lmax = incoming.shape[-1] - 1
+        kernel = brdf.brdf_kernel(np.array([roughness**2]), lmax, sigma)[0]  # (L,)
+        fitted = (r0[:, None] ** 2) * kernel[None, :] ** 2 * incoming
+        degrees = np.arange(lmax + 1)
+        for values, name, style in ((incoming, "incoming (mirrored env.)", "-o"),
+                                    (outgoing, "outgoing (observed)", "-s"),
+                                    (fitted, "fitted specular", "--^")):
+            axis.semilogy(degrees, np.maximum(luminance @ values, 1e-12), style, label=name, markersize=4)
+        axis.set_title(f"{label}: entropy {arrays['entropy'][texel]:.2f}\nroughness {roughness:.2f}, "
+                       f"metallic {metallic:.2f}, {int(arrays['n_samples'][texel])} views", fontsize=9)
+        axis.set_xlabel("SH degree l")
+        axis.set_ylabel("power S(l)")
+        axis.legend(fontsize=7)
+    figure.tight_layout()
+    with atomic_path(path) as tmp:
+        figure.savefig(tmp, dpi=110, format="png")
+    plt.close(figure)
+
+
+def _flag_legend() -> list[tuple[str, tuple[float, float, float]]]:
+    from freqbrdf.uncertainty import FLAG_NAMES
+
+    return [(FLAG_NAMES[bit], colour) for bit, colour in export.FLAG_COLOURS.items()] + [("none", (1.0, 1.0, 1.0))]
+
+
+def _css(colour) -> str:
+    return "rgb(" + ",".join(str(int(round(255 * c))) for c in colour) + ")"
+
+
+def _number(value, digits: int = 2) -> str:
+    return "n/a" if value is None else f"{value:.{digits}f}"
+
+
+def _missing(title: str, reason: str) -> str:
+    return f'<section><h2>{html.escape(title)}</h2><p class="note">Not shown: {html.escape(reason)}.</p></section>'
+
+
+_STYLE = """
+body{font-family:system-ui,sans-serif;max-width:1100px;margin:1em auto;padding:0 1em;color:#222}
+h1{font-size:1.5em} h2{border-bottom:1px solid #ccc;padding-bottom:.2em}
+table.maps img{width:256px;height:256px;image-rendering:pixelated;border:1px solid #ccc}
+img.wide{max-width:100%} img.relit{max-width:720px;width:100%}
+.note{color:#666;font-size:.9em} .swatch{display:inline-block;width:.9em;height:.9em;border:1px solid #999;margin:0 .2em}
+.buttons button{margin:.4em .4em 0 0;padding:.3em .8em}
+table.timings td{padding:0 1em 0 0}
+"""
+
+_SCRIPT = """
+const viewer = document.getElementById('model');
+if (viewer && window.FREQBRDF_MODELS) {
+  viewer.src = window.FREQBRDF_MODELS.material;
+  for (const button of document.querySelectorAll('button[data-model]')) {
+    button.addEventListener('click', () => { viewer.src = window.FREQBRDF_MODELS[button.dataset.model]; });
+  }
+}
+"""
+
+
+def _page(outputs: FitOutputs, sections: list[str]) -> str:
+    summary = outputs.summary
+    coverage = summary.get("coverage", {})
+    method = summary.get("estimate", {}).get("method", "?")
+    capture = html.escape(str(summary.get("capture", "?")))
+    has_viewer = 'id="viewer"' in sections[0]
+    scripts = (f'<script src="{VIEWER_SCRIPT}"></script><script src="models.js"></script>'
+               if has_viewer else "")
+    return f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>freqbrdf report</title>
+<style>{_STYLE}</style>{scripts}</head><body>
+<h1>freqbrdf report</h1>
+<p>Capture <code>{capture}</code>; estimator <b>{html.escape(str(method))}</b>;
+{coverage.get('observed_fraction', 0):.0%} of {coverage.get('texels', '?')} texels observed,
+{_number(coverage.get('mean_views_per_observed_texel'), 1)} views per observed texel on average.</p>
+{''.join(sections)}
+<script>{_SCRIPT}</script>
+</body></html>
+"""

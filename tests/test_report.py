@@ -1,0 +1,200 @@
+"""The HTML report: its content, and that it works in a real browser (headless Chromium).
+
+The browser test drives Debian's ``chromium`` through the Chrome DevTools protocol: it opens the
+report from disk with no network, collects console errors, uncaught exceptions and failed loads,
+checks that every image decoded and that the 3D view rendered a non-blank picture.
+"""
+
+from __future__ import annotations
+
+import base64
+import io
+import json
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from freqbrdf import pipeline
+from freqbrdf.capture import load
+from freqbrdf.cli import main
+from freqbrdf.config import Config, TexelConfig
+from freqbrdf.relight import RelightSettings
+from freqbrdf.report import REPORT_FILE, write_report
+from freqbrdf.synth import SynthSettings, synthesize
+
+TINY = SynthSettings(mesh="bunny", views=6, resolution=40, spp=4, texture_res=32, test_views=1, test_envmaps=1)
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser") or shutil.which("google-chrome")
+
+
+@pytest.fixture(scope="module")
+def fit_folder(tmp_path_factory):
+    root = tmp_path_factory.mktemp("report")
+    capture_dir = synthesize(root / "capture", TINY, progress=False)
+    capture = load(capture_dir)
+    config = Config(texels=TexelConfig(texture_res=32))
+    folder = pipeline.write_fit(root / "fit", pipeline.fit(capture, config), config)
+    pipeline.evaluate_fit(pipeline.load_fit(folder), capture, settings=RelightSettings(spp=2))
+    return folder
+
+
+@pytest.mark.slow
+def test_report_has_every_section_and_its_files(fit_folder):
+    page = write_report(fit_folder)
+    text = page.read_text(encoding="utf-8")
+    for section in ("viewer", "maps", "uncertainty", "spectra", "evaluation", "timings"):
+        assert f'id="{section}"' in text, section
+    assert "Not shown" not in text  # every input was there
+    for source in re.findall(r'src="([^"]+)"', text):
+        assert (page.parent / source).is_file(), source
+    assert "http://" not in text and "https://" not in text  # nothing from the network
+    models = (page.parent / "models.js").read_text()
+    assert models.count("data:model/gltf-binary;base64,") == 2  # material and entropy overlay
+
+
+@pytest.mark.slow
+def test_report_without_evaluation_says_what_is_missing(fit_folder, tmp_path, monkeypatch):
+    bare = tmp_path / "fit"
+    shutil.copytree(fit_folder, bare, ignore=shutil.ignore_patterns("evaluation", "report"))
+    monkeypatch.setattr(sys, "argv", ["freqbrdf", "report", str(bare), "--quiet"])
+    with pytest.raises(SystemExit) as exit_info:
+        main()
+    assert (exit_info.value.code or 0) == 0
+    assert "run `freqbrdf evaluate FIT` first" in (bare / "report" / REPORT_FILE).read_text()
+
+
+def test_report_of_a_folder_that_is_not_a_fit_fails_cleanly(tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr(sys, "argv", ["freqbrdf", "report", str(tmp_path)])
+    with pytest.raises(SystemExit) as exit_info:
+        main()
+    assert exit_info.value.code == 2 and "summary.json" in capsys.readouterr().err
+    assert not (tmp_path / "report").exists()
+
+
+# --- in a browser -----------------------------------------------------------------------------
+
+
+class DevTools:
+    """A minimal Chrome DevTools protocol client over one page's websocket."""
+
+    def __init__(self, url: str):
+        import websocket  # test extra (websocket-client)
+
+        self.socket = websocket.create_connection(url, timeout=60)
+        self.next_id = 0
+        self.events: list[dict] = []
+
+    def call(self, method: str, **params) -> dict:
+        self.next_id += 1
+        self.socket.send(json.dumps({"id": self.next_id, "method": method, "params": params}))
+        while True:
+            message = json.loads(self.socket.recv())
+            if message.get("id") == self.next_id:
+                if "error" in message:
+                    raise RuntimeError(f"{method}: {message['error']}")
+                return message.get("result", {})
+            self.events.append(message)
+
+    def evaluate(self, expression: str):
+        result = self.call("Runtime.evaluate", expression=expression, awaitPromise=True, returnByValue=True)
+        if "exceptionDetails" in result:
+            raise RuntimeError(f"{expression}: {result['exceptionDetails']}")
+        return result["result"].get("value")
+
+
+def start_chromium(profile: Path) -> tuple[subprocess.Popen, str]:
+    process = subprocess.Popen(
+        [CHROMIUM, "--headless", "--no-sandbox", "--no-first-run", "--disable-gpu",
+         "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--remote-debugging-port=0",
+         f"--user-data-dir={profile}", "--window-size=1100,1400", "about:blank"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+    )
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        line = process.stderr.readline()
+        match = re.search(r"DevTools listening on (ws://\S+)", line)
+        if match:
+            return process, match.group(1)
+        if not line and process.poll() is not None:
+            break
+    process.kill()
+    raise RuntimeError("chromium did not start its DevTools endpoint")
+
+
+def page_websocket(browser_url: str) -> str:
+    import websocket
+
+    browser = websocket.create_connection(browser_url, timeout=60)
+    browser.send(json.dumps({"id": 1, "method": "Target.createTarget", "params": {"url": "about:blank"}}))
+    target = json.loads(browser.recv())["result"]["targetId"]
+    browser.close()
+    port = re.search(r":(\d+)/", browser_url).group(1)
+    return f"ws://127.0.0.1:{port}/devtools/page/{target}"
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(CHROMIUM is None, reason="needs Debian's `chromium` (make test installs it when run as root)")
+def test_report_works_in_headless_chromium(fit_folder):
+    pytest.importorskip("websocket", reason="needs the test extra websocket-client (pip install -e '.[test]')")
+    page = write_report(fit_folder)
+    with tempfile.TemporaryDirectory() as profile:
+        process, browser_url = start_chromium(Path(profile))
+        try:
+            tools = DevTools(page_websocket(browser_url))
+            for domain in ("Runtime", "Log", "Page"):
+                tools.call(f"{domain}.enable")
+            tools.call("Page.navigate", url=page.as_uri())
+            # Wait for the page and the glTF: model-viewer's `loaded` turns true once the model is in.
+            state = tools.evaluate("""new Promise(resolve => {
+                const started = Date.now();
+                const poll = () => {
+                  const viewer = document.getElementById('model');
+                  const images = [...document.images];
+                  const done = document.readyState === 'complete' && viewer && viewer.loaded
+                               && images.every(i => i.complete);
+                  if (done || Date.now() - started > 45000) {
+                    resolve({ready: !!done, images: images.length,
+                             broken: images.filter(i => i.naturalWidth === 0).map(i => i.src)});
+                  } else { setTimeout(poll, 200); }
+                };
+                poll();
+            })""")
+            assert state["ready"], state
+            assert state["images"] >= 10 and state["broken"] == []
+            # Let it render a few frames, then take model-viewer's own picture of its canvas.
+            picture_url = tools.evaluate(
+                "new Promise(r => setTimeout(() => r(document.getElementById('model').toDataURL('image/png')), 1500))"
+            )
+            picture = np.asarray(Image.open(io.BytesIO(base64.b64decode(picture_url.split(",", 1)[1]))).convert("RGB"))
+            assert picture.shape[0] > 100 and picture.shape[1] > 100
+            # Non-blank: a good share of pixels differ from the corner (background) colour.
+            background = picture[2, 2].astype(int)
+            differs = np.abs(picture.astype(int) - background).sum(axis=-1) > 30
+            assert differs.mean() > 0.03, f"3D view looks blank ({differs.mean():.3%} non-background pixels)"
+            # The overlay switch loads the entropy model without errors.
+            switched = tools.evaluate("""new Promise(resolve => {
+                const viewer = document.getElementById('model');
+                viewer.addEventListener('load', () => resolve(viewer.src.startsWith('data:')), {once: true});
+                document.querySelector('button[data-model=entropy]').click();
+                setTimeout(() => resolve(false), 30000);
+            })""")
+            assert switched
+            tools.call("Runtime.evaluate", expression="0")  # flush pending events into tools.events
+            problems = [
+                event["params"] for event in tools.events
+                if event.get("method") == "Runtime.exceptionThrown"
+                or (event.get("method") == "Runtime.consoleAPICalled" and event["params"]["type"] == "error")
+                or (event.get("method") == "Log.entryAdded" and event["params"]["entry"]["level"] == "error"
+                    and "GL Driver" not in event["params"]["entry"].get("text", ""))
+            ]
+            assert problems == []
+        finally:
+            process.kill()
+            process.wait()
