@@ -70,9 +70,12 @@ class EstimateConfig:
     masking: bool = True  # G1(theta_o) on the reflected light
     shadowing: bool = True  # G1(theta_i) on the incoming light before its SH fit (appendix eq. 6)
     # global: roughness grid (uniform in r on [0, 1]) and metallic grid, each refined by Brent.
-    roughness_grid: int = 33
-    metallic_grid: int = 11
-    shadowing_refreshes: int = 4  # global: re-fit the light shadowed nearer the fixed point, search again
+    # Measured on a Mitsuba bunny capture (64 views, T = 512, benchmarks/results/estimator_defaults.json):
+    # 33 x 11 with 4 refreshes took 36 s for roughness MAE 0.197; 17 x 6 with 1 refresh 8 s for
+    # 0.200; with no refresh 3.8 s for 0.217. Base-colour PSNR and metallic MAE hardly move.
+    roughness_grid: int = 17
+    metallic_grid: int = 6
+    shadowing_refreshes: int = 1  # global: re-fit the light shadowed nearer the fixed point, search again
     # paper: the prototype's Adam on the L1 loss, its initialisation and texture-space TV.
     iterations: int = 100
     learning_rate: float = 0.02
@@ -84,12 +87,28 @@ class EstimateConfig:
 
 
 @dataclass(frozen=True)
+class ShareConfig:
+    """Sharing across the surface (`fit --share`, METHOD.md §4; see freqbrdf.share)."""
+
+    enabled: bool = False
+    uncertain_entropy: float = 0.5  # texels at or above this normalised entropy are pulled
+    anchor_certainty: float = 0.8  # an anchor's certainty 1 - H must reach this
+    anchor_cells: int = 32  # the texture is split into cells x cells; at most one anchor per cell
+    neighbours: int = 8  # k nearest anchors (texture space) scored per uncertain texel
+    affinity_width: float = 0.4  # Gaussian width of the affinity, in units of the mean KL divergence
+    min_affinity: float = 0.1  # texels whose summed affinity is below this keep their estimate
+    loss_tolerance: float = 0.05  # relative increase of a texel's data loss the pull may cost
+    chunk_texels: int = 16384  # texels per affinity chunk: bounds memory to chunk x k x R^2 floats
+
+
+@dataclass(frozen=True)
 class Config:
     texels: TexelConfig = field(default_factory=TexelConfig)
     observe: ObserveConfig = field(default_factory=ObserveConfig)
     fit: FitConfig = field(default_factory=FitConfig)
     uncertainty: UncertaintyConfig = field(default_factory=UncertaintyConfig)
     estimate: EstimateConfig = field(default_factory=EstimateConfig)
+    share: ShareConfig = field(default_factory=ShareConfig)
     seed: int = 0
 
     def replace(self, **sections) -> "Config":

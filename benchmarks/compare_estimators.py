@@ -1,0 +1,142 @@
+"""The comparison of issue #5: our `global` estimator, the paper's recipe (angular and spectrum
+forward models) and Mitsuba 3 inverse rendering, on Mitsuba-rendered captures.
+
+    python benchmarks/compare_estimators.py [--scenes bunny,plane] [--texture-res 512]
+        [--views 64] [--relight-spp 32] [--skip mitsuba,paper_spectrum]
+
+Each scene is rendered once by Mitsuba (cached in benchmarks/.cache/compare_<scene>_<views>): a
+bundled mesh with the procedural `bands` material under a bundled environment map, 64 views on
+the upper hemisphere, and a relighting test set of 8 views under two other bundled maps. Every
+method gets the same capture and texture resolution and is scored on the observed texels
+(base-colour PSNR, roughness and metallic MAE) and by relighting (Stanford-ORB protocol,
+PSNR-H/PSNR-L/SSIM). Seconds are wall-clock from the capture to the maps (our methods: observe +
+estimate; Mitsuba: its own loop, image loading and compilation included). Saves JSON and a
+markdown table to benchmarks/results/compare_estimators.{json,md}.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+from freqbrdf import baselines, export, metrics
+from freqbrdf.capture import load
+from freqbrdf.config import Config, TexelConfig, preset
+from freqbrdf.estimate import estimate
+from freqbrdf.fileio import atomic_path
+from freqbrdf.observations import observe
+from freqbrdf.relight import RelightSettings, evaluate
+from freqbrdf.synth import SynthSettings, synthesize
+
+ROOT = Path(__file__).resolve().parent
+CACHE = ROOT / ".cache"
+RESULTS = ROOT / "results"
+SCENES = {
+    "bunny": SynthSettings(mesh="bunny", envmap="forest", materials="bands", test_envmaps=("studio", "sunset")),
+    "plane": SynthSettings(mesh="plane", envmap="city", materials="bands", test_envmaps=("forest", "lobby")),
+}
+METHODS = ("global", "paper_angular", "paper_spectrum", "mitsuba")
+
+
+def method_config(method: str, texture_res: int) -> Config:
+    """Our default Config for `global`; the paper preset (its lambda, Adam, TV) for `paper_*`."""
+    texels = TexelConfig(texture_res=texture_res)
+    if method == "global":
+        return Config(texels=texels)
+    model = method.split("_", 1)[1]
+    config = preset("paper")
+    return config.replace(texels=texels, estimate=dataclasses.replace(config.estimate, forward_model=model))
+
+
+def run_scene(name: str, args) -> dict:
+    settings = dataclasses.replace(SCENES[name], views=args.views, test_views=8, resolution=256, spp=64,
+                                   texture_res=args.texture_res)
+    folder = CACHE / f"compare_{name}_{args.views}"
+    if not folder.is_dir():
+        synthesize(folder, settings, progress=False)
+    capture = load(folder)
+    relight_settings = RelightSettings(spp=args.relight_spp)
+    rows = {}
+    observed_by_fit = {}  # FitConfig -> (observations, seconds): methods with the same fit share them
+
+    def observations_for(config: Config):
+        if config.fit not in observed_by_fit:
+            start = time.perf_counter()
+            observed_by_fit[config.fit] = (observe(capture, config), time.perf_counter() - start)
+        return observed_by_fit[config.fit]
+
+    for method in METHODS:
+        if method in args.skip:
+            continue
+        print(f"[{name}] {method} ...", flush=True)
+        # Mitsuba is scored on the texels our default observation sees, like the others.
+        observations, observe_seconds = observations_for(method_config("global" if method == "mitsuba" else method,
+                                                                       args.texture_res))
+        if method == "mitsuba":
+            maps, seconds, _ = baselines.mitsuba_inverse(capture, args.texture_res)
+            timings = {"total": seconds}
+        else:
+            config = method_config(method, args.texture_res)
+            start = time.perf_counter()
+            result = estimate(observations, config)
+            estimate_seconds = time.perf_counter() - start
+            maps = export.material_textures(result, config.texels.dilation_px)
+            timings = {"observe": observe_seconds, "estimate": estimate_seconds,
+                       "total": observe_seconds + estimate_seconds}
+        observed = observations.to_texture(observations.n_samples > 0, fill=False).astype(bool)
+        texture = metrics.texture_scores(maps, capture.ground_truth, observed)
+        relit = evaluate(capture, maps, settings=relight_settings).relighting
+        rows[method] = {"seconds": timings, "texture": texture, "relighting": relit}
+        print(f"[{name}] {method}: {json.dumps(rows[method])}", flush=True)
+    return {"settings": dataclasses.asdict(settings), "capture": str(folder), "methods": rows}
+
+
+def markdown(results: dict) -> str:
+    lines = ["| scene | method | base colour PSNR | roughness MAE | metallic MAE | relight PSNR-H | PSNR-L | SSIM | seconds |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for scene, data in results["scenes"].items():
+        for method, row in data["methods"].items():
+            t, r = row["texture"], row["relighting"]
+            lines.append(f"| {scene} | {method} | {t['base_color_psnr']:.2f} | {t['roughness_mae']:.3f} | "
+                         f"{t['metallic_mae']:.3f} | {r['psnr_hdr']:.2f} | {r['psnr_ldr']:.2f} | {r['ssim']:.3f} | "
+                         f"{row['seconds']['total']:.1f} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--scenes", default="bunny,plane")
+    parser.add_argument("--texture-res", type=int, default=512)
+    parser.add_argument("--views", type=int, default=64)
+    parser.add_argument("--relight-spp", type=int, default=32)
+    parser.add_argument("--skip", default="", help="comma-separated methods to leave out")
+    args = parser.parse_args(argv)
+    args.skip = {method for method in args.skip.split(",") if method}
+    results = {
+        "benchmark": "estimator comparison (issue #5)",
+        "cpu_count": os.cpu_count(),
+        "machine": platform.processor() or platform.machine(),
+        "python": sys.version.split()[0],
+        "texture_res": args.texture_res,
+        "relight_spp": args.relight_spp,
+        "scenes": {},
+    }
+    for name in args.scenes.split(","):
+        results["scenes"][name] = run_scene(name, args)
+        RESULTS.mkdir(exist_ok=True)
+        with atomic_path(RESULTS / "compare_estimators.json") as tmp:
+            tmp.write_text(json.dumps(results, indent=2, default=float) + "\n")
+        with atomic_path(RESULTS / "compare_estimators.md") as tmp:
+            tmp.write_text(markdown(results))
+    print(markdown(results))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
