@@ -93,6 +93,11 @@ def test_fit_and_evaluate_commands(tiny_capture, tmp_path, monkeypatch, capsys):
     assert (fit_dir / "evaluation" / "metrics.json").is_file()
     assert (fit_dir / "evaluation" / "sparsification.png").is_file()
 
+    shared_dir = tmp_path / "shared"
+    assert run_cli(monkeypatch, "fit", tiny_capture, "--out", shared_dir, "--texture-res", 32, "--share", "--quiet") == 0
+    shared_summary = json.loads((shared_dir / "summary.json").read_text())
+    assert shared_summary["settings"]["share"]["enabled"] and "share" in shared_summary["timings"]
+
     paper_dir = tmp_path / "paper"
     assert run_cli(monkeypatch, "fit", tiny_capture, "--out", paper_dir, "--texture-res", 16,
                    "--preset", "paper", "--model", "spectrum", "--quiet") == 0

@@ -206,10 +206,12 @@ def fit(
     estimator: str = typer.Option(None, help="global (ours, default) or paper (the prototype's Adam)."),
     model: str = typer.Option(None, help="Forward model of `paper`: angular, sh_coeffs or spectrum."),
     preset: str = typer.Option("default", help="default, or paper (the prototype's hyper-parameters)."),
+    share: bool = typer.Option(False, "--share", help="Pull uncertain texels towards affine confident anchors."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars or messages."),
     json_output: bool = typer.Option(False, "--json", help="Print summary.json to stdout."),
 ) -> None:
     """Estimate base colour, roughness and metallic maps and their uncertainty; write EXR, glTF, PNG."""
+    import dataclasses
     import json
     from pathlib import Path
 
@@ -222,6 +224,8 @@ def fit(
     if model not in (None, "angular", "sh_coeffs", "spectrum"):
         raise typer.BadParameter(f"unknown model {model!r}; choose angular, sh_coeffs or spectrum")
     config = _config(preset, texture_res, lmax, estimator=estimator, model=model)
+    if share:
+        config = config.replace(share=dataclasses.replace(config.share, enabled=True))
     reporter = Reporter(enabled=not (quiet or json_output))
     result = pipeline.fit(load(capture), config, reporter)
     folder = pipeline.write_fit(out, result, config)
@@ -328,6 +332,94 @@ def evaluate(
             lines.append(f"entropy vs roughness error: Spearman {rho}, AUSE {u['ause']:.3f}, AURG {u['aurg']:.3f}")
         for line in lines:
             Console().print(escape(line))
+
+
+@app.command()
+def inpaint(
+    fit_dir: str = typer.Argument(..., metavar="FIT", help="Folder written by `freqbrdf fit`."),
+    out: str = typer.Option(..., "--out", help="Output folder (replaced as a whole when done)."),
+    threshold: float = typer.Option(
+        None, min=0.0, max=1.0, help="Fill observed texels with entropy >= H (default: texels flagged unobserved or ambiguous)."),
+    maps: str = typer.Option("base_color,roughness,metallic", help="Maps to fill, comma-separated."),
+    model: str = typer.Option(
+        None, help="Local diffusers inpainting pipeline folder (needs freqbrdf[diffusion]); default: biharmonic."),
+    prompt: str = typer.Option(None, help="Diffusion prompt."),
+    steps: int = typer.Option(25, min=1, help="Diffusion denoising steps."),
+    capture: str = typer.Option(None, "--capture", help="Capture with the mesh (default: the fit's)."),
+    quiet: bool = typer.Option(False, "--quiet", help="No messages."),
+) -> None:
+    """Fill the uncertain texels of a fit's maps from confident ones, chart by chart; EXR, PNG, glTF."""
+    import json
+
+    from freqbrdf.inpaint import MAP_NAMES, InpaintSettings, inpaint_fit
+
+    names = tuple(name.strip() for name in maps.split(",") if name.strip())
+    if not names or set(names) - set(MAP_NAMES):
+        raise typer.BadParameter(f"--maps takes names among {', '.join(MAP_NAMES)}; got {maps!r}")
+    settings = InpaintSettings(threshold=threshold, maps=names, backend="diffusion" if model else "biharmonic",
+                               model=model, steps=steps,
+                               **({} if prompt is None else {"prompt": prompt}))
+    folder = inpaint_fit(fit_dir, out, settings, capture)
+    if not quiet:
+        summary = json.loads((folder / "summary.json").read_text(encoding="utf-8"))
+        Console().print(escape(
+            f"filled {summary['masked_texels']} texels ({summary['masked_fraction']:.1%} of the atlas, "
+            f"{summary['charts']} charts) in {summary['seconds']:.1f} s; wrote {folder}"
+        ))
+
+
+@app.command("next-views")
+def next_views(
+    capture: str = typer.Argument(..., help="Capture folder or its transforms file."),
+    out: str = typer.Option(..., "--out", help="Output folder (replaced as a whole when done)."),
+    candidates: str = typer.Option(None, "--candidates", help="Transforms file of candidate cameras."),
+    sample: int = typer.Option(None, "--sample", min=1, help="Or: N candidates evenly spread around the object."),
+    hemisphere: bool = typer.Option(False, "--hemisphere", help="Sampled candidates above the object only (+y)."),
+    budget: int = typer.Option(..., "--budget", min=1, help="How many views to choose."),
+    texture_res: int = typer.Option(None, min=1, help="Texture resolution T (default 512)."),
+    max_texels: int = typer.Option(1024, min=1, help="Texels scored (a seeded random subset)."),
+    quiet: bool = typer.Option(False, "--quiet", help="No progress bars or messages."),
+) -> None:
+    """Choose the next photographs by expected entropy: ranked cameras (next_views.json) and a picture."""
+    import time
+
+    from freqbrdf import guidance
+    from freqbrdf.capture import load
+    from freqbrdf.progress import Reporter
+
+    if (candidates is None) == (sample is None):
+        raise typer.BadParameter("give exactly one of --candidates FILE and --sample N")
+    config = _config("default", texture_res)
+    loaded = load(capture)
+    if candidates is not None:
+        cameras = guidance.load_candidates(candidates, loaded)
+        source = candidates
+    else:
+        cameras = guidance.sample_candidates(loaded, sample, hemisphere)
+        source = f"{sample} sampled on the {'hemisphere' if hemisphere else 'sphere'}"
+    if budget > len(cameras):
+        raise InputError(candidates, f"budget {budget} exceeds the {len(cameras)} candidate cameras")
+    start = time.perf_counter()
+    picks = guidance.select_views(loaded, cameras, budget, config, max_texels=max_texels,
+                                  reporter=Reporter(enabled=not quiet))
+    summary = {
+        "capture": str(loaded.root.resolve()),
+        "candidates": source,
+        "n_candidates": len(cameras),
+        "budget": budget,
+        "max_texels": max_texels,
+        "mean_entropy_before": picks[0].entropy_before,
+        "picks": [{"rank": p.rank, "candidate": p.candidate, "expected_mean_entropy": p.expected_entropy,
+                   "texels_seen": p.texels_seen, "seconds": p.seconds} for p in picks],
+        "seconds": time.perf_counter() - start,
+        "settings": config.to_dict(),
+    }
+    guidance.write_next_views(out, loaded, picks, summary, cameras)
+    if not quiet:
+        Console().print(escape(
+            f"mean entropy {picks[0].entropy_before:.3f} -> {picks[-1].expected_entropy:.3f} (expected) with "
+            f"{budget} of {len(cameras)} candidates in {summary['seconds']:.1f} s; wrote {out}"
+        ))
 
 
 def main() -> None:

@@ -26,6 +26,7 @@ from freqbrdf.materials import MaterialMaps, load_material_maps, resize
 from freqbrdf.observations import Observations, observe
 from freqbrdf.progress import SILENT, Reporter
 from freqbrdf.relight import RelightSettings, evaluate as relight_evaluate, write_evaluation
+from freqbrdf.share import share
 from freqbrdf.uncertainty import FLAG_UNOBSERVED, Uncertainty, entropy_map
 
 EVALUATION_FOLDER = "evaluation"
@@ -75,6 +76,11 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
     start = time.perf_counter()
     uncertainty = entropy_map(observations, config.uncertainty)
     timings["uncertainty"] = time.perf_counter() - start
+
+    if config.share.enabled:
+        start = time.perf_counter()
+        estimate = share(observations, estimate, uncertainty, config)
+        timings["share"] = time.perf_counter() - start
 
     start = time.perf_counter()
     maps = export.material_textures(estimate, config.texels.dilation_px)
