@@ -8,6 +8,7 @@ checks that every image decoded and that the 3D view rendered a non-blank pictur
 from __future__ import annotations
 
 import base64
+import dataclasses
 import io
 import json
 import re
@@ -22,7 +23,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from freqbrdf import pipeline
+from freqbrdf import demo, pipeline
 from freqbrdf.capture import load
 from freqbrdf.cli import main
 from freqbrdf.config import Config, TexelConfig
@@ -76,6 +77,23 @@ def test_report_of_a_folder_that_is_not_a_fit_fails_cleanly(tmp_path, monkeypatc
         main()
     assert exit_info.value.code == 2 and "summary.json" in capsys.readouterr().err
     assert not (tmp_path / "report").exists()
+
+
+@pytest.mark.slow
+def test_demo_writes_a_report_and_reuses_its_cached_capture(tmp_path, monkeypatch):
+    config = Config(texels=TexelConfig(texture_res=32))
+    first = demo.run_demo(tmp_path, TINY, config, relight=RelightSettings(spp=2))
+    assert not first["capture_cached"] and Path(first["report"]).is_file()
+    assert first["texture"]["texels"] > 0 and first["relighting"]["psnr_hdr"] > 0
+
+    def must_not_render(*args, **kwargs):
+        raise AssertionError("the cached capture was rendered again")
+
+    monkeypatch.setattr(demo, "synthesize", must_not_render)
+    second = demo.run_demo(tmp_path, TINY, config, relight=RelightSettings(spp=2))
+    assert second["capture_cached"] and second["capture"] == first["capture"]
+    # Other settings are another capture: the cache key is the settings.
+    assert demo.capture_folder(tmp_path, TINY) != demo.capture_folder(tmp_path, dataclasses.replace(TINY, spp=8))
 
 
 # --- in a browser -----------------------------------------------------------------------------
