@@ -1,0 +1,603 @@
+"""Capture guidance: where to take the next photographs (METHOD.md §4, issue #8).
+
+Greedy next-best-view by expected entropy. What a candidate camera would add to a texel is known
+before any photograph is taken, except the radiance itself: its view direction in the texel's
+frame, its weight cos(theta_o) x visible (the same projection and Mitsuba shadow rays as
+`freqbrdf.observations`), and the (band-limited) environment in the mirror direction. So for every
+specular hypothesis psi = (alpha, k) of the uncertainty grid the new sample can be simulated,
+
+    f_psi = k sum_l K(alpha, l) P_l(w_o) + D_psi,
+
+with P_l the degree-l part of the light's SH fit (updated with the candidate's mirror sample) at
+the new direction, K the kernel the entropy uses (``brdf.brdf_kernel``; band-limit compensated in
+calibrated mode) and D_psi the Lambertian radiance that explains the rest of the texel's fitted
+DC under psi, D = max(0, (c_obs,00 - k c_light,00) / c_one,00) (0 for a texel with no sample
+yet). The observed fit is updated with that sample, its spectrum scored by
+`uncertainty.entropy_from_spectra`, and the candidate's expected entropy at the texel is
+sum_psi P(psi) H(psi), P the texel's current posterior (of its minimum-entropy channel; the
+hypothesis is applied to all three channels, whose minimum entropy is the map, as in
+`uncertainty`). Fresnel and masking are left out: k absorbs them, as in the entropy's own model.
+The candidate's score is the mean over texels (texels it does not see keep their entropy, texels
+nobody has seen count with entropy 1); the lowest wins.
+
+Incremental. Per texel we keep the normal equations of the fit, G = sum w^2 y y^T, the right-hand
+sides b = sum w^2 y f (light RGB, observed RGB, the constant 1) and sum w^2, which sets the
+penalty lambda_eff = lambda sum w^2 (``FitConfig.scale_lambda_with_weight``). Adding a sample is a
+rank-one update of G and b. With the generalised eigenbasis of (G, R), R = diag(e^l),
+G = R^1/2 Q diag(mu) Q^T R^1/2, the regularised inverse for any penalty s is
+(G + s R)^-1 = B diag(1 / (mu + s)) B^T, B = R^-1/2 Q; scoring a candidate is then Sherman-Morrison
+on top of that, O(K^2) per texel (exact, the penalty's growth with the new weight included), and
+committing a pick re-diagonalises only the texels it sees. The result equals a fit from scratch
+on the enlarged sample set (tests/test_guidance.py).
+
+A pick is committed without a photograph: its sample enters the fit with the posterior-mean
+radiance sum_psi P(psi) f_psi (the expected observation), so the next pick already knows what this
+one will most likely reveal. The band limit sigma stays that of the capture's own views.
+
+Speed: the texels scored are a seeded random subset of the atlas (``max_texels``, default 1024;
+all candidates are scored on the same texels, so their ranking is much less noisy than the mean
+itself) and hypotheses whose posterior falls below ``MIN_CELL_PROBABILITY`` are dropped from the
+expectation (the rest renormalised).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from freqbrdf import brdf, envmap as envmaps, sh
+from freqbrdf.camera import Camera, look_at
+from freqbrdf.capture import Capture, _camera, _frame_entries, _read_json
+from freqbrdf.config import Config
+from freqbrdf.observations import (
+    RAY_OFFSET_OBJECT,
+    RAY_OFFSET_TEXELS,
+    Observations,
+    _extent,
+    _occlusion_scene,
+    _project_kernel,
+    _ray_hits,
+    _shadow_rays,
+    observe,
+)
+from freqbrdf.progress import SILENT, Reporter
+from freqbrdf.synth import WORLD_UP, bounding_sphere, fibonacci_directions
+from freqbrdf.texels import Texels, rasterise
+from freqbrdf.uncertainty import Uncertainty, entropy_from_spectra
+
+MAX_TEXELS = 1024  # texels scored per candidate (a seeded random subset of the atlas)
+# Hypotheses less likely than this are left out of a texel's expectation (the rest renormalised):
+# a uniform posterior keeps all of its 57 materials (1/57 each), a confident one a handful.
+MIN_CELL_PROBABILITY = 1e-3
+
+# Right-hand sides of the per-texel normal equations.
+LIGHT = slice(0, 3)
+OBSERVED = slice(3, 6)
+ONE = 6
+N_RHS = 7
+
+
+@dataclass(frozen=True)
+class Pick:
+    """One chosen view, in the order chosen."""
+
+    rank: int  # 0 = take this photograph first
+    candidate: int  # index into the candidate list
+    camera: Camera
+    entropy_before: float  # mean entropy of the scored texels before this pick
+    expected_entropy: float  # their mean expected entropy once this view is added
+    texels_seen: int  # scored texels the view samples
+    seconds: float  # scoring every remaining candidate and committing this one
+
+
+@dataclass(frozen=True)
+class CandidateSamples:
+    """What one candidate camera would add to the scored texels (n of them see it)."""
+
+    texel: np.ndarray  # (n,) int64 rows of the scored texels
+    weight: np.ndarray  # (n,) float64 cos(theta_o)
+    basis: np.ndarray  # (n, K) float64 SH at the view direction in the texel's frame
+    light: np.ndarray  # (n, 3) float64 band-limited environment in the mirror direction
+
+
+@dataclass(eq=False)
+class FitState:
+    """Per-texel normal equations of the SH fits and their eigenbasis (n texels, K coefficients)."""
+
+    gram: np.ndarray  # (n, K, K) float64 sum_i w_i^2 y_i y_i^T (unregularised)
+    rhs: np.ndarray  # (n, K, 7) float64 sum_i w_i^2 y_i f_i: light RGB, observed RGB, constant 1
+    weight_sq: np.ndarray  # (n,) float64 sum_i w_i^2
+    n_samples: np.ndarray  # (n,) int64
+    basis: np.ndarray  # (n, K, K) B = R^-1/2 Q: (G + s R)^-1 = B diag(1 / (mu + s)) B^T
+    eigenvalues: np.ndarray  # (n, K) mu >= 0
+    projected_rhs: np.ndarray  # (n, K, 7) B^T b
+    regulariser: np.ndarray  # (K,) R's diagonal, reg(l) of `sh.regulariser_weights`
+
+
+# --------------------------------------------------------------------------------------------
+# The selection
+
+
+def select_views(
+    capture: Capture,
+    candidates: Sequence[Camera],
+    budget: int,
+    config: Config = Config(),
+    *,
+    observations: Observations | None = None,
+    max_texels: int = MAX_TEXELS,
+    reporter: Reporter = SILENT,
+) -> list[Pick]:
+    """Choose ``budget`` of ``candidates`` greedily by expected entropy (module docstring).
+
+    ``observations`` of the whole capture (e.g. a fit's) are reused when given; otherwise only the
+    scored texels are observed. The texel subset and every tie are deterministic in config.seed.
+    """
+    _check_fit_settings(config)
+    if budget < 1:
+        raise ValueError(f"budget must be at least 1, got {budget}")
+    if budget > len(candidates):
+        raise ValueError(f"budget {budget} exceeds the {len(candidates)} candidates")
+    texels = rasterise(capture.mesh, config.texels.texture_res)
+    rows = _texel_subset(texels.n_texels, max_texels, config.seed)
+    scored = _subset_texels(texels, rows)
+    if observations is None:
+        observations = observe(capture, config, reporter, texels=scored)
+    else:
+        if not np.array_equal(observations.texel_index, texels.texel_index):
+            raise ValueError("observations were made at another texture resolution or of another mesh")
+        observations = _subset_observations(observations, rows)
+    lmax = observations.lmax
+    state = initial_state(observations, config)
+    samples = candidate_samples(capture, scored, candidates, observations, lmax)
+
+    picks: list[Pick] = []
+    remaining = list(range(len(candidates)))
+    with reporter.stage("choosing views", budget) as advance:
+        for rank in range(budget):
+            start = time.perf_counter()
+            coeffs = state_coeffs(state, config)
+            current = _state_uncertainty(state, coeffs, observations.sigma, config)
+            entropy = current.entropy.astype(np.float64)
+            best = None
+            for candidate in remaining:
+                expected, radiance = expected_entropy(
+                    state, coeffs, current.likelihood, samples[candidate], observations.sigma, config
+                )
+                gain = float(np.sum(entropy[samples[candidate].texel] - expected))
+                if best is None or gain > best[1]:  # the earliest candidate wins ties
+                    best = (candidate, gain, radiance)
+            candidate, gain, radiance = best
+            add_samples(state, samples[candidate], radiance)
+            remaining.remove(candidate)
+            n_scored = len(entropy)
+            picks.append(Pick(
+                rank=rank, candidate=candidate, camera=candidates[candidate],
+                entropy_before=float(entropy.mean()), expected_entropy=float((entropy.sum() - gain) / n_scored),
+                texels_seen=len(samples[candidate].texel), seconds=time.perf_counter() - start,
+            ))
+            advance(1)
+    return picks
+
+
+def initial_state(observations: Observations, config: Config = Config()) -> FitState:
+    """The normal equations of an Observations' fits (all its texels); config.fit their penalty."""
+    lmax = observations.lmax
+    weight_sq = np.square(observations.weight.astype(np.float64))  # (n, V)
+    basis = sh.eval_sh(observations.view_direction.astype(np.float64), lmax)  # (n, V, K)
+    values = np.concatenate(
+        [observations.mirrored, observations.observed, np.ones(observations.weight.shape + (1,))], axis=2
+    ).astype(np.float64)  # (n, V, 7)
+    weighted = basis * weight_sq[..., None]
+    gram = np.einsum("tvk,tvj->tkj", weighted, basis)
+    rhs = np.einsum("tvk,tvr->tkr", weighted, values)
+    n_coeffs = sh.num_coeffs(lmax)
+    state = FitState(
+        gram, rhs, weight_sq.sum(axis=1), (observations.weight > 0).sum(axis=1).astype(np.int64),
+        basis=np.zeros_like(gram), eigenvalues=np.zeros((len(gram), n_coeffs)), projected_rhs=np.zeros_like(rhs),
+        regulariser=sh.regulariser_weights(lmax, config.fit.regulariser),
+    )
+    _diagonalise(state, np.arange(len(gram)))
+    return state
+
+
+def state_coeffs(state: FitState, config: Config) -> np.ndarray:
+    """(n, 7, K) regularised SH coefficients of the state (zeros for texels without a sample)."""
+    penalty = _penalty(state.weight_sq, config)  # (n,)
+    inverse = _inverse(state.eigenvalues + penalty[:, None])  # (n, K)
+    return np.swapaxes(state.basis @ (state.projected_rhs * inverse[..., None]), 1, 2)
+
+
+def add_samples(state: FitState, samples: CandidateSamples, observed: np.ndarray) -> None:
+    """Commit a view: rank-one updates of the seen texels' normal equations, then re-diagonalise.
+
+    observed (n, 3): the radiance the view is taken to show at each texel it sees.
+    """
+    rows = samples.texel
+    weight_sq = np.square(samples.weight)  # (n,)
+    values = np.concatenate([samples.light, observed, np.ones((len(rows), 1))], axis=1)  # (n, 7)
+    weighted = samples.basis * weight_sq[:, None]
+    state.gram[rows] += weighted[:, :, None] * samples.basis[:, None, :]
+    state.rhs[rows] += weighted[:, :, None] * values[:, None, :]
+    state.weight_sq[rows] += weight_sq
+    state.n_samples[rows] += 1
+    _diagonalise(state, rows)
+
+
+def expected_entropy(
+    state: FitState,
+    coeffs: np.ndarray,
+    likelihood: np.ndarray,
+    samples: CandidateSamples,
+    sigma: float,
+    config: Config,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Expected entropy of the texels a candidate sees, and their expected radiance in it.
+
+    coeffs (n, 7, K) from `state_coeffs`; likelihood (n, R, R) the current posteriors. Returns
+    ((m,), (m, 3)) for the m texels of ``samples``.
+    """
+    rows = samples.texel
+    lmax = sh.lmax_of(samples.basis.shape[1])
+    degrees_start = np.arange(lmax + 1) ** 2
+    weight_sq = np.square(samples.weight)
+    basis, eigenvalues = state.basis[rows], state.eigenvalues[rows]  # (m, K, K), (m, K)
+    # Sherman-Morrison in the eigenbasis, with the penalty the enlarged sample set will have.
+    inverse = _inverse(eigenvalues + _penalty(state.weight_sq[rows] + weight_sq, config)[:, None])  # (m, K)
+    z = (samples.basis[:, None, :] @ basis)[:, 0]  # B^T y (matmul: einsum does not use BLAS here)
+    zeta = z * inverse  # (G + s' R)^-1 y in eigen coordinates
+    gamma = state.projected_rhs[rows] * inverse[..., None]  # (m, K, 7): current rhs, new penalty
+    gain = weight_sq / (1.0 + weight_sq * np.einsum("tk,tk->t", z, zeta))  # (m,)
+    predicted = np.einsum("tk,tkr->tr", z, gamma)  # (m, 7): y . c for each rhs before the sample
+    # Light: its new sample is known. Observed: keep the part that does not depend on the sample.
+    light_step = gain[:, None] * (samples.light - predicted[:, LIGHT])  # (m, 3)
+    light_eigen = gamma[..., LIGHT] + zeta[..., None] * light_step[:, None, :]
+    columns = np.concatenate([light_eigen, gamma[..., OBSERVED], (zeta * gain[:, None])[..., None]], axis=2)
+    updated = np.swapaxes(basis @ columns, 1, 2)  # (m, 7, K)
+    light_coeffs, observed_base, update = updated[:, 0:3], updated[:, 3:6], updated[:, 6]
+    light_spectrum = sh.power_spectrum(light_coeffs)  # (m, 3, L)
+    base_spectrum = sh.power_spectrum(observed_base)
+    cross = np.add.reduceat(observed_base * update[:, None, :], degrees_start, axis=-1)  # (m, 3, L)
+    update_power = sh.power_spectrum(update)  # (m, L)
+
+    # The hypotheses' radiance at the new sample.
+    grid_res = config.uncertainty.grid_res
+    steps = np.arange(grid_res) / (grid_res - 1)
+    alphas, ks = np.square(steps), steps
+    calibrated = config.uncertainty.mode == "calibrated"
+    kernel = brdf.brdf_kernel(alphas, lmax, sigma if calibrated else 0.0)  # (R, L)
+    light_by_degree = np.add.reduceat(light_coeffs * samples.basis[:, None, :], degrees_start, axis=-1)  # (m, 3, L)
+    filtered = np.einsum("il,tcl->tic", kernel, light_by_degree)  # (m, R, 3)
+    current = coeffs[rows]  # (m, 7, K) before the sample
+    with np.errstate(divide="ignore", invalid="ignore"):
+        diffuse = np.where(
+            current[:, ONE, 0, None, None] > 0,
+            (current[:, None, OBSERVED, 0] - ks[None, :, None] * current[:, None, LIGHT, 0])
+            / current[:, ONE, 0, None, None],
+            0.0,
+        )  # (m, R_k, 3)
+    diffuse = np.maximum(diffuse, 0.0)
+    # Cells: (alpha_i, k_j) for j >= 1, and the one k = 0 material (all alphas alike).
+    cell_alpha = np.concatenate([np.zeros(1, np.int64), np.repeat(np.arange(grid_res), grid_res - 1)])
+    cell_k = np.concatenate([np.zeros(1, np.int64), np.tile(np.arange(1, grid_res), grid_res)])
+    probability = likelihood[rows].astype(np.float64)  # (m, R, R) [alpha, k]
+    cell_probability = np.concatenate(
+        [probability[:, :, 0].sum(axis=1, keepdims=True), probability[:, cell_alpha[1:], cell_k[1:]]], axis=1
+    )  # (m, cells)
+    pair, cell = np.nonzero(cell_probability >= MIN_CELL_PROBABILITY)
+    radiance = ks[cell_k[cell], None] * filtered[pair, cell_alpha[cell]] + diffuse[pair, cell_k[cell]]  # (P, 3)
+    delta = radiance - predicted[pair, OBSERVED]  # (P, 3)
+    observed_spectrum = (  # of c + delta u, degree by degree
+        base_spectrum[pair] + 2.0 * delta[..., None] * cross[pair]
+        + np.square(delta)[..., None] * update_power[pair, None, :]
+    )
+    entropy = entropy_from_spectra(
+        light_spectrum[pair], np.maximum(observed_spectrum, 0.0), sigma=sigma,
+        config=config.uncertainty, return_likelihood=False,
+    ).entropy.astype(np.float64)
+    weights = cell_probability[pair, cell]
+    total = np.bincount(pair, weights, minlength=len(rows))
+    expected = np.bincount(pair, weights * entropy, minlength=len(rows)) / total
+    mean_radiance = np.stack(
+        [np.bincount(pair, weights * radiance[:, c], minlength=len(rows)) for c in range(3)], axis=1
+    ) / total[:, None]
+    return expected, mean_radiance
+
+
+# --------------------------------------------------------------------------------------------
+# Candidates
+
+
+def candidate_samples(
+    capture: Capture,
+    texels: Texels,
+    cameras: Sequence[Camera],
+    observations: Observations,
+    lmax: int,
+) -> list[CandidateSamples]:
+    """The samples each camera would add to ``texels`` (those of ``observations``), no images needed.
+
+    Visibility as in `observations.observe`: in front, facing, inside the image, and an unoccluded
+    shadow ray (Mitsuba) from the offset texel to the camera centre. There is no object mask yet,
+    so silhouette texels may count where a photograph's mask would drop them.
+    """
+    position = np.ascontiguousarray(texels.position, dtype=np.float64)
+    normal = np.ascontiguousarray(texels.normal, dtype=np.float64)
+    frame = np.stack([texels.tangent, texels.bitangent, texels.normal], axis=1)  # (n, 3, 3) rows
+    offset = RAY_OFFSET_TEXELS * texels.texel_size + RAY_OFFSET_OBJECT * _extent(capture.mesh.vertices)
+    ray_origin = (position + offset[:, None] * normal).astype(np.float32)
+    n_texels = texels.n_texels
+    facing_rows, facing_views = [], []
+    for view, camera in enumerate(cameras):
+        intrinsics = np.array([[camera.fx, camera.fy, camera.cx, camera.cy]])
+        pixels = np.empty((n_texels, 1, 2))
+        cos_theta = np.empty((n_texels, 1))
+        facing = np.empty((n_texels, 1), dtype=bool)
+        _project_kernel(position, normal, camera.camera_to_world[None].copy(), intrinsics, camera.width,
+                        camera.height, pixels, cos_theta, facing, np.zeros(n_texels, np.int32))
+        rows = np.flatnonzero(facing[:, 0])
+        facing_rows.append(rows)
+        facing_views.append(np.full(len(rows), view))
+    texel_of_ray, view_of_ray = np.concatenate(facing_rows), np.concatenate(facing_views)
+    centres = np.stack([camera.center for camera in cameras])  # (C, 3)
+    scene = _occlusion_scene(capture)
+    origins, directions, distances = _shadow_rays(ray_origin, centres, texel_of_ray, view_of_ray)
+    seen = ~_ray_hits(scene, origins, directions, distances)
+    texel_of_ray, view_of_ray = texel_of_ray[seen], view_of_ray[seen]
+
+    to_camera = centres[view_of_ray] - position[texel_of_ray]
+    to_camera /= np.linalg.norm(to_camera, axis=1, keepdims=True)  # (M, 3) world
+    local = np.einsum("mij,mj->mi", frame[texel_of_ray], to_camera)  # (t, b, n) components
+    mirror = 2.0 * local[:, 2:3] * normal[texel_of_ray] - to_camera  # r = 2 (n.v) n - v
+    sigma = observations.sigma
+    lit = envmaps.lowpass_envmap(capture.envmap, sigma) if sigma > 0 else capture.envmap
+    light = envmaps.lookup(lit, mirror).astype(np.float64)
+    if observations.environment_occlusion:
+        blocked = _ray_hits(scene, np.ascontiguousarray(ray_origin[texel_of_ray].T),
+                            np.ascontiguousarray(mirror.T, np.float32), None)
+        light[blocked] = 0.0
+    basis = sh.eval_sh(local, lmax)
+    order = np.argsort(view_of_ray, kind="stable")
+    bounds = np.searchsorted(view_of_ray[order], np.arange(len(cameras) + 1))
+    samples = []
+    for view in range(len(cameras)):
+        take = order[bounds[view]:bounds[view + 1]]
+        samples.append(CandidateSamples(texel_of_ray[take], local[take, 2], basis[take], light[take]))
+    return samples
+
+
+def sample_candidates(capture: Capture, count: int, hemisphere: bool = False) -> list[Camera]:
+    """``count`` cameras evenly spread (Fibonacci) on a sphere around the object, looking at it.
+
+    They share the intrinsics of the capture's first frame and sit at the median distance of the
+    capture's cameras from the centre of the object's bounding sphere; ``hemisphere`` keeps them
+    above it (+y, the world's up).
+    """
+    if count < 1:
+        raise ValueError(f"count must be at least 1, got {count}")
+    centre, _ = bounding_sphere(capture.mesh.vertices)
+    distance = float(np.median([np.linalg.norm(frame.camera.center - centre) for frame in capture.frames]))
+    template = capture.frames[0].camera
+    cameras = []
+    for direction in fibonacci_directions(count, hemisphere):
+        # Straight above or below the object, world up cannot orient the image; use +z.
+        up = WORLD_UP if abs(direction @ WORLD_UP) < 0.999 else np.array([0.0, 0.0, 1.0])
+        pose = look_at(centre + distance * direction, centre, up)
+        cameras.append(dataclasses.replace(template, camera_to_world=pose))
+    return cameras
+
+
+def load_candidates(path: str | Path, capture: Capture) -> list[Camera]:
+    """Cameras of a transforms file in the capture format; images need not exist yet.
+
+    Frames without ``w`` and ``h`` (in the frame or at the top level) get the image size of the
+    capture's first frame.
+    """
+    path = Path(path)
+    document = _read_json(path)
+    template = capture.frames[0].camera
+    return [
+        _camera(path, index, entry, document, lambda: (template.height, template.width))
+        for index, entry in enumerate(_frame_entries(path, document))
+    ]
+
+
+def farthest_point_views(directions: np.ndarray, count: int, chosen: Sequence[int] = ()) -> list[int]:
+    """Indices of ``count`` more views, each the farthest (in angle) from those chosen so far.
+
+    directions (N, 3): unit directions from the object to the cameras. With nothing chosen the
+    first pick is view 0. Deterministic; returns only the new indices.
+    """
+    directions = np.asarray(directions, dtype=np.float64)
+    chosen = list(chosen)
+    if count > len(directions) - len(chosen):
+        raise ValueError(f"cannot choose {count} more of {len(directions)} views ({len(chosen)} chosen)")
+    closeness = np.full(len(directions), -np.inf)  # max cosine to a chosen view
+    for index in chosen:
+        closeness = np.maximum(closeness, directions @ directions[index])
+    new = []
+    for _ in range(count):
+        available = np.ones(len(directions), bool)
+        available[chosen + new] = False
+        index = 0 if not chosen and not new else int(np.argmin(np.where(available, closeness, np.inf)))
+        new.append(index)
+        closeness = np.maximum(closeness, directions @ directions[index])
+    return new
+
+
+def view_directions(capture: Capture, cameras: Sequence[Camera]) -> np.ndarray:
+    """(N, 3) unit directions from the object's bounding-sphere centre to the camera centres."""
+    centre, _ = bounding_sphere(capture.mesh.vertices)
+    offsets = np.stack([camera.center for camera in cameras]) - centre
+    return offsets / np.linalg.norm(offsets, axis=1, keepdims=True)
+
+
+# --------------------------------------------------------------------------------------------
+# Outputs
+
+NEXT_VIEWS_FILE = "next_views.json"  # the chosen cameras, ranked, as a transforms file
+PICTURE_FILE = "next_views.png"
+SUMMARY_FILE = "guidance.json"
+
+
+def write_next_views(out_dir: str | Path, capture: Capture, picks: Sequence[Pick], summary: dict,
+                     candidates: Sequence[Camera] = ()) -> Path:
+    """Write the folder (atomically, replaced as a whole): the ranked cameras, a picture, a summary.
+
+    ``next_views.json`` is a transforms file of the capture format naming the capture's mesh and
+    light: once the photographs are saved as its ``images/next_<rank>.exr`` it loads with
+    `freqbrdf.capture.load` (alone, or merged into the capture's own transforms).
+    """
+    from freqbrdf.capture import Frame, write_transforms
+    from freqbrdf.envmap import load_envmap
+    from freqbrdf.export import write_json
+    from freqbrdf.fileio import atomic_directory
+
+    # The capture holds its light with envmap_scale applied; recover the scale for the file.
+    stored = load_envmap(capture.envmap_path, capture.envmap.to_world).radiance
+    envmap_scale = float(capture.envmap.radiance.sum() / stored.sum()) if stored.sum() > 0 else 1.0
+    with atomic_directory(out_dir) as folder:
+        frames = [Frame(pick.camera, folder / "images" / f"next_{pick.rank:03d}.exr") for pick in picks]
+        fields = [{"rank": pick.rank, "candidate": pick.candidate,
+                   "expected_mean_entropy": pick.expected_entropy} for pick in picks]
+        write_transforms(folder / NEXT_VIEWS_FILE, frames, mesh=capture.mesh.path, envmap=capture.envmap_path,
+                         envmap_to_world=capture.envmap.to_world, envmap_scale=envmap_scale, frame_fields=fields)
+        plot_views(folder / PICTURE_FILE, capture, picks, candidates)
+        write_json(folder / SUMMARY_FILE, summary)
+    return Path(out_dir)
+
+
+def plot_views(path: str | Path, capture: Capture, picks: Sequence[Pick], candidates: Sequence[Camera] = ()) -> None:
+    """A 3D picture: the mesh, the capture's cameras (grey frusta), the candidates (dots) and the
+    picks (coloured frusta numbered by rank). World +y is drawn up."""
+    from matplotlib import colormaps
+    from matplotlib.figure import Figure  # here: importing matplotlib takes ~0.5 s
+
+    from freqbrdf.fileio import atomic_path
+
+    def drawn(points):  # world (x, y, z) -> plot (x, -z, y): a rotation that puts +y up
+        points = np.asarray(points)
+        return points[..., 0], -points[..., 2], points[..., 1]
+
+    mesh = capture.mesh
+    centre, radius = bounding_sphere(mesh.vertices)
+    figure = Figure(figsize=(8, 8), dpi=100)
+    axes = figure.add_subplot(projection="3d")
+    faces = mesh.faces
+    if len(faces) > 4000:  # enough for the silhouette; matplotlib sorts every polygon
+        faces = faces[np.random.default_rng(0).choice(len(faces), 4000, replace=False)]
+    x, y, z = drawn(mesh.vertices)
+    axes.plot_trisurf(x, y, z, triangles=faces, color="0.75", edgecolor="none", alpha=0.6)
+    cameras = [frame.camera for frame in capture.frames]
+    if candidates:
+        axes.scatter(*drawn(np.stack([camera.center for camera in candidates])), s=4, color="0.5",
+                     label="candidates")
+    colours = colormaps["plasma"](np.linspace(0.0, 0.85, max(len(picks), 1)))
+    depth = 0.35 * radius
+    for index, camera in enumerate(cameras):
+        _draw_frustum(axes, drawn, camera, depth, "0.4", "capture views" if index == 0 else None, 0.8)
+    for pick, colour in zip(picks, colours):
+        label = f"{pick.rank + 1}: H -> {pick.expected_entropy:.3f}"
+        _draw_frustum(axes, drawn, pick.camera, depth, colour, label, 2.5)
+        axes.text(*drawn(pick.camera.center), str(pick.rank + 1), color=colour, fontsize=11, weight="bold")
+    extent = max(np.linalg.norm(camera.center - centre) for camera in cameras + [p.camera for p in picks])
+    for setter, middle in zip((axes.set_xlim, axes.set_ylim, axes.set_zlim), drawn(centre)):
+        setter(middle - extent, middle + extent)
+    axes.set_box_aspect((1, 1, 1))
+    axes.set_axis_off()
+    axes.legend(loc="upper left", fontsize=8)
+    axes.set_title("next views by expected entropy (1 = first)")
+    with atomic_path(path) as tmp:
+        figure.savefig(tmp, format="png")
+
+
+def _draw_frustum(axes, drawn, camera: Camera, depth: float, colour, label: str | None, width: float) -> None:
+    """The camera's pyramid to ``depth`` along its axis, its image corners as the base."""
+    corners_px = np.array([[0, 0], [camera.width, 0], [camera.width, camera.height], [0, camera.height]], float)
+    local = np.stack([(corners_px[:, 0] - camera.cx) / camera.fx, -(corners_px[:, 1] - camera.cy) / camera.fy,
+                      -np.ones(4)], axis=1) * depth  # OpenGL camera looks down -z
+    corners = local @ camera.camera_to_world[:3, :3].T + camera.center
+    apex = camera.center
+    lines = [np.stack([apex, corner]) for corner in corners] + [np.stack([corners[k], corners[(k + 1) % 4]])
+                                                                  for k in range(4)]
+    for number, line in enumerate(lines):
+        axes.plot(*drawn(line), color=colour, linewidth=width, label=label if number == 0 else None)
+
+
+# --------------------------------------------------------------------------------------------
+# Helpers
+
+
+def _check_fit_settings(config: Config) -> None:
+    """The eigenbasis needs a positive penalty on every coefficient."""
+    if config.fit.regulariser == "none" or config.fit.reg_lambda <= 0:
+        raise ValueError("capture guidance needs a regularised SH fit (reg_lambda > 0, a regulariser)")
+
+
+def _penalty(weight_sq: np.ndarray, config: Config) -> np.ndarray:
+    """lambda_eff per texel, as `sh.fit_sh` sets it."""
+    if config.fit.scale_lambda_with_weight:
+        return config.fit.reg_lambda * weight_sq
+    return np.full_like(weight_sq, config.fit.reg_lambda)
+
+
+def _inverse(values: np.ndarray) -> np.ndarray:
+    """1 / values, 0 where values is 0 (a texel without samples and no penalty: no fit)."""
+    with np.errstate(divide="ignore"):
+        return np.where(values > 0, 1.0 / values, 0.0)
+
+
+def _diagonalise(state: FitState, rows: np.ndarray) -> None:
+    """Refresh the eigenbasis of ``rows`` from their Gram matrices and right-hand sides."""
+    inverse_sqrt = 1.0 / np.sqrt(state.regulariser)  # (K,)
+    scaled = state.gram[rows] * inverse_sqrt[None, :, None] * inverse_sqrt[None, None, :]
+    eigenvalues, vectors = np.linalg.eigh(scaled)
+    basis = vectors * inverse_sqrt[None, :, None]
+    state.basis[rows] = basis
+    state.eigenvalues[rows] = np.maximum(eigenvalues, 0.0)  # G is positive semi-definite
+    state.projected_rhs[rows] = np.swapaxes(basis, 1, 2) @ state.rhs[rows]
+
+
+def _state_uncertainty(state: FitState, coeffs: np.ndarray, sigma: float, config: Config) -> Uncertainty:
+    """The uncertainty (with likelihoods) of the state's fits, as `uncertainty.entropy_map` gives it."""
+    n_coeffs = len(state.regulariser)
+    status = np.where(state.n_samples == 0, sh.FIT_EMPTY,
+                      np.where(state.n_samples < n_coeffs, sh.FIT_UNDERDETERMINED, sh.FIT_OK)).astype(np.uint8)
+    return entropy_from_spectra(
+        sh.power_spectrum(coeffs[:, LIGHT]), sh.power_spectrum(coeffs[:, OBSERVED]), sigma=sigma,
+        fit_status=status, config=config.uncertainty,
+    )
+
+
+def _texel_subset(n_texels: int, max_texels: int, seed: int) -> np.ndarray:
+    """Sorted rows of at most ``max_texels`` texels, drawn without replacement (seeded)."""
+    if max_texels < 1:
+        raise ValueError(f"max_texels must be at least 1, got {max_texels}")
+    if n_texels <= max_texels:
+        return np.arange(n_texels)
+    return np.sort(np.random.default_rng(seed).choice(n_texels, max_texels, replace=False))
+
+
+def _subset_texels(texels: Texels, rows: np.ndarray) -> Texels:
+    """The texels of ``rows`` only (the mask keeps just them)."""
+    mask = np.zeros(texels.texture_res * texels.texture_res, dtype=bool)
+    mask[texels.texel_index[rows]] = True
+    names = ("texel_index", "face_id", "barycentric", "position", "normal", "tangent", "bitangent", "texel_area",
+             "snapped")
+    per_texel = {name: getattr(texels, name)[rows] for name in names}
+    return dataclasses.replace(texels, mask=mask.reshape(texels.mask.shape), **per_texel)
+
+
+def _subset_observations(observations: Observations, rows: np.ndarray) -> Observations:
+    """The Observations of ``rows`` only (its array fields are all per texel)."""
+    per_texel = {
+        field.name: getattr(observations, field.name)[rows]
+        for field in dataclasses.fields(observations)
+        if isinstance(getattr(observations, field.name), np.ndarray)
+    }
+    return dataclasses.replace(observations, **per_texel)
