@@ -70,6 +70,8 @@ def naive_grid(light, observed, sigma, config):
                 dc_excess = np.maximum(grid.specular * math.sqrt(s_refl[0]) - math.sqrt(s_out[0]), 0.0) ** 2
                 misfit = misfit + dc_excess[None, :]
                 noise = 2 * config.noise_level**2 * light_power
+                if config.residual_noise:  # plus the best cell's misfit per residual degree of freedom
+                    noise += 2 * misfit.min() / max(LMAX - 2, 1)
                 exponent = (misfit - misfit.min()) / noise if light_power > 0 else np.zeros_like(misfit)
                 prior = np.ones((resolution, resolution))
                 prior[:, 0] = 1.0 / resolution  # the k = 0 column is one material
@@ -162,6 +164,18 @@ def test_dark_texel_under_sharp_light_is_certain_in_calibrated_mode_only():
     assert paper.entropy[0] > 0.9
 
 
+def test_a_texel_no_hypothesis_explains_is_not_called_certain():
+    # Observed power that rises with l under a flat light: no (alpha, k) produces it. With a fixed
+    # noise floor the posterior still piles onto the least bad cell; with the residual in the
+    # noise (the default) the texel is uncertain.
+    light = np.tile(SHARP_LIGHT, (1, 3, 1))
+    observed = np.tile(0.05 * (1.0 + DEGREES) ** 2, (1, 3, 1))
+    fixed = unc.entropy_from_spectra(light, observed, config=UncertaintyConfig(residual_noise=False))
+    residual = unc.entropy_from_spectra(light, observed, config=CALIBRATED)
+    assert fixed.entropy[0] < 0.25
+    assert residual.entropy[0] > fixed.entropy[0] + 0.3
+
+
 def test_band_limit_compensation_is_applied_in_calibrated_mode():
     # Data made with the blurred light: the compensated kernel recovers the true alpha.
     sigma, alpha, specular = 0.3, (4 / 7) ** 2, 6 / 7
@@ -184,15 +198,16 @@ def test_band_limit_compensation_is_applied_in_calibrated_mode():
     grid_res=st.integers(2, 10),
     mode=st.sampled_from(["calibrated", "paper"]),
     sigma=st.sampled_from([0.0, 0.1, 0.25]),
+    residual_noise=st.booleans(),
 )
-def test_fast_kernel_equals_direct_evaluation(seed, grid_res, mode, sigma):
+def test_fast_kernel_equals_direct_evaluation(seed, grid_res, mode, sigma, residual_noise):
     rng = np.random.default_rng(seed)
     n_texels = 7
     light = rng.uniform(0.0, 1.0, (n_texels, 3, LMAX + 1)) * np.exp(-rng.uniform(0, 1) * DEGREES)
     observed = light * rng.uniform(0.0, 1.0, (n_texels, 3, 1)) * np.exp(-rng.uniform(0, 2) * DEGREES)
     observed += rng.uniform(0.0, 0.05, observed.shape)
     config = UncertaintyConfig(mode=mode, grid_res=grid_res, noise_level=rng.uniform(0.01, 0.2),
-                               temperature=10 ** rng.uniform(-4, -1))
+                               temperature=10 ** rng.uniform(-4, -1), residual_noise=residual_noise)
     fast = unc.entropy_from_spectra(light, observed, sigma=sigma, config=config)
     entropy, likelihood, misfit = naive_grid(light, observed, sigma if mode == "calibrated" else 0.0, config)
 

@@ -57,6 +57,9 @@ class UncertaintyConfig:
     # Calibrated mode: noise std of each degree's amplitude sqrt(S(l)), relative to the light's
     # RMS amplitude sqrt(sum_l S_refl(l)); the likelihood is exp(-misfit / (2 noise_level^2)).
     noise_level: float = 0.02
+    # Calibrated mode: add the best hypothesis's misfit per residual degree of freedom to the noise
+    # variance (see freqbrdf.uncertainty); off reproduces a fixed noise_level.
+    residual_noise: bool = True
     ambiguous_entropy: float = 0.5  # texels above this normalised entropy are flagged ambiguous
 
 

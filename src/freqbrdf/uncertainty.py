@@ -26,7 +26,12 @@ dark texel (S_out(0) ~ 0) gets a flat likelihood, i.e. it is called uncertain.
   by kappa and leaves the map unchanged, and a dark texel under bright, sharp light is a strong
   observation (k ~ 0), not a missing one.
 - The temperature is a noise model: each degree's amplitude has noise std ``noise_level`` x
-  sqrt(P), so P(psi) ∝ exp(-sum_l (k a_l - b_l)^2 / (2 noise_level^2 P)).
+  sqrt(P), so P(psi) ∝ exp(-sum_l (k a_l - b_l)^2 / (2 s^2)), s^2 = noise_level^2 P. With
+  ``residual_noise`` (default) s^2 also includes the misfit of the best hypothesis per residual
+  degree of freedom (l* - 2), as a likelihood with unknown noise would: real photographs depart
+  from the model (Fresnel, masking, diffuse leakage into l > 0, sparse sampling), and a texel
+  that no hypothesis explains must not concentrate on the least bad one. Measured on a Mitsuba
+  bunny (64 views): Spearman rho of entropy vs roughness error -0.02 -> 0.18, AURG -0.06 -> 0.12.
 - All hypotheses with k = 0 are one material (no specular lobe, roughness undefined). The prior
   is uniform over the R (R-1) + 1 distinct materials and the entropy is taken over them and
   normalised by log(R (R-1) + 1): H = 1 means the data says nothing, H = 0 one material.
@@ -177,6 +182,8 @@ def entropy_from_spectra(
             inverse_power = np.where(light_power > 0, 1.0 / light_power, 0.0)  # no light: no information
         scale = np.repeat((inverse_power / (2.0 * config.noise_level**2))[:, None], 3, axis=1)
 
+    # Amplitudes of degrees 1..l* against two parameters (alpha, k): l* - 2 residual degrees of freedom.
+    residual_dof = float(max(lmax - 2, 1)) if (not paper and config.residual_noise) else 0.0
     resolution = grid.resolution
     entropy = np.empty(n_texels, dtype=np.float32)
     channel = np.empty(n_texels, dtype=np.int8)
@@ -186,7 +193,7 @@ def entropy_from_spectra(
     _grid_entropy_kernel(
         _kernel_input(light_spectrum), _kernel_input(observed_spectrum),
         np.ascontiguousarray(scale, dtype=np.float64), row_filter, steps,
-        not paper, not paper, return_likelihood,
+        not paper, not paper, residual_dof, return_likelihood,
         entropy, channel, best_row, best_col, likelihood,
     )
 
@@ -292,7 +299,7 @@ def _cell_misfit(quad, vertex, at_vertex, dc_excess, steps, j):
 
 @numba.njit(parallel=True, cache=True, fastmath={"contract", "reassoc", "nsz"})
 def _grid_entropy_kernel(
-    light, observed, scale, row_filter, steps, amplitude, merge_zero, want_likelihood,
+    light, observed, scale, row_filter, steps, amplitude, merge_zero, residual_dof, want_likelihood,
     entropy, channel, best_row, best_col, likelihood,
 ):
     """Fused grid misfit, likelihood and entropy per texel; the minimum-entropy channel wins.
@@ -301,7 +308,8 @@ def _grid_entropy_kernel(
     temperatures; row_filter (R, l*+1) the per-degree factor of alpha_i (kernel^2 for powers,
     kernel for amplitudes); steps (R,) the grid values t_j (k^2 or k), ascending, t_0 = 0.
     amplitude: compare sqrt(S) and bound the specular DC by the observed one; merge_zero: the
-    k = 0 column is one hypothesis. Outputs per texel: entropy, channel, arg-max cell (best_row,
+    k = 0 column is one hypothesis; residual_dof > 0: the noise variance 1 / (2 scale) grows by the
+    best cell's misfit / residual_dof (0: off). Outputs per texel: entropy, channel, arg-max cell (best_row,
     best_col) and, if wanted, the (R, R) likelihood of the chosen channel.
 
     No (R, R) misfit is stored: each cell's misfit is rebuilt from its row's quadratic in three
@@ -384,6 +392,10 @@ def _grid_entropy_kernel(
                         lowest, lowest_i, lowest_j = here, i, j
                 # Likelihood w = exp(-d), d = (e - min e) x scale, and H = log Z + sum w d / Z.
                 to_temperature = scale[texel, c]
+                if residual_dof > 0.0 and to_temperature > 0.0:
+                    # Noise variance = the stated floor + the best hypothesis's residual per degree
+                    # of freedom: a texel no hypothesis explains is not sure of any of them.
+                    to_temperature = 1.0 / (1.0 / to_temperature + 2.0 * lowest / residual_dof)
                 zero_distance = min((constant - lowest) * to_temperature, CUTOFF)
                 zero_weight = _exp_neg(zero_distance)
                 total = n_zero * zero_weight
