@@ -8,7 +8,6 @@ cameras all look from above, so that its lower half is unobserved.
 import dataclasses
 import json
 import shutil
-import sys
 
 import numpy as np
 import pytest
@@ -16,7 +15,6 @@ import pytest
 from freqbrdf import brdf, guidance, sh
 from freqbrdf.camera import look_at
 from freqbrdf.capture import Frame, load, write_transforms
-from freqbrdf.cli import main
 from freqbrdf.config import Config, FitConfig, TexelConfig
 from freqbrdf.observations import Observations
 from freqbrdf.synth import SynthSettings, bounding_sphere, synthesize
@@ -213,22 +211,15 @@ def test_sampled_candidates_look_at_the_object_with_the_capture_intrinsics(spher
     assert len({tuple(np.round(camera.center, 6)) for camera in cameras}) == 10
 
 
-def run_cli(monkeypatch, *arguments) -> int:
-    monkeypatch.setattr(sys, "argv", ["freqbrdf", *map(str, arguments)])
-    with pytest.raises(SystemExit) as exit_info:
-        main()
-    return exit_info.value.code or 0
-
-
 @pytest.mark.slow
-def test_next_views_command_writes_ranked_cameras_that_load_as_a_capture(sphere_from_above, tmp_path, monkeypatch,
+def test_next_views_command_writes_ranked_cameras_that_load_as_a_capture(sphere_from_above, tmp_path, run_cli, monkeypatch,
                                                                           capsys):
     capture = sphere_from_above
     candidates_file = tmp_path / "candidates.json"
     cameras = [capture.frames[0].camera, below_camera(capture)]
     write_transforms(candidates_file, [Frame(camera, tmp_path / f"unshot_{k}.exr") for k, camera in enumerate(cameras)])
     out = tmp_path / "next"
-    assert run_cli(monkeypatch, "next-views", capture.root, "--candidates", candidates_file, "--budget", 2,
+    assert run_cli("next-views", capture.root, "--candidates", candidates_file, "--budget", 2,
                    "--out", out, "--texture-res", 32, "--quiet") == 0
     assert capsys.readouterr().err == ""
     assert {path.name for path in out.iterdir()} == {"next_views.json", "next_views.png", "guidance.json"}
@@ -247,14 +238,14 @@ def test_next_views_command_writes_ranked_cameras_that_load_as_a_capture(sphere_
     np.testing.assert_array_equal(shot.envmap.radiance, capture.envmap.radiance)
 
     sampled = tmp_path / "sampled"
-    assert run_cli(monkeypatch, "next-views", capture.root, "--sample", 8, "--budget", 3, "--out", sampled,
+    assert run_cli("next-views", capture.root, "--sample", 8, "--budget", 3, "--out", sampled,
                    "--texture-res", 32, "--max-texels", 200, "--quiet") == 0
     assert len(json.loads((sampled / "next_views.json").read_text())["frames"]) == 3
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("problem", ["missing", "malformed", "both", "neither", "budget"])
-def test_next_views_command_rejects_bad_input_without_writing(sphere_from_above, tmp_path, monkeypatch, capsys,
+def test_next_views_command_rejects_bad_input_without_writing(sphere_from_above, tmp_path, run_cli, monkeypatch, capsys,
                                                               problem):
     capture = sphere_from_above
     candidates_file = tmp_path / "candidates.json"
@@ -269,7 +260,7 @@ def test_next_views_command_rejects_bad_input_without_writing(sphere_from_above,
         "budget": ["--candidates", candidates_file],
     }[problem]
     out = tmp_path / "next"
-    code = run_cli(monkeypatch, "next-views", capture.root, *choice, "--budget", 2, "--out", out,
+    code = run_cli("next-views", capture.root, *choice, "--budget", 2, "--out", out,
                    "--texture-res", 32, "--quiet")
     assert code == 2
     error = capsys.readouterr().err

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import sys
 from types import SimpleNamespace
 
 import numpy as np
@@ -13,7 +12,6 @@ from PIL import Image
 
 from freqbrdf import pipeline
 from freqbrdf.capture import load
-from freqbrdf.cli import main
 from freqbrdf.config import Config, TexelConfig
 from freqbrdf.errors import InputError
 from freqbrdf.images import srgb_to_linear
@@ -200,17 +198,10 @@ def tiny_fit(tmp_path_factory):
     return pipeline.write_fit(folder / "fit", pipeline.fit(load(capture), config), config)
 
 
-def run_cli(monkeypatch, *arguments) -> int:
-    monkeypatch.setattr(sys, "argv", ["freqbrdf", *map(str, arguments)])
-    with pytest.raises(SystemExit) as exit_info:
-        main()
-    return exit_info.value.code or 0
-
-
 @pytest.mark.slow
-def test_inpaint_command_writes_a_complete_folder(tiny_fit, tmp_path, monkeypatch, capsys):
+def test_inpaint_command_writes_a_complete_folder(tiny_fit, tmp_path, run_cli, monkeypatch, capsys):
     out = tmp_path / "inpainted"
-    assert run_cli(monkeypatch, "inpaint", tiny_fit, "--out", out, "--threshold", "0.2") == 0
+    assert run_cli("inpaint", tiny_fit, "--out", out, "--threshold", "0.2") == 0
     names = {path.name for path in out.iterdir()}
     assert {"base_color.exr", "roughness.exr", "metallic.exr", "base_color.png", "mask.png", "material.glb",
             "summary.json"} <= names
@@ -229,14 +220,14 @@ def test_inpaint_command_writes_a_complete_folder(tiny_fit, tmp_path, monkeypatc
 
 
 @pytest.mark.slow
-def test_inpaint_command_rejects_bad_input(tiny_fit, tmp_path, monkeypatch, capsys):
-    assert run_cli(monkeypatch, "inpaint", tmp_path / "missing", "--out", tmp_path / "o") == 2
+def test_inpaint_command_rejects_bad_input(tiny_fit, tmp_path, run_cli, monkeypatch, capsys):
+    assert run_cli("inpaint", tmp_path / "missing", "--out", tmp_path / "o") == 2
     assert "fit folder does not exist" in capsys.readouterr().err
-    assert run_cli(monkeypatch, "inpaint", tiny_fit, "--out", tmp_path / "o", "--maps", "albedo") == 2
-    assert run_cli(monkeypatch, "inpaint", tiny_fit, "--out", tmp_path / "o", "--threshold", "1.5") == 2
+    assert run_cli("inpaint", tiny_fit, "--out", tmp_path / "o", "--maps", "albedo") == 2
+    assert run_cli("inpaint", tiny_fit, "--out", tmp_path / "o", "--threshold", "1.5") == 2
     assert not (tmp_path / "o").exists()
     with pytest.raises(InputError, match="threshold"):
         inpaint_fit(tiny_fit, tmp_path / "o", InpaintSettings(threshold=-0.1))
     # --model: without the optional extra, or with a folder that is no pipeline, one clear line.
-    assert run_cli(monkeypatch, "inpaint", tiny_fit, "--out", tmp_path / "o", "--model", tmp_path) == 2
+    assert run_cli("inpaint", tiny_fit, "--out", tmp_path / "o", "--model", tmp_path) == 2
     assert "error:" in capsys.readouterr().err

@@ -1,9 +1,8 @@
-"""The fit pipeline and its commands end to end on a tiny Mitsuba capture; sparsification maths."""
+"""The fit pipeline's API (fit, write_fit, load_fit, evaluate_fit) and the sparsification maths."""
 
 from __future__ import annotations
 
 import json
-import sys
 
 import numpy as np
 import pytest
@@ -11,8 +10,9 @@ import trimesh
 
 from freqbrdf import pipeline, sparsification
 from freqbrdf.capture import load
-from freqbrdf.cli import main
 from freqbrdf.config import Config, TexelConfig
+from freqbrdf.errors import InputError
+from freqbrdf.relight import RelightSettings
 from freqbrdf.synth import SynthSettings, synthesize
 
 TINY = SynthSettings(mesh="bunny", views=6, resolution=40, spp=4, texture_res=32, test_views=2, test_envmaps=1)
@@ -23,13 +23,6 @@ def tiny_capture(tmp_path_factory):
     return synthesize(tmp_path_factory.mktemp("capture") / "tiny", TINY, progress=False)
 
 
-def run_cli(monkeypatch, *arguments) -> int:
-    monkeypatch.setattr(sys, "argv", ["freqbrdf", *map(str, arguments)])
-    with pytest.raises(SystemExit) as exit_info:
-        main()
-    return exit_info.value.code or 0
-
-
 # --- sparsification ---------------------------------------------------------------------------
 
 
@@ -38,10 +31,23 @@ def test_sparsification_of_a_perfect_ranking_equals_the_oracle():
     result = sparsification.sparsification(uncertainty=error * 10, error=error, steps=5, max_fraction=0.75)
     np.testing.assert_allclose(result.by_uncertainty, result.oracle)
     assert result.ause == pytest.approx(0.0) and result.spearman == pytest.approx(1.0)
-    # Hand-computed: removing 0, 1, 2 of the 4 texels (f = 0, 0.1875 -> 0, 0.375 -> 1, 0.5625 -> 2,
-    # 0.75 -> 3) leaves means 0.25, 0.25, 0.2, 0.15, 0.1 of a full mean 0.25.
+    # Hand-computed: f = 0, 0.1875, 0.375, 0.5625, 0.75 removes floor(4 f) = 0, 0, 1, 2, 3 texels,
+    # leaving means 0.25, 0.25, 0.2, 0.15, 0.1 of a full mean 0.25.
     np.testing.assert_allclose(result.oracle, [1.0, 1.0, 0.8, 0.6, 0.4])
-    assert result.aurg == pytest.approx(np.trapezoid(1.0 - result.oracle, result.fractions))
+    assert result.aurg == pytest.approx(0.1875 * (0.0 + 0.0 + 0.2 + 0.4 + 0.6 / 2))
+
+
+def test_sparsification_of_an_imperfect_ranking_matches_hand_computed_scores():
+    error = np.array([0.4, 0.1, 0.3, 0.2])
+    uncertainty = np.array([3.0, 4.0, 2.0, 1.0])  # removes the errors 0.1, 0.4, 0.3, 0.2 in turn
+    result = sparsification.sparsification(uncertainty, error, steps=5, max_fraction=0.75)
+    # Kept means after removing 0, 0, 1, 2, 3 texels: 0.25, 0.25, 0.3, 0.25, 0.2 (divided by 0.25).
+    np.testing.assert_allclose(result.by_uncertainty, [1.0, 1.0, 1.2, 1.0, 0.8])
+    # Trapezoids of width 0.1875: curve - oracle = 0, 0, 0.4, 0.4, 0.4; random - curve = 0, 0, -0.2, 0, 0.2.
+    assert result.ause == pytest.approx(0.1875 * (0.4 + 0.4 + 0.4 / 2))
+    assert result.aurg == pytest.approx(0.1875 * (-0.2 + 0.0 + 0.2 / 2))
+    # Ranks (3, 4, 2, 1) against (4, 1, 3, 2): sum d^2 = 12, rho = 1 - 6 * 12 / (4 * 15).
+    assert result.spearman == pytest.approx(-0.2)
 
 
 def test_sparsification_of_a_reversed_ranking_is_worse_than_random():
@@ -61,7 +67,7 @@ def test_sparsification_ignores_non_finite_entries_and_checks_lengths():
 
 
 @pytest.mark.slow
-def test_fit_writes_a_complete_folder_that_loads_back(tiny_capture, tmp_path):
+def test_fit_writes_a_complete_folder_that_loads_back(tiny_capture, tmp_path, monkeypatch):
     config = Config(texels=TexelConfig(texture_res=32))
     result = pipeline.fit(load(tiny_capture), config)
     assert {"observe", "estimate", "uncertainty", "textures", "total"} <= set(result.timings)
@@ -70,62 +76,50 @@ def test_fit_writes_a_complete_folder_that_loads_back(tiny_capture, tmp_path):
     assert outputs.capture_path == tiny_capture.resolve()
     np.testing.assert_allclose(outputs.maps.roughness, result.maps.roughness)
     np.testing.assert_array_equal(outputs.arrays["flags"], result.uncertainty.flags)
+    assert outputs.arrays["likelihood"].shape == (result.observations.n_texels, *result.uncertainty.likelihood.shape[1:])
     assert outputs.observed.sum() == np.count_nonzero(result.observations.n_samples)
     assert "write" in outputs.summary["timings"]
     scene = trimesh.load(folder / "material.glb")
     assert len(scene.geometry) == 1
 
+    # The evaluation folder appears whole or not at all: a failing last step keeps the old one.
+    evaluation = folder / pipeline.EVALUATION_FOLDER
+    document = pipeline.evaluate_fit(outputs, load(tiny_capture), settings=RelightSettings(spp=2))
+    assert document["uncertainty"]["roughness"]["texels"] == np.count_nonzero(result.observations.n_samples)
+    before = (evaluation / "metrics.json").read_bytes()
 
-@pytest.mark.slow
-def test_fit_and_evaluate_commands(tiny_capture, tmp_path, monkeypatch, capsys):
-    fit_dir = tmp_path / "fit"
-    assert run_cli(monkeypatch, "fit", tiny_capture, "--out", fit_dir, "--texture-res", 32, "--json") == 0
-    summary = json.loads(capsys.readouterr().out)
-    assert summary["capture"] == str(tiny_capture.resolve()) and summary["settings"]["texels"]["texture_res"] == 32
-    for name in ("base_color.exr", "roughness.exr", "metallic.exr", "material.glb", "entropy.png",
-                 "flags.png", "spectra.npz", "uncertainty.npz"):
-        assert (fit_dir / name).is_file(), name
+    def failing_plot(*_):
+        raise RuntimeError("plot failed")
 
-    assert run_cli(monkeypatch, "evaluate", fit_dir, "--spp", 2, "--json") == 0
-    metrics = json.loads(capsys.readouterr().out)
-    assert metrics["texture"]["texels"] > 0 and len(metrics["views"]) == TINY.test_views
-    assert set(metrics["uncertainty"]) >= {"roughness", "base_color", "metallic"}
-    assert (fit_dir / "evaluation" / "metrics.json").is_file()
-    assert (fit_dir / "evaluation" / "sparsification.png").is_file()
-
-    shared_dir = tmp_path / "shared"
-    assert run_cli(monkeypatch, "fit", tiny_capture, "--out", shared_dir, "--texture-res", 32, "--share", "--quiet") == 0
-    shared_summary = json.loads((shared_dir / "summary.json").read_text())
-    assert shared_summary["settings"]["share"]["enabled"] and "share" in shared_summary["timings"]
-
-    paper_dir = tmp_path / "paper"
-    assert run_cli(monkeypatch, "fit", tiny_capture, "--out", paper_dir, "--texture-res", 16,
-                   "--preset", "paper", "--model", "spectrum", "--quiet") == 0
-    paper_summary = json.loads((paper_dir / "summary.json").read_text())
-    assert paper_summary["estimate"]["method"] == "paper/spectrum"
-    assert paper_summary["settings"]["estimate"]["forward_model"] == "spectrum"
+    with monkeypatch.context() as patch, pytest.raises(RuntimeError, match="plot failed"):
+        patch.setattr(sparsification, "plot", failing_plot)
+        pipeline.evaluate_fit(outputs, load(tiny_capture), settings=RelightSettings(spp=2))
+    assert (evaluation / "metrics.json").read_bytes() == before
+    assert not [p.name for p in folder.iterdir() if p.name.startswith(".")]  # no temporary left
 
 
 @pytest.mark.slow
-def test_uncertainty_command(tiny_capture, tmp_path, monkeypatch, capsys):
-    out = tmp_path / "uncertainty"
-    assert run_cli(monkeypatch, "uncertainty", tiny_capture, "--out", out, "--texture-res", 32, "--json") == 0
-    summary = json.loads(capsys.readouterr().out)
-    assert 0.0 <= summary["uncertainty"]["entropy_mean"] <= 1.0
-    assert {p.name for p in out.iterdir()} == {"entropy.exr", "entropy.png", "flags.png", "uncertainty.json"}
+def test_outputs_never_replace_their_inputs(tiny_capture, tmp_path):
+    config = Config(texels=TexelConfig(texture_res=8))
+    capture = load(tiny_capture)
+    result = pipeline.fit(capture, config)
+    files_before = sorted(p.name for p in tiny_capture.iterdir())
+    for out in (tiny_capture, tiny_capture.parent):
+        with pytest.raises(InputError, match="would replace the capture"):
+            pipeline.write_fit(out, result, config)
+    assert sorted(p.name for p in tiny_capture.iterdir()) == files_before
+
+    folder = pipeline.write_fit(tmp_path / "fit", result, config)
+    with pytest.raises(InputError, match="would replace the fit"):
+        pipeline.evaluate_fit(pipeline.load_fit(folder), capture, out_dir=folder)
+    assert json.loads((folder / "summary.json").read_text())["capture"] == str(tiny_capture.resolve())
 
 
-def test_bad_input_is_one_line_exit_2_and_writes_nothing(tmp_path, monkeypatch, capsys):
-    assert run_cli(monkeypatch, "fit", tmp_path / "missing", "--out", tmp_path / "out") == 2
-    assert "missing" in capsys.readouterr().err and not (tmp_path / "out").exists()
-
-    not_a_fit = tmp_path / "not_a_fit"
-    not_a_fit.mkdir()
-    assert run_cli(monkeypatch, "evaluate", not_a_fit) == 2
-    err = capsys.readouterr().err
-    assert "summary.json" in err and "not a fit folder" in err
-    assert not (not_a_fit / "evaluation").exists()
-
-    (not_a_fit / "summary.json").write_text("{broken")
-    assert run_cli(monkeypatch, "evaluate", not_a_fit) == 2
-    assert "unreadable" in capsys.readouterr().err
+def test_load_fit_names_what_is_missing(tmp_path):
+    with pytest.raises(InputError, match="does not exist"):
+        pipeline.load_fit(tmp_path / "nowhere")
+    with pytest.raises(InputError, match="summary.json.*not a fit folder"):
+        pipeline.load_fit(tmp_path)
+    (tmp_path / "summary.json").write_text("[1, 2]")
+    with pytest.raises(InputError, match="JSON object"):
+        pipeline.load_fit(tmp_path)
