@@ -18,7 +18,12 @@ fi
 
 missing=()
 # Mitsuba's CPU variant (llvm_ad_rgb) JIT-compiles with a system libLLVM >= 17.
-if ! ls /usr/lib/*/libLLVM-1[7-9].so* /usr/lib/*/libLLVM-2[0-9].so* /usr/lib/libLLVM-1[7-9].so* >/dev/null 2>&1; then
+# (compgen: one pattern that matches is enough; `ls` fails when any pattern matches nothing)
+has_llvm=false
+for pattern in '/usr/lib/*/libLLVM-1[7-9].so*' '/usr/lib/*/libLLVM-2[0-9].so*' '/usr/lib/libLLVM-1[7-9].so*'; do
+    if compgen -G "$pattern" >/dev/null; then has_llvm=true; fi
+done
+if [ "$has_llvm" = false ]; then
     missing+=(libllvm19)
 fi
 
