@@ -2,7 +2,7 @@
 forward models) and Mitsuba 3 inverse rendering, on Mitsuba-rendered captures.
 
     python benchmarks/compare_estimators.py [--scenes bunny,plane] [--texture-res 512]
-        [--views 64] [--relight-spp 32] [--skip mitsuba,paper_spectrum]
+        [--views 64] [--relight-spp 32] [--skip mitsuba,paper_spectrum] [--quick]
 
 Each scene is rendered once by Mitsuba (cached in benchmarks/.cache/compare_<scene>_<views>): a
 bundled mesh with the procedural `bands` material under a bundled environment map, 64 views on
@@ -11,7 +11,9 @@ method gets the same capture and texture resolution and is scored on the observe
 (base-colour PSNR, roughness and metallic MAE) and by relighting (Stanford-ORB protocol,
 PSNR-H/PSNR-L/SSIM). Seconds are wall-clock from the capture to the maps (our methods: observe +
 estimate; Mitsuba: its own loop, image loading and compilation included). Saves JSON and a
-markdown table to benchmarks/results/compare_estimators.{json,md}.
+markdown table to benchmarks/results/compare_estimators.{json,md}. ``--quick`` (a smoke run of a
+few minutes on 2 cores: 24 views of 128x128 pixels, T = 128, 4 test views at 8 spp) writes
+compare_estimators_quick.{json,md} instead, so that it never overwrites the full table.
 """
 
 from __future__ import annotations
@@ -42,6 +44,9 @@ SCENES = {
     "plane": SynthSettings(mesh="plane", envmap="city", materials="bands", test_envmaps=("forest", "lobby")),
 }
 METHODS = ("global", "paper_angular", "paper_spectrum", "mitsuba")
+FULL_RENDER = {"resolution": 256, "spp": 64, "test_views": 8}
+QUICK_RENDER = {"resolution": 128, "spp": 16, "test_views": 4}
+QUICK_ARGS = {"views": 24, "texture_res": 128, "relight_spp": 8}
 
 
 def method_config(method: str, texture_res: int) -> Config:
@@ -55,9 +60,13 @@ def method_config(method: str, texture_res: int) -> Config:
 
 
 def run_scene(name: str, args) -> dict:
-    settings = dataclasses.replace(SCENES[name], views=args.views, test_views=8, resolution=256, spp=64,
-                                   texture_res=args.texture_res)
-    folder = CACHE / f"compare_{name}_{args.views}"
+    render = QUICK_RENDER if args.quick else FULL_RENDER
+    settings = dataclasses.replace(SCENES[name], views=args.views, texture_res=args.texture_res, **render)
+    # The cache is keyed by everything that changes the capture (the ground-truth maps are
+    # resampled to texture_res); the full default keeps its short name.
+    suffix = "" if (render is FULL_RENDER and args.texture_res == 512) else \
+        f"_{settings.resolution}px_{settings.spp}spp_t{args.texture_res}"
+    folder = CACHE / f"compare_{name}_{args.views}{suffix}"
     if not folder.is_dir():
         synthesize(folder, settings, progress=False)
     capture = load(folder)
@@ -116,7 +125,11 @@ def main(argv=None) -> int:
     parser.add_argument("--views", type=int, default=64)
     parser.add_argument("--relight-spp", type=int, default=32)
     parser.add_argument("--skip", default="", help="comma-separated methods to leave out")
+    parser.add_argument("--quick", action="store_true",
+                        help="small smoke-test settings; results go to compare_estimators_quick.*")
     args = parser.parse_args(argv)
+    if args.quick:
+        vars(args).update(QUICK_ARGS)
     args.skip = {method for method in args.skip.split(",") if method}
     results = {
         "benchmark": "estimator comparison (issue #5)",
@@ -125,14 +138,16 @@ def main(argv=None) -> int:
         "python": sys.version.split()[0],
         "texture_res": args.texture_res,
         "relight_spp": args.relight_spp,
+        "quick": args.quick,
         "scenes": {},
     }
+    stem = "compare_estimators_quick" if args.quick else "compare_estimators"
     for name in args.scenes.split(","):
         results["scenes"][name] = run_scene(name, args)
         RESULTS.mkdir(exist_ok=True)
-        with atomic_path(RESULTS / "compare_estimators.json") as tmp:
+        with atomic_path(RESULTS / f"{stem}.json") as tmp:
             tmp.write_text(json.dumps(results, indent=2, default=float) + "\n")
-        with atomic_path(RESULTS / "compare_estimators.md") as tmp:
+        with atomic_path(RESULTS / f"{stem}.md") as tmp:
             tmp.write_text(markdown(results))
     print(markdown(results))
     return 0

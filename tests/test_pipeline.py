@@ -16,6 +16,7 @@ from freqbrdf.relight import RelightSettings
 from freqbrdf.synth import SynthSettings, synthesize
 
 TINY = SynthSettings(mesh="bunny", views=6, resolution=40, spp=4, texture_res=32, test_views=2, test_envmaps=1)
+NO_LPIPS = RelightSettings(spp=2, lpips=False)  # LPIPS is tested in test_metrics; here it would only cost seconds
 
 
 @pytest.fixture(scope="module")
@@ -84,7 +85,7 @@ def test_fit_writes_a_complete_folder_that_loads_back(tiny_capture, tmp_path, mo
 
     # The evaluation folder appears whole or not at all: a failing last step keeps the old one.
     evaluation = folder / pipeline.EVALUATION_FOLDER
-    document = pipeline.evaluate_fit(outputs, load(tiny_capture), settings=RelightSettings(spp=2))
+    document = pipeline.evaluate_fit(outputs, load(tiny_capture), settings=NO_LPIPS)
     assert document["uncertainty"]["roughness"]["texels"] == np.count_nonzero(result.observations.n_samples)
     before = (evaluation / "metrics.json").read_bytes()
 
@@ -93,7 +94,7 @@ def test_fit_writes_a_complete_folder_that_loads_back(tiny_capture, tmp_path, mo
 
     with monkeypatch.context() as patch, pytest.raises(RuntimeError, match="plot failed"):
         patch.setattr(sparsification, "plot", failing_plot)
-        pipeline.evaluate_fit(outputs, load(tiny_capture), settings=RelightSettings(spp=2))
+        pipeline.evaluate_fit(outputs, load(tiny_capture), settings=NO_LPIPS)
     assert (evaluation / "metrics.json").read_bytes() == before
     assert not [p.name for p in folder.iterdir() if p.name.startswith(".")]  # no temporary left
 

@@ -227,7 +227,9 @@ def fit(
     if share:
         config = config.replace(share=dataclasses.replace(config.share, enabled=True))
     reporter = Reporter(enabled=not (quiet or json_output))
-    result = pipeline.fit(load(capture), config, reporter)
+    loaded = load(capture)
+    pipeline.check_output_folder(out, {"the capture": loaded.root.resolve()})  # before minutes of work
+    result = pipeline.fit(loaded, config, reporter)
     folder = pipeline.write_fit(out, result, config)
     summary = json.loads((folder / "summary.json").read_text(encoding="utf-8"))
     if json_output:
@@ -237,7 +239,7 @@ def fit(
         Console().print(
             f"fit written to {escape(str(Path(out)))}: {coverage['observed_fraction']:.0%} of texels "
             f"observed, mean entropy {summary['uncertainty']['entropy_mean']:.2f}, "
-            f"{result.timings['total']:.1f} s"
+            f"{result.timings['total']:.1f} s", soft_wrap=True  # soft_wrap: no line break inside a path
         )
 
 
@@ -254,7 +256,7 @@ def uncertainty(
     """Entropy map of the capture alone (no material estimate): entropy.exr/.png, flags, summary."""
     import time
 
-    from freqbrdf import export
+    from freqbrdf import export, pipeline
     from freqbrdf.capture import load
     from freqbrdf.fileio import atomic_directory
     from freqbrdf.images import write_png
@@ -263,14 +265,21 @@ def uncertainty(
     from freqbrdf.uncertainty import entropy_map, summary as uncertainty_summary
 
     config = _config(preset, texture_res, lmax)
-    observations = observe_capture(load(capture), config, Reporter(enabled=not (quiet or json_output)))
+    loaded = load(capture)
+    pipeline.check_output_folder(out, {"the capture": loaded.root.resolve()})
+    start = time.perf_counter()
+    observations = observe_capture(loaded, config, Reporter(enabled=not (quiet or json_output)))
+    observe_seconds = time.perf_counter() - start
     start = time.perf_counter()
     result = entropy_map(observations, config.uncertainty, return_likelihood=False)
     seconds = time.perf_counter() - start
     summary = {
-        "capture": capture,
+        "capture": str(loaded.root.resolve()),
         "uncertainty": uncertainty_summary(result),
-        "timings": {**observations.timings, "uncertainty": seconds},
+        "timings": {"observe": observe_seconds,
+                    **{f"observe.{stage}": value for stage, value in observations.timings.items()
+                       if stage != "total"},
+                    "uncertainty": seconds},
         "settings": config.to_dict(),
         "entropy_png": {"colormap": export.ENTROPY_COLORMAP, "range": list(export.ENTROPY_RANGE)},
     }
@@ -289,7 +298,7 @@ def uncertainty(
         Console().print(
             f"mean entropy {summary['uncertainty']['entropy_mean']:.2f} over "
             f"{summary['uncertainty']['observed_texels']} observed texels ({seconds * 1000:.0f} ms); "
-            f"wrote {escape(str(out))}"
+            f"wrote {escape(str(out))}", soft_wrap=True
         )
 
 
@@ -297,7 +306,7 @@ def uncertainty(
 def evaluate(
     fit_dir: str = typer.Argument(..., metavar="FIT", help="Folder written by `freqbrdf fit`."),
     capture: str = typer.Option(None, "--capture", help="Capture to score against (default: the fit's)."),
-    out: str = typer.Option(None, "--out", help="Output folder (default: FIT/evaluation)."),
+    out: str = typer.Option(None, "--out", help="Output folder, replaced as a whole (default: FIT/evaluation)."),
     spp: int = typer.Option(64, min=1, help="Samples per pixel of the relit renders."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars or messages."),
     json_output: bool = typer.Option(False, "--json", help="Print metrics.json to stdout."),
@@ -331,7 +340,7 @@ def evaluate(
             rho = "n/a" if u["spearman"] is None else f"{u['spearman']:.2f}"
             lines.append(f"entropy vs roughness error: Spearman {rho}, AUSE {u['ause']:.3f}, AURG {u['aurg']:.3f}")
         for line in lines:
-            Console().print(escape(line))
+            Console().print(escape(line), soft_wrap=True)
 
 
 @app.command()

@@ -21,6 +21,7 @@ from freqbrdf.capture import Capture
 from freqbrdf.config import Config
 from freqbrdf.errors import InputError
 from freqbrdf.estimate import MaterialEstimate, estimate as estimate_materials
+from freqbrdf.fileio import atomic_directory
 from freqbrdf.images import read_image
 from freqbrdf.materials import MaterialMaps, load_material_maps, resize
 from freqbrdf.observations import Observations, observe
@@ -67,7 +68,8 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
     start = time.perf_counter()
     observations = observe(capture, config, reporter)
     timings["observe"] = time.perf_counter() - start
-    timings.update({f"observe.{stage}": seconds for stage, seconds in observations.timings.items()})
+    timings.update({f"observe.{stage}": seconds for stage, seconds in observations.timings.items()
+                    if stage != "total"})  # "observe" is the total
 
     start = time.perf_counter()
     estimate = estimate_materials(observations, config, reporter)
@@ -92,7 +94,9 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
 def write_fit(out_dir: str | Path, result: FitResult, config: Config = Config()) -> Path:
     """Write the fit folder (replaced as a whole, atomically); returns it."""
     start = time.perf_counter()
-    extra = {"capture": str(Path(result.capture.root).resolve()), "layout": result.capture.layout}
+    capture_root = Path(result.capture.root).resolve()
+    check_output_folder(out_dir, {"the capture": capture_root})
+    extra = {"capture": str(capture_root), "layout": result.capture.layout}
     out = export.write_fit_outputs(
         out_dir, result.capture.mesh, result.observations, result.estimate, result.uncertainty,
         config, timings=result.timings, extra_summary=extra,
@@ -147,25 +151,36 @@ def load_fit(fit_dir: str | Path) -> FitOutputs:
 
 def evaluate_fit(fit_outputs: FitOutputs, capture: Capture, out_dir: str | Path | None = None,
                  settings: RelightSettings = RelightSettings(), reporter: Reporter = SILENT) -> dict:
-    """Score a fit against its capture; writes ``<fit>/evaluation`` (or ``out_dir``).
+    """Score a fit against its capture; writes ``<fit>/evaluation`` (or ``out_dir``) as a whole.
 
     - texture metrics on the observed texels when the capture has ground truth;
     - relighting under the capture's test set (Stanford-ORB protocol) when it has one;
     - the uncertainty's meaning: sparsification (AUSE, AURG) and Spearman rho of the entropy
-      against the per-texel roughness and base-colour errors (ground truth needed).
+      against the per-texel roughness, base-colour and metallic errors (ground truth needed).
     Returns the metrics document (also written as metrics.json).
     """
     out = Path(out_dir) if out_dir is not None else fit_outputs.folder / EVALUATION_FOLDER
+    check_output_folder(out, {"the fit": fit_outputs.folder.resolve(), "the capture": Path(capture.root).resolve()})
     evaluation = relight_evaluate(capture, fit_outputs.maps, fit_outputs.observed, settings, reporter)
-    metrics_path = write_evaluation(out, evaluation)
-    document = json.loads(metrics_path.read_text(encoding="utf-8"))
-    uncertainty_scores = _uncertainty_scores(fit_outputs, capture, out)
-    if uncertainty_scores is not None:
-        document["uncertainty"] = uncertainty_scores
-    document["fit"] = str(fit_outputs.folder.resolve())
-    document["capture"] = str(Path(capture.root).resolve())
-    export.write_json(metrics_path, document)
+    # One folder, renamed into place when complete: a failure leaves the previous evaluation (or none).
+    with atomic_directory(out) as folder:
+        metrics_path = write_evaluation(folder, evaluation)
+        document = json.loads(metrics_path.read_text(encoding="utf-8"))
+        uncertainty_scores = _uncertainty_scores(fit_outputs, capture, folder)
+        if uncertainty_scores is not None:
+            document["uncertainty"] = uncertainty_scores
+        document["fit"] = str(fit_outputs.folder.resolve())
+        document["capture"] = str(Path(capture.root).resolve())
+        export.write_json(metrics_path, document)
     return document
+
+
+def check_output_folder(out_dir: str | Path, inputs: dict[str, Path]) -> None:
+    """InputError if replacing ``out_dir`` as a whole would delete one of the named input folders."""
+    out = Path(out_dir).resolve()
+    for name, folder in inputs.items():
+        if out == folder or out in folder.parents:
+            raise InputError(out_dir, f"output folder would replace {name} ({folder}); choose another --out")
 
 
 def _uncertainty_scores(fit_outputs: FitOutputs, capture: Capture, out: Path) -> dict | None:

@@ -1,0 +1,123 @@
+"""`freqbrdf fit`, `uncertainty` and `evaluate` end to end on a tiny Mitsuba capture; bad input."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from freqbrdf import pipeline
+from freqbrdf.capture import load
+from freqbrdf.config import Config, TexelConfig
+from freqbrdf.synth import SynthSettings, synthesize
+
+TINY = SynthSettings(mesh="bunny", views=6, resolution=40, spp=4, texture_res=32, test_views=2, test_envmaps=1)
+
+
+@pytest.fixture(scope="module")
+def tiny_capture(tmp_path_factory):
+    return synthesize(tmp_path_factory.mktemp("capture") / "tiny", TINY, progress=False)
+
+
+@pytest.fixture(scope="module")
+def tiny_fit(tiny_capture, tmp_path_factory):
+    """A small fit folder made through the API, for the commands that read one."""
+    config = Config(texels=TexelConfig(texture_res=16))
+    return pipeline.write_fit(tmp_path_factory.mktemp("fit") / "fit", pipeline.fit(load(tiny_capture), config), config)
+
+
+@pytest.mark.slow
+def test_fit_and_evaluate_commands(run_cli, tiny_capture, tmp_path, monkeypatch, capsys):
+    fit_dir = tmp_path / "fit"
+    assert run_cli("fit", tiny_capture, "--out", fit_dir, "--texture-res", 32, "--lmax", 4, "--json") == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["capture"] == str(tiny_capture.resolve())
+    assert summary["settings"]["texels"]["texture_res"] == 32 and summary["settings"]["fit"]["lmax"] == 4
+    assert {"observe", "estimate", "uncertainty", "textures", "write", "total"} <= set(summary["timings"])
+    for name in ("base_color.exr", "roughness.exr", "metallic.exr", "base_color.png", "material.glb",
+                 "entropy.exr", "entropy.png", "flags.png", "spectra.npz", "uncertainty.npz"):
+        assert (fit_dir / name).is_file(), name
+    assert sorted(summary["files"]) == sorted(p.name for p in fit_dir.iterdir())
+    with np.load(fit_dir / "spectra.npz") as spectra:
+        assert spectra["observed_spectrum"].shape[1:] == (3, 5)  # l* = 4: degrees 0..4
+
+    # The capture comes from summary.json; texture, relighting and uncertainty scores all present.
+    assert run_cli("evaluate", fit_dir, "--spp", 2, "--json") == 0
+    metrics = json.loads(capsys.readouterr().out)
+    assert metrics["texture"]["texels"] > 0 and len(metrics["views"]) == TINY.test_views
+    assert metrics["relighting"]["psnr_hdr"] > 0
+    assert set(metrics["uncertainty"]) >= {"roughness", "base_color", "metallic"}
+    evaluation = fit_dir / "evaluation"
+    assert json.loads((evaluation / "metrics.json").read_text()) == metrics
+    assert (evaluation / "sparsification.png").is_file() and len(list((evaluation / "relight").glob("*.png"))) == 2
+
+    shared_dir = tmp_path / "shared"
+    assert run_cli("fit", tiny_capture, "--out", shared_dir, "--texture-res", 32, "--share", "--quiet") == 0
+    assert capsys.readouterr().out == ""
+    shared_summary = json.loads((shared_dir / "summary.json").read_text())
+    assert shared_summary["settings"]["share"]["enabled"] and "share" in shared_summary["timings"]
+
+    paper_dir = tmp_path / "paper"
+    assert run_cli("fit", tiny_capture, "--out", paper_dir, "--texture-res", 16,
+                   "--preset", "paper", "--estimator", "paper", "--model", "spectrum", "--quiet") == 0
+    paper_summary = json.loads((paper_dir / "summary.json").read_text())
+    assert paper_summary["estimate"]["method"] == "paper/spectrum"
+    assert paper_summary["settings"]["estimate"]["forward_model"] == "spectrum"
+    assert paper_summary["settings"]["uncertainty"]["mode"] == "paper"
+
+
+@pytest.mark.slow
+def test_uncertainty_command(run_cli, tiny_capture, tmp_path, monkeypatch, capsys):
+    out = tmp_path / "uncertainty"
+    assert run_cli("uncertainty", tiny_capture, "--out", out, "--texture-res", 32, "--json") == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["capture"] == str(tiny_capture.resolve())
+    assert 0.0 <= summary["uncertainty"]["entropy_mean"] <= 1.0
+    assert {"observe", "uncertainty"} <= set(summary["timings"])
+    assert {p.name for p in out.iterdir()} == {"entropy.exr", "entropy.png", "flags.png", "uncertainty.json"}
+    assert json.loads((out / "uncertainty.json").read_text()) == summary
+
+
+def test_bad_input_is_one_line_exit_2_and_writes_nothing(run_cli, tmp_path, monkeypatch, capsys):
+    for command in ("fit", "uncertainty"):
+        assert run_cli(command, tmp_path / "missing", "--out", tmp_path / "out") == 2
+        assert "missing" in capsys.readouterr().err and not (tmp_path / "out").exists()
+
+    not_a_fit = tmp_path / "not_a_fit"
+    not_a_fit.mkdir()
+    assert run_cli("evaluate", not_a_fit) == 2
+    err = capsys.readouterr().err
+    assert "summary.json" in err and "not a fit folder" in err
+    assert not (not_a_fit / "evaluation").exists()
+
+    (not_a_fit / "summary.json").write_text("{broken")
+    assert run_cli("evaluate", not_a_fit) == 2
+    assert "unreadable" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_bad_options_and_captures_are_refused_before_any_output(run_cli, tiny_capture, tiny_fit, tmp_path, monkeypatch, capsys):
+    out = tmp_path / "out"
+    assert run_cli("fit", tiny_capture, "--out", out, "--estimator", "adam") == 2
+    assert "unknown estimator" in capsys.readouterr().err and not out.exists()
+    assert run_cli("fit", tiny_capture, "--out", out, "--preset", "fast") == 2
+    assert "unknown preset" in capsys.readouterr().err and not out.exists()
+
+    # --out must not replace the capture it reads.
+    files_before = sorted(p.name for p in tiny_capture.iterdir())
+    assert run_cli("fit", tiny_capture, "--out", tiny_capture, "--quiet") == 2
+    assert "would replace the capture" in capsys.readouterr().err
+    assert sorted(p.name for p in tiny_capture.iterdir()) == files_before
+
+    # evaluate: an explicit capture that is not there, and a fit whose recorded capture moved away.
+    assert run_cli("evaluate", tiny_fit, "--capture", tmp_path / "gone") == 2
+    assert "gone" in capsys.readouterr().err and not (tiny_fit / "evaluation").exists()
+    moved = tmp_path / "moved_fit"
+    shutil.copytree(tiny_fit, moved)
+    summary = json.loads((moved / "summary.json").read_text())
+    summary["capture"] = str(tmp_path / "moved_capture")
+    (moved / "summary.json").write_text(json.dumps(summary))
+    assert run_cli("evaluate", moved) == 2
+    assert "moved_capture" in capsys.readouterr().err and not (moved / "evaluation").exists()
