@@ -1,14 +1,21 @@
-"""Time the two material estimators on synthetic observations of bunny-at-512 size.
+"""Time the material estimators on a Mitsuba-rendered capture and score them against its ground truth.
 
-T = 160k texels (the bunny at 512^2 has ~140k), V = 64 views, l* = 5. The observations are
-synthesised by our own forward model in blocks (tests/test_estimate.py's generator), so the
-benchmark also reports the recovery errors. Prints the figures and saves them to
-benchmarks/results/bench_estimate.json. Kernels are compiled (or loaded from numba's cache) on a
-small warm-up first, so the timings are of warm runs.
+    python benchmarks/bench_estimate.py [--scene bunny|plane] [--skip paper]
+
+The capture is compare_estimators.py's (64 views, T = 512, the `bands` material; rendered once and
+cached in benchmarks/.cache). Observations are made once with the default settings; each
+estimator then runs warm (kernels compiled, or loaded from numba's cache, on a small slice
+first). Scores are on the observed texels: base-colour PSNR, roughness and metallic MAE. Runs:
+``global`` (the default: split-sum specular albedo, Burley diffuse), ``global_method_model``
+(METHOD.md's angular model, G1 masking and shadowing with one light refresh, Lambert diffuse: the
+previous default) and ``paper`` (the prototype's Adam). Prints the figures and saves them to
+benchmarks/results/bench_estimate_<scene>.json with os.cpu_count().
 """
 
 from __future__ import annotations
 
+import argparse
+import dataclasses
 import json
 import os
 import platform
@@ -18,85 +25,96 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT / "tests"))  # the synthetic-observation generator lives with the tests
+from compare_estimators import CACHE, FULL_RENDER, SCENES  # the script's folder is on sys.path
 
-from test_estimate import random_truth, synthetic_observations  # noqa: E402
+from freqbrdf.capture import load
+from freqbrdf.config import Config, EstimateConfig, preset
+from freqbrdf.estimate import estimate
+from freqbrdf.fileio import atomic_path
+from freqbrdf.materials import resize
+from freqbrdf.observations import Observations, observe
+from freqbrdf.synth import synthesize
 
-from freqbrdf import brdf  # noqa: E402
-from freqbrdf.config import Config, EstimateConfig  # noqa: E402
-from freqbrdf.estimate import estimate  # noqa: E402
-from freqbrdf.observations import Observations  # noqa: E402
-
-RESULTS = ROOT / "benchmarks" / "results" / "bench_estimate.json"
-N_TEXELS = int(os.environ.get("BENCH_TEXELS", 160_000))
-BLOCK = 20_000
-SEED = 0
+RESULTS = Path(__file__).resolve().parent / "results"
+RUNS = {
+    "global": Config(),
+    "global_method_model": Config(estimate=EstimateConfig(specular_model="g1", diffuse_model="lambert")),
+    "paper": preset("paper"),
+}
+WARMUP_TEXELS = 512
 
 
-def concatenate(parts: list[Observations]) -> Observations:
-    """One Observations of all texels of ``parts`` (blocks generated separately to bound memory)."""
+def scores(result, observations: Observations, truth) -> dict:
+    """Base-colour PSNR and roughness / metallic MAE over the texels with samples."""
+    truth = resize(truth, observations.texture_res)
+    seen = observations.n_samples > 0
+    index = observations.texel_index[seen]
+    colour_mse = np.mean((result.base_color[seen] - truth.base_color.reshape(-1, 3)[index]) ** 2)
+    return {
+        "texels": int(seen.sum()),
+        "base_color_psnr": round(float(-10.0 * np.log10(colour_mse)), 3),
+        "roughness_mae": round(float(np.mean(np.abs(result.roughness[seen] - truth.roughness.reshape(-1)[index]))), 4),
+        "metallic_mae": round(float(np.mean(np.abs(result.metallic[seen] - truth.metallic.reshape(-1)[index]))), 4),
+    }
+
+
+def subset(observations: Observations, count: int) -> Observations:
+    """The first ``count`` texels (for compiling the kernels before timing)."""
     fields = {}
-    for name in Observations.__dataclass_fields__:
-        values = [getattr(part, name) for part in parts]
-        fields[name] = np.concatenate(values) if isinstance(values[0], np.ndarray) else values[0]
-    n_texels = len(fields["texel_index"])
-    fields["texel_index"] = np.arange(n_texels, dtype=np.int64)
-    fields["texture_res"] = int(np.ceil(np.sqrt(n_texels)))
+    for name, value in vars(observations).items():
+        fields[name] = value[:count] if isinstance(value, np.ndarray) and value.shape[:1] == (observations.n_texels,) \
+            else value
     return Observations(**fields)
 
 
-def errors(result, truth) -> dict:
-    return {
-        "base_color_mae": float(np.mean(np.abs(result.base_color - truth.base_color))),
-        "roughness_mae": float(np.mean(np.abs(result.roughness - truth.roughness))),
-        "metallic_mae": float(np.mean(np.abs(result.metallic - truth.metallic))),
-        "roughness_max_error": float(np.max(np.abs(result.roughness - truth.roughness))),
-    }
-
-
-def main() -> None:
-    truth = random_truth(N_TEXELS, SEED)
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--scene", default="bunny", choices=sorted(SCENES))
+    parser.add_argument("--skip", default="", help="comma-separated runs to leave out")
+    args = parser.parse_args(argv)
+    settings = dataclasses.replace(SCENES[args.scene], views=64, texture_res=512, **FULL_RENDER)
+    folder = CACHE / f"compare_{args.scene}_64"
+    if not folder.is_dir():
+        synthesize(folder, settings, progress=False)
+    capture = load(folder)
     start = time.perf_counter()
-    parts = []
-    for first in range(0, N_TEXELS, BLOCK):
-        rows = slice(first, min(first + BLOCK, N_TEXELS))
-        block_truth = brdf.PrincipledParams(truth.base_color[rows], truth.roughness[rows], truth.metallic[rows])
-        parts.append(synthetic_observations(block_truth, seed=SEED + first))
-    observations = concatenate(parts)
-    synth_s = time.perf_counter() - start
-
-    runs = {
-        "global": Config(),
-        "paper_angular": Config(estimate=EstimateConfig(method="paper")),
-    }
-    warmup = concatenate([synthetic_observations(random_truth(256, 1), seed=1)])
+    observations = observe(capture, Config())
+    observe_seconds = time.perf_counter() - start
     result = {
-        "benchmark": "estimate: per-texel base colour, roughness, metallic",
+        "benchmark": "estimate: per-texel base colour, roughness, metallic on a Mitsuba capture",
         "cpu_count": os.cpu_count(),
         "machine": platform.processor() or platform.machine(),
-        "texels": N_TEXELS,
+        "capture": str(folder),
+        "texels": observations.n_texels,
         "views": observations.n_views,
         "lmax": observations.lmax,
-        "synthesis_seconds": round(synth_s, 2),
+        "observe_seconds": round(observe_seconds, 2),
         "estimators": {},
     }
-    for name, config in runs.items():
+    warmup = subset(observations, WARMUP_TEXELS)
+    for name, config in RUNS.items():
+        if name in args.skip.split(","):
+            continue
         estimate(warmup, config)
-        start = time.perf_counter()
+        start, cpu_start = time.perf_counter(), time.process_time()
         estimated = estimate(observations, config)
-        seconds = time.perf_counter() - start
+        seconds, cpu_seconds = time.perf_counter() - start, time.process_time() - cpu_start
         result["estimators"][name] = {
             "seconds": round(seconds, 3),
+            "cpu_seconds": round(cpu_seconds, 3),
             "stages": {stage: round(value, 3) for stage, value in estimated.timings.items()},
-            "settings": {k: v for k, v in config.estimate.__dict__.items()},
-            **errors(estimated, truth),
+            "settings": dataclasses.asdict(config.estimate),
+            **scores(estimated, observations, capture.ground_truth),
         }
-        print(f"{name:>14}: {seconds:7.2f} s  {result['estimators'][name]}")
-    RESULTS.parent.mkdir(parents=True, exist_ok=True)
-    RESULTS.write_text(json.dumps(result, indent=2) + "\n")
-    print(f"saved {RESULTS}")
+        row = result["estimators"][name]
+        print(f"{name:>20}: {seconds:6.2f} s ({cpu_seconds:.1f} CPU s)  PSNR {row['base_color_psnr']:.2f}  "
+              f"roughness MAE {row['roughness_mae']:.3f}  metallic MAE {row['metallic_mae']:.3f}", flush=True)
+    RESULTS.mkdir(exist_ok=True)
+    with atomic_path(RESULTS / f"bench_estimate_{args.scene}.json") as tmp:
+        tmp.write_text(json.dumps(result, indent=2) + "\n")
+    print(f"saved {RESULTS / f'bench_estimate_{args.scene}.json'}")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -11,11 +11,10 @@ from scipy.special import rel_entr
 
 from freqbrdf import brdf, sh
 from freqbrdf.config import Config, ShareConfig, UncertaintyConfig
-from freqbrdf.estimate import angular_loss, estimate
+from freqbrdf.estimate import angular_loss, estimate, model_light
 from freqbrdf.observations import Observations
 from freqbrdf.share import (
     PROBABILITY_FLOOR,
-    _light,
     anchor_affinity,
     find_anchors,
     share,
@@ -112,7 +111,7 @@ def test_sharing_improves_uncertain_texels_and_leaves_certain_ones(one_material_
     # The pull never costs a texel more data loss than the tolerance allows.
     rows = result.pulled_rows[result.moved]
     own = angular_loss(observations, fitted.principled(), config,
-                       _light(observations, fitted.roughness, config))[rows]
+                       model_light(observations, fitted.roughness, config))[rows]
     assert np.all(shared.loss[rows] <= (1.0 + config.share.loss_tolerance) * own + 1e-12)
     assert shared.method == fitted.method + "+share" and "share" in shared.timings
     # `share` is the estimate of `share_details`; deterministic.

@@ -69,16 +69,26 @@ class EstimateConfig:
 
     method: Literal["global", "paper"] = "global"  # exhaustive search (ours) or the prototype's Adam
     forward_model: Literal["angular", "sh_coeffs", "spectrum"] = "angular"  # "global" is angular only
-    fresnel: bool = True  # Schlick F(theta_o); off: F = R0
-    masking: bool = True  # G1(theta_o) on the reflected light
-    shadowing: bool = True  # G1(theta_i) on the incoming light before its SH fit (appendix eq. 6)
+    # global: how the specular lobe's reflectance depends on the view. "split_sum": R0 A + B, the
+    # GGX lobe's directional albedo with Schlick Fresnel and Smith masking-shadowing integrated over
+    # the lobe (as in real-time split-sum shading); "g1": METHOD.md §3.6, F(theta_o) G1(theta_o)
+    # on the G1-shadowed light. "g1" overestimates rough lobes (r = 0.8: 1.0 vs 0.56 at normal
+    # view), so rough metals came out as dark dielectrics. "paper" always uses "g1".
+    specular_model: Literal["split_sum", "g1"] = "split_sum"
+    # global: "burley" is Mitsuba's principled diffuse (view-dependent, with retro-reflection on
+    # rough texels) averaged over uniform light; "lambert": METHOD.md's d E / pi. "paper": lambert.
+    diffuse_model: Literal["burley", "lambert"] = "burley"
+    fresnel: bool = True  # Schlick F; off: F = R0
+    masking: bool = True  # "g1": G1(theta_o) on the reflected light
+    shadowing: bool = True  # "g1": G1(theta_i) on the incoming light before its SH fit (appendix eq. 6)
     # global: roughness grid (uniform in r on [0, 1]) and metallic grid, each refined by Brent.
-    # Measured on a Mitsuba bunny capture (64 views, T = 512, benchmarks/results/estimator_defaults.json):
-    # 33 x 11 with 4 refreshes took 36 s for roughness MAE 0.197; 17 x 6 with 1 refresh 8 s for
-    # 0.200; with no refresh 3.8 s for 0.217. Base-colour PSNR and metallic MAE hardly move.
-    roughness_grid: int = 17
-    metallic_grid: int = 6
-    shadowing_refreshes: int = 1  # global: re-fit the light shadowed nearer the fixed point, search again
+    # On the 64-view Mitsuba bunny (T = 512, 141k texels) 9 x 4 matches 17 x 6 to 1e-3 in every
+    # score at about 70 % of the CPU time (benchmarks/bench_estimate.py).
+    roughness_grid: int = 9
+    metallic_grid: int = 4
+    # global with specular_model "g1": re-fit the light shadowed nearer the fixed point, search
+    # again (split_sum needs none). 1 refresh: roughness MAE 0.217 -> 0.200 on that bunny.
+    shadowing_refreshes: int = 1
     # paper: the prototype's Adam on the L1 loss, its initialisation and texture-space TV.
     iterations: int = 100
     learning_rate: float = 0.02

@@ -1,34 +1,46 @@
 """Per-texel base colour, roughness and metallic from the observations (METHOD.md §3.6-3.7).
 
-Two estimators of the same angular model (``brdf.predict_angular``), per texel and channel c
+Both estimators fit a model of the radiance per texel, view v and channel c
 
-    L_c(w) = F_c(theta) G1(theta) S_alpha,c(w) + d_c E_c / pi,
+    L_c(w) = (R0_c A(w) + B(w)) S_alpha,c(w) + d_c D(w) E_c / pi,
     S_alpha,c(w) = sum_l k_alpha(l) P_c,l(w),   P_c,l(w) = sum_m c^in_c,lm Y_lm(w),
 
-with F = R0 + (1 - R0)(1 - cos)^5, R0 = 0.04 (1 - m) + b m, d = (1 - m) b and k the BRDF kernel
-(``brdf.brdf_kernel``, band-limit compensated). P, the incoming light's SH expansion split by
-degree, is computed once per light fit, so a new alpha costs l* + 1 multiply-adds per sample.
+with R0 = 0.04 (1 - m) + b m, d = (1 - m) b and k the BRDF kernel (``brdf.brdf_kernel``,
+band-limit compensated). P, the incoming light's SH expansion split by degree, is computed once
+per light fit, so a new alpha costs l* + 1 multiply-adds per sample. The specular albedo (A, B)
+and diffuse factor D come in two versions (``EstimateConfig.specular_model``, ``diffuse_model``):
+
+- METHOD.md's angular model (``brdf.predict_angular``; "g1", "lambert"): A = G1 (1 - F_c),
+  B = G1 F_c with F_c = (1 - cos theta_o)^5, the light shadowed by G1 before its fit, D = 1.
+- ours, the default for ``global`` ("split_sum", "burley"): (A, B) the GGX lobe's directional
+  albedo with Fresnel and Smith masking-shadowing integrated over the lobe (`split_sum_table`),
+  and D Mitsuba's principled diffuse averaged over the light (`burley_diffuse_factor`). On the
+  64-view Mitsuba captures (bunny, plane) it cut roughness MAE 0.200 -> 0.169 and 0.118 -> 0.127
+  (plane worse), metallic MAE 0.286 -> 0.238 and 0.237 -> 0.188, at base-colour PSNR
+  17.2 -> 16.9 and 20.3 -> 19.6 dB: "g1" lets rough metals (r 0.8: albedo 1 instead of 0.56)
+  pass for dark dielectrics, Lambert makes rough dielectrics look too smooth.
 
 - ``global`` (ours) minimises the weighted squared residual sum_v w_v^2 (L(w_v) - f_v)^2. Write
-  L = R0 X + Y + d e with X = G1 S (1 - (1 - cos)^5), Y = G1 S (1 - cos)^5, e = E / pi. For fixed
-  (alpha, m) the model is linear in b per channel, L = b (m X + (1 - m) e) + 0.04 (1 - m) X + Y,
-  so the best b is a clipped closed form computed from seven weighted moments of X, Y and f over
-  the views. Roughness is searched on a grid with the metallic profiled out (grid, then Brent) at
-  each node, and the best cell is refined by Brent: the global optimum in (b, m, r) up to the grid
-  resolution, with no step size and no local minima to fall into.
-- ``paper`` reproduces the authors' prototype: Adam (torch's defaults, lr 0.02, 100 iterations)
-  on the L1 loss of the cos-weighted residuals averaged over the whole T x T texture, parameters
-  clamped to [0, 1] after every step, texture-space total variation on the observed texels, and
-  any of the three forward models (angular, SH coefficients, power spectrum), with analytic
-  gradients. Initialisation is the prototype's: base colour, roughness and metallic all 0.5.
+  L = R0 X + Y + d e D with X = A S, Y = B S, e = E / pi. For fixed (alpha, m) the model is linear
+  in b per channel, L = b (m X + (1 - m) e D) + 0.04 (1 - m) X + Y, so the best b is a clipped
+  closed form computed from nine weighted moments of X, Y, D and f over the views. Roughness is
+  searched on a grid with the metallic profiled out (grid, then Brent) at each node, and the best
+  cell is refined by Brent: the global optimum in (b, m, r) up to the grid resolution, with no step
+  size and no local minima to fall into.
+- ``paper`` reproduces the authors' prototype with METHOD.md's model: Adam (torch's defaults, lr
+  0.02, 100 iterations) on the L1 loss of the cos-weighted residuals averaged over the whole T x T
+  texture, parameters clamped to [0, 1] after every step, texture-space total variation on the
+  observed texels, and any of the three forward models (angular, SH coefficients, power spectrum),
+  with analytic gradients. Initialisation is the prototype's: base colour, roughness and metallic
+  all 0.5.
 
-Shadowing (appendix eq. 6) makes the light's SH fit depend on alpha. Both estimators freeze it
-and refresh it as the prototype does: the first search (or the first 49 Adam steps) uses the
-unshadowed light; a refresh re-fits the light shadowed at the current roughness. ``global``
-searches again after each of its ``shadowing_refreshes`` refreshes, shadowing at a secant
-prediction of the fixed point r = search(light shadowed at r); its estimate is the global optimum
-for the last frozen light. On model-generated data 4 refreshes reach ~1e-3 in roughness on the
-worst texels (median ~1e-8), 6 reach ~1e-6.
+Shadowing in METHOD.md's model (appendix eq. 6) makes the light's SH fit depend on alpha. Both
+estimators freeze it and refresh it as the prototype does: the first search (or the first 49 Adam
+steps) uses the unshadowed light; a refresh re-fits the light shadowed at the current roughness.
+``global`` searches again after each of its ``shadowing_refreshes`` refreshes, shadowing at a
+secant prediction of the fixed point r = search(light shadowed at r); its estimate is the global
+optimum for the last frozen light (4 refreshes reach ~1e-3 in roughness on model-generated data,
+6 ~1e-6). The split-sum albedo holds the shadowing, so it fits the light once.
 
 Texels without a single sample are left unestimated (NaN, ``estimated`` False); the caller fills
 them for export.
@@ -36,6 +48,7 @@ them for export.
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from dataclasses import dataclass, field
@@ -55,7 +68,7 @@ _PROJECTION_BLOCK = 8192
 # Brent's absolute tolerance on roughness and metallic; its relative part is sqrt(machine eps).
 # A grid minimum on the boundary of [0, 1] is kept when the loss rises this far inside, instead of
 # letting Brent creep towards the boundary in golden steps.
-_BRENT_XTOL = 1e-7
+_BRENT_XTOL = 1e-5
 _BRENT_MAX_EVALS = 60
 # torch.optim.Adam's defaults, which the prototype used.
 _ADAM_BETA1, _ADAM_BETA2, _ADAM_EPS = 0.9, 0.999, 1e-8
@@ -132,12 +145,24 @@ def angular_loss(
     loss = np.empty(observations.n_texels)
     for rows in _blocks(observations.n_texels):
         _squared_residual_kernel(
-            _degree_projections(observations.view_direction[rows], light[rows], observations.lmax),
+            _degree_projections(observations.view_direction[rows], observations.weight[rows], light[rows],
+                                observations.lmax),
             observations.view_direction[rows, :, 2], observations.weight[rows], observations.observed[rows],
-            _diffuse_scale(observations)[rows], mf.specular_r0[rows], mf.diffuse_albedo[rows], mf.alpha[rows],
-            observations.sigma, settings.fresnel, settings.masking, loss[rows],
+            _diffuse_scale(observations)[rows], mf.specular_r0[rows], mf.diffuse_albedo[rows],
+            np.asarray(params.roughness, dtype=np.float64)[rows], observations.sigma, settings.fresnel, settings.masking,
+            _uses_split_sum(settings), _uses_burley(settings), split_sum_table(), loss[rows],
         )
     return np.where(observations.n_samples > 0, loss, np.nan)
+
+
+def model_light(observations: Observations, roughness: np.ndarray, config: Config = Config()) -> np.ndarray:
+    """(N, 3, K) the incoming light's SH fit as the estimator's model sees it at ``roughness`` (N,):
+    shadowed by G1 for METHOD.md's model with shadowing on, else the mirrored light (the split-sum
+    albedo holds the shadowing). Pass it to `angular_loss` to score parameters as the estimator does."""
+    settings = config.estimate
+    if not settings.shadowing or _uses_split_sum(settings):
+        return observations.mirrored_coeffs
+    return _shadowed_light_coeffs(observations, brdf.alpha_from_roughness(roughness), config.fit)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -151,6 +176,9 @@ def _validate(settings: EstimateConfig) -> None:
         raise ValueError(f"unknown forward model {settings.forward_model!r}")
     if settings.method == "global" and settings.forward_model != "angular":
         raise ValueError("the global estimator searches the angular model; use forward_model='angular'")
+    if settings.specular_model not in ("split_sum", "g1") or settings.diffuse_model not in ("burley", "lambert"):
+        raise ValueError(f"unknown specular_model {settings.specular_model!r} or diffuse_model "
+                         f"{settings.diffuse_model!r}; choose 'split_sum'/'g1' and 'burley'/'lambert'")
     if settings.roughness_grid < 2 or settings.metallic_grid < 2:
         raise ValueError("roughness_grid and metallic_grid need at least 2 nodes")
     if settings.shadowing_refresh_every < 1 or settings.iterations < 0 or settings.shadowing_refreshes < 0:
@@ -167,6 +195,83 @@ def _diffuse_scale(observations: Observations) -> np.ndarray:
     return observations.irradiance.astype(np.float64) / np.pi
 
 
+# The split-sum table: nodes uniform in cos(theta_o) and in roughness, and the stratified
+# quadrature over GGX-distributed half vectors that fills it (accurate to ~1e-3 except at the
+# grazing, near-mirror corner, where cos-weighted samples count little).
+_TABLE_COS_NODES = 33
+_TABLE_ROUGHNESS_NODES = 33
+_TABLE_THETA_STRATA = 64
+_TABLE_PHI_STRATA = 32
+
+
+@functools.cache
+def split_sum_table() -> np.ndarray:
+    """(2, cos nodes, roughness nodes) float64: A and B of the GGX lobe's directional albedo.
+
+    For view cosine mu_o and roughness r (alpha = r^2), with Schlick weight F_c = (1 - o.h)^5,
+        A = int f/F (1 - F_c) cos_i dw_i,   B = int f/F F_c cos_i dw_i,   f = F D G1(i) G1(o) / (4 mu_i mu_o),
+    so a lobe of normal reflectance R0 under uniform unit light returns R0 A + B. Importance
+    sampling the half vector by D (pdf D cos_h, dw_i = 4 (o.h) dw_h) leaves the integrand
+    G1(i) G1(o) (o.h) / (mu_o cos_h); light reflected below the horizon is lost.
+    """
+    cos_view = np.maximum(np.linspace(0.0, 1.0, _TABLE_COS_NODES), 1e-4)[:, None, None, None]
+    alpha = brdf.alpha_from_roughness(np.linspace(0.0, 1.0, _TABLE_ROUGHNESS_NODES))[None, :, None, None]
+    u = (np.arange(_TABLE_THETA_STRATA) + 0.5) / _TABLE_THETA_STRATA  # GGX: tan^2 theta_h = alpha^2 u / (1 - u)
+    phi = (np.arange(_TABLE_PHI_STRATA) + 0.5) / _TABLE_PHI_STRATA * np.pi  # symmetric about the view plane
+    cos_half = 1.0 / np.sqrt(1.0 + alpha**2 * (u / (1.0 - u))[:, None])
+    half_x = np.sqrt(1.0 - cos_half**2) * np.cos(phi)
+    view_dot_half = np.sqrt(1.0 - cos_view**2) * half_x + cos_view * cos_half
+    cos_light = 2.0 * view_dot_half * cos_half - cos_view
+    integrand = np.where(
+        cos_light > 0.0,
+        brdf.smith_g1_ggx(cos_light, alpha) * brdf.smith_g1_ggx(cos_view, alpha) * np.maximum(view_dot_half, 0.0)
+        / (cos_view * cos_half),
+        0.0,
+    )
+    schlick = (1.0 - np.clip(view_dot_half, 0.0, 1.0)) ** 5
+    return np.stack([np.mean(integrand * (1.0 - schlick), axis=(2, 3)), np.mean(integrand * schlick, axis=(2, 3))])
+
+
+def split_sum_terms(cos_theta: np.ndarray, roughness: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(A, B) of `split_sum_table`, bilinear, for broadcastable cos_theta and roughness in [0, 1]."""
+    cos_theta, roughness = np.broadcast_arrays(np.asarray(cos_theta, np.float64), np.asarray(roughness, np.float64))
+    terms = np.empty((2, cos_theta.size))
+    _split_sum_terms_kernel(cos_theta.ravel(), roughness.ravel(), split_sum_table(), terms)
+    return terms[0].reshape(cos_theta.shape), terms[1].reshape(cos_theta.shape)
+
+
+def burley_diffuse_factor(cos_theta, roughness):
+    """Mitsuba's principled diffuse relative to Lambert's, averaged over uniform incoming light.
+
+    Mitsuba's ``principled`` BSDF (Burley's diffuse) scales base_color / pi by
+        (1 - F_o / 2)(1 - F_i / 2) + R (F_o + F_i + F_o F_i (R - 1)),   R = 2 r cos^2 theta_d,
+    F = (1 - cos)^5 of the view (o) and light (i): darker at grazing views, brighter at grazing
+    views of rough surfaces (retro-reflection). With 2 cos^2 theta_d = 1 + w_i.w_o the averages over
+    cosine-distributed w_i are polynomials in mu_o = cos theta_o: <F_i> = 1/21,
+    <R> = r (1 + 2 mu_o / 3), <R F_i> = r (1/21 + mu_o / 84),
+    <R^2 F_i> = r^2 (1/21 + mu_o / 42 + 11 (1 - mu_o^2) / 504 + mu_o^2 / 252). Plain arithmetic, so
+    it serves numpy arrays and, compiled, the numba kernels.
+    """
+    schlick_view = (1.0 - cos_theta) ** 5
+    retro = roughness * (1.0 + 2.0 * cos_theta / 3.0)
+    retro_fresnel = roughness * (1.0 / 21.0 + cos_theta / 84.0)
+    retro_squared_fresnel = roughness * roughness * (
+        1.0 / 21.0 + cos_theta / 42.0 + 11.0 * (1.0 - cos_theta * cos_theta) / 504.0 + cos_theta * cos_theta / 252.0)
+    return ((1.0 - 0.5 * schlick_view) * (1.0 - 0.5 / 21.0) + schlick_view * retro + retro_fresnel
+            + schlick_view * (retro_squared_fresnel - retro_fresnel))
+
+
+_burley_diffuse_factor = numba.njit(fastmath=True, cache=True)(burley_diffuse_factor)
+
+
+def _uses_burley(settings: EstimateConfig) -> bool:
+    return settings.method == "global" and settings.diffuse_model == "burley"
+
+
+def _uses_split_sum(settings: EstimateConfig) -> bool:
+    return settings.method == "global" and settings.specular_model == "split_sum"
+
+
 def _shadowed_light_coeffs(observations: Observations, alpha: np.ndarray, fit: FitConfig) -> np.ndarray:
     """(N, 3, K) SH fit of the mirrored light shadowed by G1(theta_i, alpha) (appendix eq. 6)."""
     light = brdf.shadowed_light(observations.mirrored, observations.view_direction[..., 2], alpha)
@@ -176,25 +281,28 @@ def _shadowed_light_coeffs(observations: Observations, alpha: np.ndarray, fit: F
     ).coeffs
 
 
-def _degree_projections(directions: np.ndarray, coeffs: np.ndarray, lmax: int) -> np.ndarray:
-    """P_c,l(w_v) = sum_m c_c,lm Y_lm(w_v): directions (n, V, 3), coeffs (n, 3, K) -> (n, 3, l*+1, V)."""
+def _degree_projections(directions: np.ndarray, weight: np.ndarray, coeffs: np.ndarray, lmax: int) -> np.ndarray:
+    """P_c,l(w_v) = sum_m c_c,lm Y_lm(w_v): directions (n, V, 3), weight (n, V), coeffs (n, 3, K)
+    -> (n, 3, l*+1, V); 0 at samples of weight 0, which no estimator reads (a third of the work)."""
     basis = sh.eval_sh(np.ascontiguousarray(directions, dtype=np.float32), lmax)  # (n, V, K)
     out = np.empty((directions.shape[0], 3, lmax + 1, directions.shape[1]), dtype=np.float32)
-    _project_degrees_kernel(basis, np.ascontiguousarray(coeffs, dtype=np.float32), out)
+    _project_degrees_kernel(basis, weight, np.ascontiguousarray(coeffs, dtype=np.float32), out)
     return out
 
 
 @numba.njit(parallel=True, fastmath=True, cache=True)
-def _project_degrees_kernel(basis, coeffs, out):  # (n, V, K), (n, 3, K) -> out (n, 3, l*+1, V)
+def _project_degrees_kernel(basis, weight, coeffs, out):  # (n, V, K), (n, V), (n, 3, K) -> out (n, 3, l*+1, V)
     n_texels, n_views, _ = basis.shape
     n_degrees = out.shape[2]
     for t in numba.prange(n_texels):
         for v in range(n_views):
+            sampled = weight[t, v] > 0.0
             for c in range(3):
                 for degree in range(n_degrees):
                     acc = np.float32(0.0)
-                    for k in range(degree * degree, (degree + 1) * (degree + 1)):
-                        acc += basis[t, v, k] * coeffs[t, c, k]
+                    if sampled:
+                        for k in range(degree * degree, (degree + 1) * (degree + 1)):
+                            acc += basis[t, v, k] * coeffs[t, c, k]
                     out[t, c, degree, v] = acc
 
 
@@ -209,6 +317,43 @@ def _g1_and_derivative(cos_theta, alpha):
 
 
 @numba.njit(fastmath=True, cache=True)
+def _table_lookup(table, index, cos_theta, roughness):
+    """table[index] (.., cos nodes, roughness nodes) bilinear at (cos_theta, roughness) in [0, 1]."""
+    x = min(max(cos_theta, 0.0), 1.0) * (table.shape[1] - 1)
+    y = min(max(roughness, 0.0), 1.0) * (table.shape[2] - 1)
+    i = min(int(x), table.shape[1] - 2)
+    j = min(int(y), table.shape[2] - 2)
+    fx, fy = x - i, y - j
+    return ((table[index, i, j] * (1.0 - fx) + table[index, i + 1, j] * fx) * (1.0 - fy)
+            + (table[index, i, j + 1] * (1.0 - fx) + table[index, i + 1, j + 1] * fx) * fy)
+
+
+@numba.njit(parallel=True, cache=True)
+def _split_sum_terms_kernel(cos_theta, roughness, table, out):  # (n,), (n,) -> out (2, n)
+    for k in numba.prange(cos_theta.shape[0]):
+        out[0, k] = _table_lookup(table, 0, cos_theta[k], roughness[k])
+        out[1, k] = _table_lookup(table, 1, cos_theta[k], roughness[k])
+
+
+@numba.njit(fastmath=True, cache=True)
+def _specular_albedo(cos_theta, roughness, alpha, fresnel, masking, split_sum, table):
+    """(A, B) with the specular radiance (R0 A + B) times the filtered light, for one sample.
+
+    split_sum: `split_sum_terms`. Otherwise METHOD.md's angular model, F G1 = R0 G1 (1 - F_c) +
+    G1 F_c with F_c = (1 - cos)^5. Without Fresnel, A + B and 0.
+    """
+    if split_sum:
+        scale, bias = _table_lookup(table, 0, cos_theta, roughness), _table_lookup(table, 1, cos_theta, roughness)
+    else:
+        g1 = _g1_and_derivative(cos_theta, alpha)[0] if masking else 1.0
+        schlick = (1.0 - cos_theta) ** 5
+        scale, bias = g1 * (1.0 - schlick), g1 * schlick
+    if not fresnel:
+        return scale + bias, 0.0
+    return scale, bias
+
+
+@numba.njit(fastmath=True, cache=True)
 def _fill_kernel(alpha, sigma, kernel, kernel_derivative):
     """brdf.brdf_kernel for one texel, and its derivative in alpha: -2 alpha l^2 k(l)."""
     for degree in range(kernel.shape[0]):
@@ -218,32 +363,32 @@ def _fill_kernel(alpha, sigma, kernel, kernel_derivative):
 
 @numba.njit(parallel=True, fastmath=True, cache=True)
 def _squared_residual_kernel(
-    proj, cos_theta, weight, observed, diffuse_scale, r0, diffuse, alpha, sigma, fresnel, masking, out
+    proj, cos_theta, weight, observed, diffuse_scale, r0, diffuse, roughness, sigma, fresnel, masking, split_sum,
+    burley, table, out,
 ):
     """out[t] = sum_v,c w^2 (L - f)^2 / sum_v w^2 (0 without samples)."""
     n_texels, n_views = weight.shape
     n_degrees = proj.shape[2]
     for t in numba.prange(n_texels):
+        alpha = max(roughness[t] * roughness[t], _ALPHA_MIN)
         kernel = np.empty(n_degrees)
-        kernel_derivative = np.empty(n_degrees)
-        _fill_kernel(alpha[t], sigma, kernel, kernel_derivative)
+        _fill_kernel(alpha, sigma, kernel, np.empty(n_degrees))
         total = 0.0
         weight_sq = 0.0
         for v in range(n_views):
             w = np.float64(weight[t, v])
-            if w <= 0.0:
-                continue
-            cos_v = np.float64(cos_theta[t, v])
-            g1 = _g1_and_derivative(cos_v, alpha[t])[0] if masking else 1.0
-            schlick = (1.0 - cos_v) ** 5 if fresnel else 0.0
-            for c in range(3):
-                filtered = 0.0
-                for degree in range(n_degrees):
-                    filtered += kernel[degree] * proj[t, c, degree, v]
-                fresnel_c = r0[t, c] + (1.0 - r0[t, c]) * schlick
-                residual = fresnel_c * g1 * filtered + diffuse[t, c] * diffuse_scale[t, c] - observed[t, v, c]
-                total += w * w * residual * residual
-            weight_sq += w * w
+            if w > 0.0:
+                cos_v = np.float64(cos_theta[t, v])
+                scale, bias = _specular_albedo(cos_v, roughness[t], alpha, fresnel, masking, split_sum, table)
+                diffuse_factor = _burley_diffuse_factor(cos_v, roughness[t]) if burley else 1.0
+                for c in range(3):
+                    filtered = 0.0
+                    for degree in range(n_degrees):
+                        filtered += kernel[degree] * proj[t, c, degree, v]
+                    residual = ((r0[t, c] * scale + bias) * filtered
+                                + diffuse[t, c] * diffuse_scale[t, c] * diffuse_factor - observed[t, v, c])
+                    total += w * w * residual * residual
+                weight_sq += w * w
         out[t] = total / weight_sq if weight_sq > 0.0 else 0.0
 
 
@@ -266,7 +411,9 @@ def _estimate_global(observations: Observations, config: Config, reporter: Repor
     light = observations.mirrored_coeffs
     shadow_roughness = np.zeros(n_texels)
     previous_roughness = previous_residual = None
-    n_passes = 1 + (settings.shadowing_refreshes if settings.shadowing else 0)
+    # The split-sum albedo holds the shadowing: the light is never re-fitted.
+    split_sum, table = _uses_split_sum(settings), split_sum_table()
+    n_passes = 1 + (settings.shadowing_refreshes if settings.shadowing and not split_sum else 0)
     with reporter.stage("estimating (global)", n_passes) as advance:
         for pass_index in range(n_passes):
             tick = time.perf_counter()
@@ -276,9 +423,11 @@ def _estimate_global(observations: Observations, config: Config, reporter: Repor
             tick = time.perf_counter()
             for rows in _blocks(n_texels):
                 _global_search_kernel(
-                    _degree_projections(observations.view_direction[rows], light[rows], observations.lmax),
+                    _degree_projections(observations.view_direction[rows], observations.weight[rows], light[rows],
+                                observations.lmax),
                     cos_theta[rows], observations.weight[rows], observations.observed[rows], diffuse_scale[rows],
-                    observations.sigma, settings.fresnel, settings.masking, settings.roughness_grid,
+                    observations.sigma, settings.fresnel, settings.masking, split_sum, _uses_burley(settings), table,
+                    settings.roughness_grid,
                     settings.metallic_grid, params[rows], loss[rows],
                 )
             timings["search"] += time.perf_counter() - tick
@@ -395,19 +544,17 @@ def _brent_next(state, f_probe):
 def _metallic_objective(metallic, args):
     """Sum over channels of the weighted squared residual at the best base colour for this
     metallic, from the moments; writes that base colour and the metallic into state[:4]."""
-    moments, constants, diffuse_scale, state = args
+    moments, squared_values, diffuse_scale, state = args
     dielectric = 1.0 - metallic
     kappa = _DIELECTRIC_F0 * dielectric  # R0 = kappa + m b
     total = 0.0
     for c in range(3):
-        s_x, s_y, s_xx, s_xy = moments[c, 0], moments[c, 1], moments[c, 2], moments[c, 3]
-        s_xf, s_yy, s_yf = moments[c, 4], moments[c, 5], moments[c, 6]
-        s_w, s_f, s_ff = constants[c, 0], constants[c, 1], constants[c, 2]
+        s_xd, s_yd, s_xx, s_xy, s_xf, s_yy, s_yf, s_dd, s_fd = moments[c]
         e = diffuse_scale[c]
-        # L = b A + B with A = m X + (1 - m) e, B = kappa X + Y: loss = q2 b^2 + 2 q1 b + q0.
-        q2 = metallic * metallic * s_xx + 2.0 * metallic * dielectric * e * s_x + dielectric * dielectric * e * e * s_w
-        q1 = metallic * (kappa * s_xx + s_xy - s_xf) + dielectric * e * (kappa * s_x + s_y - s_f)
-        q0 = kappa * kappa * s_xx + s_yy + s_ff + 2.0 * kappa * (s_xy - s_xf) - 2.0 * s_yf
+        # L = b A + B with A = m X + (1 - m) e D, B = kappa X + Y: loss = q2 b^2 + 2 q1 b + q0.
+        q2 = metallic * metallic * s_xx + 2.0 * metallic * dielectric * e * s_xd + dielectric * dielectric * e * e * s_dd
+        q1 = metallic * (kappa * s_xx + s_xy - s_xf) + dielectric * e * (kappa * s_xd + s_yd - s_fd)
+        q0 = kappa * kappa * s_xx + s_yy + squared_values[c] + 2.0 * kappa * (s_xy - s_xf) - 2.0 * s_yf
         base = min(max(-q1 / q2, 0.0), 1.0) if q2 > 0.0 else 0.0  # a 1-D convex quadratic: clip
         total += (q2 * base + 2.0 * q1) * base + q0
         state[c] = base
@@ -416,9 +563,9 @@ def _metallic_objective(metallic, args):
 
 
 @numba.njit(fastmath=True, cache=True)
-def _profile_metallic(moments, constants, diffuse_scale, state, brent_state, metallic_grid):
+def _profile_metallic(moments, squared_values, diffuse_scale, state, brent_state, metallic_grid):
     """min over (b, m) of the loss for fixed moments: metallic grid, then Brent in the best cell."""
-    args = (moments, constants, diffuse_scale, state)
+    args = (moments, squared_values, diffuse_scale, state)
     best_m, best_f = 0.0, np.inf
     for j in range(metallic_grid):
         m = j / (metallic_grid - 1)
@@ -439,12 +586,17 @@ def _profile_metallic(moments, constants, diffuse_scale, state, brent_state, met
 @numba.njit(fastmath=True, cache=True)
 def _roughness_objective(roughness, args):
     """Profiled loss at this roughness: min over base colour and metallic (written to state)."""
-    (n, cos_theta, schlick, omega, proj, values, sigma, fresnel, masking, kernel, kernel_derivative,
-     g1, filtered, moments, constants, diffuse_scale, state, metallic_brent, metallic_grid) = args
+    (n, cos_theta, omega, proj, values, sigma, fresnel, masking, split_sum, burley, table, kernel,
+     kernel_derivative, albedo_scale, albedo_bias, diffuse_factor, filtered, moments, squared_values,
+     diffuse_scale, state, metallic_brent, metallic_grid) = args
     alpha = max(roughness * roughness, _ALPHA_MIN)
     _fill_kernel(alpha, sigma, kernel, kernel_derivative)
+    s_dd = 0.0
     for s in range(n):
-        g1[s] = _g1_and_derivative(cos_theta[s], alpha)[0] if masking else 1.0
+        albedo_scale[s], albedo_bias[s] = _specular_albedo(cos_theta[s], roughness, alpha, fresnel, masking,
+                                                           split_sum, table)
+        diffuse_factor[s] = _burley_diffuse_factor(cos_theta[s], roughness) if burley else 1.0
+        s_dd += omega[s] * diffuse_factor[s] * diffuse_factor[s]
     for c in range(3):
         for s in range(n):
             filtered[s] = 0.0
@@ -452,30 +604,31 @@ def _roughness_objective(roughness, args):
             k = kernel[degree]
             for s in range(n):
                 filtered[s] += k * proj[c, degree, s]
-        s_x = s_y = s_xx = s_xy = s_xf = s_yy = s_yf = 0.0
+        s_xd = s_yd = s_xx = s_xy = s_xf = s_yy = s_yf = s_fd = 0.0
         for s in range(n):
-            specular = g1[s] * filtered[s]
-            y = specular * schlick[s] if fresnel else 0.0
-            x = specular - y
+            x = albedo_scale[s] * filtered[s]
+            y = albedo_bias[s] * filtered[s]
             f = values[c, s]
             wx = omega[s] * x
             wy = omega[s] * y
-            s_x += wx
-            s_y += wy
+            s_xd += wx * diffuse_factor[s]
+            s_yd += wy * diffuse_factor[s]
             s_xx += wx * x
             s_xy += wx * y
             s_xf += wx * f
             s_yy += wy * y
             s_yf += wy * f
-        moments[c, 0], moments[c, 1], moments[c, 2], moments[c, 3] = s_x, s_y, s_xx, s_xy
+            s_fd += omega[s] * f * diffuse_factor[s]
+        moments[c, 0], moments[c, 1], moments[c, 2], moments[c, 3] = s_xd, s_yd, s_xx, s_xy
         moments[c, 4], moments[c, 5], moments[c, 6] = s_xf, s_yy, s_yf
-    return _profile_metallic(moments, constants, diffuse_scale, state, metallic_brent, metallic_grid)
+        moments[c, 7], moments[c, 8] = s_dd, s_fd
+    return _profile_metallic(moments, squared_values, diffuse_scale, state, metallic_brent, metallic_grid)
 
 
 @numba.njit(parallel=True, fastmath=True, cache=True)
 def _global_search_kernel(
-    proj, cos_theta, weight, observed, diffuse_scale, sigma, fresnel, masking, roughness_grid, metallic_grid,
-    params, loss,
+    proj, cos_theta, weight, observed, diffuse_scale, sigma, fresnel, masking, split_sum, burley, table,
+    roughness_grid, metallic_grid, params, loss,
 ):
     """Per texel: the (base colour, roughness, metallic) of least weighted squared residual.
 
@@ -488,16 +641,17 @@ def _global_search_kernel(
     for chunk in numba.prange((n_texels + _SEARCH_CHUNK - 1) // _SEARCH_CHUNK):
         # The texel's samples with w > 0, packed and with the views innermost (vectorised loops).
         packed_cos = np.empty(n_views)
-        schlick = np.empty(n_views)
         omega = np.empty(n_views)  # w^2
         packed_proj = np.empty((3, n_degrees, n_views))
         values = np.empty((3, n_views))
-        g1 = np.empty(n_views)
+        albedo_scale = np.empty(n_views)
+        albedo_bias = np.empty(n_views)
+        diffuse_factor = np.empty(n_views)
         filtered = np.empty(n_views)
         kernel = np.empty(n_degrees)
         kernel_derivative = np.empty(n_degrees)
-        moments = np.empty((3, 7))
-        constants = np.empty((3, 3))
+        moments = np.empty((3, 9))
+        squared_values = np.empty(3)  # sum_v w^2 f^2 per channel
         scale = np.empty(3)
         state = np.empty(4)
         roughness_brent = np.empty(12)
@@ -509,7 +663,6 @@ def _global_search_kernel(
                 if w <= 0.0:
                     continue
                 packed_cos[n] = cos_theta[t, v]
-                schlick[n] = (1.0 - packed_cos[n]) ** 5
                 omega[n] = w * w
                 for c in range(3):
                     values[c, n] = observed[t, v, c]
@@ -518,16 +671,17 @@ def _global_search_kernel(
                 n += 1
             if n == 0:
                 continue
+            total_weight = 0.0
+            for s in range(n):
+                total_weight += omega[s]
             for c in range(3):
-                s_w = s_f = s_ff = 0.0
+                squared_values[c] = 0.0
                 for s in range(n):
-                    s_w += omega[s]
-                    s_f += omega[s] * values[c, s]
-                    s_ff += omega[s] * values[c, s] * values[c, s]
-                constants[c, 0], constants[c, 1], constants[c, 2] = s_w, s_f, s_ff
+                    squared_values[c] += omega[s] * values[c, s] * values[c, s]
                 scale[c] = diffuse_scale[t, c]
-            args = (n, packed_cos, schlick, omega, packed_proj, values, sigma, fresnel, masking, kernel,
-                    kernel_derivative, g1, filtered, moments, constants, scale, state, metallic_brent, metallic_grid)
+            args = (n, packed_cos, omega, packed_proj, values, sigma, fresnel, masking, split_sum, burley, table,
+                    kernel, kernel_derivative, albedo_scale, albedo_bias, diffuse_factor, filtered, moments,
+                    squared_values, scale, state, metallic_brent, metallic_grid)
             # Scan the roughness grid, then Brent in the best cell unless the loss rises inwards
             # from a boundary node; keep the node if Brent does no better.
             cell = 1.0 / (roughness_grid - 1)
@@ -549,7 +703,7 @@ def _global_search_kernel(
             f = _roughness_objective(r, args)
             params[t, 0], params[t, 1], params[t, 2] = state[0], state[1], state[2]
             params[t, 3], params[t, 4] = r, state[3]
-            loss[t] = max(f, 0.0) / constants[0, 0]
+            loss[t] = max(f, 0.0) / total_weight
 
 
 # ---------------------------------------------------------------------------------------------
@@ -575,7 +729,7 @@ def _estimate_paper(observations: Observations, config: Config, reporter: Report
     proj = None
     tick = time.perf_counter()
     if settings.forward_model == "angular":
-        proj = _degree_projections(observations.view_direction, light, observations.lmax)
+        proj = _degree_projections(observations.view_direction, observations.weight, light, observations.lmax)
     timings["light"] += time.perf_counter() - tick
 
     with reporter.stage("estimating (paper)", settings.iterations) as advance:
@@ -611,7 +765,7 @@ def _refresh(observations, config, params, light, target, proj):
     if settings.shadowing:
         light = _shadowed_light_coeffs(observations, alpha, config.fit)
         if settings.forward_model == "angular":
-            proj = _degree_projections(observations.view_direction, light, observations.lmax)
+            proj = _degree_projections(observations.view_direction, observations.weight, light, observations.lmax)
     if settings.masking and settings.forward_model != "angular":
         g1 = brdf.smith_g1_ggx(observations.view_direction[..., 2], alpha[:, None])  # (N, V)
         unmasked = observations.observed / np.maximum(g1, np.finfo(np.float32).tiny)[..., None]

@@ -43,7 +43,7 @@ from scipy.spatial import cKDTree
 
 from freqbrdf import brdf
 from freqbrdf.config import Config, ShareConfig
-from freqbrdf.estimate import MaterialEstimate, _shadowed_light_coeffs, angular_loss
+from freqbrdf.estimate import MaterialEstimate, angular_loss, model_light
 from freqbrdf.observations import Observations
 from freqbrdf.uncertainty import CUTOFF, FLAG_BELOW_BOUND, FLAG_UNOBSERVED, Uncertainty
 
@@ -225,24 +225,17 @@ def _pull(observations: Observations, own: np.ndarray, target: np.ndarray, confi
     loss (P,) (module docstring, step 3).
     """
     tolerance = 1.0 + config.share.loss_tolerance
-    own_loss = angular_loss(observations, _principled(own), config, _light(observations, own[:, 3], config))
+    own_loss = angular_loss(observations, _principled(own), config, model_light(observations, own[:, 3], config))
     best, best_loss = own.copy(), own_loss.copy()
     best_distance = np.linalg.norm(own - target, axis=1)
     for fraction in PULL_FRACTIONS:
         moved_all = own + fraction * (target - own)
         moved_roughness = own.copy()
         moved_roughness[:, 3] = moved_all[:, 3]
-        light = _light(observations, moved_all[:, 3], config)  # both candidates share the roughness
+        light = model_light(observations, moved_all[:, 3], config)  # both candidates share the roughness
         for candidate in (moved_all, moved_roughness):
             loss = angular_loss(observations, _principled(candidate), config, light)
             distance = np.linalg.norm(candidate - target, axis=1)
             better = (loss <= tolerance * own_loss) & (distance < best_distance)
             best[better], best_loss[better], best_distance[better] = candidate[better], loss[better], distance[better]
     return best, best_loss
-
-
-def _light(observations: Observations, roughness: np.ndarray, config: Config) -> np.ndarray:
-    """(P, 3, K) incoming light as the estimator sees it at ``roughness`` (shadowed when enabled)."""
-    if not config.estimate.shadowing:
-        return observations.mirrored_coeffs
-    return _shadowed_light_coeffs(observations, brdf.alpha_from_roughness(roughness), config.fit)
