@@ -7,28 +7,21 @@ RMS amplitude. Both modes, R = 8 and R = 32, with and without returning the (N, 
 
 Prints the figures and saves them to benchmarks/results/bench_entropy.json. The first call loads
 (or compiles) the numba kernel and is reported separately; the warm figure is the median of
-REPEATS runs. Peak memory is the largest Python-visible allocation (tracemalloc) of one warm run.
-The machine is shared: the load average at the start is recorded with the figures, and so is a
-yardstick of its speed at the time, numpy's exp per element, to compare runs across machines.
+REPEATS runs, with all numba threads and with one (the machine is shared: with other work on it,
+two threads may run no faster than one). Peak memory is the largest Python-visible allocation
+(tracemalloc) of one warm run. The load average at the start is recorded with the figures, and so
+is a yardstick of the machine's speed at the time, numpy's exp per element.
 """
 
 from __future__ import annotations
 
-import json
-import os
-import platform
-import statistics
-import time
-import tracemalloc
-from pathlib import Path
-
 import numba
 import numpy as np
+from _common import first_call_seconds, machine, median_seconds, peak_mib, save_results
 
 from freqbrdf.config import UncertaintyConfig
 from freqbrdf.uncertainty import entropy_from_spectra
 
-RESULTS = Path(__file__).resolve().parent / "results" / "bench_entropy.json"
 TEXTURE_RES = 512
 LMAX = 5
 REPEATS = 5
@@ -50,26 +43,18 @@ def synthetic_spectra(n_texels: int, seed: int = 0) -> tuple[np.ndarray, np.ndar
     return light.astype(np.float32), np.square(amplitude).astype(np.float32)
 
 
-def median_seconds(run, repeats: int = REPEATS) -> float:
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        run()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
-
-
 def numpy_exp_ns() -> float:
     """Median nanoseconds per element of np.exp on 2^22 doubles: the machine's speed right now."""
     values = -np.linspace(0.0, 30.0, 1 << 22)
-    return median_seconds(lambda: np.exp(values)) / values.size * 1e9
+    return median_seconds(lambda: np.exp(values), REPEATS) / values.size * 1e9
 
 
 def main() -> None:
     n_texels = TEXTURE_RES * TEXTURE_RES
     light, observed = synthetic_spectra(n_texels)
-    load_at_start = os.getloadavg()[0]
+    facts = machine()
     exp_ns_at_start = numpy_exp_ns()
+    threads = numba.get_num_threads()
     runs = []
     for mode in ("calibrated", "paper"):
         for grid_res in (8, 32):
@@ -79,41 +64,36 @@ def main() -> None:
                 def run():
                     return entropy_from_spectra(light, observed, config=config, return_likelihood=with_likelihood)
 
-                start = time.perf_counter()
-                result = run()
-                first_call = time.perf_counter() - start
-                warm = median_seconds(run)
-                tracemalloc.start()
-                run()
-                _, peak_bytes = tracemalloc.get_traced_memory()
-                tracemalloc.stop()
+                first_call, result = first_call_seconds(run)
+                warm = median_seconds(run, REPEATS)
+                numba.set_num_threads(1)
+                try:
+                    one_thread = median_seconds(run, REPEATS)
+                finally:
+                    numba.set_num_threads(threads)
                 entry = {
                     "mode": mode,
                     "grid_res": grid_res,
                     "likelihood": with_likelihood,
                     "first_call_s": round(first_call, 4),
                     "warm_median_s": round(warm, 4),
-                    "peak_mib": round(peak_bytes / 2**20, 1),
+                    "one_thread_median_s": round(one_thread, 4),
+                    "peak_mib": round(peak_mib(run), 1),
                     "entropy_mean": round(float(result.entropy.mean()), 4),
                 }
-                print(json.dumps(entry))
+                print(entry)
                 runs.append(entry)
 
-    result = {
+    save_results("bench_entropy", {
         "benchmark": "uncertainty: entropy map from SH power spectra",
-        "cpu_count": os.cpu_count(),
-        "numba_threads": numba.get_num_threads(),
-        "load_average_at_start": round(load_at_start, 2),
+        **facts,
+        "numba_threads": threads,
         "numpy_exp_ns_per_element": {"start": round(exp_ns_at_start, 2), "end": round(numpy_exp_ns(), 2)},
-        "machine": platform.processor() or platform.machine(),
         "texels": n_texels,
         "lmax": LMAX,
         "channels": 3,
         "runs": runs,
-    }
-    print(json.dumps(result, indent=2))
-    RESULTS.parent.mkdir(parents=True, exist_ok=True)
-    RESULTS.write_text(json.dumps(result, indent=2) + "\n")
+    })
 
 
 if __name__ == "__main__":

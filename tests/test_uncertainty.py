@@ -213,9 +213,12 @@ def test_fast_kernel_equals_direct_evaluation(seed, grid_res, mode, sigma, resid
 
     texels = np.arange(n_texels)
     chosen = fast.channel.astype(int)
-    np.testing.assert_allclose(fast.entropy, entropy.min(axis=1), atol=2e-6)
-    np.testing.assert_allclose(entropy[texels, chosen], entropy.min(axis=1), atol=2e-6)
-    np.testing.assert_allclose(fast.likelihood, likelihood[texels, chosen], atol=2e-6)
+    # The kernel's cells are float32 with an exp of relative error < 1e-5: 2e-5 is ~30x the
+    # float32 resolution of an entropy near 1, and far below any difference a mistake in a
+    # misfit, temperature or normalisation makes.
+    np.testing.assert_allclose(fast.entropy, entropy.min(axis=1), atol=2e-5)
+    np.testing.assert_allclose(entropy[texels, chosen], entropy.min(axis=1), atol=2e-5)
+    np.testing.assert_allclose(fast.likelihood, likelihood[texels, chosen], atol=2e-5)
     # The arg-max cell has the least misfit of its channel's grid (k = 0: any row, same misfit).
     col = np.abs(fast.grid.specular[None, :] - fast.best_ks[:, None]).argmin(axis=1)
     row = np.abs(fast.grid.alpha[None, :] - np.nan_to_num(fast.best_alpha)[:, None]).argmin(axis=1)

@@ -39,7 +39,9 @@ dark texel (S_out(0) ~ 0) gets a flat likelihood, i.e. it is called uncertain.
 Speed: for fixed alpha the misfit is a quadratic in t (t = k^2 in paper mode, t = k in calibrated
 mode), e(t) = A (t - t*)^2 + e(t*), whose coefficients are sums over l; the whole grid costs
 O(R l* + R^2) per texel and channel. Cells more than CUTOFF above the minimum (in units of the
-temperature) are clamped there: their share is below e^-CUTOFF.
+temperature) are clamped there: their share is below e^-CUTOFF. The kernel (_grid_entropy_kernel)
+runs SIMD across texels: moments and row minima in float64, the R^2 cells in float32 with a
+polynomial exp; measured figures in benchmarks/results/bench_entropy.json.
 
 Flags (bit field, uint8 per texel) say why a texel should not be trusted; see FLAG_*.
 """
@@ -74,7 +76,7 @@ FLAG_NAMES = {
 # CUTOFF: e^-30 ~ 1e-13 is far below the float32 resolution of the likelihood, and the entropy
 # moves by less than R^2 CUTOFF e^-CUTOFF / log R^2 < 1e-8.
 CUTOFF = 30.0
-_BLOCK = 512  # texels per parallel work item
+_LANES = 32  # texels computed side by side in the kernel's SIMD loops
 
 
 @dataclass(frozen=True)
@@ -171,13 +173,11 @@ def entropy_from_spectra(
     if paper:
         # Power residuals, uncompensated kernel, the prototype's S_out(0)^2 weight and mean over l.
         row_filter = np.square(brdf.brdf_kernel(grid.alpha, lmax))
-        steps = np.square(grid.specular)
         scale = np.square(observed_spectrum[..., 0].astype(np.float64)) / (lmax * config.temperature)
     else:
         # Amplitude residuals against the light's RMS amplitude (module docstring).
         row_filter = brdf.brdf_kernel(grid.alpha, lmax, sigma)
-        steps = grid.specular
-        light_power = light_spectrum.astype(np.float64).sum(axis=2).mean(axis=1)  # (N,)
+        light_power = light_spectrum.sum(axis=2, dtype=np.float64).mean(axis=1)  # (N,)
         with np.errstate(divide="ignore"):
             inverse_power = np.where(light_power > 0, 1.0 / light_power, 0.0)  # no light: no information
         scale = np.repeat((inverse_power / (2.0 * config.noise_level**2))[:, None], 3, axis=1)
@@ -192,8 +192,8 @@ def entropy_from_spectra(
     likelihood = np.empty((n_texels if return_likelihood else 0, resolution, resolution), dtype=np.float32)
     _grid_entropy_kernel(
         _kernel_input(light_spectrum), _kernel_input(observed_spectrum),
-        np.ascontiguousarray(scale, dtype=np.float64), row_filter, steps,
-        not paper, not paper, residual_dof, return_likelihood,
+        np.ascontiguousarray(scale, dtype=np.float64), row_filter,
+        not paper, not paper, residual_dof, return_likelihood, numba.get_num_threads(),
         entropy, channel, best_row, best_col, likelihood,
     )
 
@@ -273,16 +273,23 @@ def _prior(grid: HypothesisGrid, merge_zero: bool) -> np.ndarray:
     return prior.astype(np.float32)
 
 
-@numba.njit(inline="always", fastmath={"contract"})
+_EXP_CENTRE = math.exp(-CUTOFF / 64)  # e^-y0 at the centre y0 = CUTOFF / 64 of the reduced argument
+
+
+@numba.njit(inline="always", fastmath={"contract", "reassoc", "nsz", "arcp"})
 def _exp_neg(distance):
-    """exp(-distance) for 0 <= distance <= CUTOFF, relative error < 1e-9, without a libm call so
-    that the loops over cells vectorise: exp(-d) = exp(-d / 128)^128, the inner exp by its
-    degree-8 Taylor polynomial on [-0.24, 0], then seven squarings."""
-    r = distance * (-1.0 / 128.0)
-    p = 1.0 + r * (1.0 + r * (1.0 / 2 + r * (1.0 / 6 + r * (1.0 / 24 + r * (1.0 / 120 + r * (
-        1.0 / 720 + r * (1.0 / 5040 + r * (1.0 / 40320))))))))
-    p = p * p
-    p = p * p
+    """exp(-distance) in float32 for 0 <= distance <= CUTOFF, relative error < 1e-5, in float
+    arithmetic only (no libm call, no integer exponent tricks, which numba widens to 64 bits) so
+    that the loops over lanes vectorise.
+
+    exp(-d) = (e^-y)^32, y = d / 32 in [0, 2 y0]: e^-y = e^-y0 e^-(y - y0) by the degree-7 Taylor
+    polynomial of e^-(y - y0) (|y - y0| <= 0.47, truncation 5e-8), then five squarings, each of
+    which doubles the relative error.
+    """
+    y = distance * np.float32(1 / 32) - np.float32(CUTOFF / 64)
+    p = np.float32(1.0) - y * (np.float32(1.0) - y * (np.float32(1 / 2) - y * (np.float32(1 / 6) - y * (
+        np.float32(1 / 24) - y * (np.float32(1 / 120) - y * (np.float32(1 / 720) - y * np.float32(1 / 5040)))))))
+    p = p * np.float32(_EXP_CENTRE)
     p = p * p
     p = p * p
     p = p * p
@@ -291,148 +298,226 @@ def _exp_neg(distance):
 
 
 @numba.njit(inline="always")
-def _cell_misfit(quad, vertex, at_vertex, dc_excess, steps, j):
-    """Misfit of cell (i, j) from its row's quadratic: A (t_j - t*)^2 + e(t*) + DC excess."""
-    offset = steps[j] - vertex
-    return quad * offset * offset + at_vertex + dc_excess[j]
+def _larger(a, b):
+    """max(a, b) as a compare and select; numba's builtin max is a call that blocks vectorisation."""
+    return a if a > b else b
 
 
-@numba.njit(parallel=True, cache=True, fastmath={"contract", "reassoc", "nsz"})
+@numba.njit(inline="always")
+def _smaller(a, b):
+    """min(a, b) as a compare and select (see _larger)."""
+    return a if a < b else b
+
+
+@numba.njit(parallel=True, cache=True, error_model="numpy", fastmath={"contract", "reassoc", "nsz", "arcp"})
 def _grid_entropy_kernel(
-    light, observed, scale, row_filter, steps, amplitude, merge_zero, residual_dof, want_likelihood,
+    light, observed, scale, row_filter, amplitude, merge_zero, residual_dof, want_likelihood, n_threads,
     entropy, channel, best_row, best_col, likelihood,
 ):
     """Fused grid misfit, likelihood and entropy per texel; the minimum-entropy channel wins.
 
     light, observed (N, 3, l*+1) power spectra; scale (N, 3) turns a misfit difference into
-    temperatures; row_filter (R, l*+1) the per-degree factor of alpha_i (kernel^2 for powers,
-    kernel for amplitudes); steps (R,) the grid values t_j (k^2 or k), ascending, t_0 = 0.
-    amplitude: compare sqrt(S) and bound the specular DC by the observed one; merge_zero: the
-    k = 0 column is one hypothesis; residual_dof > 0: the noise variance 1 / (2 scale) grows by the
-    best cell's misfit / residual_dof (0: off). Outputs per texel: entropy, channel, arg-max cell (best_row,
-    best_col) and, if wanted, the (R, R) likelihood of the chosen channel.
+    temperatures; row_filter (R, l*+1) the per-degree factor of alpha_i (kernel for amplitudes,
+    kernel^2 for powers). amplitude: compare sqrt(S), grid values t_j = k_j, and bound the specular
+    DC by the observed one; otherwise powers and t_j = k_j^2. merge_zero: the k = 0 column is one
+    hypothesis; residual_dof > 0: the noise variance 1 / (2 scale) grows by the best cell's misfit
+    / residual_dof (0: off); n_threads: numba's thread count (read outside, which keeps the kernel
+    cacheable). Outputs per texel: entropy, channel, arg-max cell (best_row, best_col) and, if
+    wanted, the (R, R) likelihood of the chosen channel.
 
-    No (R, R) misfit is stored: each cell's misfit is rebuilt from its row's quadratic in three
-    FMAs. Per row the misfit is convex in t, so its grid minimum is found by walking downhill
-    from the vertex, and exps are taken only where d < CUTOFF: an interval of t around the vertex
-    (the DC excess only adds), found by bisection on the sorted steps.
+    SIMD runs across _LANES texels at a time (structure of arrays, [..., lane]), so the loops over
+    lanes are branch-free and vectorise whatever R is. Per texel and channel:
+
+    1. moments (float64): a_l^2 and a_l b_l for l >= 1 and C = sum_l b_l^2 (the misfit at k = 0),
+       a_l, b_l the light's and the observation's amplitudes (or powers);
+    2. per alpha row (float64): A = sum_l f_il^2 a_l^2, X = sum_l f_il a_l b_l, vertex t* = X / A,
+       vertex misfit C - X t*. With the DC excess _larger(t a_0 - b_0, 0)^2 the row's misfit is convex
+       in t, so its grid minimum is one of the two grid values around its continuous minimiser,
+       which has a closed form;
+    3. per cell (float32): the distance in temperatures, written relative to the row's grid
+       minimum t_b, d = D_i + s_i (t_j - t_b)(t_j - t_b + 2 (t_b - t*)) + DC excess difference:
+       exact at the row minimum, no cancellation elsewhere; exp(-d) by _exp_neg. Rows whose
+       minimum lies beyond CUTOFF in every lane are clamped without evaluating their cells.
+
+    H = log Z + sum w d / Z (w = e^-d, Z = sum w), summed per row in float32, over rows in float64.
     """
     n_texels, n_channels, n_degrees = light.shape
-    resolution = steps.shape[0]
+    resolution = row_filter.shape[0]
+    last = resolution - 1
+    inverse_last = 1.0 / last
     n_zero = 1 if merge_zero else resolution  # how many hypotheses the k = 0 column counts as
     log_hypotheses = math.log(resolution * (resolution - 1) + n_zero)
+    clamped_weight = _exp_neg(np.float32(CUTOFF))  # a cell beyond CUTOFF, as the cell loop weighs it
+    specular = np.arange(resolution) / last  # k_j
+    steps = specular if amplitude else specular * specular  # t_j
+    steps32 = steps.astype(np.float32)
+    filter_sq = row_filter * row_filter
+    # Rows of the per-lane scratch `lane`: few arrays per loop, so that LLVM's run-time overlap
+    # checks stay within its limits and the loops vectorise.
+    cross_at = n_degrees  # a_l b_l at cross_at + l
+    constant_at, light_dc_at, observed_dc_at = 2 * n_degrees, 2 * n_degrees + 1, 2 * n_degrees + 2
+    temperature_at = 2 * n_degrees + 3
     stored = resolution if want_likelihood else 1  # likelihood grids are kept only when returned
-    n_blocks = (n_texels + _BLOCK - 1) // _BLOCK
-    for block in numba.prange(n_blocks):
-        weight = np.zeros((n_channels, stored, stored))
-        light_row = np.empty(n_degrees)
-        observed_row = np.empty(n_degrees)
-        row_scaled = np.empty(n_degrees)
-        quad = np.empty(resolution)
-        vertex = np.empty(resolution)
-        at_vertex = np.empty(resolution)
-        dc_excess = np.zeros(resolution)
-        for texel in range(block * _BLOCK, min(n_texels, (block + 1) * _BLOCK)):
-            lowest_entropy = 2.0
+    n_blocks = (n_texels + _LANES - 1) // _LANES
+    n_workers = _smaller(n_threads, n_blocks)  # worker w takes blocks w, w + n_workers, ...
+    for worker in numba.prange(n_workers):
+        lane = np.empty((2 * n_degrees + 4, _LANES))
+        row_sums = np.empty((2, _LANES))  # A, X of the current row
+        lowest = np.empty((3, _LANES))  # the least misfit, its row and column
+        sums = np.empty((2, _LANES))  # Z, sum w d
+        rows = np.empty((resolution, 4, _LANES))  # per row: A, t*, t_b, misfit at t_b
+        dc_scaled = np.zeros((resolution, _LANES), np.float32)  # DC excess at t_j in temperatures
+        cell = np.empty((4, _LANES), np.float32)  # t_b, s_i, 2 (t_b - t*), D_i - DC excess at t_b
+        cell_sums = np.empty((2, _LANES), np.float32)  # sum w, sum w d over the row's cells
+        row_weights = np.empty((resolution, _LANES), np.float32)
+        weights = np.empty((n_channels, stored, stored, _LANES), np.float32)
+        channel_sums = np.empty((n_channels, 2, _LANES))  # Z and the k = 0 weight per channel
+        choice = np.empty((4, _LANES))  # lowest entropy, its channel, arg-max row and column
+        for block in range(worker, n_blocks, n_workers):
+            start = block * _LANES
+            n_lanes = _smaller(_LANES, n_texels - start)
+            choice[0] = 2.0
             for c in range(n_channels):
-                constant = 0.0  # the misfit at k = 0: sum_{l >= 1} b_l^2
+                # 1. Moments. Padding lanes hold zeros and are computed like the others.
+                lane[:light_dc_at] = 0.0
                 for l in range(n_degrees):
-                    light_value = max(light[texel, c, l], 0.0)
-                    observed_value = max(observed[texel, c, l], 0.0)
-                    if amplitude:
-                        light_value = math.sqrt(light_value)
-                        observed_value = math.sqrt(observed_value)
-                    light_row[l] = light_value
-                    observed_row[l] = observed_value
-                    if l > 0:
-                        constant += observed_value * observed_value
-                if amplitude:
-                    # l = 0 holds specular plus a non-negative diffuse part: the specular DC
-                    # amplitude t K_0 sqrt(S_refl(0)) (K_0 = 1) may not exceed the observed one.
-                    for j in range(resolution):
-                        excess = max(steps[j] * light_row[0] - observed_row[0], 0.0)
-                        dc_excess[j] = excess * excess
-                # Per alpha row the misfit is a quadratic in t: A (t - t*)^2 + e(t*), with
-                # A = sum_l a_l^2, t* = sum_l a_l b_l / A, a_l = filter(alpha_i, l) x light_l.
-                lowest = constant
-                lowest_i, lowest_j = 0, 0
+                    for k in range(n_lanes):
+                        lane[l, k] = _larger(np.float64(light[start + k, c, l]), 0.0)
+                        lane[cross_at + l, k] = _larger(np.float64(observed[start + k, c, l]), 0.0)
+                for k in range(_LANES):
+                    lane[light_dc_at, k] = math.sqrt(lane[0, k])
+                    lane[observed_dc_at, k] = math.sqrt(lane[cross_at, k])
+                for l in range(n_degrees):
+                    for k in range(_LANES):
+                        light_value = lane[l, k]
+                        observed_value = lane[cross_at + l, k]
+                        if amplitude:  # a_l^2 = S_refl(l), a_l b_l = sqrt(S_refl(l) S_out(l))
+                            lane[cross_at + l, k] = math.sqrt(light_value * observed_value)
+                            contribution = observed_value
+                        else:
+                            lane[l, k] = light_value * light_value
+                            lane[cross_at + l, k] = light_value * observed_value
+                            contribution = observed_value * observed_value
+                        if l > 0:
+                            lane[constant_at, k] += contribution
+                # 2. Rows. The k = 0 column (misfit C in any row) and earlier rows win ties.
+                for k in range(_LANES):
+                    lowest[0, k] = lane[constant_at, k]
+                    lowest[1, k] = 0.0
+                    lowest[2, k] = 0.0
                 for i in range(resolution):
-                    row_quad = 0.0
-                    cross = 0.0
+                    row_sums[:] = 0.0
                     for l in range(1, n_degrees):
-                        row_scaled[l] = row_filter[i, l] * light_row[l]
-                        row_quad += row_scaled[l] * row_scaled[l]
-                        cross += row_scaled[l] * observed_row[l]
-                    row_vertex = 0.0
-                    row_at_vertex = constant
-                    if row_quad > 0.0:
-                        # e(t*) summed directly: both terms non-negative, no cancellation.
-                        row_vertex = cross / row_quad
-                        row_at_vertex = 0.0
-                        for l in range(1, n_degrees):
-                            residual = row_vertex * row_scaled[l] - observed_row[l]
-                            row_at_vertex += residual * residual
-                    quad[i] = row_quad
-                    vertex[i] = row_vertex
-                    at_vertex[i] = row_at_vertex
-                    # Grid minimum of the row over j >= 1: downhill from the step nearest the vertex.
-                    j = min(max(np.searchsorted(steps, row_vertex), 1), resolution - 1)
-                    here = _cell_misfit(row_quad, row_vertex, row_at_vertex, dc_excess, steps, j)
-                    while j > 1:
-                        left = _cell_misfit(row_quad, row_vertex, row_at_vertex, dc_excess, steps, j - 1)
-                        if left > here:
-                            break
-                        j, here = j - 1, left
-                    while j < resolution - 1:
-                        right = _cell_misfit(row_quad, row_vertex, row_at_vertex, dc_excess, steps, j + 1)
-                        if right >= here:
-                            break
-                        j, here = j + 1, right
-                    if here < lowest:  # the k = 0 column and earlier rows win ties
-                        lowest, lowest_i, lowest_j = here, i, j
-                # Likelihood w = exp(-d), d = (e - min e) x scale, and H = log Z + sum w d / Z.
-                to_temperature = scale[texel, c]
-                if residual_dof > 0.0 and to_temperature > 0.0:
-                    # Noise variance = the stated floor + the best hypothesis's residual per degree
-                    # of freedom: a texel no hypothesis explains is not sure of any of them.
-                    to_temperature = 1.0 / (1.0 / to_temperature + 2.0 * lowest / residual_dof)
-                zero_distance = min((constant - lowest) * to_temperature, CUTOFF)
-                zero_weight = _exp_neg(zero_distance)
-                total = n_zero * zero_weight
-                weighted_distance = n_zero * zero_weight * zero_distance
-                if want_likelihood:
-                    weight[c] = 0.0
-                    weight[c, :, 0] = zero_weight * n_zero / resolution
+                        for k in range(_LANES):
+                            row_sums[0, k] += filter_sq[i, l] * lane[l, k]
+                            row_sums[1, k] += row_filter[i, l] * lane[cross_at + l, k]
+                    for k in range(_LANES):
+                        quad = row_sums[0, k]
+                        vertex = row_sums[1, k] / (quad if quad > 0.0 else 1.0)  # no light: t* = 0
+                        at_vertex = _larger(lane[constant_at, k] - row_sums[1, k] * vertex, 0.0)
+                        light_dc = lane[light_dc_at, k]
+                        observed_dc = lane[observed_dc_at, k]
+                        # Continuous minimiser of A (t - t*)^2 + max(t a_0 - b_0, 0)^2.
+                        target = vertex
+                        if amplitude and vertex * light_dc > observed_dc:
+                            target = (quad * vertex + light_dc * observed_dc) / (quad + light_dc * light_dc)
+                        index = target * last if amplitude else math.sqrt(_larger(target, 0.0)) * last
+                        left = np.float64(_smaller(_larger(math.floor(index), 1.0), last))
+                        right = _smaller(left + 1.0, last)
+                        left_t = left * inverse_last
+                        right_t = right * inverse_last
+                        if not amplitude:
+                            left_t *= left_t
+                            right_t *= right_t
+                        left_misfit = at_vertex + quad * (left_t - vertex) ** 2
+                        right_misfit = at_vertex + quad * (right_t - vertex) ** 2
+                        if amplitude:
+                            left_misfit += _larger(left_t * light_dc - observed_dc, 0.0) ** 2
+                            right_misfit += _larger(right_t * light_dc - observed_dc, 0.0) ** 2
+                        take_right = right_misfit < left_misfit
+                        best_misfit = right_misfit if take_right else left_misfit
+                        rows[i, 0, k] = quad
+                        rows[i, 1, k] = vertex
+                        rows[i, 2, k] = right_t if take_right else left_t
+                        rows[i, 3, k] = best_misfit
+                        if best_misfit < lowest[0, k]:
+                            lowest[0, k] = best_misfit
+                            lowest[1, k] = i
+                            lowest[2, k] = right if take_right else left
+                # 3. Cells. Temperature per lane, the k = 0 column, then row by row.
+                for k in range(_LANES):
+                    to_temperature = scale[start + k, c] if k < n_lanes else 0.0
+                    if residual_dof > 0.0 and to_temperature > 0.0:
+                        # Noise variance = the stated floor + the best hypothesis's residual per
+                        # degree of freedom: a texel no hypothesis explains is not sure of any.
+                        to_temperature = 1.0 / (1.0 / to_temperature + 2.0 * lowest[0, k] / residual_dof)
+                    lane[temperature_at, k] = to_temperature
+                    zero_distance = _smaller((lane[constant_at, k] - lowest[0, k]) * to_temperature, CUTOFF)
+                    zero_weight = np.float64(_exp_neg(np.float32(zero_distance)))
+                    channel_sums[c, 1, k] = zero_weight
+                    sums[0, k] = n_zero * zero_weight
+                    sums[1, k] = n_zero * zero_weight * zero_distance
+                if amplitude:
+                    for j in range(resolution):
+                        for k in range(_LANES):
+                            excess = _larger(steps[j] * lane[light_dc_at, k] - lane[observed_dc_at, k], 0.0)
+                            dc_scaled[j, k] = excess * excess * lane[temperature_at, k]
                 for i in range(resolution):
-                    first, stop = 1, resolution
-                    if to_temperature > 0.0:
-                        slack = CUTOFF / to_temperature - (at_vertex[i] - lowest)  # in misfit units
-                        if slack < 0.0:
-                            continue
-                        if quad[i] > 0.0:
-                            half_width = math.sqrt(slack / quad[i])
-                            first = max(np.searchsorted(steps, vertex[i] - half_width), 1)
-                            stop = np.searchsorted(steps, vertex[i] + half_width, side="right")
-                    row_quad, row_vertex, row_at_vertex = quad[i], vertex[i], at_vertex[i]
-                    for j in range(first, stop):
-                        misfit = _cell_misfit(row_quad, row_vertex, row_at_vertex, dc_excess, steps, j)
-                        # >= 0 up to rounding, which a huge scale (paper mode, bright texel) can amplify
-                        distance = min(max((misfit - lowest) * to_temperature, 0.0), CUTOFF)
-                        w = _exp_neg(distance)
-                        total += w
-                        weighted_distance += w * distance
-                        if want_likelihood:
-                            weight[c, i, j] = w
-                value = (math.log(total) + weighted_distance / total) / log_hypotheses
-                value = min(max(value, 0.0), 1.0)
-                if value < lowest_entropy:
-                    lowest_entropy = value
-                    entropy[texel] = value
-                    channel[texel] = c
-                    best_row[texel] = lowest_i
-                    best_col[texel] = lowest_j
+                    row_offset = CUTOFF  # the least offset D_i over the lanes
+                    for k in range(_LANES):
+                        to_temperature = lane[temperature_at, k]
+                        offset = (rows[i, 3, k] - lowest[0, k]) * to_temperature
+                        row_offset = _smaller(row_offset, offset)
+                        best_t = rows[i, 2, k]
+                        excess = _larger(best_t * lane[light_dc_at, k] - lane[observed_dc_at, k], 0.0)
+                        excess = excess if amplitude else 0.0
+                        cell[0, k] = best_t
+                        cell[1, k] = rows[i, 0, k] * to_temperature
+                        cell[2, k] = 2.0 * (best_t - rows[i, 1, k])
+                        cell[3, k] = offset - excess * excess * to_temperature
+                    if row_offset >= CUTOFF:  # every cell of this row is beyond CUTOFF in every lane
+                        cell_sums[0] = last * clamped_weight
+                        cell_sums[1] = last * clamped_weight * np.float32(CUTOFF)
+                        row_weights[:] = clamped_weight
+                    else:
+                        cell_sums[:] = 0.0
+                        for j in range(1, resolution):
+                            t = steps32[j]
+                            for k in range(_LANES):
+                                delta = t - cell[0, k]
+                                distance = cell[1, k] * delta * (delta + cell[2, k]) + cell[3, k] + dc_scaled[j, k]
+                                distance = _smaller(_larger(distance, np.float32(0.0)), np.float32(CUTOFF))
+                                w = _exp_neg(distance)
+                                cell_sums[0, k] += w
+                                cell_sums[1, k] += w * distance
+                                row_weights[j, k] = w
+                    for k in range(_LANES):
+                        sums[0, k] += cell_sums[0, k]
+                        sums[1, k] += cell_sums[1, k]
                     if want_likelihood:
-                        inverse_total = 1.0 / total
-                        for i in range(resolution):
-                            for j in range(resolution):
-                                likelihood[texel, i, j] = weight[c, i, j] * inverse_total
+                        weights[c, i] = row_weights
+                # Entropy; the channel with the lowest one wins (earlier channels win ties).
+                for k in range(_LANES):
+                    total = sums[0, k]
+                    value = (math.log(total) + sums[1, k] / total) / log_hypotheses
+                    value = _smaller(_larger(value, 0.0), 1.0)
+                    channel_sums[c, 0, k] = total
+                    if value < choice[0, k]:
+                        choice[0, k] = value
+                        choice[1, k] = c
+                        choice[2, k] = lowest[1, k]
+                        choice[3, k] = lowest[2, k]
+            for k in range(n_lanes):
+                texel = start + k
+                c = np.int64(choice[1, k])
+                entropy[texel] = choice[0, k]
+                channel[texel] = c
+                best_row[texel] = np.int32(choice[2, k])
+                best_col[texel] = np.int32(choice[3, k])
+                if want_likelihood:
+                    inverse_total = 1.0 / channel_sums[c, 0, k]
+                    zero_share = channel_sums[c, 1, k] * n_zero / resolution * inverse_total
+                    for i in range(resolution):
+                        likelihood[texel, i, 0] = zero_share
+                        for j in range(1, resolution):
+                            likelihood[texel, i, j] = weights[c, i, j, k] * inverse_total

@@ -1,0 +1,65 @@
+"""Set-up shared by the micro-benchmarks: timing, peak memory, machine facts, saving results.
+
+Benchmarks are run as scripts (``python benchmarks/bench_x.py``), so this folder is on sys.path
+and ``from _common import ...`` finds this module.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import statistics
+import time
+import tracemalloc
+from pathlib import Path
+from typing import Callable
+
+RESULTS_DIR = Path(__file__).resolve().parent / "results"
+
+
+def median_seconds(run: Callable[[], object], repeats: int) -> float:
+    """Median wall time of ``repeats`` calls of ``run``."""
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        run()
+        times.append(time.perf_counter() - start)
+    return statistics.median(times)
+
+
+def first_call_seconds(run: Callable[[], object]) -> tuple[float, object]:
+    """Wall time of one call (the first one loads or compiles numba kernels) and its result."""
+    start = time.perf_counter()
+    result = run()
+    return time.perf_counter() - start, result
+
+
+def peak_mib(run: Callable[[], object]) -> float:
+    """Largest Python-visible allocation (tracemalloc, which numpy reports to) during one call."""
+    tracemalloc.start()
+    try:
+        run()
+        _, peak_bytes = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    return peak_bytes / 2**20
+
+
+def machine() -> dict:
+    """What the figures depend on: core count, processor, load average at the time."""
+    return {
+        "cpu_count": os.cpu_count(),
+        "machine": platform.processor() or platform.machine(),
+        "load_average": round(os.getloadavg()[0], 2),
+    }
+
+
+def save_results(name: str, result: dict) -> Path:
+    """Print ``result`` and write it to benchmarks/results/<name>.json."""
+    text = json.dumps(result, indent=2)
+    print(text)
+    path = RESULTS_DIR / f"{name}.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text + "\n")
+    return path

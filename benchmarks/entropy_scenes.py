@@ -1,0 +1,182 @@
+"""Does the entropy map mean something? A Mitsuba-rendered capture built to contain a badly lit
+and a rarely seen region, fitted by the pipeline, its entropy compared with its roughness error.
+
+The scene: the bundled sphere with the bundled "bands" material (stripes of roughness, metallic
+and colour), under a synthetic environment whose +x cap holds small bright lights (every
+degree l <= l* carries power) and which is elsewhere a smooth gradient (almost nothing above l = 1),
+photographed from the upper hemisphere only. Regions by world normal n:
+
+- badly lit: n_x < -0.5, not rarely seen: its mirror directions see the smooth gradient;
+- rarely seen: n_y < -0.5: the cameras see it at grazing angles or not at all;
+- sharply lit: n_x > 0.5, not rarely seen: the reference;
+- the rest.
+
+Measured: mean entropy and mean |roughness error| per region (calibrated and paper modes),
+Spearman rho (entropy vs |roughness error| of the global estimate), AUSE and AURG
+(freqbrdf.sparsification), timings. Saves benchmarks/results/entropy_scenes.json and
+entropy_scenes.png (entropy map, error map, regions). The capture is rendered once into
+benchmarks/.cache/ and reused; delete it to render again.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from pathlib import Path
+
+import numba
+import numpy as np
+from _common import RESULTS_DIR, machine, save_results
+
+from freqbrdf import sparsification
+from freqbrdf.capture import Capture, load
+from freqbrdf.config import Config, UncertaintyConfig
+from freqbrdf.images import write_exr
+from freqbrdf.materials import resize
+from freqbrdf.pipeline import FitResult, fit
+from freqbrdf.synth import SynthSettings, synthesize
+from freqbrdf.uncertainty import FLAG_UNOBSERVED, entropy_map
+
+CACHE = Path(__file__).resolve().parent / ".cache"
+ENVMAP_SIZE = (256, 512)  # H, W
+SETTINGS = SynthSettings(
+    mesh="sphere", materials="bands", views=48, resolution=192, spp=64, texture_res=256,
+    cameras="hemisphere", seed=0, test_envmaps=0, test_views=0,
+)
+N_LIGHTS = 24  # small bright lights in the cap x > LIGHT_CAP_X
+LIGHT_CAP_X = 0.6  # far from x = 0, so that the band-limit blur does not carry them into the -x half
+LIGHT_RADIUS_DEG = 4.0
+REGIONS = ("sharply_lit", "badly_lit", "rarely_seen", "rest")
+
+
+def capped_lights_envmap(seed: int = 0) -> np.ndarray:
+    """(H, W, 3) float32 lat-long radiance in Mitsuba's envmap layout: a smooth sky gradient
+    everywhere plus N_LIGHTS small bright disks at random directions with x > LIGHT_CAP_X."""
+    height, width = ENVMAP_SIZE
+    # Mitsuba's texel centres (as freqbrdf.synth.resample_envmap): azimuth from -z towards +x.
+    azimuth = 2.0 * np.pi * (np.arange(width) + 0.5) / width
+    polar = np.pi * np.arange(height) / (height - 1)
+    directions = np.stack(np.broadcast_arrays(
+        np.sin(polar)[:, None] * np.sin(azimuth)[None, :],
+        np.cos(polar)[:, None],
+        -np.sin(polar)[:, None] * np.cos(azimuth)[None, :],
+    ), axis=-1)  # (H, W, 3) world directions, +y up
+    radiance = np.repeat((0.25 + 0.15 * directions[..., 1:2]), 3, axis=-1)
+    rng = np.random.default_rng(seed)
+    centres = rng.normal(size=(20 * N_LIGHTS, 3))
+    centres /= np.linalg.norm(centres, axis=1, keepdims=True)
+    centres = centres[centres[:, 0] > LIGHT_CAP_X][:N_LIGHTS]
+    cos_radius = np.cos(np.radians(LIGHT_RADIUS_DEG))
+    for centre, colour in zip(centres, rng.uniform(0.6, 1.0, (N_LIGHTS, 3))):
+        radiance[directions @ centre > cos_radius] += 40.0 * colour
+    return radiance.astype(np.float32)
+
+
+def capture_path() -> Path:
+    """The rendered capture (rendered on first use)."""
+    folder = CACHE / f"entropy_scenes_sphere_cap{LIGHT_CAP_X}"
+    if not (folder / "transforms.json").is_file():
+        CACHE.mkdir(parents=True, exist_ok=True)
+        envmap_file = CACHE / f"entropy_scenes_cap{LIGHT_CAP_X}.exr"
+        write_exr(envmap_file, capped_lights_envmap())
+        settings = dataclasses.replace(SETTINGS, envmap=str(envmap_file))
+        synthesize(folder, settings, progress=False)
+    return folder
+
+
+def regions(normal: np.ndarray) -> dict[str, np.ndarray]:
+    """Boolean masks (N,) of the regions (module docstring) from world normals (N, 3)."""
+    rarely_seen = normal[:, 1] < -0.5
+    badly_lit = (normal[:, 0] < -0.5) & ~rarely_seen
+    sharply_lit = (normal[:, 0] > 0.5) & ~rarely_seen
+    return {"sharply_lit": sharply_lit, "badly_lit": badly_lit, "rarely_seen": rarely_seen,
+            "rest": ~(rarely_seen | badly_lit | sharply_lit)}
+
+
+def roughness_error(result: FitResult, capture: Capture) -> np.ndarray:
+    """(N,) |estimated - true roughness| per texel (NaN where not estimated)."""
+    truth = resize(capture.ground_truth, result.observations.texture_res)
+    flat = result.observations.texel_index
+    return np.abs(result.estimate.roughness - truth.roughness.ravel()[flat])
+
+
+def main() -> None:
+    start = time.perf_counter()
+    path = capture_path()
+    render_s = time.perf_counter() - start
+    capture = load(path)
+    result = fit(capture, Config())
+    observations = result.observations
+    error = roughness_error(result, capture)
+    masks = regions(observations.normal)
+    observed = (result.uncertainty.flags & FLAG_UNOBSERVED) == 0
+    start = time.perf_counter()
+    paper = entropy_map(observations, UncertaintyConfig(mode="paper"), return_likelihood=False)
+    paper_s = time.perf_counter() - start
+
+    scores = {}
+    for name, uncertainty in (("calibrated", result.uncertainty), ("paper", paper)):
+        # Unobserved texels have no estimate (NaN error): sparsification leaves them out.
+        curves = sparsification.sparsification(uncertainty.entropy, error)
+        scores[name] = {
+            "spearman_rho_entropy_vs_roughness_error": round(float(curves.spearman), 4),
+            "ause": round(curves.ause, 4),
+            "aurg": round(curves.aurg, 4),
+            "mean_entropy": {region: round(float(uncertainty.entropy[mask].mean()), 4)
+                             for region, mask in masks.items()},
+        }
+    region_facts = {
+        region: {
+            "texels": int(mask.sum()),
+            "observed_fraction": round(float(observed[mask].mean()), 4),
+            "mean_views": round(float(observations.n_samples[mask].mean()), 2),
+            "mean_roughness_error": round(float(np.nanmean(error[mask])), 4),
+        }
+        for region, mask in masks.items()
+    }
+    save_results("entropy_scenes", {
+        "benchmark": "entropy vs roughness error on a capture with badly lit and rarely seen regions",
+        **machine(),
+        "scene": {**{name: getattr(SETTINGS, name) for name in
+                     ("mesh", "materials", "views", "resolution", "spp", "texture_res", "cameras")},
+                  "envmap": f"gradient sky + {N_LIGHTS} lights of {LIGHT_RADIUS_DEG} deg where x > {LIGHT_CAP_X}"},
+        "texels": observations.n_texels,
+        "regions": region_facts,
+        "scores": scores,
+        "timings_s": {"render_capture (0 if cached)": round(render_s, 2),
+                      **{stage: round(seconds, 4) for stage, seconds in result.timings.items()},
+                      "uncertainty_paper_mode": round(paper_s, 4)},
+        "numba_threads": numba.get_num_threads(),
+    })
+    plot(result, error, masks, RESULTS_DIR / "entropy_scenes.png")
+
+
+def plot(result: FitResult, error: np.ndarray, masks: dict[str, np.ndarray], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    observations = result.observations
+    region_index = np.zeros(observations.n_texels)
+    for index, region in enumerate(REGIONS):
+        region_index[masks[region]] = index
+    panels = (
+        ("entropy (calibrated)", observations.to_texture(result.uncertainty.entropy, np.nan), "magma", (0, 1)),
+        ("|roughness error|", observations.to_texture(error.astype(np.float32), np.nan), "viridis", (0, 0.5)),
+        ("regions: " + ", ".join(f"{i} {r}" for i, r in enumerate(REGIONS)),
+         observations.to_texture(region_index.astype(np.float32), np.nan), "tab10", (0, 9)),
+    )
+    figure, axes = plt.subplots(1, 3, figsize=(15, 5))
+    for axis, (title, image, cmap, (low, high)) in zip(axes, panels):
+        shown = axis.imshow(image, cmap=cmap, vmin=low, vmax=high)
+        axis.set_title(title, fontsize=9)
+        axis.axis("off")
+        figure.colorbar(shown, ax=axis, fraction=0.046)
+    figure.tight_layout()
+    figure.savefig(path, dpi=100)
+    plt.close(figure)
+
+
+if __name__ == "__main__":
+    main()
