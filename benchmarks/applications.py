@@ -29,13 +29,13 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import os
-import platform
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
+
+from _common import machine  # benchmarks/ is on sys.path when a script runs
 
 from freqbrdf import guidance
 from freqbrdf.capture import Capture, load
@@ -207,8 +207,7 @@ def guidance_benchmark(args) -> dict:
         scenes[name] = guidance_scene(name, args)
     results = {
         "application": "capture guidance (issue #8)",
-        "cpu_count": os.cpu_count(),
-        "machine": platform.processor() or platform.machine(),
+        **machine(),
         "python": sys.version.split()[0],
         "texture_res": args.texture_res,
         "max_texels": args.max_texels,

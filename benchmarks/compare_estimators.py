@@ -21,11 +21,11 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import os
-import platform
 import sys
 import time
 from pathlib import Path
+
+from _common import machine  # benchmarks/ is on sys.path when a script runs
 
 from freqbrdf import baselines, export, metrics
 from freqbrdf.capture import load
@@ -133,8 +133,7 @@ def main(argv=None) -> int:
     args.skip = {method for method in args.skip.split(",") if method}
     results = {
         "benchmark": "estimator comparison (issue #5)",
-        "cpu_count": os.cpu_count(),
-        "machine": platform.processor() or platform.machine(),
+        **machine(),
         "python": sys.version.split()[0],
         "texture_res": args.texture_res,
         "relight_spp": args.relight_spp,

@@ -164,14 +164,12 @@ def evaluate_fit(fit_outputs: FitOutputs, capture: Capture, out_dir: str | Path 
     evaluation = relight_evaluate(capture, fit_outputs.maps, fit_outputs.observed, settings, reporter)
     # One folder, renamed into place when complete: a failure leaves the previous evaluation (or none).
     with atomic_directory(out) as folder:
-        metrics_path = write_evaluation(folder, evaluation)
-        document = json.loads(metrics_path.read_text(encoding="utf-8"))
+        extra = {"fit": str(fit_outputs.folder.resolve()), "capture": str(Path(capture.root).resolve())}
         uncertainty_scores = _uncertainty_scores(fit_outputs, capture, folder)
         if uncertainty_scores is not None:
-            document["uncertainty"] = uncertainty_scores
-        document["fit"] = str(fit_outputs.folder.resolve())
-        document["capture"] = str(Path(capture.root).resolve())
-        export.write_json(metrics_path, document)
+            extra["uncertainty"] = uncertainty_scores
+        metrics_path = write_evaluation(folder, evaluation, extra)
+        document = json.loads(metrics_path.read_text(encoding="utf-8"))  # as written (inf as null)
     return document
 
 

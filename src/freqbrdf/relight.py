@@ -140,8 +140,9 @@ def comparison_image(view: RelitView) -> np.ndarray:
     return np.concatenate([reference, relit, heat.astype(np.float32)], axis=1)
 
 
-def write_evaluation(out_dir: str | Path, evaluation: Evaluation) -> Path:
-    """Write ``metrics.json`` and ``relight/<index>.png`` into ``out_dir`` (each file atomically)."""
+def write_evaluation(out_dir: str | Path, evaluation: Evaluation, extra: dict | None = None) -> Path:
+    """Write ``metrics.json`` and ``relight/<index>.png`` into ``out_dir`` (each file atomically);
+    ``extra`` is merged into ``metrics.json``."""
     out_dir = Path(out_dir)
     for view in evaluation.views:
         write_png(out_dir / COMPARISON_FOLDER / f"{view.index:04d}.png", comparison_image(view))
@@ -157,6 +158,7 @@ def write_evaluation(out_dir: str | Path, evaluation: Evaluation) -> Path:
         "settings": asdict(evaluation.settings),
         "timings": evaluation.timings,
         "protocol": "Stanford-ORB relighting (see freqbrdf.metrics); PSNR in dB, inf written as null",
+        **(extra or {}),
     }
     write_json(out_dir / METRICS_FILE, document)
     return out_dir / METRICS_FILE
