@@ -1,9 +1,10 @@
 """Tests of freqbrdf.uncertainty: the toy cases of the paper's Fig. 4, exposure invariance, dark
 texels, flags, and the fast kernel against a direct O(R^2 l*) evaluation of the grid.
 
-Spectra are built from the model itself: S_refl from a chosen light spectrum, S_out(l) =
-k_s^2 exp(-2 alpha^2 l^2) S_refl(l) (plus noise on the amplitudes), S_out(0) = specular plus
-diffuse amplitude, squared. These are unit tests of the mathematics; no rendering.
+Spectra are built from the model itself, one SH coefficient per degree: the light's a_l =
+sqrt(S_refl(l)) from a chosen light spectrum, the observation's b_l = k_s exp(-alpha^2 l^2) a_l
+(plus noise), b_0 = specular plus diffuse; S_out = b^2 and the cross spectrum X = a b (signed).
+These are unit tests of the mathematics; no rendering.
 """
 
 from __future__ import annotations
@@ -30,17 +31,22 @@ PAPER = UncertaintyConfig(mode="paper")
 
 
 def model_spectra(light, alpha, specular, *, diffuse=0.3, noise=0.0, n=1, seed=0):
-    """light, observed (n, 3, l*+1): S_out = k^2 exp(-2 alpha^2 l^2) S_refl, noise on amplitudes
+    """light, observed, cross (n, 3, l*+1): S_out = k^2 exp(-2 alpha^2 l^2) S_refl, noise on amplitudes
     (std ``noise`` x the light's RMS amplitude), DC = (k sqrt(S_refl(0)) + diffuse)^2."""
     rng = np.random.default_rng(seed)
     light = np.broadcast_to(np.asarray(light, float), (n, 3, LMAX + 1)).copy()
     amplitude = specular * np.exp(-(alpha**2) * DEGREES**2) * np.sqrt(light)
     amplitude = amplitude + noise * np.sqrt(light.sum(-1, keepdims=True)) * rng.standard_normal(light.shape)
     amplitude[..., 0] = np.broadcast_to(specular, light.shape)[..., 0] * np.sqrt(light[..., 0]) + diffuse
-    return light, np.square(amplitude)
+    return light, np.square(amplitude), np.sqrt(light) * amplitude
 
 
-def naive_grid(light, observed, sigma, config):
+def entropy(light, observed, cross=None, **kwargs):
+    """`entropy_from_spectra` with the cross spectrum (calibrated mode reads it, paper mode not)."""
+    return unc.entropy_from_spectra(light, observed, cross_spectrum=cross, **kwargs)
+
+
+def naive_grid(light, observed, sigma, config, cross=None, n_samples=None):
     """Direct evaluation: per texel and channel the full (R, R) grid summed over l, exact exp.
 
     Returns entropy (N, 3) per channel, likelihood (N, 3, R, R) and misfit (N, 3, R, R).
@@ -65,11 +71,17 @@ def naive_grid(light, observed, sigma, config):
                 prior = np.ones((resolution, resolution))
             else:
                 kernel = np.exp(-(alpha**2 - sigma**2) * degrees**2)
-                predicted = specular * kernel * np.sqrt(s_refl[1:])
-                misfit = np.sum((predicted - np.sqrt(s_out[1:])) ** 2, axis=-1)
+                if cross is None:  # amplitudes in phase
+                    predicted = specular * kernel * np.sqrt(s_refl[1:])
+                    misfit = np.sum((predicted - np.sqrt(s_out[1:])) ** 2, axis=-1)
+                else:  # |k K m - o|^2 summed over l >= 1 from the spectra and the cross spectrum
+                    misfit = np.sum(specular**2 * kernel**2 * s_refl[1:] - 2 * specular * kernel * cross[texel, c, 1:]
+                                    + s_out[1:], axis=-1)
+                # The specular DC may not exceed the observed DC.
                 dc_excess = np.maximum(grid.specular * math.sqrt(s_refl[0]) - math.sqrt(s_out[0]), 0.0) ** 2
                 misfit = misfit + dc_excess[None, :]
-                noise = 2 * config.noise_level**2 * light_power
+                samples_per_coeff = 1.0 if n_samples is None else max(n_samples[texel], 1) / (LMAX + 1) ** 2
+                noise = 2 * config.noise_level**2 * light_power / samples_per_coeff
                 if config.residual_noise:  # plus the best cell's misfit per residual degree of freedom
                     noise += 2 * misfit.min() / max(LMAX - 2, 1)
                 exponent = (misfit - misfit.min()) / noise if light_power > 0 else np.zeros_like(misfit)
@@ -96,8 +108,8 @@ def naive_grid(light, observed, sigma, config):
 
 def test_sharp_light_is_certain_and_recovers_the_material():
     alpha, specular = (4 / 7) ** 2, 6 / 7  # on the R = 8 grid
-    light, observed = model_spectra(SHARP_LIGHT, alpha, specular, noise=0.002)
-    result = unc.entropy_from_spectra(light, observed, config=CALIBRATED)
+    light, observed, cross = model_spectra(SHARP_LIGHT, alpha, specular, noise=0.002)
+    result = entropy(light, observed, cross, config=CALIBRATED)
     assert result.entropy[0] < 0.15
     assert result.best_alpha[0] == pytest.approx(alpha)
     assert result.best_ks[0] == pytest.approx(specular)
@@ -106,8 +118,8 @@ def test_sharp_light_is_certain_and_recovers_the_material():
 
 def test_low_frequency_light_gives_a_ridge_of_roughness_values():
     alpha, specular = (4 / 7) ** 2, 6 / 7
-    sharp = unc.entropy_from_spectra(*model_spectra(SHARP_LIGHT, alpha, specular, noise=0.002))
-    low = unc.entropy_from_spectra(*model_spectra(LOW_LIGHT, alpha, specular, noise=0.002))
+    sharp = entropy(*model_spectra(SHARP_LIGHT, alpha, specular, noise=0.002))
+    low = entropy(*model_spectra(LOW_LIGHT, alpha, specular, noise=0.002))
     assert low.entropy[0] > sharp.entropy[0] + 0.2
 
     # A ridge: many roughness rows hold a cell nearly as likely as the best one; sharp light
@@ -119,16 +131,16 @@ def test_low_frequency_light_gives_a_ridge_of_roughness_values():
     assert plausible_rows(low) >= 5
     assert plausible_rows(sharp) <= 2
     # The paper's recipe sees it too, though its absolute tau makes the size exposure dependent.
-    paper_sharp = unc.entropy_from_spectra(*model_spectra(SHARP_LIGHT, alpha, specular, noise=0.002), config=PAPER)
-    paper_low = unc.entropy_from_spectra(*model_spectra(LOW_LIGHT, alpha, specular, noise=0.002), config=PAPER)
+    paper_sharp = entropy(*model_spectra(SHARP_LIGHT, alpha, specular, noise=0.002), config=PAPER)
+    paper_low = entropy(*model_spectra(LOW_LIGHT, alpha, specular, noise=0.002), config=PAPER)
     assert paper_low.entropy[0] > paper_sharp.entropy[0] + 0.1
 
 
 def test_weak_specular_relative_to_noise_is_uncertain():
     config = UncertaintyConfig(noise_level=0.05)
     alpha = (4 / 7) ** 2
-    strong = unc.entropy_from_spectra(*model_spectra(SHARP_LIGHT, alpha, 0.9, noise=0.05), config=config)
-    weak = unc.entropy_from_spectra(*model_spectra(SHARP_LIGHT, alpha, 0.15, noise=0.05), config=config)
+    strong = entropy(*model_spectra(SHARP_LIGHT, alpha, 0.9, noise=0.05), config=config)
+    weak = entropy(*model_spectra(SHARP_LIGHT, alpha, 0.15, noise=0.05), config=config)
     assert weak.entropy[0] > 0.5
     assert weak.entropy[0] > strong.entropy[0] + 0.25
 
@@ -139,28 +151,28 @@ def test_weak_specular_relative_to_noise_is_uncertain():
 
 def test_exposure_invariance_holds_in_calibrated_mode_and_fails_in_paper_mode():
     rng = np.random.default_rng(3)
-    light, observed = model_spectra(
+    light, observed, cross = model_spectra(
         SHARP_LIGHT * np.exp(-0.3 * DEGREES), rng.uniform(0, 1, (40, 1, 1)) ** 2, rng.uniform(0, 1, (40, 3, 1)),
         noise=0.01, n=40,
     )
-    reference = unc.entropy_from_spectra(light, observed, config=CALIBRATED)
-    paper_reference = unc.entropy_from_spectra(light, observed, config=PAPER)
+    reference = entropy(light, observed, cross, config=CALIBRATED)
+    paper_reference = entropy(light, observed, config=PAPER)
     for kappa in (1e-3, 1e-1, 10.0, 1e3):
         # images and environment scaled by kappa: every spectrum by kappa^2
-        scaled = unc.entropy_from_spectra(light * kappa**2, observed * kappa**2, config=CALIBRATED)
+        scaled = entropy(light * kappa**2, observed * kappa**2, cross * kappa**2, config=CALIBRATED)
         np.testing.assert_allclose(scaled.entropy, reference.entropy, atol=1e-5)
         np.testing.assert_allclose(scaled.likelihood, reference.likelihood, atol=1e-5)
         np.testing.assert_array_equal(scaled.channel, reference.channel)
-        paper = unc.entropy_from_spectra(light * kappa**2, observed * kappa**2, config=PAPER)
+        paper = entropy(light * kappa**2, observed * kappa**2, config=PAPER)
         assert np.max(np.abs(paper.entropy - paper_reference.entropy)) > 0.1
 
 
 def test_dark_texel_under_sharp_light_is_certain_in_calibrated_mode_only():
-    light, observed = model_spectra(SHARP_LIGHT, 0.3, 0.0, diffuse=0.0, noise=0.002)
-    calibrated = unc.entropy_from_spectra(light, observed, config=CALIBRATED)
+    light, observed, cross = model_spectra(SHARP_LIGHT, 0.3, 0.0, diffuse=0.0, noise=0.002)
+    calibrated = entropy(light, observed, cross, config=CALIBRATED)
     assert calibrated.entropy[0] < 0.1
     assert calibrated.best_ks[0] == 0.0 and np.isnan(calibrated.best_alpha[0])  # no lobe, no roughness
-    paper = unc.entropy_from_spectra(light, observed, config=PAPER)
+    paper = entropy(light, observed, config=PAPER)
     assert paper.entropy[0] > 0.9
 
 
@@ -170,8 +182,9 @@ def test_a_texel_no_hypothesis_explains_is_not_called_certain():
     # noise (the default) the texel is uncertain.
     light = np.tile(SHARP_LIGHT, (1, 3, 1))
     observed = np.tile(0.05 * (1.0 + DEGREES) ** 2, (1, 3, 1))
-    fixed = unc.entropy_from_spectra(light, observed, config=UncertaintyConfig(residual_noise=False))
-    residual = unc.entropy_from_spectra(light, observed, config=CALIBRATED)
+    cross = np.sqrt(light * observed)  # in phase: the best case for any hypothesis
+    fixed = entropy(light, observed, cross, config=UncertaintyConfig(residual_noise=False))
+    residual = entropy(light, observed, cross, config=CALIBRATED)
     assert fixed.entropy[0] < 0.25
     assert residual.entropy[0] > fixed.entropy[0] + 0.3
 
@@ -180,10 +193,11 @@ def test_band_limit_compensation_is_applied_in_calibrated_mode():
     # Data made with the blurred light: the compensated kernel recovers the true alpha.
     sigma, alpha, specular = 0.3, (4 / 7) ** 2, 6 / 7
     blurred = SHARP_LIGHT * np.exp(-2 * sigma**2 * DEGREES**2)
-    light, _ = model_spectra(blurred, alpha, specular)
-    observed = model_spectra(SHARP_LIGHT, alpha, specular)[1]  # the sharp truth was observed
-    compensated = unc.entropy_from_spectra(light, observed, sigma=sigma, config=CALIBRATED)
-    uncompensated = unc.entropy_from_spectra(light, observed, sigma=0.0, config=CALIBRATED)
+    light = model_spectra(blurred, alpha, specular)[0]
+    amplitude = np.sqrt(model_spectra(SHARP_LIGHT, alpha, specular)[1])  # the sharp truth was observed
+    observed, cross = np.square(amplitude), np.sqrt(light) * amplitude
+    compensated = entropy(light, observed, cross, sigma=sigma, config=CALIBRATED)
+    uncompensated = entropy(light, observed, cross, sigma=0.0, config=CALIBRATED)
     assert compensated.best_alpha[0] == pytest.approx(alpha)
     assert uncompensated.best_alpha[0] < alpha
 
@@ -199,8 +213,9 @@ def test_band_limit_compensation_is_applied_in_calibrated_mode():
     mode=st.sampled_from(["calibrated", "paper"]),
     sigma=st.sampled_from([0.0, 0.1, 0.25]),
     residual_noise=st.booleans(),
+    with_cross=st.booleans(),
 )
-def test_fast_kernel_equals_direct_evaluation(seed, grid_res, mode, sigma, residual_noise):
+def test_fast_kernel_equals_direct_evaluation(seed, grid_res, mode, sigma, residual_noise, with_cross):
     rng = np.random.default_rng(seed)
     n_texels = 7
     light = rng.uniform(0.0, 1.0, (n_texels, 3, LMAX + 1)) * np.exp(-rng.uniform(0, 1) * DEGREES)
@@ -208,16 +223,21 @@ def test_fast_kernel_equals_direct_evaluation(seed, grid_res, mode, sigma, resid
     observed += rng.uniform(0.0, 0.05, observed.shape)
     config = UncertaintyConfig(mode=mode, grid_res=grid_res, noise_level=rng.uniform(0.01, 0.2),
                                temperature=10 ** rng.uniform(-4, -1), residual_noise=residual_noise)
-    fast = unc.entropy_from_spectra(light, observed, sigma=sigma, config=config)
-    entropy, likelihood, misfit = naive_grid(light, observed, sigma if mode == "calibrated" else 0.0, config)
+    # A cross spectrum anywhere between anti-aligned and aligned (Cauchy-Schwarz), and sample counts.
+    cross = np.sqrt(light * observed) * rng.uniform(-1.0, 1.0, light.shape) if with_cross else None
+    n_samples = rng.integers(0, 100, n_texels) if with_cross else None
+    fast = entropy(light, observed, cross, n_samples=n_samples, sigma=sigma, config=config)
+    calibrated = mode == "calibrated"
+    per_channel, likelihood, misfit = naive_grid(light, observed, sigma if calibrated else 0.0, config,
+                                                 cross if calibrated else None, n_samples if calibrated else None)
 
     texels = np.arange(n_texels)
     chosen = fast.channel.astype(int)
     # The kernel's cells are float32 with an exp of relative error < 1e-5: 2e-5 is ~30x the
     # float32 resolution of an entropy near 1, and far below any difference a mistake in a
     # misfit, temperature or normalisation makes.
-    np.testing.assert_allclose(fast.entropy, entropy.min(axis=1), atol=2e-5)
-    np.testing.assert_allclose(entropy[texels, chosen], entropy.min(axis=1), atol=2e-5)
+    np.testing.assert_allclose(fast.entropy, per_channel.min(axis=1), atol=2e-5)
+    np.testing.assert_allclose(per_channel[texels, chosen], per_channel.min(axis=1), atol=2e-5)
     np.testing.assert_allclose(fast.likelihood, likelihood[texels, chosen], atol=2e-5)
     # The arg-max cell has the least misfit of its channel's grid (k = 0: any row, same misfit).
     col = np.abs(fast.grid.specular[None, :] - fast.best_ks[:, None]).argmin(axis=1)
@@ -232,13 +252,13 @@ def test_fast_kernel_equals_direct_evaluation(seed, grid_res, mode, sigma, resid
 
 
 def test_flags_mark_unobserved_few_samples_below_bound_and_ambiguous():
-    light, observed = model_spectra(SHARP_LIGHT, (2 / 7) ** 2, 6 / 7, noise=0.002, n=5)
+    light, observed, cross = model_spectra(SHARP_LIGHT, (2 / 7) ** 2, 6 / 7, noise=0.002, n=5)
     light[3], observed[3] = 0.0, 0.0  # nothing observed
     light[4, :, 1:] = 0.0  # no light above l = 0: nothing to tell hypotheses apart
     observed[4, :, 1:] = 0.0
     alpha_bound = np.array([0.1, 0.01, 0.01, 0.01, 0.01], np.float32)  # texel 0: (2/7)^2 = 0.08 < 0.1
     fit_status = np.array([sh.FIT_OK, sh.FIT_UNDERDETERMINED, sh.FIT_OK, sh.FIT_EMPTY, sh.FIT_OK], np.uint8)
-    result = unc.entropy_from_spectra(light, observed, alpha_bound=alpha_bound, fit_status=fit_status)
+    result = entropy(light, observed, cross, alpha_bound=alpha_bound, fit_status=fit_status)
     expected = [unc.FLAG_BELOW_BOUND, unc.FLAG_FEW_SAMPLES, 0, unc.FLAG_UNOBSERVED, unc.FLAG_AMBIGUOUS]
     np.testing.assert_array_equal(result.flags, expected)
     assert result.entropy[3] == 1.0 and result.channel[3] == -1 and np.isnan(result.best_ks[3])
@@ -274,12 +294,12 @@ def _observations_from_spectra(light, observed, texel_index, texture_res):
 
 
 def test_entropy_map_from_observations_and_texture():
-    light, observed = model_spectra(SHARP_LIGHT, (4 / 7) ** 2, 6 / 7, noise=0.002, n=3)
+    light, observed, cross = model_spectra(SHARP_LIGHT, (4 / 7) ** 2, 6 / 7, noise=0.002, n=3)
     observed[1] = model_spectra(LOW_LIGHT, (4 / 7) ** 2, 6 / 7)[1][0]
     light[1] = LOW_LIGHT
     observations = _observations_from_spectra(light, observed, np.array([0, 5, 15]), texture_res=4)
     result = unc.entropy_map(observations)
-    direct = unc.entropy_from_spectra(light, observed)
+    direct = entropy(light, observed, np.sqrt(light * observed), n_samples=observations.n_samples)
     np.testing.assert_allclose(result.entropy, direct.entropy, atol=1e-5)  # float32 coefficients
     texture = result.to_texture(observations, "entropy", fill=-1.0)
     assert texture.shape == (4, 4)
@@ -290,18 +310,18 @@ def test_entropy_map_from_observations_and_texture():
 
 def test_likelihood_is_optional_and_results_are_deterministic():
     rng = np.random.default_rng(11)
-    light, observed = model_spectra(SHARP_LIGHT, rng.uniform(0, 1, (3000, 1, 1)) ** 2,
+    light, observed, cross = model_spectra(SHARP_LIGHT, rng.uniform(0, 1, (3000, 1, 1)) ** 2,
                                     rng.uniform(0, 1, (3000, 3, 1)), noise=0.02, n=3000)
     config = UncertaintyConfig(grid_res=16)
-    first = unc.entropy_from_spectra(light, observed, config=config)
-    without = unc.entropy_from_spectra(light, observed, config=config, return_likelihood=False)
+    first = entropy(light, observed, cross, config=config)
+    without = entropy(light, observed, cross, config=config, return_likelihood=False)
     assert without.likelihood is None
     np.testing.assert_array_equal(first.entropy, without.entropy)
     np.testing.assert_array_equal(first.best_ks, without.best_ks)
     threads = numba.get_num_threads()
     try:
         numba.set_num_threads(1)
-        single = unc.entropy_from_spectra(light, observed, config=config)
+        single = entropy(light, observed, cross, config=config)
     finally:
         numba.set_num_threads(threads)
     for name in ("entropy", "flags", "likelihood", "best_alpha", "best_ks", "channel"):

@@ -54,8 +54,8 @@ class UncertaintyConfig:
     mode: Literal["calibrated", "paper"] = "calibrated"
     grid_res: int = 8  # R: R x R hypotheses (alpha_i = (i/(R-1))^2, k_j = j/(R-1))
     temperature: float = 1e-5  # tau of the paper's likelihood exp(-(E - min E)/tau)  (paper mode)
-    # Calibrated mode: noise std of each degree's amplitude sqrt(S(l)), relative to the light's
-    # RMS amplitude sqrt(sum_l S_refl(l)); the likelihood is exp(-misfit / (2 noise_level^2)).
+    # Calibrated mode: noise std of one sample's radiance, relative to the light's RMS amplitude
+    # sqrt(sum_l S_refl(l)); a fitted coefficient then has variance noise_level^2 P K / n_samples.
     noise_level: float = 0.02
     # Calibrated mode: add the best hypothesis's misfit per residual degree of freedom to the noise
     # variance (see freqbrdf.uncertainty); off reproduces a fixed noise_level.

@@ -16,28 +16,39 @@ dark texel (S_out(0) ~ 0) gets a flat likelihood, i.e. it is called uncertain.
 
 ``calibrated`` (the default) is an honest posterior over the same hypothesis box:
 
-- Residuals are taken on amplitudes sqrt(S(l)), not on powers. Noise on a fitted coefficient is
-  additive, so on an amplitude it is roughly constant, whereas on a power it shrinks to second
-  order near zero: power residuals make a black texel unable to rule out a specular lobe that
-  reflects 14 % of the light. The model is sqrt(S_psi(l)) = k K_sigma(alpha, l) sqrt(S_refl(l)),
-  with K_sigma = ``brdf.brdf_kernel(alpha, l*, sigma)``, the band-limit compensated kernel.
+- Residuals are taken on SH coefficients, degree by degree: the hypothesis predicts the
+  observed coefficients o_lm = k K_sigma(alpha, l) m_lm for l >= 1 (m the mirrored light's
+  coefficients, K_sigma = ``brdf.brdf_kernel(alpha, l*, sigma)``, the band-limit compensated
+  kernel), so the misfit sum_l S_out(l) - 2 k K X(l) + k^2 K^2 S_refl(l) needs only the two power
+  spectra and their cross spectrum X(l) = sum_m o_lm m_lm (`cross_spectrum`). The paper compares
+  power spectra, i.e. takes X = sqrt(S_out S_refl), as if the observation were always in phase
+  with the light: an observation whose energy lies in other directions than the reflected
+  light's (diffuse leakage, a wrong model, noise) then still looks like a specular lobe. Measured
+  on a Mitsuba bunny (64 views): Spearman rho of entropy vs roughness error 0.18 -> 0.25, vs
+  base-colour error 0.16 -> 0.30. Without the cross spectrum (None) the in-phase bound is used
+  on amplitudes sqrt(S(l)): noise on a coefficient is additive, so on an amplitude it is roughly
+  constant, whereas on a power it shrinks to second order near zero (power residuals make a
+  black texel unable to rule out a specular lobe that reflects 14 % of the light). The specular
+  DC may not exceed the observed DC: a rough lobe puts nearly all its energy in l = 0, which the
+  degrees l >= 1 alone cannot rule out on a dark texel.
 - Residuals are measured against the LIGHT's RMS amplitude sqrt(P), P = mean over RGB of
-  sum_{l=0..l*} S_refl(l): scaling every image and the environment by kappa scales all amplitudes
-  by kappa and leaves the map unchanged, and a dark texel under bright, sharp light is a strong
-  observation (k ~ 0), not a missing one.
-- The temperature is a noise model: each degree's amplitude has noise std ``noise_level`` x
-  sqrt(P), so P(psi) ∝ exp(-sum_l (k a_l - b_l)^2 / (2 s^2)), s^2 = noise_level^2 P. With
+  sum_{l=0..l*} S_refl(l): scaling every image and the environment by kappa scales all
+  coefficients by kappa and leaves the map unchanged, and a dark texel under bright, sharp light
+  is a strong observation (k ~ 0), not a missing one.
+- The temperature is a noise model: each sample's radiance has noise std ``noise_level`` x
+  sqrt(P); least squares over n samples for K = (l*+1)^2 coefficients leaves each fitted
+  coefficient a variance of about s^2 = noise_level^2 P K / n, and P(psi) ∝ exp(-misfit / (2 s^2)).
+  So a texel seen from few views is less certain than the same texel seen from many. With
   ``residual_noise`` (default) s^2 also includes the misfit of the best hypothesis per residual
   degree of freedom (l* - 2), as a likelihood with unknown noise would: real photographs depart
   from the model (Fresnel, masking, diffuse leakage into l > 0, sparse sampling), and a texel
-  that no hypothesis explains must not concentrate on the least bad one. Measured on a Mitsuba
-  bunny (64 views): Spearman rho of entropy vs roughness error -0.02 -> 0.18, AURG -0.06 -> 0.12.
+  that no hypothesis explains must not concentrate on the least bad one.
 - All hypotheses with k = 0 are one material (no specular lobe, roughness undefined). The prior
   is uniform over the R (R-1) + 1 distinct materials and the entropy is taken over them and
   normalised by log(R (R-1) + 1): H = 1 means the data says nothing, H = 0 one material.
 
 Speed: for fixed alpha the misfit is a quadratic in t (t = k^2 in paper mode, t = k in calibrated
-mode), e(t) = A (t - t*)^2 + e(t*), whose coefficients are sums over l; the whole grid costs
+mode, plus the convex DC bound), e(t) = A (t - t*)^2 + e(t*), whose coefficients are sums over l; the whole grid costs
 O(R l* + R^2) per texel and channel. Cells more than CUTOFF above the minimum (in units of the
 temperature) are clamped there: their share is below e^-CUTOFF. The kernel (_grid_entropy_kernel)
 runs SIMD across texels: moments and row minima in float64, the R^2 cells in float32 with a
@@ -131,6 +142,8 @@ def entropy_map(
     return entropy_from_spectra(
         observations.mirrored_spectrum,
         observations.observed_spectrum,
+        cross_spectrum=cross_spectrum(observations.observed_coeffs, observations.mirrored_coeffs),
+        n_samples=observations.n_samples,
         sigma=observations.sigma,
         alpha_bound=observations.alpha_bound,
         fit_status=observations.fit_status,
@@ -139,10 +152,19 @@ def entropy_map(
     )
 
 
+def cross_spectrum(observed_coeffs: np.ndarray, light_coeffs: np.ndarray) -> np.ndarray:
+    """X(l) = sum_m o_lm m_lm per degree: (..., K), (..., K) -> (..., l*+1) float64."""
+    lmax = sh.lmax_of(observed_coeffs.shape[-1])
+    product = np.multiply(observed_coeffs, light_coeffs, dtype=np.float64)
+    return np.add.reduceat(product, np.arange(lmax + 1) ** 2, axis=-1)
+
+
 def entropy_from_spectra(
     light_spectrum: np.ndarray,
     observed_spectrum: np.ndarray,
     *,
+    cross_spectrum: np.ndarray | None = None,
+    n_samples: np.ndarray | None = None,
     sigma: float = 0.0,
     alpha_bound: np.ndarray | None = None,
     fit_status: np.ndarray | None = None,
@@ -150,6 +172,12 @@ def entropy_from_spectra(
     return_likelihood: bool = True,
 ) -> Uncertainty:
     """Uncertainty from power spectra: light_spectrum, observed_spectrum (N, 3, l*+1).
+
+    cross_spectrum (N, 3, l*+1): sum_m of observed x light coefficients per degree (calibrated
+    mode; `cross_spectrum` computes it). None assumes the two are aligned in every degree, i.e.
+    sqrt(S_out S_refl), an optimistic bound that ignores where on the sphere the energy lies.
+    n_samples (N,): samples (views with positive weight) per texel (calibrated mode: the fitted coefficients' noise
+    variance is noise_level^2 P K / n_samples for K coefficients); None: K samples.
 
     light_spectrum is the spectrum of the texel's mirrored (band-limited) environment fit,
     observed_spectrum that of its observed radiance; sigma the band-limit width (compensated in
@@ -180,7 +208,13 @@ def entropy_from_spectra(
         light_power = light_spectrum.sum(axis=2, dtype=np.float64).mean(axis=1)  # (N,)
         with np.errstate(divide="ignore"):
             inverse_power = np.where(light_power > 0, 1.0 / light_power, 0.0)  # no light: no information
-        scale = np.repeat((inverse_power / (2.0 * config.noise_level**2))[:, None], 3, axis=1)
+        # Least squares: each of the K fitted coefficients has about K / n_samples times a sample's variance.
+        samples_per_coeff = (np.ones(n_texels) if n_samples is None
+                             else np.maximum(np.asarray(n_samples, dtype=np.float64), 1.0) / n_degrees**2)
+        scale = np.repeat((inverse_power * samples_per_coeff / (2.0 * config.noise_level**2))[:, None], 3, axis=1)
+    use_cross = cross_spectrum is not None and not paper
+    if use_cross and cross_spectrum.shape != light_spectrum.shape:
+        raise ValueError(f"cross spectrum shape {cross_spectrum.shape} differs from {light_spectrum.shape}")
 
     # Amplitudes of degrees 1..l* against two parameters (alpha, k): l* - 2 residual degrees of freedom.
     residual_dof = float(max(lmax - 2, 1)) if (not paper and config.residual_noise) else 0.0
@@ -192,8 +226,9 @@ def entropy_from_spectra(
     likelihood = np.empty((n_texels if return_likelihood else 0, resolution, resolution), dtype=np.float32)
     _grid_entropy_kernel(
         _kernel_input(light_spectrum), _kernel_input(observed_spectrum),
+        _kernel_input(cross_spectrum) if use_cross else np.zeros((0, 3, n_degrees)),
         np.ascontiguousarray(scale, dtype=np.float64), row_filter,
-        not paper, not paper, residual_dof, return_likelihood, numba.get_num_threads(),
+        not paper, use_cross, not paper, residual_dof, return_likelihood, numba.get_num_threads(),
         entropy, channel, best_row, best_col, likelihood,
     )
 
@@ -311,13 +346,15 @@ def _smaller(a, b):
 
 @numba.njit(parallel=True, cache=True, error_model="numpy", fastmath={"contract", "reassoc", "nsz", "arcp"})
 def _grid_entropy_kernel(
-    light, observed, scale, row_filter, amplitude, merge_zero, residual_dof, want_likelihood, n_threads,
+    light, observed, cross, scale, row_filter, amplitude, use_cross, merge_zero, residual_dof, want_likelihood,
+    n_threads,
     entropy, channel, best_row, best_col, likelihood,
 ):
     """Fused grid misfit, likelihood and entropy per texel; the minimum-entropy channel wins.
 
-    light, observed (N, 3, l*+1) power spectra; scale (N, 3) turns a misfit difference into
-    temperatures; row_filter (R, l*+1) the per-degree factor of alpha_i (kernel for amplitudes,
+    light, observed (N, 3, l*+1) power spectra; cross (N, 3, l*+1) their cross spectrum, read when
+    use_cross (amplitude mode: a_l b_l is then X(l), else sqrt(S_refl S_out)); scale (N, 3) turns a
+    misfit difference into temperatures; row_filter (R, l*+1) the per-degree factor of alpha_i (kernel for amplitudes,
     kernel^2 for powers). amplitude: compare sqrt(S), grid values t_j = k_j, and bound the specular
     DC by the observed one; otherwise powers and t_j = k_j^2. merge_zero: the k = 0 column is one
     hypothesis; residual_dof > 0: the noise variance 1 / (2 scale) grows by the best cell's misfit
@@ -400,6 +437,10 @@ def _grid_entropy_kernel(
                             contribution = observed_value * observed_value
                         if l > 0:
                             lane[constant_at, k] += contribution
+                if use_cross:  # padding lanes keep sqrt(0 x 0) = 0
+                    for l in range(n_degrees):
+                        for k in range(n_lanes):
+                            lane[cross_at + l, k] = cross[start + k, c, l]
                 # 2. Rows. The k = 0 column (misfit C in any row) and earlier rows win ties.
                 for k in range(_LANES):
                     lowest[0, k] = lane[constant_at, k]
