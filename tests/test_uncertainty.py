@@ -189,6 +189,34 @@ def test_a_texel_no_hypothesis_explains_is_not_called_certain():
     assert residual.entropy[0] > fixed.entropy[0] + 0.3
 
 
+def test_fewer_samples_mean_more_uncertainty():
+    # The same fitted spectra from 8 or 200 samples: each coefficient is noisier with fewer.
+    light, observed, cross = model_spectra(SHARP_LIGHT, (3 / 7) ** 2, 3 / 7, noise=0.01)
+    few = entropy(light, observed, cross, n_samples=np.array([8]), config=CALIBRATED)
+    many = entropy(light, observed, cross, n_samples=np.array([200]), config=CALIBRATED)
+    assert few.entropy[0] > many.entropy[0] + 0.1
+
+
+def test_phase_aware_mode_sees_energy_out_of_phase_with_the_light():
+    # Observed power matching a hypothesis, but in coefficients orthogonal to the light's: the
+    # amplitude comparison takes it for that hypothesis, the coefficient comparison does not.
+    light, observed, _ = model_spectra(SHARP_LIGHT, (3 / 7) ** 2, 6 / 7, noise=0.0)
+    aligned = np.sqrt(light * observed)
+    orthogonal = np.zeros_like(aligned)
+    orthogonal[..., 0] = aligned[..., 0]
+    config = UncertaintyConfig(phase_aware=True)
+    in_phase = entropy(light, observed, aligned, config=config)
+    out_of_phase = entropy(light, observed, orthogonal, config=config)
+    amplitudes = entropy(light, observed, None, config=config)
+    assert in_phase.best_ks[0] == pytest.approx(6 / 7) and amplitudes.best_ks[0] == pytest.approx(6 / 7)
+    assert out_of_phase.best_ks[0] == 0.0  # no lobe explains energy where the light has none
+    # entropy_map passes the cross spectrum only in phase-aware mode.
+    observations = _observations_from_spectra(light, observed, np.array([0]), texture_res=2)
+    np.testing.assert_allclose(unc.entropy_map(observations, config).entropy,
+                               entropy(light, observed, aligned, n_samples=observations.n_samples,
+                                       config=config).entropy, atol=1e-5)
+
+
 def test_band_limit_compensation_is_applied_in_calibrated_mode():
     # Data made with the blurred light: the compensated kernel recovers the true alpha.
     sigma, alpha, specular = 0.3, (4 / 7) ** 2, 6 / 7

@@ -16,21 +16,20 @@ dark texel (S_out(0) ~ 0) gets a flat likelihood, i.e. it is called uncertain.
 
 ``calibrated`` (the default) is an honest posterior over the same hypothesis box:
 
-- Residuals are taken on SH coefficients, degree by degree: the hypothesis predicts the
-  observed coefficients o_lm = k K_sigma(alpha, l) m_lm for l >= 1 (m the mirrored light's
-  coefficients, K_sigma = ``brdf.brdf_kernel(alpha, l*, sigma)``, the band-limit compensated
-  kernel), so the misfit sum_l S_out(l) - 2 k K X(l) + k^2 K^2 S_refl(l) needs only the two power
-  spectra and their cross spectrum X(l) = sum_m o_lm m_lm (`cross_spectrum`). The paper compares
-  power spectra, i.e. takes X = sqrt(S_out S_refl), as if the observation were always in phase
-  with the light: an observation whose energy lies in other directions than the reflected
-  light's (diffuse leakage, a wrong model, noise) then still looks like a specular lobe. Measured
-  on a Mitsuba bunny (64 views): Spearman rho of entropy vs roughness error 0.18 -> 0.25, vs
-  base-colour error 0.16 -> 0.30. Without the cross spectrum (None) the in-phase bound is used
-  on amplitudes sqrt(S(l)): noise on a coefficient is additive, so on an amplitude it is roughly
-  constant, whereas on a power it shrinks to second order near zero (power residuals make a
-  black texel unable to rule out a specular lobe that reflects 14 % of the light). The specular
-  DC may not exceed the observed DC: a rough lobe puts nearly all its energy in l = 0, which the
-  degrees l >= 1 alone cannot rule out on a dark texel.
+- Residuals are taken on amplitudes sqrt(S(l)), not on powers. Noise on a fitted coefficient is
+  additive, so on an amplitude it is roughly constant, whereas on a power it shrinks to second
+  order near zero: power residuals make a black texel unable to rule out a specular lobe that
+  reflects 14 % of the light. The model is sqrt(S_psi(l)) = k K_sigma(alpha, l) sqrt(S_refl(l)),
+  with K_sigma = ``brdf.brdf_kernel(alpha, l*, sigma)``, the band-limit compensated kernel. The
+  specular DC may not exceed the observed DC: a rough lobe puts nearly all its energy in l = 0,
+  which the degrees l >= 1 alone cannot rule out on a dark texel.
+- ``phase_aware`` compares the coefficients themselves, o_lm = k K m_lm for l >= 1 (m the
+  mirrored light's coefficients): the misfit sum_l S_out - 2 k K X(l) + k^2 K^2 S_refl needs the
+  cross spectrum X(l) = sum_m o_lm m_lm (`cross_spectrum`) where amplitudes take the in-phase
+  bound sqrt(S_out S_refl). It catches observations whose energy lies in other directions than
+  the reflected light's, but a real lobe is not a zonal filter around the mirror direction
+  (off-specular peak, Fresnel, masking), so it also punishes correct hypotheses. Measured in
+  benchmarks/results/entropy_variants.json; off by default.
 - Residuals are measured against the LIGHT's RMS amplitude sqrt(P), P = mean over RGB of
   sum_{l=0..l*} S_refl(l): scaling every image and the environment by kappa scales all
   coefficients by kappa and leaves the map unchanged, and a dark texel under bright, sharp light
@@ -142,7 +141,8 @@ def entropy_map(
     return entropy_from_spectra(
         observations.mirrored_spectrum,
         observations.observed_spectrum,
-        cross_spectrum=cross_spectrum(observations.observed_coeffs, observations.mirrored_coeffs),
+        cross_spectrum=(cross_spectrum(observations.observed_coeffs, observations.mirrored_coeffs)
+                        if config.phase_aware else None),
         n_samples=observations.n_samples,
         sigma=observations.sigma,
         alpha_bound=observations.alpha_bound,

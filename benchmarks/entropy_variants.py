@@ -1,0 +1,127 @@
+"""Which definition of the entropy ranks the estimate's errors best? (issue #6)
+
+    python benchmarks/entropy_variants.py
+
+On two Mitsuba-rendered captures, fitted once with our defaults (`global` estimator, T = 512):
+- bunny: benchmarks/.cache/compare_bunny_64 (compare_estimators.py's bunny: bands material,
+  forest map, 64 views on the upper hemisphere), rendered here if missing;
+- sphere: the capture of entropy_scenes.py (sharp lights on one side, a smooth gradient
+  elsewhere, cameras on the upper hemisphere only), rendered there if missing;
+each entropy variant is scored on the observed texels by Spearman rho and AURG
+(freqbrdf.sparsification) against the per-texel roughness, base-colour (mean over RGB) and
+metallic errors, and on the sphere by its mean per region. Variants:
+
+- paper: the published recipe (UncertaintyConfig(mode="paper"));
+- calibrated_fixed_noise: the calibrated mode before the noise floor depended on the number of
+  samples (n_samples not passed: K samples assumed), amplitudes in phase;
+- calibrated (the default): amplitudes in phase, coefficient noise noise_level^2 P K / n;
+- phase_aware: as the default, but coefficients compared through the cross spectrum;
+- each calibrated variant also with noise_level 0.05 (default 0.02).
+
+Agreement with the path-traced brute force is measured by pathtraced_entropy.py. Saves
+benchmarks/results/entropy_variants.json.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+import time
+
+import numpy as np
+from _common import machine, save_results
+
+from freqbrdf import sh, sparsification
+from freqbrdf.capture import load
+from freqbrdf.config import Config, UncertaintyConfig
+from freqbrdf.estimate import estimate
+from freqbrdf.materials import resize
+from freqbrdf.observations import Observations, observe
+from freqbrdf.synth import synthesize
+from freqbrdf.uncertainty import cross_spectrum, entropy_from_spectra
+
+
+def bunny_path():
+    from compare_estimators import CACHE, FULL_RENDER, SCENES
+
+    folder = CACHE / "compare_bunny_64"
+    if not folder.is_dir():
+        synthesize(folder, dataclasses.replace(SCENES["bunny"], views=64, texture_res=512, **FULL_RENDER),
+                   progress=False)
+    return folder
+
+
+def sphere_path():
+    from entropy_scenes import capture_path
+
+    return capture_path()
+
+
+def variant_entropy(observations: Observations, name: str, noise_level: float) -> np.ndarray:
+    """(N,) entropy of one variant (module docstring)."""
+    if name == "paper":
+        config = UncertaintyConfig(mode="paper")
+    else:
+        config = UncertaintyConfig(noise_level=noise_level, phase_aware=name == "phase_aware")
+    cross = (cross_spectrum(observations.observed_coeffs, observations.mirrored_coeffs)
+             if config.phase_aware else None)
+    n_samples = None if name == "calibrated_fixed_noise" else observations.n_samples
+    return entropy_from_spectra(
+        observations.mirrored_spectrum, observations.observed_spectrum, cross_spectrum=cross,
+        n_samples=n_samples, sigma=observations.sigma, alpha_bound=observations.alpha_bound,
+        fit_status=observations.fit_status, config=config, return_likelihood=False,
+    ).entropy
+
+
+def scene_scores(name: str, path) -> dict:
+    capture = load(path)
+    config = Config()
+    start = time.perf_counter()
+    observations = observe(capture, config)
+    result = estimate(observations, config)
+    fit_s = time.perf_counter() - start
+    truth = resize(capture.ground_truth, observations.texture_res)
+    flat = observations.texel_index
+    observed = observations.fit_status != sh.FIT_EMPTY
+    errors = {
+        "roughness": np.abs(result.roughness - truth.roughness.ravel()[flat]),
+        "base_color": np.abs(result.base_color - truth.base_color.reshape(-1, 3)[flat]).mean(axis=1),
+        "metallic": np.abs(result.metallic - truth.metallic.ravel()[flat]),
+    }
+    masks = None
+    if name == "sphere":
+        from entropy_scenes import regions
+
+        masks = regions(observations.normal)
+    variants = {}
+    for variant in ("paper", "calibrated_fixed_noise", "calibrated", "phase_aware"):
+        for noise_level in ((None,) if variant == "paper" else (0.02, 0.05)):
+            entropy = variant_entropy(observations, variant, noise_level)
+            key = variant if noise_level is None else f"{variant}@{noise_level}"
+            scores = {}
+            for error_name, error in errors.items():
+                curves = sparsification.sparsification(entropy[observed], error[observed])
+                scores[error_name] = {"spearman": round(float(curves.spearman), 4), "aurg": round(curves.aurg, 4)}
+            entry = {"scores": scores, "mean_entropy": round(float(entropy[observed].mean()), 4)}
+            if masks is not None:
+                entry["mean_entropy_by_region"] = {
+                    region: round(float(entropy[mask & observed].mean()), 4) for region, mask in masks.items()}
+            variants[key] = entry
+            print(name, key, entry, flush=True)
+    return {"capture": str(path), "observed_texels": int(observed.sum()), "fit_seconds": round(fit_s, 2),
+            "variants": variants}
+
+
+def main() -> int:
+    scenes = {"bunny": scene_scores("bunny", bunny_path()), "sphere": scene_scores("sphere", sphere_path())}
+    save_results("entropy_variants", {
+        "benchmark": "entropy variants vs per-texel errors of the global estimate",
+        **machine(),
+        "error_of": "absolute per-texel error on observed texels (base colour: mean over RGB)",
+        "scenes": scenes,
+    })
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
