@@ -286,7 +286,8 @@ def test_flags_mark_unobserved_few_samples_below_bound_and_ambiguous():
     observed[4, :, 1:] = 0.0
     alpha_bound = np.array([0.1, 0.01, 0.01, 0.01, 0.01], np.float32)  # texel 0: (2/7)^2 = 0.08 < 0.1
     fit_status = np.array([sh.FIT_OK, sh.FIT_UNDERDETERMINED, sh.FIT_OK, sh.FIT_EMPTY, sh.FIT_OK], np.uint8)
-    result = entropy(light, observed, cross, alpha_bound=alpha_bound, fit_status=fit_status)
+    n_samples = np.array([64, 8, 64, 0, 64])  # texel 1: fewer than a quarter of the 36 coefficients
+    result = entropy(light, observed, cross, n_samples=n_samples, alpha_bound=alpha_bound, fit_status=fit_status)
     expected = [unc.FLAG_BELOW_BOUND, unc.FLAG_FEW_SAMPLES, 0, unc.FLAG_UNOBSERVED, unc.FLAG_AMBIGUOUS]
     np.testing.assert_array_equal(result.flags, expected)
     assert result.entropy[3] == 1.0 and result.channel[3] == -1 and np.isnan(result.best_ks[3])
