@@ -11,10 +11,18 @@ Occlusion: a white (and a 50 % grey) Lambertian bunny, rendered by Mitsuba's pat
 compared with albedo x E / pi, with E unoccluded (the paper) and with occlusion traced, over all
 observed texels and over the concave ones (where occlusion removes over 10 % of E).
 Prints the figures and saves them to benchmarks/results/bench_observe.json.
+
+    python benchmarks/bench_observe.py [--scene plane|bunny]
+
+``--scene`` times only the observation of compare_estimators.py's capture of that scene (64
+views at 256 x 256, T = 512; the plane is its largest case, 262k texels seen ~60 times each) and
+stores it under ``timing_<scene>`` in the same JSON, keeping the rest.
 """
 
 from __future__ import annotations
 
+import argparse
+import dataclasses
 import json
 import os
 import platform
@@ -27,8 +35,11 @@ import numpy as np
 
 from freqbrdf.capture import load
 from freqbrdf.config import Config, ObserveConfig, TexelConfig
+from freqbrdf.fileio import atomic_path
 from freqbrdf.observations import observe
 from freqbrdf.synth import SynthSettings, synthesize
+
+from compare_estimators import FULL_RENDER, SCENES  # the script's folder is on sys.path
 
 HERE = Path(__file__).resolve().parent
 CACHE = HERE / ".cache"
@@ -106,7 +117,31 @@ def occlusion_accuracy(albedo: float) -> dict:
     return result
 
 
+def scene_timing(scene: str) -> dict:
+    """Cold and warm observation of compare_estimators.py's capture of ``scene``."""
+    settings = dataclasses.replace(SCENES[scene], views=64, texture_res=512, **FULL_RENDER)
+    folder = CACHE / f"compare_{scene}_64"
+    if not (folder / "transforms.json").is_file():
+        print(f"rendering {folder} (once)")
+        synthesize(folder, settings, progress=False)
+    capture = load(folder)
+    config = Config()
+    return {"capture": str(folder), "texture_res": config.texels.texture_res, "views": len(capture.frames),
+            "load_average_before": [round(load, 2) for load in os.getloadavg()],
+            "cold": timed_run(capture, config), "warm": timed_run(capture, config),
+            "load_average_after": [round(load, 2) for load in os.getloadavg()]}
+
+
 def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--scene", choices=sorted(SCENES), help="only time the observation of this scene")
+    args = parser.parse_args()
+    previous = json.loads(RESULTS.read_text()) if RESULTS.is_file() else {}
+    if args.scene:
+        result = {**previous, "cpu_count": os.cpu_count(), f"timing_{args.scene}": scene_timing(args.scene)}
+        print(json.dumps(result[f"timing_{args.scene}"], indent=2))
+        save(result)
+        return
     result = {
         "benchmark": "observations: bunny, T = 512, 64 views at 256 x 256",
         "cpu_count": os.cpu_count(),
@@ -117,9 +152,16 @@ def main() -> None:
     result["peak_rss_mib"] = round(peak_rss_mib(), 1)
     result["environment_occlusion_accuracy"] = [occlusion_accuracy(albedo) for albedo in ALBEDOS]
     result["load_average_after"] = [round(load, 2) for load in os.getloadavg()]
+    # The per-scene timings (--scene) are kept.
+    result.update({key: value for key, value in previous.items() if key.startswith("timing_")})
     print(json.dumps(result, indent=2))
+    save(result)
+
+
+def save(result: dict) -> None:
     RESULTS.parent.mkdir(parents=True, exist_ok=True)
-    RESULTS.write_text(json.dumps(result, indent=2) + "\n")
+    with atomic_path(RESULTS) as tmp:
+        tmp.write_text(json.dumps(result, indent=2) + "\n")
 
 
 if __name__ == "__main__":

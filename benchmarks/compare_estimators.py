@@ -10,8 +10,11 @@ the upper hemisphere, and a relighting test set of 8 views under two other bundl
 method gets the same capture and texture resolution and is scored on the observed texels
 (base-colour PSNR, roughness and metallic MAE) and by relighting (Stanford-ORB protocol,
 PSNR-H/PSNR-L/SSIM). Seconds are wall-clock from the capture to the maps (our methods: observe +
-estimate; Mitsuba: its own loop, image loading and compilation included). Saves JSON and a
-markdown table to benchmarks/results/compare_estimators.{json,md}. ``--quick`` (a smoke run of a
+estimate, with their CPU seconds beside them since the machine may be shared; Mitsuba: its own
+loop, image loading and compilation included). Saves JSON and a markdown table to
+benchmarks/results/compare_estimators.{json,md}, merged into what is there: rows of methods left
+out with ``--skip`` (or scenes not run) are kept from the earlier run, and every row says when it
+was measured and under what load. ``--quick`` (a smoke run of a
 few minutes on 2 cores: 24 views of 128x128 pixels, T = 128, 4 test views at 8 spp) writes
 compare_estimators_quick.{json,md} instead, so that it never overwrites the full table.
 """
@@ -76,8 +79,10 @@ def run_scene(name: str, args) -> dict:
 
     def observations_for(config: Config):
         if config.fit not in observed_by_fit:
-            start = time.perf_counter()
-            observed_by_fit[config.fit] = (observe(capture, config), time.perf_counter() - start)
+            start, cpu_start = time.perf_counter(), time.process_time()
+            observations = observe(capture, config)
+            observed_by_fit[config.fit] = (observations, time.perf_counter() - start,
+                                           time.process_time() - cpu_start)
         return observed_by_fit[config.fit]
 
     for method in METHODS:
@@ -85,37 +90,62 @@ def run_scene(name: str, args) -> dict:
             continue
         print(f"[{name}] {method} ...", flush=True)
         # Mitsuba is scored on the texels our default observation sees, like the others.
-        observations, observe_seconds = observations_for(method_config("global" if method == "mitsuba" else method,
-                                                                       args.texture_res))
+        observations, observe_seconds, observe_cpu = observations_for(
+            method_config("global" if method == "mitsuba" else method, args.texture_res))
         if method == "mitsuba":
             maps, seconds, _ = baselines.mitsuba_inverse(capture, args.texture_res)
             timings = {"total": seconds}
         else:
             config = method_config(method, args.texture_res)
-            start = time.perf_counter()
+            start, cpu_start = time.perf_counter(), time.process_time()
             result = estimate(observations, config)
-            estimate_seconds = time.perf_counter() - start
+            estimate_seconds, estimate_cpu = time.perf_counter() - start, time.process_time() - cpu_start
             maps = export.material_textures(result, config.texels.dilation_px)
             timings = {"observe": observe_seconds, "estimate": estimate_seconds,
-                       "total": observe_seconds + estimate_seconds}
+                       "total": observe_seconds + estimate_seconds,
+                       "observe_cpu": observe_cpu, "estimate_cpu": estimate_cpu}
         observed = observations.to_texture(observations.n_samples > 0, fill=False).astype(bool)
         texture = metrics.texture_scores(maps, capture.ground_truth, observed)
         relit = evaluate(capture, maps, settings=relight_settings).relighting
-        rows[method] = {"seconds": timings, "texture": texture, "relighting": relit}
+        rows[method] = {"seconds": timings, "texture": texture, "relighting": relit,
+                        "measured": time.strftime("%Y-%m-%d %H:%M"), "load_average": machine()["load_average"]}
         print(f"[{name}] {method}: {json.dumps(rows[method])}", flush=True)
     return {"settings": dataclasses.asdict(settings), "capture": str(folder), "methods": rows}
 
 
 def markdown(results: dict) -> str:
-    lines = ["| scene | method | base colour PSNR | roughness MAE | metallic MAE | relight PSNR-H | PSNR-L | SSIM | seconds |",
-             "|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| scene | method | base colour PSNR | roughness MAE | metallic MAE | relight PSNR-H | PSNR-L | SSIM "
+             "| seconds | CPU seconds |", "|---|---|---|---|---|---|---|---|---|---|"]
     for scene, data in results["scenes"].items():
         for method, row in data["methods"].items():
             t, r = row["texture"], row["relighting"]
             lines.append(f"| {scene} | {method} | {t['base_color_psnr']:.2f} | {t['roughness_mae']:.3f} | "
                          f"{t['metallic_mae']:.3f} | {r['psnr_hdr']:.2f} | {r['psnr_ldr']:.2f} | {r['ssim']:.3f} | "
-                         f"{row['seconds']['total']:.1f} |")
-    return "\n".join(lines) + "\n"
+                         f"{row['seconds']['total']:.1f} | {cpu_seconds(row['seconds'])} |")
+    notes = [f"{scene}/{method}: {row['measured']}, load {row['load_average']}"
+             for scene, data in results["scenes"].items() for method, row in data["methods"].items()
+             if "measured" in row]
+    text = "\n".join(lines) + "\n"
+    if results.get("note"):
+        text += "\n" + results["note"] + "\n"
+    if notes:
+        text += "\nMeasured (2 cores; the load average is over 1 minute): " + "; ".join(notes) + ".\n"
+    return text
+
+
+def cpu_seconds(seconds: dict) -> str:
+    """observe + estimate CPU seconds where they were recorded (not for Mitsuba or older rows)."""
+    if "observe_cpu" not in seconds:
+        return "-"
+    return f"{seconds['observe_cpu'] + seconds['estimate_cpu']:.1f}"
+
+
+def merged(previous: dict, scene: str, data: dict) -> dict:
+    """The scene's new rows over the rows of an earlier run of the same capture and settings."""
+    earlier = previous.get("scenes", {}).get(scene)
+    if not earlier or earlier.get("settings") != json.loads(json.dumps(data["settings"])):  # tuples as lists
+        return data
+    return {**data, "methods": {**earlier["methods"], **data["methods"]}}
 
 
 def main(argv=None) -> int:
@@ -127,6 +157,7 @@ def main(argv=None) -> int:
     parser.add_argument("--skip", default="", help="comma-separated methods to leave out")
     parser.add_argument("--quick", action="store_true",
                         help="small smoke-test settings; results go to compare_estimators_quick.*")
+    parser.add_argument("--note", default=None, help="a sentence for the table (default: keep the earlier one)")
     args = parser.parse_args(argv)
     if args.quick:
         vars(args).update(QUICK_ARGS)
@@ -141,8 +172,14 @@ def main(argv=None) -> int:
         "scenes": {},
     }
     stem = "compare_estimators_quick" if args.quick else "compare_estimators"
+    previous_path = RESULTS / f"{stem}.json"
+    previous = json.loads(previous_path.read_text()) if previous_path.is_file() else {}
+    results["scenes"] = dict(previous.get("scenes", {}))  # scenes not run this time are kept
+    note = previous.get("note") if args.note is None else args.note
+    if note:
+        results["note"] = note
     for name in args.scenes.split(","):
-        results["scenes"][name] = run_scene(name, args)
+        results["scenes"][name] = merged(previous, name, run_scene(name, args))
         RESULTS.mkdir(exist_ok=True)
         with atomic_path(RESULTS / f"{stem}.json") as tmp:
             tmp.write_text(json.dumps(results, indent=2, default=float) + "\n")

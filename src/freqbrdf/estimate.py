@@ -24,9 +24,12 @@ and diffuse factor D come in two versions (``EstimateConfig.specular_model``, ``
   L = R0 X + Y + d e D with X = A S, Y = B S, e = E / pi. For fixed (alpha, m) the model is linear
   in b per channel, L = b (m X + (1 - m) e D) + 0.04 (1 - m) X + Y, so the best b is a clipped
   closed form computed from nine weighted moments of X, Y, D and f over the views. Roughness is
-  searched on a grid with the metallic profiled out (grid, then Brent) at each node, and the best
-  cell is refined by Brent: the global optimum in (b, m, r) up to the grid resolution, with no step
-  size and no local minima to fall into.
+  searched on a grid with the metallic profiled out (grid, then safeguarded Newton on the exact
+  derivatives of the profiled loss) at each node, and the best cell is refined by Brent: the
+  global optimum in (b, m, r) up to the grid resolution, with no step size and no local minima to
+  fall into. Per texel the light is expanded by degree once and everything that does not depend
+  on the roughness (table positions, Burley's polynomial in r, the diffuse moments) is prepared
+  before the search, so a roughness probe costs ~20 multiply-adds per sample.
 - ``paper`` reproduces the authors' prototype with METHOD.md's model: Adam (torch's defaults, lr
   0.02, 100 iterations) on the L1 loss of the cos-weighted residuals averaged over the whole T x T
   texture, parameters clamped to [0, 1] after every step, texture-space total variation on the
@@ -65,7 +68,7 @@ from freqbrdf.progress import SILENT, Reporter
 _SEARCH_CHUNK = 64
 # Texels per block when expanding the light by degree: bounds the (block, V, K) SH basis.
 _PROJECTION_BLOCK = 8192
-# Brent's absolute tolerance on roughness and metallic; its relative part is sqrt(machine eps).
+# Brent's absolute tolerance on roughness; its relative part is sqrt(machine eps).
 # A grid minimum on the boundary of [0, 1] is kept when the loss rises this far inside, instead of
 # letting Brent creep towards the boundary in golden steps.
 _BRENT_XTOL = 1e-5
@@ -403,7 +406,6 @@ def _estimate_global(observations: Observations, config: Config, reporter: Repor
     estimated = observations.n_samples > 0
     params = np.zeros((n_texels, 5))  # base colour RGB, roughness, metallic
     loss = np.zeros(n_texels)
-    cos_theta = observations.view_direction[..., 2]
     diffuse_scale = _diffuse_scale(observations)
     # The light of pass 0 is unshadowed, i.e. shadowed at alpha = 0 (G1 = 1). Each further pass
     # shadows it at a roughness closer to the fixed point r = search(light shadowed at r): a
@@ -421,15 +423,12 @@ def _estimate_global(observations: Observations, config: Config, reporter: Repor
                 light = _shadowed_light_coeffs(observations, brdf.alpha_from_roughness(shadow_roughness), config.fit)
             timings["light"] += time.perf_counter() - tick
             tick = time.perf_counter()
-            for rows in _blocks(n_texels):
-                _global_search_kernel(
-                    _degree_projections(observations.view_direction[rows], observations.weight[rows], light[rows],
-                                observations.lmax),
-                    cos_theta[rows], observations.weight[rows], observations.observed[rows], diffuse_scale[rows],
-                    observations.sigma, settings.fresnel, settings.masking, split_sum, _uses_burley(settings), table,
-                    settings.roughness_grid,
-                    settings.metallic_grid, params[rows], loss[rows],
-                )
+            _global_search_kernel(
+                observations.view_direction, observations.weight, observations.observed,
+                np.ascontiguousarray(light, dtype=np.float32), diffuse_scale, observations.sigma, settings.fresnel,
+                settings.masking, split_sum, _uses_burley(settings), table, settings.roughness_grid,
+                settings.metallic_grid, observations.lmax, *sh._legendre_tables(observations.lmax), params, loss,
+            )
             timings["search"] += time.perf_counter() - tick
             residual = params[:, 3] - shadow_roughness
             next_roughness = params[:, 3].copy()
@@ -540,71 +539,139 @@ def _brent_next(state, f_probe):
     return True
 
 
+# Safeguarded Newton on the metallic: steps stop below this, and after this many iterations.
+_NEWTON_MTOL = 1e-10
+_NEWTON_MAX_STEPS = 40
+
+
 @numba.njit(fastmath=True, cache=True)
-def _metallic_objective(metallic, args):
-    """Sum over channels of the weighted squared residual at the best base colour for this
-    metallic, from the moments; writes that base colour and the metallic into state[:4]."""
-    moments, squared_values, diffuse_scale, state = args
-    dielectric = 1.0 - metallic
+def _metallic_terms(metallic, moments, squared_values, diffuse_scale, state):
+    """Loss at the best base colour for this metallic (summed over channels) and its first two
+    derivatives in the metallic; writes that base colour and the metallic into state[:4].
+
+    Per channel the loss is q2 b^2 + 2 q1 b + q0 with q0, q1, q2 quadratics in m (from the
+    moments). At the optimal (or clipped) b the first derivative is the partial one at fixed b
+    (envelope theorem); the second adds the change of the unclipped b with m.
+    """
+    m = metallic
+    dielectric = 1.0 - m
     kappa = _DIELECTRIC_F0 * dielectric  # R0 = kappa + m b
-    total = 0.0
+    total = gradient = curvature = 0.0
     for c in range(3):
         s_xd, s_yd, s_xx, s_xy, s_xf, s_yy, s_yf, s_dd, s_fd = moments[c]
         e = diffuse_scale[c]
-        # L = b A + B with A = m X + (1 - m) e D, B = kappa X + Y: loss = q2 b^2 + 2 q1 b + q0.
-        q2 = metallic * metallic * s_xx + 2.0 * metallic * dielectric * e * s_xd + dielectric * dielectric * e * e * s_dd
-        q1 = metallic * (kappa * s_xx + s_xy - s_xf) + dielectric * e * (kappa * s_xd + s_yd - s_fd)
+        # L = b A + B with A = m X + (1 - m) e D, B = kappa X + Y.
+        q2 = m * m * s_xx + 2.0 * m * dielectric * e * s_xd + dielectric * dielectric * e * e * s_dd
+        q2_1 = 2.0 * m * s_xx + 2.0 * (1.0 - 2.0 * m) * e * s_xd - 2.0 * dielectric * e * e * s_dd
+        q2_2 = 2.0 * s_xx - 4.0 * e * s_xd + 2.0 * e * e * s_dd
+        specular_cross = kappa * s_xd + s_yd - s_fd
+        q1 = m * (kappa * s_xx + s_xy - s_xf) + dielectric * e * specular_cross
+        q1_1 = (_DIELECTRIC_F0 * (1.0 - 2.0 * m) * s_xx + s_xy - s_xf
+                - 2.0 * _DIELECTRIC_F0 * dielectric * e * s_xd - e * (s_yd - s_fd))
+        q1_2 = 2.0 * _DIELECTRIC_F0 * (e * s_xd - s_xx)
         q0 = kappa * kappa * s_xx + s_yy + squared_values[c] + 2.0 * kappa * (s_xy - s_xf) - 2.0 * s_yf
-        base = min(max(-q1 / q2, 0.0), 1.0) if q2 > 0.0 else 0.0  # a 1-D convex quadratic: clip
+        q0_1 = -2.0 * _DIELECTRIC_F0 * (kappa * s_xx + s_xy - s_xf)
+        q0_2 = 2.0 * _DIELECTRIC_F0 * _DIELECTRIC_F0 * s_xx
+        base = -q1 / q2 if q2 > 0.0 else 0.0
+        interior = 0.0 < base < 1.0
+        base = min(max(base, 0.0), 1.0)  # a 1-D convex quadratic: clip
         total += (q2 * base + 2.0 * q1) * base + q0
+        slope = q2_1 * base + q1_1  # d b / d m = -slope / q2 where b is not clipped
+        gradient += (q2_1 * base + 2.0 * q1_1) * base + q0_1
+        curvature += (q2_2 * base + 2.0 * q1_2) * base + q0_2
+        if interior:
+            curvature -= 2.0 * slope * slope / q2
         state[c] = base
-    state[3] = metallic
-    return total
+    state[3] = m
+    return total, gradient, curvature
 
 
 @numba.njit(fastmath=True, cache=True)
-def _profile_metallic(moments, squared_values, diffuse_scale, state, brent_state, metallic_grid):
-    """min over (b, m) of the loss for fixed moments: metallic grid, then Brent in the best cell."""
-    args = (moments, squared_values, diffuse_scale, state)
+def _profile_metallic(moments, squared_values, diffuse_scale, state, metallic_grid):
+    """min over (b, m) of the loss for fixed moments: metallic grid, then safeguarded Newton on
+    the derivative in the best cell (bisection where Newton would leave the bracket). Leaves the
+    winner's base colour and metallic in state and returns its loss."""
     best_m, best_f = 0.0, np.inf
     for j in range(metallic_grid):
         m = j / (metallic_grid - 1)
-        f = _metallic_objective(m, args)
+        f = _metallic_terms(m, moments, squared_values, diffuse_scale, state)[0]
         if f < best_f:
             best_m, best_f = m, f
-    inward = _BRENT_XTOL if best_m == 0.0 else -_BRENT_XTOL
-    if (best_m == 0.0 or best_m == 1.0) and _metallic_objective(best_m + inward, args) >= best_f:
-        return _metallic_objective(best_m, args)  # a pure dielectric or a pure metal
     cell = 1.0 / (metallic_grid - 1)
-    m = _brent_start(brent_state, max(best_m - cell, 0.0), min(best_m + cell, 1.0))
-    while _brent_next(brent_state, _metallic_objective(m, args)):
-        m = brent_state[_PROBE]
-    m = brent_state[_X] if brent_state[_FX] < best_f else best_m
-    return _metallic_objective(m, args)  # leaves the winner's base colour and metallic in state
+    f, slope, curvature = _metallic_terms(best_m, moments, squared_values, diffuse_scale, state)
+    if (best_m == 0.0 and slope >= 0.0) or (best_m == 1.0 and slope <= 0.0) or slope == 0.0:
+        return f  # a pure dielectric or a pure metal (or a node exactly at the minimum)
+    # The minimum lies on the downhill side of the best node, within one cell.
+    lower, upper = (best_m, min(best_m + cell, 1.0)) if slope < 0.0 else (max(best_m - cell, 0.0), best_m)
+    m = best_m
+    for _ in range(_NEWTON_MAX_STEPS):
+        step = -slope / curvature if curvature > 0.0 else np.inf
+        candidate = m + step
+        if not (lower < candidate < upper):
+            candidate = 0.5 * (lower + upper)
+        if abs(candidate - m) < _NEWTON_MTOL:
+            break
+        m = candidate
+        f_m, slope, curvature = _metallic_terms(m, moments, squared_values, diffuse_scale, state)
+        if f_m < best_f:
+            best_m, best_f = m, f_m
+        if slope < 0.0:
+            lower = m
+        elif slope > 0.0:
+            upper = m
+        else:
+            break
+        if upper - lower < _NEWTON_MTOL:
+            break
+    return _metallic_terms(best_m, moments, squared_values, diffuse_scale, state)[0]
 
 
 @numba.njit(fastmath=True, cache=True)
 def _roughness_objective(roughness, args):
-    """Profiled loss at this roughness: min over base colour and metallic (written to state)."""
-    (n, cos_theta, omega, proj, values, sigma, fresnel, masking, split_sum, burley, table, kernel,
-     kernel_derivative, albedo_scale, albedo_bias, diffuse_factor, filtered, moments, squared_values,
-     diffuse_scale, state, metallic_brent, metallic_grid) = args
+    """Profiled loss at this roughness: min over base colour and metallic (written to state).
+
+    Per sample, only the specular albedo (A, B) and the diffuse factor D depend on the roughness
+    besides the kernel; their roughness-free parts were prepared per texel (`_global_search_kernel`).
+    """
+    (n, cos_theta, omega, proj, values, sigma, fresnel, masking, split_sum, burley, table, table_row,
+     table_frac, burley_terms, diffuse_moments, column, kernel, kernel_derivative, albedo_scale, albedo_bias,
+     diffuse_factor, filtered, moments, squared_values, diffuse_scale, state, metallic_grid) = args
     alpha = max(roughness * roughness, _ALPHA_MIN)
     _fill_kernel(alpha, sigma, kernel, kernel_derivative)
-    s_dd = 0.0
-    for s in range(n):
-        albedo_scale[s], albedo_bias[s] = _specular_albedo(cos_theta[s], roughness, alpha, fresnel, masking,
-                                                           split_sum, table)
-        diffuse_factor[s] = _burley_diffuse_factor(cos_theta[s], roughness) if burley else 1.0
-        s_dd += omega[s] * diffuse_factor[s] * diffuse_factor[s]
-    for c in range(3):
+    if split_sum:  # the table's column at this roughness, linear in it
+        y = min(max(roughness, 0.0), 1.0) * (table.shape[2] - 1)
+        j = min(int(y), table.shape[2] - 2)
+        fy = y - j
+        for side in range(2):
+            for i in range(table.shape[1]):
+                column[side, i] = table[side, i, j] * (1.0 - fy) + table[side, i, j + 1] * fy
         for s in range(n):
-            filtered[s] = 0.0
-        for degree in range(kernel.shape[0]):
+            row, fx = table_row[s], table_frac[s]
+            albedo_scale[s] = column[0, row] + fx * (column[0, row + 1] - column[0, row])
+            albedo_bias[s] = column[1, row] + fx * (column[1, row + 1] - column[1, row])
+    else:
+        for s in range(n):
+            albedo_scale[s], albedo_bias[s] = _specular_albedo(cos_theta[s], roughness, alpha, fresnel, masking,
+                                                               False, table)
+    if split_sum and not fresnel:
+        for s in range(n):
+            albedo_scale[s] += albedo_bias[s]
+            albedo_bias[s] = 0.0
+    # Burley's factor is c0 + r c1 + r^2 c2 per sample (c from `_burley_terms`); Lambert's is 1.
+    for s in range(n):
+        diffuse_factor[s] = burley_terms[0, s] + roughness * (burley_terms[1, s] + roughness * burley_terms[2, s])
+    s_dd = 0.0
+    for power in range(4, -1, -1):
+        s_dd = s_dd * roughness + diffuse_moments[0, power]
+    for c in range(3):
+        k0 = kernel[0]
+        for s in range(n):
+            filtered[s] = k0 * proj[c, 0, s]
+        for degree in range(1, kernel.shape[0]):
             k = kernel[degree]
             for s in range(n):
                 filtered[s] += k * proj[c, degree, s]
-        s_xd = s_yd = s_xx = s_xy = s_xf = s_yy = s_yf = s_fd = 0.0
+        s_xd = s_yd = s_xx = s_xy = s_xf = s_yy = s_yf = 0.0
         for s in range(n):
             x = albedo_scale[s] * filtered[s]
             y = albedo_bias[s] * filtered[s]
@@ -618,32 +685,56 @@ def _roughness_objective(roughness, args):
             s_xf += wx * f
             s_yy += wy * y
             s_yf += wy * f
-            s_fd += omega[s] * f * diffuse_factor[s]
+        fd = diffuse_moments[1 + c]
+        s_fd = fd[0] + roughness * (fd[1] + roughness * fd[2])
         moments[c, 0], moments[c, 1], moments[c, 2], moments[c, 3] = s_xd, s_yd, s_xx, s_xy
         moments[c, 4], moments[c, 5], moments[c, 6] = s_xf, s_yy, s_yf
         moments[c, 7], moments[c, 8] = s_dd, s_fd
-    return _profile_metallic(moments, squared_values, diffuse_scale, state, metallic_brent, metallic_grid)
+    return _profile_metallic(moments, squared_values, diffuse_scale, state, metallic_grid)
+
+
+@numba.njit(fastmath=True, cache=True)
+def _burley_terms(cos_theta, out):
+    """(c0, c1, c2) with `burley_diffuse_factor`(cos_theta, r) = c0 + r c1 + r^2 c2, into out[:, 0..2]."""
+    schlick_view = (1.0 - cos_theta) ** 5
+    retro_fresnel = 1.0 / 21.0 + cos_theta / 84.0
+    out[0] = (1.0 - 0.5 * schlick_view) * (1.0 - 0.5 / 21.0)
+    out[1] = schlick_view * (1.0 + 2.0 * cos_theta / 3.0) + retro_fresnel - schlick_view * retro_fresnel
+    out[2] = schlick_view * (1.0 / 21.0 + cos_theta / 42.0 + 11.0 * (1.0 - cos_theta * cos_theta) / 504.0
+                             + cos_theta * cos_theta / 252.0)
 
 
 @numba.njit(parallel=True, fastmath=True, cache=True)
 def _global_search_kernel(
-    proj, cos_theta, weight, observed, diffuse_scale, sigma, fresnel, masking, split_sum, burley, table,
-    roughness_grid, metallic_grid, params, loss,
+    directions, weight, observed, light, diffuse_scale, sigma, fresnel, masking, split_sum, burley, table,
+    roughness_grid, metallic_grid, lmax, diag, rec_a, rec_b, params, loss,
 ):
     """Per texel: the (base colour, roughness, metallic) of least weighted squared residual.
 
-    proj (n, 3, l*+1, V) float32 from `_degree_projections`; cos_theta, weight (n, V);
-    observed (n, V, 3); diffuse_scale (n, 3) E / pi. Writes params (n, 5) [b_rgb, r, m] and
-    loss (n,) (divided by sum_v w^2) for texels with samples; others are left untouched.
+    directions (n, V, 3) local view directions; weight (n, V); observed (n, V, 3); light (n, 3, K)
+    the incoming light's SH fit; diffuse_scale (n, 3) E / pi; (lmax, diag, rec_a, rec_b) as
+    `sh._sh_block` takes them. Per texel the light is expanded by degree at its samples once
+    (P_c,l(w_v), fused here to keep it in cache), then the roughness is searched. Writes params
+    (n, 5) [b_rgb, r, m] and loss (n,) (divided by sum_v w^2) for texels with samples; others are
+    left untouched.
     """
     n_texels, n_views = weight.shape
-    n_degrees = proj.shape[2]
+    n_degrees = lmax + 1
+    n_coeffs = n_degrees * n_degrees
     for chunk in numba.prange((n_texels + _SEARCH_CHUNK - 1) // _SEARCH_CHUNK):
         # The texel's samples with w > 0, packed and with the views innermost (vectorised loops).
+        xyz = np.empty((3, n_views))
+        basis = np.empty((n_coeffs, n_views))
+        sh_scratch = np.empty((5, n_views))
         packed_cos = np.empty(n_views)
         omega = np.empty(n_views)  # w^2
         packed_proj = np.empty((3, n_degrees, n_views))
         values = np.empty((3, n_views))
+        table_row = np.empty(n_views, dtype=np.int64)
+        table_frac = np.empty(n_views)
+        burley_terms = np.empty((3, n_views))
+        diffuse_moments = np.empty((4, 5))  # sum w^2 D^2 as a quartic in r; sum w^2 f_c D as quadratics
+        column = np.empty((2, table.shape[1]))
         albedo_scale = np.empty(n_views)
         albedo_bias = np.empty(n_views)
         diffuse_factor = np.empty(n_views)
@@ -654,36 +745,69 @@ def _global_search_kernel(
         squared_values = np.empty(3)  # sum_v w^2 f^2 per channel
         scale = np.empty(3)
         state = np.empty(4)
+        best_state = np.empty(4)
         roughness_brent = np.empty(12)
-        metallic_brent = np.empty(12)
         for t in range(chunk * _SEARCH_CHUNK, min((chunk + 1) * _SEARCH_CHUNK, n_texels)):
             n = 0
             for v in range(n_views):
                 w = np.float64(weight[t, v])
                 if w <= 0.0:
                     continue
-                packed_cos[n] = cos_theta[t, v]
+                for axis in range(3):
+                    xyz[axis, n] = directions[t, v, axis]
+                packed_cos[n] = xyz[2, n]
                 omega[n] = w * w
                 for c in range(3):
                     values[c, n] = observed[t, v, c]
-                    for degree in range(n_degrees):
-                        packed_proj[c, degree, n] = proj[t, c, degree, v]
                 n += 1
             if n == 0:
                 continue
+            sh._sh_block(xyz[0], xyz[1], xyz[2], n, lmax, diag, rec_a, rec_b, basis, sh_scratch)
+            for c in range(3):
+                for degree in range(n_degrees):
+                    for s in range(n):
+                        packed_proj[c, degree, s] = 0.0
+                    for k in range(degree * degree, (degree + 1) * (degree + 1)):
+                        coefficient = np.float64(light[t, c, k])
+                        for s in range(n):
+                            packed_proj[c, degree, s] += coefficient * basis[k, s]
             total_weight = 0.0
             for s in range(n):
                 total_weight += omega[s]
+                x = min(max(packed_cos[s], 0.0), 1.0) * (table.shape[1] - 1)
+                table_row[s] = min(int(x), table.shape[1] - 2)
+                table_frac[s] = x - table_row[s]
+                if burley:
+                    _burley_terms(packed_cos[s], burley_terms[:, s])
+                else:
+                    burley_terms[0, s], burley_terms[1, s], burley_terms[2, s] = 1.0, 0.0, 0.0
+            for row in range(4):
+                for power in range(5):
+                    diffuse_moments[row, power] = 0.0
+            for s in range(n):
+                c0, c1, c2 = burley_terms[0, s], burley_terms[1, s], burley_terms[2, s]
+                o = omega[s]
+                diffuse_moments[0, 0] += o * c0 * c0
+                diffuse_moments[0, 1] += 2.0 * o * c0 * c1
+                diffuse_moments[0, 2] += o * (c1 * c1 + 2.0 * c0 * c2)
+                diffuse_moments[0, 3] += 2.0 * o * c1 * c2
+                diffuse_moments[0, 4] += o * c2 * c2
+                for c in range(3):
+                    of = o * values[c, s]
+                    diffuse_moments[1 + c, 0] += of * c0
+                    diffuse_moments[1 + c, 1] += of * c1
+                    diffuse_moments[1 + c, 2] += of * c2
             for c in range(3):
                 squared_values[c] = 0.0
                 for s in range(n):
                     squared_values[c] += omega[s] * values[c, s] * values[c, s]
                 scale[c] = diffuse_scale[t, c]
             args = (n, packed_cos, omega, packed_proj, values, sigma, fresnel, masking, split_sum, burley, table,
-                    kernel, kernel_derivative, albedo_scale, albedo_bias, diffuse_factor, filtered, moments,
-                    squared_values, scale, state, metallic_brent, metallic_grid)
+                    table_row, table_frac, burley_terms, diffuse_moments, column, kernel, kernel_derivative,
+                    albedo_scale, albedo_bias, diffuse_factor, filtered, moments, squared_values, scale, state,
+                    metallic_grid)
             # Scan the roughness grid, then Brent in the best cell unless the loss rises inwards
-            # from a boundary node; keep the node if Brent does no better.
+            # from a boundary node. The best evaluation seen wins (its state is kept).
             cell = 1.0 / (roughness_grid - 1)
             best_r, best_f = 0.0, np.inf
             for i in range(roughness_grid):
@@ -691,19 +815,30 @@ def _global_search_kernel(
                 f = _roughness_objective(r, args)
                 if f < best_f:
                     best_r, best_f = r, f
-            r = best_r
-            inward = _BRENT_XTOL if best_r == 0.0 else -_BRENT_XTOL
-            on_boundary = best_r == 0.0 or best_r == 1.0
-            if not on_boundary or _roughness_objective(best_r + inward, args) < best_f:
-                probe = _brent_start(roughness_brent, max(best_r - cell, 0.0), min(best_r + cell, 1.0))
-                while _brent_next(roughness_brent, _roughness_objective(probe, args)):
+                    best_state[:] = state
+            node_r, node_f = best_r, best_f
+            on_boundary = node_r == 0.0 or node_r == 1.0
+            search = not on_boundary
+            if on_boundary:
+                probe = node_r + (_BRENT_XTOL if node_r == 0.0 else -_BRENT_XTOL)
+                f = _roughness_objective(probe, args)
+                search = f < node_f
+                if f < best_f:
+                    best_r, best_f = probe, f
+                    best_state[:] = state
+            if search:
+                probe = _brent_start(roughness_brent, max(node_r - cell, 0.0), min(node_r + cell, 1.0))
+                while True:
+                    f = _roughness_objective(probe, args)
+                    if f < best_f:
+                        best_r, best_f = probe, f
+                        best_state[:] = state
+                    if not _brent_next(roughness_brent, f):
+                        break
                     probe = roughness_brent[_PROBE]
-                if roughness_brent[_FX] < best_f:
-                    r = roughness_brent[_X]
-            f = _roughness_objective(r, args)
-            params[t, 0], params[t, 1], params[t, 2] = state[0], state[1], state[2]
-            params[t, 3], params[t, 4] = r, state[3]
-            loss[t] = max(f, 0.0) / total_weight
+            params[t, 0], params[t, 1], params[t, 2] = best_state[0], best_state[1], best_state[2]
+            params[t, 3], params[t, 4] = best_r, best_state[3]
+            loss[t] = max(best_f, 0.0) / total_weight
 
 
 # ---------------------------------------------------------------------------------------------

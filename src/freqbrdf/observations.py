@@ -186,14 +186,13 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
 
     position = np.ascontiguousarray(texels.position, dtype=np.float64)
     normal = np.ascontiguousarray(texels.normal, dtype=np.float64)
-    frame = np.stack([texels.tangent, texels.bitangent, texels.normal], axis=1)  # (N, 3, 3) rows
+    frame = np.stack([texels.tangent, texels.bitangent, texels.normal], axis=1).astype(np.float64)  # (N, 3, 3) rows
     offset = RAY_OFFSET_TEXELS * texels.texel_size + RAY_OFFSET_OBJECT * _extent(capture.mesh.vertices)
     ray_origin = (position + offset[:, None] * normal).astype(np.float32)  # (N, 3)
     scene = _occlusion_scene(capture)
 
     with reporter.stage("observing views", n_views) as advance:
         for batch in _view_batches(capture, n_texels):
-            views = slice(batch.start, batch.stop)
             tick = time.perf_counter()
             images = np.stack([capture.image(view) for view in batch])  # (B, H, W, 3)
             masks = np.stack([capture.mask(view) for view in batch]).astype(np.float32)[..., None]
@@ -209,24 +208,26 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
             seen = np.empty((n_texels, len(batch)), dtype=bool)  # facing; then also unoccluded
             _project_kernel(position, normal, camera_to_world, intrinsics, images.shape[2],
                             images.shape[1], pixels, cos_theta, seen, n_facing)
-            texel_of_ray, view_of_ray = np.nonzero(seen)
             timings["projection"] += time.perf_counter() - tick
 
             tick = time.perf_counter()
-            origins, directions, distances = _shadow_rays(ray_origin, centres, texel_of_ray, view_of_ray)
-            # Boolean assignment runs in the same (row-major) order as np.nonzero.
-            seen[seen] = ~_ray_hits(scene, origins, directions, distances)
+            ray_offsets = _sample_offsets(seen)
+            origins, directions, distances = _shadow_rays(ray_origin, centres, seen, ray_offsets)
+            _clear_occluded(seen, ray_offsets, _ray_hits(scene, origins, directions, distances))
             timings["visibility"] += time.perf_counter() - tick
 
             tick = time.perf_counter()
-            mirror = np.empty((n_texels, len(batch), 3))
             _record_kernel(seen, images, masks, pixels, cos_theta, position, frame, centres,
-                           batch.start, signals, view_direction, weight, visible, mirror)
-            sampled = visible[:, views]
-            # A view of the (N, V, 7) array: the assignment writes through to signals.
-            signals[:, views, MIRRORED][sampled] = envmaps.lookup(lit, mirror[sampled])
+                           batch.start, signals, view_direction, weight, visible)
             timings["projection"] += time.perf_counter() - tick
             advance(len(batch))
+
+    # The environment in the mirror direction of every sample: one lookup of the packed samples.
+    tick = time.perf_counter()
+    sample_offsets = _sample_offsets(visible)
+    radiance = envmaps.lookup(lit, _mirror_directions(frame, view_direction, visible, sample_offsets))
+    _unpack_samples(visible, sample_offsets, radiance, signals, MIRRORED.start)
+    timings["projection"] += time.perf_counter() - tick
 
     tick = time.perf_counter()
     irradiance = texel_irradiance(capture.envmap, normal)
@@ -356,11 +357,10 @@ def blocked_irradiance(scene, envmap: envmaps.Envmap, ray_origin: np.ndarray, fr
 
 def _occlude_mirror_directions(scene, ray_origin, frame, view_direction, weight, signals) -> None:
     """Zero the mirrored radiance of samples whose mirror direction runs into the object."""
-    texel, view = np.nonzero(weight > 0)
-    local = view_direction[texel, view].astype(np.float64)  # (M, 3)
-    # The mirror of w_o about n = z is (-x, -y, z) in the local frame.
-    mirror_local = local * np.array([-1.0, -1.0, 1.0])
-    mirror = np.einsum("mi,mij->mj", mirror_local, frame[texel])  # frame rows: local -> world
+    sampled = weight > 0
+    offsets = _sample_offsets(sampled)
+    mirror = _mirror_directions(frame, view_direction, sampled, offsets)
+    texel, view = np.nonzero(sampled)  # the packing order: row-major
     blocked = _ray_hits(scene, np.ascontiguousarray(ray_origin[texel].T),
                         np.ascontiguousarray(mirror.T, np.float32), None)
     signals[texel[blocked], view[blocked], MIRRORED] = 0.0
@@ -414,29 +414,84 @@ def _ray_hits(scene, origins: np.ndarray, directions: np.ndarray, max_distance: 
     return hits
 
 
+def _sample_offsets(selected: np.ndarray) -> np.ndarray:
+    """(N + 1,) int64: where each texel's selected entries of ``selected`` (N, B) bool start when
+    they are packed row-major (texel by texel, views in order), and their total at the end."""
+    offsets = np.zeros(len(selected) + 1, dtype=np.int64)
+    np.cumsum(np.count_nonzero(selected, axis=1), out=offsets[1:])
+    return offsets
+
+
 @numba.njit(parallel=True, cache=True)
-def _shadow_rays(ray_origin, centres, texel_of_ray, view_of_ray):
+def _shadow_rays(ray_origin, centres, seen, offsets):
     """Segments from texels to camera centres, as `_ray_hits` takes them.
 
-    ray_origin (N, 3) float32; centres (B, 3); ray k runs from texel texel_of_ray[k] towards
-    centre view_of_ray[k]. Returns origins (3, M), unit directions (3, M) float32 and lengths
-    (M,) float32 that stop just short of the camera (cameras never sit on the surface).
+    ray_origin (N, 3) float32; centres (B, 3); one ray per True of seen (N, B), packed at
+    `_sample_offsets`. Returns origins (3, M), unit directions (3, M) float32 and lengths (M,)
+    float32 that stop just short of the camera (cameras never sit on the surface).
     """
-    n_rays = texel_of_ray.shape[0]
+    n_rays = offsets[-1]
     origins = np.empty((3, n_rays), dtype=np.float32)
     directions = np.empty((3, n_rays), dtype=np.float32)
     lengths = np.empty(n_rays, dtype=np.float32)
-    for k in numba.prange(n_rays):
-        t, b = texel_of_ray[k], view_of_ray[k]
-        to_centre = np.empty(3)
-        for axis in range(3):
-            origins[axis, k] = ray_origin[t, axis]
-            to_centre[axis] = centres[b, axis] - ray_origin[t, axis]
-        distance = math.sqrt(to_centre[0] ** 2 + to_centre[1] ** 2 + to_centre[2] ** 2)
-        for axis in range(3):
-            directions[axis, k] = to_centre[axis] / distance
-        lengths[k] = distance * (1.0 - 1e-5)
+    for t in numba.prange(seen.shape[0]):
+        k = offsets[t]
+        for b in range(seen.shape[1]):
+            if not seen[t, b]:
+                continue
+            dx = centres[b, 0] - ray_origin[t, 0]
+            dy = centres[b, 1] - ray_origin[t, 1]
+            dz = centres[b, 2] - ray_origin[t, 2]
+            distance = math.sqrt(dx * dx + dy * dy + dz * dz)
+            for axis in range(3):
+                origins[axis, k] = ray_origin[t, axis]
+            directions[0, k], directions[1, k], directions[2, k] = dx / distance, dy / distance, dz / distance
+            lengths[k] = distance * (1.0 - 1e-5)
+            k += 1
     return origins, directions, lengths
+
+
+@numba.njit(parallel=True, cache=True)
+def _clear_occluded(seen, offsets, hit):
+    """seen (N, B) becomes False where the packed ray of that entry (`_sample_offsets`) hit."""
+    for t in numba.prange(seen.shape[0]):
+        k = offsets[t]
+        for b in range(seen.shape[1]):
+            if seen[t, b]:
+                if hit[k]:
+                    seen[t, b] = False
+                k += 1
+
+
+@numba.njit(parallel=True, cache=True)
+def _mirror_directions(frame, view_direction, sampled, offsets):
+    """(M, 3) world mirror directions r = 2 (n.v) n - v of the samples selected by sampled (N, V),
+    packed at offsets (`_sample_offsets`); frame (N, 3, 3) rows t, b, n; view_direction (N, V, 3)
+    local. In the local frame the mirror of (x, y, z) about n = z is (-x, -y, z)."""
+    mirror = np.empty((offsets[-1], 3))
+    for t in numba.prange(sampled.shape[0]):
+        k = offsets[t]
+        for v in range(sampled.shape[1]):
+            if not sampled[t, v]:
+                continue
+            x, y, z = -np.float64(view_direction[t, v, 0]), -np.float64(view_direction[t, v, 1]), np.float64(
+                view_direction[t, v, 2])
+            for axis in range(3):
+                mirror[k, axis] = x * frame[t, 0, axis] + y * frame[t, 1, axis] + z * frame[t, 2, axis]
+            k += 1
+    return mirror
+
+
+@numba.njit(parallel=True, cache=True)
+def _unpack_samples(sampled, offsets, packed, signals, first_channel):
+    """signals[t, v, first_channel:first_channel + C] = the packed row of each selected sample."""
+    for t in numba.prange(sampled.shape[0]):
+        k = offsets[t]
+        for v in range(sampled.shape[1]):
+            if sampled[t, v]:
+                for c in range(packed.shape[1]):
+                    signals[t, v, first_channel + c] = packed[k, c]
+                k += 1
 
 
 def _view_batches(capture: Capture, n_texels: int) -> list[range]:
@@ -494,14 +549,13 @@ def _project_kernel(position, normal, camera_to_world, intrinsics, width, height
 
 @numba.njit(parallel=True, cache=True)
 def _record_kernel(seen, images, masks, pixels, cos_theta, position, frame, centres, first_view,
-                   signals, view_direction, weight, visible, mirror):
+                   signals, view_direction, weight, visible):
     """Record the samples of a batch of B views, texel by texel (contiguous writes).
 
     seen (N, B): facing and unoccluded; images (B, H, W, 3), masks (B, H, W, 1) in [0, 1], both
     sampled bilinearly; a sample counts where the mask is 1 at all four neighbours. For counted
     samples writes the observed radiance, local view direction, weight and visibility into
-    columns first_view + b of the (N, V, ...) outputs, and the world mirror direction into
-    mirror (N, B, 3).
+    columns first_view + b of the (N, V, ...) outputs.
     """
     height, width = images.shape[1], images.shape[2]
     for t in numba.prange(seen.shape[0]):
@@ -523,11 +577,7 @@ def _record_kernel(seen, images, masks, pixels, cos_theta, position, frame, cent
             dz *= inverse_distance
             for axis in range(3):
                 view_direction[t, view, axis] = frame[t, axis, 0] * dx + frame[t, axis, 1] * dy + frame[t, axis, 2] * dz
-            cosine = cos_theta[t, b]
-            mirror[t, b, 0] = 2.0 * cosine * frame[t, 2, 0] - dx  # r = 2 (n.v) n - v
-            mirror[t, b, 1] = 2.0 * cosine * frame[t, 2, 1] - dy
-            mirror[t, b, 2] = 2.0 * cosine * frame[t, 2, 2] - dz
-            weight[t, view] = cosine
+            weight[t, view] = cos_theta[t, b]
             visible[t, view] = True
 
 
