@@ -1,34 +1,54 @@
 """The applications of the uncertainty (issue #8), measured on Mitsuba-rendered captures.
 
-    python benchmarks/applications.py [--applications guidance] [--scenes bunny_forest,...]
-        [--texture-res 128] [--pool 100] [--random-seeds 3]
+    python benchmarks/applications.py [--applications guidance,share,inpaint] [--scenes bunny_forest,...]
+        [--texture-res 128] [--pool 100] [--random-seeds 3] [--sparse-views 20]
+
+Re-measuring after a change to the entropy, the estimator or an application is this one line (the
+renders are cached; about 10 minutes on 2 cores for all three parts).
 
 One function per application; each returns its results, which are saved as JSON (and a plot) in
 benchmarks/results/applications_<application>.{json,png}.
 
 Scenes (``SCENES``): bundled meshes, materials and environment maps, each rendered once by Mitsuba
 as a pool of ``--pool`` views evenly spread (Fibonacci) over the whole sphere around the object,
-128 x 128 pixels at 16 spp, cached in benchmarks/.cache/applications_<scene>_<pool>.
+128 x 128 pixels at 16 spp, with 8 relighting views under two other maps, cached in
+benchmarks/.cache/applications_<scene>_<pool>.
 
 guidance: every strategy starts from the same 10 farthest-point views of the pool and grows to 40,
 10 views a round, at equal budgets:
 - entropy-guided: `guidance.select_views` on the views taken so far (the fit's own observations),
   10 picks per round chosen before their photographs are "taken" (committed with the expected
-  radiance), then the real photographs are used for the next round and the fits;
+  radiance), then the real photographs are used for the next round and the fits; once with
+  every remaining view competing ("guided") and once per other ``--guidance-spreads`` value,
+  where only the (1 - spread) of them farthest from the views taken so far compete;
 - random: uniformly from the rest of the pool, mean of ``--random-seeds`` seeds;
 - farthest-point: the pool view farthest (in angle) from all taken so far.
 Each subset is fitted with `pipeline.fit` (our defaults, T = --texture-res). Texture error is
 measured against the ground truth on every texel some pool view samples (so that texels a
 strategy leaves unseen count, with the exported fill), entropy as the mean over all atlas texels
-(unobserved ones count 1). The paired test (Wilcoxon signed-rank, scipy) pairs the guided error
-with each baseline's over all (scene, budget in 20/30/40) cells.
+(unobserved ones count 1). The paired test (Wilcoxon signed-rank, scipy) pairs each guided variant's
+error with each baseline's over all (scene, budget in 20/30/40) cells.
+
+share and inpaint work on one fit per scene of its first ``--sparse-views`` farthest-point views
+(sparse, so that uncertain texels are common), errors measured per texel against the ground truth:
+- share: `share.share_details` with the shipped ShareConfig and the ``--share-variants``
+  (SHARE_VARIANTS by default); MAE of roughness, metallic and base colour on
+  the uncertain texels (those it considered) without and with sharing, and on the certain ones;
+- inpaint: masks from the flags (the command's default) and from entropy thresholds; per mask
+  either every map is filled ("all maps") or, on observed texels, only roughness and metallic
+  ("specular"; the entropy is about the specular lobe); MAE on the masked texels before and after,
+  and relighting (`relight.evaluate`, Stanford-ORB scores, 32 spp) of the fit and of each result.
+Every results file records the commit and which source files differed from it.
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import hashlib
+import itertools
 import json
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -39,12 +59,15 @@ from _common import machine  # benchmarks/ is on sys.path when a script runs
 
 from freqbrdf import guidance
 from freqbrdf.capture import Capture, load
-from freqbrdf.config import Config, TexelConfig
+from freqbrdf.config import Config, ShareConfig, TexelConfig
 from freqbrdf.export import write_json
 from freqbrdf.fileio import atomic_path
-from freqbrdf.materials import resize
+from freqbrdf.inpaint import biharmonic_fill, inpaint_mask, inpaint_maps
+from freqbrdf.materials import MaterialMaps, resize
 from freqbrdf.observations import observe
-from freqbrdf.pipeline import fit
+from freqbrdf.pipeline import FitResult, fit
+from freqbrdf.relight import RelightSettings, evaluate as relight_evaluate
+from freqbrdf.share import share_details
 from freqbrdf.synth import SynthSettings, synthesize
 from freqbrdf.uncertainty import FLAG_UNOBSERVED
 
@@ -57,22 +80,45 @@ SCENES = {
     "sphere_city": SynthSettings(mesh="sphere", envmap="city", materials="coffee"),
     "sphere_studio": SynthSettings(mesh="sphere", envmap="studio", materials="astronaut"),
 }
-APPLICATIONS = ("guidance",)
+APPLICATIONS = ("guidance", "share", "inpaint")
 INITIAL_VIEWS = 10
 STEP_VIEWS = 10
 FINAL_VIEWS = 40
+# Sharing settings measured besides the defaults: the uncertain texels from the ambiguous flag's
+# entropy up, less certain anchors, and a looser data-loss tolerance (ShareConfig's fields).
+SHARE_VARIANTS = ("uncertain_entropy=0.7", "anchor_certainty=0.6", "uncertain_entropy=0.7,anchor_certainty=0.6",
+                  "loss_tolerance=0.2")
+TEST_VIEWS = 8  # relighting views (two other environment maps), for the inpainting part
 
 
 def scene_capture(name: str, pool: int) -> Capture:
     """The scene's pool of views, rendered once (cached)."""
     settings = dataclasses.replace(SCENES[name], views=pool, cameras="sphere", resolution=128, spp=16,
-                                   texture_res=256, test_views=0)
+                                   texture_res=256, test_views=TEST_VIEWS)
     folder = CACHE / f"applications_{name}_{pool}"
     if not folder.is_dir():
         start = time.perf_counter()
         synthesize(folder, settings, progress=False)
         print(f"[{name}] rendered {pool} views in {time.perf_counter() - start:.0f} s", flush=True)
     return load(folder)
+
+
+def source_state() -> dict:
+    """What was measured: the package's folder, a hash of its sources, and (in a git checkout) the
+    commit and the source files that differ from it (others may be mid-change)."""
+    import freqbrdf
+
+    package = Path(freqbrdf.__file__).parent
+    digest = hashlib.sha256()
+    for path in sorted(package.glob("*.py")):
+        digest.update(path.read_bytes())
+
+    def git(*arguments):
+        return subprocess.run(["git", *arguments], cwd=package, capture_output=True, text=True).stdout
+
+    return {"package": str(package), "sources_sha256": digest.hexdigest()[:16],
+            "commit": git("rev-parse", "HEAD").strip() or None,
+            "modified": [line[3:] for line in git("status", "--porcelain", "--", ".").splitlines()]}
 
 
 def with_views(capture: Capture, views: list[int]) -> Capture:
@@ -112,19 +158,22 @@ def guidance_scene(name: str, args) -> dict:
 
     start_row, start_fit = score(initial)
     curves: dict[str, list] = {}
-    pick_seconds: list[float] = []
-    views, current = list(initial), start_fit
-    curves["guided"] = [start_row]
-    while len(views) < FINAL_VIEWS:
-        remaining = [view for view in range(len(cameras)) if view not in views]
-        picks = guidance.select_views(with_views(pool, views), [cameras[view] for view in remaining], STEP_VIEWS,
-                                      config, observations=current.observations, max_texels=args.max_texels)
-        pick_seconds += [pick.seconds for pick in picks]
-        views += [remaining[pick.candidate] for pick in picks]
-        row, current = score(views)
-        row["expected_entropy_of_subset"] = picks[-1].expected_entropy
-        curves["guided"].append(row)
-        print(f"[{name}] guided {len(views)}: {json.dumps(row)}", flush=True)
+    pick_seconds: dict[str, list[float]] = {}
+    for spread in args.guidance_spreads:
+        strategy = guided_name(spread)
+        views, current = list(initial), start_fit
+        curves[strategy], pick_seconds[strategy] = [start_row], []
+        while len(views) < FINAL_VIEWS:
+            remaining = [view for view in range(len(cameras)) if view not in views]
+            picks = guidance.select_views(with_views(pool, views), [cameras[view] for view in remaining], STEP_VIEWS,
+                                          config, observations=current.observations, max_texels=args.max_texels,
+                                          spread=spread)
+            pick_seconds[strategy] += [pick.seconds for pick in picks]
+            views += [remaining[pick.candidate] for pick in picks]
+            row, current = score(views)
+            row["expected_entropy_of_subset"] = picks[-1].expected_entropy
+            curves[strategy].append(row)
+            print(f"[{name}] {strategy} {len(views)}: {json.dumps(row)}", flush=True)
 
     views = list(initial)
     curves["farthest_point"] = [start_row]
@@ -151,23 +200,32 @@ def guidance_scene(name: str, args) -> dict:
         "coverable_texels": int(coverable.sum()),
         "curves": curves,
         "random_runs": random_runs,
-        "seconds_per_pick": {"mean": float(np.mean(pick_seconds)), "median": float(np.median(pick_seconds)),
-                             "candidates": f"{args.pool - FINAL_VIEWS + STEP_VIEWS}..{args.pool - INITIAL_VIEWS}"},
+        "seconds_per_pick": {
+            strategy: {"mean": float(np.mean(seconds)), "median": float(np.median(seconds))}
+            for strategy, seconds in pick_seconds.items()
+        },
+        "candidates_per_pick": f"{args.pool - FINAL_VIEWS + 1}..{args.pool - INITIAL_VIEWS} (times 1 - spread)",
     }
 
 
+def guided_name(spread: float) -> str:
+    """The curve of entropy-guided selection with this ``spread``."""
+    return "guided" if spread == 0 else f"guided_spread{spread:g}"
+
+
 def paired_tests(scenes: dict) -> dict:
-    """Guided vs each baseline over all (scene, budget > initial) cells, per metric."""
+    """Each guided variant vs each baseline over all (scene, budget > initial) cells, per metric."""
     from scipy.stats import wilcoxon
 
     tests = {}
-    for baseline in ("random", "farthest_point"):
-        for metric in ("roughness_mae", "base_color_mae", "entropy_mean"):
-            guided = [row[metric] for scene in scenes.values() for row in scene["curves"]["guided"][1:]]
+    strategies = [name for name in next(iter(scenes.values()))["curves"] if name.startswith("guided")]
+    for strategy, baseline in itertools.product(strategies, ("random", "farthest_point")):
+        for metric in ("roughness_mae", "base_color_mae", "metallic_mae", "entropy_mean"):
+            guided = [row[metric] for scene in scenes.values() for row in scene["curves"][strategy][1:]]
             other = [row[metric] for scene in scenes.values() for row in scene["curves"][baseline][1:]]
             difference = np.array(guided) - np.array(other)
             result = wilcoxon(guided, other) if np.any(difference != 0) else None
-            tests[f"{metric}: guided vs {baseline}"] = {
+            tests[f"{metric}: {strategy} vs {baseline}"] = {
                 "pairs": len(difference),
                 "guided_lower": int(np.sum(difference < 0)),
                 "mean_difference": float(difference.mean()),
@@ -182,8 +240,10 @@ def plot_guidance(scenes: dict, path: Path) -> None:
     metrics = (("roughness_mae", "roughness MAE"), ("base_color_mae", "base colour MAE"), ("entropy_mean", "mean entropy"))
     figure = Figure(figsize=(3.6 * len(scenes), 3.0 * len(metrics)), dpi=100, layout="constrained")
     axes = figure.subplots(len(metrics), len(scenes), squeeze=False)
-    styles = {"guided": ("C3", "entropy-guided"), "random": ("C0", "random (mean)"),
-              "farthest_point": ("C2", "farthest-point")}
+    styles = {"random": ("C0", "random (mean)"), "farthest_point": ("C2", "farthest-point")}
+    guided = [name for name in next(iter(scenes.values()))["curves"] if name.startswith("guided")]
+    styles.update({name: (colour, name.replace("guided", "entropy-guided").replace("_", ", "))
+                   for name, colour in zip(guided, ("C3", "C1", "C4", "C5"))})
     for column, (name, scene) in enumerate(scenes.items()):
         for row, (metric, label) in enumerate(metrics):
             ax = axes[row, column]
@@ -211,6 +271,7 @@ def guidance_benchmark(args) -> dict:
         "python": sys.version.split()[0],
         "texture_res": args.texture_res,
         "max_texels": args.max_texels,
+        "spreads": args.guidance_spreads,
         "pool": args.pool,
         "random_seeds": args.random_seeds,
         "views": list(range(INITIAL_VIEWS, FINAL_VIEWS + 1, STEP_VIEWS)),
@@ -219,6 +280,191 @@ def guidance_benchmark(args) -> dict:
     }
     plot_guidance(scenes, RESULTS / "applications_guidance.png")
     return results
+
+# --------------------------------------------------------------------------------------------
+# Sharing and inpainting: one sparse fit per scene (the first --sparse-views farthest-point views
+# of the pool, where uncertainty is common), shared by both parts within a run.
+
+PARAMETERS = ("roughness", "metallic", "base_color")
+# Relighting renders: the test views at the pool's resolution; LPIPS left out (it needs weights
+# that are not always installed, and PSNR/SSIM already show a change).
+RELIGHT = RelightSettings(spp=32, lpips=False)
+_sparse_fits: dict = {}
+
+
+def sparse_fit(name: str, args) -> tuple[FitResult, np.ndarray, Config]:
+    """The scene's fit on its first ``args.sparse_views`` farthest-point views, and the ground
+    truth per texel (N, 5: base colour RGB, roughness, metallic) in the fit's texel order."""
+    key = (name, args.pool, args.sparse_views, args.texture_res)
+    if key not in _sparse_fits:
+        pool = scene_capture(name, args.pool)
+        config = Config(texels=TexelConfig(texture_res=args.texture_res))
+        directions = guidance.view_directions(pool, [frame.camera for frame in pool.frames])
+        result = fit(with_views(pool, guidance.farthest_point_views(directions, args.sparse_views)), config)
+        truth = resize(pool.ground_truth, args.texture_res)
+        index = result.observations.texel_index
+        truth_params = np.column_stack([truth.base_color.reshape(-1, 3)[index], truth.roughness.ravel()[index],
+                                        truth.metallic.ravel()[index]])
+        _sparse_fits[key] = (result, truth_params, config)
+    return _sparse_fits[key]
+
+
+def parameter_errors(params: np.ndarray, truth: np.ndarray, rows: np.ndarray) -> dict:
+    """MAE of roughness, metallic and base colour (mean over RGB) on ``rows``; None when empty."""
+    if len(rows) == 0:
+        return dict.fromkeys(PARAMETERS)
+    error = np.abs(params[rows] - truth[rows])
+    return {"roughness": float(error[:, 3].mean()), "metallic": float(error[:, 4].mean()),
+            "base_color": float(error[:, :3].mean())}
+
+
+def estimate_params(estimate) -> np.ndarray:
+    """(N, 5) base colour RGB, roughness, metallic of a MaterialEstimate."""
+    return np.column_stack([estimate.base_color, estimate.roughness, estimate.metallic]).astype(np.float64)
+
+
+def share_variants(args) -> dict[str, ShareConfig]:
+    """The shipped settings and the ``--share-variants`` (each "field=value[,field=value]")."""
+    default = ShareConfig(enabled=True)
+    variants = {"default": default}
+    for variant in args.share_variants:
+        changes = dict(item.split("=") for item in variant.split(","))
+        variants[variant] = dataclasses.replace(default, **{key: float(value) for key, value in changes.items()})
+    return variants
+
+
+def share_scene(name: str, args) -> dict:
+    result, truth, config = sparse_fit(name, args)
+    estimate = result.estimate
+    before = estimate_params(estimate)
+    variants = {}
+    for label, settings in share_variants(args).items():
+        sharing = share_details(result.observations, estimate, result.uncertainty, config.replace(share=settings))
+        after = estimate_params(sharing.estimate)
+        uncertain = sharing.pulled_rows
+        certain = np.setdiff1d(np.flatnonzero(estimate.estimated), uncertain)
+        variants[label] = {
+            "settings": dataclasses.asdict(settings),
+            **sharing.summary(),
+            "uncertain_without": parameter_errors(before, truth, uncertain),
+            "uncertain_with": parameter_errors(after, truth, uncertain),
+            "certain_without": parameter_errors(before, truth, certain),
+            "certain_with": parameter_errors(after, truth, certain),
+            "certain_changed_texels": int(np.any(after[certain] != before[certain], axis=1).sum()),
+        }
+        print(f"[{name}] share {label}: {json.dumps(variants[label])}", flush=True)
+    return {"fit_seconds": result.timings["total"], "estimated_texels": int(estimate.estimated.sum()),
+            "entropy_mean": float(result.uncertainty.entropy.mean()), "variants": variants}
+
+
+def inpaint_scene(name: str, args) -> dict:
+    result, truth, _ = sparse_fit(name, args)
+    observations, uncertainty = result.observations, result.uncertainty
+    atlas = observations.mask()
+    index = observations.texel_index
+    observed = observations.n_samples > 0
+    capture = result.capture
+
+    def relighting(maps: MaterialMaps) -> dict:
+        scores = relight_evaluate(capture, maps, settings=RELIGHT).relighting
+        return {key: scores[key] for key in ("psnr_hdr", "psnr_ldr", "ssim")}
+
+    def texel_params(maps: MaterialMaps) -> np.ndarray:
+        return np.column_stack([maps.base_color.reshape(-1, 3)[index], maps.roughness.ravel()[index],
+                                maps.metallic.ravel()[index]]).astype(np.float64)
+
+    before = texel_params(result.maps)
+    unobserved_mask = np.zeros(atlas.size, bool)
+    unobserved_mask[index[~observed]] = True
+    unobserved_mask = unobserved_mask.reshape(atlas.shape)
+    masks = {}
+    for threshold in [None, *args.inpaint_entropies]:
+        mask = inpaint_mask(atlas, index, uncertainty.flags, uncertainty.entropy, threshold)
+        masked = mask.ravel()[index]
+        # "all maps": every map filled on the whole mask. "specular": the entropy is about the
+        # specular lobe, so observed texels keep their base colour; unobserved ones get every map.
+        for maps_filled in ("all maps", "specular"):
+            label = ("flags" if threshold is None else f"entropy>={threshold:g}") + f", {maps_filled}"
+            start = time.perf_counter()
+            if maps_filled == "all maps":
+                filled = inpaint_maps(result.maps, atlas, mask, biharmonic_fill)
+            else:
+                filled = inpaint_maps(result.maps, atlas, mask, biharmonic_fill, names=("roughness", "metallic"))
+                filled = inpaint_maps(filled.maps, atlas, mask & unobserved_mask, biharmonic_fill,
+                                      names=("base_color",))
+            seconds = time.perf_counter() - start
+            after = texel_params(filled.maps)
+            masks[label] = {
+                "masked_texels": int(masked.sum()),
+                "masked_observed_texels": int((masked & observed).sum()),
+                "masked_fraction": float(masked.mean()),
+                "seconds": seconds,
+                "masked_observed_before": parameter_errors(before, truth, np.flatnonzero(masked & observed)),
+                "masked_observed_after": parameter_errors(after, truth, np.flatnonzero(masked & observed)),
+                "masked_unobserved_before": parameter_errors(before, truth, np.flatnonzero(masked & ~observed)),
+                "masked_unobserved_after": parameter_errors(after, truth, np.flatnonzero(masked & ~observed)),
+                "relighting": relighting(filled.maps),
+            }
+            print(f"[{name}] inpaint {label}: {json.dumps(masks[label])}", flush=True)
+    return {"fit_seconds": result.timings["total"], "fit_relighting": relighting(result.maps), "masks": masks}
+
+
+def plot_share(scenes: dict, path: Path) -> None:
+    """Roughness MAE of the uncertain texels without / with sharing, per scene and variant."""
+    from matplotlib.figure import Figure
+
+    labels = list(next(iter(scenes.values()))["variants"])
+    figure = Figure(figsize=(3.6 * len(scenes), 3.2), dpi=100, layout="constrained")
+    axes = figure.subplots(1, len(scenes), squeeze=False)[0]
+    for ax, (name, scene) in zip(axes, scenes.items()):
+        positions = np.arange(len(labels))
+        for offset, (key, colour, legend) in enumerate((("uncertain_without", "C0", "without"),
+                                                         ("uncertain_with", "C3", "with sharing"))):
+            values = [scene["variants"][label][key]["roughness"] for label in labels]
+            ax.bar(positions + 0.4 * offset, [np.nan if v is None else v for v in values], 0.4, color=colour,
+                   label=legend)
+        ax.set_xticks(positions + 0.2, labels, fontsize=7, rotation=30, ha="right")
+        ax.set_title(name)
+        ax.set_ylabel("roughness MAE, uncertain texels")
+    axes[0].legend(fontsize=8)
+    with atomic_path(path) as tmp:
+        figure.savefig(tmp, format="png")
+
+
+def plot_inpaint(scenes: dict, path: Path) -> None:
+    """Relighting PSNR-H of the fit and of each inpainting mask, per scene."""
+    from matplotlib.figure import Figure
+
+    figure = Figure(figsize=(3.6 * len(scenes), 3.2), dpi=100, layout="constrained")
+    axes = figure.subplots(1, len(scenes), squeeze=False)[0]
+    for ax, (name, scene) in zip(axes, scenes.items()):
+        labels = ["fit", *scene["masks"]]
+        values = [scene["fit_relighting"]["psnr_hdr"]] + [m["relighting"]["psnr_hdr"] for m in scene["masks"].values()]
+        ax.bar(np.arange(len(labels)), values, color=["C0"] + ["C3"] * (len(labels) - 1))
+        ax.set_ylim(min(values) - 1.0, max(values) + 0.5)
+        ax.set_xticks(np.arange(len(labels)), labels, fontsize=7, rotation=30, ha="right")
+        ax.set_title(name)
+        ax.set_ylabel("relighting PSNR-H (dB)")
+    with atomic_path(path) as tmp:
+        figure.savefig(tmp, format="png")
+
+
+def share_benchmark(args) -> dict:
+    scenes = {name: share_scene(name, args) for name in args.scenes}
+    plot_share(scenes, RESULTS / "applications_share.png")
+    return {"application": "sharing across the surface (issue #8)", **sparse_settings(args), "scenes": scenes}
+
+
+def inpaint_benchmark(args) -> dict:
+    scenes = {name: inpaint_scene(name, args) for name in args.scenes}
+    plot_inpaint(scenes, RESULTS / "applications_inpaint.png")
+    return {"application": "inpainting uncertain regions (issue #8)", **sparse_settings(args),
+            "relight": dataclasses.asdict(RELIGHT), "scenes": scenes}
+
+
+def sparse_settings(args) -> dict:
+    return {**machine(), "python": sys.version.split()[0], "texture_res": args.texture_res, "pool": args.pool,
+            "views": args.sparse_views, "views_chosen": "farthest-point", "test_views": TEST_VIEWS}
 
 
 # --------------------------------------------------------------------------------------------
@@ -232,14 +478,24 @@ def main(argv=None) -> int:
     parser.add_argument("--pool", type=int, default=100)
     parser.add_argument("--random-seeds", type=int, default=3)
     parser.add_argument("--max-texels", type=int, default=guidance.MAX_TEXELS)
+    parser.add_argument("--guidance-spreads", default=f"0,{guidance.SPREAD:g}",
+                        help="guided variants: each pick competes among the (1 - spread) of the candidates "
+                             "farthest from the views (0: all compete)")
+    parser.add_argument("--sparse-views", type=int, default=20, help="views of the share and inpaint fits")
+    parser.add_argument("--share-variants", default=";".join(SHARE_VARIANTS),
+                        help="ShareConfig changes measured besides the defaults, ';'-separated")
+    parser.add_argument("--inpaint-entropies", default="0.3", help="entropy thresholds besides the flags")
     args = parser.parse_args(argv)
     args.scenes = args.scenes.split(",")
-    runners = {"guidance": guidance_benchmark}
+    args.share_variants = [value for value in args.share_variants.split(";") if value]
+    args.inpaint_entropies = [float(value) for value in args.inpaint_entropies.split(",") if value]
+    runners = {"guidance": guidance_benchmark, "share": share_benchmark, "inpaint": inpaint_benchmark}
     RESULTS.mkdir(exist_ok=True)
     for application in args.applications.split(","):
         start = time.perf_counter()
         results = runners[application](args)
         results["seconds"] = time.perf_counter() - start
+        results["source"] = source_state()
         write_json(RESULTS / f"applications_{application}.json", results)
         print(json.dumps(results.get("paired_tests", {}), indent=2))
     return 0

