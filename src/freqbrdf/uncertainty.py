@@ -210,13 +210,12 @@ def entropy_from_spectra(
     else:
         # Amplitude residuals against the light's RMS amplitude (module docstring).
         row_filter = brdf.brdf_kernel(grid.alpha, lmax, sigma)
-        light_power = light_spectrum.sum(axis=2, dtype=np.float64).mean(axis=1)  # (N,)
-        with np.errstate(divide="ignore"):
-            inverse_power = np.where(light_power > 0, 1.0 / light_power, 0.0)  # no light: no information
-        # Least squares: each of the K fitted coefficients has about K / n_samples times a sample's variance.
+        # Least squares: each of the K fitted coefficients has about K / n_samples times a sample's
+        # variance. The kernel divides by the light power P (summing (N, 3, 6) in numpy took longer
+        # than the kernel's own moments).
         samples_per_coeff = (np.ones(n_texels) if n_samples is None
                              else np.maximum(np.asarray(n_samples, dtype=np.float64), 1.0) / n_degrees**2)
-        scale = np.repeat((inverse_power * samples_per_coeff / (2.0 * config.noise_level**2))[:, None], 3, axis=1)
+        scale = np.repeat((samples_per_coeff / (2.0 * config.noise_level**2))[:, None], 3, axis=1)
     use_cross = cross_spectrum is not None and not paper
     if use_cross and cross_spectrum.shape != light_spectrum.shape:
         raise ValueError(f"cross spectrum shape {cross_spectrum.shape} differs from {light_spectrum.shape}")
@@ -233,7 +232,7 @@ def entropy_from_spectra(
         _kernel_input(light_spectrum), _kernel_input(observed_spectrum),
         _kernel_input(cross_spectrum) if use_cross else np.zeros((0, 3, n_degrees)),
         np.ascontiguousarray(scale, dtype=np.float64), row_filter,
-        not paper, use_cross, not paper, residual_dof, return_likelihood, numba.get_num_threads(),
+        not paper, use_cross, not paper, not paper, residual_dof, return_likelihood, numba.get_num_threads(),
         entropy, channel, best_row, best_col, likelihood,
     )
 
@@ -353,15 +352,16 @@ def _smaller(a, b):
 
 @numba.njit(parallel=True, cache=True, error_model="numpy", fastmath={"contract", "reassoc", "nsz", "arcp"})
 def _grid_entropy_kernel(
-    light, observed, cross, scale, row_filter, amplitude, use_cross, merge_zero, residual_dof, want_likelihood,
-    n_threads,
+    light, observed, cross, scale, row_filter, amplitude, use_cross, per_light_power, merge_zero, residual_dof,
+    want_likelihood, n_threads,
     entropy, channel, best_row, best_col, likelihood,
 ):
     """Fused grid misfit, likelihood and entropy per texel; the minimum-entropy channel wins.
 
     light, observed (N, 3, l*+1) power spectra; cross (N, 3, l*+1) their cross spectrum, read when
     use_cross (amplitude mode: a_l b_l is then X(l), else sqrt(S_refl S_out)); scale (N, 3) turns a
-    misfit difference into temperatures; row_filter (R, l*+1) the per-degree factor of alpha_i (kernel for amplitudes,
+    misfit difference into temperatures, divided by the texel's light power P = mean over channels of
+    sum_l S_refl(l) when per_light_power (no light: temperature 0, no information); row_filter (R, l*+1) the per-degree factor of alpha_i (kernel for amplitudes,
     kernel^2 for powers). amplitude: compare sqrt(S), grid values t_j = k_j, and bound the specular
     DC by the observed one; otherwise powers and t_j = k_j^2. merge_zero: the k = 0 column is one
     hypothesis; residual_dof > 0: the noise variance 1 / (2 scale) grows by the best cell's misfit
@@ -417,10 +417,19 @@ def _grid_entropy_kernel(
         weights = np.empty((n_channels, stored, stored, _LANES), np.float32)
         channel_sums = np.empty((n_channels, 2, _LANES))  # Z and the k = 0 weight per channel
         choice = np.empty((4, _LANES))  # lowest entropy, its channel, arg-max row and column
+        light_power = np.ones(_LANES)
         for block in range(worker, n_blocks, n_workers):
             start = block * _LANES
             n_lanes = _smaller(_LANES, n_texels - start)
             choice[0] = 2.0
+            if per_light_power:
+                light_power[:] = 0.0
+                for c in range(n_channels):
+                    for l in range(n_degrees):
+                        for k in range(n_lanes):
+                            light_power[k] += light[start + k, c, l]
+                for k in range(_LANES):
+                    light_power[k] = light_power[k] / n_channels
             for c in range(n_channels):
                 # 1. Moments. Padding lanes hold zeros and are computed like the others.
                 lane[:light_dc_at] = 0.0
@@ -495,6 +504,7 @@ def _grid_entropy_kernel(
                 # 3. Cells. Temperature per lane, the k = 0 column, then row by row.
                 for k in range(_LANES):
                     to_temperature = scale[start + k, c] if k < n_lanes else 0.0
+                    to_temperature = to_temperature / light_power[k] if light_power[k] > 0.0 else 0.0
                     if residual_dof > 0.0 and to_temperature > 0.0:
                         # Noise variance = the stated floor + the best hypothesis's residual per
                         # degree of freedom: a texel no hypothesis explains is not sure of any.
