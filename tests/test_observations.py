@@ -26,6 +26,7 @@ from scipy import ndimage
 
 from freqbrdf import render
 from freqbrdf.assets import envmap_path
+from freqbrdf.camera import Occluder
 from freqbrdf.capture import load
 from freqbrdf.cli import main
 from freqbrdf.config import Config, FitConfig, ObserveConfig, TexelConfig
@@ -358,13 +359,11 @@ def test_blocked_irradiance_of_a_square_roof_matches_its_form_factor():
     corners[:, :2] *= half_side
     roof = Mesh(vertices=corners, faces=np.array([[0, 2, 1], [0, 3, 2]]),
                 normals=np.tile([0.0, 0.0, -1.0], (4, 1)), uv=np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float))
-    mi = render.mitsuba()
-    scene = mi.load_dict({"type": "scene", "object": render.mesh_shape(roof, {"type": "diffuse"})})
     n_texels = 2000
     origins = np.zeros((n_texels, 3), np.float32)
     frame = np.broadcast_to(np.eye(3), (n_texels, 3, 3))  # t = x, b = y, n = z
     uniform = Envmap(np.ones((16, 32, 3), np.float32))
-    blocked = blocked_irradiance(scene, uniform, origins, frame, 64, seed=0)
+    blocked = blocked_irradiance(Occluder(roof), uniform, origins, frame, 64, seed=0)
     x = half_side / height
     form_factor = 2.0 / np.pi * x / math.sqrt(1 + x * x) * math.atan(x / math.sqrt(1 + x * x)) * 2.0
     np.testing.assert_allclose(blocked.mean(axis=0), np.pi * form_factor, rtol=0.01)

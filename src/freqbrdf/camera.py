@@ -325,9 +325,14 @@ class Occluder:
     def hits(self, origins: np.ndarray, directions: np.ndarray, max_distance: np.ndarray | None = None) -> np.ndarray:
         """(M,) bool: the ray from each origin (M, 3) along its unit direction (M, 3) hits the mesh
         before ``max_distance`` (M,) (None: unbounded)."""
+        return self.hits_rows(np.ascontiguousarray(np.asarray(origins, np.float32).T),
+                              np.ascontiguousarray(np.asarray(directions, np.float32).T), max_distance)
+
+    def hits_rows(self, origins: np.ndarray, directions: np.ndarray, max_distance: np.ndarray | None = None
+                  ) -> np.ndarray:
+        """`hits` for origins and directions given as (3, M) float32 rows (what Dr.Jit takes
+        without a copy); traced in batches of RAYS_PER_BATCH."""
         mi = self._mitsuba
-        origins = np.ascontiguousarray(np.asarray(origins, np.float32).T)  # rows: what Dr.Jit takes without a copy
-        directions = np.ascontiguousarray(np.asarray(directions, np.float32).T)
         hits = np.zeros(origins.shape[1], dtype=bool)
         for first in range(0, origins.shape[1], RAYS_PER_BATCH):
             rays = slice(first, first + RAYS_PER_BATCH)

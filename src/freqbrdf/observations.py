@@ -36,12 +36,12 @@ import numba
 import numpy as np
 
 from freqbrdf import brdf, envmap as envmaps, sh
+from freqbrdf.camera import RAYS_PER_BATCH, Occluder
 from freqbrdf.capture import Capture
 from freqbrdf.config import Config
 from freqbrdf.errors import InputError
 from freqbrdf.fileio import atomic_path
 from freqbrdf.progress import SILENT, Reporter
-from freqbrdf.render import mitsuba
 from freqbrdf.texels import Texels, rasterise
 
 # Shadow rays start this far off the surface, in units of the texel's world size, plus a small
@@ -52,9 +52,6 @@ RAY_OFFSET_OBJECT = 1e-5
 # A sample must lie fully inside the mask: its four bilinear neighbours all on the object, so
 # that silhouette pixels blending object and background are not taken for the object.
 MASK_INSIDE = 1.0 - 1e-6
-# Shadow rays per Mitsuba call: one call costs ~10 ms besides the tracing, so the rays of
-# several views go together; 2^21 rays keep the transient buffers near 100 MB.
-RAYS_PER_BATCH = 1 << 21
 # Views projected, traced and sampled together (within RAYS_PER_BATCH shadow rays and this many
 # bytes of stacked images and masks), so that each texel writes its samples contiguously.
 VIEWS_PER_BATCH = 16
@@ -189,7 +186,7 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
     frame = np.stack([texels.tangent, texels.bitangent, texels.normal], axis=1).astype(np.float64)  # (N, 3, 3) rows
     offset = RAY_OFFSET_TEXELS * texels.texel_size + RAY_OFFSET_OBJECT * _extent(capture.mesh.vertices)
     ray_origin = (position + offset[:, None] * normal).astype(np.float32)  # (N, 3)
-    scene = _occlusion_scene(capture)
+    occluder = Occluder(capture.mesh)  # the object, for shadow rays
 
     with reporter.stage("observing views", n_views) as advance:
         for batch in _view_batches(capture, n_texels):
@@ -213,7 +210,7 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
             tick = time.perf_counter()
             ray_offsets = _sample_offsets(seen)
             origins, directions, distances = _shadow_rays(ray_origin, centres, seen, ray_offsets)
-            _clear_occluded(seen, ray_offsets, _ray_hits(scene, origins, directions, distances))
+            _clear_occluded(seen, ray_offsets, occluder.hits_rows(origins, directions, distances))
             timings["visibility"] += time.perf_counter() - tick
 
             tick = time.perf_counter()
@@ -236,10 +233,10 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
     if config.observe.environment_occlusion:
         tick = time.perf_counter()
         with reporter.stage("environment occlusion", 2) as advance:
-            _occlude_mirror_directions(scene, ray_origin, frame, view_direction, weight, signals)
+            _occlude_mirror_directions(occluder, ray_origin, frame, view_direction, weight, signals)
             advance(1)
             irradiance -= blocked_irradiance(
-                scene, capture.envmap, ray_origin, frame, config.observe.occlusion_rays, config.seed
+                occluder, capture.envmap, ray_origin, frame, config.observe.occlusion_rays, config.seed
             )
             np.maximum(irradiance, 0.0, out=irradiance)
             advance(1)
@@ -315,7 +312,7 @@ def cosine_directions(n_rays: int) -> np.ndarray:
     )
 
 
-def blocked_irradiance(scene, envmap: envmaps.Envmap, ray_origin: np.ndarray, frame: np.ndarray,
+def blocked_irradiance(occluder: Occluder, envmap: envmaps.Envmap, ray_origin: np.ndarray, frame: np.ndarray,
                        n_rays: int, seed: int) -> np.ndarray:
     """(N, 3) float32: the part of each texel's irradiance that the object itself blocks.
 
@@ -344,7 +341,7 @@ def blocked_irradiance(scene, envmap: envmaps.Envmap, ray_origin: np.ndarray, fr
             + local[None, :, 2, None] * basis[:, None, 2]
         ).reshape(-1, 3)  # (n M, 3)
         origins = np.repeat(ray_origin[texels].T, n_rays, axis=1)  # (3, n M)
-        hit = _ray_hits(scene, origins, np.ascontiguousarray(directions.T, np.float32), None)
+        hit = occluder.hits_rows(origins, np.ascontiguousarray(directions.T, np.float32))
         rays = np.flatnonzero(hit)
         radiance = envmaps.lookup(envmap, directions[rays])  # (hits, 3)
         owner = rays // n_rays  # texel within the batch
@@ -355,14 +352,13 @@ def blocked_irradiance(scene, envmap: envmaps.Envmap, ray_origin: np.ndarray, fr
     return (blocked * (math.pi / n_rays)).astype(np.float32)
 
 
-def _occlude_mirror_directions(scene, ray_origin, frame, view_direction, weight, signals) -> None:
+def _occlude_mirror_directions(occluder: Occluder, ray_origin, frame, view_direction, weight, signals) -> None:
     """Zero the mirrored radiance of samples whose mirror direction runs into the object."""
     sampled = weight > 0
     offsets = _sample_offsets(sampled)
     mirror = _mirror_directions(frame, view_direction, sampled, offsets)
     texel, view = np.nonzero(sampled)  # the packing order: row-major
-    blocked = _ray_hits(scene, np.ascontiguousarray(ray_origin[texel].T),
-                        np.ascontiguousarray(mirror.T, np.float32), None)
+    blocked = occluder.hits_rows(np.ascontiguousarray(ray_origin[texel].T), np.ascontiguousarray(mirror.T, np.float32))
     signals[texel[blocked], view[blocked], MIRRORED] = 0.0
 
 
@@ -390,30 +386,6 @@ def _extent(vertices: np.ndarray) -> float:
     return float(np.linalg.norm(vertices.max(axis=0) - vertices.min(axis=0)))
 
 
-def _occlusion_scene(capture: Capture):
-    """A Mitsuba scene holding only the mesh, for batched shadow-ray tests."""
-    from freqbrdf.render import mesh_shape
-
-    mi = mitsuba()
-    return mi.load_dict({"type": "scene", "object": mesh_shape(capture.mesh, {"type": "diffuse"})})
-
-
-def _ray_hits(scene, origins: np.ndarray, directions: np.ndarray, max_distance: np.ndarray | None) -> np.ndarray:
-    """(M,) bool: the ray from each origin along its unit direction hits the scene before
-    ``max_distance`` (M,) (None: unbounded). origins and directions are (3, M) float32 (rows are
-    what Dr.Jit takes without a copy); traced in batches of RAYS_PER_BATCH."""
-    mi = mitsuba()
-    hits = np.zeros(origins.shape[1], dtype=bool)
-    for first in range(0, origins.shape[1], RAYS_PER_BATCH):
-        rays = slice(first, first + RAYS_PER_BATCH)
-        ray = mi.Ray3f(mi.Point3f(*(mi.Float(row[rays]) for row in origins)),
-                       mi.Vector3f(*(mi.Float(row[rays]) for row in directions)))
-        if max_distance is not None:
-            ray.maxt = mi.Float(max_distance[rays])
-        hits[rays] = np.asarray(scene.ray_test(ray), dtype=bool)
-    return hits
-
-
 def _sample_offsets(selected: np.ndarray) -> np.ndarray:
     """(N + 1,) int64: where each texel's selected entries of ``selected`` (N, B) bool start when
     they are packed row-major (texel by texel, views in order), and their total at the end."""
@@ -424,7 +396,7 @@ def _sample_offsets(selected: np.ndarray) -> np.ndarray:
 
 @numba.njit(parallel=True, cache=True)
 def _shadow_rays(ray_origin, centres, seen, offsets):
-    """Segments from texels to camera centres, as `_ray_hits` takes them.
+    """Segments from texels to camera centres, as `Occluder.hits_rows` takes them.
 
     ray_origin (N, 3) float32; centres (B, 3); one ray per True of seen (N, B), packed at
     `_sample_offsets`. Returns origins (3, M), unit directions (3, M) float32 and lengths (M,)
