@@ -2,6 +2,7 @@
 
 import math
 
+import numba
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -131,6 +132,50 @@ def test_fit_solves_the_documented_objective(regulariser, scale):
     for t in range(n_texels):
         expected = direct_solution(directions[t], weights[t], values[t], lmax, 1e-2, regulariser, scale)
         np.testing.assert_allclose(fit.coeffs[t], expected, rtol=1e-7, atol=1e-9)
+
+
+def test_fit_of_a_capture_like_batch_equals_numpy_least_squares():
+    """The pipeline's case (l* = 5, 7 right-hand sides, float32) over several SIMD lane groups,
+    the last one partial, with well-sampled, underdetermined and empty texels."""
+    rng = np.random.default_rng(8)
+    n_texels, n_views, lmax, lam = 70, 64, 5, 1e-3
+    directions = random_directions(rng, n_texels * n_views).reshape(n_texels, n_views, 3).astype(np.float32)
+    n_seen = rng.integers(0, n_views + 1, size=n_texels)
+    n_seen[:3] = [0, 10, n_views]
+    weights = (rng.random((n_texels, n_views)) * (np.arange(n_views) < n_seen[:, None])).astype(np.float32)
+    values = rng.random((n_texels, n_views, 7), dtype=np.float32)
+    fit = sh.fit_sh(directions, weights, values, lmax, lam, "exponential", True)
+    reg = sh.regulariser_weights(lmax, "exponential")
+    n_coeffs = sh.num_coeffs(lmax)
+    for t in range(n_texels):
+        w = weights[t].astype(np.float64)
+        # min |[wY; sqrt(lambda_eff reg)] x - [wf; 0]|^2, the documented objective
+        design = np.concatenate([sh.eval_sh(directions[t].astype(np.float64), lmax) * w[:, None],
+                                 np.diag(np.sqrt(lam * np.sum(w * w) * reg))])
+        targets = np.concatenate([values[t] * w[:, None], np.zeros((n_coeffs, 7))])
+        expected = np.linalg.lstsq(design, targets, rcond=None)[0].T
+        scale = max(np.abs(expected).max(), 1e-30)
+        np.testing.assert_allclose(fit.coeffs[t], expected, rtol=0, atol=1e-5 * scale, err_msg=f"texel {t}")
+    expected_status = np.where(
+        n_seen == 0, sh.FIT_EMPTY, np.where(n_seen < n_coeffs, sh.FIT_UNDERDETERMINED, sh.FIT_OK)
+    )
+    np.testing.assert_array_equal(fit.n_samples, np.sum(weights > 0, axis=1))
+    np.testing.assert_array_equal(fit.status, expected_status)
+    assert np.all(fit.coeffs[0] == 0)
+
+
+def test_fit_does_not_depend_on_the_thread_count():
+    rng = np.random.default_rng(9)
+    directions = random_directions(rng, 100 * 20).reshape(100, 20, 3)
+    weights = rng.random((100, 20))
+    values = rng.normal(size=(100, 20, 3))
+    threads = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        serial = sh.fit_sh(directions, weights, values, 3, 1e-3).coeffs
+    finally:
+        numba.set_num_threads(threads)
+    np.testing.assert_array_equal(sh.fit_sh(directions, weights, values, 3, 1e-3).coeffs, serial)
 
 
 def test_fit_recovers_a_band_limited_function_exactly():
