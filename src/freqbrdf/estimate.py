@@ -13,12 +13,20 @@ and diffuse factor D come in two versions (``EstimateConfig.specular_model``, ``
 - METHOD.md's angular model (``brdf.predict_angular``; "g1", "lambert"): A = G1 (1 - F_c),
   B = G1 F_c with F_c = (1 - cos theta_o)^5, the light shadowed by G1 before its fit, D = 1.
 - ours, the default for ``global`` ("split_sum", "burley"): (A, B) the GGX lobe's directional
-  albedo with Fresnel and Smith masking-shadowing integrated over the lobe (`split_sum_table`),
-  and D Mitsuba's principled diffuse averaged over the light (`burley_diffuse_factor`). On the
-  64-view Mitsuba captures (bunny, plane) it cut roughness MAE 0.200 -> 0.169 and 0.118 -> 0.127
-  (plane worse), metallic MAE 0.286 -> 0.238 and 0.237 -> 0.188, at base-colour PSNR
-  17.2 -> 16.9 and 20.3 -> 19.6 dB: "g1" lets rough metals (r 0.8: albedo 1 instead of 0.56)
-  pass for dark dielectrics, Lambert makes rough dielectrics look too smooth.
+  albedo with Fresnel and Smith masking-shadowing integrated over the lobe (`split_sum_table`;
+  for a metal it is what Mitsuba's ``principled`` BSDF reflects, to Monte Carlo noise), D
+  Mitsuba's principled diffuse averaged over the light (`burley_diffuse_factor`), and the light
+  read in the mirror direction. On the 64-view Mitsuba captures (bunny, plane) the albedo and
+  Burley cut roughness MAE 0.200 -> 0.169 and 0.118 -> 0.127, metallic MAE 0.286 -> 0.238 and
+  0.237 -> 0.188 ("g1" lets rough metals pass for dark dielectrics, Lambert makes rough
+  dielectrics look too smooth).
+- with ``EstimateConfig.lobe_tilt`` the light of a rough lobe is read off the mirror direction,
+  tilted towards the normal as the lobe leans (`lobe_tilt_table`): S_alpha,c at
+  w' = normalize((1 - s) n + s w). The mirror lookup predicts rough metals 0.67 of their
+  path-traced specular on the plane, so they are fitted as half dielectric; the tilt took
+  base-colour PSNR 16.87 -> 16.92 (bunny) and 19.56 -> 22.54 dB (plane), roughness MAE to 0.158
+  and 0.088, metallic MAE to 0.223 and 0.149, but the demo capture's 18.51 -> 17.06 dB (smooth
+  dielectrics are over-predicted at grazing views), at 2.9x the search time: off by default.
 
 - ``global`` (ours) minimises the weighted squared residual sum_v w_v^2 (L(w_v) - f_v)^2. Write
   L = R0 X + Y + d e D with X = A S, Y = B S, e = E / pi. For fixed (alpha, m) the model is linear
@@ -27,8 +35,8 @@ and diffuse factor D come in two versions (``EstimateConfig.specular_model``, ``
   searched on a grid with the metallic profiled out (grid, then safeguarded Newton on the exact
   derivatives of the profiled loss) at each node, and the best cell is refined by Brent: the
   global optimum in (b, m, r) up to the grid resolution, with no step size and no local minima to
-  fall into. Per texel the light is expanded by degree once and everything that does not depend
-  on the roughness (table positions, Burley's polynomial in r, the diffuse moments) is prepared
+  fall into. Per texel the light is expanded by degree once per tilt level and everything that does not
+  depend on the roughness (table positions, Burley's polynomial in r, the diffuse moments) is prepared
   before the search, so a roughness probe costs ~20 multiply-adds per sample.
 - ``paper`` reproduces the authors' prototype with METHOD.md's model: Adam (torch's defaults, lr
   0.02, 100 iterations) on the L1 loss of the cos-weighted residuals averaged over the whole T x T
@@ -55,12 +63,14 @@ import functools
 import math
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numba
 import numpy as np
 
 from freqbrdf import brdf, sh, texels
 from freqbrdf.config import Config, EstimateConfig, FitConfig
+from freqbrdf.errors import InputError
 from freqbrdf.observations import Observations
 from freqbrdf.progress import SILENT, Reporter
 
@@ -146,14 +156,15 @@ def angular_loss(
     light = observations.mirrored_coeffs if light_coeffs is None else light_coeffs
     mf = brdf.microfacet_from_principled(params)
     loss = np.empty(observations.n_texels)
-    for rows in _blocks(observations.n_texels):
+    levels = _tilt_levels(settings)
+    for rows in _blocks(observations.n_texels, _PROJECTION_BLOCK // levels):
         _squared_residual_kernel(
-            _degree_projections(observations.view_direction[rows], observations.weight[rows], light[rows],
-                                observations.lmax),
+            _tilted_projections(observations.view_direction[rows], observations.weight[rows], light[rows],
+                                observations.lmax, levels),
             observations.view_direction[rows, :, 2], observations.weight[rows], observations.observed[rows],
             _diffuse_scale(observations)[rows], mf.specular_r0[rows], mf.diffuse_albedo[rows],
             np.asarray(params.roughness, dtype=np.float64)[rows], observations.sigma, settings.fresnel, settings.masking,
-            _uses_split_sum(settings), _uses_burley(settings), split_sum_table(), loss[rows],
+            _uses_split_sum(settings), _uses_burley(settings), _model_tables(), loss[rows],
         )
     return np.where(observations.n_samples > 0, loss, np.nan)
 
@@ -188,9 +199,9 @@ def _validate(settings: EstimateConfig) -> None:
         raise ValueError("iterations and shadowing_refreshes must be >= 0, shadowing_refresh_every >= 1")
 
 
-def _blocks(n_texels: int):
-    for start in range(0, n_texels, _PROJECTION_BLOCK):
-        yield slice(start, min(start + _PROJECTION_BLOCK, n_texels))
+def _blocks(n_texels: int, size: int = _PROJECTION_BLOCK):
+    for start in range(0, n_texels, size):
+        yield slice(start, min(start + size, n_texels))
 
 
 def _diffuse_scale(observations: Observations) -> np.ndarray:
@@ -241,6 +252,135 @@ def split_sum_terms(cos_theta: np.ndarray, roughness: np.ndarray) -> tuple[np.nd
     terms = np.empty((2, cos_theta.size))
     _split_sum_terms_kernel(cos_theta.ravel(), roughness.ravel(), split_sum_table(), terms)
     return terms[0].reshape(cos_theta.shape), terms[1].reshape(cos_theta.shape)
+
+
+# With lobe_tilt, the light of a rough lobe is looked up off the mirror direction, at the view
+# direction tilted towards the normal: w' = normalize((1 - s) n + s w) (s = 1 the mirror, 0 the normal), with s per
+# (cos theta_o, roughness) from a shipped table (`lobe_tilt_table`). The search expands the light by
+# degree at the tilt levels s = j / (levels - 1) and interpolates linearly in s.
+_TILT_LEVELS = 9
+_TILT_TABLE_PATH = Path(__file__).resolve().parent / "data" / "lobe_tilt.csv"
+_TILT_FIT_LMAX = 5  # the default l*: the degrees whose responses the tilt is fitted to
+_TILT_CANDIDATES = 401  # tilts tried per node: s on a 0.0025 grid
+_TILT_THETA_STRATA = 64
+_TILT_PHI_STRATA = 64
+
+
+@functools.cache
+def lobe_tilt_table() -> np.ndarray:
+    """(cos nodes, roughness nodes) float64: the tilt s in [0, 1] of the split-sum light lookup.
+
+    The cos-weighted GGX lobe of a rough surface leans from the mirror direction towards the
+    normal, so the mirror-direction lookup sees too much of the horizon: on the plane capture it
+    predicted 0.45 of the path-traced specular of rough metals (r >= 0.65) at grazing views and
+    0.90 near the normal; the tilted lookup 0.93-0.98. Nodes as `split_sum_table`'s; the values
+    are `fit_lobe_tilt`'s, shipped in data/lobe_tilt.csv (scripts/make_lobe_tilt_table.py).
+    """
+    table = np.loadtxt(_TILT_TABLE_PATH, delimiter=",", ndmin=2)
+    if table.shape != (_TABLE_COS_NODES, _TABLE_ROUGHNESS_NODES) or not np.all((table >= 0.0) & (table <= 1.0)):
+        raise InputError(_TILT_TABLE_PATH, f"expected a {_TABLE_COS_NODES} x {_TABLE_ROUGHNESS_NODES} table of "
+                                           f"tilts in [0, 1], got shape {table.shape}; regenerate it with "
+                                           "scripts/make_lobe_tilt_table.py")
+    return table
+
+
+def lobe_tilt_nodes() -> tuple[np.ndarray, np.ndarray]:
+    """The (cos theta_o, roughness) nodes of `lobe_tilt_table` (and of `split_sum_table`)."""
+    return np.linspace(0.0, 1.0, _TABLE_COS_NODES), np.linspace(0.0, 1.0, _TABLE_ROUGHNESS_NODES)
+
+
+def fit_lobe_tilt(cos_theta: float, roughness: float, lmax: int = _TILT_FIT_LMAX) -> float:
+    """The tilt s whose split-sum lookup best reproduces the GGX lobe's response to each real SH
+    of degree 1..l* (degree 0 does not depend on s), in the least-squares sense over the 3 + ... +
+    (2 l* + 1) harmonics, the best of s on a grid.
+
+    The lobe (masking-shadowing included, Fresnel 1) is integrated by stratified sampling of
+    GGX half vectors, as `split_sum_table`; its response to a light that is Y_lm in the mirrored
+    parameterisation is int Y_lm(mirror(w_i)) f cos_i dw_i, the model's is its albedo times
+    exp(-alpha^2 l^2) Y_lm(w'(s)). Deterministic. At normal incidence every s gives the normal.
+    """
+    cos_theta = max(float(cos_theta), 1e-4)
+    alpha = float(brdf.alpha_from_roughness(np.array(roughness)))
+    u = (np.arange(_TILT_THETA_STRATA) + 0.5) / _TILT_THETA_STRATA
+    phi = (np.arange(_TILT_PHI_STRATA) + 0.5) / _TILT_PHI_STRATA * 2.0 * np.pi
+    cos_half = np.repeat(1.0 / np.sqrt(1.0 + alpha**2 * u / (1.0 - u)), _TILT_PHI_STRATA)
+    sin_half = np.sqrt(1.0 - cos_half**2)
+    half = np.stack([sin_half * np.tile(np.cos(phi), _TILT_THETA_STRATA),
+                     sin_half * np.tile(np.sin(phi), _TILT_THETA_STRATA), cos_half], axis=-1)
+    view = np.array([math.sqrt(1.0 - cos_theta**2), 0.0, cos_theta])
+    view_dot_half = half @ view
+    light = 2.0 * view_dot_half[:, None] * half - view
+    lobe = np.where(
+        (light[:, 2] > 0.0) & (view_dot_half > 0.0),
+        brdf.smith_g1_ggx(np.maximum(light[:, 2], 1e-12), alpha) * brdf.smith_g1_ggx(cos_theta, alpha)
+        * np.maximum(view_dot_half, 0.0) / (cos_theta * cos_half),
+        0.0,
+    )
+    degree = sh.sh_degrees(lmax)
+    responses = np.mean(lobe[:, None] * sh.eval_sh(light * np.array([-1.0, -1.0, 1.0]), lmax), axis=0)
+    tilts = np.linspace(0.0, 1.0, _TILT_CANDIDATES)
+    looked_up = tilts[:, None] * view + (1.0 - tilts)[:, None] * np.array([0.0, 0.0, 1.0])
+    looked_up /= np.linalg.norm(looked_up, axis=1, keepdims=True)
+    model = np.mean(lobe) * np.exp(-alpha**2 * degree**2) * sh.eval_sh(looked_up, lmax)
+    misfit = np.sum(((model - responses) ** 2)[:, degree >= 1], axis=1)
+    return float(tilts[np.argmin(misfit)])
+
+
+def lobe_tilt(cos_theta: np.ndarray, roughness: np.ndarray) -> np.ndarray:
+    """`lobe_tilt_table`, bilinear, for broadcastable cos_theta and roughness in [0, 1]."""
+    cos_theta, roughness = np.broadcast_arrays(np.asarray(cos_theta, np.float64), np.asarray(roughness, np.float64))
+    out = np.empty((3, cos_theta.size))
+    _split_sum_terms_kernel(cos_theta.ravel(), roughness.ravel(), _model_tables(), out)
+    return out[2].reshape(cos_theta.shape)
+
+
+@functools.cache
+def _model_tables() -> np.ndarray:
+    """(3, cos nodes, roughness nodes): A and B of `split_sum_table`, then `lobe_tilt_table`."""
+    return np.concatenate([split_sum_table(), lobe_tilt_table()[None]])
+
+
+def _tilt_levels(settings: EstimateConfig) -> int:
+    """Tilt levels the search expands the light at: one (the mirror lookup) without lobe_tilt."""
+    return _TILT_LEVELS if (_uses_split_sum(settings) and settings.lobe_tilt) else 1
+
+
+def lobe_filtered_light(directions: np.ndarray, weight: np.ndarray, light_coeffs: np.ndarray, lmax: int,
+                        sigma: float, roughness: np.ndarray, tilted: bool = True) -> np.ndarray:
+    """(n, V, 3) the light as the split-sum model filters it for a lobe of roughness (n,).
+
+    directions (n, V, 3) local view directions, weight (n, V), light_coeffs (n, 3, K): the SH fit
+    of the mirrored light, low-passed by the BRDF kernel and read at the tilted directions
+    (`lobe_tilt_table`), linear in s between the search's tilt levels; 0 where weight is 0.
+    Not ``tilted``: read in the mirror direction (`EstimateConfig.lobe_tilt` off).
+    """
+    alpha = brdf.alpha_from_roughness(np.asarray(roughness, np.float64))
+    kernel = brdf.brdf_kernel(alpha, lmax, sigma)  # (n, l*+1)
+    if not tilted:
+        mirror = _tilted_projections(directions, weight, light_coeffs, lmax, 1)[:, 0]  # (n, 3, l*+1, V)
+        return np.einsum("nl,nclv->nvc", kernel, mirror)
+    levels = _tilted_projections(directions, weight, light_coeffs, lmax, _TILT_LEVELS)
+    position = lobe_tilt(directions[..., 2], np.asarray(roughness, np.float64)[:, None]) * (_TILT_LEVELS - 1)
+    level = np.minimum(position.astype(np.int64), _TILT_LEVELS - 2)  # (n, V)
+    frac = position - level
+    lower = np.take_along_axis(levels, level[:, None, None, None, :], axis=1)[:, 0]  # (n, 3, l*+1, V)
+    upper = np.take_along_axis(levels, level[:, None, None, None, :] + 1, axis=1)[:, 0]
+    interpolated = lower + frac[:, None, None, :] * (upper - lower)
+    return np.einsum("nl,nclv->nvc", kernel, interpolated)
+
+
+def _tilted_projections(directions, weight, coeffs, lmax, levels) -> np.ndarray:
+    """(n, levels, 3, l*+1, V) `_degree_projections` at the view directions tilted towards the
+    normal by s = j / (levels - 1); one level: the view directions themselves."""
+    directions = np.asarray(directions, dtype=np.float64)
+    out = []
+    for j in range(levels):
+        tilt = j / (levels - 1) if levels > 1 else 1.0
+        tilted = directions * tilt
+        tilted[..., 2] += 1.0 - tilt
+        tilted /= np.maximum(np.linalg.norm(tilted, axis=-1, keepdims=True), 1e-12)  # unsampled: (0, 0, 0)
+        out.append(_degree_projections(tilted, weight, coeffs, lmax))
+    return np.stack(out, axis=1)
 
 
 def burley_diffuse_factor(cos_theta, roughness):
@@ -332,10 +472,10 @@ def _table_lookup(table, index, cos_theta, roughness):
 
 
 @numba.njit(parallel=True, cache=True)
-def _split_sum_terms_kernel(cos_theta, roughness, table, out):  # (n,), (n,) -> out (2, n)
+def _split_sum_terms_kernel(cos_theta, roughness, table, out):  # (n,), (n,) -> out (planes, n)
     for k in numba.prange(cos_theta.shape[0]):
-        out[0, k] = _table_lookup(table, 0, cos_theta[k], roughness[k])
-        out[1, k] = _table_lookup(table, 1, cos_theta[k], roughness[k])
+        for plane in range(table.shape[0]):
+            out[plane, k] = _table_lookup(table, plane, cos_theta[k], roughness[k])
 
 
 @numba.njit(fastmath=True, cache=True)
@@ -369,9 +509,10 @@ def _squared_residual_kernel(
     proj, cos_theta, weight, observed, diffuse_scale, r0, diffuse, roughness, sigma, fresnel, masking, split_sum,
     burley, table, out,
 ):
-    """out[t] = sum_v,c w^2 (L - f)^2 / sum_v w^2 (0 without samples)."""
+    """out[t] = sum_v,c w^2 (L - f)^2 / sum_v w^2 (0 without samples). proj (n, levels, 3, l*+1, V):
+    `_tilted_projections`, interpolated at each sample's lobe tilt when there are several levels."""
     n_texels, n_views = weight.shape
-    n_degrees = proj.shape[2]
+    n_levels, n_degrees = proj.shape[1], proj.shape[3]
     for t in numba.prange(n_texels):
         alpha = max(roughness[t] * roughness[t], _ALPHA_MIN)
         kernel = np.empty(n_degrees)
@@ -384,10 +525,17 @@ def _squared_residual_kernel(
                 cos_v = np.float64(cos_theta[t, v])
                 scale, bias = _specular_albedo(cos_v, roughness[t], alpha, fresnel, masking, split_sum, table)
                 diffuse_factor = _burley_diffuse_factor(cos_v, roughness[t]) if burley else 1.0
+                level, frac = 0, 0.0
+                if n_levels > 1:
+                    position = _table_lookup(table, 2, cos_v, roughness[t]) * (n_levels - 1)
+                    level = min(int(position), n_levels - 2)
+                    frac = position - level
                 for c in range(3):
                     filtered = 0.0
                     for degree in range(n_degrees):
-                        filtered += kernel[degree] * proj[t, c, degree, v]
+                        lower = proj[t, level, c, degree, v]
+                        upper = proj[t, level + 1, c, degree, v] if n_levels > 1 else lower
+                        filtered += kernel[degree] * (lower + frac * (upper - lower))
                     residual = ((r0[t, c] * scale + bias) * filtered
                                 + diffuse[t, c] * diffuse_scale[t, c] * diffuse_factor - observed[t, v, c])
                     total += w * w * residual * residual
@@ -414,7 +562,7 @@ def _estimate_global(observations: Observations, config: Config, reporter: Repor
     shadow_roughness = np.zeros(n_texels)
     previous_roughness = previous_residual = None
     # The split-sum albedo holds the shadowing: the light is never re-fitted.
-    split_sum, table = _uses_split_sum(settings), split_sum_table()
+    split_sum, table = _uses_split_sum(settings), _model_tables()
     n_passes = 1 + (settings.shadowing_refreshes if settings.shadowing and not split_sum else 0)
     with reporter.stage("estimating (global)", n_passes) as advance:
         for pass_index in range(n_passes):
@@ -426,7 +574,8 @@ def _estimate_global(observations: Observations, config: Config, reporter: Repor
             _global_search_kernel(
                 observations.view_direction, observations.weight, observations.observed,
                 np.ascontiguousarray(light, dtype=np.float32), diffuse_scale, observations.sigma, settings.fresnel,
-                settings.masking, split_sum, _uses_burley(settings), table, settings.roughness_grid,
+                settings.masking, split_sum, _uses_burley(settings), table, _tilt_levels(settings),
+                settings.roughness_grid,
                 settings.metallic_grid, observations.lmax, *sh._legendre_tables(observations.lmax), params, loss,
             )
             timings["search"] += time.perf_counter() - tick
@@ -634,21 +783,27 @@ def _roughness_objective(roughness, args):
     besides the kernel; their roughness-free parts were prepared per texel (`_global_search_kernel`).
     """
     (n, cos_theta, omega, proj, values, sigma, fresnel, masking, split_sum, burley, table, table_row,
-     table_frac, burley_terms, diffuse_moments, column, kernel, kernel_derivative, albedo_scale, albedo_bias,
-     diffuse_factor, filtered, moments, squared_values, diffuse_scale, state, metallic_grid) = args
+     table_frac, tilt_level, tilt_frac, burley_terms, diffuse_moments, column, kernel, kernel_derivative,
+     albedo_scale, albedo_bias, diffuse_factor, level_filtered, filtered, moments, squared_values, diffuse_scale,
+     state, metallic_grid) = args
+    n_levels = proj.shape[0]
     alpha = max(roughness * roughness, _ALPHA_MIN)
     _fill_kernel(alpha, sigma, kernel, kernel_derivative)
     if split_sum:  # the table's column at this roughness, linear in it
         y = min(max(roughness, 0.0), 1.0) * (table.shape[2] - 1)
         j = min(int(y), table.shape[2] - 2)
         fy = y - j
-        for side in range(2):
+        for side in range(table.shape[0]):
             for i in range(table.shape[1]):
                 column[side, i] = table[side, i, j] * (1.0 - fy) + table[side, i, j + 1] * fy
         for s in range(n):
             row, fx = table_row[s], table_frac[s]
             albedo_scale[s] = column[0, row] + fx * (column[0, row + 1] - column[0, row])
             albedo_bias[s] = column[1, row] + fx * (column[1, row + 1] - column[1, row])
+            if n_levels > 1:  # the light's tilt level for this sample's lobe
+                position = (column[2, row] + fx * (column[2, row + 1] - column[2, row])) * (n_levels - 1)
+                tilt_level[s] = min(int(position), n_levels - 2)
+                tilt_frac[s] = position - tilt_level[s]
     else:
         for s in range(n):
             albedo_scale[s], albedo_bias[s] = _specular_albedo(cos_theta[s], roughness, alpha, fresnel, masking,
@@ -663,14 +818,31 @@ def _roughness_objective(roughness, args):
     s_dd = 0.0
     for power in range(4, -1, -1):
         s_dd = s_dd * roughness + diffuse_moments[0, power]
-    for c in range(3):
-        k0 = kernel[0]
+    # Filter the light at the tilt levels this probe reads (contiguous, vectorised loops), then
+    # interpolate each sample between its two levels.
+    first_level, last_level = 0, 0
+    if n_levels > 1:
+        first_level, last_level = n_levels, 0
         for s in range(n):
-            filtered[s] = k0 * proj[c, 0, s]
-        for degree in range(1, kernel.shape[0]):
-            k = kernel[degree]
+            first_level = min(first_level, tilt_level[s])
+            last_level = max(last_level, tilt_level[s] + 1)
+    for c in range(3):
+        for level in range(first_level, last_level + 1):
+            level_row = level_filtered[level]
+            k0 = kernel[0]
             for s in range(n):
-                filtered[s] += k * proj[c, degree, s]
+                level_row[s] = k0 * proj[level, c, 0, s]
+            for degree in range(1, kernel.shape[0]):
+                k = kernel[degree]
+                for s in range(n):
+                    level_row[s] += k * proj[level, c, degree, s]
+        if n_levels == 1:
+            for s in range(n):
+                filtered[s] = level_filtered[0, s]
+        else:
+            for s in range(n):
+                lower = level_filtered[tilt_level[s], s]
+                filtered[s] = lower + tilt_frac[s] * (level_filtered[tilt_level[s] + 1, s] - lower)
         s_xd = s_yd = s_xx = s_xy = s_xf = s_yy = s_yf = 0.0
         for s in range(n):
             x = albedo_scale[s] * filtered[s]
@@ -707,14 +879,15 @@ def _burley_terms(cos_theta, out):
 @numba.njit(parallel=True, fastmath=True, cache=True)
 def _global_search_kernel(
     directions, weight, observed, light, diffuse_scale, sigma, fresnel, masking, split_sum, burley, table,
-    roughness_grid, metallic_grid, lmax, diag, rec_a, rec_b, params, loss,
+    tilt_levels, roughness_grid, metallic_grid, lmax, diag, rec_a, rec_b, params, loss,
 ):
     """Per texel: the (base colour, roughness, metallic) of least weighted squared residual.
 
     directions (n, V, 3) local view directions; weight (n, V); observed (n, V, 3); light (n, 3, K)
     the incoming light's SH fit; diffuse_scale (n, 3) E / pi; (lmax, diag, rec_a, rec_b) as
-    `sh._sh_block` takes them. Per texel the light is expanded by degree at its samples once
-    (P_c,l(w_v), fused here to keep it in cache), then the roughness is searched. Writes params
+    `sh._sh_block` takes them. Per texel the light is expanded by degree at its samples once per
+    tilt level (P_c,l(w'_v), `_tilted_projections`; one level: w' = w; fused here to keep it in
+    cache), then the roughness is searched. Writes params
     (n, 5) [b_rgb, r, m] and loss (n,) (divided by sum_v w^2) for texels with samples; others are
     left untouched.
     """
@@ -724,20 +897,24 @@ def _global_search_kernel(
     for chunk in numba.prange((n_texels + _SEARCH_CHUNK - 1) // _SEARCH_CHUNK):
         # The texel's samples with w > 0, packed and with the views innermost (vectorised loops).
         xyz = np.empty((3, n_views))
+        tilted = np.empty((3, n_views))
         basis = np.empty((n_coeffs, n_views))
         sh_scratch = np.empty((5, n_views))
         packed_cos = np.empty(n_views)
         omega = np.empty(n_views)  # w^2
-        packed_proj = np.empty((3, n_degrees, n_views))
+        packed_proj = np.empty((tilt_levels, 3, n_degrees, n_views))
         values = np.empty((3, n_views))
         table_row = np.empty(n_views, dtype=np.int64)
         table_frac = np.empty(n_views)
+        tilt_level = np.empty(n_views, dtype=np.int64)
+        tilt_frac = np.empty(n_views)
         burley_terms = np.empty((3, n_views))
         diffuse_moments = np.empty((4, 5))  # sum w^2 D^2 as a quartic in r; sum w^2 f_c D as quadratics
-        column = np.empty((2, table.shape[1]))
+        column = np.empty((table.shape[0], table.shape[1]))
         albedo_scale = np.empty(n_views)
         albedo_bias = np.empty(n_views)
         diffuse_factor = np.empty(n_views)
+        level_filtered = np.empty((tilt_levels, n_views))
         filtered = np.empty(n_views)
         kernel = np.empty(n_degrees)
         kernel_derivative = np.empty(n_degrees)
@@ -762,15 +939,24 @@ def _global_search_kernel(
                 n += 1
             if n == 0:
                 continue
-            sh._sh_block(xyz[0], xyz[1], xyz[2], n, lmax, diag, rec_a, rec_b, basis, sh_scratch)
-            for c in range(3):
-                for degree in range(n_degrees):
-                    for s in range(n):
-                        packed_proj[c, degree, s] = 0.0
-                    for k in range(degree * degree, (degree + 1) * (degree + 1)):
-                        coefficient = np.float64(light[t, c, k])
+            for level in range(tilt_levels):
+                tilt = level / (tilt_levels - 1) if tilt_levels > 1 else 1.0
+                for s in range(n):  # normalize((1 - tilt) n + tilt w)
+                    tilted[0, s] = tilt * xyz[0, s]
+                    tilted[1, s] = tilt * xyz[1, s]
+                    tilted[2, s] = 1.0 - tilt + tilt * xyz[2, s]
+                    norm = math.sqrt(tilted[0, s] ** 2 + tilted[1, s] ** 2 + tilted[2, s] ** 2)
+                    for axis in range(3):
+                        tilted[axis, s] /= norm
+                sh._sh_block(tilted[0], tilted[1], tilted[2], n, lmax, diag, rec_a, rec_b, basis, sh_scratch)
+                for c in range(3):
+                    for degree in range(n_degrees):
                         for s in range(n):
-                            packed_proj[c, degree, s] += coefficient * basis[k, s]
+                            packed_proj[level, c, degree, s] = 0.0
+                        for k in range(degree * degree, (degree + 1) * (degree + 1)):
+                            coefficient = np.float64(light[t, c, k])
+                            for s in range(n):
+                                packed_proj[level, c, degree, s] += coefficient * basis[k, s]
             total_weight = 0.0
             for s in range(n):
                 total_weight += omega[s]
@@ -803,9 +989,9 @@ def _global_search_kernel(
                     squared_values[c] += omega[s] * values[c, s] * values[c, s]
                 scale[c] = diffuse_scale[t, c]
             args = (n, packed_cos, omega, packed_proj, values, sigma, fresnel, masking, split_sum, burley, table,
-                    table_row, table_frac, burley_terms, diffuse_moments, column, kernel, kernel_derivative,
-                    albedo_scale, albedo_bias, diffuse_factor, filtered, moments, squared_values, scale, state,
-                    metallic_grid)
+                    table_row, table_frac, tilt_level, tilt_frac, burley_terms, diffuse_moments, column, kernel,
+                    kernel_derivative, albedo_scale, albedo_bias, diffuse_factor, level_filtered, filtered, moments,
+                    squared_values, scale, state, metallic_grid)
             # Scan the roughness grid, then Brent in the best cell unless the loss rises inwards
             # from a boundary node. The best evaluation seen wins (its state is kept).
             cell = 1.0 / (roughness_grid - 1)
