@@ -2,9 +2,9 @@
 
 **Mask.** Texels of the mesh's atlas that the fit cannot vouch for: by default those flagged
 UNOBSERVED (no sample) or AMBIGUOUS (entropy above the fit's ``uncertainty.ambiguous_entropy``,
-0.5 by default); with ``threshold`` H, UNOBSERVED or entropy >= H. Two flags are deliberately
-left out: FEW_SAMPLES (fewer samples than SH coefficients) marks nearly every texel of a capture
-with fewer than (l*+1)^2 = 36 views, and BELOW_BOUND marks shiny texels whose specular lobe is
+0.7 by default); with ``threshold`` H, UNOBSERVED or entropy >= H. Two flags are deliberately
+left out: FEW_SAMPLES (fewer samples than a quarter of the SH coefficients) already raises the
+entropy, which counts the samples, and BELOW_BOUND marks shiny texels whose specular lobe is
 sharper than the views resolve: their estimate is "very smooth", which a fill from rougher
 neighbours would only make worse.
 
