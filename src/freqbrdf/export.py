@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import json
 import math
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -312,9 +313,13 @@ def flags_picture(flags: np.ndarray, atlas: np.ndarray) -> np.ndarray:
 
 
 def _save_npz(path: Path, **arrays) -> None:
+    """An .npz that np.load reads, deflated at level 1: numpy's default level took 1.3 s of a 2.6 s
+    bunny write (likelihood grids compress ~6x at either level; spectra hardly at all)."""
     with atomic_path(path) as tmp:
-        with open(tmp, "wb") as handle:  # a file handle: np.savez would append ".npz" to the name
-            np.savez_compressed(handle, **arrays)
+        with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=1) as archive:
+            for name, array in arrays.items():
+                with archive.open(f"{name}.npy", "w", force_zip64=True) as member:
+                    np.lib.format.write_array(member, np.asanyarray(array), allow_pickle=False)
 
 
 def _atlas_mask(estimate: MaterialEstimate) -> np.ndarray:
