@@ -186,15 +186,19 @@ def test_report_works_in_headless_chromium(fit_folder):
             })""")
             assert state["ready"], state
             assert state["images"] >= 10 and state["broken"] == []
-            # Let it render a few frames, then take model-viewer's own picture of its canvas.
-            picture_url = tools.evaluate(
-                "new Promise(r => setTimeout(() => r(document.getElementById('model').toDataURL('image/png')), 1500))"
-            )
-            picture = np.asarray(Image.open(io.BytesIO(base64.b64decode(picture_url.split(",", 1)[1]))).convert("RGB"))
+            # Take model-viewer's own picture of its canvas once it has rendered: software GL on a
+            # loaded machine can take seconds for the first frames, so poll (1 s apart, up to 30 s).
+            for _ in range(30):
+                picture_url = tools.evaluate(
+                    "new Promise(r => setTimeout(() => r(document.getElementById('model').toDataURL('image/png')), 1000))"
+                )
+                picture = np.asarray(Image.open(io.BytesIO(base64.b64decode(picture_url.split(",", 1)[1]))).convert("RGB"))
+                # Non-blank: a good share of pixels differ from the corner (background) colour.
+                background = picture[2, 2].astype(int)
+                differs = np.abs(picture.astype(int) - background).sum(axis=-1) > 30
+                if differs.mean() > 0.03:
+                    break
             assert picture.shape[0] > 100 and picture.shape[1] > 100
-            # Non-blank: a good share of pixels differ from the corner (background) colour.
-            background = picture[2, 2].astype(int)
-            differs = np.abs(picture.astype(int) - background).sum(axis=-1) > 30
             assert differs.mean() > 0.03, f"3D view looks blank ({differs.mean():.3%} non-background pixels)"
             # The overlay switch loads the entropy model without errors.
             switched = tools.evaluate("""new Promise(resolve => {
