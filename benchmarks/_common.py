@@ -10,6 +10,7 @@ import json
 import os
 import platform
 import statistics
+import sys
 import time
 import tracemalloc
 from pathlib import Path
@@ -47,9 +48,10 @@ def peak_mib(run: Callable[[], object]) -> float:
 
 
 def machine() -> dict:
-    """What the figures depend on: core count, processor, load average at the time."""
+    """What the figures depend on: core count, processor, load average at the time, Python."""
     return {
         "cpu_count": os.cpu_count(),
+        "python": sys.version.split()[0],
         "machine": platform.processor() or platform.machine(),
         "load_average": round(os.getloadavg()[0], 2),
     }

@@ -268,7 +268,6 @@ def guidance_benchmark(args) -> dict:
     results = {
         "application": "capture guidance (issue #8)",
         **machine(),
-        "python": sys.version.split()[0],
         "texture_res": args.texture_res,
         "max_texels": args.max_texels,
         "spreads": args.guidance_spreads,
@@ -463,7 +462,7 @@ def inpaint_benchmark(args) -> dict:
 
 
 def sparse_settings(args) -> dict:
-    return {**machine(), "python": sys.version.split()[0], "texture_res": args.texture_res, "pool": args.pool,
+    return {**machine(), "texture_res": args.texture_res, "pool": args.pool,
             "views": args.sparse_views, "views_chosen": "farthest-point", "test_views": TEST_VIEWS}
 
 

@@ -165,7 +165,6 @@ def main(argv=None) -> int:
     results = {
         "benchmark": "estimator comparison (issue #5)",
         **machine(),
-        "python": sys.version.split()[0],
         "texture_res": args.texture_res,
         "relight_spp": args.relight_spp,
         "quick": args.quick,
