@@ -254,7 +254,6 @@ def expected_entropy(
     """
     rows = samples.texel
     lmax = sh.lmax_of(samples.basis.shape[1])
-    degrees_start = np.arange(lmax + 1) ** 2
     weight_sq = np.square(samples.weight)
     basis, eigenvalues = state.basis[rows], state.eigenvalues[rows]  # (m, K, K), (m, K)
     # Sherman-Morrison in the eigenbasis, with the penalty the enlarged sample set will have.
@@ -281,7 +280,7 @@ def expected_entropy(
     alphas, ks = np.square(steps), steps
     calibrated = config.uncertainty.mode == "calibrated"
     kernel = brdf.brdf_kernel(alphas, lmax, sigma if calibrated else 0.0)  # (R, L)
-    light_by_degree = np.add.reduceat(light_coeffs * samples.basis[:, None, :], degrees_start, axis=-1)  # (m, 3, L)
+    light_by_degree = cross_spectrum(light_coeffs, samples.basis[:, None, :])  # (m, 3, L): the light at the sample
     filtered = np.einsum("il,tcl->tic", kernel, light_by_degree)  # (m, R, 3)
     current = coeffs[rows]  # (m, 7, K) before the sample
     with np.errstate(divide="ignore", invalid="ignore"):
