@@ -217,7 +217,7 @@ def read_json_object(path: Path) -> dict:
 
 def frame_entries(source: Path, document: dict) -> list[dict]:
     """The non-empty ``frames`` list of a transforms document, each entry an object."""
-    entries = _required(source, "", document, "frames")
+    entries = required_key(source, "", document, "frames")
     if not isinstance(entries, list) or not entries:
         raise InputError(source, "'frames' must be a non-empty list")
     for index, entry in enumerate(entries):
@@ -278,7 +278,7 @@ def frame_camera(
     cx = positive_number(source, where, "cx", value("cx")) if value("cx") is not None else 0.5 * width
     cy = positive_number(source, where, "cy", value("cy")) if value("cy") is not None else 0.5 * height
     camera_to_world = check_rigid(
-        _required(source, where, entry, "transform_matrix"), source, f"{where}transform_matrix"
+        required_key(source, where, entry, "transform_matrix"), source, f"{where}transform_matrix"
     )
     return Camera(camera_to_world, fx, fy, cx, cy, width, height)
 
@@ -291,7 +291,8 @@ def positive_number(source: Path, where: str, key: str, value: Any) -> float:
     return float(value)
 
 
-def _required(source: Path, where: str, mapping: dict, key: str) -> Any:
+def required_key(source: Path, where: str, mapping: dict, key: str) -> Any:
+    """mapping[key], or an InputError naming the file and where in it the key is missing."""
     if key not in mapping:
         raise InputError(source, f"{where}missing required key {key!r}")
     return mapping[key]

@@ -35,6 +35,7 @@ from freqbrdf.camera import (
     frame_entries as _frame_entries,
     positive_number as _number,
     read_json_object as _read_json,
+    required_key,
 )
 from freqbrdf.envmap import Envmap, load_envmap
 from freqbrdf.errors import InputError
@@ -244,7 +245,7 @@ def _load_stanford_orb(scene_folder: Path) -> Capture:
     test_path = scene_folder / ORB_TEST_FILE
     test_entries = _frame_entries(test_path, _read_json(test_path))
     light_pose = check_rigid(
-        _required(test_path, "frame 0: ", test_entries[0], "transform_matrix"),
+        required_key(test_path, "frame 0: ", test_entries[0], "transform_matrix"),
         test_path,
         "frame 0: transform_matrix",
     )
@@ -352,14 +353,8 @@ def _orb_normals(mesh: Mesh) -> Mesh:
 # --- shared parsing helpers --------------------------------------------------------------------
 
 
-def _required(source: Path, where: str, mapping: dict, key: str) -> Any:
-    if key not in mapping:
-        raise InputError(source, f"{where}missing required key {key!r}")
-    return mapping[key]
-
-
 def _string(source: Path, where: str, mapping: dict, key: str) -> str:
-    value = _required(source, where, mapping, key)
+    value = required_key(source, where, mapping, key)
     if not isinstance(value, str) or not value:
         raise InputError(source, f"{where}{key!r} must be a non-empty string (a path)")
     return value
