@@ -9,8 +9,9 @@ import pytest
 
 from freqbrdf import brdf, sh
 from freqbrdf.config import Config, EstimateConfig, FitConfig
-from freqbrdf.estimate import (angular_loss, burley_diffuse_factor, estimate, fit_lobe_tilt, lobe_filtered_light,
-                               lobe_tilt_nodes, lobe_tilt_table, split_sum_table, split_sum_terms)
+from freqbrdf.estimate import (LOBE_TERMS, angular_loss, burley_diffuse_factor, dielectric_fresnel, estimate,
+                               fit_lobe_tilt, lobe_filtered_light, lobe_tilt_nodes, lobe_tilt_table, split_sum_table,
+                               split_sum_terms)
 from freqbrdf.observations import Observations
 
 N_VIEWS = 64
@@ -27,13 +28,16 @@ def synthetic_observations(
     unobserved: np.ndarray | None = None,
     fit: FitConfig = FitConfig(),
     lobe_tilt: bool = False,
+    exact_dielectric: bool = True,
 ) -> Observations:
     """Observations of texels with known parameters, rendered by one of the global estimator's models.
 
     ``model`` "angular": brdf.predict_angular (METHOD.md §3.6, G1-shadowed light when
-    ``shadowing``); "split_sum": our default, (R0 A + B) times the filtered unshadowed light read
-    in the mirror direction, or with ``lobe_tilt`` at the lobe's tilted direction (`lobe_filtered_light`), plus
-    Burley's diffuse, written here with numpy from `split_sum_terms` and `burley_diffuse_factor`.
+    ``shadowing``); "split_sum": our default, m (b A S_A + B S_B) + (1 - m) E S_E with S_k the
+    filtered unshadowed light read in the mirror direction, or with ``lobe_tilt`` at the direction
+    tilted for lobe term k (`lobe_filtered_light`), E the exact dielectric's albedo (Schlick's
+    0.04 A S_A + B S_B without ``exact_dielectric``), plus Burley's diffuse, written here with numpy
+    from `split_sum_terms` and `burley_diffuse_factor`.
 
     Per texel: random view directions on the upper hemisphere (20 % missed), a light of a grey
     floor plus four sharp coloured lobes seen in the mirror directions, a random irradiance.
@@ -65,11 +69,15 @@ def synthetic_observations(
     light_fit = fit_signals(np.concatenate([mirrored, np.ones((n_texels, n_views, 1))], axis=-1))
     mf = brdf.microfacet_from_principled(truth)
     if model == "split_sum":
-        filtered = lobe_filtered_light(directions, weight, light_fit.coeffs[:, :3], LMAX, sigma, truth.roughness,
-                                       lobe_tilt)
-        scale, bias = split_sum_terms(cos_theta, truth.roughness[:, None])
+        scale, bias, dielectric = split_sum_terms(cos_theta, truth.roughness[:, None])
+        x, y, z = (albedo[..., None] * lobe_filtered_light(directions, weight, light_fit.coeffs[:, :3], LMAX, sigma,
+                                                           truth.roughness, lobe_tilt, term)
+                   for albedo, term in zip((scale, bias, dielectric), LOBE_TERMS))
+        if not exact_dielectric:
+            z = brdf.DIELECTRIC_F0 * x + y
+        metallic = truth.metallic[:, None, None]
         diffuse = burley_diffuse_factor(cos_theta, truth.roughness[:, None])[..., None] * irradiance[:, None] / np.pi
-        observed = ((mf.specular_r0[:, None] * scale[..., None] + bias[..., None]) * filtered
+        observed = (metallic * (truth.base_color[:, None] * x + y) + (1.0 - metallic) * z
                     + mf.diffuse_albedo[:, None] * diffuse)
     else:
         if shadowing:
@@ -154,6 +162,11 @@ def test_global_recovers_parameters_exactly_with_the_default_model(truth):
     angular = estimate(observations, NO_SHADOWING)
     assert np.median(angular.loss) > 1e4 * np.median(result.loss)
     assert np.mean(np.abs(angular.roughness - truth.roughness)) > 0.01
+    # Nor does Schlick's dielectric, except on pure metals; it recovers data rendered with it.
+    schlick = Config(estimate=EstimateConfig(dielectric_fresnel="schlick"))
+    assert np.median(estimate(observations, schlick).loss[truth.metallic < 1.0]) > 1e4 * np.median(result.loss)
+    schlick_data = synthetic_observations(truth, seed=13, model="split_sum", exact_dielectric=False)
+    _assert_recovered(estimate(schlick_data, schlick), truth, atol=1e-4)
 
 
 def test_global_recovers_parameters_exactly_with_the_tilted_lobe_lookup(truth):
@@ -177,13 +190,15 @@ def test_global_recovers_parameters_with_shadowing(truth):
 def test_split_sum_table_against_brute_force_integration():
     # Each node is int f/F cos_i over the hemisphere; check it by uniform Monte Carlo over w_i (an
     # independent estimator), and the limits: a mirror (r = 0) reflects all light with Schlick
-    # Fresnel at the view angle, and no lobe reflects more than it receives.
+    # Fresnel at the view angle (and the dielectric plane with the exact Fresnel), and no lobe
+    # reflects more than it receives.
     table = split_sum_table()
     n_cos, n_rough = table.shape[1:]
     mirror_cos = np.linspace(0.0, 1.0, n_cos)[4:]
     np.testing.assert_allclose(table[0, 4:, 0], 1.0 - (1.0 - mirror_cos) ** 5, atol=2e-3)
     np.testing.assert_allclose(table[1, 4:, 0], (1.0 - mirror_cos) ** 5, atol=2e-3)
-    assert np.all(table.sum(axis=0) <= 1.0 + 1e-3) and np.all(table >= 0.0)
+    np.testing.assert_allclose(table[2, 4:, 0], dielectric_fresnel(mirror_cos), atol=2e-3)
+    assert np.all(table[:2].sum(axis=0) <= 1.0 + 1e-3) and np.all(table >= 0.0) and np.all(table[2] <= 1.0)
     rng = np.random.default_rng(14)
     cos_light = rng.uniform(size=400_000)
     phi = rng.uniform(0.0, 2.0 * math.pi, cos_light.size)
@@ -199,25 +214,27 @@ def test_split_sum_table_against_brute_force_integration():
         brdf_over_fresnel = (ndf * brdf.smith_g1_ggx(cos_light, alpha) * brdf.smith_g1_ggx(cos_view, alpha)
                              / (4.0 * cos_view))  # times cos_i / cos_i
         schlick = (1.0 - half @ view) ** 5
+        exact = dielectric_fresnel(half @ view)
         integral = 2.0 * math.pi * np.array([np.mean(brdf_over_fresnel * (1.0 - schlick)),
-                                             np.mean(brdf_over_fresnel * schlick)])
+                                             np.mean(brdf_over_fresnel * schlick), np.mean(brdf_over_fresnel * exact)])
         np.testing.assert_allclose(table[:, cos_index, rough_index], integral, atol=1e-2, rtol=2e-2)
 
 
-def test_split_sum_table_is_mitsubas_principled_metal():
+def test_split_sum_table_is_mitsubas_principled_bsdf():
     # Mitsuba's own principled BSDF, sampled: a metal's directional albedo is R0 A + B with R0 the
-    # base colour (Schlick Fresnel, GGX, Smith masking-shadowing, no energy compensation), so the
-    # split-sum table is the BSDF that the estimate is rendered with.
+    # base colour (Schlick Fresnel, GGX, Smith masking-shadowing, no energy compensation), a black
+    # dielectric's is E (the exact Fresnel of eta 1.5; black: no diffuse lobe), so the split-sum
+    # table is the BSDF that the estimate is rendered with.
     mi = pytest.importorskip("mitsuba")
     mi.set_variant("llvm_ad_rgb")
     import drjit as dr
 
     n = 1 << 16
     for cos_view, roughness in [(0.2, 0.8), (0.5, 0.6), (0.9, 1.0), (0.5, 0.3)]:
-        scale, bias = split_sum_terms(cos_view, roughness)
-        for base, expected in [(0.0, bias), (1.0, scale + bias)]:
+        scale, bias, dielectric = split_sum_terms(cos_view, roughness)
+        for base, metallic, expected in [(0.0, 1.0, bias), (1.0, 1.0, scale + bias), (0.0, 0.0, dielectric)]:
             bsdf = mi.load_dict({"type": "principled", "base_color": {"type": "rgb", "value": [base] * 3},
-                                 "roughness": roughness, "metallic": 1.0})
+                                 "roughness": roughness, "metallic": metallic})
             interaction = dr.zeros(mi.SurfaceInteraction3f, n)
             interaction.sh_frame = mi.Frame3f(mi.Vector3f(0.0, 0.0, 1.0))
             interaction.wi = mi.Vector3f(math.sqrt(1.0 - cos_view**2), 0.0, cos_view)
@@ -228,15 +245,21 @@ def test_split_sum_table_is_mitsubas_principled_metal():
 
 
 def test_shipped_lobe_tilt_table_matches_a_fresh_fit():
-    table = lobe_tilt_table()
+    tables = lobe_tilt_table()
     cos_nodes, roughness_nodes = lobe_tilt_nodes()
-    assert table.shape == (len(cos_nodes), len(roughness_nodes))
-    for i, j in [(4, 26), (16, 13), (28, 20), (10, 32), (20, 4)]:
-        assert fit_lobe_tilt(cos_nodes[i], roughness_nodes[j]) == pytest.approx(table[i, j], abs=1e-3)
-    # A mirror is read in the mirror direction; a rough lobe leans towards the normal, the more so
-    # the rougher it is (up to cos theta_o 0.9: near normal incidence all tilts look alike).
-    assert np.all(table[:, 0] > 0.98)
-    assert np.all(np.diff(table[4:30, 8:], axis=1) <= 1e-3) and np.all(table[:30, -1] < 0.01)
+    assert tables.shape == (len(LOBE_TERMS), len(cos_nodes), len(roughness_nodes))
+    for term, table in zip(LOBE_TERMS, tables):
+        for i, j in [(4, 26), (16, 13), (28, 20), (10, 32)]:
+            assert fit_lobe_tilt(cos_nodes[i], roughness_nodes[j], term) == pytest.approx(table[i, j], abs=1e-3)
+        # A mirror is read in the mirror direction; a rough lobe leans towards the normal, the more
+        # so the rougher it is (up to cos theta_o 0.9: near normal incidence all tilts look alike).
+        assert np.all(table[:, 0] > 0.98)
+        assert np.all(np.diff(table[4:30, 8:], axis=1) <= 1e-3)
+    # Fresnel weights the grazing half vectors up: E's lobe leans less than A's, and Schlick's F_c
+    # part hardly at all away from grazing views.
+    scale, bias, dielectric = tables
+    assert np.all(scale[:30, -1] < 0.01) and np.all(dielectric[4:30, 24:] > scale[4:30, 24:] + 0.05)
+    assert np.all(bias[12:30] > 0.95)
 
 
 def test_tilted_lookup_predicts_a_rough_lobe_under_a_sky():
@@ -260,11 +283,12 @@ def test_tilted_lookup_predicts_a_rough_lobe_under_a_sky():
     grid /= np.linalg.norm(grid, axis=1, keepdims=True)
     coeffs, *_ = np.linalg.lstsq(sh.eval_sh(grid, LMAX), sky(grid[:, 2]), rcond=None)
     light = np.repeat(coeffs[None, None, :], 3, axis=1)
-    tilted = lobe_filtered_light(directions, weight, light, LMAX, 0.0, np.array([roughness]))[0, :, 0]
+    tilted_scale, tilted_bias = (lobe_filtered_light(directions, weight, light, LMAX, 0.0, np.array([roughness]),
+                                                     term=term)[0, :, 0] for term in ("scale", "bias"))
     mirror = np.exp(-(alpha * np.arange(LMAX + 1)) ** 2) @ np.stack(
         [sh.eval_sh(directions[0], LMAX)[:, sh.sh_degrees(LMAX) == l] @ coeffs[sh.sh_degrees(LMAX) == l]
          for l in range(LMAX + 1)])
-    scale, bias = split_sum_terms(cos_theta, roughness)
+    scale, bias, _ = split_sum_terms(cos_theta, roughness)
     u = rng.uniform(size=(2, 200_000))
     tan2 = alpha**2 * u[0] / (1.0 - u[0])
     cos_half = 1.0 / np.sqrt(1.0 + tan2)
@@ -277,7 +301,7 @@ def test_tilted_lookup_predicts_a_rough_lobe_under_a_sky():
         lobe = np.where((light_z > 0) & (view_dot_half > 0), brdf.smith_g1_ggx(np.maximum(light_z, 1e-9), alpha)
                         * brdf.smith_g1_ggx(cos_theta[v], alpha) * view_dot_half / (cos_theta[v] * cos_half), 0.0)
         truth[v] = np.mean(lobe * sky(light_z))  # R0 = 1: the lobe integral of the light
-    tilted_error = np.abs((scale + bias) * tilted / truth - 1.0)
+    tilted_error = np.abs((scale * tilted_scale + bias * tilted_bias) / truth - 1.0)
     mirror_error = np.abs((scale + bias) * mirror / truth - 1.0)
     assert np.mean(tilted_error) < 0.05 and np.mean(tilted_error) < 0.3 * np.mean(mirror_error)
 
@@ -470,17 +494,28 @@ def test_metallic_profile_derivatives_match_finite_differences_and_brute_force()
     rng = np.random.default_rng(7)
     n = 40
     omega = rng.uniform(0.1, 1.0, n)
-    x, y, d = rng.uniform(0.1, 1.0, (3, 3, n))  # per channel: R0 term, Fresnel bias, diffuse factor
-    f = 0.3 * x + 0.2 * y + 0.4 * d + rng.normal(0.0, 0.02, (3, n))
+    # per channel: base colour term X, Fresnel bias Y, dielectric Z, diffuse factor D
+    x, y, z, d = rng.uniform(0.1, 1.0, (4, 3, n))
+    f = 0.3 * x + 0.2 * y + 0.1 * z + 0.4 * d + rng.normal(0.0, 0.02, (3, n))
     moments = np.stack([[np.sum(omega * a * b) for a, b in
-                         ((x[c], d[c]), (y[c], d[c]), (x[c], x[c]), (x[c], y[c]), (x[c], f[c]),
-                          (y[c], y[c]), (y[c], f[c]), (d[c], d[c]), (f[c], d[c]))] for c in range(3)])
+                         ((x[c], d[c]), (y[c], d[c]), (z[c], d[c]), (x[c], x[c]), (x[c], y[c]), (x[c], z[c]),
+                          (x[c], f[c]), (y[c], y[c]), (y[c], z[c]), (y[c], f[c]), (z[c], z[c]), (z[c], f[c]),
+                          (d[c], d[c]), (f[c], d[c]))] for c in range(3)])
     squared_values = np.sum(omega * f * f, axis=1)
     diffuse_scale = np.array([1.0, 0.8, 1.2])
+    quadratics = np.empty((3, 3, 3))
+    estimate_module._metallic_quadratics(moments, squared_values, diffuse_scale, quadratics)
     state = np.empty(4)
 
     def terms(m):
-        return estimate_module._metallic_terms(m, moments, squared_values, diffuse_scale, state)
+        return estimate_module._metallic_terms(m, quadratics, state)
+
+    # The quadratics are the loss sum_v w (b (m X + (1 - m) e D) + m Y + (1 - m) Z - f)^2, directly.
+    for m in (0.0, 0.3, 1.0):
+        loss = terms(m)[0]
+        base = state[:3, None]
+        model = base * (m * x + (1 - m) * diffuse_scale[:, None] * d) + m * y + (1 - m) * z
+        assert loss == pytest.approx(np.sum(omega * (model - f) ** 2), rel=1e-9)
 
     step = 1e-6
     for m in np.linspace(0.05, 0.95, 7):
@@ -488,6 +523,6 @@ def test_metallic_profile_derivatives_match_finite_differences_and_brute_force()
         above, below = terms(m + step), terms(m - step)
         np.testing.assert_allclose(gradient, (above[0] - below[0]) / (2 * step), rtol=1e-4, atol=1e-8)
         np.testing.assert_allclose(curvature, (above[1] - below[1]) / (2 * step), rtol=1e-4, atol=1e-6)
-    profiled = estimate_module._profile_metallic(moments, squared_values, diffuse_scale, state, 4)
+    profiled = estimate_module._profile_metallic(quadratics, state, 4)
     scan = min(terms(m)[0] for m in np.linspace(0.0, 1.0, 20001))
     assert profiled <= scan + 1e-12

@@ -96,10 +96,11 @@ def one_material_two_lights():
 def test_sharing_improves_uncertain_texels_and_leaves_certain_ones(one_material_two_lights):
     truth, informative, observations, config, fitted, uncertainty = one_material_two_lights
     uncertain = uncertainty.entropy >= config.share.uncertain_entropy
-    # The set-up does what it says: the constant light leaves roughness uncertain and wrong.
+    # The set-up does what it says: the constant light leaves roughness uncertain and wrong (1.8x
+    # the error of the certain texels with the exact-dielectric estimator, 0.046 against 0.026).
     assert uncertain[~informative].mean() > 0.9 and not uncertain[informative].any()
     error_before = np.abs(fitted.roughness - truth.roughness)
-    assert error_before[uncertain].mean() > 0.05
+    assert error_before[uncertain].mean() > 1.5 * error_before[~uncertain].mean()
 
     result = share_details(observations, fitted, uncertainty, config)
     shared = result.estimate

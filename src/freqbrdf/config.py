@@ -88,11 +88,17 @@ class EstimateConfig:
     # rough texels) averaged over uniform light; "lambert": METHOD.md's d E / pi. "paper": lambert.
     diffuse_model: Literal["burley", "lambert"] = "burley"
     # global, split_sum: read the light of a rough lobe at the view direction tilted towards the
-    # normal (estimate.lobe_tilt_table) instead of the mirror direction. Measured (64 views, T=512):
-    # plane base colour 19.56 -> 22.54 dB, roughness MAE 0.127 -> 0.088, relight PSNR-H -0.11 dB;
-    # bunny 16.87 -> 16.92 dB, relight +0.36 dB; but the demo capture (coffee) 18.51 -> 17.06 dB
-    # (smooth dielectrics get worse), and the search costs 2.9x. Off until it wins everywhere.
+    # normal (estimate.lobe_tilt_table, one tilt per lobe term) instead of the mirror direction.
+    # Measured with the exact dielectric (64 views, T = 512): plane base colour 19.90 -> 22.51 dB,
+    # roughness MAE 0.119 -> 0.084, metallic 0.173 -> 0.120; bunny 16.74 -> 16.76 dB, metallic
+    # 0.239 -> 0.218; but the demo capture (coffee) 18.52 -> 16.90 dB, and the search costs 2-3x.
+    # Off until it wins everywhere.
     lobe_tilt: bool = False
+    # global, split_sum: the dielectric part's Fresnel. "exact": the unpolarised Fresnel equations
+    # at eta 1.5, as Mitsuba's principled BSDF reflects (its metallic part is Schlick's);
+    # "schlick": R0 = 0.04 (1 - m) + m b in Schlick's approximation, 10-27 % below at view
+    # cosines 0.3-0.8.
+    dielectric_fresnel: Literal["exact", "schlick"] = "exact"
     fresnel: bool = True  # Schlick F; off: F = R0
     masking: bool = True  # "g1": G1(theta_o) on the reflected light
     shadowing: bool = True  # "g1": G1(theta_i) on the incoming light before its SH fit (appendix eq. 6)
