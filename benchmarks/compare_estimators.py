@@ -1,5 +1,6 @@
-"""The comparison of issue #5: our `global` estimator, the paper's recipe (angular and spectrum
-forward models) and Mitsuba 3 inverse rendering, on Mitsuba-rendered captures.
+"""The comparison of issue #5: our `global` estimator (also with its optional lobe tilt), the
+paper's recipe (angular and spectrum forward models) and Mitsuba 3 inverse rendering, on
+Mitsuba-rendered captures.
 
     python benchmarks/compare_estimators.py [--scenes bunny,plane] [--texture-res 512]
         [--views 64] [--relight-spp 32] [--skip mitsuba,paper_spectrum] [--quick]
@@ -32,7 +33,7 @@ from _common import machine  # benchmarks/ is on sys.path when a script runs
 
 from freqbrdf import baselines, export, metrics
 from freqbrdf.capture import load
-from freqbrdf.config import Config, TexelConfig, preset
+from freqbrdf.config import Config, EstimateConfig, TexelConfig, preset
 from freqbrdf.estimate import estimate
 from freqbrdf.fileio import atomic_path
 from freqbrdf.observations import observe
@@ -46,17 +47,18 @@ SCENES = {
     "bunny": SynthSettings(mesh="bunny", envmap="forest", materials="bands", test_envmaps=("studio", "sunset")),
     "plane": SynthSettings(mesh="plane", envmap="city", materials="bands", test_envmaps=("forest", "lobby")),
 }
-METHODS = ("global", "paper_angular", "paper_spectrum", "mitsuba")
+METHODS = ("global", "global_lobe_tilt", "paper_angular", "paper_spectrum", "mitsuba")
 FULL_RENDER = {"resolution": 256, "spp": 64, "test_views": 8}
 QUICK_RENDER = {"resolution": 128, "spp": 16, "test_views": 4}
 QUICK_ARGS = {"views": 24, "texture_res": 128, "relight_spp": 8}
 
 
 def method_config(method: str, texture_res: int) -> Config:
-    """Our default Config for `global`; the paper preset (its lambda, Adam, TV) for `paper_*`."""
+    """Our default Config for `global` (with EstimateConfig.lobe_tilt for `global_lobe_tilt`); the
+    paper preset (its lambda, Adam, TV) for `paper_*`."""
     texels = TexelConfig(texture_res=texture_res)
-    if method == "global":
-        return Config(texels=texels)
+    if method.startswith("global"):
+        return Config(texels=texels, estimate=EstimateConfig(lobe_tilt=method == "global_lobe_tilt"))
     model = method.split("_", 1)[1]
     config = preset("paper")
     return config.replace(texels=texels, estimate=dataclasses.replace(config.estimate, forward_model=model))

@@ -364,6 +364,28 @@ def test_losses_agree_with_the_forward_model(truth, unshadowed):
     np.testing.assert_allclose(result.loss, angular_loss(noisy, result.principled(), NO_SHADOWING), rtol=1e-6)
 
 
+def test_global_leaves_single_sample_texels_to_the_fill(truth, unshadowed):
+    # One sample (three channels) cannot determine five parameters: such texels are not estimated.
+    import dataclasses
+
+    from freqbrdf.estimate import MIN_SAMPLES
+
+    single = np.zeros(unshadowed.n_texels, dtype=bool)
+    single[::9] = True
+    weight = unshadowed.weight.copy()
+    first = np.argmax(weight > 0, axis=1)
+    keep = np.zeros_like(weight, dtype=bool)
+    keep[np.arange(len(first)), first] = True
+    weight[single[:, None] & ~keep] = 0.0
+    n_samples = np.where(single, 1, unshadowed.n_samples)
+    observations = dataclasses.replace(unshadowed, weight=weight, n_samples=n_samples)
+    result = estimate(observations, NO_SHADOWING)
+    assert MIN_SAMPLES == 2
+    np.testing.assert_array_equal(result.estimated, ~single)
+    assert np.all(np.isnan(result.roughness[single])) and np.all(np.isnan(result.base_color[single]))
+    np.testing.assert_allclose(result.roughness[~single], truth.roughness[~single], atol=1e-4)
+
+
 @pytest.mark.parametrize("method", ["global", "paper"])
 def test_unobserved_texels_are_left_unknown(truth, method):
     unobserved = np.zeros(len(truth.roughness), dtype=bool)
