@@ -210,3 +210,23 @@ def test_write_fit_outputs_is_atomic_and_checks_the_texels(tmp_path, monkeypatch
 def test_write_json_is_strict_json(tmp_path):
     export.write_json(tmp_path / "doc.json", {"a": np.float32(np.nan), "b": [np.inf, np.int64(3)], "c": np.ones(2)})
     assert json.loads((tmp_path / "doc.json").read_text()) == {"a": None, "b": [None, 3], "c": [1.0, 1.0]}
+
+
+def test_to_float16_matches_numpys_cast_bit_for_bit():
+    # Bit patterns across every exponent (both signs, subnormals, inf, nan) and, densely, around the
+    # float16 boundaries: smallest subnormal (2**-24), half of it (2**-25), smallest normal (2**-14)
+    # and the largest finite value (65504) with its rounding neighbours.
+    patterns = [np.arange(0, 2**32 - 1, 4099, dtype=np.uint64).astype(np.uint32)]
+    for boundary in (2.0**-25, 2.0**-24, 2.0**-14, 65504.0, 65520.0):
+        centre = int(np.array(boundary, np.float32).view(np.uint32))
+        patterns.append(np.arange(centre - 3000, centre + 3000, dtype=np.uint32))
+        patterns.append(patterns[-1] | np.uint32(1 << 31))
+    values = np.concatenate(patterns).view(np.float32)
+    values = values[: len(values) // 21 * 21].reshape(-1, 7, 3)[:, ::2]  # not contiguous
+    with np.errstate(over="ignore", invalid="ignore"):
+        expected = values.astype(np.float16)
+    result = export.to_float16(values)
+    assert result.dtype == np.float16 and result.shape == values.shape
+    finite_or_inf = ~np.isnan(values)
+    np.testing.assert_array_equal(result.view(np.uint16)[finite_or_inf], expected.view(np.uint16)[finite_or_inf])
+    assert np.isnan(result[~finite_or_inf]).all()

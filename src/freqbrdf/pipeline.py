@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from freqbrdf import export, sparsification
+from freqbrdf import export
 from freqbrdf.capture import Capture
 from freqbrdf.config import Config
 from freqbrdf.errors import InputError
@@ -99,7 +99,7 @@ def write_fit(out_dir: str | Path, result: FitResult, config: Config = Config())
     extra = {"capture": str(capture_root), "layout": result.capture.layout}
     out = export.write_fit_outputs(
         out_dir, result.capture.mesh, result.observations, result.estimate, result.uncertainty,
-        config, timings=result.timings, extra_summary=extra,
+        config, timings=result.timings, extra_summary=extra, maps=result.maps,
     )
     result.timings["write"] = time.perf_counter() - start
     # The write time is known only after the folder exists: record it in place (atomically).
@@ -183,6 +183,9 @@ def check_output_folder(out_dir: str | Path, inputs: dict[str, Path]) -> None:
 
 def _uncertainty_scores(fit_outputs: FitOutputs, capture: Capture, out: Path) -> dict | None:
     """Sparsification of the entropy against per-texel errors on observed texels (needs GT)."""
+    # Imported here: scipy.stats would add ~0.3 s to every `freqbrdf fit`, which never needs it.
+    from freqbrdf import sparsification
+
     arrays = fit_outputs.arrays
     if capture.ground_truth is None or "entropy" not in arrays:
         return None

@@ -1,0 +1,153 @@
+"""Time the whole ``freqbrdf fit`` command as a user runs it: a fresh process per run (issue #5).
+
+Each run starts ``freqbrdf fit CAPTURE --out DIR --quiet`` in a new process and records its wall
+time (from just before the process starts until it has exited), its CPU seconds and peak resident
+memory (getrusage of the child), the load average before it, and the seconds per stage from the
+fit folder's summary.json. What no stage counts (``untimed``: interpreter start, imports, reading
+the capture's description, process exit) is the wall time minus the stages. The import time of
+the modules a fit needs is measured separately, also in fresh processes.
+
+The default capture is compare_estimators.py's plane (64 views of 256 x 256, T = 512: 262k
+texels), rendered into benchmarks/.cache/ with the same settings if it is missing.
+
+    python benchmarks/bench_fit.py [--capture plane|bunny|PATH] [--runs 3] [--name bench_fit]
+
+Prints a table and saves benchmarks/results/<name>.json. The machine may be shared: the load
+average is recorded per run, and the table gives the minimum and the median.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from _common import machine, save_results
+
+# The modules a fit imports (cli imports the rest inside the command).
+FIT_IMPORTS = "import freqbrdf.cli, freqbrdf.pipeline, freqbrdf.capture"
+STAGES = ("observe", "estimate", "uncertainty", "textures", "write")
+
+
+def fit_command() -> list[str]:
+    """The installed console script next to this interpreter, else ``python -m freqbrdf.cli``."""
+    script = Path(sys.executable).with_name("freqbrdf")
+    return [str(script)] if script.is_file() else [sys.executable, "-m", "freqbrdf.cli"]
+
+
+def capture_folder(name_or_path: str) -> Path:
+    """A capture path as given, or compare_estimators.py's scene of that name (rendered if missing)."""
+    import compare_estimators  # here: it imports Mitsuba, needed only to render a missing capture
+
+    if name_or_path not in compare_estimators.SCENES:
+        return Path(name_or_path)
+    folder = compare_estimators.CACHE / f"compare_{name_or_path}_64"
+    if not folder.is_dir():
+        from freqbrdf.synth import synthesize
+
+        settings = dataclasses.replace(compare_estimators.SCENES[name_or_path], views=64, texture_res=512,
+                                       **compare_estimators.FULL_RENDER)
+        print(f"rendering {folder} (once) ...", flush=True)
+        synthesize(folder, settings, progress=False)
+    return folder
+
+
+def child_usage() -> tuple[float, float, int]:
+    """User and system CPU seconds of all finished children, and the largest child's peak RSS (KiB)."""
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime, usage.ru_stime, usage.ru_maxrss
+
+
+def one_fit(capture: Path, out: Path) -> dict:
+    load = os.getloadavg()[0]
+    user_before, system_before, _ = child_usage()
+    start = time.perf_counter()
+    done = subprocess.run([*fit_command(), "fit", str(capture), "--out", str(out), "--quiet"],
+                          capture_output=True, text=True)
+    wall = time.perf_counter() - start
+    user_after, system_after, peak_kib = child_usage()
+    if done.returncode != 0:
+        raise SystemExit(f"freqbrdf fit failed ({done.returncode}):\n{done.stderr}")
+    timings = json.loads((out / "summary.json").read_text(encoding="utf-8"))["timings"]
+    stages = {stage: timings[stage] for stage in STAGES if stage in timings}
+    return {
+        "wall_s": wall,
+        "cpu_s": (user_after - user_before) + (system_after - system_before),
+        # System time is mostly page faults: fresh memory is slow to map on this virtual machine.
+        "system_cpu_s": system_after - system_before,
+        # ru_maxrss of children is the largest one so far: every run is the same command.
+        "peak_rss_mib": peak_kib / 1024,
+        "load_average_before": round(load, 2),
+        "stages_s": stages,
+        "untimed_s": wall - sum(stages.values()),
+        "summary_timings_s": timings,
+    }
+
+
+def import_seconds() -> float:
+    """Seconds to import the fit's modules in a fresh interpreter."""
+    code = f"import time; start = time.perf_counter(); {FIT_IMPORTS}; print(time.perf_counter() - start)"
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    return float(done.stdout.strip().splitlines()[-1])
+
+
+def spread(values: list[float]) -> dict:
+    return {"min": min(values), "median": statistics.median(values), "max": max(values)}
+
+
+def table(runs: list[dict], imports: list[float]) -> str:
+    rows = [("wall", [run["wall_s"] for run in runs]), ("cpu (user+sys)", [run["cpu_s"] for run in runs]),
+            ("  of which sys", [run["system_cpu_s"] for run in runs])]
+    rows += [(stage, [run["stages_s"].get(stage, 0.0) for run in runs]) for stage in STAGES]
+    rows += [("untimed", [run["untimed_s"] for run in runs]), ("imports (separate)", imports)]
+    lines = [f"{'seconds':<20} {'min':>7} {'median':>7} {'max':>7}"]
+    for name, values in rows:
+        stats = spread(values)
+        lines.append(f"{name:<20} {stats['min']:7.2f} {stats['median']:7.2f} {stats['max']:7.2f}")
+    loads = ", ".join(f"{run['load_average_before']:.2f}" for run in runs)
+    lines.append(f"load average before each run: {loads}; peak RSS {runs[-1]['peak_rss_mib']:.0f} MiB")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--capture", default="plane", help="plane, bunny (compare_estimators.py's) or a path")
+    parser.add_argument("--runs", type=int, default=3)
+    parser.add_argument("--name", default="bench_fit", help="results file stem under benchmarks/results/")
+    args = parser.parse_args(argv)
+    capture = capture_folder(args.capture)
+    runs, imports = [], []
+    with tempfile.TemporaryDirectory(prefix="bench_fit.") as scratch:
+        for index in range(args.runs):
+            runs.append(one_fit(capture, Path(scratch) / "fit"))
+            imports.append(import_seconds())
+            print(f"run {index + 1}: {runs[-1]['wall_s']:.2f} s wall, "
+                  f"load {runs[-1]['load_average_before']:.2f}", flush=True)
+    result = {
+        "benchmark": "freqbrdf fit end to end, fresh process per run (issue #5)",
+        **machine(),
+        "capture": str(capture),
+        "command": [*fit_command(), "fit", str(capture), "--out", "DIR", "--quiet"],
+        "runs": runs,
+        "wall_s": spread([run["wall_s"] for run in runs]),
+        "cpu_s": spread([run["cpu_s"] for run in runs]),
+        "stages_s": {stage: spread([run["stages_s"].get(stage, 0.0) for run in runs]) for stage in STAGES},
+        "untimed_s": spread([run["untimed_s"] for run in runs]),
+        "import_s": spread(imports),
+        "measured": time.strftime("%Y-%m-%d %H:%M"),
+    }
+    save_results(args.name, result)
+    print(table(runs, imports))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
