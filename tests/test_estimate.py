@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -341,12 +342,33 @@ def test_global_optimum_is_never_worse_than_paper(truth):
     observations = synthetic_observations(truth, seed=4, shadowing=False)
     rng = np.random.default_rng(5)
     observations.observed *= (1.0 + 0.05 * rng.standard_normal(observations.observed.shape)).astype(np.float32)
-    best = estimate(observations, NO_SHADOWING)
+    least_squares = Config(estimate=dataclasses.replace(NO_SHADOWING.estimate, robust_passes=0))
+    best = estimate(observations, least_squares)
     adam = estimate(observations, PAPER_NO_SHADOWING)
     assert np.all(best.loss > 0)
     assert np.all(best.loss <= adam.loss * (1.0 + 1e-9))
     # ... and than the truth, which no longer fits the noisy data exactly.
     assert np.all(best.loss <= angular_loss(observations, truth, NO_SHADOWING) * (1.0 + 1e-9))
+
+
+def test_robust_passes_discount_outlier_samples(truth):
+    # A tenth of the samples are wrong by 2-4x (as where the model misses an interreflection or a
+    # silhouette): the default re-weighted estimate stays near the truth, least squares does not.
+    observations = synthetic_observations(truth, seed=23, shadowing=False)
+    rng = np.random.default_rng(24)
+    outliers = rng.uniform(size=observations.weight.shape) < 0.1
+    observations.observed[outliers] *= rng.uniform(2.0, 4.0, (outliers.sum(), 1)).astype(np.float32)
+    robust = estimate(observations, NO_SHADOWING)
+    least_squares = estimate(observations, Config(estimate=dataclasses.replace(NO_SHADOWING.estimate,
+                                                                               robust_passes=0)))
+    assert NO_SHADOWING.estimate.robust_passes == 1
+    for name in ("roughness", "metallic"):
+        robust_error = np.mean(np.abs(getattr(robust, name) - getattr(truth, name)))
+        least_squares_error = np.mean(np.abs(getattr(least_squares, name) - getattr(truth, name)))
+        assert robust_error < 0.6 * least_squares_error
+    # The reported loss is still the weighted squared residual of the estimate.
+    np.testing.assert_allclose(robust.loss, angular_loss(observations, robust.principled(), NO_SHADOWING), rtol=1e-6,
+                               atol=1e-10)
 
 
 def test_losses_agree_with_the_forward_model(truth, unshadowed):
@@ -366,8 +388,6 @@ def test_losses_agree_with_the_forward_model(truth, unshadowed):
 
 def test_global_leaves_single_sample_texels_to_the_fill(truth, unshadowed):
     # One sample (three channels) cannot determine five parameters: such texels are not estimated.
-    import dataclasses
-
     from freqbrdf.estimate import MIN_SAMPLES
 
     single = np.zeros(unshadowed.n_texels, dtype=bool)

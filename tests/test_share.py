@@ -10,7 +10,7 @@ import pytest
 from scipy.special import rel_entr
 
 from freqbrdf import brdf, sh
-from freqbrdf.config import Config, ShareConfig, UncertaintyConfig
+from freqbrdf.config import EstimateConfig, Config, ShareConfig, UncertaintyConfig
 from freqbrdf.estimate import angular_loss, estimate, model_light
 from freqbrdf.observations import Observations
 from freqbrdf.share import (
@@ -86,8 +86,9 @@ def one_material_two_lights():
     # Under the constant light the entropy lies in 0.26-0.52, under the lobes below 0.18, with a
     # fixed noise floor. (The default also counts the residual as noise, which on this noisy toy
     # blurs the two halves together; sharing, not the entropy's calibration, is tested here.)
+    # Gaussian noise: least squares (no robust passes) is the maximum-likelihood estimate.
     config = Config(share=ShareConfig(enabled=True, anchor_cells=4, uncertain_entropy=0.25),
-                    uncertainty=UncertaintyConfig(residual_noise=False))
+                    uncertainty=UncertaintyConfig(residual_noise=False), estimate=EstimateConfig(robust_passes=0))
     fitted = estimate(observations, config)
     uncertainty = entropy_map(observations, config.uncertainty)
     return truth, informative, observations, config, fitted, uncertainty

@@ -107,6 +107,11 @@ class EstimateConfig:
     # score at about 70 % of the CPU time (benchmarks/bench_estimate.py).
     roughness_grid: int = 9
     metallic_grid: int = 4
+    # global: passes of iteratively re-weighted least squares towards the paper's L1 loss
+    # sum_v w |r_v| (each weights a sample by w / max(|r|, a tenth of the texel's mean |r|) and
+    # searches again); 0: the least-squares optimum. L1 discounts the samples the model cannot
+    # explain (interreflections, silhouettes).
+    robust_passes: int = 1
     # global with specular_model "g1": re-fit the light shadowed nearer the fixed point, search
     # again (split_sum needs none). 1 refresh: roughness MAE 0.217 -> 0.200 on that bunny.
     shadowing_refreshes: int = 1

@@ -45,7 +45,13 @@ and diffuse factor D come in two versions (``EstimateConfig.specular_model``, ``
   global optimum in (b, m, r) up to the grid resolution, with no step size and no local minima to
   fall into. Per texel the light is expanded by degree once per tilt level and everything that does not
   depend on the roughness (table positions, Burley's polynomial in r, the diffuse moments) is prepared
-  before the search, so a roughness probe costs ~20 multiply-adds per sample.
+  before the search, so a roughness probe costs ~20 multiply-adds per sample. Then
+  ``EstimateConfig.robust_passes`` (default 1) passes of iteratively re-weighted least squares move
+  towards the paper's L1 loss sum_v w_v |r_v|: each weights a sample by w / max(|r|, a tenth of the
+  texel's mean |r|) and searches again, so that samples the model cannot explain (interreflection,
+  silhouettes) count less. One pass (64 views, T = 512): base-colour PSNR 16.94 -> 17.18 dB
+  (bunny), 18.87 -> 19.21 (demo capture), 19.97 -> 20.04 (plane), roughness and metallic MAE
+  lower on all three, for a second search.
 - ``paper`` reproduces the authors' prototype with METHOD.md's model: Adam (torch's defaults, lr
   0.02, 100 iterations) on the L1 loss of the cos-weighted residuals averaged over the whole T x T
   texture, parameters clamped to [0, 1] after every step, texture-space total variation on the
@@ -211,6 +217,8 @@ def _validate(settings: EstimateConfig) -> None:
                          f"{settings.diffuse_model!r}; choose 'split_sum'/'g1' and 'burley'/'lambert'")
     if settings.dielectric_fresnel not in ("exact", "schlick"):
         raise ValueError(f"unknown dielectric_fresnel {settings.dielectric_fresnel!r}; choose 'exact' or 'schlick'")
+    if settings.robust_passes < 0:
+        raise ValueError("robust_passes must be >= 0")
     if settings.roughness_grid < 2 or settings.metallic_grid < 2:
         raise ValueError("roughness_grid and metallic_grid need at least 2 nodes")
     if settings.shadowing_refresh_every < 1 or settings.iterations < 0 or settings.shadowing_refreshes < 0:
@@ -657,7 +665,8 @@ def _estimate_global(observations: Observations, config: Config, reporter: Repor
                 settings.masking, split_sum, _uses_exact_dielectric(settings), _uses_burley(settings), table,
                 _tilt_levels(settings),
                 settings.roughness_grid,
-                settings.metallic_grid, observations.lmax, *sh._legendre_tables(observations.lmax), params, loss,
+                settings.metallic_grid, settings.robust_passes, observations.lmax,
+                *sh._legendre_tables(observations.lmax), params, loss,
             )
             timings["search"] += time.perf_counter() - tick
             residual = params[:, 3] - shadow_roughness
@@ -944,21 +953,22 @@ def _roughness_objective(roughness, args):
                 k = kernel[degree]
                 for s in range(n):
                     level_row[s] += k * proj[level, c, degree, s]
+        model = filtered[c]
         for term in range(n_terms):
             if n_levels == 1:
                 for s in range(n):
-                    filtered[term, s] = albedo[term, s] * level_filtered[0, s]
+                    model[term, s] = albedo[term, s] * level_filtered[0, s]
             else:
                 for s in range(n):
                     lower = level_filtered[tilt_level[term, s], s]
                     upper = level_filtered[tilt_level[term, s] + 1, s]
-                    filtered[term, s] = albedo[term, s] * (lower + tilt_frac[term, s] * (upper - lower))
+                    model[term, s] = albedo[term, s] * (lower + tilt_frac[term, s] * (upper - lower))
         if not exact_dielectric:
             for s in range(n):
-                filtered[2, s] = _DIELECTRIC_F0 * filtered[0, s] + filtered[1, s]
+                model[2, s] = _DIELECTRIC_F0 * model[0, s] + model[1, s]
         s_xd = s_yd = s_zd = s_xx = s_xy = s_xz = s_xf = s_yy = s_yz = s_yf = s_zz = s_zf = 0.0
         for s in range(n):
-            x, y, z = filtered[0, s], filtered[1, s], filtered[2, s]  # X = A S_A, Y = B S_B, Z = E S_E
+            x, y, z = model[0, s], model[1, s], model[2, s]  # X = A S_A, Y = B S_B, Z = E S_E
             f = values[c, s]
             d = diffuse_factor[s]
             wx = omega[s] * x
@@ -996,10 +1006,93 @@ def _burley_terms(cos_theta, out):
                              + cos_theta * cos_theta / 252.0)
 
 
+@numba.njit(fastmath=True, cache=True)
+def _weighted_sums(n, omega, values, burley_terms, diffuse_moments, squared_values):
+    """The roughness-free weighted sums of a texel's samples for `_roughness_objective`: sum w^2 D^2
+    as a quartic in r and sum w^2 f_c D as quadratics (Burley's D = c0 + r c1 + r^2 c2), and
+    sum w^2 f_c^2. Returns sum w^2."""
+    for row in range(4):
+        for power in range(5):
+            diffuse_moments[row, power] = 0.0
+    total_weight = 0.0
+    for s in range(n):
+        c0, c1, c2 = burley_terms[0, s], burley_terms[1, s], burley_terms[2, s]
+        o = omega[s]
+        total_weight += o
+        diffuse_moments[0, 0] += o * c0 * c0
+        diffuse_moments[0, 1] += 2.0 * o * c0 * c1
+        diffuse_moments[0, 2] += o * (c1 * c1 + 2.0 * c0 * c2)
+        diffuse_moments[0, 3] += 2.0 * o * c1 * c2
+        diffuse_moments[0, 4] += o * c2 * c2
+        for c in range(3):
+            of = o * values[c, s]
+            diffuse_moments[1 + c, 0] += of * c0
+            diffuse_moments[1 + c, 1] += of * c1
+            diffuse_moments[1 + c, 2] += of * c2
+    for c in range(3):
+        squared_values[c] = 0.0
+        for s in range(n):
+            squared_values[c] += omega[s] * values[c, s] * values[c, s]
+    return total_weight
+
+
+@numba.njit(fastmath=True, cache=True)
+def _search_roughness(args, roughness_grid, best_state, roughness_brent):
+    """Scan the roughness grid, then Brent in the best cell unless the loss rises inwards from a
+    boundary node. The best evaluation seen wins: returns (roughness, loss), its base colour and
+    metallic in best_state."""
+    state = args[-2]
+    cell = 1.0 / (roughness_grid - 1)
+    best_r, best_f = 0.0, np.inf
+    for i in range(roughness_grid):
+        r = i / (roughness_grid - 1)
+        f = _roughness_objective(r, args)
+        if f < best_f:
+            best_r, best_f = r, f
+            best_state[:] = state
+    node_r, node_f = best_r, best_f
+    on_boundary = node_r == 0.0 or node_r == 1.0
+    search = not on_boundary
+    if on_boundary:
+        probe = node_r + (_BRENT_XTOL if node_r == 0.0 else -_BRENT_XTOL)
+        f = _roughness_objective(probe, args)
+        search = f < node_f
+        if f < best_f:
+            best_r, best_f = probe, f
+            best_state[:] = state
+    if search:
+        probe = _brent_start(roughness_brent, max(node_r - cell, 0.0), min(node_r + cell, 1.0))
+        while True:
+            f = _roughness_objective(probe, args)
+            if f < best_f:
+                best_r, best_f = probe, f
+                best_state[:] = state
+            if not _brent_next(roughness_brent, f):
+                break
+            probe = roughness_brent[_PROBE]
+    return best_r, best_f
+
+
+@numba.njit(fastmath=True, cache=True)
+def _residual_magnitudes(n, values, filtered, diffuse_factor, diffuse_scale, params, out):
+    """out[s] = |L(w_s) - f_s| over the channels for params [b_rgb, m], with the per-channel model
+    terms `_roughness_objective` left in filtered (3, 3, n) and diffuse_factor at their roughness."""
+    m = params[3]
+    for s in range(n):
+        total = 0.0
+        for c in range(3):
+            x, y, z = filtered[c, 0, s], filtered[c, 1, s], filtered[c, 2, s]
+            b = params[c]
+            residual = (b * (m * x + (1.0 - m) * diffuse_scale[c] * diffuse_factor[s]) + m * y + (1.0 - m) * z
+                        - values[c, s])
+            total += residual * residual
+        out[s] = math.sqrt(total)
+
+
 @numba.njit(parallel=True, fastmath=True, cache=True)
 def _global_search_kernel(
     directions, weight, observed, light, diffuse_scale, sigma, fresnel, masking, split_sum, exact_dielectric, burley,
-    table, tilt_levels, roughness_grid, metallic_grid, lmax, diag, rec_a, rec_b, params, loss,
+    table, tilt_levels, roughness_grid, metallic_grid, robust_passes, lmax, diag, rec_a, rec_b, params, loss,
 ):
     """Per texel: the (base colour, roughness, metallic) of least weighted squared residual.
 
@@ -1034,7 +1127,9 @@ def _global_search_kernel(
         albedo = np.empty((3, n_views))  # A, B, E
         diffuse_factor = np.empty(n_views)
         level_filtered = np.empty((tilt_levels, n_views))
-        filtered = np.empty((3, n_views))  # X, Y, Z
+        filtered = np.empty((3, 3, n_views))  # per channel X, Y, Z
+        sample_weight = np.empty(n_views)  # w
+        residual = np.empty(n_views)
         kernel = np.empty(n_degrees)
         kernel_derivative = np.empty(n_degrees)
         moments = np.empty((3, 14))  # `_metallic_quadratics`' weighted sums
@@ -1077,9 +1172,7 @@ def _global_search_kernel(
                             coefficient = np.float64(light[t, c, k])
                             for s in range(n):
                                 packed_proj[level, c, degree, s] += coefficient * basis[k, s]
-            total_weight = 0.0
             for s in range(n):
-                total_weight += omega[s]
                 x = min(max(packed_cos[s], 0.0), 1.0) * (table.shape[1] - 1)
                 table_row[s] = min(int(x), table.shape[1] - 2)
                 table_frac[s] = x - table_row[s]
@@ -1087,61 +1180,40 @@ def _global_search_kernel(
                     _burley_terms(packed_cos[s], burley_terms[:, s])
                 else:
                     burley_terms[0, s], burley_terms[1, s], burley_terms[2, s] = 1.0, 0.0, 0.0
-            for row in range(4):
-                for power in range(5):
-                    diffuse_moments[row, power] = 0.0
-            for s in range(n):
-                c0, c1, c2 = burley_terms[0, s], burley_terms[1, s], burley_terms[2, s]
-                o = omega[s]
-                diffuse_moments[0, 0] += o * c0 * c0
-                diffuse_moments[0, 1] += 2.0 * o * c0 * c1
-                diffuse_moments[0, 2] += o * (c1 * c1 + 2.0 * c0 * c2)
-                diffuse_moments[0, 3] += 2.0 * o * c1 * c2
-                diffuse_moments[0, 4] += o * c2 * c2
-                for c in range(3):
-                    of = o * values[c, s]
-                    diffuse_moments[1 + c, 0] += of * c0
-                    diffuse_moments[1 + c, 1] += of * c1
-                    diffuse_moments[1 + c, 2] += of * c2
+            total_weight = _weighted_sums(n, omega, values, burley_terms, diffuse_moments, squared_values)
             for c in range(3):
-                squared_values[c] = 0.0
-                for s in range(n):
-                    squared_values[c] += omega[s] * values[c, s] * values[c, s]
                 scale[c] = diffuse_scale[t, c]
             args = (n, packed_cos, omega, packed_proj, values, sigma, fresnel, masking, split_sum, exact_dielectric,
                     burley, table, table_row, table_frac, tilt_level, tilt_frac, burley_terms, diffuse_moments, column,
                     kernel, kernel_derivative, albedo, diffuse_factor, level_filtered, filtered, moments, quadratics,
                     squared_values, scale, state, metallic_grid)
-            # Scan the roughness grid, then Brent in the best cell unless the loss rises inwards
-            # from a boundary node. The best evaluation seen wins (its state is kept).
-            cell = 1.0 / (roughness_grid - 1)
-            best_r, best_f = 0.0, np.inf
-            for i in range(roughness_grid):
-                r = i / (roughness_grid - 1)
-                f = _roughness_objective(r, args)
-                if f < best_f:
-                    best_r, best_f = r, f
-                    best_state[:] = state
-            node_r, node_f = best_r, best_f
-            on_boundary = node_r == 0.0 or node_r == 1.0
-            search = not on_boundary
-            if on_boundary:
-                probe = node_r + (_BRENT_XTOL if node_r == 0.0 else -_BRENT_XTOL)
-                f = _roughness_objective(probe, args)
-                search = f < node_f
-                if f < best_f:
-                    best_r, best_f = probe, f
-                    best_state[:] = state
-            if search:
-                probe = _brent_start(roughness_brent, max(node_r - cell, 0.0), min(node_r + cell, 1.0))
-                while True:
-                    f = _roughness_objective(probe, args)
-                    if f < best_f:
-                        best_r, best_f = probe, f
-                        best_state[:] = state
-                    if not _brent_next(roughness_brent, f):
-                        break
-                    probe = roughness_brent[_PROBE]
+            best_r, best_f = _search_roughness(args, roughness_grid, best_state, roughness_brent)
+            if robust_passes > 0:
+                # Towards the paper's L1 loss sum_v w |r_v| (IRLS): weight each sample by
+                # w / max(|r|, delta), delta a tenth of the texel's mean |r| so that near-exact
+                # samples do not take over, and search again.
+                for s in range(n):
+                    sample_weight[s] = math.sqrt(omega[s])
+                for _ in range(robust_passes):
+                    _roughness_objective(best_r, args)
+                    _residual_magnitudes(n, values, filtered, diffuse_factor, scale, best_state, residual)
+                    weighted_residual = weight_sum = 0.0
+                    for s in range(n):
+                        weighted_residual += sample_weight[s] * residual[s]
+                        weight_sum += sample_weight[s]
+                    floor = 0.1 * weighted_residual / weight_sum
+                    if not floor > 0.0:
+                        break  # an exact fit: nothing to re-weight
+                    for s in range(n):
+                        omega[s] = sample_weight[s] / max(residual[s], floor)
+                    _weighted_sums(n, omega, values, burley_terms, diffuse_moments, squared_values)
+                    best_r, best_f = _search_roughness(args, roughness_grid, best_state, roughness_brent)
+                # The reported loss stays the weighted squared residual of `MaterialEstimate.loss`.
+                _roughness_objective(best_r, args)
+                _residual_magnitudes(n, values, filtered, diffuse_factor, scale, best_state, residual)
+                best_f = 0.0
+                for s in range(n):
+                    best_f += sample_weight[s] * sample_weight[s] * residual[s] * residual[s]
             params[t, 0], params[t, 1], params[t, 2] = best_state[0], best_state[1], best_state[2]
             params[t, 3], params[t, 4] = best_r, best_state[3]
             loss[t] = max(best_f, 0.0) / total_weight
