@@ -181,9 +181,10 @@ def test_global_recovers_parameters_exactly_with_the_tilted_lobe_lookup(truth):
 
 def test_global_recovers_parameters_with_shadowing(truth):
     # With shadowing the light depends on alpha; the refreshes converge to the self-consistent
-    # estimate (6 refreshes reach ~1e-6 on this spread).
+    # estimate (6 refreshes reach ~1e-6 on this spread) of least squares; a robust pass re-weights
+    # the samples after each refresh, which moves the fixed point by up to ~2e-4.
     observations = synthetic_observations(truth, seed=3, shadowing=True)
-    angular = EstimateConfig(specular_model="g1", diffuse_model="lambert", shadowing_refreshes=6)
+    angular = EstimateConfig(specular_model="g1", diffuse_model="lambert", shadowing_refreshes=6, robust_passes=0)
     result = estimate(observations, Config(estimate=angular))
     _assert_recovered(result, truth, atol=1e-4)
 
