@@ -486,6 +486,7 @@ def main(argv=None) -> int:
     parser.add_argument("--inpaint-entropies", default="0.3", help="entropy thresholds besides the flags")
     args = parser.parse_args(argv)
     args.scenes = args.scenes.split(",")
+    args.guidance_spreads = [float(value) for value in args.guidance_spreads.split(",") if value]
     args.share_variants = [value for value in args.share_variants.split(";") if value]
     args.inpaint_entropies = [float(value) for value in args.inpaint_entropies.split(",") if value]
     runners = {"guidance": guidance_benchmark, "share": share_benchmark, "inpaint": inpaint_benchmark}
