@@ -29,7 +29,6 @@ light would buy before it is built into the search kernel.
 from __future__ import annotations
 
 import argparse
-import math
 import time
 
 import numba
@@ -37,7 +36,7 @@ import numpy as np
 from _common import machine, save_results
 from compare_estimators import CACHE
 
-from freqbrdf import brdf, export, metrics, sh
+from freqbrdf import export, metrics, sh
 from freqbrdf import envmap as envmaps
 from freqbrdf import estimate as est
 from freqbrdf.capture import load
@@ -50,33 +49,13 @@ LMAX = 5
 NODES = 17  # (view cosine, roughness) nodes of the fitted response tables
 ROUGHNESS_SEARCH = np.linspace(0.0, 1.0, 41)
 BLEND = (0.3, 0.6)  # roughness over which the hybrid light moves from fitted to exact
-TERM_WEIGHTS = {
-    "scale": lambda cos: 1.0 - (1.0 - cos) ** 5,
-    "bias": lambda cos: (1.0 - cos) ** 5,
-    "dielectric": est.dielectric_fresnel,
-}
 
 
-def fit_ggx_response(cos_theta: float, roughness: float, term: str, strata: int = 64):
-    """(tilt, gains (l*+1,)) whose lookup gain_l Y_lm(w'(tilt)) best matches the GGX lobe's
-    response to each real SH (mirrored parameterisation), the lobe weighted by the term's Fresnel
-    factor; stratified over GGX half vectors as `estimate.fit_lobe_tilt`."""
-    cos_theta = max(cos_theta, 1e-3)
-    alpha = max(float(brdf.alpha_from_roughness(np.array(roughness))), 1e-3)
-    u = (np.arange(strata) + 0.5) / strata
-    phi = (np.arange(strata) + 0.5) / strata * 2.0 * math.pi
-    cos_half = np.repeat(1.0 / np.sqrt(1.0 + alpha**2 * u / (1.0 - u)), strata)
-    sin_half = np.sqrt(1.0 - cos_half**2)
-    half = np.stack([sin_half * np.tile(np.cos(phi), strata), sin_half * np.tile(np.sin(phi), strata), cos_half], -1)
-    view = np.array([math.sqrt(1.0 - cos_theta**2), 0.0, cos_theta])
-    view_dot_half = half @ view
-    light = 2.0 * view_dot_half[:, None] * half - view
-    lobe = np.where((light[:, 2] > 0.0) & (view_dot_half > 0.0),
-                    brdf.smith_g1_ggx(np.maximum(light[:, 2], 1e-12), alpha) * brdf.smith_g1_ggx(cos_theta, alpha)
-                    * np.maximum(view_dot_half, 0.0) / (cos_theta * cos_half), 0.0)
-    lobe = lobe * TERM_WEIGHTS[term](np.clip(view_dot_half, 0.0, 1.0))
-    response = np.mean(lobe[:, None] * sh.eval_sh(light * np.array([-1.0, -1.0, 1.0]), LMAX), axis=0)
-    response /= max(np.mean(lobe), 1e-12)
+def fit_ggx_response(cos_theta: float, roughness: float, term: str):
+    """(tilt, gains (l*+1,)) whose lookup gain_l Y_lm(w'(tilt)) best matches the lobe term's SH
+    response (`estimate.lobe_sh_response`): per tilt on a grid, each degree's gain by least squares."""
+    albedo, response, view = est.lobe_sh_response(cos_theta, roughness, term, LMAX)
+    response = response / max(albedo, 1e-12)
     degree = sh.sh_degrees(LMAX)
     tilts = np.linspace(0.0, 1.0, 201)
     looked_up = tilts[:, None] * view + (1.0 - tilts)[:, None] * np.array([0.0, 0.0, 1.0])
@@ -96,12 +75,13 @@ def response_tables() -> dict[str, tuple[np.ndarray, np.ndarray]]:
     path = CACHE / "ggx_response_tables.npz"
     if path.exists():
         stored = np.load(path)
-        return {term: (stored[f"{term}_tilt"], stored[f"{term}_gains"]) for term in TERM_WEIGHTS}
+        return {term: (stored[f"{term}_tilt"], stored[f"{term}_gains"]) for term in est.LOBE_TERMS}
     nodes = np.linspace(0.0, 1.0, NODES)
     tables = {}
-    for term in TERM_WEIGHTS:
+    for term in est.LOBE_TERMS:
         fits = [[fit_ggx_response(c, r, term) for r in nodes] for c in nodes]
-        tables[term] = (np.array([[f[0] for f in row] for row in fits]), np.array([[f[1] for f in row] for row in fits]))
+        tables[term] = (np.array([[fit[0] for fit in row] for row in fits]),
+                        np.array([[fit[1] for fit in row] for row in fits]))
     path.parent.mkdir(parents=True, exist_ok=True)
     np.savez(path, **{f"{term}_{part}": table[i] for term, table in tables.items()
                       for i, part in enumerate(("tilt", "gains"))})
@@ -135,7 +115,8 @@ def profile_texels(x, y, z, diffuse, values, omega, diffuse_scale, out_state, ou
                 if o <= 0.0:
                     continue
                 a, b, e, d, f = x[t, v, c], y[t, v, c], z[t, v, c], diffuse[t, v], values[t, v, c]
-                terms = (a * d, b * d, e * d, a * a, a * b, a * e, a * f, b * b, b * e, b * f, e * e, e * f, d * d, f * d)
+                terms = (a * d, b * d, e * d, a * a, a * b, a * e, a * f, b * b, b * e, b * f, e * e, e * f,
+                         d * d, f * d)
                 for k in range(14):
                     moments[c, k] += o * terms[k]
                 squared[c] += o * f * f
@@ -147,7 +128,8 @@ def profile_texels(x, y, z, diffuse, values, omega, diffuse_scale, out_state, ou
 def run_scene(name: str, texture_res: int, tables) -> dict:
     folder = CACHE / f"compare_{name}_64"
     if not folder.is_dir():
-        raise SystemExit(f"{folder} is missing: run benchmarks/compare_estimators.py --scenes {name} first (it renders it)")
+        raise SystemExit(f"{folder} is missing: run benchmarks/compare_estimators.py --scenes {name} first "
+                         "(it renders it)")
     capture = load(folder)
     config = Config(texels=TexelConfig(texture_res=texture_res))
     observations = observe(capture, config)
@@ -191,7 +173,7 @@ def run_scene(name: str, texture_res: int, tables) -> dict:
             blend = np.clip((roughness - BLEND[0]) / (BLEND[1] - BLEND[0]), 0.0, 1.0)
             blend = blend * blend * (3.0 - 2.0 * blend)
             if model == "hybrid" and blend > 0.0:
-                lights = [(1.0 - blend) * light + blend * exact(roughness, term) for term in TERM_WEIGHTS]
+                lights = [(1.0 - blend) * light + blend * exact(roughness, term) for term in est.LOBE_TERMS]
             x, y, z = (albedo[..., None] * term_light for albedo, term_light in zip((scale, bias, dielectric), lights))
             state, loss = np.zeros((n_texels, 4)), np.zeros(n_texels)
             profile_texels(x, y, z, est.burley_diffuse_factor(cos_theta, roughness), values, omega, diffuse_scale,

@@ -89,10 +89,10 @@ class EstimateConfig:
     diffuse_model: Literal["burley", "lambert"] = "burley"
     # global, split_sum: read the light of a rough lobe at the view direction tilted towards the
     # normal (estimate.lobe_tilt_table, one tilt per lobe term) instead of the mirror direction.
-    # Measured with the exact dielectric (64 views, T = 512): plane base colour 19.90 -> 22.51 dB,
-    # roughness MAE 0.119 -> 0.084, metallic 0.173 -> 0.120; bunny 16.74 -> 16.76 dB, metallic
-    # 0.239 -> 0.218; but the demo capture (coffee) 18.52 -> 16.90 dB, and the search costs 2-3x.
-    # Off until it wins everywhere.
+    # Measured with the other defaults (64 views, T = 512): plane base colour 20.11 -> 22.90 dB,
+    # roughness MAE 0.113 -> 0.078, metallic 0.172 -> 0.116; bunny 17.17 -> 17.18 dB, metallic
+    # 0.230 -> 0.209; but the demo capture (coffee) 19.20 -> 17.48 dB, and observe + estimate
+    # costs 1.5-2.6x. Off until it wins everywhere.
     lobe_tilt: bool = False
     # global, split_sum: the dielectric part's Fresnel. "exact": the unpolarised Fresnel equations
     # at eta 1.5, as Mitsuba's principled BSDF reflects (its metallic part is Schlick's);

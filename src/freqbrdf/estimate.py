@@ -21,31 +21,31 @@ and diffuse factor D come in two versions (``EstimateConfig.specular_model``, ``
   as Mitsuba's principled BSDF (``EstimateConfig.dielectric_fresnel``): its albedo E replaces
   0.04 A + B, so the specular is m (b A + B) + (1 - m) E. Measured against Schlick's dielectric
   (64 views, T = 512): base-colour PSNR 19.51 -> 19.90 dB (plane), 18.26 -> 18.52 (demo capture),
-  16.72 -> 16.74 (bunny), metallic MAE 0.187 -> 0.173, 0.186 -> 0.168, 0.240 -> 0.239. On the 64-view Mitsuba captures (bunny, plane) the albedo and
-  Burley cut roughness MAE 0.200 -> 0.169 and 0.118 -> 0.127, metallic MAE 0.286 -> 0.238 and
-  0.237 -> 0.188 ("g1" lets rough metals pass for dark dielectrics, Lambert makes rough
-  dielectrics look too smooth).
+  16.72 -> 16.74 (bunny), metallic MAE 0.187 -> 0.173, 0.186 -> 0.168, 0.240 -> 0.239. On the
+  64-view Mitsuba captures (bunny, plane) the albedo and Burley cut roughness MAE 0.200 -> 0.169
+  and 0.118 -> 0.127, metallic MAE 0.286 -> 0.238 and 0.237 -> 0.188 ("g1" lets rough metals
+  pass for dark dielectrics, Lambert makes rough dielectrics look too smooth).
 - with ``EstimateConfig.lobe_tilt`` the light of a rough lobe is read off the mirror direction,
   tilted towards the normal as the lobe leans (`lobe_tilt_table`): S_alpha,c at
   w' = normalize((1 - s) n + s w), with s per term of the lobe (A, B, E: each has its own Fresnel
   weighting and so its own lean). The mirror lookup predicts rough metals 0.67 of their
-  path-traced specular on the plane, so they are fitted as half dielectric; the tilt took
-  base-colour PSNR 16.87 -> 16.92 (bunny) and 19.56 -> 22.54 dB (plane), roughness MAE to 0.158
-  and 0.088, metallic MAE to 0.223 and 0.149, but the demo capture's 18.51 -> 17.06 dB (smooth
-  dielectrics are over-predicted at grazing views), at 2.9x the search time: off by default.
+  path-traced specular on the plane, so they are fitted as half dielectric. With the other
+  defaults (exact dielectric, one robust pass) the tilt takes base-colour PSNR 17.17 -> 17.18 dB
+  (bunny) and 20.11 -> 22.90 dB (plane), roughness MAE to 0.151 and 0.078, metallic MAE to 0.209
+  and 0.116, but the demo capture's 19.20 -> 17.48 dB (its rough dielectrics drift towards metal),
+  at 1.5-2.6x the observe + estimate time: off by default.
 
 - ``global`` (ours) minimises the weighted squared residual sum_v w_v^2 (L(w_v) - f_v)^2. Write
   L = m (b X + Y) + (1 - m) Z + (1 - m) b e D with X = A S_A, Y = B S_B, Z = E S_E (S_k the light
   as term k reads it), e = E / pi. For fixed (alpha, m) the model is linear in b per channel,
   L = b (m X + (1 - m) e D) + m Y + (1 - m) Z, so the best b is a clipped closed form, and the
   loss at it a function of quadratics in m computed from 14 weighted moments of X, Y, Z, D and f
-  over the views. Roughness is
-  searched on a grid with the metallic profiled out (grid, then safeguarded Newton on the exact
-  derivatives of the profiled loss) at each node, and the best cell is refined by Brent: the
-  global optimum in (b, m, r) up to the grid resolution, with no step size and no local minima to
-  fall into. Per texel the light is expanded by degree once per tilt level and everything that does not
-  depend on the roughness (table positions, Burley's polynomial in r, the diffuse moments) is prepared
-  before the search, so a roughness probe costs ~20 multiply-adds per sample. Then
+  over the views. Roughness is searched on a grid with the metallic profiled out (grid, then
+  safeguarded Newton on the exact derivatives of the profiled loss) at each node, and the best
+  cell is refined by Brent: the global optimum in (b, m, r) up to the grid resolution, with no
+  step size and no local minima to fall into. Per texel the light is expanded by degree once per tilt level and everything that
+  does not depend on the roughness (table positions, Burley's polynomial in r, the diffuse
+  moments) is prepared before the search, so a roughness probe costs ~20 multiply-adds per sample. Then
   ``EstimateConfig.robust_passes`` (default 1) passes of iteratively re-weighted least squares move
   towards the paper's L1 loss sum_v w_v |r_v|: each weights a sample by w / max(|r|, a tenth of the
   texel's mean |r|) and searches again, so that samples the model cannot explain (interreflection,
@@ -188,9 +188,9 @@ def angular_loss(
                                 observations.lmax, levels),
             observations.view_direction[rows, :, 2], observations.weight[rows], observations.observed[rows],
             _diffuse_scale(observations)[rows], base_color[rows], metallic[rows],
-            np.asarray(params.roughness, dtype=np.float64)[rows], observations.sigma, settings.fresnel, settings.masking,
-            _uses_split_sum(settings), _uses_exact_dielectric(settings), _uses_burley(settings), _model_tables(),
-            loss[rows],
+            np.asarray(params.roughness, dtype=np.float64)[rows], observations.sigma, settings.fresnel,
+            settings.masking, _uses_split_sum(settings), _uses_exact_dielectric(settings), _uses_burley(settings),
+            _model_tables(), loss[rows],
         )
     return np.where(observations.n_samples > 0, loss, np.nan)
 
@@ -315,8 +315,7 @@ _TILT_LEVELS = 9
 _TILT_TABLE_PATH = Path(__file__).resolve().parent / "data" / "lobe_tilt.csv"
 _TILT_FIT_LMAX = 5  # the default l*: the degrees whose responses the tilt is fitted to
 _TILT_CANDIDATES = 401  # tilts tried per node: s on a 0.0025 grid
-_TILT_THETA_STRATA = 64
-_TILT_PHI_STRATA = 64
+_TILT_THETA_STRATA = 64  # strata of the half vector's polar and azimuthal angle each
 
 
 # The terms of the split-sum specular, each with its own Fresnel weight over the lobe and so its
@@ -363,16 +362,34 @@ def fit_lobe_tilt(cos_theta: float, roughness: float, term: str = "scale", lmax:
     int Y_lm(mirror(w_i)) f cos_i dw_i, the model's is its albedo times exp(-alpha^2 l^2) Y_lm(w'(s)).
     Deterministic. At normal incidence every s gives the normal.
     """
+    albedo, responses, view = lobe_sh_response(cos_theta, roughness, term, lmax)
+    alpha = float(brdf.alpha_from_roughness(np.array(roughness)))
+    degree = sh.sh_degrees(lmax)
+    tilts = np.linspace(0.0, 1.0, _TILT_CANDIDATES)
+    looked_up = tilts[:, None] * view + (1.0 - tilts)[:, None] * np.array([0.0, 0.0, 1.0])
+    looked_up /= np.linalg.norm(looked_up, axis=1, keepdims=True)
+    model = albedo * np.exp(-alpha**2 * degree**2) * sh.eval_sh(looked_up, lmax)
+    misfit = np.sum(((model - responses) ** 2)[:, degree >= 1], axis=1)
+    return float(tilts[np.argmin(misfit)])
+
+
+def lobe_sh_response(cos_theta: float, roughness: float, term: str = "scale", lmax: int = _TILT_FIT_LMAX,
+                     strata: int = _TILT_THETA_STRATA) -> tuple[float, np.ndarray, np.ndarray]:
+    """(albedo, responses (K,), view (3,)): the GGX lobe seen from view = (sin, 0, cos theta_o),
+    masking-shadowing included and weighted by the ``term``'s Fresnel factor (`LOBE_TERMS`), its
+    albedo int f cos_i dw_i and its response int Y_lm(mirror(w_i)) f cos_i dw_i to each real SH
+    in the mirrored parameterisation; stratified over GGX half vectors (strata x strata) as
+    `split_sum_table`. Deterministic."""
     if term not in LOBE_TERMS:
         raise ValueError(f"unknown lobe term {term!r}; choose one of {LOBE_TERMS}")
     cos_theta = max(float(cos_theta), 1e-4)
     alpha = float(brdf.alpha_from_roughness(np.array(roughness)))
-    u = (np.arange(_TILT_THETA_STRATA) + 0.5) / _TILT_THETA_STRATA
-    phi = (np.arange(_TILT_PHI_STRATA) + 0.5) / _TILT_PHI_STRATA * 2.0 * np.pi
-    cos_half = np.repeat(1.0 / np.sqrt(1.0 + alpha**2 * u / (1.0 - u)), _TILT_PHI_STRATA)
+    u = (np.arange(strata) + 0.5) / strata
+    phi = (np.arange(strata) + 0.5) / strata * 2.0 * np.pi
+    cos_half = np.repeat(1.0 / np.sqrt(1.0 + alpha**2 * u / (1.0 - u)), strata)
     sin_half = np.sqrt(1.0 - cos_half**2)
-    half = np.stack([sin_half * np.tile(np.cos(phi), _TILT_THETA_STRATA),
-                     sin_half * np.tile(np.sin(phi), _TILT_THETA_STRATA), cos_half], axis=-1)
+    half = np.stack([sin_half * np.tile(np.cos(phi), strata), sin_half * np.tile(np.sin(phi), strata), cos_half],
+                    axis=-1)
     view = np.array([math.sqrt(1.0 - cos_theta**2), 0.0, cos_theta])
     view_dot_half = half @ view
     light = 2.0 * view_dot_half[:, None] * half - view
@@ -385,14 +402,8 @@ def fit_lobe_tilt(cos_theta: float, roughness: float, term: str = "scale", lmax:
         * np.maximum(view_dot_half, 0.0) / (cos_theta * cos_half) * fresnel,
         0.0,
     )
-    degree = sh.sh_degrees(lmax)
     responses = np.mean(lobe[:, None] * sh.eval_sh(light * np.array([-1.0, -1.0, 1.0]), lmax), axis=0)
-    tilts = np.linspace(0.0, 1.0, _TILT_CANDIDATES)
-    looked_up = tilts[:, None] * view + (1.0 - tilts)[:, None] * np.array([0.0, 0.0, 1.0])
-    looked_up /= np.linalg.norm(looked_up, axis=1, keepdims=True)
-    model = np.mean(lobe) * np.exp(-alpha**2 * degree**2) * sh.eval_sh(looked_up, lmax)
-    misfit = np.sum(((model - responses) ** 2)[:, degree >= 1], axis=1)
-    return float(tilts[np.argmin(misfit)])
+    return float(np.mean(lobe)), responses, view
 
 
 def lobe_tilt(cos_theta: np.ndarray, roughness: np.ndarray, term: str = "scale") -> np.ndarray:
@@ -604,6 +615,9 @@ def _squared_residual_kernel(
         _fill_kernel(alpha, sigma, kernel, np.empty(n_degrees))
         level = np.zeros(n_terms, dtype=np.int64)
         frac = np.zeros(n_terms)
+        filtered = np.empty(n_terms)
+        # Without tilt levels every term reads the same light; Schlick's dielectric needs no light of its own.
+        distinct_terms = (n_terms if exact_dielectric else n_terms - 1) if n_levels > 1 else 1
         total = 0.0
         weight_sq = 0.0
         for v in range(n_views):
@@ -619,12 +633,14 @@ def _squared_residual_kernel(
                         level[term] = min(int(position), n_levels - 2)
                         frac[term] = position - level[term]
                 for c in range(3):
-                    filtered = np.zeros(n_terms)
-                    for term in range(n_terms):
+                    for term in range(distinct_terms):
+                        filtered[term] = 0.0
                         for degree in range(n_degrees):
                             lower = proj[t, level[term], c, degree, v]
                             upper = proj[t, level[term] + 1, c, degree, v] if n_levels > 1 else lower
                             filtered[term] += kernel[degree] * (lower + frac[term] * (upper - lower))
+                    for term in range(distinct_terms, n_terms):
+                        filtered[term] = filtered[0]
                     x, y = scale * filtered[0], bias * filtered[1]
                     z = dielectric * filtered[2] if exact_dielectric else _DIELECTRIC_F0 * x + y
                     m, b = metallic[t], base_color[t, c]
@@ -851,9 +867,9 @@ def _metallic_terms(metallic, quadratics, state):
 
 @numba.njit(fastmath=True, cache=True)
 def _profile_metallic(quadratics, state, metallic_grid):
-    """min over (b, m) of the loss for fixed `_metallic_quadratics`: metallic grid, then safeguarded Newton on
-    the derivative in the best cell (bisection where Newton would leave the bracket). Leaves the
-    winner's base colour and metallic in state and returns its loss."""
+    """min over (b, m) of the loss for fixed `_metallic_quadratics`: metallic grid, then safeguarded
+    Newton on the derivative in the best cell (bisection where Newton would leave the bracket).
+    Leaves the winner's base colour and metallic in state and returns its loss."""
     best_m, best_f = 0.0, np.inf
     for j in range(metallic_grid):
         m = j / (metallic_grid - 1)
@@ -1042,11 +1058,11 @@ def _weighted_sums(n, omega, values, burley_terms, diffuse_moments, squared_valu
 
 
 @numba.njit(fastmath=True, cache=True)
-def _search_roughness(args, roughness_grid, best_state, roughness_brent, first_node, last_node, xtol):
+def _search_roughness(args, state, roughness_grid, best_state, roughness_brent, first_node, last_node, xtol):
     """Scan the roughness grid's nodes first_node..last_node, then Brent (to xtol) in the best cell
     unless the loss rises inwards from a boundary node. The best evaluation seen wins: returns
-    (roughness, loss), its base colour and metallic in best_state."""
-    state = args[-2]
+    (roughness, loss), its base colour and metallic in best_state (`_roughness_objective` leaves
+    each probe's in state, the array in args)."""
     cell = 1.0 / (roughness_grid - 1)
     best_r, best_f = 0.0, np.inf
     for i in range(first_node, last_node + 1):
@@ -1194,7 +1210,7 @@ def _global_search_kernel(
                     squared_values, scale, state, metallic_grid)
             # A robust pass refines the roughness to _BRENT_XTOL: this search need only find its cell.
             first_xtol = _BRENT_COARSE_XTOL if robust_passes > 0 else _BRENT_XTOL
-            best_r, best_f = _search_roughness(args, roughness_grid, best_state, roughness_brent, 0,
+            best_r, best_f = _search_roughness(args, state, roughness_grid, best_state, roughness_brent, 0,
                                                roughness_grid - 1, first_xtol)
             if robust_passes > 0:
                 # Towards the paper's L1 loss sum_v w |r_v| (IRLS): weight each sample by
@@ -1217,7 +1233,7 @@ def _global_search_kernel(
                     _weighted_sums(n, omega, values, burley_terms, diffuse_moments, squared_values)
                     # Re-weighting moves the optimum locally: scan the nodes within two cells of it.
                     node = int(round(best_r * (roughness_grid - 1)))
-                    best_r, best_f = _search_roughness(args, roughness_grid, best_state, roughness_brent,
+                    best_r, best_f = _search_roughness(args, state, roughness_grid, best_state, roughness_brent,
                                                        max(node - _ROBUST_NODES, 0),
                                                        min(node + _ROBUST_NODES, roughness_grid - 1), _BRENT_XTOL)
                 # The reported loss stays the weighted squared residual of `MaterialEstimate.loss`.
