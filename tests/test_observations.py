@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from freqbrdf import render
+from freqbrdf import render, sh
 from freqbrdf.assets import envmap_path
 from freqbrdf.camera import Occluder
 from freqbrdf.capture import load
@@ -299,6 +299,15 @@ def test_observations_round_trip_through_npz(checker_bunny, tmp_path):
         else:
             assert getattr(loaded, name) == value and type(getattr(loaded, name)) is type(value), name
     np.testing.assert_array_equal(loaded.observed_spectrum, observations.observed_spectrum)
+    # The texel frame and the environment the estimator's environment light reads travel along;
+    # a file from before they did loads without them (the estimator then uses the fitted light).
+    assert abs(np.sum(loaded.tangent * loaded.normal, axis=1)).max() < 1e-5
+    assert loaded.environment_coeffs.shape == (sh.num_coeffs(observations.lmax), 3)
+    assert loaded.environment_coeffs[0, 0] > 0.0  # the DC of a real map
+    older = dict(np.load(path))
+    del older["tangent"], older["environment_coeffs"]
+    np.savez(tmp_path / "older.npz", **older)
+    assert Observations.load(tmp_path / "older.npz").tangent is None
 
     with pytest.raises(InputError, match="does not exist"):
         Observations.load(tmp_path / "missing.npz")

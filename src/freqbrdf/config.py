@@ -99,6 +99,14 @@ class EstimateConfig:
     # "schlick": R0 = 0.04 (1 - m) + m b in Schlick's approximation, 10-27 % below at view
     # cosines 0.3-0.8.
     dielectric_fresnel: Literal["exact", "schlick"] = "exact"
+    # global, split_sum: rough lobes read the environment's own SH (world frame, l <= 5, unoccluded)
+    # at a tilted direction with the GGX lobe's per-degree gains (estimate.environment_response_table)
+    # instead of the per-texel fit of the mirrored samples, which extrapolates where a wide lobe
+    # reads it; the share rises from 0 at roughness environment_blend[0] to 1 at [1] (smoothstep).
+    # Smooth lobes keep the fitted light: it holds the sharp features the environment's l <= 5
+    # SH lacks. Needs observations that carry the environment (`Observations.environment_coeffs`).
+    environment_light: bool = True
+    environment_blend: tuple[float, float] = (0.3, 0.6)
     fresnel: bool = True  # Schlick F; off: F = R0
     masking: bool = True  # "g1": G1(theta_o) on the reflected light
     shadowing: bool = True  # "g1": G1(theta_i) on the incoming light before its SH fit (appendix eq. 6)

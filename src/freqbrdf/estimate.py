@@ -182,7 +182,13 @@ def angular_loss(
     base_color = np.asarray(params.base_color, dtype=np.float64)
     metallic = np.asarray(params.metallic, dtype=np.float64)
     levels = _tilt_levels(settings)
-    for rows in _blocks(observations.n_texels, _PROJECTION_BLOCK // levels):
+    tangent, normal, environment, environment_levels, blend = _environment_inputs(observations, settings)
+    for rows in _blocks(observations.n_texels, _PROJECTION_BLOCK // max(levels, environment_levels)):
+        if environment_levels:
+            environment_proj = _environment_projections(observations.view_direction[rows], observations.weight[rows],
+                                                        tangent[rows], normal[rows], environment, observations.lmax)
+        else:
+            environment_proj = np.zeros((rows.stop - rows.start, 0, 3, 1, observations.n_views))
         _squared_residual_kernel(
             _tilted_projections(observations.view_direction[rows], observations.weight[rows], light[rows],
                                 observations.lmax, levels),
@@ -190,7 +196,7 @@ def angular_loss(
             _diffuse_scale(observations)[rows], base_color[rows], metallic[rows],
             np.asarray(params.roughness, dtype=np.float64)[rows], observations.sigma, settings.fresnel,
             settings.masking, _uses_split_sum(settings), _uses_exact_dielectric(settings), _uses_burley(settings),
-            _model_tables(), loss[rows],
+            _model_tables(), environment_proj, blend, loss[rows],
         )
     return np.where(observations.n_samples > 0, loss, np.nan)
 
@@ -223,6 +229,9 @@ def _validate(settings: EstimateConfig) -> None:
         raise ValueError(f"unknown dielectric_fresnel {settings.dielectric_fresnel!r}; choose 'exact' or 'schlick'")
     if settings.robust_passes < 0:
         raise ValueError("robust_passes must be >= 0")
+    if not 0.0 <= settings.environment_blend[0] < settings.environment_blend[1]:
+        raise ValueError(f"environment_blend must be (start, end) with 0 <= start < end, got "
+                         f"{settings.environment_blend}")
     if settings.roughness_grid < 2 or settings.metallic_grid < 2:
         raise ValueError("roughness_grid and metallic_grid need at least 2 nodes")
     if settings.shadowing_refresh_every < 1 or settings.iterations < 0 or settings.shadowing_refreshes < 0:
@@ -406,6 +415,120 @@ def lobe_sh_response(cos_theta: float, roughness: float, term: str = "scale", lm
     return float(np.mean(lobe)), responses, view
 
 
+# With the environment light (`EstimateConfig.environment_light`), a rough lobe reads the
+# environment's own SH (world frame, unoccluded, degrees up to `_TILT_FIT_LMAX`) at its reflected
+# direction tilted towards the normal, each degree scaled by its gain: one tilt and l* + 1 gains
+# per (cos theta_o, roughness) node and lobe term (`environment_response_table`). The search
+# expands the environment at `_ENVIRONMENT_TILT_LEVELS` tilts and interpolates linearly between them.
+_ENVIRONMENT_TABLE_PATH = Path(__file__).resolve().parent / "data" / "environment_response.csv"
+_ENVIRONMENT_TILT_LEVELS = 9
+_ENVIRONMENT_PARTS = 1 + _TILT_FIT_LMAX + 1  # per term: the tilt, then the gain of each degree
+
+
+@functools.cache
+def environment_response_table() -> np.ndarray:
+    """(3, 1 + l* + 1, cos nodes, roughness nodes) float64, l* = 5: per `LOBE_TERMS` term, the tilt
+    s in [0, 1] and the per-degree gains g_0..g_l* with which the GGX lobe's response to a light
+    L = sum c_lm Y_lm (world frame) is approximated as sum_l g_l sum_m c_lm Y_lm(w'(s)), w'(s) =
+    normalize((1 - s) n + s r) between the normal n and the mirror direction r, relative to the
+    term's albedo (`split_sum_table`).
+
+    Where the Gaussian kernel exp(-alpha^2 l^2) is far from the lobe's true response (at r = 1,
+    degree 1: 0.62 against 0.37; at r = 0.4, degree 5: 0.35 against 0.53) these gains are the
+    lobe's own. Nodes as `split_sum_table`'s; values `fit_environment_response`'s, shipped in
+    data/environment_response.csv (rows: term, then part, then cos theta_o; columns: roughness;
+    scripts/make_environment_response_table.py).
+    """
+    table = np.loadtxt(_ENVIRONMENT_TABLE_PATH, delimiter=",", ndmin=2)
+    shape = (len(LOBE_TERMS) * _ENVIRONMENT_PARTS * _TABLE_COS_NODES, _TABLE_ROUGHNESS_NODES)
+    if table.shape != shape or not np.all(np.isfinite(table)):
+        raise InputError(_ENVIRONMENT_TABLE_PATH, f"expected a {shape[0]} x {shape[1]} table of finite tilts and "
+                                                  f"gains, got shape {table.shape}; regenerate it with "
+                                                  "scripts/make_environment_response_table.py")
+    return table.reshape(len(LOBE_TERMS), _ENVIRONMENT_PARTS, _TABLE_COS_NODES, _TABLE_ROUGHNESS_NODES)
+
+
+def fit_environment_response(cos_theta: float, roughness: float, term: str = "scale",
+                             lmax: int = _TILT_FIT_LMAX) -> tuple[float, np.ndarray]:
+    """(tilt s, gains (l* + 1,)) whose lookup g_l Y_lm(w'(s)) best reproduces, in the least-squares
+    sense over all K harmonics, the ``term``'s lobe response to each real SH relative to its albedo
+    (`lobe_sh_response`): for each s on a 0.0025 grid the gains in closed form (per degree, the
+    projection of the responses onto Y_lm(w'(s))), then the s of least misfit. Deterministic."""
+    albedo, responses, view = lobe_sh_response(cos_theta, roughness, term, lmax)
+    responses = responses / max(albedo, 1e-12)
+    degree = sh.sh_degrees(lmax)
+    tilts = np.linspace(0.0, 1.0, _TILT_CANDIDATES)
+    looked_up = tilts[:, None] * view + (1.0 - tilts)[:, None] * np.array([0.0, 0.0, 1.0])
+    basis = sh.eval_sh(looked_up / np.linalg.norm(looked_up, axis=1, keepdims=True), lmax)  # (tilts, K)
+    # Per degree: projection and squared norm of the looked-up harmonics, summed over m.
+    projection = np.stack([basis[:, degree == l] @ responses[degree == l] for l in range(lmax + 1)], axis=1)
+    norm = np.stack([np.sum(basis[:, degree == l] ** 2, axis=1) for l in range(lmax + 1)], axis=1)
+    gains = projection / np.maximum(norm, 1e-12)
+    misfit = np.sum(responses**2) - np.sum(gains * projection, axis=1)
+    best = int(np.argmin(misfit))
+    return float(tilts[best]), gains[best]
+
+
+def environment_filtered_light(directions: np.ndarray, weight: np.ndarray, tangent: np.ndarray, normal: np.ndarray,
+                               environment_coeffs: np.ndarray, roughness: np.ndarray, term: str = "scale") -> np.ndarray:
+    """(n, V, 3) the environment light as the ``term`` of a lobe of roughness (n,) reads it.
+
+    directions (n, V, 3) local view directions, weight (n, V), tangent and normal (n, 3) world
+    frame of each texel, environment_coeffs (K, 3) the world-frame SH of the environment: the
+    gains and tilt of `environment_response_table` (bilinear in cos theta_o and roughness), the
+    environment expanded by degree at the reflected direction tilted by s = j / (levels - 1) and
+    interpolated linearly in s, as the search does. 0 where weight is 0.
+    """
+    directions = np.asarray(directions, np.float64)
+    roughness = np.broadcast_to(np.asarray(roughness, np.float64)[:, None], directions.shape[:2])
+    lmax = sh.lmax_of(environment_coeffs.shape[0])
+    levels = _environment_projections(directions, weight, tangent, normal, environment_coeffs, lmax)  # (n, L, 3, G, V)
+    n_gains = levels.shape[3]
+    index = LOBE_TERMS.index(term)
+    parts = np.empty((_TABLE_PLANES, directions[..., 2].size))
+    tables = _model_tables()
+    _split_sum_terms_kernel(directions[..., 2].ravel(), roughness.ravel(), tables, parts)
+    parts = parts.reshape(_TABLE_PLANES, *directions.shape[:2])
+    position = parts[_ENVIRONMENT_TILT_PLANE + index] * (_ENVIRONMENT_TILT_LEVELS - 1)
+    level = np.minimum(position.astype(np.int64), _ENVIRONMENT_TILT_LEVELS - 2)
+    frac = position - level
+    lower = np.take_along_axis(levels, level[:, None, None, None, :], axis=1)[:, 0]  # (n, 3, G, V)
+    upper = np.take_along_axis(levels, level[:, None, None, None, :] + 1, axis=1)[:, 0]
+    gains = parts[_environment_gain_plane(index, 0):_environment_gain_plane(index, 0) + n_gains]  # (G, n, V)
+    return np.einsum("lnv,nclv->nvc", gains, lower + frac[:, None, None, :] * (upper - lower))
+
+
+def environment_weight(roughness: np.ndarray, blend: tuple[float, float]) -> np.ndarray:
+    """The environment light's share of the light a lobe of this roughness reads: 0 up to
+    blend[0], 1 from blend[1], smoothstep between (`EstimateConfig.environment_blend`)."""
+    roughness = np.asarray(roughness, np.float64)
+    return np.array([_environment_share(r, blend) for r in roughness.ravel()]).reshape(roughness.shape)
+
+
+def _environment_projections(directions, weight, tangent, normal, environment_coeffs, lmax) -> np.ndarray:
+    """(n, levels, 3, G, V) sum_m c_lm Y_lm at the world direction of the reflected view direction
+    tilted towards the normal by s = j / (levels - 1), G = min(l*, 5) + 1; 0 at samples of weight 0."""
+    directions = np.asarray(directions, np.float64)
+    tangent = np.asarray(tangent, np.float64)
+    normal = np.asarray(normal, np.float64)
+    bitangent = np.cross(normal, tangent)
+    n_gains = min(lmax, _TILT_FIT_LMAX) + 1
+    out = []
+    for j in range(_ENVIRONMENT_TILT_LEVELS):
+        tilt = j / (_ENVIRONMENT_TILT_LEVELS - 1)
+        local = directions * np.array([-tilt, -tilt, tilt])
+        local[..., 2] += 1.0 - tilt
+        local /= np.maximum(np.linalg.norm(local, axis=-1, keepdims=True), 1e-12)
+        world = (local[..., :1] * tangent[:, None] + local[..., 1:2] * bitangent[:, None]
+                 + local[..., 2:] * normal[:, None])
+        basis = sh.eval_sh(world, lmax)  # (n, V, K)
+        degree = sh.sh_degrees(lmax)
+        projection = np.stack([np.einsum("nvk,kc->ncv", basis[..., degree == l], environment_coeffs[degree == l])
+                               for l in range(n_gains)], axis=2)  # (n, 3, G, V)
+        out.append(np.where(np.asarray(weight)[:, None, None, :] > 0.0, projection, 0.0))
+    return np.stack(out, axis=1)
+
+
 def lobe_tilt(cos_theta: np.ndarray, roughness: np.ndarray, term: str = "scale") -> np.ndarray:
     """`lobe_tilt_table` of one `LOBE_TERMS` term, bilinear, for broadcastable cos_theta and
     roughness in [0, 1]."""
@@ -415,15 +538,26 @@ def lobe_tilt(cos_theta: np.ndarray, roughness: np.ndarray, term: str = "scale")
     return out[_TILT_PLANE + LOBE_TERMS.index(term)].reshape(cos_theta.shape)
 
 
-# The planes of `_model_tables`, as the kernels index them: the tilt of term k is _TILT_PLANE + k.
-_SCALE_PLANE, _BIAS_PLANE, _DIELECTRIC_PLANE, _TILT_PLANE = 0, 1, 2, 3
-_TABLE_PLANES = 6
+# The planes of `_model_tables`, as the kernels index them: the tilt of term k is _TILT_PLANE + k,
+# its environment tilt _ENVIRONMENT_TILT_PLANE + k, its environment gains `_environment_gain_plane`.
+_SCALE_PLANE, _BIAS_PLANE, _DIELECTRIC_PLANE, _TILT_PLANE, _ENVIRONMENT_TILT_PLANE = 0, 1, 2, 3, 6
+_ENVIRONMENT_GAIN_PLANE = 9
+_TABLE_PLANES = _ENVIRONMENT_GAIN_PLANE + len(LOBE_TERMS) * (_ENVIRONMENT_PARTS - 1)
+
+
+@numba.njit(cache=True)
+def _environment_gain_plane(term, degree):
+    return _ENVIRONMENT_GAIN_PLANE + term * (_ENVIRONMENT_PARTS - 1) + degree
 
 
 @functools.cache
 def _model_tables() -> np.ndarray:
-    """(6, cos nodes, roughness nodes): A, B and E of `split_sum_table`, then their tilts."""
-    return np.concatenate([split_sum_table(), lobe_tilt_table()])
+    """(27, cos nodes, roughness nodes): A, B and E of `split_sum_table`, their tilts
+    (`lobe_tilt_table`), their environment tilts and their environment gains per degree
+    (`environment_response_table`)."""
+    environment = environment_response_table()
+    return np.concatenate([split_sum_table(), lobe_tilt_table(), environment[:, 0],
+                           environment[:, 1:].reshape(-1, _TABLE_COS_NODES, _TABLE_ROUGHNESS_NODES)])
 
 
 def _tilt_levels(settings: EstimateConfig) -> int:
@@ -504,6 +638,22 @@ def _uses_split_sum(settings: EstimateConfig) -> bool:
 
 def _uses_exact_dielectric(settings: EstimateConfig) -> bool:
     return _uses_split_sum(settings) and settings.fresnel and settings.dielectric_fresnel == "exact"
+
+
+def _uses_environment_light(observations: Observations, settings: EstimateConfig) -> bool:
+    """The environment light needs the split-sum model and observations that carry the environment."""
+    return (_uses_split_sum(settings) and settings.environment_light and observations.tangent is not None
+            and observations.environment_coeffs is not None)
+
+
+def _environment_inputs(observations: Observations, settings: EstimateConfig) -> tuple:
+    """(tangent (N, 3), normal (N, 3), environment (K, 3) float64, levels, blend) for the kernels;
+    levels 0 and empty arrays without the environment light."""
+    if not _uses_environment_light(observations, settings):
+        return (np.zeros((observations.n_texels, 3), np.float32), observations.normal, np.zeros((1, 3)), 0,
+                (0.0, 0.0))
+    return (observations.tangent, observations.normal, observations.environment_coeffs.astype(np.float64),
+            _ENVIRONMENT_TILT_LEVELS, tuple(float(b) for b in settings.environment_blend))
 
 
 def _shadowed_light_coeffs(observations: Observations, alpha: np.ndarray, fit: FitConfig) -> np.ndarray:
@@ -599,13 +749,14 @@ def _fill_kernel(alpha, sigma, kernel, kernel_derivative):
 @numba.njit(parallel=True, fastmath=True, cache=True)
 def _squared_residual_kernel(
     proj, cos_theta, weight, observed, diffuse_scale, base_color, metallic, roughness, sigma, fresnel, masking,
-    split_sum, exact_dielectric, burley, table, out,
+    split_sum, exact_dielectric, burley, table, environment_proj, environment_blend, out,
 ):
     """out[t] = sum_v,c w^2 (L - f)^2 / sum_v w^2 (0 without samples). proj (n, levels, 3, l*+1, V):
     `_tilted_projections`, interpolated at each sample's tilt per lobe term when there are several
     levels. The specular is m (b X + Y) + (1 - m) Z with X = A S_A, Y = B S_B (S_k: the light
     filtered for term k, `lobe_filtered_light`) and Z = E S_E with ``exact_dielectric``, else
-    Schlick's 0.04 X + Y."""
+    Schlick's 0.04 X + Y. environment_proj (n, levels, 3, G, V) `_environment_projections`: with
+    levels > 1 each S_k is blended towards the environment light (`environment_filtered_light`)."""
     n_texels, n_views = weight.shape
     n_levels, n_degrees = proj.shape[1], proj.shape[3]
     n_terms = len(LOBE_TERMS)
@@ -616,8 +767,15 @@ def _squared_residual_kernel(
         level = np.zeros(n_terms, dtype=np.int64)
         frac = np.zeros(n_terms)
         filtered = np.empty(n_terms)
-        # Without tilt levels every term reads the same light; Schlick's dielectric needs no light of its own.
-        distinct_terms = (n_terms if exact_dielectric else n_terms - 1) if n_levels > 1 else 1
+        n_environment_levels, n_gains = environment_proj.shape[1], environment_proj.shape[3]
+        share = _environment_share(roughness[t], environment_blend) if n_environment_levels > 1 else 0.0
+        environment_level = np.zeros(n_terms, dtype=np.int64)
+        environment_frac = np.zeros(n_terms)
+        environment_gain = np.zeros((n_terms, n_gains))
+        # Without tilt levels or environment light every term reads the same light; Schlick's
+        # dielectric needs no light of its own.
+        distinct = n_levels > 1 or share > 0.0
+        distinct_terms = (n_terms if exact_dielectric else n_terms - 1) if distinct else 1
         total = 0.0
         weight_sq = 0.0
         for v in range(n_views):
@@ -632,6 +790,15 @@ def _squared_residual_kernel(
                         position = _table_lookup(table, _TILT_PLANE + term, cos_v, roughness[t]) * (n_levels - 1)
                         level[term] = min(int(position), n_levels - 2)
                         frac[term] = position - level[term]
+                if share > 0.0:
+                    for term in range(n_terms):
+                        position = (_table_lookup(table, _ENVIRONMENT_TILT_PLANE + term, cos_v, roughness[t])
+                                    * (n_environment_levels - 1))
+                        environment_level[term] = min(max(int(position), 0), n_environment_levels - 2)
+                        environment_frac[term] = position - environment_level[term]
+                        for degree in range(n_gains):
+                            environment_gain[term, degree] = _table_lookup(table, _environment_gain_plane(term, degree),
+                                                                           cos_v, roughness[t])
                 for c in range(3):
                     for term in range(distinct_terms):
                         filtered[term] = 0.0
@@ -639,6 +806,14 @@ def _squared_residual_kernel(
                             lower = proj[t, level[term], c, degree, v]
                             upper = proj[t, level[term] + 1, c, degree, v] if n_levels > 1 else lower
                             filtered[term] += kernel[degree] * (lower + frac[term] * (upper - lower))
+                        if share > 0.0:
+                            light = 0.0
+                            for degree in range(n_gains):
+                                lower = environment_proj[t, environment_level[term], c, degree, v]
+                                upper = environment_proj[t, environment_level[term] + 1, c, degree, v]
+                                light += environment_gain[term, degree] * (
+                                    lower + environment_frac[term] * (upper - lower))
+                            filtered[term] = (1.0 - share) * filtered[term] + share * light
                     for term in range(distinct_terms, n_terms):
                         filtered[term] = filtered[0]
                     x, y = scale * filtered[0], bias * filtered[1]
@@ -686,7 +861,7 @@ def _estimate_global(observations: Observations, config: Config, reporter: Repor
                 _tilt_levels(settings),
                 settings.roughness_grid,
                 settings.metallic_grid, settings.robust_passes, observations.lmax,
-                *sh._legendre_tables(observations.lmax), params, loss,
+                *sh._legendre_tables(observations.lmax), *_environment_inputs(observations, settings), params, loss,
             )
             timings["search"] += time.perf_counter() - tick
             residual = params[:, 3] - shadow_roughness
@@ -906,6 +1081,13 @@ def _profile_metallic(quadratics, state, metallic_grid):
 
 
 @numba.njit(fastmath=True, cache=True)
+def _environment_share(roughness, blend):
+    """`environment_weight` for one roughness; blend (start, end)."""
+    ramp = min(max((roughness - blend[0]) / max(blend[1] - blend[0], 1e-12), 0.0), 1.0)
+    return ramp * ramp * (3.0 - 2.0 * ramp)
+
+
+@numba.njit(fastmath=True, cache=True)
 def _roughness_objective(roughness, args):
     """Profiled loss at this roughness: min over base colour and metallic (written to state).
 
@@ -916,8 +1098,12 @@ def _roughness_objective(roughness, args):
     (n, cos_theta, omega, proj, values, sigma, fresnel, masking, split_sum, exact_dielectric, burley, table,
      table_row, table_frac, tilt_level, tilt_frac, burley_terms, diffuse_moments, column, kernel, kernel_derivative,
      albedo, diffuse_factor, level_filtered, filtered, moments, quadratics, squared_values, diffuse_scale,
-     state, metallic_grid) = args
+     state, metallic_grid, environment_proj, environment_blend, environment_level, environment_frac,
+     environment_gain) = args
     n_levels = proj.shape[0]
+    n_gains = environment_proj.shape[2]
+    # Without environment levels (environment light off) the fitted light is all there is.
+    share = _environment_share(roughness, environment_blend) if environment_proj.shape[0] > 1 else 0.0
     # Terms with a light of their own: A and B, and E with the exact dielectric (else Z = 0.04 X + Y).
     n_terms = 3 if exact_dielectric else 2
     alpha = max(roughness * roughness, _ALPHA_MIN)
@@ -926,12 +1112,15 @@ def _roughness_objective(roughness, args):
         y = min(max(roughness, 0.0), 1.0) * (table.shape[2] - 1)
         j = min(int(y), table.shape[2] - 2)
         fy = y - j
-        for side in range(table.shape[0]):
-            term = side - _TILT_PLANE if side >= _TILT_PLANE else side
-            if term >= n_terms or (side >= _TILT_PLANE and n_levels == 1):
-                continue
+        last_side = table.shape[0] if share > 0.0 else _ENVIRONMENT_TILT_PLANE
+        for side in range(last_side):
+            if side < _ENVIRONMENT_TILT_PLANE:
+                term = side - _TILT_PLANE if side >= _TILT_PLANE else side
+                if term >= n_terms or (side >= _TILT_PLANE and n_levels == 1):
+                    continue
             for i in range(table.shape[1]):
                 column[side, i] = table[side, i, j] * (1.0 - fy) + table[side, i, j + 1] * fy
+        n_environment_levels = environment_proj.shape[0]
         for s in range(n):
             row, fx = table_row[s], table_frac[s]
             for term in range(n_terms):
@@ -941,6 +1130,16 @@ def _roughness_objective(roughness, args):
                     position = (column[side, row] + fx * (column[side, row + 1] - column[side, row])) * (n_levels - 1)
                     tilt_level[term, s] = min(int(position), n_levels - 2)
                     tilt_frac[term, s] = position - tilt_level[term, s]
+                if share > 0.0:  # the environment's tilt level and per-degree gains
+                    side = _ENVIRONMENT_TILT_PLANE + term
+                    position = ((column[side, row] + fx * (column[side, row + 1] - column[side, row]))
+                                * (n_environment_levels - 1))
+                    environment_level[term, s] = min(max(int(position), 0), n_environment_levels - 2)
+                    environment_frac[term, s] = position - environment_level[term, s]
+                    for degree in range(n_gains):
+                        side = _environment_gain_plane(term, degree)
+                        environment_gain[term, degree, s] = column[side, row] + fx * (column[side, row + 1]
+                                                                                      - column[side, row])
     else:
         for s in range(n):
             albedo[0, s], albedo[1, s] = _specular_albedo(cos_theta[s], roughness, alpha, fresnel, masking, False,
@@ -984,6 +1183,15 @@ def _roughness_objective(roughness, args):
                     lower = level_filtered[tilt_level[term, s], s]
                     upper = level_filtered[tilt_level[term, s] + 1, s]
                     model[term, s] = albedo[term, s] * (lower + tilt_frac[term, s] * (upper - lower))
+            if share > 0.0:
+                for s in range(n):
+                    level, frac = environment_level[term, s], environment_frac[term, s]
+                    light = 0.0
+                    for degree in range(n_gains):
+                        lower = environment_proj[level, c, degree, s]
+                        upper = environment_proj[level + 1, c, degree, s]
+                        light += environment_gain[term, degree, s] * (lower + frac * (upper - lower))
+                    model[term, s] = (1.0 - share) * model[term, s] + share * albedo[term, s] * light
         if not exact_dielectric:
             for s in range(n):
                 model[2, s] = _DIELECTRIC_F0 * model[0, s] + model[1, s]
@@ -1110,16 +1318,49 @@ def _residual_magnitudes(n, values, filtered, diffuse_factor, diffuse_scale, par
         out[s] = math.sqrt(total)
 
 
+@numba.njit(fastmath=True, cache=True)
+def _environment_levels(xyz, n, tangent, normal, bitangent, environment, lmax, diag, rec_a, rec_b, tilted, basis,
+                        sh_scratch, out):
+    """out[j, c, l, s] = sum_m c_lm Y_lm of the environment (K, 3) at the world direction of the
+    texel's reflected view direction xyz[:, s] (local) tilted towards the normal by
+    s = j / (levels - 1), for levels out.shape[0] and degrees l < out.shape[2]."""
+    n_levels, n_gains = out.shape[0], out.shape[2]
+    bitangent[0] = normal[1] * tangent[2] - normal[2] * tangent[1]  # normal x tangent (right-handed frame)
+    bitangent[1] = normal[2] * tangent[0] - normal[0] * tangent[2]
+    bitangent[2] = normal[0] * tangent[1] - normal[1] * tangent[0]
+    for level in range(n_levels):
+        tilt = level / (n_levels - 1)
+        for s in range(n):  # normalize((1 - tilt) n + tilt r), r = (-x, -y, z) locally
+            local_x, local_y = -tilt * xyz[0, s], -tilt * xyz[1, s]
+            local_z = 1.0 - tilt + tilt * xyz[2, s]
+            norm = math.sqrt(local_x * local_x + local_y * local_y + local_z * local_z)
+            local_x, local_y, local_z = local_x / norm, local_y / norm, local_z / norm
+            for axis in range(3):
+                tilted[axis, s] = local_x * tangent[axis] + local_y * bitangent[axis] + local_z * normal[axis]
+        sh._sh_block(tilted[0], tilted[1], tilted[2], n, lmax, diag, rec_a, rec_b, basis, sh_scratch)
+        for c in range(3):
+            for degree in range(n_gains):
+                for s in range(n):
+                    out[level, c, degree, s] = 0.0
+                for k in range(degree * degree, (degree + 1) * (degree + 1)):
+                    coefficient = environment[k, c]
+                    for s in range(n):
+                        out[level, c, degree, s] += coefficient * basis[k, s]
+
+
 @numba.njit(parallel=True, fastmath=True, cache=True)
 def _global_search_kernel(
     directions, weight, observed, light, diffuse_scale, sigma, fresnel, masking, split_sum, exact_dielectric, burley,
-    table, tilt_levels, roughness_grid, metallic_grid, robust_passes, lmax, diag, rec_a, rec_b, params, loss,
+    table, tilt_levels, roughness_grid, metallic_grid, robust_passes, lmax, diag, rec_a, rec_b,
+    tangent, normal, environment, environment_levels, environment_blend, params, loss,
 ):
     """Per texel: the (base colour, roughness, metallic) of least weighted squared residual.
 
     directions (n, V, 3) local view directions; weight (n, V); observed (n, V, 3); light (n, 3, K)
     the incoming light's SH fit; diffuse_scale (n, 3) E / pi; (lmax, diag, rec_a, rec_b) as
-    `sh._sh_block` takes them. Per texel the light is expanded by degree at its samples once per
+    `sh._sh_block` takes them. With environment_levels > 1 the environment light (world-frame SH
+    environment (K, 3), texel frames tangent and normal (n, 3)) is expanded by degree at that
+    many tilts of the reflected direction and blended in over environment_blend (start, end). Per texel the light is expanded by degree at its samples once per
     tilt level (P_c,l(w'_v), `_tilted_projections`; one level: w' = w; fused here to keep it in
     cache), then the roughness is searched. Writes params
     (n, 5) [b_rgb, r, m] and loss (n,) (divided by sum_v w^2) for texels with samples; others are
@@ -1160,6 +1401,12 @@ def _global_search_kernel(
         state = np.empty(4)
         best_state = np.empty(4)
         roughness_brent = np.empty(13)
+        n_gains = min(lmax, _TILT_FIT_LMAX) + 1
+        environment_proj = np.zeros((environment_levels, 3, n_gains, n_views))
+        environment_level = np.empty((3, n_views), dtype=np.int64)  # per lobe term
+        environment_frac = np.empty((3, n_views))
+        environment_gain = np.empty((3, n_gains, n_views))
+        bitangent = np.empty(3)
         for t in range(chunk * _SEARCH_CHUNK, min((chunk + 1) * _SEARCH_CHUNK, n_texels)):
             n = 0
             for v in range(n_views):
@@ -1193,6 +1440,9 @@ def _global_search_kernel(
                             coefficient = np.float64(light[t, c, k])
                             for s in range(n):
                                 packed_proj[level, c, degree, s] += coefficient * basis[k, s]
+            if environment_levels > 1:
+                _environment_levels(xyz, n, tangent[t], normal[t], bitangent, environment, lmax, diag, rec_a, rec_b,
+                                    tilted, basis, sh_scratch, environment_proj)
             for s in range(n):
                 x = min(max(packed_cos[s], 0.0), 1.0) * (table.shape[1] - 1)
                 table_row[s] = min(int(x), table.shape[1] - 2)
@@ -1207,7 +1457,8 @@ def _global_search_kernel(
             args = (n, packed_cos, omega, packed_proj, values, sigma, fresnel, masking, split_sum, exact_dielectric,
                     burley, table, table_row, table_frac, tilt_level, tilt_frac, burley_terms, diffuse_moments, column,
                     kernel, kernel_derivative, albedo, diffuse_factor, level_filtered, filtered, moments, quadratics,
-                    squared_values, scale, state, metallic_grid)
+                    squared_values, scale, state, metallic_grid, environment_proj, environment_blend,
+                    environment_level, environment_frac, environment_gain)
             # A robust pass refines the roughness to _BRENT_XTOL: this search need only find its cell.
             first_xtol = _BRENT_COARSE_XTOL if robust_passes > 0 else _BRENT_XTOL
             best_r, best_f = _search_roughness(args, state, roughness_grid, best_state, roughness_brent, 0,

@@ -97,6 +97,11 @@ class Observations:
     # before the occlusion and mask tests (n_samples / n_facing is the visible fraction).
     n_facing: np.ndarray
     environment_occlusion: bool = False  # mirrored and irradiance account for self-occlusion
+    # (N, 3) float32 world tangent of the local frame (bitangent = normal x tangent), and (K, 3)
+    # float32 the environment's SH in the world frame, unfiltered: what the estimator's environment
+    # light reads (`EstimateConfig.environment_light`). None where unknown (hand-made observations).
+    tangent: np.ndarray | None = None
+    environment_coeffs: np.ndarray | None = None
     timings: dict = field(default_factory=dict)  # seconds per stage
 
     @property
@@ -132,7 +137,8 @@ class Observations:
 
     def save(self, path: str | Path) -> None:
         """Write everything to one ``.npz`` (atomically)."""
-        arrays = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "timings"}
+        arrays = {f.name: getattr(self, f.name) for f in fields(self)
+                  if f.name != "timings" and getattr(self, f.name) is not None}
         arrays["timings_json"] = np.array(json.dumps(self.timings))
         with atomic_path(path) as tmp:
             with open(tmp, "wb") as handle:
@@ -145,7 +151,8 @@ class Observations:
             raise InputError(path, "observations file does not exist")
         try:
             with np.load(path, allow_pickle=False) as data:
-                values = {f.name: data[f.name] for f in fields(cls) if f.name != "timings"}
+                values = {f.name: data[f.name] for f in fields(cls)
+                          if f.name != "timings" and (f.name in data or f.default is not None)}
                 timings = json.loads(str(data["timings_json"]))
         except (KeyError, ValueError, OSError) as err:
             raise InputError(path, f"not a freqbrdf observations file ({err})") from err
@@ -282,6 +289,8 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
         alpha_bound=alpha_bound,
         n_facing=n_facing,
         environment_occlusion=config.observe.environment_occlusion,
+        tangent=texels.tangent.astype(np.float32),
+        environment_coeffs=envmaps.envmap_sh(capture.envmap, config.fit.lmax).astype(np.float32),
         timings=timings,
     )
 
