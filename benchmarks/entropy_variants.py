@@ -16,7 +16,14 @@ metallic errors, and on the sphere by its mean per region. Variants:
   samples (n_samples not passed: K samples assumed), amplitudes in phase;
 - calibrated (the default): amplitudes in phase, coefficient noise noise_level^2 P K / n;
 - phase_aware: as the default, but coefficients compared through the cross spectrum;
-- each calibrated variant also with noise_level 0.05 (default 0.02).
+- each calibrated variant also with noise_level 0.05 (default 0.02);
+
+and the posterior spread of the estimated roughness (`uncertainty.roughness_std`), which is not an
+entropy over the hypotheses but the estimate's own uncertainty: the neighbour scatter alone
+(windows 3, 5, 7; 7 is the default), the loss curvature alone, and both. To check that it is not
+an artefact of the striped "bands" material, it is also scored on three photo-textured captures
+of applications.py (100 views all around, rendered there if missing): bunny_sunset (chelsea),
+sphere_city (coffee), sphere_studio (astronaut).
 
 Agreement with the path-traced brute force is measured by pathtraced_entropy.py. Saves
 benchmarks/results/entropy_variants.json.
@@ -38,7 +45,16 @@ from freqbrdf.estimate import estimate
 from freqbrdf.materials import resize
 from freqbrdf.observations import Observations, observe
 from freqbrdf.synth import synthesize
-from freqbrdf.uncertainty import cross_spectrum, entropy_from_spectra
+from freqbrdf.uncertainty import cross_spectrum, entropy_from_spectra, roughness_std
+
+SPREAD_VARIANTS = {  # name: (roughness_window, loss_curvature)
+    "roughness_std window 3": (3, False),
+    "roughness_std window 5": (5, False),
+    "roughness_std window 7 (default)": (7, False),
+    "roughness_std curvature": (0, True),
+    "roughness_std window 7 + curvature": (7, True),
+}
+TEXTURED_SCENES = ("bunny_sunset", "sphere_city", "sphere_studio")  # applications.py's, photo textures
 
 
 def bunny_path():
@@ -73,6 +89,12 @@ def variant_entropy(observations: Observations, name: str, noise_level: float) -
     ).entropy
 
 
+def textured_path(name: str):
+    from applications import scene_capture
+
+    return scene_capture(name, 100).root
+
+
 def scene_scores(name: str, path) -> dict:
     capture = load(path)
     config = Config()
@@ -93,27 +115,42 @@ def scene_scores(name: str, path) -> dict:
         from entropy_scenes import regions
 
         masks = regions(observations.normal)
+
+    def scores_of(uncertainty: np.ndarray) -> dict:
+        scores = {}
+        for error_name, error in errors.items():
+            curves = sparsification.sparsification(uncertainty[observed], error[observed])
+            scores[error_name] = {"spearman": round(float(curves.spearman), 4), "aurg": round(curves.aurg, 4)}
+        return scores
+
     variants = {}
     for variant in ("paper", "calibrated_fixed_noise", "calibrated", "phase_aware"):
         for noise_level in ((None,) if variant == "paper" else (0.02, 0.05)):
             entropy = variant_entropy(observations, variant, noise_level)
             key = variant if noise_level is None else f"{variant}@{noise_level}"
-            scores = {}
-            for error_name, error in errors.items():
-                curves = sparsification.sparsification(entropy[observed], error[observed])
-                scores[error_name] = {"spearman": round(float(curves.spearman), 4), "aurg": round(curves.aurg, 4)}
-            entry = {"scores": scores, "mean_entropy": round(float(entropy[observed].mean()), 4)}
+            entry = {"scores": scores_of(entropy), "mean_entropy": round(float(entropy[observed].mean()), 4)}
             if masks is not None:
                 entry["mean_entropy_by_region"] = {
                     region: round(float(entropy[mask & observed].mean()), 4) for region, mask in masks.items()}
             variants[key] = entry
             print(name, key, entry, flush=True)
+    for key, (window, curvature) in SPREAD_VARIANTS.items():
+        spread_config = dataclasses.replace(
+            config, uncertainty=UncertaintyConfig(roughness_window=window, loss_curvature=curvature))
+        start = time.perf_counter()
+        spread = roughness_std(observations, result, spread_config)
+        entry = {"scores": scores_of(spread), "mean_roughness_std": round(float(np.nanmean(spread[observed])), 4),
+                 "seconds": round(time.perf_counter() - start, 3)}
+        variants[key] = entry
+        print(name, key, entry, flush=True)
     return {"capture": str(path), "observed_texels": int(observed.sum()), "fit_seconds": round(fit_s, 2),
             "variants": variants}
 
 
 def main() -> int:
     scenes = {"bunny": scene_scores("bunny", bunny_path()), "sphere": scene_scores("sphere", sphere_path())}
+    for name in TEXTURED_SCENES:
+        scenes[name] = scene_scores(name, textured_path(name))
     save_results("entropy_variants", {
         "benchmark": "entropy variants vs per-texel errors of the global estimate",
         **machine(),

@@ -366,3 +366,92 @@ def test_paper_preset_reproduces_the_published_grid():
     assert (config.mode, config.grid_res, config.temperature) == ("paper", 8, 1e-5)
     np.testing.assert_allclose(grid.alpha, (np.arange(8) / 7) ** 2)
     np.testing.assert_allclose(grid.specular, np.arange(8) / 7)
+
+
+# --------------------------------------------------------------------------------------------
+# The posterior spread of the estimated roughness (unc.roughness_std)
+
+
+def _estimate_of(observations, roughness, estimated):
+    from freqbrdf.estimate import MaterialEstimate
+
+    n_texels = observations.n_texels
+    return MaterialEstimate(
+        texture_res=observations.texture_res, texel_index=observations.texel_index,
+        base_color=np.full((n_texels, 3), 0.5), roughness=np.where(estimated, roughness, np.nan),
+        metallic=np.zeros(n_texels), estimated=estimated, loss=np.zeros(n_texels), method="global",
+    )
+
+
+def test_neighbour_term_is_the_scatter_of_the_estimates_in_the_window():
+    import dataclasses
+
+    from freqbrdf.config import Config
+
+    rng = np.random.default_rng(3)
+    texture_res, window = 7, 3
+    texel_index = np.array([i for i in range(texture_res**2) if i not in (23, 40)])  # two holes in the atlas
+    light, observed, _ = model_spectra(SHARP_LIGHT, 0.1, 0.5, n=len(texel_index))
+    observations = _observations_from_spectra(light, observed, texel_index, texture_res)
+    roughness = rng.uniform(0.0, 1.0, len(texel_index))
+    estimated = np.ones(len(texel_index), bool)
+    estimated[5] = False
+    lonely = [list(texel_index).index(48)]  # the corner texel; its neighbours are left unestimated
+    for neighbour in (41, 47):  # 40 is a hole
+        estimated[list(texel_index).index(neighbour)] = False
+    config = dataclasses.replace(Config(), uncertainty=UncertaintyConfig(roughness_window=window))
+    spread = unc.roughness_std(observations, _estimate_of(observations, roughness, estimated), config)
+
+    texture = np.full((texture_res, texture_res), np.nan)
+    texture.ravel()[texel_index[estimated]] = roughness[estimated]
+    for texel, flat in enumerate(texel_index):
+        if not estimated[texel]:
+            assert np.isnan(spread[texel])
+            continue
+        row, column = divmod(flat, texture_res)
+        values = texture[max(row - 1, 0):row + 2, max(column - 1, 0):column + 2]
+        values = values[np.isfinite(values)]
+        expected = math.sqrt(1 / 12) if len(values) == 1 else values.std()  # alone: the uniform prior
+        assert spread[texel] == pytest.approx(expected, abs=1e-6), (texel, len(values))
+    assert spread[lonely[0]] == pytest.approx(math.sqrt(1 / 12))
+
+    flat_estimate = _estimate_of(observations, np.full(len(texel_index), 0.4), estimated)
+    np.testing.assert_allclose(unc.roughness_std(observations, flat_estimate, config)[estimated & (np.arange(
+        len(texel_index)) != lonely[0])], 0.0, atol=1e-6)  # agreeing neighbours: no scatter
+    off = dataclasses.replace(Config(), uncertainty=UncertaintyConfig(roughness_window=0))
+    assert unc.roughness_std(observations, flat_estimate, off) is None
+
+
+def test_loss_curvature_spread_ranks_and_scales_like_the_roughness_error():
+    """On texels rendered by the estimator's own model with noise, the Laplace std of the loss
+    is on the scale of the actual roughness error and ranks it; a texel seen twice as often (every
+    sample repeated) has half the variance."""
+    import dataclasses
+
+    from scipy import stats
+    from test_estimate import random_truth, synthetic_observations
+
+    from freqbrdf.config import Config
+    from freqbrdf.estimate import estimate
+
+    truth = random_truth(200, seed=3)
+    clean = synthetic_observations(truth, seed=4, model="split_sum")
+    rng = np.random.default_rng(5)
+    rms = np.sqrt(np.mean(np.square(clean.observed), axis=(1, 2), keepdims=True))
+    observations = dataclasses.replace(
+        clean, observed=(clean.observed + 0.05 * rms * rng.standard_normal(clean.observed.shape)).astype(np.float32))
+    config = dataclasses.replace(Config(), uncertainty=UncertaintyConfig(roughness_window=0, loss_curvature=True))
+    result = estimate(observations, config)
+    spread = unc.roughness_std(observations, result, config)
+    error = np.abs(result.roughness - truth.roughness)
+    assert stats.spearmanr(spread, error).statistic > 0.25  # measured 0.37
+    assert 0.2 < np.median(error / spread) < 1.5  # measured 0.63; a calibrated (half-normal) error: 0.67
+
+    def repeated(name):
+        return np.concatenate([getattr(observations, name)] * 2, axis=1)
+
+    twice = dataclasses.replace(observations, **{name: repeated(name) for name in (
+        "view_direction", "observed", "mirrored", "weight", "visible")}, n_samples=2 * observations.n_samples)
+    informative = spread**2 < 0.9 / 12  # not capped at the prior
+    np.testing.assert_allclose(unc.roughness_std(twice, result, config)[informative] ** 2,
+                               spread[informative] ** 2 / 2, rtol=1e-5)

@@ -70,6 +70,23 @@ class UncertaintyConfig:
     # benchmarks/entropy_variants.py that is 5 % of the observed texels, whose roughness error is
     # 1.7x the others' (0.5 flagged 36 % with 1.4-1.6x).
     ambiguous_entropy: float = 0.7
+    # The posterior spread of the ESTIMATED roughness (Uncertainty.roughness_std, from
+    # uncertainty.roughness_std; needs the estimate). The entropy scores the spectra, not the
+    # estimate, and ranks the global estimate's roughness errors poorly. Spearman rho against the
+    # per-texel roughness error (benchmarks/results/entropy_variants.json; bunny and sphere of
+    # that benchmark, then bunny_sunset and sphere_city of applications.py, photo-textured,
+    # 100 views): entropy 0.24 / 0.09 / 0.01 / 0.04. Two terms, added as variances:
+    # - roughness_window: the scatter of the per-texel estimates over this many texels square
+    #   (0: off). Texels are estimated independently and materials are smooth at that scale, so the
+    #   scatter measures the estimate's own noise, whatever caused it (interreflection, occlusion,
+    #   few views); true texture edges raise it too. Alone: 0.42 / 0.34 / 0.29 / 0.23 (window 5:
+    #   0.42 / 0.31 / 0.28 / 0.23; 3: 0.38 / 0.24 on the first two). Milliseconds.
+    roughness_window: int = 7
+    # - loss_curvature: the Laplace variance 2 s^2 / (n L''(r)) of the estimator's own angular
+    #   loss L around the estimate (base colour and metallic held), s^2 = L + (0.02)^2 x signal.
+    #   Alone: 0.32 / 0.33 on the first two; with the window: 0.44 / 0.43 / 0.31 / 0.33. Off by
+    #   default: two more evaluations of the loss, 2-5 s on 140k-260k texels (2 shared cores).
+    loss_curvature: bool = False
 
 
 @dataclass(frozen=True)

@@ -28,7 +28,7 @@ from freqbrdf.observations import Observations, observe
 from freqbrdf.progress import SILENT, Reporter
 from freqbrdf.relight import RelightSettings, evaluate as relight_evaluate, write_evaluation
 from freqbrdf.share import share
-from freqbrdf.uncertainty import FLAG_UNOBSERVED, Uncertainty, entropy_map
+from freqbrdf.uncertainty import FLAG_UNOBSERVED, Uncertainty, entropy_map, roughness_std
 
 EVALUATION_FOLDER = "evaluation"
 SPARSIFICATION_PLOT = "sparsification.png"
@@ -77,6 +77,7 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
 
     start = time.perf_counter()
     uncertainty = entropy_map(observations, config.uncertainty)
+    uncertainty.roughness_std = roughness_std(observations, estimate, config)
     timings["uncertainty"] = time.perf_counter() - start
 
     if config.share.enabled:

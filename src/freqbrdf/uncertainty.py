@@ -54,6 +54,11 @@ runs SIMD across texels: moments and row minima in float64, the R^2 cells in flo
 polynomial exp; measured figures in benchmarks/results/bench_entropy.json.
 
 Flags (bit field, uint8 per texel) say why a texel should not be trusted; see FLAG_*.
+
+The entropy scores the hypotheses against the spectra, not the estimate, and ranks the `global`
+estimate's per-texel roughness errors poorly (Spearman 0.24 on the Mitsuba bunny, 0.09 on the
+sphere of entropy_scenes.py). `roughness_std` is the posterior spread of the estimate itself
+(UncertaintyConfig.roughness_window, loss_curvature), measured in benchmarks/entropy_variants.py.
 """
 
 from __future__ import annotations
@@ -64,11 +69,14 @@ from typing import TYPE_CHECKING
 
 import numba
 import numpy as np
+from scipy import ndimage
 
 from freqbrdf import brdf, sh
-from freqbrdf.config import UncertaintyConfig
+from freqbrdf.config import Config, UncertaintyConfig
+from freqbrdf.estimate import angular_loss, model_light
 
 if TYPE_CHECKING:
+    from freqbrdf.estimate import MaterialEstimate
     from freqbrdf.observations import Observations
 
 FLAG_UNOBSERVED = 1  # no sample at all: entropy 1, uniform likelihood, no estimate
@@ -90,6 +98,12 @@ FLAG_NAMES = {
 # CUTOFF: e^-30 ~ 1e-13 is far below the float32 resolution of the likelihood, and the entropy
 # moves by less than R^2 CUTOFF e^-CUTOFF / log R^2 < 1e-8.
 CUTOFF = 30.0
+# What a texel's roughness variance is without information: roughness uniform on [0, 1].
+PRIOR_ROUGHNESS_VARIANCE = 1.0 / 12.0
+CURVATURE_STEP = 0.05  # roughness step of the loss's second difference (loss_curvature)
+# Noise floor of the loss curvature's noise variance: a sample's noise std relative to the RMS of
+# the texel's observed radiance, so that a texel fitted exactly is not called certain.
+CURVATURE_NOISE_FLOOR = 0.02
 _LANES = 64  # texels side by side in the kernel's SIMD loops (measured 8-15 % faster than 32; 16: 1.6x slower)
 
 
@@ -125,6 +139,9 @@ class Uncertainty:
     channel: np.ndarray  # (N,) int8 RGB channel that gave the minimum entropy; -1 where unobserved
     mode: str  # "calibrated" or "paper"
     grid: HypothesisGrid
+    # (N,) float32 posterior std of the estimated roughness (`roughness_std`); NaN where not
+    # estimated; None when not computed (it needs the estimate).
+    roughness_std: np.ndarray | None = None
 
     def to_texture(self, observations: Observations, quantity: str = "entropy", fill: float = 0.0) -> np.ndarray:
         """Scatter one per-texel field (e.g. "entropy", "flags", "best_alpha") into a (T, T, ...) texture."""
@@ -154,6 +171,78 @@ def entropy_map(
         config=config,
         return_likelihood=return_likelihood,
     )
+
+
+def roughness_std(
+    observations: Observations, estimate: MaterialEstimate, config: Config = Config()
+) -> np.ndarray | None:
+    """(N,) float32 posterior std of the estimated roughness, from ``config.uncertainty``'s
+    roughness_window and loss_curvature terms (their variances add; see UncertaintyConfig); NaN
+    where not estimated, None when both terms are off. ``config`` is the fit's: the curvature
+    scores the estimate with the estimator's model, as ``estimate.loss`` was.
+    """
+    settings = config.uncertainty
+    if settings.roughness_window < 0:
+        raise ValueError(f"roughness_window must be >= 0, got {settings.roughness_window}")
+    if settings.roughness_window == 0 and not settings.loss_curvature:
+        return None
+    if estimate.n_texels != observations.n_texels:
+        raise ValueError(f"the estimate has {estimate.n_texels} texels, the observations {observations.n_texels}")
+    roughness = np.where(estimate.estimated, estimate.roughness, np.nan)
+    variance = np.zeros(observations.n_texels)
+    if settings.roughness_window > 0:
+        variance += _neighbour_variance(observations, roughness, settings.roughness_window)
+    if settings.loss_curvature:
+        variance += _loss_curvature_variance(observations, estimate, roughness, config)
+    return np.where(np.isfinite(roughness), np.sqrt(variance), np.nan).astype(np.float32)
+
+
+def _neighbour_variance(observations: Observations, roughness: np.ndarray, window: int) -> np.ndarray:
+    """(N,) variance of the estimated roughness over the estimated texels of the window x window
+    square around each texel (texture space); the prior variance where it holds no other texel."""
+    known = np.isfinite(roughness)
+    values = observations.to_texture(np.where(known, roughness, 0.0))
+    counts = ndimage.uniform_filter(observations.to_texture(known.astype(np.float64)), window, mode="constant")
+    means = ndimage.uniform_filter(values, window, mode="constant")
+    squares = ndimage.uniform_filter(values * values, window, mode="constant")
+    flat = observations.texel_index
+    counts, means, squares = counts.ravel()[flat], means.ravel()[flat], squares.ravel()[flat]
+    alone = counts * window * window < 1.5  # the texel itself only (the filter's sums are rounded)
+    safe = np.where(alone, 1.0, counts)
+    variance = np.maximum(squares / safe - np.square(means / safe), 0.0)
+    return np.where(alone, PRIOR_ROUGHNESS_VARIANCE, variance)
+
+
+def _loss_curvature_variance(observations: Observations, estimate: MaterialEstimate, roughness: np.ndarray,
+                             config: Config) -> np.ndarray:
+    """(N,) Laplace variance 2 s^2 / (n L''(r)) of the angular loss L (a weighted mean over n
+    samples) around the estimated roughness r, base colour and metallic held; capped at the prior
+    variance (a flat or concave loss says nothing). s^2 = L(r) + (CURVATURE_NOISE_FLOOR)^2 x the
+    weighted mean square of the observed radiance. L'' is the second divided difference through r
+    and two probes CURVATURE_STEP apart, on the side of r that stays within [0, 1]."""
+    step = CURVATURE_STEP
+    centre = np.nan_to_num(roughness, nan=0.5)
+    low_edge, high_edge = centre < step, centre > 1.0 - step
+    first = np.where(low_edge, centre + step, centre - step)
+    second = np.where(low_edge, centre + 2 * step, np.where(high_edge, centre - 2 * step, centre + step))
+
+    def loss_at(probe):
+        params = brdf.PrincipledParams(base_color=estimate.base_color, roughness=probe, metallic=estimate.metallic)
+        return angular_loss(observations, params, config, model_light(observations, probe, config))
+
+    loss_centre = estimate.loss
+    loss_first, loss_second = loss_at(first), loss_at(second)
+    curvature = 2.0 * ((loss_first - loss_centre) / (first - centre)
+                       - (loss_second - loss_centre) / (second - centre)) / (first - second)
+    weight_sq = np.square(observations.weight, dtype=np.float64)
+    signal = (np.einsum("nv,nvc->n", weight_sq, np.square(np.nan_to_num(observations.observed), dtype=np.float64))
+              / np.maximum(weight_sq.sum(axis=1), np.finfo(np.float64).tiny))
+    noise = loss_centre + CURVATURE_NOISE_FLOOR**2 * signal
+    samples = np.maximum(observations.n_samples, 1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        variance = 2.0 * noise / (samples * curvature)
+    informative = np.isfinite(variance) & (curvature > 0)
+    return np.where(informative, np.minimum(variance, PRIOR_ROUGHNESS_VARIANCE), PRIOR_ROUGHNESS_VARIANCE)
 
 
 def cross_spectrum(observed_coeffs: np.ndarray, light_coeffs: np.ndarray) -> np.ndarray:
@@ -271,11 +360,17 @@ def entropy_from_spectra(
 def summary(uncertainty: Uncertainty) -> dict:
     """Summary statistics for ``summary.json``: entropy over observed texels, fraction per flag.
 
-    Flag fractions are over all texels; entropy statistics over texels with at least one sample.
+    Flag fractions are over all texels; entropy statistics over texels with at least one sample;
+    roughness_std statistics (when computed) over the estimated texels.
     """
     observed = (uncertainty.flags & FLAG_UNOBSERVED) == 0
     entropy = uncertainty.entropy[observed].astype(np.float64)
     n_texels = len(uncertainty.entropy)
+    spread = {}
+    if uncertainty.roughness_std is not None:
+        estimated = uncertainty.roughness_std[np.isfinite(uncertainty.roughness_std)].astype(np.float64)
+        spread = {"roughness_std_mean": float(estimated.mean()) if len(estimated) else float("nan"),
+                  "roughness_std_median": float(np.median(estimated)) if len(estimated) else float("nan")}
     return {
         "mode": uncertainty.mode,
         "grid_res": uncertainty.grid.resolution,
@@ -287,6 +382,7 @@ def summary(uncertainty: Uncertainty) -> dict:
             name: float(np.count_nonzero(uncertainty.flags & bit)) / max(n_texels, 1)
             for bit, name in FLAG_NAMES.items()
         },
+        **spread,
     }
 
 
