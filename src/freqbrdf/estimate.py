@@ -422,6 +422,9 @@ def lobe_sh_response(cos_theta: float, roughness: float, term: str = "scale", lm
 # expands the environment at `_ENVIRONMENT_TILT_LEVELS` tilts and interpolates linearly between them.
 _ENVIRONMENT_TABLE_PATH = Path(__file__).resolve().parent / "data" / "environment_response.csv"
 _ENVIRONMENT_TILT_LEVELS = 9
+# The environment light is evaluated at every _ENVIRONMENT_NODE_STEP-th roughness node of the table
+# and interpolated linearly in roughness between them: each is computed once per texel and search.
+_ENVIRONMENT_NODE_STEP = 2
 _ENVIRONMENT_PARTS = 1 + _TILT_FIT_LMAX + 1  # per term: the tilt, then the gain of each degree
 
 
@@ -475,27 +478,48 @@ def environment_filtered_light(directions: np.ndarray, weight: np.ndarray, tange
 
     directions (n, V, 3) local view directions, weight (n, V), tangent and normal (n, 3) world
     frame of each texel, environment_coeffs (K, 3) the world-frame SH of the environment: the
-    gains and tilt of `environment_response_table` (bilinear in cos theta_o and roughness), the
     environment expanded by degree at the reflected direction tilted by s = j / (levels - 1) and
-    interpolated linearly in s, as the search does. 0 where weight is 0.
+    interpolated linearly in s, with the tilt and gains of `environment_response_table` linear in
+    cos theta_o, evaluated at the table's roughness nodes on either side of the roughness and
+    interpolated linearly between them (as the split-sum albedo is), as the search does.
+    0 where weight is 0.
     """
     directions = np.asarray(directions, np.float64)
-    roughness = np.broadcast_to(np.asarray(roughness, np.float64)[:, None], directions.shape[:2])
     lmax = sh.lmax_of(environment_coeffs.shape[0])
     levels = _environment_projections(directions, weight, tangent, normal, environment_coeffs, lmax)  # (n, L, 3, G, V)
     n_gains = levels.shape[3]
     index = LOBE_TERMS.index(term)
-    parts = np.empty((_TABLE_PLANES, directions[..., 2].size))
     tables = _model_tables()
-    _split_sum_terms_kernel(directions[..., 2].ravel(), roughness.ravel(), tables, parts)
-    parts = parts.reshape(_TABLE_PLANES, *directions.shape[:2])
-    position = parts[_ENVIRONMENT_TILT_PLANE + index] * (_ENVIRONMENT_TILT_LEVELS - 1)
-    level = np.minimum(position.astype(np.int64), _ENVIRONMENT_TILT_LEVELS - 2)
-    frac = position - level
-    lower = np.take_along_axis(levels, level[:, None, None, None, :], axis=1)[:, 0]  # (n, 3, G, V)
-    upper = np.take_along_axis(levels, level[:, None, None, None, :] + 1, axis=1)[:, 0]
-    gains = parts[_environment_gain_plane(index, 0):_environment_gain_plane(index, 0) + n_gains]  # (G, n, V)
-    return np.einsum("lnv,nclv->nvc", gains, lower + frac[:, None, None, :] * (upper - lower))
+    x = np.clip(directions[..., 2], 0.0, 1.0) * (_TABLE_COS_NODES - 1)
+    row = np.minimum(x.astype(np.int64), _TABLE_COS_NODES - 2)
+    fx = x - row
+    node, fy = (np.array(part) for part in zip(*[_environment_node(r) for r in np.asarray(roughness, np.float64)]))
+    fy = fy[:, None, None]
+
+    def at_node(column):  # (n,) roughness node of each texel -> (n, V, 3)
+        def table(plane):
+            values = tables[plane][:, column].T  # (n, cos nodes)
+            return (np.take_along_axis(values, row, axis=1) * (1.0 - fx)
+                    + np.take_along_axis(values, row + 1, axis=1) * fx)
+        position = table(_ENVIRONMENT_TILT_PLANE + index) * (_ENVIRONMENT_TILT_LEVELS - 1)
+        level = np.clip(position.astype(np.int64), 0, _ENVIRONMENT_TILT_LEVELS - 2)
+        frac = position - level
+        lower = np.take_along_axis(levels, level[:, None, None, None, :], axis=1)[:, 0]  # (n, 3, G, V)
+        upper = np.take_along_axis(levels, level[:, None, None, None, :] + 1, axis=1)[:, 0]
+        gains = np.stack([table(_environment_gain_plane(index, degree)) for degree in range(n_gains)])  # (G, n, V)
+        return np.einsum("lnv,nclv->nvc", gains, lower + frac[:, None, None, :] * (upper - lower))
+
+    return (1.0 - fy) * at_node(node * _ENVIRONMENT_NODE_STEP) + fy * at_node((node + 1) * _ENVIRONMENT_NODE_STEP)
+
+
+@numba.njit(fastmath=True, cache=True)
+def _environment_node(roughness):
+    """The environment light's roughness node below ``roughness`` (clipped to [0, 1]) and the
+    fraction towards the next one (its nodes: every _ENVIRONMENT_NODE_STEP-th of the table's)."""
+    n_nodes = (_TABLE_ROUGHNESS_NODES - 1) // _ENVIRONMENT_NODE_STEP + 1
+    y = min(max(roughness, 0.0), 1.0) * (n_nodes - 1)
+    node = min(int(y), n_nodes - 2)
+    return node, y - node
 
 
 def environment_weight(roughness: np.ndarray, blend: tuple[float, float]) -> np.ndarray:
@@ -767,11 +791,22 @@ def _squared_residual_kernel(
         level = np.zeros(n_terms, dtype=np.int64)
         frac = np.zeros(n_terms)
         filtered = np.empty(n_terms)
-        n_environment_levels, n_gains = environment_proj.shape[1], environment_proj.shape[3]
+        n_environment_levels = environment_proj.shape[1]
         share = _environment_share(roughness[t], environment_blend) if n_environment_levels > 1 else 0.0
-        environment_level = np.zeros(n_terms, dtype=np.int64)
-        environment_frac = np.zeros(n_terms)
-        environment_gain = np.zeros((n_terms, n_gains))
+        # The environment light at the roughness nodes on either side, per term, channel and view.
+        environment_light = np.zeros((2, n_terms, 3, n_views))
+        if share > 0.0:
+            table_row = np.empty(n_views, dtype=np.int64)
+            table_frac = np.empty(n_views)
+            for v in range(n_views):
+                x = min(max(np.float64(cos_theta[t, v]), 0.0), 1.0) * (table.shape[1] - 1)
+                table_row[v] = min(int(x), table.shape[1] - 2)
+                table_frac[v] = x - table_row[v]
+            node, node_frac = _environment_node(roughness[t])
+            scratch_level, scratch = np.empty(n_views, dtype=np.int64), np.empty((2, n_views))
+            for side in range(2):
+                _environment_node_lights(table, (node + side) * _ENVIRONMENT_NODE_STEP, n_views, table_row, table_frac, environment_proj[t],
+                                         scratch_level, scratch[0], scratch[1], environment_light[side])
         # Without tilt levels or environment light every term reads the same light; Schlick's
         # dielectric needs no light of its own.
         distinct = n_levels > 1 or share > 0.0
@@ -790,15 +825,6 @@ def _squared_residual_kernel(
                         position = _table_lookup(table, _TILT_PLANE + term, cos_v, roughness[t]) * (n_levels - 1)
                         level[term] = min(int(position), n_levels - 2)
                         frac[term] = position - level[term]
-                if share > 0.0:
-                    for term in range(n_terms):
-                        position = (_table_lookup(table, _ENVIRONMENT_TILT_PLANE + term, cos_v, roughness[t])
-                                    * (n_environment_levels - 1))
-                        environment_level[term] = min(max(int(position), 0), n_environment_levels - 2)
-                        environment_frac[term] = position - environment_level[term]
-                        for degree in range(n_gains):
-                            environment_gain[term, degree] = _table_lookup(table, _environment_gain_plane(term, degree),
-                                                                           cos_v, roughness[t])
                 for c in range(3):
                     for term in range(distinct_terms):
                         filtered[term] = 0.0
@@ -807,12 +833,8 @@ def _squared_residual_kernel(
                             upper = proj[t, level[term] + 1, c, degree, v] if n_levels > 1 else lower
                             filtered[term] += kernel[degree] * (lower + frac[term] * (upper - lower))
                         if share > 0.0:
-                            light = 0.0
-                            for degree in range(n_gains):
-                                lower = environment_proj[t, environment_level[term], c, degree, v]
-                                upper = environment_proj[t, environment_level[term] + 1, c, degree, v]
-                                light += environment_gain[term, degree] * (
-                                    lower + environment_frac[term] * (upper - lower))
+                            lower = environment_light[0, term, c, v]
+                            light = lower + node_frac * (environment_light[1, term, c, v] - lower)
                             filtered[term] = (1.0 - share) * filtered[term] + share * light
                     for term in range(distinct_terms, n_terms):
                         filtered[term] = filtered[0]
@@ -1081,6 +1103,38 @@ def _profile_metallic(quadratics, state, metallic_grid):
 
 
 @numba.njit(fastmath=True, cache=True)
+def _environment_node_lights(table, node, n, table_row, table_frac, environment_proj, level, frac, gain, out):
+    """out[k, c, s] = the environment light of lobe term k < out.shape[0] at samples s < n for the
+    table's roughness node ``node``: the tilt and gains of `environment_response_table` linear in
+    cos theta_o (table_row, table_frac: each sample's cos node and fraction), environment_proj
+    (levels, 3, G, >= n) interpolated linearly between tilt levels. The search evaluates it at
+    the two nodes around a roughness and interpolates (see `environment_filtered_light`).
+    level, frac, gain (>= n,): scratch. Loops run over the samples innermost (vectorised)."""
+    n_levels, n_gains = environment_proj.shape[0], environment_proj.shape[2]
+    for term in range(out.shape[0]):
+        plane = _ENVIRONMENT_TILT_PLANE + term
+        for s in range(n):
+            row, fx = table_row[s], table_frac[s]
+            position = (table[plane, row, node] + fx * (table[plane, row + 1, node] - table[plane, row, node])) * (
+                n_levels - 1)
+            level[s] = min(max(int(position), 0), n_levels - 2)
+            frac[s] = position - level[s]
+        for c in range(3):
+            for s in range(n):
+                out[term, c, s] = 0.0
+        for degree in range(n_gains):
+            plane = _environment_gain_plane(term, degree)
+            for s in range(n):
+                row, fx = table_row[s], table_frac[s]
+                gain[s] = table[plane, row, node] + fx * (table[plane, row + 1, node] - table[plane, row, node])
+            for c in range(3):
+                light = out[term, c]
+                for s in range(n):
+                    lower = environment_proj[level[s], c, degree, s]
+                    light[s] += gain[s] * (lower + frac[s] * (environment_proj[level[s] + 1, c, degree, s] - lower))
+
+
+@numba.njit(fastmath=True, cache=True)
 def _environment_share(roughness, blend):
     """`environment_weight` for one roughness; blend (start, end)."""
     ramp = min(max((roughness - blend[0]) / max(blend[1] - blend[0], 1e-12), 0.0), 1.0)
@@ -1098,10 +1152,9 @@ def _roughness_objective(roughness, args):
     (n, cos_theta, omega, proj, values, sigma, fresnel, masking, split_sum, exact_dielectric, burley, table,
      table_row, table_frac, tilt_level, tilt_frac, burley_terms, diffuse_moments, column, kernel, kernel_derivative,
      albedo, diffuse_factor, level_filtered, filtered, moments, quadratics, squared_values, diffuse_scale,
-     state, metallic_grid, environment_proj, environment_blend, environment_level, environment_frac,
-     environment_gain) = args
+     state, metallic_grid, environment_proj, environment_blend, environment_nodes, environment_cached,
+     environment_scratch_level, environment_scratch) = args
     n_levels = proj.shape[0]
-    n_gains = environment_proj.shape[2]
     # Without environment levels (environment light off) the fitted light is all there is.
     share = _environment_share(roughness, environment_blend) if environment_proj.shape[0] > 1 else 0.0
     # Terms with a light of their own: A and B, and E with the exact dielectric (else Z = 0.04 X + Y).
@@ -1112,15 +1165,23 @@ def _roughness_objective(roughness, args):
         y = min(max(roughness, 0.0), 1.0) * (table.shape[2] - 1)
         j = min(int(y), table.shape[2] - 2)
         fy = y - j
-        last_side = table.shape[0] if share > 0.0 else _ENVIRONMENT_TILT_PLANE
-        for side in range(last_side):
-            if side < _ENVIRONMENT_TILT_PLANE:
-                term = side - _TILT_PLANE if side >= _TILT_PLANE else side
-                if term >= n_terms or (side >= _TILT_PLANE and n_levels == 1):
-                    continue
+        for side in range(_ENVIRONMENT_TILT_PLANE):
+            term = side - _TILT_PLANE if side >= _TILT_PLANE else side
+            if term >= n_terms or (side >= _TILT_PLANE and n_levels == 1):
+                continue
             for i in range(table.shape[1]):
                 column[side, i] = table[side, i, j] * (1.0 - fy) + table[side, i, j + 1] * fy
-        n_environment_levels = environment_proj.shape[0]
+        if share > 0.0:
+            # The environment light at its roughness nodes on either side, each computed once per
+            # texel (the search visits few, most of them many times); on a node (the grid's nodes
+            # are nodes of the table) the other one is not needed.
+            node, node_frac = _environment_node(roughness)
+            for needed in range(node if node_frac < 1.0 else node + 1, node + 2 if node_frac > 0.0 else node + 1):
+                if not environment_cached[needed]:
+                    _environment_node_lights(table, needed * _ENVIRONMENT_NODE_STEP, n, table_row, table_frac,
+                                             environment_proj, environment_scratch_level, environment_scratch[0],
+                                             environment_scratch[1], environment_nodes[needed, :n_terms])
+                    environment_cached[needed] = True
         for s in range(n):
             row, fx = table_row[s], table_frac[s]
             for term in range(n_terms):
@@ -1130,16 +1191,6 @@ def _roughness_objective(roughness, args):
                     position = (column[side, row] + fx * (column[side, row + 1] - column[side, row])) * (n_levels - 1)
                     tilt_level[term, s] = min(int(position), n_levels - 2)
                     tilt_frac[term, s] = position - tilt_level[term, s]
-                if share > 0.0:  # the environment's tilt level and per-degree gains
-                    side = _ENVIRONMENT_TILT_PLANE + term
-                    position = ((column[side, row] + fx * (column[side, row + 1] - column[side, row]))
-                                * (n_environment_levels - 1))
-                    environment_level[term, s] = min(max(int(position), 0), n_environment_levels - 2)
-                    environment_frac[term, s] = position - environment_level[term, s]
-                    for degree in range(n_gains):
-                        side = _environment_gain_plane(term, degree)
-                        environment_gain[term, degree, s] = column[side, row] + fx * (column[side, row + 1]
-                                                                                      - column[side, row])
     else:
         for s in range(n):
             albedo[0, s], albedo[1, s] = _specular_albedo(cos_theta[s], roughness, alpha, fresnel, masking, False,
@@ -1183,15 +1234,15 @@ def _roughness_objective(roughness, args):
                     lower = level_filtered[tilt_level[term, s], s]
                     upper = level_filtered[tilt_level[term, s] + 1, s]
                     model[term, s] = albedo[term, s] * (lower + tilt_frac[term, s] * (upper - lower))
-            if share > 0.0:
+            if share > 0.0 and 0.0 < node_frac < 1.0:
+                lower_light, upper_light = environment_nodes[node, term, c], environment_nodes[node + 1, term, c]
                 for s in range(n):
-                    level, frac = environment_level[term, s], environment_frac[term, s]
-                    light = 0.0
-                    for degree in range(n_gains):
-                        lower = environment_proj[level, c, degree, s]
-                        upper = environment_proj[level + 1, c, degree, s]
-                        light += environment_gain[term, degree, s] * (lower + frac * (upper - lower))
+                    light = lower_light[s] + node_frac * (upper_light[s] - lower_light[s])
                     model[term, s] = (1.0 - share) * model[term, s] + share * albedo[term, s] * light
+            elif share > 0.0:
+                node_light = environment_nodes[node if node_frac < 1.0 else node + 1, term, c]
+                for s in range(n):
+                    model[term, s] = (1.0 - share) * model[term, s] + share * albedo[term, s] * node_light[s]
         if not exact_dielectric:
             for s in range(n):
                 model[2, s] = _DIELECTRIC_F0 * model[0, s] + model[1, s]
@@ -1403,9 +1454,12 @@ def _global_search_kernel(
         roughness_brent = np.empty(13)
         n_gains = min(lmax, _TILT_FIT_LMAX) + 1
         environment_proj = np.zeros((environment_levels, 3, n_gains, n_views))
-        environment_level = np.empty((3, n_views), dtype=np.int64)  # per lobe term
-        environment_frac = np.empty((3, n_views))
-        environment_gain = np.empty((3, n_gains, n_views))
+        # The environment light per roughness node of the table, lobe term, channel and sample.
+        n_environment_nodes = (table.shape[2] - 1) // _ENVIRONMENT_NODE_STEP + 1
+        environment_nodes = np.empty((n_environment_nodes, 3, 3, n_views))
+        environment_cached = np.zeros(n_environment_nodes, dtype=np.bool_)
+        environment_scratch_level = np.empty(n_views, dtype=np.int64)
+        environment_scratch = np.empty((2, n_views))
         bitangent = np.empty(3)
         for t in range(chunk * _SEARCH_CHUNK, min((chunk + 1) * _SEARCH_CHUNK, n_texels)):
             n = 0
@@ -1440,6 +1494,7 @@ def _global_search_kernel(
                             coefficient = np.float64(light[t, c, k])
                             for s in range(n):
                                 packed_proj[level, c, degree, s] += coefficient * basis[k, s]
+            environment_cached[:] = False
             if environment_levels > 1:
                 _environment_levels(xyz, n, tangent[t], normal[t], bitangent, environment, lmax, diag, rec_a, rec_b,
                                     tilted, basis, sh_scratch, environment_proj)
@@ -1458,7 +1513,7 @@ def _global_search_kernel(
                     burley, table, table_row, table_frac, tilt_level, tilt_frac, burley_terms, diffuse_moments, column,
                     kernel, kernel_derivative, albedo, diffuse_factor, level_filtered, filtered, moments, quadratics,
                     squared_values, scale, state, metallic_grid, environment_proj, environment_blend,
-                    environment_level, environment_frac, environment_gain)
+                    environment_nodes, environment_cached, environment_scratch_level, environment_scratch)
             # A robust pass refines the roughness to _BRENT_XTOL: this search need only find its cell.
             first_xtol = _BRENT_COARSE_XTOL if robust_passes > 0 else _BRENT_XTOL
             best_r, best_f = _search_roughness(args, state, roughness_grid, best_state, roughness_brent, 0,
