@@ -58,15 +58,6 @@ def scores(result, observations: Observations, truth) -> dict:
     }
 
 
-def subset(observations: Observations, count: int) -> Observations:
-    """The first ``count`` texels (for compiling the kernels before timing)."""
-    fields = {}
-    for name, value in vars(observations).items():
-        fields[name] = value[:count] if isinstance(value, np.ndarray) and value.shape[:1] == (observations.n_texels,) \
-            else value
-    return Observations(**fields)
-
-
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--scene", default="bunny", choices=sorted(SCENES))
@@ -91,7 +82,7 @@ def main(argv=None) -> int:
         "observe_seconds": round(observe_seconds, 2),
         "estimators": {},
     }
-    warmup = subset(observations, WARMUP_TEXELS)
+    warmup = observations.select(slice(0, WARMUP_TEXELS))
     for name, config in RUNS.items():
         if name in args.skip.split(","):
             continue

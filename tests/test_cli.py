@@ -37,7 +37,8 @@ def test_fit_and_evaluate_commands(run_cli, tiny_capture, tmp_path, monkeypatch,
     assert summary["settings"]["texels"]["texture_res"] == 32 and summary["settings"]["fit"]["lmax"] == 4
     assert {"observe", "estimate", "uncertainty", "textures", "write", "total"} <= set(summary["timings"])
     for name in ("base_color.exr", "roughness.exr", "metallic.exr", "base_color.png", "material.glb",
-                 "entropy.exr", "entropy.png", "flags.png", "spectra.npz", "uncertainty.npz"):
+                 "entropy.exr", "entropy.png", "roughness_std.exr", "roughness_std.png", "flags.png", "spectra.npz",
+                 "uncertainty.npz"):
         assert (fit_dir / name).is_file(), name
     assert sorted(summary["files"]) == sorted(p.name for p in fit_dir.iterdir())
     with np.load(fit_dir / "spectra.npz") as spectra:
@@ -48,7 +49,8 @@ def test_fit_and_evaluate_commands(run_cli, tiny_capture, tmp_path, monkeypatch,
     metrics = json.loads(capsys.readouterr().out)
     assert metrics["texture"]["texels"] > 0 and len(metrics["views"]) == TINY.test_views
     assert metrics["relighting"]["psnr_hdr"] > 0
-    assert set(metrics["uncertainty"]) >= {"roughness", "base_color", "metallic"}
+    assert set(metrics["uncertainty"]) >= {"roughness", "base_color", "metallic", "roughness_std"}
+    assert set(metrics["uncertainty"]["roughness_std"]) == {"roughness", "base_color", "metallic"}
     evaluation = fit_dir / "evaluation"
     assert json.loads((evaluation / "metrics.json").read_text()) == metrics
     assert (evaluation / "sparsification.png").is_file() and len(list((evaluation / "relight").glob("*.png"))) == 2
@@ -78,6 +80,10 @@ def test_uncertainty_command(run_cli, tiny_capture, tmp_path, monkeypatch, capsy
     assert {"observe", "uncertainty"} <= set(summary["timings"])
     assert {p.name for p in out.iterdir()} == {"entropy.exr", "entropy.png", "flags.png", "uncertainty.json"}
     assert json.loads((out / "uncertainty.json").read_text()) == summary
+    # No estimate, so no roughness_std: the summary and the message say so rather than omit it.
+    assert "freqbrdf fit" in summary["not_computed"]["roughness_std"]
+    assert run_cli("uncertainty", tiny_capture, "--out", out, "--texture-res", 16) == 0
+    assert "roughness_std not computed" in capsys.readouterr().out
 
 
 def test_bad_input_is_one_line_exit_2_and_writes_nothing(run_cli, tmp_path, monkeypatch, capsys):

@@ -153,6 +153,7 @@ def test_write_fit_outputs_writes_a_complete_hole_free_folder(tmp_path):
     n_texels = texels.n_texels
     grid = hypothesis_grid(8)
     entropy = np.where(estimate.estimated, np.linspace(0, 1, n_texels), 1.0).astype(np.float32)
+    spread = np.where(estimate.estimated, np.linspace(0, 0.4, n_texels), np.nan).astype(np.float32)
     uncertainty = Uncertainty(
         entropy=entropy,
         flags=np.where(estimate.estimated, 0, FLAG_UNOBSERVED).astype(np.uint8),
@@ -162,6 +163,7 @@ def test_write_fit_outputs_writes_a_complete_hole_free_folder(tmp_path):
         channel=np.zeros(n_texels, np.int8),
         mode="calibrated",
         grid=grid,
+        roughness_std=spread,
     )
     config = Config(texels=TexelConfig(texture_res=32, dilation_px=3))
     out = export.write_fit_outputs(tmp_path / "fit", mesh, texels, estimate, uncertainty, config,
@@ -186,6 +188,29 @@ def test_write_fit_outputs_writes_a_complete_hole_free_folder(tmp_path):
     np.testing.assert_allclose(saved_entropy, entropy, atol=1e-7)
     assert Image.open(out / "entropy.png").size == (32, 32)
     assert Image.open(out / "base_color.png").mode == "RGB"
+
+    # roughness_std: the per-texel array where estimated, the prior's std elsewhere, dilated like
+    # the maps; the PNG in the colour map and range summary.json states; the array in the npz.
+    spread_texture = read_image(out / "roughness_std.exr")[..., 0]
+    assert np.isfinite(spread_texture).all()
+    saved_spread = spread_texture.reshape(-1)[texels.texel_index]
+    np.testing.assert_allclose(saved_spread[estimate.estimated], spread[estimate.estimated], atol=1e-7)
+    np.testing.assert_allclose(saved_spread[~estimate.estimated], np.sqrt(1 / 12), atol=1e-6)
+    assert summary["roughness_std_png"]["colormap"] == "magma" and summary["roughness_std_png"]["range"] == [0.0, 0.3]
+    low, high = summary["roughness_std_png"]["range"]
+    pixels = np.asarray(Image.open(out / "roughness_std.png")).reshape(-1, 3)[texels.texel_index]
+    expected = np.round(colormaps["magma"](np.clip((saved_spread - low) / (high - low), 0, 1))[:, :3] * 255)
+    assert np.abs(pixels.astype(int) - expected).max() <= 1
+    with np.load(out / "uncertainty.npz") as arrays:
+        np.testing.assert_array_equal(arrays["roughness_std"], spread)  # NaN where not estimated
+    assert summary["uncertainty"]["roughness_std_mean"] == pytest.approx(np.nanmean(spread), rel=1e-5)
+
+    # Without roughness_std (turned off): neither its maps nor its array.
+    uncertainty.roughness_std = None
+    out = export.write_fit_outputs(tmp_path / "fit", mesh, texels, estimate, uncertainty, config)
+    assert not list(out.glob("roughness_std.*")) and "roughness_std_png" not in json.loads((out / "summary.json").read_text())
+    with np.load(out / "uncertainty.npz") as arrays:
+        assert "roughness_std" not in arrays.files
 
 
 def test_write_fit_outputs_is_atomic_and_checks_the_texels(tmp_path, monkeypatch):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -12,8 +13,10 @@ from freqbrdf import pipeline, sparsification
 from freqbrdf.capture import load
 from freqbrdf.config import Config, TexelConfig
 from freqbrdf.errors import InputError
+from freqbrdf.materials import MaterialMaps
 from freqbrdf.relight import RelightSettings
 from freqbrdf.synth import SynthSettings, synthesize
+from freqbrdf.uncertainty import FLAG_UNOBSERVED
 
 TINY = SynthSettings(mesh="bunny", views=6, resolution=40, spp=4, texture_res=32, test_views=2, test_envmaps=1)
 NO_LPIPS = RelightSettings(spp=2, lpips=False)  # LPIPS is tested in test_metrics; here it would only cost seconds
@@ -64,6 +67,37 @@ def test_sparsification_ignores_non_finite_entries_and_checks_lengths():
         sparsification.sparsification(np.ones(3), np.ones(4))
 
 
+def test_evaluation_scores_the_entropy_and_roughness_std_on_the_same_texels(tmp_path):
+    # 8 x 8 texels, every one in the atlas; roughness errors grow with the texel index. roughness_std
+    # ranks them perfectly (its one unestimated texel takes the prior's std, above every other, and
+    # has the largest error); the entropy ranks them backwards; unobserved texels are left out.
+    size, rng = 8, np.random.default_rng(0)
+    n_texels = size * size
+    error = np.linspace(0.01, 0.5, n_texels)
+    truth = MaterialMaps(rng.random((size, size, 3)).astype(np.float32),
+                         rng.random((size, size)).astype(np.float32) * 0.4, np.zeros((size, size), np.float32))
+    estimated = MaterialMaps(truth.base_color, (truth.roughness.ravel() + error).reshape(size, size).astype(np.float32),
+                             truth.metallic)
+    spread = (error * 0.5).astype(np.float32)
+    spread[-1] = np.nan  # not estimated
+    flags = np.zeros(n_texels, np.uint8)
+    flags[:4] = FLAG_UNOBSERVED
+    arrays = {"texel_index": np.arange(n_texels), "flags": flags, "roughness_std": spread,
+              "entropy": np.linspace(1.0, 0.0, n_texels).astype(np.float32)}
+    outputs = pipeline.FitOutputs(tmp_path, {}, estimated, None, np.ones((size, size), bool), arrays["texel_index"], arrays)
+    scores = pipeline._uncertainty_scores(outputs, SimpleNamespace(ground_truth=truth), tmp_path)
+
+    by_spread, by_entropy = scores["roughness_std"]["roughness"], scores["roughness"]
+    assert by_spread["texels"] == by_entropy["texels"] == n_texels - 4
+    assert by_spread["spearman"] == pytest.approx(1.0) and by_spread["ause"] == pytest.approx(0.0, abs=1e-9)
+    assert by_entropy["spearman"] == pytest.approx(-1.0) and by_entropy["aurg"] < 0 < by_spread["aurg"]
+    assert set(scores["roughness_std"]) == {"roughness", "base_color", "metallic"}
+    assert (tmp_path / pipeline.SPARSIFICATION_PLOT).is_file()
+    # A fit without roughness_std (older, or turned off) is scored on the entropy alone.
+    del arrays["roughness_std"]
+    assert "roughness_std" not in pipeline._uncertainty_scores(outputs, SimpleNamespace(ground_truth=truth), tmp_path)
+
+
 # --- the pipeline -----------------------------------------------------------------------------
 
 
@@ -87,6 +121,10 @@ def test_fit_writes_a_complete_folder_that_loads_back(tiny_capture, tmp_path, mo
     evaluation = folder / pipeline.EVALUATION_FOLDER
     document = pipeline.evaluate_fit(outputs, load(tiny_capture), settings=NO_LPIPS)
     assert document["uncertainty"]["roughness"]["texels"] == np.count_nonzero(result.observations.n_samples)
+    np.testing.assert_array_equal(outputs.arrays["roughness_std"], result.uncertainty.roughness_std)
+    spread_scores = document["uncertainty"]["roughness_std"]
+    assert spread_scores["roughness"]["texels"] == document["uncertainty"]["roughness"]["texels"]
+    assert all(np.isfinite(spread_scores[kind]["aurg"]) for kind in ("roughness", "base_color", "metallic"))
     before = (evaluation / "metrics.json").read_bytes()
 
     def failing_plot(*_):

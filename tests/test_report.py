@@ -56,6 +56,10 @@ def test_report_has_every_section_and_its_files(fit_folder):
     for source in re.findall(r'src="([^"]+)"', text):
         assert (page.parent / source).is_file(), source
     assert "http://" not in text and "https://" not in text  # nothing from the network
+    # The roughness std map beside the entropy, what it means, and its Spearman from the evaluation.
+    assert 'src="roughness_std.png"' in text and "how far the estimated roughness itself may be off" in text
+    metrics = json.loads((fit_folder / "evaluation" / "metrics.json").read_text())
+    assert f"Spearman &rho; {metrics['uncertainty']['roughness_std']['roughness']['spearman']:.2f}" in text
     models = (page.parent / "models.js").read_text()
     assert models.count("data:model/gltf-binary;base64,") == 2  # material and entropy overlay
 

@@ -249,6 +249,10 @@ def fit(
         )
 
 
+# Why `freqbrdf uncertainty` has no roughness_std (its summary and message say so).
+ROUGHNESS_STD_NEEDS_FIT = "it is the spread of the material estimate, which this command does not make; run `freqbrdf fit`"
+
+
 @app.command()
 def uncertainty(
     capture: str = typer.Argument(..., help="Capture folder or its transforms file."),
@@ -259,7 +263,8 @@ def uncertainty(
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars or messages."),
     json_output: bool = typer.Option(False, "--json", help="Print the summary as JSON to stdout."),
 ) -> None:
-    """Entropy map of the capture alone (no material estimate): entropy.exr/.png, flags, summary."""
+    """Entropy map of the capture alone (no material estimate, so no roughness_std): entropy.exr/.png,
+    flags, summary."""
     import time
 
     from freqbrdf import export, pipeline
@@ -288,6 +293,7 @@ def uncertainty(
                     "uncertainty": seconds},
         "settings": config.to_dict(),
         "entropy_png": {"colormap": export.ENTROPY_COLORMAP, "range": list(export.ENTROPY_RANGE)},
+        "not_computed": {"roughness_std": ROUGHNESS_STD_NEEDS_FIT},
     }
     atlas = observations.mask()
     entropy = observations.to_texture(result.entropy.astype("float32"), fill=0.0)
@@ -306,6 +312,7 @@ def uncertainty(
             f"{summary['uncertainty']['observed_texels']} observed texels ({seconds * 1000:.0f} ms); "
             f"wrote {escape(str(out))}", soft_wrap=True
         )
+        Console().print(f"roughness_std not computed: {escape(ROUGHNESS_STD_NEEDS_FIT)}", soft_wrap=True)
 
 
 @app.command()
@@ -342,9 +349,13 @@ def evaluate(
             lines.append(f"relighting ({len(document['views'])} views): PSNR-H {r['psnr_hdr']:.2f}, "
                          f"PSNR-L {r['psnr_ldr']:.2f}, SSIM {r['ssim']:.3f}")
         if "uncertainty" in document:
-            u = document["uncertainty"]["roughness"]
-            rho = "n/a" if u["spearman"] is None else f"{u['spearman']:.2f}"
-            lines.append(f"entropy vs roughness error: Spearman {rho}, AUSE {u['ause']:.3f}, AURG {u['aurg']:.3f}")
+            scored = {"entropy": document["uncertainty"].get("roughness"),
+                      "roughness std": document["uncertainty"].get("roughness_std", {}).get("roughness")}
+            for name, u in scored.items():
+                if u:
+                    rho = "n/a" if u["spearman"] is None else f"{u['spearman']:.2f}"
+                    lines.append(f"{name} vs roughness error: Spearman {rho}, AUSE {u['ause']:.3f}, "
+                                 f"AURG {u['aurg']:.3f}")
         for line in lines:
             Console().print(escape(line), soft_wrap=True)
 

@@ -70,7 +70,15 @@ def run_demo(out: str | Path = "out/demo", settings: SynthSettings = DEFAULT_CAP
         "report": str(report),
         "texture": metrics.get("texture"),
         "relighting": metrics.get("relighting"),
-        "uncertainty": {name: {key: value for key, value in scores.items() if key in ("spearman", "ause", "aurg")}
-                        for name, scores in metrics.get("uncertainty", {}).items() if isinstance(scores, dict)},
+        "uncertainty": _headline_scores(metrics.get("uncertainty", {})),
         "timings": timings,
     }
+
+
+def _headline_scores(uncertainty: dict) -> dict:
+    """Spearman, AUSE and AURG per error kind of the entropy and of the roughness std, from
+    metrics.json's "uncertainty" (the entropy's scores at its top level, roughness_std's nested)."""
+    def pick(scores: dict) -> dict:
+        return {kind: {key: value for key, value in result.items() if key in ("spearman", "ause", "aurg")}
+                for kind, result in scores.items() if isinstance(result, dict) and "spearman" in result}
+    return {"entropy": pick(uncertainty), "roughness_std": pick(uncertainty.get("roughness_std", {}))}

@@ -50,6 +50,7 @@ from freqbrdf.uncertainty import (
     FLAG_BELOW_BOUND,
     FLAG_FEW_SAMPLES,
     FLAG_UNOBSERVED,
+    PRIOR_ROUGHNESS_VARIANCE,
     Uncertainty,
     summary as uncertainty_summary,
 )
@@ -60,6 +61,15 @@ FALLBACK_ROUGHNESS = 0.5
 FALLBACK_METALLIC = 0.0
 ENTROPY_RANGE = (0.0, 1.0)  # normalised entropy; the PNG maps this range onto the colour map
 ENTROPY_COLORMAP = "viridis"
+# Roughness std of a texel without an estimate: the prior's, roughness uniform on [0, 1] (sqrt(1/12)
+# ~ 0.29), as the entropy of an unobserved texel is 1: nothing is known there.
+UNESTIMATED_ROUGHNESS_STD = math.sqrt(PRIOR_ROUGHNESS_VARIANCE)
+# The PNG's range, in roughness units. Measured on the default fits (T = 512) of the Mitsuba bunny
+# of compare_estimators.py and the demo capture: median 0.12, 90th percentile 0.27-0.28, 95th 0.31,
+# maximum 0.45-0.47. The top, 0.3, is about the prior's std: brighter means no better than knowing
+# nothing; the ~6.5 % of estimated texels above it are clipped to it.
+ROUGHNESS_STD_RANGE = (0.0, 0.3)
+ROUGHNESS_STD_COLORMAP = "magma"  # not viridis: a different quantity and unit than the entropy
 METALLIC_ROUGHNESS_R = 255  # unused channel of the glTF metallic-roughness texture (see above)
 # Files of a fit folder written at once (see write_fit_outputs); more threads than jobs idle.
 WRITER_THREADS = 4
@@ -75,6 +85,8 @@ FILES = {
     "metallic_png": "metallic.png",
     "entropy": "entropy.exr",
     "entropy_png": "entropy.png",
+    "roughness_std": "roughness_std.exr",
+    "roughness_std_png": "roughness_std.png",
     "flags_png": "flags.png",
     "gltf": "material.glb",
     "spectra": "spectra.npz",
@@ -128,6 +140,20 @@ def entropy_texture(uncertainty: Uncertainty, estimate: MaterialEstimate, dilati
     """
     values = estimate.to_texture(uncertainty.entropy.astype(np.float32), fill=np.nan)
     return fill_texture(values, _atlas_mask(estimate), dilation_px, fallback=ENTROPY_RANGE[1])
+
+
+def roughness_std_values(roughness_std: np.ndarray) -> np.ndarray:
+    """(N,) float32 per-texel roughness std as exported and evaluated: texels without an estimate
+    (NaN) take UNESTIMATED_ROUGHNESS_STD."""
+    values = np.asarray(roughness_std, np.float32)
+    return np.where(np.isfinite(values), values, np.float32(UNESTIMATED_ROUGHNESS_STD))
+
+
+def roughness_std_texture(uncertainty: Uncertainty, estimate: MaterialEstimate, dilation_px: int) -> np.ndarray:
+    """(T, T) float32 ``roughness_std_values(uncertainty.roughness_std)``, dilated across seams like the
+    material maps; ``uncertainty.roughness_std`` must have been computed."""
+    values = estimate.to_texture(roughness_std_values(uncertainty.roughness_std), fill=np.nan)
+    return fill_texture(values, _atlas_mask(estimate), dilation_px, fallback=UNESTIMATED_ROUGHNESS_STD)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -243,9 +269,10 @@ def write_fit_outputs(
 
     ``source`` is the Texels or Observations the estimate was made on (same texel order).
     Files: see ``FILES``; the entropy maps, ``flags.png`` and ``uncertainty.npz`` only with
-    ``uncertainty``, ``spectra.npz`` only when ``source`` is Observations. ``extra_summary`` is
-    merged into ``summary.json`` (e.g. the capture's path). ``maps``: the estimate's textures
-    when already made (``material_textures(estimate, config.texels.dilation_px)``).
+    ``uncertainty``, the roughness_std maps only when it holds them, ``spectra.npz`` only when
+    ``source`` is Observations. ``extra_summary`` is merged into ``summary.json`` (e.g. the
+    capture's path). ``maps``: the estimate's textures when already made
+    (``material_textures(estimate, config.texels.dilation_px)``).
     """
     if not np.array_equal(source.texel_index, estimate.texel_index):
         raise ValueError("the estimate was not made on these texels (texel_index differs)")
@@ -278,6 +305,11 @@ def write_fit_outputs(
             summary["uncertainty"] = uncertainty_summary(uncertainty)
             summary["entropy_png"] = {"colormap": ENTROPY_COLORMAP, "range": list(ENTROPY_RANGE)}
             written += ["entropy", "entropy_png", "flags_png", "uncertainty"]
+            if uncertainty.roughness_std is not None:
+                jobs.append(pool.submit(_write_roughness_std_maps, folder, uncertainty, estimate, dilation))
+                summary["roughness_std_png"] = {"colormap": ROUGHNESS_STD_COLORMAP, "range": list(ROUGHNESS_STD_RANGE),
+                                                "unestimated": UNESTIMATED_ROUGHNESS_STD}
+                written += ["roughness_std", "roughness_std_png"]
         if isinstance(source, Observations):
             jobs.append(pool.submit(_save_spectra, folder / FILES["spectra"], source))
             written.append("spectra")
@@ -304,11 +336,22 @@ def _write_uncertainty_maps(folder: Path, uncertainty: Uncertainty, estimate: Ma
               flags_picture(estimate.to_texture(uncertainty.flags, fill=0), _atlas_mask(estimate)))
 
 
+def _write_roughness_std_maps(folder: Path, uncertainty: Uncertainty, estimate: MaterialEstimate,
+                              dilation_px: int) -> None:
+    """roughness_std.exr and roughness_std.png."""
+    spread = roughness_std_texture(uncertainty, estimate, dilation_px)
+    write_scalar_map(folder / FILES["roughness_std"], spread)
+    write_scalar_map(folder / FILES["roughness_std_png"], spread, ROUGHNESS_STD_COLORMAP, ROUGHNESS_STD_RANGE)
+
+
 def _save_uncertainty(path: Path, uncertainty: Uncertainty, texel_index: np.ndarray) -> None:
-    """uncertainty.npz, deflated: the float16 likelihood grids shrink 3x for ~0.6 s (T = 512)."""
+    """uncertainty.npz, deflated: the float16 likelihood grids shrink 3x for ~0.6 s (T = 512).
+    roughness_std is stored as computed (NaN where not estimated)."""
+    optional = {"likelihood": None if uncertainty.likelihood is None else to_float16(uncertainty.likelihood),
+                "roughness_std": uncertainty.roughness_std}
     _save_npz(path, True, texel_index=texel_index, entropy=uncertainty.entropy, flags=uncertainty.flags,
               best_alpha=uncertainty.best_alpha, best_ks=uncertainty.best_ks,
-              **({} if uncertainty.likelihood is None else {"likelihood": to_float16(uncertainty.likelihood)}))
+              **{name: values for name, values in optional.items() if values is not None})
 
 
 def _save_spectra(path: Path, source: Observations) -> None:

@@ -155,7 +155,7 @@ def select_views(
     else:
         if not np.array_equal(observations.texel_index, texels.texel_index):
             raise ValueError("observations were made at another texture resolution or of another mesh")
-        observations = _subset_observations(observations, rows)
+        observations = observations.select(rows)
     lmax = observations.lmax
     state = initial_state(observations, config)
     samples = candidate_samples(capture, scored, candidates, observations, lmax)
@@ -586,13 +586,3 @@ def _subset_texels(texels: Texels, rows: np.ndarray) -> Texels:
              "snapped")
     per_texel = {name: getattr(texels, name)[rows] for name in names}
     return dataclasses.replace(texels, mask=mask.reshape(texels.mask.shape), **per_texel)
-
-
-def _subset_observations(observations: Observations, rows: np.ndarray) -> Observations:
-    """The Observations of ``rows`` only (its array fields are all per texel)."""
-    per_texel = {
-        field.name: getattr(observations, field.name)[rows]
-        for field in dataclasses.fields(observations)
-        if isinstance(getattr(observations, field.name), np.ndarray)
-    }
-    return dataclasses.replace(observations, **per_texel)

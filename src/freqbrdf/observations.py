@@ -29,7 +29,7 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
 import numba
@@ -70,6 +70,8 @@ CONSTANT = 6
 N_SIGNALS = 7
 
 STAGES = ("raster", "projection", "visibility", "images", "irradiance", "occlusion", "fits")
+# The array fields of Observations that are not per texel.
+_SHARED_ARRAYS = ("environment_coeffs",)
 
 
 @dataclass(eq=False)
@@ -121,6 +123,13 @@ class Observations:
     def mirrored_spectrum(self) -> np.ndarray:
         """(N, 3, l*+1) power spectrum of the mirrored environment."""
         return sh.power_spectrum(self.mirrored_coeffs)
+
+    def select(self, rows) -> Observations:
+        """The Observations of the texels ``rows`` (indices, a slice or a boolean mask over the N
+        texels): every per-texel array indexed, the environment's SH and the scalars kept."""
+        changes = {item.name: getattr(self, item.name)[rows] for item in fields(self)
+                   if isinstance(getattr(self, item.name), np.ndarray) and item.name not in _SHARED_ARRAYS}
+        return replace(self, **changes)
 
     def mask(self) -> np.ndarray:
         """(T, T) bool: texels of the mesh (observed or not)."""

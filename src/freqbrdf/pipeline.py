@@ -1,10 +1,11 @@
 """The whole job on one capture: observations -> estimate -> uncertainty -> textures; its folder.
 
 ``fit`` runs the stages in memory (``FitResult``), ``write_fit`` writes the fit folder
-(``export.write_fit_outputs``: EXR maps, previews, material.glb, entropy and flags, spectra.npz,
-uncertainty.npz, summary.json with the capture's path), ``load_fit`` reads it back for the
-commands that work on a fit (evaluate, report, inpaint), and ``evaluate_fit`` scores a fit folder
-against its capture (texture metrics, relighting, and whether the entropy ranks the errors).
+(``export.write_fit_outputs``: EXR maps, previews, material.glb, entropy, roughness_std and flags,
+spectra.npz, uncertainty.npz, summary.json with the capture's path), ``load_fit`` reads it back
+for the commands that work on a fit (evaluate, report, inpaint), and ``evaluate_fit`` scores a fit
+folder against its capture (texture metrics, relighting, and whether the entropy and
+roughness_std rank the errors).
 """
 
 from __future__ import annotations
@@ -156,8 +157,9 @@ def evaluate_fit(fit_outputs: FitOutputs, capture: Capture, out_dir: str | Path 
 
     - texture metrics on the observed texels when the capture has ground truth;
     - relighting under the capture's test set (Stanford-ORB protocol) when it has one;
-    - the uncertainty's meaning: sparsification (AUSE, AURG) and Spearman rho of the entropy
-      against the per-texel roughness, base-colour and metallic errors (ground truth needed).
+    - the uncertainty's meaning: sparsification (AUSE, AURG) and Spearman rho of the entropy and
+      of roughness_std against the per-texel roughness, base-colour and metallic errors (ground
+      truth needed).
     Returns the metrics document (also written as metrics.json).
     """
     out = Path(out_dir) if out_dir is not None else fit_outputs.folder / EVALUATION_FOLDER
@@ -183,7 +185,9 @@ def check_output_folder(out_dir: str | Path, inputs: dict[str, Path]) -> None:
 
 
 def _uncertainty_scores(fit_outputs: FitOutputs, capture: Capture, out: Path) -> dict | None:
-    """Sparsification of the entropy against per-texel errors on observed texels (needs GT)."""
+    """Sparsification of the entropy (and of roughness_std when the fit has it) against the
+    per-texel errors on observed texels (needs GT). The entropy's scores per error kind stay at the
+    top level (as before roughness_std existed); roughness_std's are under its own key."""
     # Imported here: scipy.stats would add ~0.3 s to every `freqbrdf fit`, which never needs it.
     from freqbrdf import sparsification
 
@@ -193,7 +197,11 @@ def _uncertainty_scores(fit_outputs: FitOutputs, capture: Capture, out: Path) ->
     truth = resize(capture.ground_truth, fit_outputs.maps.resolution)
     index = fit_outputs.texel_index
     observed = (arrays["flags"] & FLAG_UNOBSERVED) == 0
-    entropy = arrays["entropy"][observed]
+    # Both uncertainties on the same texels: roughness_std as exported (observed texels without an
+    # estimate, whose maps are filled from neighbours, take the prior's std).
+    uncertainties = {"entropy": arrays["entropy"][observed]}
+    if "roughness_std" in arrays:
+        uncertainties["roughness_std"] = export.roughness_std_values(arrays["roughness_std"])[observed]
     flat = index[observed]
     maps = fit_outputs.maps
     errors = {
@@ -201,10 +209,16 @@ def _uncertainty_scores(fit_outputs: FitOutputs, capture: Capture, out: Path) ->
         "base_color": np.abs(maps.base_color.reshape(-1, 3)[flat] - truth.base_color.reshape(-1, 3)[flat]).mean(axis=1),
         "metallic": np.abs(maps.metallic.ravel()[flat] - truth.metallic.ravel()[flat]),
     }
-    results = {name: sparsification.sparsification(entropy, error) for name, error in errors.items()}
+    results = {kind: {name: sparsification.sparsification(values, error) for name, error in errors.items()}
+               for kind, values in uncertainties.items()}
     sparsification.plot(results, out / SPARSIFICATION_PLOT)
+    scores = {kind: {name: sparsification.to_dict(result) for name, result in by_error.items()}
+              for kind, by_error in results.items()}
     return {
         "error_of": "absolute per-texel error on observed texels (base colour: mean over RGB)",
+        "uncertainty_of": ("the scores per error: the entropy's; under roughness_std: the estimated roughness's "
+                           f"std (texels without an estimate: {export.UNESTIMATED_ROUGHNESS_STD:.3f})"),
         "plot": SPARSIFICATION_PLOT,
-        **{name: sparsification.to_dict(result) for name, result in results.items()},
+        **scores["entropy"],
+        **({"roughness_std": scores["roughness_std"]} if "roughness_std" in scores else {}),
     }

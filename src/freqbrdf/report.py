@@ -2,10 +2,11 @@
 
 Sections (each omitted with a note when its inputs are missing): an interactive 3D view of
 ``material.glb`` with the entropy as a switchable overlay; the estimated maps beside the ground
-truth; the entropy map and its flags; SH power spectra of a few picked texels (incoming = the
-mirrored environment, outgoing = the observations, and the fitted specular reflection
-R0^2 k_alpha(l)^2 S_in(l)), as in the paper's teaser; the sparsification curves; relit images
-beside the references with their Stanford-ORB metrics; timings per stage.
+truth; the entropy, roughness std and flags maps; SH power spectra of a few picked texels
+(incoming = the mirrored environment, outgoing = the observations, and the fitted specular
+reflection R0^2 k_alpha(l)^2 S_in(l)), as in the paper's teaser; the sparsification curves of
+both uncertainties; relit images beside the references with their Stanford-ORB metrics; timings
+per stage.
 
 No network: the 3D viewer is the bundled, pinned ``<model-viewer>`` (``freqbrdf/web``), loaded as a
 classic script, and the glTF files are embedded as data URLs in ``models.js`` because Chromium does
@@ -105,25 +106,53 @@ roughness and metallic grey, 0 black to 1 white. Unobserved texels are filled fr
 
 def _entropy_section(folder: Path, outputs: FitOutputs) -> str:
     entropy_png = outputs.folder / export.FILES["entropy_png"]
-    flags_png = outputs.folder / export.FILES["flags_png"]
     if not entropy_png.is_file():
         return _missing("Uncertainty", "entropy.png is missing")
-    shutil.copyfile(entropy_png, folder / "entropy.png")
-    cells = ['<td><img src="entropy.png" alt="entropy map"></td>']
-    if flags_png.is_file():
-        shutil.copyfile(flags_png, folder / "flags.png")
-        cells.append('<td><img src="flags.png" alt="flags"></td>')
+    captions, cells = [], []
+    for key, caption in (("entropy_png", "entropy"), ("roughness_std_png", "roughness std"), ("flags_png", "flags")):
+        source = outputs.folder / export.FILES[key]
+        if source.is_file():
+            shutil.copyfile(source, folder / source.name)
+            captions.append(f"<th>{caption}</th>")
+            cells.append(f'<td><img src="{source.name}" alt="{caption} map"></td>')
     legend = "".join(
         f'<span class="swatch" style="background:{_css(colour)}"></span>{name} '
         for name, colour in _flag_legend()
     )
     stats = outputs.summary.get("uncertainty", {})
     fractions = ", ".join(f"{name} {value:.1%}" for name, value in stats.get("flagged_fraction", {}).items())
-    return f"""<section id="uncertainty"><h2>Uncertainty</h2><table class="maps"><tr>{''.join(cells)}</tr></table>
+    return f"""<section id="uncertainty"><h2>Uncertainty</h2><table class="maps"><tr>{''.join(captions)}</tr>
+<tr>{''.join(cells)}</tr></table>
 <p>Mean entropy {_number(stats.get('entropy_mean'))}, median {_number(stats.get('entropy_median'))}
 over {stats.get('observed_texels', '?')} observed texels ({html.escape(str(stats.get('mode', '?')))} mode).
-Flagged: {html.escape(fractions)}.</p><p class="note">Entropy: {export.ENTROPY_COLORMAP}, 0 certain to 1 uncertain.
+Flagged: {html.escape(fractions)}.</p>{_roughness_std_text(outputs)}
+<p class="note">Entropy: {export.ENTROPY_COLORMAP}, 0 certain to 1 uncertain.
 Flags (first set bit shown): {legend}</p></section>"""
+
+
+def _roughness_std_text(outputs: FitOutputs) -> str:
+    """One sentence on what the roughness std map means, with its Spearman figure when evaluated."""
+    if not (outputs.folder / export.FILES["roughness_std_png"]).is_file():
+        return '<p class="note">No roughness std map (fits before it existed, or turned off in the settings).</p>'
+    stats = outputs.summary.get("uncertainty", {})
+    settings = outputs.summary.get("settings", {}).get("uncertainty", {})
+    picture = outputs.summary.get("roughness_std_png", {})
+    low, high = picture.get("range", export.ROUGHNESS_STD_RANGE)
+    window = settings.get("roughness_window", 0)
+    terms = [f"the scatter of the per-texel estimates over a {window} &times; {window}-texel window"] if window else []
+    if settings.get("loss_curvature"):
+        terms.append("the Laplace variance of the estimator's loss")
+    scores = (_read_metrics(outputs) or {}).get("uncertainty", {})
+    spread_rho = scores.get("roughness_std", {}).get("roughness", {}).get("spearman")
+    entropy_rho = scores.get("roughness", {}).get("spearman")
+    ranking = ("" if spread_rho is None else
+               f" Against this capture's ground truth it ranks the roughness errors with Spearman &rho; "
+               f"{spread_rho:.2f} (the entropy: {_number(entropy_rho)}).")
+    return (f"<p>Roughness std ({html.escape(str(picture.get('colormap', export.ROUGHNESS_STD_COLORMAP)))}, "
+            f"{low:g} to {high:g} in roughness units; mean {_number(stats.get('roughness_std_mean'), 3)}, median "
+            f"{_number(stats.get('roughness_std_median'), 3)}): how far the estimated roughness itself may be off, "
+            f"from {' plus '.join(terms) or 'its settings'}; texels without an estimate show the prior's "
+            f"{export.UNESTIMATED_ROUGHNESS_STD:.2f}.{ranking}</p>")
 
 
 def _spectra_section(folder: Path, outputs: FitOutputs) -> str:
@@ -147,13 +176,9 @@ a rough one cuts it off; where the incoming spectrum is flat and weak the roughn
 
 def _evaluation_sections(folder: Path, outputs: FitOutputs) -> str:
     evaluation = outputs.folder / EVALUATION_FOLDER
-    metrics_path = evaluation / "metrics.json"
-    if not metrics_path.is_file():
+    metrics = _read_metrics(outputs)
+    if metrics is None:
         return _missing("Evaluation", "run `freqbrdf evaluate FIT` first")
-    try:
-        metrics = json.loads(metrics_path.read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as err:
-        raise InputError(metrics_path, f"unreadable: {err}") from None
     parts = []
     texture = metrics.get("texture")
     if texture:
@@ -165,8 +190,9 @@ def _evaluation_sections(folder: Path, outputs: FitOutputs) -> str:
     if sparsification.is_file():
         shutil.copyfile(sparsification, folder / SPARSIFICATION_PLOT)
         parts.append(f'<h3>Sparsification</h3><img class="wide" src="{SPARSIFICATION_PLOT}" alt="sparsification curves">'
-                     '<p class="note">Remove the most uncertain texels first: a useful entropy lowers the mean '
-                     'error of the rest (AURG &gt; 0) and approaches the oracle (AUSE &rarr; 0).</p>')
+                     '<p class="note">Remove the most uncertain texels first (by the entropy, and by the roughness '
+                     'std): a useful uncertainty lowers the mean error of the rest (AURG &gt; 0) and approaches '
+                     'the oracle (AUSE &rarr; 0).</p>')
     views = metrics.get("views", [])
     if views:
         relit = metrics["relighting"]
@@ -200,6 +226,17 @@ def _timings_section(outputs: FitOutputs) -> str:
 
 # ---------------------------------------------------------------------------------------------
 # Helpers
+
+
+def _read_metrics(outputs: FitOutputs) -> dict | None:
+    """The evaluation's metrics.json; None before `freqbrdf evaluate`."""
+    path = outputs.folder / EVALUATION_FOLDER / "metrics.json"
+    if not path.is_file():
+        return None
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError) as err:
+        raise InputError(path, f"unreadable: {err}") from None
 
 
 def _capture_or_none(outputs: FitOutputs):

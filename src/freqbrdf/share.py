@@ -114,7 +114,7 @@ def share_details(observations: Observations, estimate: MaterialEstimate, uncert
     moved = np.zeros(len(pulled_rows), bool)
     loss = estimate.loss.copy()
     if len(rows):
-        new_params, new_loss = _pull(_select_texels(observations, rows), params[rows], target, config)
+        new_params, new_loss = _pull(observations.select(rows), params[rows], target, config)
         changed = np.any(new_params != params[rows], axis=1)
         moved[affine] = changed
         params[rows] = new_params
@@ -206,16 +206,6 @@ def _parameter_matrix(estimate: MaterialEstimate) -> np.ndarray:
 
 def _principled(params: np.ndarray) -> brdf.PrincipledParams:
     return brdf.PrincipledParams(base_color=params[:, :3], roughness=params[:, 3], metallic=params[:, 4])
-
-
-def _select_texels(observations: Observations, rows: np.ndarray) -> Observations:
-    """The Observations of ``rows`` only (every per-texel array indexed, the rest kept)."""
-    values = {item.name: getattr(observations, item.name) for item in dataclasses.fields(observations)}
-    changes = {
-        name: value[rows] for name, value in values.items()
-        if isinstance(value, np.ndarray) and value.shape[:1] == (observations.n_texels,)
-    }
-    return dataclasses.replace(observations, **changes)
 
 
 def _pull(observations: Observations, own: np.ndarray, target: np.ndarray, config: Config):

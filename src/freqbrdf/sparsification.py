@@ -86,8 +86,15 @@ def to_dict(result: Sparsification) -> dict:
     }
 
 
-def plot(results: dict[str, Sparsification], path) -> None:
-    """One panel per named error (e.g. roughness, base colour): the three curves, AUSE, AURG."""
+# Colours of the uncertainties' curves in the plot, by name; others take matplotlib's cycle.
+PLOT_COLOURS = {"entropy": "C0", "roughness_std": "C3"}
+
+
+def plot(results: dict[str, dict[str, Sparsification]], path) -> None:
+    """One panel per error kind (e.g. roughness, base colour) with one curve per uncertainty
+    (``results[uncertainty][error kind]``, e.g. "entropy", "roughness_std") and their AUSE, AURG and
+    Spearman in the legend, the oracle and random curves (of the first uncertainty: the same for
+    all when they are scored on the same texels)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -95,18 +102,23 @@ def plot(results: dict[str, Sparsification], path) -> None:
 
     from freqbrdf.fileio import atomic_path
 
-    figure, axes = plt.subplots(1, len(results), figsize=(4.2 * len(results), 3.4), squeeze=False)
-    for axis, (name, result) in zip(axes[0], results.items()):
-        axis.plot(result.fractions, result.by_uncertainty, label="by entropy", color="C0")
-        axis.plot(result.fractions, result.oracle, label="oracle", color="C2", linestyle="--")
-        axis.plot(result.fractions, result.random, label="random", color="0.5", linestyle=":")
-        axis.set_title(f"{name}: AUSE {result.ause:.3f}, AURG {result.aurg:.3f}\n"
-                       f"Spearman {result.spearman:.2f} ({result.texels} texels)", fontsize=9)
+    error_kinds = list(next(iter(results.values())))
+    figure, axes = plt.subplots(1, len(error_kinds), figsize=(4.2 * len(error_kinds), 3.6), squeeze=False)
+    for axis, kind in zip(axes[0], error_kinds):
+        for index, (name, by_error) in enumerate(results.items()):
+            result = by_error[kind]
+            axis.plot(result.fractions, result.by_uncertainty, color=PLOT_COLOURS.get(name, f"C{index + 4}"),
+                      label=f"by {name}: AUSE {result.ause:.3f}, AURG {result.aurg:.3f}, "
+                            f"ρ {result.spearman:.2f}")
+        first = next(iter(results.values()))[kind]
+        axis.plot(first.fractions, first.oracle, label="oracle", color="C2", linestyle="--")
+        axis.plot(first.fractions, first.random, label="random", color="0.5", linestyle=":")
+        axis.set_title(f"{kind} error ({first.texels} texels)", fontsize=9)
         axis.set_xlabel("fraction of texels removed (most uncertain first)")
         axis.set_ylabel("mean error of the rest / mean error")
         axis.set_xlim(0, 1)
         axis.set_ylim(bottom=0)
-        axis.legend(fontsize=8)
+        axis.legend(fontsize=7)
     figure.tight_layout()
     with atomic_path(path) as tmp:
         figure.savefig(tmp, dpi=110, format="png")
