@@ -205,10 +205,11 @@ def angular_loss(
     tangent, normal, environment, environment_levels, blend = _environment_inputs(observations, settings)
     for rows in _blocks(observations.n_texels, _PROJECTION_BLOCK // max(levels, environment_levels)):
         if environment_levels:
-            environment_proj = _environment_projections(observations.view_direction[rows], observations.weight[rows],
-                                                        tangent[rows], normal[rows], environment, observations.lmax)
+            environment_proj = np.ascontiguousarray(_environment_projections(
+                observations.view_direction[rows], observations.weight[rows], tangent[rows], normal[rows],
+                environment, observations.lmax).transpose(0, 4, 1, 2, 3))
         else:
-            environment_proj = np.zeros((rows.stop - rows.start, 0, 3, 1, observations.n_views))
+            environment_proj = np.zeros((rows.stop - rows.start, observations.n_views, 0, 3, 1))
         _squared_residual_kernel(
             _tilted_projections(observations.view_direction[rows], observations.weight[rows], light[rows],
                                 observations.lmax, levels),
@@ -799,8 +800,9 @@ def _squared_residual_kernel(
     `_tilted_projections`, interpolated at each sample's tilt per lobe term when there are several
     levels. The specular is m (b X + Y) + (1 - m) Z with X = A S_A, Y = B S_B (S_k: the light
     filtered for term k, `lobe_filtered_light`) and Z = E S_E with ``exact_dielectric``, else
-    Schlick's 0.04 X + Y. environment_proj (n, levels, 3, G, V) `_environment_projections`: with
-    levels > 1 each S_k is blended towards the environment light (`environment_filtered_light`)."""
+    Schlick's 0.04 X + Y. environment_proj (n, V, levels, 3, G) `_environment_projections` with
+    the views second: with levels > 1 each S_k is blended towards the environment light
+    (`environment_filtered_light`)."""
     n_texels, n_views = weight.shape
     n_levels, n_degrees = proj.shape[1], proj.shape[3]
     n_terms = len(LOBE_TERMS)
@@ -811,7 +813,7 @@ def _squared_residual_kernel(
         level = np.zeros(n_terms, dtype=np.int64)
         frac = np.zeros(n_terms)
         filtered = np.empty(n_terms)
-        n_environment_levels = environment_proj.shape[1]
+        n_environment_levels = environment_proj.shape[2]
         share = _environment_share(roughness[t], environment_blend) if n_environment_levels > 1 else 0.0
         # The environment light at the roughness nodes on either side, per term, channel and view.
         environment_light = np.zeros((2, n_terms, 3, n_views))
@@ -823,10 +825,10 @@ def _squared_residual_kernel(
                 table_row[v] = min(int(x), table.shape[1] - 2)
                 table_frac[v] = x - table_row[v]
             node, node_frac = _environment_node(roughness[t])
-            scratch_level, scratch = np.empty(n_views, dtype=np.int64), np.empty((2, n_views))
+            gain = np.empty(environment_proj.shape[4])
             for side in range(2):
-                _environment_node_lights(table, (node + side) * _ENVIRONMENT_NODE_STEP, n_views, table_row, table_frac, environment_proj[t],
-                                         scratch_level, scratch[0], scratch[1], environment_light[side])
+                _environment_node_lights(table, (node + side) * _ENVIRONMENT_NODE_STEP, n_views, table_row,
+                                         table_frac, environment_proj[t], gain, environment_light[side])
         # Without tilt levels or environment light every term reads the same light; Schlick's
         # dielectric needs no light of its own.
         distinct = n_levels > 1 or share > 0.0
@@ -1123,35 +1125,32 @@ def _profile_metallic(quadratics, state, metallic_grid):
 
 
 @numba.njit(fastmath=True, cache=True)
-def _environment_node_lights(table, node, n, table_row, table_frac, environment_proj, level, frac, gain, out):
+def _environment_node_lights(table, node, n, table_row, table_frac, environment_proj, gain, out):
     """out[k, c, s] = the environment light of lobe term k < out.shape[0] at samples s < n for the
     table's roughness node ``node``: the tilt and gains of `environment_response_table` linear in
     cos theta_o (table_row, table_frac: each sample's cos node and fraction), environment_proj
-    (levels, 3, G, >= n) interpolated linearly between tilt levels. The search evaluates it at
+    (>= n, levels, 3, G) interpolated linearly between tilt levels. The search evaluates it at
     the two nodes around a roughness and interpolates (see `environment_filtered_light`).
-    level, frac, gain (>= n,): scratch. Loops run over the samples innermost (vectorised)."""
-    n_levels, n_gains = environment_proj.shape[0], environment_proj.shape[2]
-    for term in range(out.shape[0]):
-        plane = _ENVIRONMENT_TILT_PLANE + term
-        for s in range(n):
-            row, fx = table_row[s], table_frac[s]
+    gain (G,): scratch. Each sample reads its two tilt levels' 3 x G values, which lie together."""
+    n_levels, n_gains = environment_proj.shape[1], environment_proj.shape[3]
+    for s in range(n):
+        row, fx = table_row[s], table_frac[s]
+        for term in range(out.shape[0]):
+            plane = _ENVIRONMENT_TILT_PLANE + term
             position = (table[plane, row, node] + fx * (table[plane, row + 1, node] - table[plane, row, node])) * (
                 n_levels - 1)
-            level[s] = min(max(int(position), 0), n_levels - 2)
-            frac[s] = position - level[s]
-        for c in range(3):
-            for s in range(n):
-                out[term, c, s] = 0.0
-        for degree in range(n_gains):
-            plane = _environment_gain_plane(term, degree)
-            for s in range(n):
-                row, fx = table_row[s], table_frac[s]
-                gain[s] = table[plane, row, node] + fx * (table[plane, row + 1, node] - table[plane, row, node])
+            level = min(max(int(position), 0), n_levels - 2)
+            frac = position - level
+            for degree in range(n_gains):
+                plane = _environment_gain_plane(term, degree)
+                gain[degree] = table[plane, row, node] + fx * (table[plane, row + 1, node] - table[plane, row, node])
+            lower, upper = environment_proj[s, level], environment_proj[s, level + 1]
             for c in range(3):
-                light = out[term, c]
-                for s in range(n):
-                    lower = environment_proj[level[s], c, degree, s]
-                    light[s] += gain[s] * (lower + frac[s] * (environment_proj[level[s] + 1, c, degree, s] - lower))
+                light = 0.0
+                for degree in range(n_gains):
+                    below = lower[c, degree]
+                    light += gain[degree] * (below + frac * (upper[c, degree] - below))
+                out[term, c, s] = light
 
 
 @numba.njit(fastmath=True, cache=True)
@@ -1173,10 +1172,10 @@ def _roughness_objective(roughness, args):
      table_row, table_frac, tilt_level, tilt_frac, burley_terms, diffuse_moments, column, kernel, kernel_derivative,
      albedo, diffuse_factor, level_filtered, filtered, moments, quadratics, squared_values, diffuse_scale,
      state, metallic_grid, environment_proj, environment_blend, environment_nodes, environment_cached,
-     environment_scratch_level, environment_scratch) = args
+     environment_gain) = args
     n_levels = proj.shape[0]
     # Without environment levels (environment light off) the fitted light is all there is.
-    share = _environment_share(roughness, environment_blend) if environment_proj.shape[0] > 1 else 0.0
+    share = _environment_share(roughness, environment_blend) if environment_proj.shape[1] > 1 else 0.0
     # Terms with a light of their own: A and B, and E with the exact dielectric (else Z = 0.04 X + Y).
     n_terms = 3 if exact_dielectric else 2
     alpha = max(roughness * roughness, _ALPHA_MIN)
@@ -1199,8 +1198,7 @@ def _roughness_objective(roughness, args):
             for needed in range(node if node_frac < 1.0 else node + 1, node + 2 if node_frac > 0.0 else node + 1):
                 if not environment_cached[needed]:
                     _environment_node_lights(table, needed * _ENVIRONMENT_NODE_STEP, n, table_row, table_frac,
-                                             environment_proj, environment_scratch_level, environment_scratch[0],
-                                             environment_scratch[1], environment_nodes[needed, :n_terms])
+                                             environment_proj, environment_gain, environment_nodes[needed, :n_terms])
                     environment_cached[needed] = True
         for s in range(n):
             row, fx = table_row[s], table_frac[s]
@@ -1392,10 +1390,10 @@ def _residual_magnitudes(n, values, filtered, diffuse_factor, diffuse_scale, par
 @numba.njit(fastmath=True, cache=True)
 def _environment_levels(xyz, n, tangent, normal, bitangent, environment, lmax, diag, rec_a, rec_b, tilted, basis,
                         sh_scratch, out):
-    """out[j, c, l, s] = sum_m c_lm Y_lm of the environment (K, 3) at the world direction of the
+    """out[s, j, c, l] = sum_m c_lm Y_lm of the environment (K, 3) at the world direction of the
     texel's reflected view direction xyz[:, s] (local) tilted towards the normal by
-    s = j / (levels - 1), for levels out.shape[0] and degrees l < out.shape[2]."""
-    n_levels, n_gains = out.shape[0], out.shape[2]
+    t = j / (levels - 1), for levels out.shape[1] and degrees l < out.shape[3]."""
+    n_levels, n_gains = out.shape[1], out.shape[3]
     bitangent[0] = normal[1] * tangent[2] - normal[2] * tangent[1]  # normal x tangent (right-handed frame)
     bitangent[1] = normal[2] * tangent[0] - normal[0] * tangent[2]
     bitangent[2] = normal[0] * tangent[1] - normal[1] * tangent[0]
@@ -1409,14 +1407,17 @@ def _environment_levels(xyz, n, tangent, normal, bitangent, environment, lmax, d
             for axis in range(3):
                 tilted[axis, s] = local_x * tangent[axis] + local_y * bitangent[axis] + local_z * normal[axis]
         sh._sh_block(tilted[0], tilted[1], tilted[2], n, lmax, diag, rec_a, rec_b, basis, sh_scratch)
+        projection = sh_scratch[0]  # free again after _sh_block
         for c in range(3):
             for degree in range(n_gains):
                 for s in range(n):
-                    out[level, c, degree, s] = 0.0
+                    projection[s] = 0.0
                 for k in range(degree * degree, (degree + 1) * (degree + 1)):
                     coefficient = environment[k, c]
                     for s in range(n):
-                        out[level, c, degree, s] += coefficient * basis[k, s]
+                        projection[s] += coefficient * basis[k, s]
+                for s in range(n):
+                    out[s, level, c, degree] = projection[s]
 
 
 @numba.njit(parallel=True, fastmath=True, cache=True)
@@ -1473,13 +1474,12 @@ def _global_search_kernel(
         best_state = np.empty(4)
         roughness_brent = np.empty(13)
         n_gains = min(lmax, _TILT_FIT_LMAX) + 1
-        environment_proj = np.zeros((environment_levels, 3, n_gains, n_views))
+        environment_proj = np.zeros((n_views, environment_levels, 3, n_gains))
         # The environment light per roughness node of the table, lobe term, channel and sample.
         n_environment_nodes = (table.shape[2] - 1) // _ENVIRONMENT_NODE_STEP + 1
         environment_nodes = np.empty((n_environment_nodes, 3, 3, n_views))
         environment_cached = np.zeros(n_environment_nodes, dtype=np.bool_)
-        environment_scratch_level = np.empty(n_views, dtype=np.int64)
-        environment_scratch = np.empty((2, n_views))
+        environment_gain = np.empty(n_gains)
         bitangent = np.empty(3)
         for t in range(chunk * _SEARCH_CHUNK, min((chunk + 1) * _SEARCH_CHUNK, n_texels)):
             n = 0
@@ -1533,7 +1533,7 @@ def _global_search_kernel(
                     burley, table, table_row, table_frac, tilt_level, tilt_frac, burley_terms, diffuse_moments, column,
                     kernel, kernel_derivative, albedo, diffuse_factor, level_filtered, filtered, moments, quadratics,
                     squared_values, scale, state, metallic_grid, environment_proj, environment_blend,
-                    environment_nodes, environment_cached, environment_scratch_level, environment_scratch)
+                    environment_nodes, environment_cached, environment_gain)
             # A robust pass refines the roughness to _BRENT_XTOL: this search need only find its cell.
             first_xtol = _BRENT_COARSE_XTOL if robust_passes > 0 else _BRENT_XTOL
             best_r, best_f = _search_roughness(args, state, roughness_grid, best_state, roughness_brent, 0,
