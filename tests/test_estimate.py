@@ -215,6 +215,28 @@ def test_global_recovers_parameters_exactly_with_the_environment_light(truth):
     np.testing.assert_allclose(fitted_only.roughness[smooth], truth.roughness[smooth], atol=1e-4)
 
 
+def test_roughness_curvature_is_the_profiled_loss_curvature(truth):
+    # Noisy data, no robust pass: the search's curvature is the second divided difference of the
+    # profiled loss; holding base colour and metallic at the optimum (angular_loss) can only curve
+    # more, and the profiled loss at the probes is no higher than angular_loss there.
+    observations = synthetic_observations(truth, seed=23, model="split_sum", environment_light=True)
+    rng = np.random.default_rng(5)
+    observations.observed = observations.observed * (1.0 + 0.05 * rng.standard_normal(observations.observed.shape)
+                                                     ).astype(np.float32)
+    config = Config(estimate=EstimateConfig(robust_passes=0))
+    result = estimate(observations, config)
+    inside = (result.roughness > 0.06) & (result.roughness < 0.94)
+    step = 0.05  # estimate.CURVATURE_STEP
+
+    def held_loss(roughness):
+        return angular_loss(observations, brdf.PrincipledParams(result.base_color, roughness, result.metallic), config)
+
+    held = (held_loss(result.roughness - step) - 2.0 * result.loss + held_loss(result.roughness + step)) / step**2
+    assert np.all(result.roughness_curvature[inside] <= held[inside] * (1.0 + 1e-6) + 1e-9)
+    assert np.median(result.roughness_curvature[inside] / held[inside]) > 0.2  # the same scale
+    assert np.all(np.isfinite(result.roughness_curvature))
+
+
 def test_global_recovers_parameters_with_shadowing(truth):
     # With shadowing the light depends on alpha; the refreshes converge to the self-consistent
     # estimate (6 refreshes reach ~1e-6 on this spread) of least squares; a robust pass re-weights

@@ -127,6 +127,8 @@ _PROJECTION_BLOCK = 8192
 _BRENT_XTOL = 1e-5
 _BRENT_COARSE_XTOL = 1e-3
 _BRENT_MAX_EVALS = 60
+# Roughness step of the profiled loss's second divided difference (MaterialEstimate.roughness_curvature).
+CURVATURE_STEP = 0.05
 # torch.optim.Adam's defaults, which the prototype used.
 _ADAM_BETA1, _ADAM_BETA2, _ADAM_EPS = 0.9, 0.999, 1e-8
 _DIELECTRIC_F0 = brdf.DIELECTRIC_F0  # module constants, bound here for the numba kernels
@@ -150,6 +152,11 @@ class MaterialEstimate:
     loss: np.ndarray
     method: str  # "global" or "paper/<forward model>"
     timings: dict = field(default_factory=dict)  # seconds per stage
+    # (N,) ``global`` only: d^2 loss / d roughness^2 of the profiled loss (base colour and metallic
+    # re-optimised at each roughness) at the estimate, from a second divided difference over
+    # `CURVATURE_STEP` (one-sided within [0, 1]); NaN where not estimated. Its inverse scales the
+    # marginal posterior variance of the roughness (uncertainty.roughness_std).
+    roughness_curvature: np.ndarray | None = None
 
     @property
     def n_texels(self) -> int:
@@ -881,6 +888,7 @@ def _estimate_global(observations: Observations, config: Config, reporter: Repor
     estimated = observations.n_samples >= MIN_SAMPLES
     params = np.zeros((n_texels, 5))  # base colour RGB, roughness, metallic
     loss = np.zeros(n_texels)
+    curvature = np.zeros(n_texels)
     diffuse_scale = _diffuse_scale(observations)
     # The light of pass 0 is unshadowed, i.e. shadowed at alpha = 0 (G1 = 1). Each further pass
     # shadows it at a roughness closer to the fixed point r = search(light shadowed at r): a
@@ -906,6 +914,7 @@ def _estimate_global(observations: Observations, config: Config, reporter: Repor
                 settings.roughness_grid,
                 settings.metallic_grid, settings.robust_passes, observations.lmax,
                 *sh._legendre_tables(observations.lmax), *_environment_inputs(observations, settings), params, loss,
+                curvature,
             )
             timings["search"] += time.perf_counter() - tick
             residual = params[:, 3] - shadow_roughness
@@ -920,7 +929,9 @@ def _estimate_global(observations: Observations, config: Config, reporter: Repor
             shadow_roughness = next_roughness
             advance(1)
     timings["total"] = timings["light"] + timings["search"]
-    return _result(observations, params, loss, estimated, "global", timings)
+    result = _result(observations, params, loss, estimated, "global", timings)
+    result.roughness_curvature = np.where(estimated, curvature, np.nan)
+    return result
 
 
 def _result(observations, params, loss, estimated, method, timings) -> MaterialEstimate:
@@ -1424,7 +1435,7 @@ def _environment_levels(xyz, n, tangent, normal, bitangent, environment, lmax, d
 def _global_search_kernel(
     directions, weight, observed, light, diffuse_scale, sigma, fresnel, masking, split_sum, exact_dielectric, burley,
     table, tilt_levels, roughness_grid, metallic_grid, robust_passes, lmax, diag, rec_a, rec_b,
-    tangent, normal, environment, environment_levels, environment_blend, params, loss,
+    tangent, normal, environment, environment_levels, environment_blend, params, loss, curvature,
 ):
     """Per texel: the (base colour, roughness, metallic) of least weighted squared residual.
 
@@ -1435,7 +1446,8 @@ def _global_search_kernel(
     many tilts of the reflected direction and blended in over environment_blend (start, end). Per texel the light is expanded by degree at its samples once per
     tilt level (P_c,l(w'_v), `_tilted_projections`; one level: w' = w; fused here to keep it in
     cache), then the roughness is searched. Writes params
-    (n, 5) [b_rgb, r, m] and loss (n,) (divided by sum_v w^2) for texels with samples; others are
+    (n, 5) [b_rgb, r, m], loss (n,) (divided by sum_v w^2) and the profiled loss's curvature in
+    roughness (n,) (`MaterialEstimate.roughness_curvature`) for texels with samples; others are
     left untouched.
     """
     n_texels, n_views = weight.shape
@@ -1568,6 +1580,23 @@ def _global_search_kernel(
                 best_f = 0.0
                 for s in range(n):
                     best_f += sample_weight[s] * sample_weight[s] * residual[s] * residual[s]
+                for s in range(n):  # back to least squares for the curvature
+                    omega[s] = sample_weight[s] * sample_weight[s]
+                _weighted_sums(n, omega, values, burley_terms, diffuse_moments, squared_values)
+            # Second divided difference through the optimum and two probes on the side within [0, 1].
+            first_r = best_r + CURVATURE_STEP if best_r < CURVATURE_STEP else best_r - CURVATURE_STEP
+            if best_r < CURVATURE_STEP:
+                second_r = best_r + 2.0 * CURVATURE_STEP
+            elif best_r > 1.0 - CURVATURE_STEP:
+                second_r = best_r - 2.0 * CURVATURE_STEP
+            else:
+                second_r = best_r + CURVATURE_STEP
+            # The profiled least-squares loss at the optimum (the robust pass's best_f is not profiled).
+            centre_f = _roughness_objective(best_r, args) if robust_passes > 0 else best_f
+            first_f = _roughness_objective(first_r, args)
+            second_f = _roughness_objective(second_r, args)
+            curvature[t] = 2.0 * ((first_f - centre_f) / (first_r - best_r)
+                                  - (second_f - centre_f) / (second_r - best_r)) / (first_r - second_r) / total_weight
             params[t, 0], params[t, 1], params[t, 2] = best_state[0], best_state[1], best_state[2]
             params[t, 3], params[t, 4] = best_r, best_state[3]
             loss[t] = max(best_f, 0.0) / total_weight

@@ -73,7 +73,7 @@ from scipy import ndimage
 
 from freqbrdf import brdf, sh
 from freqbrdf.config import Config, UncertaintyConfig
-from freqbrdf.estimate import angular_loss, model_light
+from freqbrdf.estimate import CURVATURE_STEP, angular_loss, model_light
 
 if TYPE_CHECKING:
     from freqbrdf.estimate import MaterialEstimate
@@ -100,7 +100,6 @@ FLAG_NAMES = {
 CUTOFF = 30.0
 # What a texel's roughness variance is without information: roughness uniform on [0, 1].
 PRIOR_ROUGHNESS_VARIANCE = 1.0 / 12.0
-CURVATURE_STEP = 0.05  # roughness step of the loss's second difference (loss_curvature)
 # Noise floor of the loss curvature's noise variance: a sample's noise std relative to the RMS of
 # the texel's observed radiance, so that a texel fitted exactly is not called certain.
 CURVATURE_NOISE_FLOOR = 0.02
@@ -216,24 +215,29 @@ def _neighbour_variance(observations: Observations, roughness: np.ndarray, windo
 def _loss_curvature_variance(observations: Observations, estimate: MaterialEstimate, roughness: np.ndarray,
                              config: Config) -> np.ndarray:
     """(N,) Laplace variance 2 s^2 / (n L''(r)) of the angular loss L (a weighted mean over n
-    samples) around the estimated roughness r, base colour and metallic held; capped at the prior
+    samples) around the estimated roughness r: the profiled loss (base colour and metallic
+    re-optimised, the marginal posterior's) when the estimate carries the global search's
+    `MaterialEstimate.roughness_curvature`, else base colour and metallic held; capped at the prior
     variance (a flat or concave loss says nothing). s^2 = L(r) + (CURVATURE_NOISE_FLOOR)^2 x the
     weighted mean square of the observed radiance. L'' is the second divided difference through r
     and two probes CURVATURE_STEP apart, on the side of r that stays within [0, 1]."""
-    step = CURVATURE_STEP
-    centre = np.nan_to_num(roughness, nan=0.5)
-    low_edge, high_edge = centre < step, centre > 1.0 - step
-    first = np.where(low_edge, centre + step, centre - step)
-    second = np.where(low_edge, centre + 2 * step, np.where(high_edge, centre - 2 * step, centre + step))
-
-    def loss_at(probe):
-        params = brdf.PrincipledParams(base_color=estimate.base_color, roughness=probe, metallic=estimate.metallic)
-        return angular_loss(observations, params, config, model_light(observations, probe, config))
-
     loss_centre = estimate.loss
-    loss_first, loss_second = loss_at(first), loss_at(second)
-    curvature = 2.0 * ((loss_first - loss_centre) / (first - centre)
-                       - (loss_second - loss_centre) / (second - centre)) / (first - second)
+    if estimate.roughness_curvature is not None:
+        curvature = estimate.roughness_curvature  # the global search's profiled curvature, for free
+    else:
+        step = CURVATURE_STEP
+        centre = np.nan_to_num(roughness, nan=0.5)
+        low_edge, high_edge = centre < step, centre > 1.0 - step
+        first = np.where(low_edge, centre + step, centre - step)
+        second = np.where(low_edge, centre + 2 * step, np.where(high_edge, centre - 2 * step, centre + step))
+
+        def loss_at(probe):
+            params = brdf.PrincipledParams(base_color=estimate.base_color, roughness=probe, metallic=estimate.metallic)
+            return angular_loss(observations, params, config, model_light(observations, probe, config))
+
+        loss_first, loss_second = loss_at(first), loss_at(second)
+        curvature = 2.0 * ((loss_first - loss_centre) / (first - centre)
+                           - (loss_second - loss_centre) / (second - centre)) / (first - second)
     weight_sq = np.square(observations.weight, dtype=np.float64)
     signal = (np.einsum("nv,nvc->n", weight_sq, np.square(np.nan_to_num(observations.observed), dtype=np.float64))
               / np.maximum(weight_sq.sum(axis=1), np.finfo(np.float64).tiny))
