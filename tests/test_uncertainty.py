@@ -399,7 +399,7 @@ def test_neighbour_term_is_the_scatter_of_the_estimates_in_the_window():
     lonely = [list(texel_index).index(48)]  # the corner texel; its neighbours are left unestimated
     for neighbour in (41, 47):  # 40 is a hole
         estimated[list(texel_index).index(neighbour)] = False
-    config = dataclasses.replace(Config(), uncertainty=UncertaintyConfig(roughness_window=window))
+    config = dataclasses.replace(Config(), uncertainty=UncertaintyConfig(roughness_window=window, loss_curvature=False))
     spread = unc.roughness_std(observations, _estimate_of(observations, roughness, estimated), config)
 
     texture = np.full((texture_res, texture_res), np.nan)

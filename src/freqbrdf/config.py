@@ -72,21 +72,23 @@ class UncertaintyConfig:
     ambiguous_entropy: float = 0.7
     # The posterior spread of the ESTIMATED roughness (Uncertainty.roughness_std, from
     # uncertainty.roughness_std; needs the estimate). The entropy scores the spectra, not the
-    # estimate, and ranks the global estimate's roughness errors poorly. Spearman rho against the
-    # per-texel roughness error (benchmarks/results/entropy_variants.json; bunny and sphere of
-    # that benchmark, then bunny_sunset and sphere_city of applications.py, photo-textured,
-    # 100 views): entropy 0.24 / 0.09 / 0.01 / 0.04. Two terms, added as variances:
+    # estimate, and ranks the global estimate's roughness errors poorly. Spearman rho / AURG
+    # against the per-texel roughness error of the session-5 estimator (environment light;
+    # benchmarks/entropy_variants.py, bunny and sphere): entropy 0.27 / 0.23 and 0.18 / 0.18. Two
+    # terms, added as variances:
     # - roughness_window: the scatter of the per-texel estimates over this many texels square
     #   (0: off). Texels are estimated independently and materials are smooth at that scale, so the
     #   scatter measures the estimate's own noise, whatever caused it (interreflection, occlusion,
-    #   few views); true texture edges raise it too. Alone: 0.42 / 0.34 / 0.29 / 0.23 (window 5:
-    #   0.42 / 0.31 / 0.28 / 0.23; 3: 0.38 / 0.24 on the first two). Milliseconds.
+    #   few views); true texture edges raise it too. Alone: 0.48 / 0.41 and 0.28 / 0.16 (window 5:
+    #   0.48 and 0.25; 3: 0.45 and 0.17). Milliseconds.
     roughness_window: int = 7
     # - loss_curvature: the Laplace variance 2 s^2 / (n L''(r)) of the estimator's own angular
-    #   loss L around the estimate (base colour and metallic held), s^2 = L + (0.02)^2 x signal.
-    #   Alone: 0.32 / 0.33 on the first two; with the window: 0.44 / 0.43 / 0.31 / 0.33. Off by
-    #   default: two more evaluations of the loss, 2-5 s on 140k-260k texels (2 shared cores).
-    loss_curvature: bool = False
+    #   loss L around the estimate, s^2 = L + (0.02)^2 x signal; L'' is the profiled loss's (the
+    #   marginal posterior's), which the global search returns for two more probes per texel
+    #   (MaterialEstimate.roughness_curvature; for `paper` estimates, base colour and metallic
+    #   are held and the loss is evaluated twice more). Alone: 0.43 / 0.37 and 0.29 / 0.23; with
+    #   the window: 0.51 / 0.44 (bunny) and 0.40 / 0.31 (sphere).
+    loss_curvature: bool = True
 
 
 @dataclass(frozen=True)

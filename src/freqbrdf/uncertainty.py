@@ -56,9 +56,10 @@ polynomial exp; measured figures in benchmarks/results/bench_entropy.json.
 Flags (bit field, uint8 per texel) say why a texel should not be trusted; see FLAG_*.
 
 The entropy scores the hypotheses against the spectra, not the estimate, and ranks the `global`
-estimate's per-texel roughness errors poorly (Spearman 0.24 on the Mitsuba bunny, 0.09 on the
+estimate's per-texel roughness errors poorly (Spearman 0.27 on the Mitsuba bunny, 0.18 on the
 sphere of entropy_scenes.py). `roughness_std` is the posterior spread of the estimate itself
-(UncertaintyConfig.roughness_window, loss_curvature), measured in benchmarks/entropy_variants.py.
+(UncertaintyConfig.roughness_window, loss_curvature): 0.51 and 0.40, measured in
+benchmarks/entropy_variants.py.
 """
 
 from __future__ import annotations
