@@ -418,7 +418,7 @@ def test_neighbour_term_is_the_scatter_of_the_estimates_in_the_window():
     flat_estimate = _estimate_of(observations, np.full(len(texel_index), 0.4), estimated)
     np.testing.assert_allclose(unc.roughness_std(observations, flat_estimate, config)[estimated & (np.arange(
         len(texel_index)) != lonely[0])], 0.0, atol=1e-6)  # agreeing neighbours: no scatter
-    off = dataclasses.replace(Config(), uncertainty=UncertaintyConfig(roughness_window=0))
+    off = dataclasses.replace(Config(), uncertainty=UncertaintyConfig(roughness_window=0, loss_curvature=False))
     assert unc.roughness_std(observations, flat_estimate, off) is None
 
 
