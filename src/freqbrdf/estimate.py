@@ -214,9 +214,9 @@ def angular_loss(
         if environment_levels:
             environment_proj = np.ascontiguousarray(_environment_projections(
                 observations.view_direction[rows], observations.weight[rows], tangent[rows], normal[rows],
-                environment, observations.lmax).transpose(0, 4, 1, 2, 3))
+                environment, observations.lmax).transpose(0, 1, 4, 2, 3))
         else:
-            environment_proj = np.zeros((rows.stop - rows.start, observations.n_views, 0, 3, 1))
+            environment_proj = np.zeros((rows.stop - rows.start, 0, observations.n_views, 3, 1))
         _squared_residual_kernel(
             _tilted_projections(observations.view_direction[rows], observations.weight[rows], light[rows],
                                 observations.lmax, levels),
@@ -807,8 +807,8 @@ def _squared_residual_kernel(
     `_tilted_projections`, interpolated at each sample's tilt per lobe term when there are several
     levels. The specular is m (b X + Y) + (1 - m) Z with X = A S_A, Y = B S_B (S_k: the light
     filtered for term k, `lobe_filtered_light`) and Z = E S_E with ``exact_dielectric``, else
-    Schlick's 0.04 X + Y. environment_proj (n, V, levels, 3, G) `_environment_projections` with
-    the views second: with levels > 1 each S_k is blended towards the environment light
+    Schlick's 0.04 X + Y. environment_proj (n, levels, V, 3, G) `_environment_projections` with
+    the views third: with levels > 1 each S_k is blended towards the environment light
     (`environment_filtered_light`)."""
     n_texels, n_views = weight.shape
     n_levels, n_degrees = proj.shape[1], proj.shape[3]
@@ -820,7 +820,7 @@ def _squared_residual_kernel(
         level = np.zeros(n_terms, dtype=np.int64)
         frac = np.zeros(n_terms)
         filtered = np.empty(n_terms)
-        n_environment_levels = environment_proj.shape[2]
+        n_environment_levels = environment_proj.shape[1]
         share = _environment_share(roughness[t], environment_blend) if n_environment_levels > 1 else 0.0
         # The environment light at the roughness nodes on either side, per term, channel and view.
         environment_light = np.zeros((2, n_terms, 3, n_views))
@@ -1140,10 +1140,10 @@ def _environment_node_lights(table, node, n, table_row, table_frac, environment_
     """out[k, c, s] = the environment light of lobe term k < out.shape[0] at samples s < n for the
     table's roughness node ``node``: the tilt and gains of `environment_response_table` linear in
     cos theta_o (table_row, table_frac: each sample's cos node and fraction), environment_proj
-    (>= n, levels, 3, G) interpolated linearly between tilt levels. The search evaluates it at
+    (levels, >= n, 3, G) interpolated linearly between tilt levels. The search evaluates it at
     the two nodes around a roughness and interpolates (see `environment_filtered_light`).
-    gain (G,): scratch. Each sample reads its two tilt levels' 3 x G values, which lie together."""
-    n_levels, n_gains = environment_proj.shape[1], environment_proj.shape[3]
+    gain (G,): scratch. Each sample reads its two tilt levels' 3 x G values, each contiguous."""
+    n_levels, n_gains = environment_proj.shape[0], environment_proj.shape[3]
     for s in range(n):
         row, fx = table_row[s], table_frac[s]
         for term in range(out.shape[0]):
@@ -1155,7 +1155,7 @@ def _environment_node_lights(table, node, n, table_row, table_frac, environment_
             for degree in range(n_gains):
                 plane = _environment_gain_plane(term, degree)
                 gain[degree] = table[plane, row, node] + fx * (table[plane, row + 1, node] - table[plane, row, node])
-            lower, upper = environment_proj[s, level], environment_proj[s, level + 1]
+            lower, upper = environment_proj[level, s], environment_proj[level + 1, s]
             for c in range(3):
                 light = 0.0
                 for degree in range(n_gains):
@@ -1186,7 +1186,7 @@ def _roughness_objective(roughness, args):
      environment_gain) = args
     n_levels = proj.shape[0]
     # Without environment levels (environment light off) the fitted light is all there is.
-    share = _environment_share(roughness, environment_blend) if environment_proj.shape[1] > 1 else 0.0
+    share = _environment_share(roughness, environment_blend) if environment_proj.shape[0] > 1 else 0.0
     # Terms with a light of their own: A and B, and E with the exact dielectric (else Z = 0.04 X + Y).
     n_terms = 3 if exact_dielectric else 2
     alpha = max(roughness * roughness, _ALPHA_MIN)
@@ -1401,10 +1401,10 @@ def _residual_magnitudes(n, values, filtered, diffuse_factor, diffuse_scale, par
 @numba.njit(fastmath=True, cache=True)
 def _environment_levels(xyz, n, tangent, normal, bitangent, environment, lmax, diag, rec_a, rec_b, tilted, basis,
                         sh_scratch, out):
-    """out[s, j, c, l] = sum_m c_lm Y_lm of the environment (K, 3) at the world direction of the
+    """out[j, s, c, l] = sum_m c_lm Y_lm of the environment (K, 3) at the world direction of the
     texel's reflected view direction xyz[:, s] (local) tilted towards the normal by
-    t = j / (levels - 1), for levels out.shape[1] and degrees l < out.shape[3]."""
-    n_levels, n_gains = out.shape[1], out.shape[3]
+    t = j / (levels - 1), for levels out.shape[0] and degrees l < out.shape[3]."""
+    n_levels, n_gains = out.shape[0], out.shape[3]
     bitangent[0] = normal[1] * tangent[2] - normal[2] * tangent[1]  # normal x tangent (right-handed frame)
     bitangent[1] = normal[2] * tangent[0] - normal[0] * tangent[2]
     bitangent[2] = normal[0] * tangent[1] - normal[1] * tangent[0]
@@ -1428,7 +1428,7 @@ def _environment_levels(xyz, n, tangent, normal, bitangent, environment, lmax, d
                     for s in range(n):
                         projection[s] += coefficient * basis[k, s]
                 for s in range(n):
-                    out[s, level, c, degree] = projection[s]
+                    out[level, s, c, degree] = projection[s]
 
 
 @numba.njit(parallel=True, fastmath=True, cache=True)
@@ -1486,7 +1486,7 @@ def _global_search_kernel(
         best_state = np.empty(4)
         roughness_brent = np.empty(13)
         n_gains = min(lmax, _TILT_FIT_LMAX) + 1
-        environment_proj = np.zeros((n_views, environment_levels, 3, n_gains))
+        environment_proj = np.zeros((environment_levels, n_views, 3, n_gains))
         # The environment light per roughness node of the table, lobe term, channel and sample.
         n_environment_nodes = (table.shape[2] - 1) // _ENVIRONMENT_NODE_STEP + 1
         environment_nodes = np.empty((n_environment_nodes, 3, 3, n_views))

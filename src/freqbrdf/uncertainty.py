@@ -239,9 +239,11 @@ def _loss_curvature_variance(observations: Observations, estimate: MaterialEstim
         loss_first, loss_second = loss_at(first), loss_at(second)
         curvature = 2.0 * ((loss_first - loss_centre) / (first - centre)
                            - (loss_second - loss_centre) / (second - centre)) / (first - second)
-    weight_sq = np.square(observations.weight, dtype=np.float64)
-    signal = (np.einsum("nv,nvc->n", weight_sq, np.square(np.nan_to_num(observations.observed), dtype=np.float64))
-              / np.maximum(weight_sq.sum(axis=1), np.finfo(np.float64).tiny))
+    # In float32 and without an (N, V, 3) temporary: the float64 version took 1.2 s at T = 512.
+    weight_sq = np.square(observations.weight)
+    radiance_sq = np.nan_to_num(np.einsum("nvc,nvc->nv", observations.observed, observations.observed), copy=False)
+    signal = (np.einsum("nv,nv->n", weight_sq, radiance_sq).astype(np.float64)
+              / np.maximum(weight_sq.sum(axis=1, dtype=np.float64), np.finfo(np.float64).tiny))
     noise = loss_centre + CURVATURE_NOISE_FLOOR**2 * signal
     samples = np.maximum(observations.n_samples, 1)
     with np.errstate(divide="ignore", invalid="ignore"):
