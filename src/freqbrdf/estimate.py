@@ -212,7 +212,7 @@ def angular_loss(
     tangent, normal, environment, environment_levels, blend = _environment_inputs(observations, settings)
     for rows in _blocks(observations.n_texels, _PROJECTION_BLOCK // max(levels, environment_levels)):
         if environment_levels:
-            environment_proj = np.ascontiguousarray(_environment_projections(
+            environment_proj = np.ascontiguousarray(environment_projections(
                 observations.view_direction[rows], observations.weight[rows], tangent[rows], normal[rows],
                 environment, observations.lmax).transpose(0, 1, 4, 2, 3))
         else:
@@ -501,7 +501,8 @@ def fit_environment_response(cos_theta: float, roughness: float, term: str = "sc
 
 
 def environment_filtered_light(directions: np.ndarray, weight: np.ndarray, tangent: np.ndarray, normal: np.ndarray,
-                               environment_coeffs: np.ndarray, roughness: np.ndarray, term: str = "scale") -> np.ndarray:
+                               environment_coeffs: np.ndarray, roughness: np.ndarray, term: str = "scale",
+                               projections: np.ndarray | None = None) -> np.ndarray:
     """(n, V, 3) the environment light as the ``term`` of a lobe of roughness (n,) reads it.
 
     directions (n, V, 3) local view directions, weight (n, V), tangent and normal (n, 3) world
@@ -510,11 +511,13 @@ def environment_filtered_light(directions: np.ndarray, weight: np.ndarray, tange
     interpolated linearly in s, with the tilt and gains of `environment_response_table` linear in
     cos theta_o, evaluated at the table's roughness nodes on either side of the roughness and
     interpolated linearly between them (as the split-sum albedo is), as the search does.
-    0 where weight is 0.
+    0 where weight is 0. ``projections``: `environment_projections` of these samples, to reuse
+    across calls (roughness values, terms).
     """
     directions = np.asarray(directions, np.float64)
     lmax = sh.lmax_of(environment_coeffs.shape[0])
-    levels = _environment_projections(directions, weight, tangent, normal, environment_coeffs, lmax)  # (n, L, 3, G, V)
+    levels = (environment_projections(directions, weight, tangent, normal, environment_coeffs, lmax)
+              if projections is None else projections)  # (n, L, 3, G, V)
     n_gains = levels.shape[3]
     index = LOBE_TERMS.index(term)
     tables = _model_tables()
@@ -557,7 +560,7 @@ def environment_weight(roughness: np.ndarray, blend: tuple[float, float]) -> np.
     return np.array([_environment_share(r, blend) for r in roughness.ravel()]).reshape(roughness.shape)
 
 
-def _environment_projections(directions, weight, tangent, normal, environment_coeffs, lmax) -> np.ndarray:
+def environment_projections(directions, weight, tangent, normal, environment_coeffs, lmax) -> np.ndarray:
     """(n, levels, 3, G, V) sum_m c_lm Y_lm at the world direction of the reflected view direction
     tilted towards the normal by s = j / (levels - 1), G = min(l*, 5) + 1; 0 at samples of weight 0."""
     directions = np.asarray(directions, np.float64)
@@ -807,7 +810,7 @@ def _squared_residual_kernel(
     `_tilted_projections`, interpolated at each sample's tilt per lobe term when there are several
     levels. The specular is m (b X + Y) + (1 - m) Z with X = A S_A, Y = B S_B (S_k: the light
     filtered for term k, `lobe_filtered_light`) and Z = E S_E with ``exact_dielectric``, else
-    Schlick's 0.04 X + Y. environment_proj (n, levels, V, 3, G) `_environment_projections` with
+    Schlick's 0.04 X + Y. environment_proj (n, levels, V, 3, G) `environment_projections` with
     the views third: with levels > 1 each S_k is blended towards the environment light
     (`environment_filtered_light`)."""
     n_texels, n_views = weight.shape
