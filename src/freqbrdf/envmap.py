@@ -246,9 +246,19 @@ def lowpass_envmap(envmap: Envmap, sigma: float) -> Envmap:
         return Envmap(envmap.radiance.copy(), envmap.to_world.copy())
     height, width = envmap.radiance.shape[:2]
     lmax = min(math.ceil(math.sqrt(-math.log(1e-6)) / sigma), height - 2, (width - 1) // 2)
+    return zonal_filter(envmap, np.exp(-(sigma * np.arange(lmax + 1)) ** 2))
+
+
+def zonal_filter(envmap: Envmap, gains: np.ndarray) -> Envmap:
+    """The map with its degree-l SH components scaled by gains[l] (lmax + 1,), degrees above
+    dropped: the convolution with a kernel rotationally symmetric about each direction.
+    Needs len(gains) - 1 <= the map's own limit (`_check_resolution`)."""
+    gains = np.asarray(gains, dtype=np.float64)
+    height, width = envmap.radiance.shape[:2]
+    lmax = len(gains) - 1
     # The filter is zonal, so it commutes with rotations: filter in the map's own SH frame and
     # skip the two rotations to and from the world frame (dense and slow at high degree).
-    filtered = sh.gaussian_lowpass(_analysis(envmap.radiance, lmax), sigma)  # (3, K)
+    filtered = _analysis(envmap.radiance, lmax) * gains[sh.sh_degrees(lmax)]  # (3, K)
     return Envmap(_synthesis(filtered, height, width), envmap.to_world.copy())
 
 
