@@ -95,7 +95,7 @@ def test_sh_transform_rejects_degrees_beyond_the_map_resolution():
 
 
 @pytest.mark.parametrize("rotated", [False, True])
-def test_lowpass_applies_the_gaussian_to_each_degree(rotated):
+def test_lowpass_and_zonal_filter_scale_each_degree(rotated):
     # The filter runs in the map's own frame; a rotated emitter checks that it commutes with the
     # rotation into the world frame, as a zonal filter must.
     rng = np.random.default_rng(6)
@@ -107,6 +107,12 @@ def test_lowpass_applies_the_gaussian_to_each_degree(rotated):
     envmap = em.envmap_from_sh(coeffs, 32, to_world=to_world)
     filtered = em.envmap_sh(em.lowpass_envmap(envmap, sigma), lmax)
     np.testing.assert_allclose(filtered, sh.gaussian_lowpass(coeffs.T, sigma).T, atol=1e-5)
+    # Any per-degree gains (zonal_filter): each degree scaled, degrees beyond the gains dropped.
+    gains = np.array([1.0, 0.5, -0.25, 2.0])
+    zonal = em.envmap_sh(em.zonal_filter(envmap, gains), lmax)
+    expected = np.where(sh.sh_degrees(lmax)[:, None] < len(gains),
+                        coeffs * np.append(gains, np.zeros(lmax + 1 - len(gains)))[sh.sh_degrees(lmax)][:, None], 0.0)
+    np.testing.assert_allclose(zonal, expected, atol=1e-5)
 
 
 def test_clamped_cosine_kernel_matches_numerical_integral():
