@@ -588,9 +588,10 @@ def lobe_tilt(cos_theta: np.ndarray, roughness: np.ndarray, term: str = "scale")
     """`lobe_tilt_table` of one `LOBE_TERMS` term, bilinear, for broadcastable cos_theta and
     roughness in [0, 1]."""
     cos_theta, roughness = np.broadcast_arrays(np.asarray(cos_theta, np.float64), np.asarray(roughness, np.float64))
-    out = np.empty((_TABLE_PLANES, cos_theta.size))
-    _split_sum_terms_kernel(cos_theta.ravel(), roughness.ravel(), _model_tables(), out)
-    return out[_TILT_PLANE + LOBE_TERMS.index(term)].reshape(cos_theta.shape)
+    index = LOBE_TERMS.index(term)
+    out = np.empty((1, cos_theta.size))
+    _split_sum_terms_kernel(cos_theta.ravel(), roughness.ravel(), lobe_tilt_table()[index:index + 1], out)
+    return out[0].reshape(cos_theta.shape)
 
 
 # The planes of `_model_tables`, as the kernels index them: the tilt of term k is _TILT_PLANE + k,
@@ -1209,7 +1210,9 @@ def _roughness_objective(roughness, args):
             # texel (the search visits few, most of them many times); on a node (the grid's nodes
             # are nodes of the table) the other one is not needed.
             node, node_frac = _environment_node(roughness)
-            for needed in range(node if node_frac < 1.0 else node + 1, node + 2 if node_frac > 0.0 else node + 1):
+            lower_node = node if node_frac < 1.0 else node + 1
+            upper_node = node + 1 if node_frac > 0.0 else node
+            for needed in range(lower_node, upper_node + 1):
                 if not environment_cached[needed]:
                     _environment_node_lights(table, needed * _ENVIRONMENT_NODE_STEP, n, table_row, table_frac,
                                              environment_proj, environment_gain, environment_nodes[needed, :n_terms])
@@ -1238,9 +1241,11 @@ def _roughness_objective(roughness, args):
     for power in range(4, -1, -1):
         s_dd = s_dd * roughness + diffuse_moments[0, power]
     # Filter the light at the tilt levels this probe reads (contiguous, vectorised loops), then
-    # interpolate each sample and term between its two levels.
-    first_level, last_level = 0, 0
-    if n_levels > 1:
+    # interpolate each sample and term between its two levels. A lobe that reads the environment
+    # light alone (share 1) needs none of it.
+    own_light = share < 1.0
+    first_level, last_level = (0, 0) if own_light else (0, -1)  # (0, -1): no level at all
+    if n_levels > 1 and own_light:
         first_level, last_level = n_levels, 0
         for term in range(n_terms):
             for s in range(n):
@@ -1258,7 +1263,9 @@ def _roughness_objective(roughness, args):
                     level_row[s] += k * proj[level, c, degree, s]
         model = filtered[c]
         for term in range(n_terms):
-            if n_levels == 1:
+            if not own_light:
+                pass
+            elif n_levels == 1:
                 for s in range(n):
                     model[term, s] = albedo[term, s] * level_filtered[0, s]
             else:
@@ -1266,15 +1273,13 @@ def _roughness_objective(roughness, args):
                     lower = level_filtered[tilt_level[term, s], s]
                     upper = level_filtered[tilt_level[term, s] + 1, s]
                     model[term, s] = albedo[term, s] * (lower + tilt_frac[term, s] * (upper - lower))
-            if share > 0.0 and 0.0 < node_frac < 1.0:
-                lower_light, upper_light = environment_nodes[node, term, c], environment_nodes[node + 1, term, c]
+            if share > 0.0:
+                lower_light, upper_light = environment_nodes[lower_node, term, c], environment_nodes[upper_node, term, c]
+                frac = node_frac if upper_node != lower_node else 0.0
+                keep = 1.0 - share
                 for s in range(n):
-                    light = lower_light[s] + node_frac * (upper_light[s] - lower_light[s])
-                    model[term, s] = (1.0 - share) * model[term, s] + share * albedo[term, s] * light
-            elif share > 0.0:
-                node_light = environment_nodes[node if node_frac < 1.0 else node + 1, term, c]
-                for s in range(n):
-                    model[term, s] = (1.0 - share) * model[term, s] + share * albedo[term, s] * node_light[s]
+                    light = albedo[term, s] * (lower_light[s] + frac * (upper_light[s] - lower_light[s]))
+                    model[term, s] = keep * model[term, s] + share * light if own_light else light
         if not exact_dielectric:
             for s in range(n):
                 model[2, s] = _DIELECTRIC_F0 * model[0, s] + model[1, s]
