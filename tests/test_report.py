@@ -11,8 +11,10 @@ import base64
 import dataclasses
 import io
 import json
+import os
 import re
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -137,6 +139,7 @@ def start_chromium(profile: Path) -> tuple[subprocess.Popen, str]:
          "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--remote-debugging-port=0",
          f"--user-data-dir={profile}", "--window-size=1100,1400", "about:blank"],
         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+        start_new_session=True,  # its own process group: `stop_chromium` ends its helpers too
     )
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline:
@@ -146,8 +149,18 @@ def start_chromium(profile: Path) -> tuple[subprocess.Popen, str]:
             return process, match.group(1)
         if not line and process.poll() is not None:
             break
-    process.kill()
+    stop_chromium(process)
     raise RuntimeError("chromium did not start its DevTools endpoint")
+
+
+def stop_chromium(process: subprocess.Popen) -> None:
+    """Kill chromium and its helper processes (renderer, GPU, crash handler): killing the main one
+    alone let a helper write into the profile while its temporary folder was being removed."""
+    try:
+        os.killpg(process.pid, signal.SIGKILL)
+    except ProcessLookupError:
+        pass
+    process.wait()
 
 
 def page_websocket(browser_url: str) -> str:
@@ -222,5 +235,4 @@ def test_report_works_in_headless_chromium(fit_folder):
             ]
             assert problems == []
         finally:
-            process.kill()
-            process.wait()
+            stop_chromium(process)
