@@ -113,6 +113,14 @@ def test_lowpass_and_zonal_filter_scale_each_degree(rotated):
     expected = np.where(sh.sh_degrees(lmax)[:, None] < len(gains),
                         coeffs * np.append(gains, np.zeros(lmax + 1 - len(gains)))[sh.sh_degrees(lmax)][:, None], 0.0)
     np.testing.assert_allclose(zonal, expected, atol=1e-5)
+    # Several gains at once (zonal_filters), and resampled to another height: the same function.
+    stacked = em.zonal_filters(envmap, np.stack([gains, gains[::-1]]), height=16)
+    assert stacked.shape == (2, 16, 32, 3)
+    for row, expected_gains in zip(stacked, (gains, gains[::-1])):
+        resampled = em.envmap_sh(em.Envmap(row, envmap.to_world), lmax)
+        expected = np.where(sh.sh_degrees(lmax)[:, None] < len(gains), coeffs * np.append(
+            expected_gains, np.zeros(lmax + 1 - len(gains)))[sh.sh_degrees(lmax)][:, None], 0.0)
+        np.testing.assert_allclose(resampled, expected, atol=1e-5)
 
 
 def test_clamped_cosine_kernel_matches_numerical_integral():

@@ -8,12 +8,16 @@ import math
 import numpy as np
 import pytest
 
+from scipy.spatial.transform import Rotation
+
 from freqbrdf import brdf, sh
+from freqbrdf import envmap as envmaps
 from freqbrdf.config import Config, EstimateConfig, FitConfig
 from freqbrdf.estimate import (LOBE_TERMS, angular_loss, burley_diffuse_factor, dielectric_fresnel,
                                environment_filtered_light, environment_response_table, environment_weight, estimate,
-                               fit_environment_response, fit_lobe_tilt, lobe_filtered_light, lobe_tilt_nodes,
-                               lobe_tilt_table, split_sum_table, split_sum_terms)
+                               fit_environment_response, fit_lobe_tilt, ggx_lobe_gains, lobe_filtered_light,
+                               lobe_sh_response, lobe_tilt_nodes, lobe_tilt_table, prefilter_nodes,
+                               prefiltered_environment, prefiltered_light, split_sum_table, split_sum_terms)
 from freqbrdf.observations import Observations
 from freqbrdf.texels import orthonormal_basis
 
@@ -33,6 +37,8 @@ def synthetic_observations(
     lobe_tilt: bool = False,
     exact_dielectric: bool = True,
     environment_light: bool = False,
+    prefiltered: bool = False,
+    environment_blend: tuple[float, float] = EstimateConfig().environment_blend,
 ) -> Observations:
     """Observations of texels with known parameters, rendered by one of the global estimator's models.
 
@@ -42,8 +48,11 @@ def synthetic_observations(
     tilted for lobe term k (`lobe_filtered_light`), E the exact dielectric's albedo (Schlick's
     0.04 A S_A + B S_B without ``exact_dielectric``), plus Burley's diffuse, written here with numpy
     from `split_sum_terms` and `burley_diffuse_factor`. With ``environment_light`` each S_k is
-    blended towards `environment_filtered_light` of a world-frame environment (random frames).
-    Without it, the observations carry no environment (tangent None), as hand-made ones.
+    blended towards `environment_filtered_light` of a world-frame environment (random frames) over
+    ``environment_blend``. With ``prefiltered`` the lobes read `prefiltered_light` of a rotated
+    32 x 64 map (degrees up to 12) instead of the fitted light, and the observations carry the map;
+    the environment is then that map's SH. Without either, the observations carry no environment
+    (tangent None), as hand-made ones.
 
     Per texel: random view directions on the upper hemisphere (20 % missed), a light of a grey
     floor plus four sharp coloured lobes seen in the mirror directions, a random irradiance.
@@ -72,6 +81,14 @@ def synthetic_observations(
     tangent = orthonormal_basis(normal)[0]
     environment = rng.normal(0.0, 0.3, (sh.num_coeffs(LMAX), 3))  # world-frame SH, a bright DC
     environment[0] = 3.0
+    environment_map = None
+    if prefiltered:
+        detail = rng.normal(0.0, 0.4, (sh.num_coeffs(12), 3)) / (1.0 + sh.sh_degrees(12)[:, None]) ** 0.5
+        detail[0] = 3.0
+        to_world = np.eye(4)
+        to_world[:3, :3] = Rotation.random(random_state=seed).as_matrix()
+        environment_map = envmaps.envmap_from_sh(detail, 32, to_world=to_world)
+        environment = envmaps.envmap_sh(environment_map, LMAX)
 
     def fit_signals(values):
         return sh.fit_sh(directions, weight, values, LMAX, fit.reg_lambda, fit.regulariser,
@@ -81,11 +98,15 @@ def synthetic_observations(
     mf = brdf.microfacet_from_principled(truth)
     if model == "split_sum":
         scale, bias, dielectric = split_sum_terms(cos_theta, truth.roughness[:, None])
-        share = environment_weight(truth.roughness, EstimateConfig().environment_blend)[:, None, None]
+        share = environment_weight(truth.roughness, environment_blend)[:, None, None]
+        if prefiltered:
+            settings = EstimateConfig(environment_light=environment_light, environment_blend=environment_blend)
+            maps = prefiltered_environment(environment_map, prefilter_nodes(settings))
+            own_light = prefiltered_light(directions, tangent, normal, maps, environment_map.rotation, truth.roughness)
 
         def light(term):
-            fitted = lobe_filtered_light(directions, weight, light_fit.coeffs[:, :3], LMAX, sigma, truth.roughness,
-                                         lobe_tilt, term)
+            fitted = own_light if prefiltered else lobe_filtered_light(
+                directions, weight, light_fit.coeffs[:, :3], LMAX, sigma, truth.roughness, lobe_tilt, term)
             if not environment_light:
                 return fitted
             return (1.0 - share) * fitted + share * environment_filtered_light(
@@ -126,8 +147,10 @@ def synthetic_observations(
         n_samples=light_fit.n_samples,
         n_facing=np.full(n_texels, n_views, dtype=np.int32),  # every view faces the texel
         alpha_bound=np.full(n_texels, brdf.min_resolvable_alpha(LMAX), f32),
-        tangent=tangent.astype(f32) if environment_light else None,
-        environment_coeffs=environment.astype(f32) if environment_light else None,
+        tangent=tangent.astype(f32) if environment_light or prefiltered else None,
+        environment_coeffs=environment.astype(f32) if environment_light or prefiltered else None,
+        environment_radiance=environment_map.radiance if prefiltered else None,
+        environment_rotation=environment_map.rotation if prefiltered else None,
     )
 
 
@@ -192,7 +215,7 @@ def test_global_recovers_parameters_exactly_with_the_default_model(truth):
 
 def test_global_recovers_parameters_exactly_with_the_tilted_lobe_lookup(truth):
     observations = synthetic_observations(truth, seed=17, model="split_sum", lobe_tilt=True)
-    result = estimate(observations, Config(estimate=EstimateConfig(lobe_tilt=True)))
+    result = estimate(observations, Config(estimate=EstimateConfig(lobe_tilt=True, prefiltered_light=False)))
     _assert_recovered(result, truth, atol=1e-4)
     assert np.all(result.loss < 1e-10)
     # The mirror lookup (the default) does not explain these data.
@@ -213,6 +236,46 @@ def test_global_recovers_parameters_exactly_with_the_environment_light(truth):
     assert np.median(fitted_only.loss[rough]) > 1e4 * np.median(result.loss[rough])
     smooth = truth.roughness < 0.3
     np.testing.assert_allclose(fitted_only.roughness[smooth], truth.roughness[smooth], atol=1e-4)
+
+
+def test_global_recovers_parameters_exactly_with_the_prefiltered_light(truth):
+    # Smooth lobes read the rotated map prefiltered by the GGX gains at their world mirror
+    # directions, blended into the environment light over 0.3-0.6: the truth (0.2-1) spans all three.
+    observations = synthetic_observations(truth, seed=23, model="split_sum", environment_light=True,
+                                          prefiltered=True)
+    result = estimate(observations, Config())
+    _assert_recovered(result, truth, atol=1e-4)
+    assert np.all(result.loss < 1e-10)
+    np.testing.assert_allclose(result.loss, angular_loss(observations, result.principled(), Config()), atol=1e-12)
+    # The fitted light (l* = 5) cannot hold the map's degrees 6-12 that the smooth lobes see.
+    fitted = estimate(observations, Config(estimate=EstimateConfig(prefiltered_light=False)))
+    smooth = truth.roughness < 0.45
+    assert np.median(fitted.loss[smooth]) > 1e4 * np.median(result.loss[smooth])
+    # Without the environment light the maps serve every roughness (nodes up to 1), and a late
+    # blend shifts where the environment light takes over.
+    for environment_light, blend in ((False, (0.3, 0.6)), (True, (0.5, 0.9))):
+        settings = EstimateConfig(environment_light=environment_light, environment_blend=blend)
+        data = synthetic_observations(truth, seed=29, model="split_sum", environment_light=environment_light,
+                                      prefiltered=True, environment_blend=blend)
+        result = estimate(data, Config(estimate=settings))
+        _assert_recovered(result, truth, atol=1e-4)
+        assert np.all(result.loss < 1e-10)
+
+
+def test_ggx_lobe_gains_match_the_lobe_response_at_normal_incidence():
+    # The gains (no masking, no Fresnel) against the split-sum quadrature of the whole lobe
+    # (masking-shadowing and Fresnel included) on each zonal harmonic about the normal.
+    zonal = [degree * (degree + 1) for degree in range(9)]
+    basis_at_normal = sh.eval_sh(np.array([0.0, 0.0, 1.0]), 8)[zonal]
+    for roughness in (0.1, 0.25, 0.4):
+        albedo, responses, _ = lobe_sh_response(1.0, roughness, "scale", 8, strata=128)
+        np.testing.assert_allclose(ggx_lobe_gains(roughness, 8), responses[zonal] / albedo / basis_at_normal,
+                                   atol=0.01)
+    gains = ggx_lobe_gains(0.25, 200)
+    assert gains[0] == pytest.approx(1.0) and np.all(np.diff(gains[:60]) < 0.0)
+    # Heavier tails than the paper's Gaussian exp(-(alpha l)^2): 0.0019 against 8e-7 at degree 60.
+    assert gains[60] > 100.0 * math.exp(-(0.25**2 * 60) ** 2)
+    assert prefilter_nodes(EstimateConfig()) == 11 and prefilter_nodes(EstimateConfig(environment_light=False)) == 17
 
 
 def test_roughness_curvature_is_the_profiled_loss_curvature(truth):

@@ -304,10 +304,15 @@ def test_observations_round_trip_through_npz(checker_bunny, tmp_path):
     assert abs(np.sum(loaded.tangent * loaded.normal, axis=1)).max() < 1e-5
     assert loaded.environment_coeffs.shape == (sh.num_coeffs(observations.lmax), 3)
     assert loaded.environment_coeffs[0, 0] > 0.0  # the DC of a real map
+    # So does the map the prefiltered light reads, with its frame.
+    environment = loaded.environment()
+    assert environment.radiance.shape == observations.environment_radiance.shape
+    np.testing.assert_array_equal(environment.rotation, observations.environment_rotation)
     older = dict(np.load(path))
-    del older["tangent"], older["environment_coeffs"]
+    del older["tangent"], older["environment_coeffs"], older["environment_radiance"], older["environment_rotation"]
     np.savez(tmp_path / "older.npz", **older)
     assert Observations.load(tmp_path / "older.npz").tangent is None
+    assert Observations.load(tmp_path / "older.npz").environment() is None
 
     with pytest.raises(InputError, match="does not exist"):
         Observations.load(tmp_path / "missing.npz")

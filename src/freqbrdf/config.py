@@ -129,6 +129,13 @@ class EstimateConfig:
     # the estimate module's docstring for the rest.
     environment_light: bool = True
     environment_blend: tuple[float, float] = (0.3, 0.6)
+    # global, split_sum: smooth lobes (below environment_blend[1], all of them without the
+    # environment light) read the environment map itself, prefiltered by the GGX lobe's
+    # per-degree response (estimate.prefiltered_environment), at each sample's world mirror
+    # direction, instead of the per-texel SH fit (l* = 5) of the mirrored samples, which cannot
+    # hold a smooth lobe's sharp reflections. Needs observations that carry the map
+    # (`Observations.environment_radiance`); ignores occlusion of the mirror direction.
+    prefiltered_light: bool = True
     fresnel: bool = True  # Schlick F; off: F = R0
     masking: bool = True  # "g1": G1(theta_o) on the reflected light
     shadowing: bool = True  # "g1": G1(theta_i) on the incoming light before its SH fit (appendix eq. 6)

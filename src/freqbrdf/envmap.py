@@ -253,13 +253,21 @@ def zonal_filter(envmap: Envmap, gains: np.ndarray) -> Envmap:
     """The map with its degree-l SH components scaled by gains[l] (lmax + 1,), degrees above
     dropped: the convolution with a kernel rotationally symmetric about each direction.
     Needs len(gains) - 1 <= the map's own limit (`_check_resolution`)."""
+    return Envmap(zonal_filters(envmap, np.asarray(gains)[None])[0], envmap.to_world.copy())
+
+
+def zonal_filters(envmap: Envmap, gains: np.ndarray, height: int | None = None) -> np.ndarray:
+    """(M, H, W, 3) float32: the map's radiance `zonal_filter`-ed by each row of gains (M, lmax + 1),
+    with one analysis for all M; resampled to height x 2 height pixels (same convention) when
+    ``height`` is given (needs lmax <= height - 2)."""
     gains = np.asarray(gains, dtype=np.float64)
-    height, width = envmap.radiance.shape[:2]
-    lmax = len(gains) - 1
+    height, width = envmap.radiance.shape[:2] if height is None else (height, 2 * height)
+    lmax = gains.shape[1] - 1
     # The filter is zonal, so it commutes with rotations: filter in the map's own SH frame and
     # skip the two rotations to and from the world frame (dense and slow at high degree).
-    filtered = _analysis(envmap.radiance, lmax) * gains[sh.sh_degrees(lmax)]  # (3, K)
-    return Envmap(_synthesis(filtered, height, width), envmap.to_world.copy())
+    coeffs = _analysis(envmap.radiance, lmax)  # (3, K)
+    degree = sh.sh_degrees(lmax)
+    return np.stack([_synthesis(coeffs * row[degree], height, width) for row in gains])
 
 
 def clamped_cosine_coeffs(lmax: int) -> np.ndarray:

@@ -99,6 +99,7 @@ on the 64-view bunny, 0.34 on the demo capture and 0.07 on the plane, where 0.8 
 from __future__ import annotations
 
 import functools
+import hashlib
 import math
 import time
 from dataclasses import dataclass, field
@@ -209,7 +210,8 @@ def angular_loss(
     base_color = np.asarray(params.base_color, dtype=np.float64)
     metallic = np.asarray(params.metallic, dtype=np.float64)
     levels = _tilt_levels(settings)
-    tangent, normal, environment, environment_levels, blend = _environment_inputs(observations, settings)
+    (tangent, normal, environment, environment_levels, blend, prefiltered, world_to_local, map_height,
+     map_width) = _environment_inputs(observations, settings)
     for rows in _blocks(observations.n_texels, _PROJECTION_BLOCK // max(levels, environment_levels)):
         if environment_levels:
             environment_proj = np.ascontiguousarray(environment_projections(
@@ -220,11 +222,12 @@ def angular_loss(
         _squared_residual_kernel(
             _tilted_projections(observations.view_direction[rows], observations.weight[rows], light[rows],
                                 observations.lmax, levels),
-            observations.view_direction[rows, :, 2], observations.weight[rows], observations.observed[rows],
+            observations.view_direction[rows], observations.weight[rows], observations.observed[rows],
             _diffuse_scale(observations)[rows], base_color[rows], metallic[rows],
             np.asarray(params.roughness, dtype=np.float64)[rows], observations.sigma, settings.fresnel,
             settings.masking, _uses_split_sum(settings), _uses_exact_dielectric(settings), _uses_burley(settings),
-            _model_tables(), environment_proj, blend, loss[rows],
+            _model_tables(), environment_proj, blend, tangent[rows], normal[rows], prefiltered, world_to_local,
+            map_height, map_width, loss[rows],
         )
     return np.where(observations.n_samples > 0, loss, np.nan)
 
@@ -257,6 +260,8 @@ def _validate(settings: EstimateConfig) -> None:
         raise ValueError(f"unknown dielectric_fresnel {settings.dielectric_fresnel!r}; choose 'exact' or 'schlick'")
     if settings.robust_passes < 0:
         raise ValueError("robust_passes must be >= 0")
+    if settings.lobe_tilt and settings.prefiltered_light:
+        raise ValueError("lobe_tilt tilts the fitted light, which prefiltered_light replaces; turn one of them off")
     if not 0.0 <= settings.environment_blend[0] < settings.environment_blend[1]:
         raise ValueError(f"environment_blend must be (start, end) with 0 <= start < end, got "
                          f"{settings.environment_blend}")
@@ -584,6 +589,137 @@ def environment_projections(directions, weight, tangent, normal, environment_coe
     return np.stack(out, axis=1)
 
 
+# With the prefiltered light (`EstimateConfig.prefiltered_light`) a smooth lobe reads the environment
+# map itself, filtered by the GGX lobe's per-degree response at normal incidence (`ggx_lobe_gains`) at
+# roughness nodes PREFILTER_STEP apart, looked up bilinearly at each sample's world mirror direction
+# (as `envmap.lookup`) and interpolated linearly in roughness between the nodes.
+PREFILTER_STEP = 1.0 / 16.0
+# Larger maps are resampled to this height (degrees up to 510, ~0.35 degrees): bounds the memory
+# of the prefiltered stack (11 maps of 512 x 1024 x 3 float32: 69 MB) and its transforms.
+PREFILTER_MAX_HEIGHT = 512
+_GAIN_STRATA = 8192  # half-vector strata of `ggx_lobe_gains`
+
+
+@functools.cache
+def ggx_lobe_gains(roughness: float, lmax: int) -> np.ndarray:
+    """(lmax + 1,) the GGX lobe's response to the degree-l part of the light at normal incidence,
+    relative to its albedo: half vectors drawn by D(h) cos theta_h (stratified in the inverse CDF),
+    light from 2 theta_h off the mirror direction (the normal), gain_l = the mean of
+    P_l(cos 2 theta_h) over the light above the horizon. Masking-shadowing and Fresnel are left
+    out. Where the Gaussian kernel exp(-(alpha l)^2) falls off fast, these have heavier tails
+    (roughness 0.25: degree 5 0.75, degree 60 0.0019, against 0.91 and 8e-7)."""
+    alpha = max(roughness * roughness, _ALPHA_MIN)
+    u = (np.arange(_GAIN_STRATA) + 0.5) / _GAIN_STRATA
+    cos_half_squared = 1.0 / (1.0 + alpha * alpha * u / (1.0 - u))
+    cos_light = 2.0 * cos_half_squared - 1.0
+    cos_light = cos_light[cos_light > 0.0]
+    gains = np.empty(lmax + 1)
+    previous, current = np.zeros_like(cos_light), np.ones_like(cos_light)
+    for degree in range(lmax + 1):  # Legendre's three-term recurrence
+        gains[degree] = current.mean()
+        previous, current = current, ((2 * degree + 1) * cos_light * current - degree * previous) / (degree + 1)
+    return gains
+
+
+def prefilter_nodes(settings: EstimateConfig) -> int:
+    """Roughness nodes (0, PREFILTER_STEP, ...) of the prefiltered maps the estimator reads: up to
+    where the environment light takes over (environment_blend[1]) or to roughness 1 without it."""
+    end = settings.environment_blend[1] if settings.environment_light else 1.0
+    return min(math.ceil(end / PREFILTER_STEP - 1e-9), round(1.0 / PREFILTER_STEP)) + 1
+
+
+def prefiltered_environment(envmap, n_nodes: int) -> np.ndarray:
+    """(n_nodes, H, W, 3) float32 the map (an `envmap.Envmap`) filtered by `ggx_lobe_gains` at
+    roughness j PREFILTER_STEP, every degree the map holds (at most PREFILTER_MAX_HEIGHT rows)."""
+    from freqbrdf import envmap as envmaps
+
+    height, width = envmap.radiance.shape[:2]
+    out_height = min(height, PREFILTER_MAX_HEIGHT, (width + 1) // 2)
+    lmax = min(height - 2, (width - 1) // 2, out_height - 2)
+    gains = np.stack([ggx_lobe_gains(node * PREFILTER_STEP, lmax) for node in range(n_nodes)])
+    return envmaps.zonal_filters(envmap, gains, out_height if out_height != height else None)
+
+
+def prefiltered_light(directions: np.ndarray, tangent: np.ndarray, normal: np.ndarray, prefiltered: np.ndarray,
+                      rotation: np.ndarray, roughness: np.ndarray) -> np.ndarray:
+    """(n, V, 3) the prefiltered light a lobe of roughness (n,) reads: directions (n, V, 3) local view
+    directions, tangent and normal (n, 3) world frame of each texel, prefiltered (nodes, H, W, 3)
+    `prefiltered_environment` of a map with emitter-to-world ``rotation`` (3, 3), looked up at the
+    world mirror directions and linear in roughness between its nodes (as the search reads it)."""
+    from freqbrdf import envmap as envmaps
+
+    directions = np.asarray(directions, np.float64)
+    tangent, normal = np.asarray(tangent, np.float64), np.asarray(normal, np.float64)
+    bitangent = np.cross(normal, tangent)
+    mirror = directions * np.array([-1.0, -1.0, 1.0])
+    world = (mirror[..., :1] * tangent[:, None] + mirror[..., 1:2] * bitangent[:, None]
+             + mirror[..., 2:] * normal[:, None])
+    to_world = np.eye(4)
+    to_world[:3, :3] = rotation
+    node, frac = (np.array(part) for part in zip(*[_prefilter_node(r, prefiltered.shape[0])
+                                                   for r in np.asarray(roughness, np.float64)]))
+    lower = np.stack([envmaps.lookup(envmaps.Envmap(prefiltered[j], to_world), world[t])
+                      for t, j in enumerate(node)]).astype(np.float64)
+    upper = np.stack([envmaps.lookup(envmaps.Envmap(prefiltered[j + 1], to_world), world[t])
+                      for t, j in enumerate(node)]).astype(np.float64)
+    return lower + frac[:, None, None] * (upper - lower)
+
+
+@numba.njit(fastmath=True, cache=True)
+def _prefilter_node(roughness, n_nodes):
+    """The prefiltered map's node below ``roughness`` (clipped to the nodes) and the fraction
+    towards the next one."""
+    y = min(max(roughness, 0.0) / PREFILTER_STEP, n_nodes - 1.0)
+    node = min(int(y), n_nodes - 2)
+    return node, y - node
+
+
+@numba.njit(fastmath=True, cache=True)
+def _cross(a, b, out):
+    out[0] = a[1] * b[2] - a[2] * b[1]
+    out[1] = a[2] * b[0] - a[0] * b[2]
+    out[2] = a[0] * b[1] - a[1] * b[0]
+
+
+@numba.njit(fastmath=True, cache=True)
+def _mirror_stencil(xyz, n, tangent, normal, bitangent, world_to_local, height, width, corner, stencil_frac):
+    """`envmap.lookup`'s bilinear stencil at the world mirror direction of each local view direction
+    xyz[:, s], s < n: corner (4, n) flat pixel indices row * width + col of (row, col), (row, col + 1),
+    (row + 1, col), (row + 1, col + 1); stencil_frac (2, n) the column and row fractions."""
+    for s in range(n):
+        mirror_x, mirror_y, mirror_z = -xyz[0, s], -xyz[1, s], xyz[2, s]
+        wx = mirror_x * tangent[0] + mirror_y * bitangent[0] + mirror_z * normal[0]
+        wy = mirror_x * tangent[1] + mirror_y * bitangent[1] + mirror_z * normal[1]
+        wz = mirror_x * tangent[2] + mirror_y * bitangent[2] + mirror_z * normal[2]
+        lx = world_to_local[0, 0] * wx + world_to_local[0, 1] * wy + world_to_local[0, 2] * wz
+        ly = world_to_local[1, 0] * wx + world_to_local[1, 1] * wy + world_to_local[1, 2] * wz
+        lz = world_to_local[2, 0] * wx + world_to_local[2, 1] * wy + world_to_local[2, 2] * wz
+        u = math.atan2(lx, -lz) / (2.0 * math.pi)
+        u -= math.floor(u)
+        v = math.acos(min(max(ly, -1.0), 1.0)) / math.pi
+        x = u * width - 0.5  # column centres at u = (j + 0.5) / W
+        col = math.floor(x)
+        col0 = int(col) % width
+        col1 = (col0 + 1) % width
+        y = v * (height - 1)  # rows at v = i / (H - 1)
+        row0 = min(int(y), height - 2)
+        corner[0, s], corner[1, s] = row0 * width + col0, row0 * width + col1
+        corner[2, s], corner[3, s] = (row0 + 1) * width + col0, (row0 + 1) * width + col1
+        stencil_frac[0, s], stencil_frac[1, s] = x - col, y - row0
+
+
+@numba.njit(fastmath=True, cache=True)
+def _prefiltered_node_light(prefiltered, node, n, corner, stencil_frac, out):
+    """out[c, s] = prefiltered[node] (H W, 3) at the stencil of sample s < n, bilinear."""
+    pixels = prefiltered[node]
+    for s in range(n):
+        fx, fy = stencil_frac[0, s], stencil_frac[1, s]
+        for c in range(3):
+            top = (1.0 - fx) * pixels[corner[0, s], c] + fx * pixels[corner[1, s], c]
+            bottom = (1.0 - fx) * pixels[corner[2, s], c] + fx * pixels[corner[3, s], c]
+            out[c, s] = (1.0 - fy) * top + fy * bottom
+
+
 def lobe_tilt(cos_theta: np.ndarray, roughness: np.ndarray, term: str = "scale") -> np.ndarray:
     """`lobe_tilt_table` of one `LOBE_TERMS` term, bilinear, for broadcastable cos_theta and
     roughness in [0, 1]."""
@@ -702,14 +838,44 @@ def _uses_environment_light(observations: Observations, settings: EstimateConfig
             and observations.environment_coeffs is not None)
 
 
+def _uses_prefiltered_light(observations: Observations, settings: EstimateConfig) -> bool:
+    """The prefiltered light needs the split-sum model and observations that carry the map and frames."""
+    return (_uses_split_sum(settings) and settings.prefiltered_light and observations.tangent is not None
+            and observations.environment() is not None)
+
+
 def _environment_inputs(observations: Observations, settings: EstimateConfig) -> tuple:
-    """(tangent (N, 3), normal (N, 3), environment (K, 3) float64, levels, blend) for the kernels;
-    levels 0 and empty arrays without the environment light."""
-    if not _uses_environment_light(observations, settings):
-        return (np.zeros((observations.n_texels, 3), np.float32), observations.normal, np.zeros((1, 3)), 0,
-                (0.0, 0.0))
-    return (observations.tangent, observations.normal, observations.environment_coeffs.astype(np.float64),
-            _ENVIRONMENT_TILT_LEVELS, tuple(float(b) for b in settings.environment_blend))
+    """(tangent (N, 3), normal (N, 3), environment (K, 3) float64, levels, blend, prefiltered
+    (nodes, H W, 3) float32, world_to_local (3, 3), H, W) for the kernels; levels 0 without the
+    environment light, no nodes without the prefiltered light."""
+    tangent = np.zeros((observations.n_texels, 3), np.float32) if observations.tangent is None else observations.tangent
+    if _uses_environment_light(observations, settings):
+        environment = (observations.environment_coeffs.astype(np.float64), _ENVIRONMENT_TILT_LEVELS,
+                       tuple(float(b) for b in settings.environment_blend))
+    else:
+        environment = (np.zeros((1, 3)), 0, (0.0, 0.0))
+    if _uses_prefiltered_light(observations, settings):
+        maps = _prefiltered_maps(observations, prefilter_nodes(settings))
+        prefiltered = (maps.reshape(maps.shape[0], -1, 3),
+                       np.ascontiguousarray(observations.environment_rotation.T, dtype=np.float64), *maps.shape[1:3])
+    else:
+        prefiltered = (np.zeros((0, 1, 3), np.float32), np.eye(3), 2, 2)
+    return (tangent, observations.normal, *environment, *prefiltered)
+
+
+# The last prefiltered stack: `angular_loss` runs many times on the same observations (uncertainty,
+# sharing), and the transforms take ~0.2 s.
+_PREFILTERED_CACHE: dict = {}
+
+
+def _prefiltered_maps(observations: Observations, n_nodes: int) -> np.ndarray:
+    radiance = observations.environment_radiance
+    key = (hashlib.blake2b(np.ascontiguousarray(radiance).tobytes(), digest_size=16).hexdigest(), radiance.shape,
+           observations.environment_rotation.tobytes(), n_nodes)
+    if key not in _PREFILTERED_CACHE:
+        _PREFILTERED_CACHE.clear()
+        _PREFILTERED_CACHE[key] = prefiltered_environment(observations.environment(), n_nodes)
+    return _PREFILTERED_CACHE[key]
 
 
 def _shadowed_light_coeffs(observations: Observations, alpha: np.ndarray, fit: FitConfig) -> np.ndarray:
@@ -804,16 +970,19 @@ def _fill_kernel(alpha, sigma, kernel, kernel_derivative):
 
 @numba.njit(parallel=True, fastmath=True, cache=True)
 def _squared_residual_kernel(
-    proj, cos_theta, weight, observed, diffuse_scale, base_color, metallic, roughness, sigma, fresnel, masking,
-    split_sum, exact_dielectric, burley, table, environment_proj, environment_blend, out,
+    proj, directions, weight, observed, diffuse_scale, base_color, metallic, roughness, sigma, fresnel, masking,
+    split_sum, exact_dielectric, burley, table, environment_proj, environment_blend, tangent, normal, prefiltered,
+    world_to_local, map_height, map_width, out,
 ):
-    """out[t] = sum_v,c w^2 (L - f)^2 / sum_v w^2 (0 without samples). proj (n, levels, 3, l*+1, V):
+    """out[t] = sum_v,c w^2 (L - f)^2 / sum_v w^2 (0 without samples); directions (n, V, 3) local view
+    directions. proj (n, levels, 3, l*+1, V):
     `_tilted_projections`, interpolated at each sample's tilt per lobe term when there are several
     levels. The specular is m (b X + Y) + (1 - m) Z with X = A S_A, Y = B S_B (S_k: the light
     filtered for term k, `lobe_filtered_light`) and Z = E S_E with ``exact_dielectric``, else
     Schlick's 0.04 X + Y. environment_proj (n, levels, V, 3, G) `environment_projections` with
     the views third: with levels > 1 each S_k is blended towards the environment light
-    (`environment_filtered_light`)."""
+    (`environment_filtered_light`). With prefiltered maps (nodes, H W, 3) the lobes read
+    `prefiltered_light` (texel frames tangent and normal (n, 3)) instead of proj."""
     n_texels, n_views = weight.shape
     n_levels, n_degrees = proj.shape[1], proj.shape[3]
     n_terms = len(LOBE_TERMS)
@@ -832,7 +1001,7 @@ def _squared_residual_kernel(
             table_row = np.empty(n_views, dtype=np.int64)
             table_frac = np.empty(n_views)
             for v in range(n_views):
-                x = min(max(np.float64(cos_theta[t, v]), 0.0), 1.0) * (table.shape[1] - 1)
+                x = min(max(np.float64(directions[t, v, 2]), 0.0), 1.0) * (table.shape[1] - 1)
                 table_row[v] = min(int(x), table.shape[1] - 2)
                 table_frac[v] = x - table_row[v]
             node, node_frac = _environment_node(roughness[t])
@@ -842,6 +1011,24 @@ def _squared_residual_kernel(
                                          table_frac, environment_proj[t], gain, environment_light[side])
         # Without tilt levels or environment light every term reads the same light; Schlick's
         # dielectric needs no light of its own.
+        # The prefiltered light at its nodes on either side, per channel and view.
+        use_prefiltered = prefiltered.shape[0] > 0 and share < 1.0
+        map_light = np.zeros((2, 3, n_views))
+        map_frac = 0.0
+        if use_prefiltered:
+            xyz = np.empty((3, n_views))
+            for v in range(n_views):
+                for axis in range(3):
+                    xyz[axis, v] = directions[t, v, axis]
+            bitangent = np.empty(3)
+            _cross(normal[t], tangent[t], bitangent)
+            corner = np.empty((4, n_views), dtype=np.int64)
+            stencil_frac = np.empty((2, n_views))
+            _mirror_stencil(xyz, n_views, tangent[t], normal[t], bitangent, world_to_local, map_height, map_width,
+                            corner, stencil_frac)
+            map_node, map_frac = _prefilter_node(roughness[t], prefiltered.shape[0])
+            for side in range(2):
+                _prefiltered_node_light(prefiltered, map_node + side, n_views, corner, stencil_frac, map_light[side])
         distinct = n_levels > 1 or share > 0.0
         distinct_terms = (n_terms if exact_dielectric else n_terms - 1) if distinct else 1
         total = 0.0
@@ -849,7 +1036,7 @@ def _squared_residual_kernel(
         for v in range(n_views):
             w = np.float64(weight[t, v])
             if w > 0.0:
-                cos_v = np.float64(cos_theta[t, v])
+                cos_v = np.float64(directions[t, v, 2])
                 scale, bias = _specular_albedo(cos_v, roughness[t], alpha, fresnel, masking, split_sum, table)
                 dielectric = _table_lookup(table, _DIELECTRIC_PLANE, cos_v, roughness[t]) if exact_dielectric else 0.0
                 diffuse_factor = _burley_diffuse_factor(cos_v, roughness[t]) if burley else 1.0
@@ -861,10 +1048,14 @@ def _squared_residual_kernel(
                 for c in range(3):
                     for term in range(distinct_terms):
                         filtered[term] = 0.0
-                        for degree in range(n_degrees):
-                            lower = proj[t, level[term], c, degree, v]
-                            upper = proj[t, level[term] + 1, c, degree, v] if n_levels > 1 else lower
-                            filtered[term] += kernel[degree] * (lower + frac[term] * (upper - lower))
+                        if use_prefiltered:
+                            lower = map_light[0, c, v]
+                            filtered[term] = lower + map_frac * (map_light[1, c, v] - lower)
+                        else:
+                            for degree in range(n_degrees):
+                                lower = proj[t, level[term], c, degree, v]
+                                upper = proj[t, level[term] + 1, c, degree, v] if n_levels > 1 else lower
+                                filtered[term] += kernel[degree] * (lower + frac[term] * (upper - lower))
                         if share > 0.0:
                             lower = environment_light[0, term, c, v]
                             light = lower + node_frac * (environment_light[1, term, c, v] - lower)
@@ -1187,7 +1378,7 @@ def _roughness_objective(roughness, args):
      table_row, table_frac, tilt_level, tilt_frac, burley_terms, diffuse_moments, column, kernel, kernel_derivative,
      albedo, diffuse_factor, level_filtered, filtered, moments, quadratics, squared_values, diffuse_scale,
      state, metallic_grid, environment_proj, environment_blend, environment_nodes, environment_cached,
-     environment_gain) = args
+     environment_gain, prefiltered, corner, stencil_frac, prefiltered_nodes, prefiltered_cached) = args
     n_levels = proj.shape[0]
     # Without environment levels (environment light off) the fitted light is all there is.
     share = _environment_share(roughness, environment_blend) if environment_proj.shape[0] > 1 else 0.0
@@ -1245,6 +1436,18 @@ def _roughness_objective(roughness, args):
     # light alone (share 1) needs none of it.
     own_light = share < 1.0
     first_level, last_level = (0, 0) if own_light else (0, -1)  # (0, -1): no level at all
+    # The prefiltered light replaces the fitted one (one level): its nodes around this roughness,
+    # each looked up once per texel.
+    use_prefiltered = own_light and prefiltered.shape[0] > 0
+    if use_prefiltered:
+        first_level, last_level = 0, -1
+        map_node, map_frac = _prefilter_node(roughness, prefiltered.shape[0])
+        lower_map = map_node if map_frac < 1.0 else map_node + 1
+        upper_map = map_node + 1 if map_frac > 0.0 else map_node
+        for needed in range(lower_map, upper_map + 1):
+            if not prefiltered_cached[needed]:
+                _prefiltered_node_light(prefiltered, needed, n, corner, stencil_frac, prefiltered_nodes[needed])
+                prefiltered_cached[needed] = True
     if n_levels > 1 and own_light:
         first_level, last_level = n_levels, 0
         for term in range(n_terms):
@@ -1252,6 +1455,11 @@ def _roughness_objective(roughness, args):
                 first_level = min(first_level, tilt_level[term, s])
                 last_level = max(last_level, tilt_level[term, s] + 1)
     for c in range(3):
+        if use_prefiltered:
+            lower_light, upper_light = prefiltered_nodes[lower_map, c], prefiltered_nodes[upper_map, c]
+            frac = map_frac if upper_map != lower_map else 0.0
+            for s in range(n):
+                level_filtered[0, s] = lower_light[s] + frac * (upper_light[s] - lower_light[s])
         for level in range(first_level, last_level + 1):
             level_row = level_filtered[level]
             k0 = kernel[0]
@@ -1411,11 +1619,9 @@ def _environment_levels(xyz, n, tangent, normal, bitangent, environment, lmax, d
                         sh_scratch, out):
     """out[j, s, c, l] = sum_m c_lm Y_lm of the environment (K, 3) at the world direction of the
     texel's reflected view direction xyz[:, s] (local) tilted towards the normal by
-    t = j / (levels - 1), for levels out.shape[0] and degrees l < out.shape[3]."""
+    t = j / (levels - 1), for levels out.shape[0] and degrees l < out.shape[3]; bitangent = normal x
+    tangent."""
     n_levels, n_gains = out.shape[0], out.shape[3]
-    bitangent[0] = normal[1] * tangent[2] - normal[2] * tangent[1]  # normal x tangent (right-handed frame)
-    bitangent[1] = normal[2] * tangent[0] - normal[0] * tangent[2]
-    bitangent[2] = normal[0] * tangent[1] - normal[1] * tangent[0]
     for level in range(n_levels):
         tilt = level / (n_levels - 1)
         for s in range(n):  # normalize((1 - tilt) n + tilt r), r = (-x, -y, z) locally
@@ -1443,7 +1649,8 @@ def _environment_levels(xyz, n, tangent, normal, bitangent, environment, lmax, d
 def _global_search_kernel(
     directions, weight, observed, light, diffuse_scale, sigma, fresnel, masking, split_sum, exact_dielectric, burley,
     table, tilt_levels, roughness_grid, metallic_grid, robust_passes, lmax, diag, rec_a, rec_b,
-    tangent, normal, environment, environment_levels, environment_blend, params, loss, curvature,
+    tangent, normal, environment, environment_levels, environment_blend, prefiltered, world_to_local, map_height,
+    map_width, params, loss, curvature,
 ):
     """Per texel: the (base colour, roughness, metallic) of least weighted squared residual.
 
@@ -1451,9 +1658,12 @@ def _global_search_kernel(
     the incoming light's SH fit; diffuse_scale (n, 3) E / pi; (lmax, diag, rec_a, rec_b) as
     `sh._sh_block` takes them. With environment_levels > 1 the environment light (world-frame SH
     environment (K, 3), texel frames tangent and normal (n, 3)) is expanded by degree at that
-    many tilts of the reflected direction and blended in over environment_blend (start, end). Per texel the light is expanded by degree at its samples once per
-    tilt level (P_c,l(w'_v), `_tilted_projections`; one level: w' = w; fused here to keep it in
-    cache), then the roughness is searched. Writes params
+    many tilts of the reflected direction and blended in over environment_blend (start, end).
+    With prefiltered (nodes, H W, 3) maps (`prefiltered_environment` of an H x W map whose
+    emitter frame is world_to_local (3, 3) from the world), smooth lobes read them at the world
+    mirror directions instead of the fitted light. Else, per texel the light is expanded by
+    degree at its samples once per tilt level (P_c,l(w'_v), `_tilted_projections`; one level:
+    w' = w; fused here to keep it in cache). Then the roughness is searched. Writes params
     (n, 5) [b_rgb, r, m], loss (n,) (divided by sum_v w^2) and the profiled loss's curvature in
     roughness (n,) (`MaterialEstimate.roughness_curvature`) for texels with samples; others are
     left untouched.
@@ -1501,6 +1711,12 @@ def _global_search_kernel(
         environment_cached = np.zeros(n_environment_nodes, dtype=np.bool_)
         environment_gain = np.empty(n_gains)
         bitangent = np.empty(3)
+        # The prefiltered light per map node, channel and sample, and each sample's lookup stencil.
+        n_prefiltered = prefiltered.shape[0]
+        prefiltered_nodes = np.empty((n_prefiltered, 3, n_views))
+        prefiltered_cached = np.zeros(n_prefiltered, dtype=np.bool_)
+        corner = np.empty((4, n_views), dtype=np.int64)
+        stencil_frac = np.empty((2, n_views))
         for t in range(chunk * _SEARCH_CHUNK, min((chunk + 1) * _SEARCH_CHUNK, n_texels)):
             n = 0
             for v in range(n_views):
@@ -1516,7 +1732,12 @@ def _global_search_kernel(
                 n += 1
             if n < MIN_SAMPLES:
                 continue
-            for level in range(tilt_levels):
+            _cross(normal[t], tangent[t], bitangent)
+            prefiltered_cached[:] = False
+            if n_prefiltered > 0:
+                _mirror_stencil(xyz, n, tangent[t], normal[t], bitangent, world_to_local, map_height, map_width,
+                                corner, stencil_frac)
+            for level in range(tilt_levels if n_prefiltered == 0 else 0):
                 tilt = level / (tilt_levels - 1) if tilt_levels > 1 else 1.0
                 for s in range(n):  # normalize((1 - tilt) n + tilt w)
                     tilted[0, s] = tilt * xyz[0, s]
@@ -1553,7 +1774,8 @@ def _global_search_kernel(
                     burley, table, table_row, table_frac, tilt_level, tilt_frac, burley_terms, diffuse_moments, column,
                     kernel, kernel_derivative, albedo, diffuse_factor, level_filtered, filtered, moments, quadratics,
                     squared_values, scale, state, metallic_grid, environment_proj, environment_blend,
-                    environment_nodes, environment_cached, environment_gain)
+                    environment_nodes, environment_cached, environment_gain, prefiltered, corner, stencil_frac,
+                    prefiltered_nodes, prefiltered_cached)
             # A robust pass refines the roughness to _BRENT_XTOL: this search need only find its cell.
             first_xtol = _BRENT_COARSE_XTOL if robust_passes > 0 else _BRENT_XTOL
             best_r, best_f = _search_roughness(args, state, roughness_grid, best_state, roughness_brent, 0,

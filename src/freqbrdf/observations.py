@@ -71,7 +71,7 @@ N_SIGNALS = 7
 
 STAGES = ("raster", "projection", "visibility", "images", "irradiance", "occlusion", "fits")
 # The array fields of Observations that are not per texel.
-_SHARED_ARRAYS = ("environment_coeffs",)
+_SHARED_ARRAYS = ("environment_coeffs", "environment_radiance", "environment_rotation")
 
 
 @dataclass(eq=False)
@@ -104,6 +104,11 @@ class Observations:
     # light reads (`EstimateConfig.environment_light`). None where unknown (hand-made observations).
     tangent: np.ndarray | None = None
     environment_coeffs: np.ndarray | None = None
+    # (H, W, 3) float32 the environment map itself (`envmap.Envmap.radiance`, unfiltered) and (3, 3)
+    # float64 its emitter-to-world rotation: what smooth lobes read, prefiltered
+    # (`EstimateConfig.prefiltered_light`). None where unknown.
+    environment_radiance: np.ndarray | None = None
+    environment_rotation: np.ndarray | None = None
     timings: dict = field(default_factory=dict)  # seconds per stage
 
     @property
@@ -123,6 +128,14 @@ class Observations:
     def mirrored_spectrum(self) -> np.ndarray:
         """(N, 3, l*+1) power spectrum of the mirrored environment."""
         return sh.power_spectrum(self.mirrored_coeffs)
+
+    def environment(self) -> envmaps.Envmap | None:
+        """The environment map of the capture (unfiltered), or None where unknown."""
+        if self.environment_radiance is None or self.environment_rotation is None:
+            return None
+        to_world = np.eye(4)
+        to_world[:3, :3] = self.environment_rotation
+        return envmaps.Envmap(self.environment_radiance, to_world)
 
     def select(self, rows) -> Observations:
         """The Observations of the texels ``rows`` (indices, a slice or a boolean mask over the N
@@ -300,6 +313,8 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
         environment_occlusion=config.observe.environment_occlusion,
         tangent=texels.tangent.astype(np.float32),
         environment_coeffs=envmaps.envmap_sh(capture.envmap, config.fit.lmax).astype(np.float32),
+        environment_radiance=capture.envmap.radiance,
+        environment_rotation=capture.envmap.rotation.copy(),
         timings=timings,
     )
 
