@@ -47,21 +47,24 @@ SCENES = {
     "bunny": SynthSettings(mesh="bunny", envmap="forest", materials="bands", test_envmaps=("studio", "sunset")),
     "plane": SynthSettings(mesh="plane", envmap="city", materials="bands", test_envmaps=("forest", "lobby")),
 }
-METHODS = ("global", "global_fitted_light", "global_lobe_tilt", "paper_angular", "paper_spectrum", "mitsuba")
+METHODS = ("global", "global_environment_light", "global_fitted_light", "global_lobe_tilt", "paper_angular",
+           "paper_spectrum", "mitsuba")
 FULL_RENDER = {"resolution": 256, "spp": 64, "test_views": 8}
 QUICK_RENDER = {"resolution": 128, "spp": 16, "test_views": 4}
 QUICK_ARGS = {"views": 24, "texture_res": 128, "relight_spp": 8}
 
 
 def method_config(method: str, texture_res: int) -> Config:
-    """Our default Config for `global`; `global_fitted_light` without its environment light (every
-    lobe reads the per-texel fit of the mirrored light, the default before session 5);
-    `global_lobe_tilt` with EstimateConfig.lobe_tilt; the paper preset (its lambda, Adam, TV) for
-    `paper_*`."""
+    """Our default Config for `global`; `global_environment_light` without the prefiltered light
+    (smooth lobes read the per-texel fit of the mirrored light, the session-5 default);
+    `global_fitted_light` without the environment light either (every lobe reads that fit, the
+    session-4 default); `global_lobe_tilt`: the session-5 default with EstimateConfig.lobe_tilt;
+    the paper preset (its lambda, Adam, TV) for `paper_*`."""
     texels = TexelConfig(texture_res=texture_res)
     if method.startswith("global"):
-        return Config(texels=texels, estimate=EstimateConfig(lobe_tilt=method == "global_lobe_tilt",
-                                                             environment_light=method != "global_fitted_light"))
+        return Config(texels=texels, estimate=EstimateConfig(
+            lobe_tilt=method == "global_lobe_tilt", environment_light=method != "global_fitted_light",
+            prefiltered_light=method == "global"))
     model = method.split("_", 1)[1]
     config = preset("paper")
     return config.replace(texels=texels, estimate=dataclasses.replace(config.estimate, forward_model=model))

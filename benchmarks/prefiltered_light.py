@@ -15,8 +15,9 @@ no Brent, no robust pass), so that only the smooth lobes' light differs:
   exp(-(alpha l)^2) (alpha = r^2, every degree the map holds; `envmap.lowpass_envmap`), looked up
   at each sample's world mirror direction, at roughness nodes 1/16 apart and linear between them;
 - ``prefiltered_ggx``: the same with the GGX lobe's own per-degree gains at normal incidence
-  (`ggx_mirror_gains`: heavier tails than the Gaussian), to see how much of what is left is the
-  Gaussian's shape.
+  (`estimate.ggx_lobe_gains`: heavier tails than the Gaussian), to see how much of what is left is
+  the Gaussian's shape. This one became the estimator's default in session 6
+  (`EstimateConfig.prefiltered_light`, built into the search kernel).
 
 Scenes: the demo capture (rendered by `make demo`) and compare_estimators.py's 64-view bunny and
 plane (rendered there). Saves benchmarks/results/prefiltered_light.json.
@@ -30,7 +31,6 @@ from pathlib import Path
 
 import numba
 import numpy as np
-from scipy import special
 from _common import machine, save_results
 from compare_estimators import CACHE
 
@@ -71,19 +71,6 @@ def profile_texels(x, y, z, diffuse, values, omega, diffuse_scale, out_state, ou
         out_state[t] = state
 
 
-def ggx_mirror_gains(roughness: float, lmax: int, samples: int = 8192) -> np.ndarray:
-    """(lmax + 1,) the GGX lobe's response to each degree at normal incidence, relative to its
-    albedo: half vectors h drawn by D(h) cos(theta_h) (stratified), light reflected at 2 theta_h
-    from the mirror direction (the normal), gain_l = mean of P_l(cos 2 theta_h) over the light
-    above the horizon. Masking-shadowing and Fresnel are left out."""
-    alpha = max(roughness * roughness, 1e-4)
-    u = (np.arange(samples) + 0.5) / samples
-    cos_half = 1.0 / np.sqrt(1.0 + alpha * alpha * u / (1.0 - u))
-    cos_light = 2.0 * cos_half * cos_half - 1.0
-    cos_light = cos_light[cos_light > 0.0]
-    return np.array([np.mean(special.eval_legendre(degree, cos_light)) for degree in range(lmax + 1)])
-
-
 def capture_path(name: str):
     if name == "demo":
         folder = demo.capture_folder(Path(__file__).resolve().parents[1] / "out" / "demo", demo.DEFAULT_CAPTURE)
@@ -118,8 +105,9 @@ def run_scene(name: str, texture_res: int) -> dict:
     map_lmax = min(height - 2, (width - 1) // 2)
     prefiltered = {
         "prefiltered": np.stack([envmaps.lookup(envmaps.lowpass_envmap(capture.envmap, r * r), world) for r in nodes]),
-        "prefiltered_ggx": np.stack([envmaps.lookup(envmaps.zonal_filter(capture.envmap, ggx_mirror_gains(r, map_lmax)),
-                                                    world) for r in nodes]),
+        "prefiltered_ggx": np.stack([envmaps.lookup(envmaps.zonal_filter(capture.envmap,
+                                                                         est.ggx_lobe_gains(r, map_lmax)), world)
+                                     for r in nodes]),
     }
     projections = est.environment_projections(directions, weight, tangent, normal, environment, observations.lmax)
     models = ("fitted", "prefiltered", "prefiltered_ggx")
