@@ -720,13 +720,15 @@ def _mirror_stencil(xyz, n, tangent, normal, bitangent, world_to_local, height, 
 
 @numba.njit(fastmath=True, cache=True)
 def _prefiltered_node_light(prefiltered, node, n, corner, stencil_frac, out):
-    """out[c, s] = prefiltered[node] (H W, 3) at the stencil of sample s < n, bilinear."""
-    pixels = prefiltered[node]
+    """out[c, s] = the map of node ``node`` of prefiltered (H W, nodes, 3) at the stencil of sample
+    s < n, bilinear. (Pixel-major: a texel's lookups at several nodes share cache lines.)"""
     for s in range(n):
         fx, fy = stencil_frac[0, s], stencil_frac[1, s]
+        p00, p01 = prefiltered[corner[0, s], node], prefiltered[corner[1, s], node]
+        p10, p11 = prefiltered[corner[2, s], node], prefiltered[corner[3, s], node]
         for c in range(3):
-            top = (1.0 - fx) * pixels[corner[0, s], c] + fx * pixels[corner[1, s], c]
-            bottom = (1.0 - fx) * pixels[corner[2, s], c] + fx * pixels[corner[3, s], c]
+            top = (1.0 - fx) * p00[c] + fx * p01[c]
+            bottom = (1.0 - fx) * p10[c] + fx * p11[c]
             out[c, s] = (1.0 - fy) * top + fy * bottom
 
 
@@ -856,7 +858,7 @@ def _uses_prefiltered_light(observations: Observations, settings: EstimateConfig
 
 def _environment_inputs(observations: Observations, settings: EstimateConfig) -> tuple:
     """(tangent (N, 3), normal (N, 3), environment (K, 3) float64, levels, blend, prefiltered
-    (nodes, H W, 3) float32, world_to_local (3, 3), H, W) for the kernels; levels 0 without the
+    (H W, nodes, 3) float32, world_to_local (3, 3), H, W) for the kernels; levels 0 without the
     environment light, no nodes without the prefiltered light."""
     tangent = np.zeros((observations.n_texels, 3), np.float32) if observations.tangent is None else observations.tangent
     if _uses_environment_light(observations, settings):
@@ -866,10 +868,10 @@ def _environment_inputs(observations: Observations, settings: EstimateConfig) ->
         environment = (np.zeros((1, 3)), 0, (0.0, 0.0))
     if _uses_prefiltered_light(observations, settings):
         maps = _prefiltered_maps(observations, prefilter_nodes(settings))
-        prefiltered = (maps.reshape(maps.shape[0], -1, 3),
+        prefiltered = (np.ascontiguousarray(maps.reshape(maps.shape[0], -1, 3).transpose(1, 0, 2)),
                        np.ascontiguousarray(observations.environment_rotation.T, dtype=np.float64), *maps.shape[1:3])
     else:
-        prefiltered = (np.zeros((0, 1, 3), np.float32), np.eye(3), 2, 2)
+        prefiltered = (np.zeros((1, 0, 3), np.float32), np.eye(3), 2, 2)
     return (tangent, observations.normal, *environment, *prefiltered)
 
 
@@ -991,7 +993,7 @@ def _squared_residual_kernel(
     filtered for term k, `lobe_filtered_light`) and Z = E S_E with ``exact_dielectric``, else
     Schlick's 0.04 X + Y. environment_proj (n, levels, V, 3, G) `environment_projections` with
     the views third: with levels > 1 each S_k is blended towards the environment light
-    (`environment_filtered_light`). With prefiltered maps (nodes, H W, 3) the lobes read
+    (`environment_filtered_light`). With prefiltered maps (H W, nodes, 3) the lobes read
     `prefiltered_light` (texel frames tangent and normal (n, 3)) instead of proj."""
     n_texels, n_views = weight.shape
     n_levels, n_degrees = proj.shape[1], proj.shape[3]
@@ -1022,7 +1024,7 @@ def _squared_residual_kernel(
         # Without tilt levels or environment light every term reads the same light; Schlick's
         # dielectric needs no light of its own.
         # The prefiltered light at its nodes on either side, per channel and view.
-        use_prefiltered = prefiltered.shape[0] > 0 and share < 1.0
+        use_prefiltered = prefiltered.shape[1] > 0 and share < 1.0
         map_light = np.zeros((2, 3, n_views))
         map_frac = 0.0
         if use_prefiltered:
@@ -1036,7 +1038,7 @@ def _squared_residual_kernel(
             stencil_frac = np.empty((2, n_views))
             _mirror_stencil(xyz, n_views, tangent[t], normal[t], bitangent, world_to_local, map_height, map_width,
                             corner, stencil_frac)
-            map_node, map_frac = _prefilter_node(roughness[t], prefiltered.shape[0])
+            map_node, map_frac = _prefilter_node(roughness[t], prefiltered.shape[1])
             for side in range(2):
                 _prefiltered_node_light(prefiltered, map_node + side, n_views, corner, stencil_frac, map_light[side])
         distinct = n_levels > 1 or share > 0.0
@@ -1448,10 +1450,10 @@ def _roughness_objective(roughness, args):
     first_level, last_level = (0, 0) if own_light else (0, -1)  # (0, -1): no level at all
     # The prefiltered light replaces the fitted one (one level): its nodes around this roughness,
     # each looked up once per texel.
-    use_prefiltered = own_light and prefiltered.shape[0] > 0
+    use_prefiltered = own_light and prefiltered.shape[1] > 0
     if use_prefiltered:
         first_level, last_level = 0, -1
-        map_node, map_frac = _prefilter_node(roughness, prefiltered.shape[0])
+        map_node, map_frac = _prefilter_node(roughness, prefiltered.shape[1])
         lower_map = map_node if map_frac < 1.0 else map_node + 1
         upper_map = map_node + 1 if map_frac > 0.0 else map_node
         for needed in range(lower_map, upper_map + 1):
@@ -1669,7 +1671,7 @@ def _global_search_kernel(
     `sh._sh_block` takes them. With environment_levels > 1 the environment light (world-frame SH
     environment (K, 3), texel frames tangent and normal (n, 3)) is expanded by degree at that
     many tilts of the reflected direction and blended in over environment_blend (start, end).
-    With prefiltered (nodes, H W, 3) maps (`prefiltered_environment` of an H x W map whose
+    With prefiltered (H W, nodes, 3) maps (`prefiltered_environment` of an H x W map whose
     emitter frame is world_to_local (3, 3) from the world), smooth lobes read them at the world
     mirror directions instead of the fitted light. Else, per texel the light is expanded by
     degree at its samples once per tilt level (P_c,l(w'_v), `_tilted_projections`; one level:
@@ -1722,7 +1724,7 @@ def _global_search_kernel(
         environment_gain = np.empty(n_gains)
         bitangent = np.empty(3)
         # The prefiltered light per map node, channel and sample, and each sample's lookup stencil.
-        n_prefiltered = prefiltered.shape[0]
+        n_prefiltered = prefiltered.shape[1]
         prefiltered_nodes = np.empty((n_prefiltered, 3, n_views))
         prefiltered_cached = np.zeros(n_prefiltered, dtype=np.bool_)
         corner = np.empty((4, n_views), dtype=np.int64)
