@@ -455,3 +455,76 @@ def test_loss_curvature_spread_ranks_and_scales_like_the_roughness_error():
     informative = spread**2 < 0.9 / 12  # not capped at the prior
     np.testing.assert_allclose(unc.roughness_std(twice, result, config)[informative] ** 2,
                                spread[informative] ** 2 / 2, rtol=1e-5)
+
+
+def _direct_angular_entropy(observations, grid, noise_level):
+    """The angular mode written out with numpy, per texel and channel, as the path-traced brute
+    force (benchmarks/pathtraced_entropy.py) scores its renderings: the hypotheses' radiance from the
+    estimator's default model with the fitted light (hand-made observations carry no map)."""
+    from freqbrdf.estimate import lobe_filtered_light, split_sum_terms
+
+    out = np.empty(observations.n_texels)
+    resolution = grid.resolution
+    for t in range(observations.n_texels):
+        seen = observations.weight[t] > 0
+        directions = observations.view_direction[t:t + 1].astype(np.float64)
+        weight = observations.weight[t].astype(np.float64)[seen]
+        share = weight / weight.sum()
+        radiance = np.zeros((resolution, resolution, int(seen.sum()), 3))
+        for i, alpha in enumerate(grid.alpha):
+            roughness = math.sqrt(alpha)
+            scale, bias, _ = split_sum_terms(directions[0, seen, 2], roughness)
+            light = lobe_filtered_light(directions, observations.weight[t:t + 1], observations.mirrored_coeffs[t:t + 1],
+                                        observations.lmax, observations.sigma, np.array([roughness]), False)[0, seen]
+            for j, specular in enumerate(grid.specular):
+                if specular > 0:  # k = 0: no lobe
+                    radiance[i, j] = (specular * scale + bias)[:, None] * light
+        observed = observations.observed[t, seen].astype(np.float64)
+        n = len(weight)
+        entropies = []
+        for c in range(3):
+            residual = observed[None, None, :, c] - radiance[..., c]
+            diffuse = np.maximum((residual * share).sum(axis=-1, keepdims=True), 0.0)
+            misfit = ((residual - diffuse) ** 2 * share).sum(axis=-1)
+            light_rms = math.sqrt(float((observations.mirrored[t, seen, c].astype(np.float64) ** 2 * share).sum()))
+            variance = (noise_level * light_rms) ** 2 + misfit.min() * n / max(n - 3, 1)
+            posterior = np.exp(-n * (misfit - misfit.min()) / (2.0 * variance))
+            posterior[:, 0] /= resolution
+            posterior /= posterior.sum()
+            masses = np.concatenate([[posterior[:, 0].sum()], posterior[:, 1:].ravel()])
+            masses = masses[masses > 0]
+            entropies.append(-(masses * np.log(masses)).sum() / math.log(resolution * (resolution - 1) + 1))
+        out[t] = min(entropies)
+    return out
+
+
+def test_angular_mode_equals_a_direct_evaluation_and_is_exposure_invariant():
+    import dataclasses
+
+    from test_estimate import random_truth, synthetic_observations
+
+    truth = random_truth(24, seed=7, min_roughness=0.0)
+    clean = synthetic_observations(truth, seed=8, model="split_sum")
+    rng = np.random.default_rng(9)
+    observations = dataclasses.replace(clean, observed=(clean.observed * (
+        1.0 + 0.03 * rng.standard_normal(clean.observed.shape))).astype(np.float32))
+    config = UncertaintyConfig(mode="angular")
+    result = unc.entropy_map(observations, config)
+    assert result.mode == "angular" and result.likelihood.shape == (24, 8, 8)
+    np.testing.assert_allclose(result.likelihood.sum(axis=(1, 2)), 1.0, rtol=1e-5)
+    direct = _direct_angular_entropy(observations, unc.hypothesis_grid(8), config.noise_level)
+    np.testing.assert_allclose(result.entropy, direct, atol=2e-5)
+    # Fewer views, less certain: the same texels seen from their first 8 views only.
+    few_weight = observations.weight.copy()
+    few_weight[:, 8:] = 0.0
+    few = dataclasses.replace(observations, weight=few_weight, n_samples=(few_weight > 0).sum(axis=1))
+    assert unc.entropy_map(few, config).entropy.mean() > 2.0 * result.entropy.mean()
+    # Exposure: every image and the environment scaled by kappa.
+    kappa = 7.5
+    brighter = dataclasses.replace(
+        observations, observed=observations.observed * kappa, mirrored=observations.mirrored * kappa,
+        mirrored_coeffs=observations.mirrored_coeffs * kappa, irradiance=observations.irradiance * kappa)
+    np.testing.assert_allclose(unc.entropy_map(brighter, config).entropy, result.entropy, atol=1e-5)
+    # Spectra alone cannot be scored in this mode.
+    with pytest.raises(ValueError, match="angular"):
+        unc.entropy_from_spectra(observations.mirrored_spectrum, observations.observed_spectrum, config=config)

@@ -282,7 +282,7 @@ def uncertainty(
     observations = observe_capture(loaded, config, Reporter(enabled=not (quiet or json_output)))
     observe_seconds = time.perf_counter() - start
     start = time.perf_counter()
-    result = entropy_map(observations, config.uncertainty, return_likelihood=False)
+    result = entropy_map(observations, config.uncertainty, return_likelihood=False, estimate_config=config.estimate)
     seconds = time.perf_counter() - start
     summary = {
         "capture": str(loaded.root.resolve()),

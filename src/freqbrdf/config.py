@@ -51,7 +51,9 @@ class FitConfig:
 
 @dataclass(frozen=True)
 class UncertaintyConfig:
-    mode: Literal["calibrated", "paper"] = "calibrated"
+    # "angular": the same grid scored in the sample domain with the global estimator's own model
+    # (uncertainty.entropy_angular): seconds instead of milliseconds.
+    mode: Literal["calibrated", "paper", "angular"] = "calibrated"
     grid_res: int = 8  # R: R x R hypotheses (alpha_i = (i/(R-1))^2, k_j = j/(R-1))
     temperature: float = 1e-5  # tau of the paper's likelihood exp(-(E - min E)/tau)  (paper mode)
     # Calibrated mode: noise std of one sample's radiance, relative to the light's RMS amplitude

@@ -252,6 +252,31 @@ def model_light(observations: Observations, roughness: np.ndarray, config: Confi
     return _shadowed_light_coeffs(observations, brdf.alpha_from_roughness(roughness), config.fit)
 
 
+def hypothesis_moments(observations: Observations, roughness: np.ndarray, config: Config = Config()) -> np.ndarray:
+    """(N, R, 3, 8) float64 per texel, roughness (R,) and channel: [sum w, sum w u, sum w X,
+    sum w u^2, sum w u X, sum w X^2, sum w f, sum w f^2] over the texel's samples, w the sample
+    weight, f the observed radiance, u = f - Y, where a metal of base colour k reflects k X + Y under the `global`
+    estimator's model of ``config.estimate`` (X = A S_A, Y = B S_B: Schlick's Fresnel with R0 = k,
+    the light as that model reads it; with "g1" the unshadowed light). The weighted misfit of any
+    specular hypothesis (roughness, k) plus a constant diffuse part is a quadratic in k and the
+    diffuse part from these (`uncertainty.entropy_angular`), and that of no specular lobe at all. Zero for texels with fewer than
+    `MIN_SAMPLES` samples."""
+    settings = config.estimate
+    _validate(settings)
+    roughness = np.ascontiguousarray(roughness, dtype=np.float64)
+    moments = np.zeros((observations.n_texels, len(roughness), 3, 8))
+    _global_search_kernel(
+        observations.view_direction, observations.weight, observations.observed,
+        np.ascontiguousarray(observations.mirrored_coeffs, dtype=np.float32), _diffuse_scale(observations),
+        observations.sigma, settings.fresnel, settings.masking, _uses_split_sum(settings),
+        _uses_exact_dielectric(settings), _uses_burley(settings), _model_tables(), _tilt_levels(settings),
+        settings.roughness_grid, settings.metallic_grid, settings.robust_passes, observations.lmax,
+        *sh._legendre_tables(observations.lmax), *_environment_inputs(observations, settings), roughness, moments,
+        False, np.zeros((observations.n_texels, 5)), np.zeros(observations.n_texels), np.zeros(observations.n_texels),
+    )
+    return moments
+
+
 # ---------------------------------------------------------------------------------------------
 # Shared pieces
 
@@ -1120,8 +1145,8 @@ def _estimate_global(observations: Observations, config: Config, reporter: Repor
                 _tilt_levels(settings),
                 settings.roughness_grid,
                 settings.metallic_grid, settings.robust_passes, observations.lmax,
-                *sh._legendre_tables(observations.lmax), *_environment_inputs(observations, settings), params, loss,
-                curvature,
+                *sh._legendre_tables(observations.lmax), *_environment_inputs(observations, settings), np.zeros(0),
+                np.zeros((0, 0, 3, 8)), True, params, loss, curvature,
             )
             timings["search"] += time.perf_counter() - tick
             residual = params[:, 3] - shadow_roughness
@@ -1611,6 +1636,27 @@ def _search_roughness(args, state, roughness_grid, best_state, roughness_brent, 
 
 
 @numba.njit(fastmath=True, cache=True)
+def _specular_moments(n, omega, values, scale_terms, bias_terms, out):
+    """out = [sum w, sum w u, sum w X, sum w u^2, sum w u X, sum w X^2, sum w f, sum w f^2] over
+    samples s < n, with w = sqrt(omega) the sample weight, f the observed radiance, u = f - Y and
+    X, Y a metal's specular terms (scale_terms, bias_terms: specular = k X + Y for base colour k)."""
+    out[:] = 0.0
+    for s in range(n):
+        w = math.sqrt(omega[s])
+        f = values[s]
+        u = f - bias_terms[s]
+        x = scale_terms[s]
+        out[0] += w
+        out[1] += w * u
+        out[2] += w * x
+        out[3] += w * u * u
+        out[4] += w * u * x
+        out[5] += w * x * x
+        out[6] += w * f
+        out[7] += w * f * f
+
+
+@numba.njit(fastmath=True, cache=True)
 def _residual_magnitudes(n, values, filtered, diffuse_factor, diffuse_scale, params, out):
     """out[s] = |L(w_s) - f_s| over the channels for params [b_rgb, m], with the per-channel model
     terms `_roughness_objective` left in filtered (3, 3, n) and diffuse_factor at their roughness."""
@@ -1662,7 +1708,7 @@ def _global_search_kernel(
     directions, weight, observed, light, diffuse_scale, sigma, fresnel, masking, split_sum, exact_dielectric, burley,
     table, tilt_levels, roughness_grid, metallic_grid, robust_passes, lmax, diag, rec_a, rec_b,
     tangent, normal, environment, environment_levels, environment_blend, prefiltered, world_to_local, map_height,
-    map_width, params, loss, curvature,
+    map_width, hypothesis_roughness, hypothesis_moments, search, params, loss, curvature,
 ):
     """Per texel: the (base colour, roughness, metallic) of least weighted squared residual.
 
@@ -1675,7 +1721,9 @@ def _global_search_kernel(
     emitter frame is world_to_local (3, 3) from the world), smooth lobes read them at the world
     mirror directions instead of the fitted light. Else, per texel the light is expanded by
     degree at its samples once per tilt level (P_c,l(w'_v), `_tilted_projections`; one level:
-    w' = w; fused here to keep it in cache). Then the roughness is searched. Writes params
+    w' = w; fused here to keep it in cache). Then the roughness is searched (if ``search``).
+    With hypothesis_roughness (R,), before the search: `hypothesis_moments` of each texel into
+    hypothesis_moments (n, R, 3, 8). Writes params
     (n, 5) [b_rgb, r, m], loss (n,) (divided by sum_v w^2) and the profiled loss's curvature in
     roughness (n,) (`MaterialEstimate.roughness_curvature`) for texels with samples; others are
     left untouched.
@@ -1788,6 +1836,12 @@ def _global_search_kernel(
                     squared_values, scale, state, metallic_grid, environment_proj, environment_blend,
                     environment_nodes, environment_cached, environment_gain, prefiltered, corner, stencil_frac,
                     prefiltered_nodes, prefiltered_cached)
+            for i in range(hypothesis_roughness.shape[0]):
+                _roughness_objective(hypothesis_roughness[i], args)
+                for c in range(3):
+                    _specular_moments(n, omega, values[c], filtered[c, 0], filtered[c, 1], hypothesis_moments[t, i, c])
+            if not search:
+                continue
             # A robust pass refines the roughness to _BRENT_XTOL: this search need only find its cell.
             first_xtol = _BRENT_COARSE_XTOL if robust_passes > 0 else _BRENT_XTOL
             best_r, best_f = _search_roughness(args, state, roughness_grid, best_state, roughness_brent, 0,

@@ -527,9 +527,11 @@ def _draw_frustum(axes, drawn, camera: Camera, depth: float, colour, label: str 
 
 
 def _check_fit_settings(config: Config) -> None:
-    """The eigenbasis needs a positive penalty on every coefficient."""
+    """The eigenbasis needs a positive penalty on every coefficient; candidates are scored on spectra."""
     if config.fit.regulariser == "none" or config.fit.reg_lambda <= 0:
         raise ValueError("capture guidance needs a regularised SH fit (reg_lambda > 0, a regulariser)")
+    if config.uncertainty.mode == "angular":
+        raise ValueError("capture guidance predicts spectra: use uncertainty mode 'calibrated' or 'paper'")
 
 
 def _penalty(weight_sq: np.ndarray, config: Config) -> np.ndarray:

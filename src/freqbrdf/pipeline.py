@@ -77,7 +77,7 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
     timings["estimate"] = time.perf_counter() - start
 
     start = time.perf_counter()
-    uncertainty = entropy_map(observations, config.uncertainty)
+    uncertainty = entropy_map(observations, config.uncertainty, estimate_config=config.estimate)
     uncertainty.roughness_std = roughness_std(observations, estimate, config)
     timings["uncertainty"] = time.perf_counter() - start
 
