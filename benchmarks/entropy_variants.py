@@ -16,7 +16,10 @@ metallic errors, and on the sphere by its mean per region. Variants:
   samples (n_samples not passed: K samples assumed), amplitudes in phase;
 - calibrated (the default): amplitudes in phase, coefficient noise noise_level^2 P K / n;
 - phase_aware: as the default, but coefficients compared through the cross spectrum;
-- each calibrated variant also with noise_level 0.05 (default 0.02);
+- angular: the same grid scored in the sample domain with the estimator's own model
+  (UncertaintyConfig(mode="angular"), `uncertainty.entropy_angular`);
+- each calibrated and angular variant also with noise_level 0.05 (default 0.02). Seconds per
+  variant include numba's loading the first time a kernel is used in the process;
 
 and the posterior spread of the estimated roughness (`uncertainty.roughness_std`), which is not an
 entropy over the hypotheses but the estimate's own uncertainty: the neighbour scatter alone
@@ -45,7 +48,7 @@ from freqbrdf.estimate import estimate
 from freqbrdf.materials import resize
 from freqbrdf.observations import Observations, observe
 from freqbrdf.synth import synthesize
-from freqbrdf.uncertainty import cross_spectrum, entropy_from_spectra, roughness_std
+from freqbrdf.uncertainty import cross_spectrum, entropy_from_spectra, entropy_map, roughness_std
 
 SPREAD_VARIANTS = {  # name: (roughness_window, loss_curvature)
     "roughness_std window 3": (3, False),
@@ -75,6 +78,9 @@ def sphere_path():
 
 def variant_entropy(observations: Observations, name: str, noise_level: float) -> np.ndarray:
     """(N,) entropy of one variant (module docstring)."""
+    if name == "angular":
+        return entropy_map(observations, UncertaintyConfig(mode="angular", noise_level=noise_level),
+                           return_likelihood=False).entropy
     if name == "paper":
         config = UncertaintyConfig(mode="paper")
     else:
@@ -124,11 +130,14 @@ def scene_scores(name: str, path) -> dict:
         return scores
 
     variants = {}
-    for variant in ("paper", "calibrated_fixed_noise", "calibrated", "phase_aware"):
+    for variant in ("paper", "calibrated_fixed_noise", "calibrated", "phase_aware", "angular"):
         for noise_level in ((None,) if variant == "paper" else (0.02, 0.05)):
+            start = time.perf_counter()
             entropy = variant_entropy(observations, variant, noise_level)
+            seconds = time.perf_counter() - start
             key = variant if noise_level is None else f"{variant}@{noise_level}"
-            entry = {"scores": scores_of(entropy), "mean_entropy": round(float(entropy[observed].mean()), 4)}
+            entry = {"scores": scores_of(entropy), "mean_entropy": round(float(entropy[observed].mean()), 4),
+                     "seconds": round(seconds, 3)}
             if masks is not None:
                 entry["mean_entropy_by_region"] = {
                     region: round(float(entropy[mask & observed].mean()), 4) for region, mask in masks.items()}

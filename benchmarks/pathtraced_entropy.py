@@ -41,7 +41,7 @@ from freqbrdf.uncertainty import entropy_map, hypothesis_grid
 
 SUBSET = 200  # texels scored by brute force
 MIN_VIEWS = 8  # texels with fewer samples are not candidates (the brute-force misfit needs some)
-SPP = 128  # path samples per (texel, view) radiance
+SPP = 512  # path samples per (texel, view) radiance (128: the brute force agreed with itself at 0.84 only)
 NOISE_LEVEL = UncertaintyConfig().noise_level
 RAY_OFFSET = 1e-3  # ray origins this far (x the object's radius) in front of the texel
 SEEDS = (0, 1000)  # two independent renderings of every hypothesis
