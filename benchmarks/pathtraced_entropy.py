@@ -29,7 +29,7 @@ import time
 
 import numpy as np
 from _common import machine, save_results
-from entropy_scenes import capture_path
+from entropy_scenes import capture_path, regions
 from scipy import stats
 
 from freqbrdf.capture import load
@@ -153,6 +153,14 @@ def main() -> None:
                 observations.mirrored[texel, views].astype(np.float64),
                 observations.weight[texel, views].astype(np.float64), radiance[:, :, rays])
     brute, brute_other_seed = brutes
+    # Does each entropy call the scene's badly lit and rarely seen regions uncertain?
+    by_region = {}
+    for region, mask in regions(observations.normal[chosen]).items():
+        if mask.any():
+            by_region[region] = {"texels": int(mask.sum()), "brute_force": round(float(brute[mask].mean()), 4),
+                                 "ours_calibrated": round(float(ours.entropy[chosen][mask].mean()), 4),
+                                 "ours_angular": round(float(angular.entropy[chosen][mask].mean()), 4),
+                                 "ours_paper_mode": round(float(paper.entropy[chosen][mask].mean()), 4)}
 
     save_results("pathtraced_entropy", {
         "benchmark": "fast SH entropy vs brute-force path-traced entropy over the same hypothesis grid",
@@ -176,6 +184,7 @@ def main() -> None:
         "entropy_mean": {"brute_force": round(float(brute.mean()), 4),
                          "ours_calibrated": round(float(ours.entropy[chosen].mean()), 4),
                          "ours_angular": round(float(angular.entropy[chosen].mean()), 4)},
+        "mean_entropy_by_region": by_region,
         "timings_s": {"path_tracing_all_hypotheses_per_seed": round(render_s, 2),
                       "ours_entropy_whole_capture": round(ours_s, 4),
                       "ours_angular_entropy_whole_capture": round(angular_s, 2)},
