@@ -1,10 +1,10 @@
-"""Per-texel uncertainty of the specular parameters from SH power spectra (METHOD.md §3.8).
+"""Per-texel uncertainty of the specular parameters from SH power spectra or samples (METHOD.md §3.8).
 
 Per texel and colour channel, a grid of specular hypotheses psi = (alpha_i, k_j),
 alpha_i = (i / (R-1))^2 (roughness i / (R-1), uniform) and k_j = j / (R-1), is scored against the
 power spectrum of the observed radiance S_out(l) for l = 1..l* (l = 0 also carries the diffuse
 term and is left out). The likelihood over the grid is turned into a normalised entropy; the map
-is the minimum over RGB (the best-informed channel). Two modes:
+is the minimum over RGB (the best-informed channel). Three modes:
 
 ``paper`` reproduces the published recipe:
 
@@ -53,13 +53,26 @@ temperature) are clamped there: their share is below e^-CUTOFF. The kernel (_gri
 runs SIMD across texels: moments and row minima in float64, the R^2 cells in float32 with a
 polynomial exp; measured figures in benchmarks/results/bench_entropy.json.
 
+``angular`` scores the same grid in the sample domain instead of on spectra, with the `global`
+estimator's own forward model (`entropy_angular`): per hypothesis, the radiance a metal of base
+colour k and roughness sqrt(alpha) reflects at each observed view (split-sum albedo, the
+prefiltered and environment light), the best constant diffuse part, and the misfit of the
+samples; the noise model of the calibrated mode in radiance units. It is what
+benchmarks/pathtraced_entropy.py computes with a path tracer, and agrees with it (Spearman 0.76
+and 0.79 against two independent renderings, which agree with each other at 0.94; the calibrated
+mode 0.20, the paper's recipe 0.04). It costs R probes of the estimator's search per texel:
+seconds, not milliseconds. Both the brute force and this mode find the smooth-gradient ("badly
+lit") region of entropy_scenes.py about as certain as the sharply lit one (brute force 0.15 and
+0.16): the view dependence of Fresnel and masking, which a spectrum of the mirrored light leaves
+out, pins the roughness down there; the paper's recipe calls it uncertain (0.81 against 0.22).
+
 Flags (bit field, uint8 per texel) say why a texel should not be trusted; see FLAG_*.
 
 The entropy scores the hypotheses against the spectra, not the estimate, and ranks the `global`
-estimate's per-texel roughness errors poorly (Spearman 0.27 on the Mitsuba bunny, 0.18 on the
-sphere of entropy_scenes.py). `roughness_std` is the posterior spread of the estimate itself
-(UncertaintyConfig.roughness_window, loss_curvature): 0.51 and 0.40, measured in
-benchmarks/entropy_variants.py.
+estimate's per-texel roughness errors poorly (Spearman 0.25 on the Mitsuba bunny, 0.17 on the
+sphere of entropy_scenes.py; the angular mode 0.21 and 0.15). `roughness_std` is the posterior
+spread of the estimate itself (UncertaintyConfig.roughness_window, loss_curvature): 0.55 and 0.41,
+measured in benchmarks/entropy_variants.py (session-6 estimator).
 """
 
 from __future__ import annotations
