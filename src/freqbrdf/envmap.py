@@ -85,25 +85,31 @@ def load_envmap(path: str | Path, to_world: np.ndarray | None = None) -> Envmap:
 # Lookup
 
 
+@numba.njit(fastmath=False, cache=True)
+def lookup_stencil(world_to_local, dx, dy, dz, height, width):
+    """The bilinear stencil of `lookup` for the world direction (dx, dy, dz) in an H x W map whose
+    emitter frame is world_to_local (3, 3) from the world: (row, col, next col, column fraction,
+    row fraction); the other two taps are at row + 1."""
+    lx = world_to_local[0, 0] * dx + world_to_local[0, 1] * dy + world_to_local[0, 2] * dz
+    ly = world_to_local[1, 0] * dx + world_to_local[1, 1] * dy + world_to_local[1, 2] * dz
+    lz = world_to_local[2, 0] * dx + world_to_local[2, 1] * dy + world_to_local[2, 2] * dz
+    u = math.atan2(lx, -lz) / (2.0 * math.pi)
+    u -= math.floor(u)
+    v = math.acos(min(max(ly, -1.0), 1.0)) / math.pi
+    x = u * width - 0.5  # column centres at u = (j + 0.5) / W
+    col = math.floor(x)
+    col0 = int(col) % width
+    y = v * (height - 1)  # rows at v = i / (H - 1)
+    row0 = min(int(y), height - 2)
+    return row0, col0, (col0 + 1) % width, x - col, y - row0
+
+
 @numba.njit(parallel=True, fastmath=False, cache=True)
 def _lookup_kernel(radiance, world_to_local, directions, out):
     height, width = radiance.shape[0], radiance.shape[1]
     for n in numba.prange(directions.shape[0]):
-        dx, dy, dz = directions[n, 0], directions[n, 1], directions[n, 2]
-        lx = world_to_local[0, 0] * dx + world_to_local[0, 1] * dy + world_to_local[0, 2] * dz
-        ly = world_to_local[1, 0] * dx + world_to_local[1, 1] * dy + world_to_local[1, 2] * dz
-        lz = world_to_local[2, 0] * dx + world_to_local[2, 1] * dy + world_to_local[2, 2] * dz
-        u = math.atan2(lx, -lz) / (2.0 * math.pi)
-        u -= math.floor(u)
-        v = math.acos(min(max(ly, -1.0), 1.0)) / math.pi
-        x = u * width - 0.5  # column centres at u = (j + 0.5) / W
-        col = math.floor(x)
-        fx = x - col
-        col0 = int(col) % width
-        col1 = (col0 + 1) % width
-        y = v * (height - 1)  # rows at v = i / (H - 1)
-        row0 = min(int(y), height - 2)
-        fy = y - row0
+        row0, col0, col1, fx, fy = lookup_stencil(world_to_local, directions[n, 0], directions[n, 1],
+                                                  directions[n, 2], height, width)
         for c in range(3):
             top = (1.0 - fx) * radiance[row0, col0, c] + fx * radiance[row0, col1, c]
             bottom = (1.0 - fx) * radiance[row0 + 1, col0, c] + fx * radiance[row0 + 1, col1, c]

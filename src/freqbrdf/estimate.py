@@ -119,6 +119,7 @@ import numba
 import numpy as np
 
 from freqbrdf import brdf, sh, texels
+from freqbrdf import envmap as envmaps
 from freqbrdf.config import Config, EstimateConfig, FitConfig
 from freqbrdf.errors import InputError
 from freqbrdf.observations import Observations
@@ -666,8 +667,6 @@ def prefilter_nodes(settings: EstimateConfig) -> int:
 def prefiltered_environment(envmap, n_nodes: int) -> np.ndarray:
     """(n_nodes, H, W, 3) float32 the map (an `envmap.Envmap`) filtered by `ggx_lobe_gains` at
     roughness j PREFILTER_STEP, every degree the map holds (at most PREFILTER_MAX_HEIGHT rows)."""
-    from freqbrdf import envmap as envmaps
-
     height, width = envmap.radiance.shape[:2]
     out_height = min(height, PREFILTER_MAX_HEIGHT, (width + 1) // 2)
     lmax = min(height - 2, (width - 1) // 2, out_height - 2)
@@ -681,8 +680,6 @@ def prefiltered_light(directions: np.ndarray, tangent: np.ndarray, normal: np.nd
     directions, tangent and normal (n, 3) world frame of each texel, prefiltered (nodes, H, W, 3)
     `prefiltered_environment` of a map with emitter-to-world ``rotation`` (3, 3), looked up at the
     world mirror directions and linear in roughness between its nodes (as the search reads it)."""
-    from freqbrdf import envmap as envmaps
-
     directions = np.asarray(directions, np.float64)
     tangent, normal = np.asarray(tangent, np.float64), np.asarray(normal, np.float64)
     bitangent = np.cross(normal, tangent)
@@ -723,24 +720,13 @@ def _mirror_stencil(xyz, n, tangent, normal, bitangent, world_to_local, height, 
     (row + 1, col), (row + 1, col + 1); stencil_frac (2, n) the column and row fractions."""
     for s in range(n):
         mirror_x, mirror_y, mirror_z = -xyz[0, s], -xyz[1, s], xyz[2, s]
-        wx = mirror_x * tangent[0] + mirror_y * bitangent[0] + mirror_z * normal[0]
-        wy = mirror_x * tangent[1] + mirror_y * bitangent[1] + mirror_z * normal[1]
-        wz = mirror_x * tangent[2] + mirror_y * bitangent[2] + mirror_z * normal[2]
-        lx = world_to_local[0, 0] * wx + world_to_local[0, 1] * wy + world_to_local[0, 2] * wz
-        ly = world_to_local[1, 0] * wx + world_to_local[1, 1] * wy + world_to_local[1, 2] * wz
-        lz = world_to_local[2, 0] * wx + world_to_local[2, 1] * wy + world_to_local[2, 2] * wz
-        u = math.atan2(lx, -lz) / (2.0 * math.pi)
-        u -= math.floor(u)
-        v = math.acos(min(max(ly, -1.0), 1.0)) / math.pi
-        x = u * width - 0.5  # column centres at u = (j + 0.5) / W
-        col = math.floor(x)
-        col0 = int(col) % width
-        col1 = (col0 + 1) % width
-        y = v * (height - 1)  # rows at v = i / (H - 1)
-        row0 = min(int(y), height - 2)
+        row0, col0, col1, fx, fy = envmaps.lookup_stencil(
+            world_to_local, mirror_x * tangent[0] + mirror_y * bitangent[0] + mirror_z * normal[0],
+            mirror_x * tangent[1] + mirror_y * bitangent[1] + mirror_z * normal[1],
+            mirror_x * tangent[2] + mirror_y * bitangent[2] + mirror_z * normal[2], height, width)
         corner[0, s], corner[1, s] = row0 * width + col0, row0 * width + col1
         corner[2, s], corner[3, s] = (row0 + 1) * width + col0, (row0 + 1) * width + col1
-        stencil_frac[0, s], stencil_frac[1, s] = x - col, y - row0
+        stencil_frac[0, s], stencil_frac[1, s] = fx, fy
 
 
 @numba.njit(fastmath=True, cache=True)
