@@ -84,6 +84,15 @@ def test_uncertainty_command(run_cli, tiny_capture, tmp_path, monkeypatch, capsy
     assert "freqbrdf fit" in summary["not_computed"]["roughness_std"]
     assert run_cli("uncertainty", tiny_capture, "--out", out, "--texture-res", 16) == 0
     assert "roughness_std not computed" in capsys.readouterr().out
+    # The angular entropy (the estimator's model on the samples), and a mode that does not exist.
+    assert run_cli("uncertainty", tiny_capture, "--out", out, "--texture-res", 16, "--entropy", "angular",
+                   "--json") == 0
+    angular = json.loads(capsys.readouterr().out)
+    assert angular["uncertainty"]["mode"] == "angular" and angular["settings"]["uncertainty"]["mode"] == "angular"
+    assert 0.0 <= angular["uncertainty"]["entropy_mean"] <= 1.0
+    other = tmp_path / "other"
+    assert run_cli("uncertainty", tiny_capture, "--out", other, "--entropy", "sharpest") == 2
+    assert "unknown entropy mode" in capsys.readouterr().err and not other.exists()
 
 
 def test_bad_input_is_one_line_exit_2_and_writes_nothing(run_cli, tmp_path, monkeypatch, capsys):

@@ -173,7 +173,7 @@ def observe(
 
 def _config(preset: str, texture_res: int | None = None, lmax: int | None = None, *,
             estimator: str | None = None, model: str | None = None,
-            environment_occlusion: bool | None = None):
+            environment_occlusion: bool | None = None, entropy: str | None = None):
     """The preset's Config with the options the user gave (None: keep the preset's value)."""
     import dataclasses
 
@@ -193,8 +193,17 @@ def _config(preset: str, texture_res: int | None = None, lmax: int | None = None
         estimate_changes["method"] = estimator
     if model is not None:
         estimate_changes["forward_model"] = model
+    if entropy not in (None, *ENTROPY_MODES):
+        raise typer.BadParameter(f"unknown entropy mode {entropy!r}; choose {', '.join(ENTROPY_MODES)}")
+    uncertainty_settings = dataclasses.replace(config.uncertainty, **({} if entropy is None else {"mode": entropy}))
     return config.replace(texels=texels, fit=fit_settings, observe=observe_settings,
-                          estimate=dataclasses.replace(config.estimate, **estimate_changes))
+                          estimate=dataclasses.replace(config.estimate, **estimate_changes),
+                          uncertainty=uncertainty_settings)
+
+
+ENTROPY_MODES = ("calibrated", "paper", "angular")
+ENTROPY_HELP = ("Entropy mode: calibrated (spectra, milliseconds), paper (the published recipe) or angular "
+                "(the estimator's model on the samples, seconds; agrees with a path tracer). Default: the preset's.")
 
 
 def _print_json(document: dict) -> None:
@@ -212,6 +221,7 @@ def fit(
     estimator: str = typer.Option(None, help="global (ours, default) or paper (the prototype's Adam)."),
     model: str = typer.Option(None, help="Forward model of `paper`: angular, sh_coeffs or spectrum."),
     preset: str = typer.Option("default", help="default, or paper (the prototype's hyper-parameters)."),
+    entropy: str = typer.Option(None, help=ENTROPY_HELP),
     share: bool = typer.Option(False, "--share", help="Pull uncertain texels towards affine confident anchors."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars or messages."),
     json_output: bool = typer.Option(False, "--json", help="Print summary.json to stdout."),
@@ -229,7 +239,7 @@ def fit(
         raise typer.BadParameter(f"unknown estimator {estimator!r}; choose global or paper")
     if model not in (None, "angular", "sh_coeffs", "spectrum"):
         raise typer.BadParameter(f"unknown model {model!r}; choose angular, sh_coeffs or spectrum")
-    config = _config(preset, texture_res, lmax, estimator=estimator, model=model)
+    config = _config(preset, texture_res, lmax, estimator=estimator, model=model, entropy=entropy)
     if share:
         config = config.replace(share=dataclasses.replace(config.share, enabled=True))
     reporter = Reporter(enabled=not (quiet or json_output))
@@ -260,6 +270,7 @@ def uncertainty(
     texture_res: int = typer.Option(None, min=1, help="Texture resolution T (default 512)."),
     lmax: int = typer.Option(None, min=0, help="Degree l* of the per-texel SH fits (default 5)."),
     preset: str = typer.Option("default", help="default (calibrated entropy) or paper."),
+    entropy: str = typer.Option(None, help=ENTROPY_HELP),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars or messages."),
     json_output: bool = typer.Option(False, "--json", help="Print the summary as JSON to stdout."),
 ) -> None:
@@ -275,7 +286,7 @@ def uncertainty(
     from freqbrdf.progress import Reporter
     from freqbrdf.uncertainty import entropy_map, summary as uncertainty_summary
 
-    config = _config(preset, texture_res, lmax)
+    config = _config(preset, texture_res, lmax, entropy=entropy)
     loaded = load(capture)
     pipeline.check_output_folder(out, {"the capture": loaded.root.resolve()})
     start = time.perf_counter()
