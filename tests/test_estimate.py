@@ -50,8 +50,9 @@ def synthetic_observations(
     from `split_sum_terms` and `burley_diffuse_factor`. With ``environment_light`` each S_k is
     blended towards `environment_filtered_light` of a world-frame environment (random frames) over
     ``environment_blend``. With ``prefiltered`` the lobes read `prefiltered_light` of a rotated
-    32 x 64 map (degrees up to 12) instead of the fitted light, and the observations carry the map;
-    the environment is then that map's SH. Without either, the observations carry no environment
+    32 x 64 map (degrees up to 12) instead of the fitted light, the environment light gains the
+    map's degrees above 5 (prefiltered), and the observations carry the map; the environment is
+    then that map's SH. Without either, the observations carry no environment
     (tangent None), as hand-made ones.
 
     Per texel: random view directions on the upper hemisphere (20 % missed), a light of a grey
@@ -103,14 +104,19 @@ def synthetic_observations(
             settings = EstimateConfig(environment_light=environment_light, environment_blend=environment_blend)
             maps = prefiltered_environment(environment_map, prefilter_nodes(settings))
             own_light = prefiltered_light(directions, tangent, normal, maps, environment_map.rotation, truth.roughness)
+            # The environment light holds degrees <= 5; the prefiltered maps add the ones above.
+            high = prefiltered_environment(environment_map, prefilter_nodes(EstimateConfig(environment_light=False)),
+                                           skip_degrees=LMAX + 1)
+            high_light = prefiltered_light(directions, tangent, normal, high, environment_map.rotation, truth.roughness)
 
         def light(term):
             fitted = own_light if prefiltered else lobe_filtered_light(
                 directions, weight, light_fit.coeffs[:, :3], LMAX, sigma, truth.roughness, lobe_tilt, term)
             if not environment_light:
                 return fitted
-            return (1.0 - share) * fitted + share * environment_filtered_light(
+            return (1.0 - share) * fitted + share * (environment_filtered_light(
                 directions, weight, tangent, normal, environment, truth.roughness, term)
+                + (high_light if prefiltered else 0.0))
 
         x, y, z = (albedo[..., None] * light(term) for albedo, term in zip((scale, bias, dielectric), LOBE_TERMS))
         if not exact_dielectric:

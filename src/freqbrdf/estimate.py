@@ -63,7 +63,10 @@ and diffuse factor D come in two versions (``EstimateConfig.specular_model``, ``
   256 x 512 map), looked up bilinearly at each sample's world mirror direction, linear in roughness
   between the nodes, and blended into the environment light over the same 0.3-0.6. It ignores
   occlusion of the mirror direction, as the environment light does. It replaces the per-texel
-  expansion of the fitted light, so it also costs less. Measured: see `EstimateConfig.prefiltered_light`.
+  expansion of the fitted light, so it also costs less. The environment light (degrees <= 5) also
+  gains the map's degrees above 5 this way (maps filtered by the same gains with degrees <= 5
+  removed, at roughness nodes 1/16 apart up to 1): in the blend, a lobe of roughness 0.45 still
+  responds 0.17 to degree 6. Measured: see `EstimateConfig.prefiltered_light`.
 
 - ``global`` (ours) minimises the weighted squared residual sum_v w_v^2 (L(w_v) - f_v)^2. Write
   L = m (b X + Y) + (1 - m) Z + (1 - m) b e D with X = A S_A, Y = B S_B, Z = E S_E (S_k the light
@@ -222,7 +225,7 @@ def angular_loss(
     base_color = np.asarray(params.base_color, dtype=np.float64)
     metallic = np.asarray(params.metallic, dtype=np.float64)
     levels = _tilt_levels(settings)
-    (tangent, normal, environment, environment_levels, blend, prefiltered, world_to_local, map_height,
+    (tangent, normal, environment, environment_levels, blend, prefiltered, n_full, world_to_local, map_height,
      map_width) = _environment_inputs(observations, settings)
     for rows in _blocks(observations.n_texels, _PROJECTION_BLOCK // max(levels, environment_levels)):
         if environment_levels:
@@ -238,8 +241,8 @@ def angular_loss(
             _diffuse_scale(observations)[rows], base_color[rows], metallic[rows],
             np.asarray(params.roughness, dtype=np.float64)[rows], observations.sigma, settings.fresnel,
             settings.masking, _uses_split_sum(settings), _uses_exact_dielectric(settings), _uses_burley(settings),
-            _model_tables(), environment_proj, blend, tangent[rows], normal[rows], prefiltered, world_to_local,
-            map_height, map_width, loss[rows],
+            _model_tables(), environment_proj, blend, tangent[rows], normal[rows], prefiltered, n_full,
+            world_to_local, map_height, map_width, loss[rows],
         )
     return np.where(observations.n_samples > 0, loss, np.nan)
 
@@ -665,13 +668,15 @@ def prefilter_nodes(settings: EstimateConfig) -> int:
     return min(math.ceil(end / PREFILTER_STEP - 1e-9), round(1.0 / PREFILTER_STEP)) + 1
 
 
-def prefiltered_environment(envmap, n_nodes: int) -> np.ndarray:
+def prefiltered_environment(envmap, n_nodes: int, skip_degrees: int = 0) -> np.ndarray:
     """(n_nodes, H, W, 3) float32 the map (an `envmap.Envmap`) filtered by `ggx_lobe_gains` at
-    roughness j PREFILTER_STEP, every degree the map holds (at most PREFILTER_MAX_HEIGHT rows)."""
+    roughness j PREFILTER_STEP, every degree the map holds (at most PREFILTER_MAX_HEIGHT rows)
+    from ``skip_degrees`` on (the environment light holds the degrees below)."""
     height, width = envmap.radiance.shape[:2]
     out_height = min(height, PREFILTER_MAX_HEIGHT, (width + 1) // 2)
     lmax = min(height - 2, (width - 1) // 2, out_height - 2)
     gains = np.stack([ggx_lobe_gains(node * PREFILTER_STEP, lmax) for node in range(n_nodes)])
+    gains[:, :skip_degrees] = 0.0
     return envmaps.zonal_filters(envmap, gains, out_height if out_height != height else None)
 
 
@@ -870,8 +875,10 @@ def _uses_prefiltered_light(observations: Observations, settings: EstimateConfig
 
 def _environment_inputs(observations: Observations, settings: EstimateConfig) -> tuple:
     """(tangent (N, 3), normal (N, 3), environment (K, 3) float64, levels, blend, prefiltered
-    (H W, nodes, 3) float32, world_to_local (3, 3), H, W) for the kernels; levels 0 without the
-    environment light, no nodes without the prefiltered light."""
+    (H W, nodes, 3) float32, n_full, world_to_local (3, 3), H, W) for the kernels; levels 0 without
+    the environment light, no nodes without the prefiltered light. The prefiltered nodes are
+    `prefilter_nodes` full maps, then (with the environment light) the degrees above the
+    environment light's at all `_HIGH_NODES` roughness nodes: what the environment light adds."""
     tangent = np.zeros((observations.n_texels, 3), np.float32) if observations.tangent is None else observations.tangent
     if _uses_environment_light(observations, settings):
         environment = (observations.environment_coeffs.astype(np.float64), _ENVIRONMENT_TILT_LEVELS,
@@ -879,26 +886,33 @@ def _environment_inputs(observations: Observations, settings: EstimateConfig) ->
     else:
         environment = (np.zeros((1, 3)), 0, (0.0, 0.0))
     if _uses_prefiltered_light(observations, settings):
-        maps = _prefiltered_maps(observations, prefilter_nodes(settings))
-        prefiltered = (np.ascontiguousarray(maps.reshape(maps.shape[0], -1, 3).transpose(1, 0, 2)),
+        n_full = prefilter_nodes(settings)
+        maps = _prefiltered_maps(observations, n_full)
+        if environment[1]:
+            high = _prefiltered_maps(observations, _HIGH_NODES, min(observations.lmax, _TILT_FIT_LMAX) + 1)
+            maps = np.concatenate([maps, high])
+        prefiltered = (np.ascontiguousarray(maps.reshape(maps.shape[0], -1, 3).transpose(1, 0, 2)), n_full,
                        np.ascontiguousarray(observations.environment_rotation.T, dtype=np.float64), *maps.shape[1:3])
     else:
-        prefiltered = (np.zeros((1, 0, 3), np.float32), np.eye(3), 2, 2)
+        prefiltered = (np.zeros((1, 0, 3), np.float32), 0, np.eye(3), 2, 2)
     return (tangent, observations.normal, *environment, *prefiltered)
 
 
-# The last prefiltered stack: `angular_loss` runs many times on the same observations (uncertainty,
+# Roughness nodes (0, PREFILTER_STEP, ..., 1) of the degrees the environment light leaves out.
+_HIGH_NODES = round(1.0 / PREFILTER_STEP) + 1
+# The last prefiltered stacks: `angular_loss` runs many times on the same observations (uncertainty,
 # sharing), and the transforms take ~0.2 s.
 _PREFILTERED_CACHE: dict = {}
 
 
-def _prefiltered_maps(observations: Observations, n_nodes: int) -> np.ndarray:
+def _prefiltered_maps(observations: Observations, n_nodes: int, skip_degrees: int = 0) -> np.ndarray:
     radiance = observations.environment_radiance
     key = (hashlib.blake2b(np.ascontiguousarray(radiance).tobytes(), digest_size=16).hexdigest(), radiance.shape,
-           observations.environment_rotation.tobytes(), n_nodes)
+           observations.environment_rotation.tobytes(), n_nodes, skip_degrees)
     if key not in _PREFILTERED_CACHE:
-        _PREFILTERED_CACHE.clear()
-        _PREFILTERED_CACHE[key] = prefiltered_environment(observations.environment(), n_nodes)
+        if len(_PREFILTERED_CACHE) >= 2:
+            _PREFILTERED_CACHE.clear()
+        _PREFILTERED_CACHE[key] = prefiltered_environment(observations.environment(), n_nodes, skip_degrees)
     return _PREFILTERED_CACHE[key]
 
 
@@ -996,7 +1010,7 @@ def _fill_kernel(alpha, sigma, kernel, kernel_derivative):
 def _squared_residual_kernel(
     proj, directions, weight, observed, diffuse_scale, base_color, metallic, roughness, sigma, fresnel, masking,
     split_sum, exact_dielectric, burley, table, environment_proj, environment_blend, tangent, normal, prefiltered,
-    world_to_local, map_height, map_width, out,
+    n_full, world_to_local, map_height, map_width, out,
 ):
     """out[t] = sum_v,c w^2 (L - f)^2 / sum_v w^2 (0 without samples); directions (n, V, 3) local view
     directions. proj (n, levels, 3, l*+1, V):
@@ -1036,23 +1050,32 @@ def _squared_residual_kernel(
         # Without tilt levels or environment light every term reads the same light; Schlick's
         # dielectric needs no light of its own.
         # The prefiltered light at its nodes on either side, per channel and view.
-        use_prefiltered = prefiltered.shape[1] > 0 and share < 1.0
+        use_prefiltered = n_full > 0 and share < 1.0
+        n_high = prefiltered.shape[1] - n_full
+        use_high = n_high > 0 and share > 0.0
         map_light = np.zeros((2, 3, n_views))
-        map_frac = 0.0
-        if use_prefiltered:
+        high_light = np.zeros((2, 3, n_views))
+        map_frac = high_frac = 0.0
+        corner = np.zeros((4, n_views), dtype=np.int64)
+        stencil_frac = np.zeros((2, n_views))
+        if use_prefiltered or use_high:
             xyz = np.empty((3, n_views))
             for v in range(n_views):
                 for axis in range(3):
                     xyz[axis, v] = directions[t, v, axis]
             bitangent = np.empty(3)
             _cross(normal[t], tangent[t], bitangent)
-            corner = np.empty((4, n_views), dtype=np.int64)
-            stencil_frac = np.empty((2, n_views))
             _mirror_stencil(xyz, n_views, tangent[t], normal[t], bitangent, world_to_local, map_height, map_width,
                             corner, stencil_frac)
-            map_node, map_frac = _prefilter_node(roughness[t], prefiltered.shape[1])
+        if use_prefiltered:
+            map_node, map_frac = _prefilter_node(roughness[t], n_full)
             for side in range(2):
                 _prefiltered_node_light(prefiltered, map_node + side, n_views, corner, stencil_frac, map_light[side])
+        if use_high:
+            high_node, high_frac = _prefilter_node(roughness[t], n_high)
+            for side in range(2):
+                _prefiltered_node_light(prefiltered, n_full + high_node + side, n_views, corner, stencil_frac,
+                                        high_light[side])
         distinct = n_levels > 1 or share > 0.0
         distinct_terms = (n_terms if exact_dielectric else n_terms - 1) if distinct else 1
         total = 0.0
@@ -1083,6 +1106,9 @@ def _squared_residual_kernel(
                         if share > 0.0:
                             lower = environment_light[0, term, c, v]
                             light = lower + node_frac * (environment_light[1, term, c, v] - lower)
+                            if use_high:
+                                lower = high_light[0, c, v]
+                                light += lower + high_frac * (high_light[1, c, v] - lower)
                             filtered[term] = (1.0 - share) * filtered[term] + share * light
                     for term in range(distinct_terms, n_terms):
                         filtered[term] = filtered[0]
@@ -1384,6 +1410,21 @@ def _environment_node_lights(table, node, n, table_row, table_frac, environment_
 
 
 @numba.njit(fastmath=True, cache=True)
+def _prefiltered_nodes_at(roughness, first, count, n, prefiltered, corner, stencil_frac, nodes, cached):
+    """The prefiltered nodes first..first + count - 1 (roughness 0..1 by PREFILTER_STEP) on either side
+    of ``roughness``, each looked up once per texel into nodes (cached): (lower, upper, fraction);
+    on a node both are that node and the fraction is 0."""
+    node, frac = _prefilter_node(roughness, count)
+    lower = first + (node if frac < 1.0 else node + 1)
+    upper = first + (node + 1 if frac > 0.0 else node)
+    for needed in range(lower, upper + 1):
+        if not cached[needed]:
+            _prefiltered_node_light(prefiltered, needed, n, corner, stencil_frac, nodes[needed])
+            cached[needed] = True
+    return lower, upper, (frac if upper != lower else 0.0)
+
+
+@numba.njit(fastmath=True, cache=True)
 def _environment_share(roughness, blend):
     """`environment_weight` for one roughness; blend (start, end)."""
     ramp = min(max((roughness - blend[0]) / max(blend[1] - blend[0], 1e-12), 0.0), 1.0)
@@ -1402,7 +1443,8 @@ def _roughness_objective(roughness, args):
      table_row, table_frac, tilt_level, tilt_frac, burley_terms, diffuse_moments, column, kernel, kernel_derivative,
      albedo, diffuse_factor, level_filtered, filtered, moments, quadratics, squared_values, diffuse_scale,
      state, metallic_grid, environment_proj, environment_blend, environment_nodes, environment_cached,
-     environment_gain, prefiltered, corner, stencil_frac, prefiltered_nodes, prefiltered_cached) = args
+     environment_gain, prefiltered, n_full, corner, stencil_frac, prefiltered_nodes, prefiltered_cached,
+     high_filtered) = args
     n_levels = proj.shape[0]
     # Without environment levels (environment light off) the fitted light is all there is.
     share = _environment_share(roughness, environment_blend) if environment_proj.shape[0] > 1 else 0.0
@@ -1462,16 +1504,17 @@ def _roughness_objective(roughness, args):
     first_level, last_level = (0, 0) if own_light else (0, -1)  # (0, -1): no level at all
     # The prefiltered light replaces the fitted one (one level): its nodes around this roughness,
     # each looked up once per texel.
-    use_prefiltered = own_light and prefiltered.shape[1] > 0
+    use_prefiltered = own_light and n_full > 0
     if use_prefiltered:
         first_level, last_level = 0, -1
-        map_node, map_frac = _prefilter_node(roughness, prefiltered.shape[1])
-        lower_map = map_node if map_frac < 1.0 else map_node + 1
-        upper_map = map_node + 1 if map_frac > 0.0 else map_node
-        for needed in range(lower_map, upper_map + 1):
-            if not prefiltered_cached[needed]:
-                _prefiltered_node_light(prefiltered, needed, n, corner, stencil_frac, prefiltered_nodes[needed])
-                prefiltered_cached[needed] = True
+        lower_map, upper_map, map_frac = _prefiltered_nodes_at(roughness, 0, n_full, n, prefiltered, corner,
+                                                               stencil_frac, prefiltered_nodes, prefiltered_cached)
+    # The degrees the environment light leaves out, from the prefiltered maps' last nodes.
+    n_high = prefiltered.shape[1] - n_full
+    use_high = share > 0.0 and n_high > 0
+    if use_high:
+        lower_high, upper_high, high_frac = _prefiltered_nodes_at(roughness, n_full, n_high, n, prefiltered, corner,
+                                                                  stencil_frac, prefiltered_nodes, prefiltered_cached)
     if n_levels > 1 and own_light:
         first_level, last_level = n_levels, 0
         for term in range(n_terms):
@@ -1481,9 +1524,13 @@ def _roughness_objective(roughness, args):
     for c in range(3):
         if use_prefiltered:
             lower_light, upper_light = prefiltered_nodes[lower_map, c], prefiltered_nodes[upper_map, c]
-            frac = map_frac if upper_map != lower_map else 0.0
+            frac = map_frac
             for s in range(n):
                 level_filtered[0, s] = lower_light[s] + frac * (upper_light[s] - lower_light[s])
+        if use_high:
+            lower_light, upper_light = prefiltered_nodes[lower_high, c], prefiltered_nodes[upper_high, c]
+            for s in range(n):
+                high_filtered[s] = lower_light[s] + high_frac * (upper_light[s] - lower_light[s])
         for level in range(first_level, last_level + 1):
             level_row = level_filtered[level]
             k0 = kernel[0]
@@ -1510,7 +1557,10 @@ def _roughness_objective(roughness, args):
                 frac = node_frac if upper_node != lower_node else 0.0
                 keep = 1.0 - share
                 for s in range(n):
-                    light = albedo[term, s] * (lower_light[s] + frac * (upper_light[s] - lower_light[s]))
+                    light = lower_light[s] + frac * (upper_light[s] - lower_light[s])
+                    if use_high:
+                        light += high_filtered[s]
+                    light *= albedo[term, s]
                     model[term, s] = keep * model[term, s] + share * light if own_light else light
         if not exact_dielectric:
             for s in range(n):
@@ -1694,8 +1744,8 @@ def _environment_levels(xyz, n, tangent, normal, bitangent, environment, lmax, d
 def _global_search_kernel(
     directions, weight, observed, light, diffuse_scale, sigma, fresnel, masking, split_sum, exact_dielectric, burley,
     table, tilt_levels, roughness_grid, metallic_grid, robust_passes, lmax, diag, rec_a, rec_b,
-    tangent, normal, environment, environment_levels, environment_blend, prefiltered, world_to_local, map_height,
-    map_width, hypothesis_roughness, hypothesis_moments, search, params, loss, curvature,
+    tangent, normal, environment, environment_levels, environment_blend, prefiltered, n_full, world_to_local,
+    map_height, map_width, hypothesis_roughness, hypothesis_moments, search, params, loss, curvature,
 ):
     """Per texel: the (base colour, roughness, metallic) of least weighted squared residual.
 
@@ -1764,6 +1814,7 @@ def _global_search_kernel(
         prefiltered_cached = np.zeros(n_prefiltered, dtype=np.bool_)
         corner = np.empty((4, n_views), dtype=np.int64)
         stencil_frac = np.empty((2, n_views))
+        high_filtered = np.empty(n_views)
         for t in range(chunk * _SEARCH_CHUNK, min((chunk + 1) * _SEARCH_CHUNK, n_texels)):
             n = 0
             for v in range(n_views):
@@ -1781,10 +1832,10 @@ def _global_search_kernel(
                 continue
             _cross(normal[t], tangent[t], bitangent)
             prefiltered_cached[:] = False
-            if n_prefiltered > 0:
+            if n_full > 0:
                 _mirror_stencil(xyz, n, tangent[t], normal[t], bitangent, world_to_local, map_height, map_width,
                                 corner, stencil_frac)
-            for level in range(tilt_levels if n_prefiltered == 0 else 0):
+            for level in range(tilt_levels if n_full == 0 else 0):
                 tilt = level / (tilt_levels - 1) if tilt_levels > 1 else 1.0
                 for s in range(n):  # normalize((1 - tilt) n + tilt w)
                     tilted[0, s] = tilt * xyz[0, s]
@@ -1821,8 +1872,8 @@ def _global_search_kernel(
                     burley, table, table_row, table_frac, tilt_level, tilt_frac, burley_terms, diffuse_moments, column,
                     kernel, kernel_derivative, albedo, diffuse_factor, level_filtered, filtered, moments, quadratics,
                     squared_values, scale, state, metallic_grid, environment_proj, environment_blend,
-                    environment_nodes, environment_cached, environment_gain, prefiltered, corner, stencil_frac,
-                    prefiltered_nodes, prefiltered_cached)
+                    environment_nodes, environment_cached, environment_gain, prefiltered, n_full, corner, stencil_frac,
+                    prefiltered_nodes, prefiltered_cached, high_filtered)
             for i in range(hypothesis_roughness.shape[0]):
                 _roughness_objective(hypothesis_roughness[i], args)
                 for c in range(3):
