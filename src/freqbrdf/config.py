@@ -54,7 +54,7 @@ class UncertaintyConfig:
     # "angular": the same grid scored in the sample domain with the global estimator's own model
     # (uncertainty.entropy_angular): seconds instead of milliseconds (5 s for the 256k texels of
     # entropy_scenes.py's sphere), but it agrees with the path-traced brute force over the same grid
-    # (benchmarks/pathtraced_entropy.py, Spearman 0.76 and 0.79 against two renderings that agree
+    # (benchmarks/pathtraced_entropy.py, Spearman 0.77 and 0.79 against two renderings that agree
     # with each other at 0.94) where the spectra do not (calibrated 0.20, paper 0.04). Capture
     # guidance (which predicts spectra) needs "calibrated" or "paper".
     mode: Literal["calibrated", "paper", "angular"] = "calibrated"
@@ -81,9 +81,9 @@ class UncertaintyConfig:
     # estimate, and ranks the global estimate's roughness errors poorly. Spearman rho / AURG
     # against the per-texel roughness error of the session-5 estimator (environment light;
     # benchmarks/entropy_variants.py, bunny and sphere): entropy 0.27 / 0.23 and 0.18 / 0.18. With
-    # the session-6 estimator (prefiltered light) the default roughness_std reaches 0.55 / 0.49
-    # (bunny), 0.41 / 0.37 (sphere), 0.29, 0.37 and 0.49 on the photo-textured bunny_sunset,
-    # sphere_city and sphere_studio, 0.56 / 0.52 on the demo capture. Two
+    # the session-6 estimator (prefiltered light) the default roughness_std reaches 0.56 / 0.50
+    # (bunny), 0.40 / 0.36 (sphere), 0.28, 0.37 and 0.42 on the photo-textured bunny_sunset,
+    # sphere_city and sphere_studio, 0.55 / 0.52 on the demo capture. Two
     # terms, added as variances:
     # - roughness_window: the scatter of the per-texel estimates over this many texels square
     #   (0: off). Texels are estimated independently and materials are smooth at that scale, so the
@@ -143,11 +143,13 @@ class EstimateConfig:
     # per-degree response (estimate.prefiltered_environment), at each sample's world mirror
     # direction, instead of the per-texel SH fit (l* = 5) of the mirrored samples, which cannot
     # hold a smooth lobe's sharp reflections. Needs observations that carry the map
-    # (`Observations.environment_radiance`); ignores occlusion of the mirror direction. Measured
-    # (64 views, T = 512; benchmarks/results/compare_estimators.md): base-colour PSNR 18.43 -> 18.60
-    # dB (bunny), 24.24 -> 24.38 (plane); roughness MAE 0.154 -> 0.143, 0.071 -> 0.066; relighting
-    # PSNR-H 20.19 -> 21.90, 22.65 -> 23.46; the demo capture 19.92 -> 20.13 dB, relighting 23.02 ->
-    # 24.02. The model's mean loss drops 45-72 % (benchmarks/results/prefiltered_light.json).
+    # (`Observations.environment_radiance`); ignores occlusion of the mirror direction. The
+    # environment light also gains the map's degrees above its own 5 from such maps. Measured (64
+    # views, T = 512; benchmarks/results/compare_estimators.md): base-colour PSNR 18.43 -> 18.69
+    # dB (bunny), 24.24 -> 24.42 (plane); roughness MAE 0.154 -> 0.142, 0.071 -> 0.064; metallic
+    # MAE 0.200 -> 0.191, 0.118 -> 0.118; relighting PSNR-H 20.19 -> 21.90, 22.65 -> 23.47; the demo
+    # capture 19.92 -> 20.25 dB, relighting 23.02 -> 24.06. The model's mean loss drops 45-72 %
+    # (benchmarks/results/prefiltered_light.json).
     prefiltered_light: bool = True
     fresnel: bool = True  # Schlick F; off: F = R0
     masking: bool = True  # "g1": G1(theta_o) on the reflected light

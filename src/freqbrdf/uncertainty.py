@@ -58,20 +58,20 @@ estimator's own forward model (`entropy_angular`): per hypothesis, the radiance 
 colour k and roughness sqrt(alpha) reflects at each observed view (split-sum albedo, the
 prefiltered and environment light), the best constant diffuse part, and the misfit of the
 samples; the noise model of the calibrated mode in radiance units. It is what
-benchmarks/pathtraced_entropy.py computes with a path tracer, and agrees with it (Spearman 0.76
+benchmarks/pathtraced_entropy.py computes with a path tracer, and agrees with it (Spearman 0.77
 and 0.79 against two independent renderings, which agree with each other at 0.94; the calibrated
 mode 0.20, the paper's recipe 0.04). It costs R probes of the estimator's search per texel:
 seconds, not milliseconds. Both the brute force and this mode find the smooth-gradient ("badly
 lit") region of entropy_scenes.py about as certain as the sharply lit one (brute force 0.15 and
-0.16): the view dependence of Fresnel and masking, which a spectrum of the mirrored light leaves
+0.16, this mode 0.12 and 0.15): the view dependence of Fresnel and masking, which a spectrum of the mirrored light leaves
 out, pins the roughness down there; the paper's recipe calls it uncertain (0.81 against 0.22).
 
 Flags (bit field, uint8 per texel) say why a texel should not be trusted; see FLAG_*.
 
 The entropy scores the hypotheses against the spectra, not the estimate, and ranks the `global`
 estimate's per-texel roughness errors poorly (Spearman 0.25 on the Mitsuba bunny, 0.17 on the
-sphere of entropy_scenes.py; the angular mode 0.21 and 0.15). `roughness_std` is the posterior
-spread of the estimate itself (UncertaintyConfig.roughness_window, loss_curvature): 0.55 and 0.41,
+sphere of entropy_scenes.py; the angular mode 0.22 and 0.17). `roughness_std` is the posterior
+spread of the estimate itself (UncertaintyConfig.roughness_window, loss_curvature): 0.56 and 0.40,
 measured in benchmarks/entropy_variants.py (session-6 estimator).
 """
 
