@@ -634,11 +634,6 @@ def environment_projections(directions, weight, tangent, normal, environment_coe
 # roughness nodes PREFILTER_STEP apart, looked up bilinearly at each sample's world mirror direction
 # (as `envmap.lookup`) and interpolated linearly in roughness between the nodes.
 PREFILTER_STEP = 1.0 / 16.0
-# A sample at view cosine mu reads the maps at alpha mu^PREFILTER_COSINE_POWER: the reflected lobe is
-# squashed towards grazing views, and the isotropic maps are read narrower there. Measured against
-# Mitsuba (benchmarks/model_fidelity.py, r = 0.14 / 0.29 / 0.43): relative RMS error 0.157 / 0.299 /
-# 0.238 with 0, 0.111 / 0.249 / 0.215 with 0.25 (0.15: 0.123 / 0.263 / 0.219; 0.35: 0.108 / 0.251 / 0.223).
-PREFILTER_COSINE_POWER = 0.25
 # Larger maps are resampled to this height (degrees up to 510, ~0.35 degrees): bounds the memory
 # of the prefiltered stack (11 maps of 512 x 1024 x 3 float32: 69 MB) and its transforms.
 PREFILTER_MAX_HEIGHT = 512
@@ -690,8 +685,7 @@ def prefiltered_light(directions: np.ndarray, tangent: np.ndarray, normal: np.nd
     """(n, V, 3) the prefiltered light a lobe of roughness (n,) reads: directions (n, V, 3) local view
     directions, tangent and normal (n, 3) world frame of each texel, prefiltered (nodes, H, W, 3)
     `prefiltered_environment` of a map with emitter-to-world ``rotation`` (3, 3), looked up at the
-    world mirror directions, each sample at its roughness times `_lobe_narrowing` of its view
-    cosine, linear in roughness between the nodes (as the search reads it)."""
+    world mirror directions and linear in roughness between its nodes (as the search reads it)."""
     directions = np.asarray(directions, np.float64)
     tangent, normal = np.asarray(tangent, np.float64), np.asarray(normal, np.float64)
     bitangent = np.cross(normal, tangent)
@@ -700,13 +694,13 @@ def prefiltered_light(directions: np.ndarray, tangent: np.ndarray, normal: np.nd
              + mirror[..., 2:] * normal[:, None])
     to_world = np.eye(4)
     to_world[:3, :3] = rotation
-    looked_up = np.stack([envmaps.lookup(envmaps.Envmap(level, to_world), world)
-                          for level in prefiltered]).astype(np.float64)  # (nodes, n, V, 3)
-    effective = np.asarray(roughness, np.float64)[:, None] * np.vectorize(_lobe_narrowing)(directions[..., 2])
-    node, frac = np.vectorize(lambda r: _prefilter_node(r, prefiltered.shape[0]))(effective)  # (n, V)
-    lower = np.take_along_axis(looked_up, node[None, ..., None], axis=0)[0]
-    upper = np.take_along_axis(looked_up, node[None, ..., None] + 1, axis=0)[0]
-    return lower + frac[..., None] * (upper - lower)
+    node, frac = (np.array(part) for part in zip(*[_prefilter_node(r, prefiltered.shape[0])
+                                                   for r in np.asarray(roughness, np.float64)]))
+    lower = np.stack([envmaps.lookup(envmaps.Envmap(prefiltered[j], to_world), world[t])
+                      for t, j in enumerate(node)]).astype(np.float64)
+    upper = np.stack([envmaps.lookup(envmaps.Envmap(prefiltered[j + 1], to_world), world[t])
+                      for t, j in enumerate(node)]).astype(np.float64)
+    return lower + frac[:, None, None] * (upper - lower)
 
 
 @numba.njit(fastmath=True, cache=True)
@@ -1061,8 +1055,7 @@ def _squared_residual_kernel(
         use_high = n_high > 0 and share > 0.0
         map_light = np.zeros((2, 3, n_views))
         high_light = np.zeros((2, 3, n_views))
-        map_frac = np.zeros(n_views)
-        high_frac = np.zeros(n_views)
+        map_frac = high_frac = 0.0
         corner = np.zeros((4, n_views), dtype=np.int64)
         stencil_frac = np.zeros((2, n_views))
         if use_prefiltered or use_high:
@@ -1074,15 +1067,15 @@ def _squared_residual_kernel(
             _cross(normal[t], tangent[t], bitangent)
             _mirror_stencil(xyz, n_views, tangent[t], normal[t], bitangent, world_to_local, map_height, map_width,
                             corner, stencil_frac)
-        # Each view reads the nodes around its own effective roughness (`_lobe_narrowing`).
-        for v in range(n_views):
-            effective = roughness[t] * _lobe_narrowing(np.float64(directions[t, v, 2]))
-            if use_prefiltered:
-                map_frac[v] = _prefiltered_view_light(prefiltered, 0, n_full, effective, corner, stencil_frac, v,
-                                                      map_light)
-            if use_high:
-                high_frac[v] = _prefiltered_view_light(prefiltered, n_full, n_high, effective, corner, stencil_frac, v,
-                                                       high_light)
+        if use_prefiltered:
+            map_node, map_frac = _prefilter_node(roughness[t], n_full)
+            for side in range(2):
+                _prefiltered_node_light(prefiltered, map_node + side, n_views, corner, stencil_frac, map_light[side])
+        if use_high:
+            high_node, high_frac = _prefilter_node(roughness[t], n_high)
+            for side in range(2):
+                _prefiltered_node_light(prefiltered, n_full + high_node + side, n_views, corner, stencil_frac,
+                                        high_light[side])
         distinct = n_levels > 1 or share > 0.0
         distinct_terms = (n_terms if exact_dielectric else n_terms - 1) if distinct else 1
         total = 0.0
@@ -1104,7 +1097,7 @@ def _squared_residual_kernel(
                         filtered[term] = 0.0
                         if use_prefiltered:
                             lower = map_light[0, c, v]
-                            filtered[term] = lower + map_frac[v] * (map_light[1, c, v] - lower)
+                            filtered[term] = lower + map_frac * (map_light[1, c, v] - lower)
                         else:
                             for degree in range(n_degrees):
                                 lower = proj[t, level[term], c, degree, v]
@@ -1115,7 +1108,7 @@ def _squared_residual_kernel(
                             light = lower + node_frac * (environment_light[1, term, c, v] - lower)
                             if use_high:
                                 lower = high_light[0, c, v]
-                                light += lower + high_frac[v] * (high_light[1, c, v] - lower)
+                                light += lower + high_frac * (high_light[1, c, v] - lower)
                             filtered[term] = (1.0 - share) * filtered[term] + share * light
                     for term in range(distinct_terms, n_terms):
                         filtered[term] = filtered[0]
@@ -1417,43 +1410,18 @@ def _environment_node_lights(table, node, n, table_row, table_frac, environment_
 
 
 @numba.njit(fastmath=True, cache=True)
-def _prefiltered_view_light(prefiltered, first, count, roughness, corner, stencil_frac, v, out):
-    """out[side, c, v] = the prefiltered node first + node + side (side 0, 1; nodes first..first + count - 1)
-    around ``roughness`` at sample v's stencil, bilinear; returns the fraction between the two."""
+def _prefiltered_nodes_at(roughness, first, count, n, prefiltered, corner, stencil_frac, nodes, cached):
+    """The prefiltered nodes first..first + count - 1 (roughness 0..1 by PREFILTER_STEP) on either side
+    of ``roughness``, each looked up once per texel into nodes (cached): (lower, upper, fraction);
+    on a node both are that node and the fraction is 0."""
     node, frac = _prefilter_node(roughness, count)
-    fx, fy = stencil_frac[0, v], stencil_frac[1, v]
-    for side in range(2):
-        k = first + node + side
-        for c in range(3):
-            top = (1.0 - fx) * prefiltered[corner[0, v], k, c] + fx * prefiltered[corner[1, v], k, c]
-            bottom = (1.0 - fx) * prefiltered[corner[2, v], k, c] + fx * prefiltered[corner[3, v], k, c]
-            out[side, c, v] = (1.0 - fy) * top + fy * bottom
-    return frac
-
-
-@numba.njit(fastmath=True, cache=True)
-def _lobe_narrowing(cos_theta):
-    """The factor on the roughness at which a sample at this view cosine reads the prefiltered maps."""
-    return max(cos_theta, 1e-3) ** (0.5 * PREFILTER_COSINE_POWER)
-
-
-@numba.njit(fastmath=True, cache=True)
-def _prefiltered_samples_at(roughness, first, count, n, narrowing, prefiltered, corner, stencil_frac, nodes, cached,
-                            sample_node, sample_frac):
-    """For the prefiltered nodes first..first + count - 1 (roughness 0..1 by PREFILTER_STEP): each
-    sample's node below roughness x narrowing[s] (sample_node, absolute) and the fraction towards the
-    next (sample_frac), every node read looked up once per texel into nodes (cached)."""
-    lowest, highest = count, 0
-    for s in range(n):
-        node, frac = _prefilter_node(roughness * narrowing[s], count)
-        sample_node[s] = first + node
-        sample_frac[s] = frac
-        lowest = min(lowest, node)
-        highest = max(highest, node + 1)
-    for needed in range(first + lowest, first + highest + 1):
+    lower = first + (node if frac < 1.0 else node + 1)
+    upper = first + (node + 1 if frac > 0.0 else node)
+    for needed in range(lower, upper + 1):
         if not cached[needed]:
             _prefiltered_node_light(prefiltered, needed, n, corner, stencil_frac, nodes[needed])
             cached[needed] = True
+    return lower, upper, (frac if upper != lower else 0.0)
 
 
 @numba.njit(fastmath=True, cache=True)
@@ -1476,7 +1444,7 @@ def _roughness_objective(roughness, args):
      albedo, diffuse_factor, level_filtered, filtered, moments, quadratics, squared_values, diffuse_scale,
      state, metallic_grid, environment_proj, environment_blend, environment_nodes, environment_cached,
      environment_gain, prefiltered, n_full, corner, stencil_frac, prefiltered_nodes, prefiltered_cached,
-     high_filtered, narrowing, sample_node, sample_frac) = args
+     high_filtered) = args
     n_levels = proj.shape[0]
     # Without environment levels (environment light off) the fitted light is all there is.
     share = _environment_share(roughness, environment_blend) if environment_proj.shape[0] > 1 else 0.0
@@ -1539,14 +1507,14 @@ def _roughness_objective(roughness, args):
     use_prefiltered = own_light and n_full > 0
     if use_prefiltered:
         first_level, last_level = 0, -1
-        _prefiltered_samples_at(roughness, 0, n_full, n, narrowing, prefiltered, corner, stencil_frac,
-                                prefiltered_nodes, prefiltered_cached, sample_node[0], sample_frac[0])
+        lower_map, upper_map, map_frac = _prefiltered_nodes_at(roughness, 0, n_full, n, prefiltered, corner,
+                                                               stencil_frac, prefiltered_nodes, prefiltered_cached)
     # The degrees the environment light leaves out, from the prefiltered maps' last nodes.
     n_high = prefiltered.shape[1] - n_full
     use_high = share > 0.0 and n_high > 0
     if use_high:
-        _prefiltered_samples_at(roughness, n_full, n_high, n, narrowing, prefiltered, corner, stencil_frac,
-                                prefiltered_nodes, prefiltered_cached, sample_node[1], sample_frac[1])
+        lower_high, upper_high, high_frac = _prefiltered_nodes_at(roughness, n_full, n_high, n, prefiltered, corner,
+                                                                  stencil_frac, prefiltered_nodes, prefiltered_cached)
     if n_levels > 1 and own_light:
         first_level, last_level = n_levels, 0
         for term in range(n_terms):
@@ -1555,14 +1523,14 @@ def _roughness_objective(roughness, args):
                 last_level = max(last_level, tilt_level[term, s] + 1)
     for c in range(3):
         if use_prefiltered:
+            lower_light, upper_light = prefiltered_nodes[lower_map, c], prefiltered_nodes[upper_map, c]
+            frac = map_frac
             for s in range(n):
-                lower = prefiltered_nodes[sample_node[0, s], c, s]
-                level_filtered[0, s] = lower + sample_frac[0, s] * (prefiltered_nodes[sample_node[0, s] + 1, c, s]
-                                                                    - lower)
+                level_filtered[0, s] = lower_light[s] + frac * (upper_light[s] - lower_light[s])
         if use_high:
+            lower_light, upper_light = prefiltered_nodes[lower_high, c], prefiltered_nodes[upper_high, c]
             for s in range(n):
-                lower = prefiltered_nodes[sample_node[1, s], c, s]
-                high_filtered[s] = lower + sample_frac[1, s] * (prefiltered_nodes[sample_node[1, s] + 1, c, s] - lower)
+                high_filtered[s] = lower_light[s] + high_frac * (upper_light[s] - lower_light[s])
         for level in range(first_level, last_level + 1):
             level_row = level_filtered[level]
             k0 = kernel[0]
@@ -1847,9 +1815,6 @@ def _global_search_kernel(
         corner = np.empty((4, n_views), dtype=np.int64)
         stencil_frac = np.empty((2, n_views))
         high_filtered = np.empty(n_views)
-        narrowing = np.empty(n_views)  # `_lobe_narrowing` per sample
-        sample_node = np.zeros((2, n_views), dtype=np.int64)  # per sample: full maps' node, high degrees' node
-        sample_frac = np.zeros((2, n_views))
         for t in range(chunk * _SEARCH_CHUNK, min((chunk + 1) * _SEARCH_CHUNK, n_texels)):
             n = 0
             for v in range(n_views):
@@ -1870,8 +1835,6 @@ def _global_search_kernel(
             if n_full > 0:
                 _mirror_stencil(xyz, n, tangent[t], normal[t], bitangent, world_to_local, map_height, map_width,
                                 corner, stencil_frac)
-                for s in range(n):
-                    narrowing[s] = _lobe_narrowing(packed_cos[s])
             for level in range(tilt_levels if n_full == 0 else 0):
                 tilt = level / (tilt_levels - 1) if tilt_levels > 1 else 1.0
                 for s in range(n):  # normalize((1 - tilt) n + tilt w)
@@ -1910,7 +1873,7 @@ def _global_search_kernel(
                     kernel, kernel_derivative, albedo, diffuse_factor, level_filtered, filtered, moments, quadratics,
                     squared_values, scale, state, metallic_grid, environment_proj, environment_blend,
                     environment_nodes, environment_cached, environment_gain, prefiltered, n_full, corner, stencil_frac,
-                    prefiltered_nodes, prefiltered_cached, high_filtered, narrowing, sample_node, sample_frac)
+                    prefiltered_nodes, prefiltered_cached, high_filtered)
             for i in range(hypothesis_roughness.shape[0]):
                 _roughness_objective(hypothesis_roughness[i], args)
                 for c in range(3):
