@@ -234,9 +234,12 @@ def angular_loss(
                 environment, observations.lmax).transpose(0, 1, 4, 2, 3))
         else:
             environment_proj = np.zeros((rows.stop - rows.start, 0, observations.n_views, 3, 1))
+        # The prefiltered light replaces the fitted one: its expansion would be read by nothing.
+        fitted = (np.zeros((rows.stop - rows.start, 1, 3, 1, observations.n_views), np.float32) if n_full else
+                  _tilted_projections(observations.view_direction[rows], observations.weight[rows], light[rows],
+                                      observations.lmax, levels))
         _squared_residual_kernel(
-            _tilted_projections(observations.view_direction[rows], observations.weight[rows], light[rows],
-                                observations.lmax, levels),
+            fitted,
             observations.view_direction[rows], observations.weight[rows], observations.observed[rows],
             _diffuse_scale(observations)[rows], base_color[rows], metallic[rows],
             np.asarray(params.roughness, dtype=np.float64)[rows], observations.sigma, settings.fresnel,
@@ -260,26 +263,35 @@ def model_light(observations: Observations, roughness: np.ndarray, config: Confi
 def hypothesis_moments(observations: Observations, roughness: np.ndarray, config: Config = Config()) -> np.ndarray:
     """(N, R, 3, 8) float64 per texel, roughness (R,) and channel: [sum w, sum w u, sum w X,
     sum w u^2, sum w u X, sum w X^2, sum w f, sum w f^2] over the texel's samples, w the sample
-    weight, f the observed radiance, u = f - Y, where a metal of base colour k reflects k X + Y under the `global`
-    estimator's model of ``config.estimate`` (X = A S_A, Y = B S_B: Schlick's Fresnel with R0 = k,
-    the light as that model reads it; with "g1" the unshadowed light). The weighted misfit of any
-    specular hypothesis (roughness, k) plus a constant diffuse part is a quadratic in k and the
-    diffuse part from these (`uncertainty.entropy_angular`), and that of no specular lobe at all. Zero for texels with fewer than
-    `MIN_SAMPLES` samples."""
+    weight, f the observed radiance, u = f - Y, where a metal of base colour k reflects k X + Y
+    under the `global` estimator's model of ``config.estimate`` (X = A S_A, Y = B S_B: Schlick's
+    Fresnel with R0 = k, the light as that model reads it; with "g1" the unshadowed light). The
+    weighted misfit of any specular hypothesis (roughness, k) plus a constant diffuse part is a
+    quadratic in k and the diffuse part from these (`uncertainty.entropy_angular`), and so is that
+    of no specular lobe at all. Zero for texels with fewer than `MIN_SAMPLES` samples."""
     settings = config.estimate
     _validate(settings)
     roughness = np.ascontiguousarray(roughness, dtype=np.float64)
     moments = np.zeros((observations.n_texels, len(roughness), 3, 8))
+    n_texels = observations.n_texels
+    _run_search_kernel(observations, settings, observations.mirrored_coeffs, roughness, moments, False,
+                       np.zeros((n_texels, 5)), np.zeros(n_texels), np.zeros(n_texels))
+    return moments
+
+
+def _run_search_kernel(observations: Observations, settings: EstimateConfig, light: np.ndarray,
+                       hypothesis_roughness: np.ndarray, hypothesis_moments: np.ndarray, search: bool,
+                       params: np.ndarray, loss: np.ndarray, curvature: np.ndarray) -> None:
+    """`_global_search_kernel` on the observations with this light fit (N, 3, K) and settings."""
     _global_search_kernel(
         observations.view_direction, observations.weight, observations.observed,
-        np.ascontiguousarray(observations.mirrored_coeffs, dtype=np.float32), _diffuse_scale(observations),
-        observations.sigma, settings.fresnel, settings.masking, _uses_split_sum(settings),
-        _uses_exact_dielectric(settings), _uses_burley(settings), _model_tables(), _tilt_levels(settings),
-        settings.roughness_grid, settings.metallic_grid, settings.robust_passes, observations.lmax,
-        *sh._legendre_tables(observations.lmax), *_environment_inputs(observations, settings), roughness, moments,
-        False, np.zeros((observations.n_texels, 5)), np.zeros(observations.n_texels), np.zeros(observations.n_texels),
+        np.ascontiguousarray(light, dtype=np.float32), _diffuse_scale(observations), observations.sigma,
+        settings.fresnel, settings.masking, _uses_split_sum(settings), _uses_exact_dielectric(settings),
+        _uses_burley(settings), _model_tables(), _tilt_levels(settings), settings.roughness_grid,
+        settings.metallic_grid, settings.robust_passes, observations.lmax, *sh._legendre_tables(observations.lmax),
+        *_environment_inputs(observations, settings), hypothesis_roughness, hypothesis_moments, search, params, loss,
+        curvature,
     )
-    return moments
 
 
 # ---------------------------------------------------------------------------------------------
@@ -887,12 +899,10 @@ def _environment_inputs(observations: Observations, settings: EstimateConfig) ->
         environment = (np.zeros((1, 3)), 0, (0.0, 0.0))
     if _uses_prefiltered_light(observations, settings):
         n_full = prefilter_nodes(settings)
-        maps = _prefiltered_maps(observations, n_full)
-        if environment[1]:
-            high = _prefiltered_maps(observations, _HIGH_NODES, min(observations.lmax, _TILT_FIT_LMAX) + 1)
-            maps = np.concatenate([maps, high])
-        prefiltered = (np.ascontiguousarray(maps.reshape(maps.shape[0], -1, 3).transpose(1, 0, 2)), n_full,
-                       np.ascontiguousarray(observations.environment_rotation.T, dtype=np.float64), *maps.shape[1:3])
+        high_degrees = min(observations.lmax, _TILT_FIT_LMAX) + 1 if environment[1] else None
+        stack, height, width = _prefiltered_stack(observations, n_full, high_degrees)
+        prefiltered = (stack, n_full, np.ascontiguousarray(observations.environment_rotation.T, dtype=np.float64),
+                       height, width)
     else:
         prefiltered = (np.zeros((1, 0, 3), np.float32), 0, np.eye(3), 2, 2)
     return (tangent, observations.normal, *environment, *prefiltered)
@@ -900,19 +910,26 @@ def _environment_inputs(observations: Observations, settings: EstimateConfig) ->
 
 # Roughness nodes (0, PREFILTER_STEP, ..., 1) of the degrees the environment light leaves out.
 _HIGH_NODES = round(1.0 / PREFILTER_STEP) + 1
-# The last prefiltered stacks: `angular_loss` runs many times on the same observations (uncertainty,
-# sharing), and the transforms take ~0.2 s.
+# The last prefiltered stack: `angular_loss` and `hypothesis_moments` run many times on the same
+# observations (uncertainty, sharing, blocks of texels), and the transforms take ~0.2 s.
 _PREFILTERED_CACHE: dict = {}
 
 
-def _prefiltered_maps(observations: Observations, n_nodes: int, skip_degrees: int = 0) -> np.ndarray:
+def _prefiltered_stack(observations: Observations, n_full: int, high_degrees: int | None) -> tuple:
+    """(stack (H W, nodes, 3) float32, H, W) for the kernels: the n_full `prefiltered_environment`
+    maps, then, unless high_degrees is None, the `_HIGH_NODES` maps of the degrees from
+    high_degrees on; pixel-major, so that a texel's lookups at several nodes share cache lines."""
     radiance = observations.environment_radiance
     key = (hashlib.blake2b(np.ascontiguousarray(radiance).tobytes(), digest_size=16).hexdigest(), radiance.shape,
-           observations.environment_rotation.tobytes(), n_nodes, skip_degrees)
+           observations.environment_rotation.tobytes(), n_full, high_degrees)
     if key not in _PREFILTERED_CACHE:
-        if len(_PREFILTERED_CACHE) >= 2:
-            _PREFILTERED_CACHE.clear()
-        _PREFILTERED_CACHE[key] = prefiltered_environment(observations.environment(), n_nodes, skip_degrees)
+        envmap = observations.environment()
+        maps = prefiltered_environment(envmap, n_full)
+        if high_degrees is not None:
+            maps = np.concatenate([maps, prefiltered_environment(envmap, _HIGH_NODES, high_degrees)])
+        _PREFILTERED_CACHE.clear()
+        _PREFILTERED_CACHE[key] = (np.ascontiguousarray(maps.reshape(maps.shape[0], -1, 3).transpose(1, 0, 2)),
+                                   *maps.shape[1:3])
     return _PREFILTERED_CACHE[key]
 
 
@@ -1047,8 +1064,6 @@ def _squared_residual_kernel(
             for side in range(2):
                 _environment_node_lights(table, (node + side) * _ENVIRONMENT_NODE_STEP, n_views, table_row,
                                          table_frac, environment_proj[t], gain, environment_light[side])
-        # Without tilt levels or environment light every term reads the same light; Schlick's
-        # dielectric needs no light of its own.
         # The prefiltered light at its nodes on either side, per channel and view.
         use_prefiltered = n_full > 0 and share < 1.0
         n_high = prefiltered.shape[1] - n_full
@@ -1076,6 +1091,8 @@ def _squared_residual_kernel(
             for side in range(2):
                 _prefiltered_node_light(prefiltered, n_full + high_node + side, n_views, corner, stencil_frac,
                                         high_light[side])
+        # Without tilt levels or environment light every term reads the same light; Schlick's
+        # dielectric needs no light of its own.
         distinct = n_levels > 1 or share > 0.0
         distinct_terms = (n_terms if exact_dielectric else n_terms - 1) if distinct else 1
         total = 0.0
@@ -1134,7 +1151,6 @@ def _estimate_global(observations: Observations, config: Config, reporter: Repor
     params = np.zeros((n_texels, 5))  # base colour RGB, roughness, metallic
     loss = np.zeros(n_texels)
     curvature = np.zeros(n_texels)
-    diffuse_scale = _diffuse_scale(observations)
     # The light of pass 0 is unshadowed, i.e. shadowed at alpha = 0 (G1 = 1). Each further pass
     # shadows it at a roughness closer to the fixed point r = search(light shadowed at r): a
     # secant step on search(r) - r, which converges much faster than re-using the last estimate.
@@ -1142,7 +1158,7 @@ def _estimate_global(observations: Observations, config: Config, reporter: Repor
     shadow_roughness = np.zeros(n_texels)
     previous_roughness = previous_residual = None
     # The split-sum albedo holds the shadowing: the light is never re-fitted.
-    split_sum, table = _uses_split_sum(settings), _model_tables()
+    split_sum = _uses_split_sum(settings)
     n_passes = 1 + (settings.shadowing_refreshes if settings.shadowing and not split_sum else 0)
     with reporter.stage("estimating (global)", n_passes) as advance:
         for pass_index in range(n_passes):
@@ -1151,16 +1167,8 @@ def _estimate_global(observations: Observations, config: Config, reporter: Repor
                 light = _shadowed_light_coeffs(observations, brdf.alpha_from_roughness(shadow_roughness), config.fit)
             timings["light"] += time.perf_counter() - tick
             tick = time.perf_counter()
-            _global_search_kernel(
-                observations.view_direction, observations.weight, observations.observed,
-                np.ascontiguousarray(light, dtype=np.float32), diffuse_scale, observations.sigma, settings.fresnel,
-                settings.masking, split_sum, _uses_exact_dielectric(settings), _uses_burley(settings), table,
-                _tilt_levels(settings),
-                settings.roughness_grid,
-                settings.metallic_grid, settings.robust_passes, observations.lmax,
-                *sh._legendre_tables(observations.lmax), *_environment_inputs(observations, settings), np.zeros(0),
-                np.zeros((0, 0, 3, 8)), True, params, loss, curvature,
-            )
+            _run_search_kernel(observations, settings, light, np.zeros(0), np.zeros((0, 0, 3, 8)), True, params,
+                               loss, curvature)
             timings["search"] += time.perf_counter() - tick
             residual = params[:, 3] - shadow_roughness
             next_roughness = params[:, 3].copy()
@@ -1524,9 +1532,8 @@ def _roughness_objective(roughness, args):
     for c in range(3):
         if use_prefiltered:
             lower_light, upper_light = prefiltered_nodes[lower_map, c], prefiltered_nodes[upper_map, c]
-            frac = map_frac
             for s in range(n):
-                level_filtered[0, s] = lower_light[s] + frac * (upper_light[s] - lower_light[s])
+                level_filtered[0, s] = lower_light[s] + map_frac * (upper_light[s] - lower_light[s])
         if use_high:
             lower_light, upper_light = prefiltered_nodes[lower_high, c], prefiltered_nodes[upper_high, c]
             for s in range(n):

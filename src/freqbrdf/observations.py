@@ -139,7 +139,8 @@ class Observations:
 
     def select(self, rows) -> Observations:
         """The Observations of the texels ``rows`` (indices, a slice or a boolean mask over the N
-        texels): every per-texel array indexed, the environment's SH and the scalars kept."""
+        texels): every per-texel array indexed, the environment (SH, map, rotation) and the scalars
+        kept."""
         changes = {item.name: getattr(self, item.name)[rows] for item in fields(self)
                    if isinstance(getattr(self, item.name), np.ndarray) and item.name not in _SHARED_ARRAYS}
         return replace(self, **changes)
