@@ -109,7 +109,7 @@ def run_scene(name: str, texture_res: int) -> dict:
                                                                          est.ggx_lobe_gains(r, map_lmax)), world)
                                      for r in nodes]),
     }
-    projections = est.environment_projections(directions, weight, tangent, normal, environment, observations.lmax)
+    azimuthal = est.environment_azimuthal(directions, weight, tangent, normal, environment)
     models = ("fitted", "prefiltered", "prefiltered_ggx")
     best_loss = {model: np.full(n_texels, np.inf) for model in models}
     best = {model: np.zeros((n_texels, 5)) for model in models}
@@ -120,7 +120,7 @@ def run_scene(name: str, texture_res: int) -> dict:
         per_texel = np.full(n_texels, roughness)
         environment_lights = [
             est.environment_filtered_light(directions, weight, tangent, normal, environment, per_texel, term,
-                                           projections) if share > 0.0 else 0.0 for term in est.LOBE_TERMS]
+                                           azimuthal) if share > 0.0 else 0.0 for term in est.LOBE_TERMS]
         for model in models:
             lights = []
             for term, environment_light in zip(est.LOBE_TERMS, environment_lights):

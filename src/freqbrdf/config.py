@@ -129,7 +129,7 @@ class EstimateConfig:
     # cosines 0.3-0.8.
     dielectric_fresnel: Literal["exact", "schlick"] = "exact"
     # global, split_sum: rough lobes read the environment's own SH (world frame, l <= 5, unoccluded)
-    # at a tilted direction with the GGX lobe's per-degree gains (estimate.environment_response_table)
+    # through the GGX lobe's exact response to each harmonic (estimate.environment_response_table)
     # instead of the per-texel fit of the mirrored samples, which extrapolates where a wide lobe
     # reads it; the share rises from 0 at roughness environment_blend[0] to 1 at [1] (smoothstep).
     # Smooth lobes keep the fitted light: it holds the sharp features the environment's l <= 5

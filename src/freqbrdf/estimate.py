@@ -41,19 +41,26 @@ and diffuse factor D come in two versions (``EstimateConfig.specular_model``, ``
   kernel exp(-alpha^2 l^2) is far from the GGX lobe's true per-degree response. On rough
   dielectrics of the demo capture it predicted 0.0104 of specular at grazing views where a
   brute-force integral of the principled BSDF over the environment gives 0.0190. So rough lobes
-  read the environment's own SH (world frame, degrees <= 5, from the map, unoccluded) at their
-  reflected direction tilted towards the normal, each degree scaled by the lobe's gain: tilt and
-  gains fitted per (view cosine, roughness, lobe term) to the lobe's SH response
-  (`environment_response_table`). Smooth lobes keep the fitted light, which holds the sharp
+  read the environment's own SH (world frame, degrees <= 5, from the map, unoccluded) through the
+  lobe's exact response to each harmonic (`environment_response_table`, per view cosine, roughness
+  and lobe term; the lobe is symmetric about its plane of incidence, so 21 responses, m >= 0, in
+  a frame turned to the view's azimuth). Smooth lobes keep the fitted light, which holds the sharp
   features that the map's l <= 5 SH lacks; the share moves from one to the other over roughness
   0.3-0.6 (smoothstep). Either light alone is worse. With it (64 views, T = 512): base-colour PSNR
   17.17 -> 18.43 dB (bunny), 20.11 -> 24.24 (plane), 19.20 -> 19.92 (demo capture, 96 views);
   roughness MAE 0.163 -> 0.154 and 0.113 -> 0.071; metallic MAE 0.230 -> 0.200 and 0.172 ->
   0.118; relighting PSNR-H 19.79 -> 20.18, 22.40 -> 22.65 and 22.60 -> 23.02. On the demo
-  capture (a bunny, with interreflection the model lacks) metallic MAE rises 0.17 -> 0.20. Per
-  texel the search expands the environment by degree at 9 tilts of each sample's reflected
-  direction, and evaluates the light once per roughness node it visits (every second node of
-  the table, linear in roughness between them): 2.2-2.7x the CPU time of the search without it.
+  capture (a bunny, with interreflection the model lacks) metallic MAE rises 0.17 -> 0.20. (Those
+  figures are of its first version, which read the environment at one direction tilted towards
+  the normal with a gain per degree, fitted to the same responses: against Mitsuba it predicted a
+  rough dielectric's specular (r = 0.86) under the demo's forest map 0.79 of the truth at grazing
+  views, the exact responses 1.00. That change alone, T = 256: plane 26.01 -> 26.98 dB, metallic
+  MAE 0.117 -> 0.079; bunny 18.35 -> 18.30 dB, roughness 0.143 -> 0.136, metallic 0.195 ->
+  0.184; demo 20.16 -> 19.97 dB, roughness 0.133 -> 0.131; and the estimate is ~10 % faster.)
+  Per texel the environment is turned into the texel's frame once (a quadrature exact for
+  degree 5) and per sample into its view's azimuth (21 x 3 coefficients); the search evaluates
+  the light once per roughness node it visits (every second node of the table, linear in
+  roughness between them).
 - the prefiltered light (``EstimateConfig.prefiltered_light``, default on): smooth lobes no longer
   read the fitted light either. With it, texels with true roughness below 0.3 came out +0.16 too
   rough on the demo capture, and the model's loss at the truth was 1.3x that at the estimate: l* = 5
@@ -225,15 +232,15 @@ def angular_loss(
     base_color = np.asarray(params.base_color, dtype=np.float64)
     metallic = np.asarray(params.metallic, dtype=np.float64)
     levels = _tilt_levels(settings)
-    (tangent, normal, environment, environment_levels, blend, prefiltered, n_full, world_to_local, map_height,
+    (tangent, normal, environment, blend, prefiltered, n_full, world_to_local, map_height,
      map_width) = _environment_inputs(observations, settings)
-    for rows in _blocks(observations.n_texels, _PROJECTION_BLOCK // max(levels, environment_levels)):
-        if environment_levels:
-            environment_proj = np.ascontiguousarray(environment_projections(
+    for rows in _blocks(observations.n_texels, _PROJECTION_BLOCK // levels):
+        if len(environment):
+            azimuthal = np.ascontiguousarray(environment_azimuthal(
                 observations.view_direction[rows], observations.weight[rows], tangent[rows], normal[rows],
-                environment, observations.lmax).transpose(0, 1, 4, 2, 3))
+                environment))
         else:
-            environment_proj = np.zeros((rows.stop - rows.start, 0, observations.n_views, 3, 1))
+            azimuthal = np.zeros((rows.stop - rows.start, observations.n_views, 3, 0))
         # The prefiltered light replaces the fitted one: its expansion would be read by nothing.
         fitted = (np.zeros((rows.stop - rows.start, 1, 3, 1, observations.n_views), np.float32) if n_full else
                   _tilted_projections(observations.view_direction[rows], observations.weight[rows], light[rows],
@@ -244,8 +251,8 @@ def angular_loss(
             _diffuse_scale(observations)[rows], base_color[rows], metallic[rows],
             np.asarray(params.roughness, dtype=np.float64)[rows], observations.sigma, settings.fresnel,
             settings.masking, _uses_split_sum(settings), _uses_exact_dielectric(settings), _uses_burley(settings),
-            _model_tables(), environment_proj, blend, tangent[rows], normal[rows], prefiltered, n_full,
-            world_to_local, map_height, map_width, loss[rows],
+            _model_tables(), environment_response_table(), azimuthal, blend, tangent[rows], normal[rows],
+            prefiltered, n_full, world_to_local, map_height, map_width, loss[rows],
         )
     return np.where(observations.n_samples > 0, loss, np.nan)
 
@@ -283,14 +290,16 @@ def _run_search_kernel(observations: Observations, settings: EstimateConfig, lig
                        hypothesis_roughness: np.ndarray, hypothesis_moments: np.ndarray, search: bool,
                        params: np.ndarray, loss: np.ndarray, curvature: np.ndarray) -> None:
     """`_global_search_kernel` on the observations with this light fit (N, 3, K) and settings."""
+    tangent, normal, environment, blend, *prefiltered = _environment_inputs(observations, settings)
     _global_search_kernel(
         observations.view_direction, observations.weight, observations.observed,
         np.ascontiguousarray(light, dtype=np.float32), _diffuse_scale(observations), observations.sigma,
         settings.fresnel, settings.masking, _uses_split_sum(settings), _uses_exact_dielectric(settings),
         _uses_burley(settings), _model_tables(), _tilt_levels(settings), settings.roughness_grid,
         settings.metallic_grid, settings.robust_passes, observations.lmax, *sh._legendre_tables(observations.lmax),
-        *_environment_inputs(observations, settings), hypothesis_roughness, hypothesis_moments, search, params, loss,
-        curvature,
+        tangent, normal, environment, blend, environment_response_table(),
+        *_environment_quadrature(max(math.isqrt(len(environment)) - 1, 0)), *prefiltered, hypothesis_roughness,
+        hypothesis_moments, search, params, loss, curvature,
     )
 
 
@@ -501,103 +510,131 @@ def lobe_sh_response(cos_theta: float, roughness: float, term: str = "scale", lm
 
 
 # With the environment light (`EstimateConfig.environment_light`), a rough lobe reads the
-# environment's own SH (world frame, unoccluded, degrees up to `_TILT_FIT_LMAX`) at its reflected
-# direction tilted towards the normal, each degree scaled by its gain: one tilt and l* + 1 gains
-# per (cos theta_o, roughness) node and lobe term (`environment_response_table`). The search
-# expands the environment at `_ENVIRONMENT_TILT_LEVELS` tilts and interpolates linearly between them.
+# environment's own SH (degrees up to `_TILT_FIT_LMAX`, unoccluded) through the lobe's exact response
+# to each harmonic: per (cos theta_o, roughness) node and lobe term, the response to Y_lm (m >= 0) in
+# a frame whose x axis is the mirrored view's azimuth (`environment_response_table`). Per texel the
+# environment is turned into the texel's frame once, per sample into its view's azimuth.
 _ENVIRONMENT_TABLE_PATH = Path(__file__).resolve().parent / "data" / "environment_response.csv"
-_ENVIRONMENT_TILT_LEVELS = 9
-# The environment light is evaluated at every _ENVIRONMENT_NODE_STEP-th roughness node of the table
-# and interpolated linearly in roughness between them: each is computed once per texel and search.
+# The environment light is tabulated at every _ENVIRONMENT_NODE_STEP-th roughness node of the
+# split-sum table and interpolated linearly in roughness between them: each is computed once per
+# texel and search.
 _ENVIRONMENT_NODE_STEP = 2
-_ENVIRONMENT_PARTS = 1 + _TILT_FIT_LMAX + 1  # per term: the tilt, then the gain of each degree
+_ENVIRONMENT_NODES = (_TABLE_ROUGHNESS_NODES - 1) // _ENVIRONMENT_NODE_STEP + 1
+
+
+def environment_pairs(lmax: int) -> int:
+    """How many (l, m >= 0) harmonics up to degree lmax: their order is l, then m."""
+    return (lmax + 1) * (lmax + 2) // 2
+
+
+def environment_response(cos_theta: float, roughness: float, term: str = "scale",
+                         lmax: int = _TILT_FIT_LMAX) -> np.ndarray:
+    """((lmax + 1)(lmax + 2) / 2,) the ``term``'s lobe response to each real SH Y_lm with m >= 0
+    (order: l, then m), relative to its albedo, for the view (sin, 0, cos theta_o), in the mirrored
+    parameterisation (`lobe_sh_response`). The lobe is symmetric about its plane of incidence, so
+    its response to the harmonics with m < 0 (sin m phi) is zero; a light L = sum c_lm Y_lm in the
+    frame turned so that the mirrored view lies at azimuth 0 reflects sum c_lm R_lm times the albedo."""
+    albedo, responses, _ = lobe_sh_response(cos_theta, roughness, term, lmax)
+    pairs = [degree * degree + degree + order for degree in range(lmax + 1) for order in range(degree + 1)]
+    # A lobe of no albedo (Schlick's F_c at normal incidence on a mirror) reflects nothing anyway.
+    return responses[pairs] / albedo if albedo > 0.0 else np.zeros(len(pairs))
 
 
 @functools.cache
 def environment_response_table() -> np.ndarray:
-    """(3, 1 + l* + 1, cos nodes, roughness nodes) float64, l* = 5: per `LOBE_TERMS` term, the tilt
-    s in [0, 1] and the per-degree gains g_0..g_l* with which the GGX lobe's response to a light
-    L = sum c_lm Y_lm (world frame) is approximated as sum_l g_l sum_m c_lm Y_lm(w'(s)), w'(s) =
-    normalize((1 - s) n + s r) between the normal n and the mirror direction r, relative to the
-    term's albedo (`split_sum_table`).
+    """(3, roughness nodes, cos nodes, 21) float64: per `LOBE_TERMS` term, `environment_response`
+    (l* = 5) at every `_ENVIRONMENT_NODE_STEP`-th roughness node and every cos theta_o node of
+    `split_sum_table`.
 
-    Where the Gaussian kernel exp(-alpha^2 l^2) is far from the lobe's true response (at r = 1,
-    degree 1: 0.62 against 0.37; at r = 0.4, degree 5: 0.35 against 0.53) these gains are the
-    lobe's own. Nodes as `split_sum_table`'s; values `fit_environment_response`'s, shipped in
-    data/environment_response.csv (rows: term, then part, then cos theta_o; columns: roughness;
-    scripts/make_environment_response_table.py).
+    It replaces a zonal approximation (one tilted lookup direction and a gain per degree, fitted to
+    these responses), which at grazing views under the demo's forest map predicted a rough
+    dielectric's specular (r = 0.86) 0.79 of Mitsuba's (this table: 1.00, benchmarks/model_fidelity.py).
+    Shipped in data/environment_response.csv (rows: term, then roughness node, then cos theta_o;
+    columns: the harmonics; scripts/make_environment_response_table.py).
     """
     table = np.loadtxt(_ENVIRONMENT_TABLE_PATH, delimiter=",", ndmin=2)
-    shape = (len(LOBE_TERMS) * _ENVIRONMENT_PARTS * _TABLE_COS_NODES, _TABLE_ROUGHNESS_NODES)
+    pairs = environment_pairs(_TILT_FIT_LMAX)
+    shape = (len(LOBE_TERMS) * _ENVIRONMENT_NODES * _TABLE_COS_NODES, pairs)
     if table.shape != shape or not np.all(np.isfinite(table)):
-        raise InputError(_ENVIRONMENT_TABLE_PATH, f"expected a {shape[0]} x {shape[1]} table of finite tilts and "
-                                                  f"gains, got shape {table.shape}; regenerate it with "
+        raise InputError(_ENVIRONMENT_TABLE_PATH, f"expected a {shape[0]} x {shape[1]} table of finite responses, "
+                                                  f"got shape {table.shape}; regenerate it with "
                                                   "scripts/make_environment_response_table.py")
-    return table.reshape(len(LOBE_TERMS), _ENVIRONMENT_PARTS, _TABLE_COS_NODES, _TABLE_ROUGHNESS_NODES)
-
-
-def fit_environment_response(cos_theta: float, roughness: float, term: str = "scale",
-                             lmax: int = _TILT_FIT_LMAX) -> tuple[float, np.ndarray]:
-    """(tilt s, gains (l* + 1,)) whose lookup g_l Y_lm(w'(s)) best reproduces, in the least-squares
-    sense over all K harmonics, the ``term``'s lobe response to each real SH relative to its albedo
-    (`lobe_sh_response`): for each s on a 0.0025 grid the gains in closed form (per degree, the
-    projection of the responses onto Y_lm(w'(s))), then the s of least misfit. Deterministic."""
-    albedo, responses, view = lobe_sh_response(cos_theta, roughness, term, lmax)
-    responses = responses / max(albedo, 1e-12)
-    degree = sh.sh_degrees(lmax)
-    tilts = np.linspace(0.0, 1.0, _TILT_CANDIDATES)
-    looked_up = tilts[:, None] * view + (1.0 - tilts)[:, None] * np.array([0.0, 0.0, 1.0])
-    basis = sh.eval_sh(looked_up / np.linalg.norm(looked_up, axis=1, keepdims=True), lmax)  # (tilts, K)
-    # Per degree: projection and squared norm of the looked-up harmonics, summed over m.
-    projection = np.stack([basis[:, degree == l] @ responses[degree == l] for l in range(lmax + 1)], axis=1)
-    norm = np.stack([np.sum(basis[:, degree == l] ** 2, axis=1) for l in range(lmax + 1)], axis=1)
-    gains = projection / np.maximum(norm, 1e-12)
-    misfit = np.sum(responses**2) - np.sum(gains * projection, axis=1)
-    best = int(np.argmin(misfit))
-    return float(tilts[best]), gains[best]
+    return np.ascontiguousarray(table.reshape(len(LOBE_TERMS), _ENVIRONMENT_NODES, _TABLE_COS_NODES, pairs))
 
 
 def environment_filtered_light(directions: np.ndarray, weight: np.ndarray, tangent: np.ndarray, normal: np.ndarray,
                                environment_coeffs: np.ndarray, roughness: np.ndarray, term: str = "scale",
-                               projections: np.ndarray | None = None) -> np.ndarray:
+                               azimuthal: np.ndarray | None = None) -> np.ndarray:
     """(n, V, 3) the environment light as the ``term`` of a lobe of roughness (n,) reads it.
 
     directions (n, V, 3) local view directions, weight (n, V), tangent and normal (n, 3) world
-    frame of each texel, environment_coeffs (K, 3) the world-frame SH of the environment: the
-    environment expanded by degree at the reflected direction tilted by s = j / (levels - 1) and
-    interpolated linearly in s, with the tilt and gains of `environment_response_table` linear in
-    cos theta_o, evaluated at the table's roughness nodes on either side of the roughness and
-    interpolated linearly between them (as the split-sum albedo is), as the search does.
-    0 where weight is 0. ``projections``: `environment_projections` of these samples, to reuse
-    across calls (roughness values, terms).
+    frame of each texel, environment_coeffs (K, 3) the world-frame SH of the environment (degrees
+    up to min(l*, 5) are read): sum over l, m >= 0 of the lobe's responses
+    (`environment_response_table`, linear in cos theta_o) times the environment's coefficients in
+    each sample's mirrored view frame (`environment_azimuthal`), at the table's roughness nodes on
+    either side of the roughness and interpolated linearly between them (as the split-sum albedo
+    is), as the search does. Written with numpy, independently of the kernels. 0 where weight is
+    0. ``azimuthal``: `environment_azimuthal` of these samples, to reuse across calls.
     """
     directions = np.asarray(directions, np.float64)
-    lmax = sh.lmax_of(environment_coeffs.shape[0])
-    levels = (environment_projections(directions, weight, tangent, normal, environment_coeffs, lmax)
-              if projections is None else projections)  # (n, L, 3, G, V)
-    n_gains = levels.shape[3]
-    index = LOBE_TERMS.index(term)
-    tables = _model_tables()
+    if azimuthal is None:
+        azimuthal = environment_azimuthal(directions, weight, tangent, normal, environment_coeffs)
+    table = environment_response_table()[LOBE_TERMS.index(term), :, :, :azimuthal.shape[-1]]  # (nodes, cos, P)
     x = np.clip(directions[..., 2], 0.0, 1.0) * (_TABLE_COS_NODES - 1)
     row = np.minimum(x.astype(np.int64), _TABLE_COS_NODES - 2)
-    fx = x - row
+    fx = x[..., None] - row[..., None]
     node, fy = (np.array(part) for part in zip(*[_environment_node(r) for r in np.asarray(roughness, np.float64)]))
+
+    def at_node(nodes):  # (n,) roughness node of each texel -> (n, V, 3)
+        response = table[nodes[:, None], row] * (1.0 - fx) + table[nodes[:, None], row + 1] * fx  # (n, V, P)
+        return np.einsum("nvp,nvcp->nvc", response, azimuthal)
+
     fy = fy[:, None, None]
+    return (1.0 - fy) * at_node(node) + fy * at_node(node + 1)
 
-    def at_node(column):  # (n,) roughness node of each texel -> (n, V, 3)
-        def table(plane):
-            values = tables[plane][:, column].T  # (n, cos nodes)
-            return (np.take_along_axis(values, row, axis=1) * (1.0 - fx)
-                    + np.take_along_axis(values, row + 1, axis=1) * fx)
-        position = table(_ENVIRONMENT_TILT_PLANE + index) * (_ENVIRONMENT_TILT_LEVELS - 1)
-        level = np.clip(position.astype(np.int64), 0, _ENVIRONMENT_TILT_LEVELS - 2)
-        frac = position - level
-        lower = np.take_along_axis(levels, level[:, None, None, None, :], axis=1)[:, 0]  # (n, 3, G, V)
-        upper = np.take_along_axis(levels, level[:, None, None, None, :] + 1, axis=1)[:, 0]
-        gains = np.stack([table(_environment_gain_plane(index, degree)) for degree in range(n_gains)])  # (G, n, V)
-        return np.einsum("lnv,nclv->nvc", gains, lower + frac[:, None, None, :] * (upper - lower))
 
-    return (1.0 - fy) * at_node(node * _ENVIRONMENT_NODE_STEP) + fy * at_node((node + 1) * _ENVIRONMENT_NODE_STEP)
+def environment_azimuthal(directions: np.ndarray, weight: np.ndarray, tangent: np.ndarray, normal: np.ndarray,
+                          environment_coeffs: np.ndarray) -> np.ndarray:
+    """(n, V, 3, P) the environment's SH coefficients of degree l <= min(l*, 5) and order m >= 0 in
+    each sample's mirrored view frame: the texel's frame (`local_environment`) turned about the
+    normal by the azimuth beta of the mirrored view direction (-x, -y), c_lm cos(m beta) +
+    c_l,-m sin(m beta); P = `environment_pairs`. 0 where weight is 0."""
+    directions = np.asarray(directions, np.float64)
+    degrees = min(sh.lmax_of(environment_coeffs.shape[0]), _TILT_FIT_LMAX)
+    local = local_environment(environment_coeffs, tangent, normal, degrees)  # (n, K, 3)
+    beta = np.arctan2(-directions[..., 1], -directions[..., 0])[..., None]  # (n, V, 1)
+    out = np.empty(directions.shape[:2] + (3, environment_pairs(degrees)))
+    pair = 0
+    for degree in range(degrees + 1):
+        for order in range(degree + 1):
+            centre = degree * degree + degree
+            out[..., pair] = local[:, None, centre]
+            if order > 0:
+                out[..., pair] = (local[:, None, centre + order] * np.cos(order * beta)
+                                  + local[:, None, centre - order] * np.sin(order * beta))
+            pair += 1
+    return np.where(np.asarray(weight)[:, :, None, None] > 0.0, out, 0.0)
+
+
+def local_environment(environment_coeffs: np.ndarray, tangent: np.ndarray, normal: np.ndarray,
+                      lmax: int) -> np.ndarray:
+    """(n, (lmax + 1)^2, 3) the world-frame SH environment_coeffs (K, 3) up to degree lmax in each
+    texel's frame (x tangent, y normal x tangent, z normal; tangent and normal (n, 3)): projected
+    with a quadrature exact for products of two such harmonics, so exact to rounding."""
+    directions, weights = sh.sphere_quadrature(2 * lmax)
+    tangent, normal = np.asarray(tangent, np.float64), np.asarray(normal, np.float64)
+    frames = np.stack([tangent, np.cross(normal, tangent), normal], axis=1)  # (n, 3, 3) rows
+    world = np.einsum("qi,nij->nqj", directions, frames)
+    values = sh.eval_sh(world, lmax) @ np.asarray(environment_coeffs, np.float64)[: sh.num_coeffs(lmax)]
+    return np.einsum("qk,q,nqc->nkc", sh.eval_sh(directions, lmax), weights, values)
+
+
+@functools.cache
+def _environment_quadrature(lmax: int) -> tuple[np.ndarray, np.ndarray]:
+    """(directions (Q, 3), projection (K, Q)) of `local_environment`'s quadrature for the kernels:
+    local coefficients = projection @ (the environment at the directions turned to the world)."""
+    directions, weights = sh.sphere_quadrature(2 * lmax)
+    return np.ascontiguousarray(directions), np.ascontiguousarray((sh.eval_sh(directions, lmax) * weights[:, None]).T)
 
 
 @numba.njit(fastmath=True, cache=True)
@@ -615,30 +652,6 @@ def environment_weight(roughness: np.ndarray, blend: tuple[float, float]) -> np.
     blend[0], 1 from blend[1], smoothstep between (`EstimateConfig.environment_blend`)."""
     roughness = np.asarray(roughness, np.float64)
     return np.array([_environment_share(r, blend) for r in roughness.ravel()]).reshape(roughness.shape)
-
-
-def environment_projections(directions, weight, tangent, normal, environment_coeffs, lmax) -> np.ndarray:
-    """(n, levels, 3, G, V) sum_m c_lm Y_lm at the world direction of the reflected view direction
-    tilted towards the normal by s = j / (levels - 1), G = min(l*, 5) + 1; 0 at samples of weight 0."""
-    directions = np.asarray(directions, np.float64)
-    tangent = np.asarray(tangent, np.float64)
-    normal = np.asarray(normal, np.float64)
-    bitangent = np.cross(normal, tangent)
-    n_gains = min(lmax, _TILT_FIT_LMAX) + 1
-    out = []
-    for j in range(_ENVIRONMENT_TILT_LEVELS):
-        tilt = j / (_ENVIRONMENT_TILT_LEVELS - 1)
-        local = directions * np.array([-tilt, -tilt, tilt])
-        local[..., 2] += 1.0 - tilt
-        local /= np.maximum(np.linalg.norm(local, axis=-1, keepdims=True), 1e-12)
-        world = (local[..., :1] * tangent[:, None] + local[..., 1:2] * bitangent[:, None]
-                 + local[..., 2:] * normal[:, None])
-        basis = sh.eval_sh(world, lmax)  # (n, V, K)
-        degree = sh.sh_degrees(lmax)
-        projection = np.stack([np.einsum("nvk,kc->ncv", basis[..., degree == l], environment_coeffs[degree == l])
-                               for l in range(n_gains)], axis=2)  # (n, 3, G, V)
-        out.append(np.where(np.asarray(weight)[:, None, None, :] > 0.0, projection, 0.0))
-    return np.stack(out, axis=1)
 
 
 # With the prefiltered light (`EstimateConfig.prefiltered_light`) a smooth lobe reads the environment
@@ -771,26 +784,15 @@ def lobe_tilt(cos_theta: np.ndarray, roughness: np.ndarray, term: str = "scale")
     return out[0].reshape(cos_theta.shape)
 
 
-# The planes of `_model_tables`, as the kernels index them: the tilt of term k is _TILT_PLANE + k,
-# its environment tilt _ENVIRONMENT_TILT_PLANE + k, its environment gains `_environment_gain_plane`.
-_SCALE_PLANE, _BIAS_PLANE, _DIELECTRIC_PLANE, _TILT_PLANE, _ENVIRONMENT_TILT_PLANE = 0, 1, 2, 3, 6
-_ENVIRONMENT_GAIN_PLANE = 9
-_TABLE_PLANES = _ENVIRONMENT_GAIN_PLANE + len(LOBE_TERMS) * (_ENVIRONMENT_PARTS - 1)
-
-
-@numba.njit(cache=True)
-def _environment_gain_plane(term, degree):
-    return _ENVIRONMENT_GAIN_PLANE + term * (_ENVIRONMENT_PARTS - 1) + degree
+# The planes of `_model_tables`, as the kernels index them: the tilt of term k is _TILT_PLANE + k.
+_SCALE_PLANE, _BIAS_PLANE, _DIELECTRIC_PLANE, _TILT_PLANE = 0, 1, 2, 3
 
 
 @functools.cache
 def _model_tables() -> np.ndarray:
-    """(27, cos nodes, roughness nodes): A, B and E of `split_sum_table`, their tilts
-    (`lobe_tilt_table`), their environment tilts and their environment gains per degree
-    (`environment_response_table`)."""
-    environment = environment_response_table()
-    return np.concatenate([split_sum_table(), lobe_tilt_table(), environment[:, 0],
-                           environment[:, 1:].reshape(-1, _TABLE_COS_NODES, _TABLE_ROUGHNESS_NODES)])
+    """(6, cos nodes, roughness nodes): A, B and E of `split_sum_table`, then their tilts
+    (`lobe_tilt_table`)."""
+    return np.concatenate([split_sum_table(), lobe_tilt_table()])
 
 
 def _tilt_levels(settings: EstimateConfig) -> int:
@@ -886,20 +888,22 @@ def _uses_prefiltered_light(observations: Observations, settings: EstimateConfig
 
 
 def _environment_inputs(observations: Observations, settings: EstimateConfig) -> tuple:
-    """(tangent (N, 3), normal (N, 3), environment (K, 3) float64, levels, blend, prefiltered
-    (H W, nodes, 3) float32, n_full, world_to_local (3, 3), H, W) for the kernels; levels 0 without
-    the environment light, no nodes without the prefiltered light. The prefiltered nodes are
-    `prefilter_nodes` full maps, then (with the environment light) the degrees above the
-    environment light's at all `_HIGH_NODES` roughness nodes: what the environment light adds."""
+    """(tangent (N, 3), normal (N, 3), environment (K, 3) float64, blend, prefiltered (H W, nodes, 3)
+    float32, n_full, world_to_local (3, 3), H, W) for the kernels: the environment's SH up to degree
+    min(l*, 5) (K = 0 without the environment light), no nodes without the prefiltered light. The
+    prefiltered nodes are `prefilter_nodes` full maps, then (with the environment light) the
+    degrees above the environment light's at all `_HIGH_NODES` roughness nodes: what the
+    environment light adds."""
     tangent = np.zeros((observations.n_texels, 3), np.float32) if observations.tangent is None else observations.tangent
+    environment_degrees = min(observations.lmax, _TILT_FIT_LMAX)
     if _uses_environment_light(observations, settings):
-        environment = (observations.environment_coeffs.astype(np.float64), _ENVIRONMENT_TILT_LEVELS,
-                       tuple(float(b) for b in settings.environment_blend))
+        environment = (np.ascontiguousarray(observations.environment_coeffs[:sh.num_coeffs(environment_degrees)],
+                                            dtype=np.float64), tuple(float(b) for b in settings.environment_blend))
     else:
-        environment = (np.zeros((1, 3)), 0, (0.0, 0.0))
+        environment = (np.zeros((0, 3)), (0.0, 0.0))
     if _uses_prefiltered_light(observations, settings):
         n_full = prefilter_nodes(settings)
-        high_degrees = min(observations.lmax, _TILT_FIT_LMAX) + 1 if environment[1] else None
+        high_degrees = environment_degrees + 1 if len(environment[0]) else None
         stack, height, width = _prefiltered_stack(observations, n_full, high_degrees)
         prefiltered = (stack, n_full, np.ascontiguousarray(observations.environment_rotation.T, dtype=np.float64),
                        height, width)
@@ -1026,7 +1030,7 @@ def _fill_kernel(alpha, sigma, kernel, kernel_derivative):
 @numba.njit(parallel=True, fastmath=True, cache=True)
 def _squared_residual_kernel(
     proj, directions, weight, observed, diffuse_scale, base_color, metallic, roughness, sigma, fresnel, masking,
-    split_sum, exact_dielectric, burley, table, environment_proj, environment_blend, tangent, normal, prefiltered,
+    split_sum, exact_dielectric, burley, table, response, azimuthal, environment_blend, tangent, normal, prefiltered,
     n_full, world_to_local, map_height, map_width, out,
 ):
     """out[t] = sum_v,c w^2 (L - f)^2 / sum_v w^2 (0 without samples); directions (n, V, 3) local view
@@ -1034,9 +1038,9 @@ def _squared_residual_kernel(
     `_tilted_projections`, interpolated at each sample's tilt per lobe term when there are several
     levels. The specular is m (b X + Y) + (1 - m) Z with X = A S_A, Y = B S_B (S_k: the light
     filtered for term k, `lobe_filtered_light`) and Z = E S_E with ``exact_dielectric``, else
-    Schlick's 0.04 X + Y. environment_proj (n, levels, V, 3, G) `environment_projections` with
-    the views third: with levels > 1 each S_k is blended towards the environment light
-    (`environment_filtered_light`). With prefiltered maps (H W, nodes, 3) the lobes read
+    Schlick's 0.04 X + Y. With azimuthal (n, V, 3, P > 0) (`environment_azimuthal`) each S_k is
+    blended towards the environment light (`environment_filtered_light`; response
+    `environment_response_table`). With prefiltered maps (H W, nodes, 3) the lobes read
     `prefiltered_light` (texel frames tangent and normal (n, 3)) instead of proj."""
     n_texels, n_views = weight.shape
     n_levels, n_degrees = proj.shape[1], proj.shape[3]
@@ -1048,8 +1052,7 @@ def _squared_residual_kernel(
         level = np.zeros(n_terms, dtype=np.int64)
         frac = np.zeros(n_terms)
         filtered = np.empty(n_terms)
-        n_environment_levels = environment_proj.shape[1]
-        share = _environment_share(roughness[t], environment_blend) if n_environment_levels > 1 else 0.0
+        share = _environment_share(roughness[t], environment_blend) if azimuthal.shape[3] > 0 else 0.0
         # The environment light at the roughness nodes on either side, per term, channel and view.
         environment_light = np.zeros((2, n_terms, 3, n_views))
         if share > 0.0:
@@ -1060,10 +1063,10 @@ def _squared_residual_kernel(
                 table_row[v] = min(int(x), table.shape[1] - 2)
                 table_frac[v] = x - table_row[v]
             node, node_frac = _environment_node(roughness[t])
-            gain = np.empty(environment_proj.shape[4])
+            scratch = np.empty(azimuthal.shape[3])
             for side in range(2):
-                _environment_node_lights(table, (node + side) * _ENVIRONMENT_NODE_STEP, n_views, table_row,
-                                         table_frac, environment_proj[t], gain, environment_light[side])
+                _environment_node_lights(response, node + side, n_views, table_row, table_frac, azimuthal[t], scratch,
+                                         environment_light[side])
         # The prefiltered light at its nodes on either side, per channel and view.
         use_prefiltered = n_full > 0 and share < 1.0
         n_high = prefiltered.shape[1] - n_full
@@ -1389,32 +1392,83 @@ def _profile_metallic(quadratics, state, metallic_grid):
 
 
 @numba.njit(fastmath=True, cache=True)
-def _environment_node_lights(table, node, n, table_row, table_frac, environment_proj, gain, out):
-    """out[k, c, s] = the environment light of lobe term k < out.shape[0] at samples s < n for the
-    table's roughness node ``node``: the tilt and gains of `environment_response_table` linear in
-    cos theta_o (table_row, table_frac: each sample's cos node and fraction), environment_proj
-    (levels, >= n, 3, G) interpolated linearly between tilt levels. The search evaluates it at
-    the two nodes around a roughness and interpolates (see `environment_filtered_light`).
-    gain (G,): scratch. Each sample reads its two tilt levels' 3 x G values, each contiguous."""
-    n_levels, n_gains = environment_proj.shape[0], environment_proj.shape[3]
-    for s in range(n):
-        row, fx = table_row[s], table_frac[s]
-        for term in range(out.shape[0]):
-            plane = _ENVIRONMENT_TILT_PLANE + term
-            position = (table[plane, row, node] + fx * (table[plane, row + 1, node] - table[plane, row, node])) * (
-                n_levels - 1)
-            level = min(max(int(position), 0), n_levels - 2)
-            frac = position - level
-            for degree in range(n_gains):
-                plane = _environment_gain_plane(term, degree)
-                gain[degree] = table[plane, row, node] + fx * (table[plane, row + 1, node] - table[plane, row, node])
-            lower, upper = environment_proj[level, s], environment_proj[level + 1, s]
+def _environment_node_lights(response, node, n, table_row, table_frac, azimuthal, scratch, out):
+    """out[k, c, s] = the environment light of lobe term k < out.shape[0] at samples s < n for
+    roughness node ``node`` of response (`environment_response_table`), linear in cos theta_o
+    (table_row, table_frac: each sample's cos node and fraction): the responses times the
+    environment's coefficients in the sample's mirrored view frame, azimuthal (>= n, 3, P)
+    (`environment_azimuthal`). scratch (P,). The search evaluates it at the two nodes around a
+    roughness and interpolates."""
+    n_pairs = azimuthal.shape[2]
+    for term in range(out.shape[0]):
+        rows = response[term, node]
+        for s in range(n):
+            below, above, fx = rows[table_row[s]], rows[table_row[s] + 1], table_frac[s]
+            for pair in range(n_pairs):
+                scratch[pair] = below[pair] + fx * (above[pair] - below[pair])
             for c in range(3):
+                coefficients = azimuthal[s, c]
                 light = 0.0
-                for degree in range(n_gains):
-                    below = lower[c, degree]
-                    light += gain[degree] * (below + frac * (upper[c, degree] - below))
+                for pair in range(n_pairs):
+                    light += scratch[pair] * coefficients[pair]
                 out[term, c, s] = light
+
+
+@numba.njit(cache=True)
+def _n_degrees(n_coeffs):
+    """l* + 1 of (l* + 1)^2 SH coefficients (numba has no math.isqrt)."""
+    return int(math.sqrt(n_coeffs) + 0.5)
+
+
+@numba.njit(fastmath=True, cache=True)
+def _local_environment(environment, tangent, normal, bitangent, quadrature, projection, diag, rec_a, rec_b, world,
+                       basis, sh_scratch, values, out):
+    """out (K, 3) = `local_environment` of environment (K, 3) in the frame (tangent, bitangent,
+    normal), with `_environment_quadrature`'s directions (Q, 3) and projection (K, Q); scratch
+    world (3, Q), basis (K, Q), sh_scratch (5, Q), values (Q, 3)."""
+    n_points = quadrature.shape[0]
+    for q in range(n_points):
+        for axis in range(3):
+            world[axis, q] = (quadrature[q, 0] * tangent[axis] + quadrature[q, 1] * bitangent[axis]
+                              + quadrature[q, 2] * normal[axis])
+    sh._sh_block(world[0], world[1], world[2], n_points, _n_degrees(environment.shape[0]) - 1, diag, rec_a, rec_b,
+                 basis, sh_scratch)
+    for q in range(n_points):
+        for c in range(3):
+            total = 0.0
+            for k in range(environment.shape[0]):
+                total += basis[k, q] * environment[k, c]
+            values[q, c] = total
+    for k in range(environment.shape[0]):
+        for c in range(3):
+            total = 0.0
+            for q in range(n_points):
+                total += projection[k, q] * values[q, c]
+            out[k, c] = total
+
+
+@numba.njit(fastmath=True, cache=True)
+def _azimuthal_coefficients(xyz, n, local, out):
+    """out (>= n, 3, P) = `environment_azimuthal` of local view directions xyz (3, >= n) from the
+    texel-frame coefficients local (K, 3)."""
+    n_degrees = _n_degrees(local.shape[0])
+    for s in range(n):
+        mirrored_x, mirrored_y = -xyz[0, s], -xyz[1, s]
+        radius = math.sqrt(mirrored_x * mirrored_x + mirrored_y * mirrored_y)
+        # At normal incidence the lobe is symmetric (every m > 0 response is 0): any azimuth does.
+        cos_beta, sin_beta = (mirrored_x / radius, mirrored_y / radius) if radius > 1e-12 else (1.0, 0.0)
+        cos_m, sin_m = 1.0, 0.0
+        for order in range(n_degrees):
+            if order > 0:
+                cos_m, sin_m = cos_m * cos_beta - sin_m * sin_beta, sin_m * cos_beta + cos_m * sin_beta
+            for degree in range(order, n_degrees):
+                pair = degree * (degree + 1) // 2 + order
+                centre = degree * degree + degree
+                for c in range(3):
+                    if order == 0:
+                        out[s, c, pair] = local[centre, c]
+                    else:
+                        out[s, c, pair] = local[centre + order, c] * cos_m + local[centre - order, c] * sin_m
 
 
 @numba.njit(fastmath=True, cache=True)
@@ -1450,12 +1504,12 @@ def _roughness_objective(roughness, args):
     (n, cos_theta, omega, proj, values, sigma, fresnel, masking, split_sum, exact_dielectric, burley, table,
      table_row, table_frac, tilt_level, tilt_frac, burley_terms, diffuse_moments, column, kernel, kernel_derivative,
      albedo, diffuse_factor, level_filtered, filtered, moments, quadratics, squared_values, diffuse_scale,
-     state, metallic_grid, environment_proj, environment_blend, environment_nodes, environment_cached,
-     environment_gain, prefiltered, n_full, corner, stencil_frac, prefiltered_nodes, prefiltered_cached,
+     state, metallic_grid, azimuthal, environment_blend, environment_nodes, environment_cached, response,
+     response_scratch, prefiltered, n_full, corner, stencil_frac, prefiltered_nodes, prefiltered_cached,
      high_filtered) = args
     n_levels = proj.shape[0]
     # Without environment levels (environment light off) the fitted light is all there is.
-    share = _environment_share(roughness, environment_blend) if environment_proj.shape[0] > 1 else 0.0
+    share = _environment_share(roughness, environment_blend) if azimuthal.shape[2] > 0 else 0.0
     # Terms with a light of their own: A and B, and E with the exact dielectric (else Z = 0.04 X + Y).
     n_terms = 3 if exact_dielectric else 2
     alpha = max(roughness * roughness, _ALPHA_MIN)
@@ -1464,7 +1518,7 @@ def _roughness_objective(roughness, args):
         y = min(max(roughness, 0.0), 1.0) * (table.shape[2] - 1)
         j = min(int(y), table.shape[2] - 2)
         fy = y - j
-        for side in range(_ENVIRONMENT_TILT_PLANE):
+        for side in range(table.shape[0]):
             term = side - _TILT_PLANE if side >= _TILT_PLANE else side
             if term >= n_terms or (side >= _TILT_PLANE and n_levels == 1):
                 continue
@@ -1479,8 +1533,8 @@ def _roughness_objective(roughness, args):
             upper_node = node + 1 if node_frac > 0.0 else node
             for needed in range(lower_node, upper_node + 1):
                 if not environment_cached[needed]:
-                    _environment_node_lights(table, needed * _ENVIRONMENT_NODE_STEP, n, table_row, table_frac,
-                                             environment_proj, environment_gain, environment_nodes[needed, :n_terms])
+                    _environment_node_lights(response, needed, n, table_row, table_frac, azimuthal, response_scratch,
+                                             environment_nodes[needed, :n_terms])
                     environment_cached[needed] = True
         for s in range(n):
             row, fx = table_row[s], table_frac[s]
@@ -1716,51 +1770,22 @@ def _residual_magnitudes(n, values, filtered, diffuse_factor, diffuse_scale, par
         out[s] = math.sqrt(total)
 
 
-@numba.njit(fastmath=True, cache=True)
-def _environment_levels(xyz, n, tangent, normal, bitangent, environment, lmax, diag, rec_a, rec_b, tilted, basis,
-                        sh_scratch, out):
-    """out[j, s, c, l] = sum_m c_lm Y_lm of the environment (K, 3) at the world direction of the
-    texel's reflected view direction xyz[:, s] (local) tilted towards the normal by
-    t = j / (levels - 1), for levels out.shape[0] and degrees l < out.shape[3]; bitangent = normal x
-    tangent."""
-    n_levels, n_gains = out.shape[0], out.shape[3]
-    for level in range(n_levels):
-        tilt = level / (n_levels - 1)
-        for s in range(n):  # normalize((1 - tilt) n + tilt r), r = (-x, -y, z) locally
-            local_x, local_y = -tilt * xyz[0, s], -tilt * xyz[1, s]
-            local_z = 1.0 - tilt + tilt * xyz[2, s]
-            norm = math.sqrt(local_x * local_x + local_y * local_y + local_z * local_z)
-            local_x, local_y, local_z = local_x / norm, local_y / norm, local_z / norm
-            for axis in range(3):
-                tilted[axis, s] = local_x * tangent[axis] + local_y * bitangent[axis] + local_z * normal[axis]
-        sh._sh_block(tilted[0], tilted[1], tilted[2], n, lmax, diag, rec_a, rec_b, basis, sh_scratch)
-        projection = sh_scratch[0]  # free again after _sh_block
-        for c in range(3):
-            for degree in range(n_gains):
-                for s in range(n):
-                    projection[s] = 0.0
-                for k in range(degree * degree, (degree + 1) * (degree + 1)):
-                    coefficient = environment[k, c]
-                    for s in range(n):
-                        projection[s] += coefficient * basis[k, s]
-                for s in range(n):
-                    out[level, s, c, degree] = projection[s]
-
-
 @numba.njit(parallel=True, fastmath=True, cache=True)
 def _global_search_kernel(
     directions, weight, observed, light, diffuse_scale, sigma, fresnel, masking, split_sum, exact_dielectric, burley,
     table, tilt_levels, roughness_grid, metallic_grid, robust_passes, lmax, diag, rec_a, rec_b,
-    tangent, normal, environment, environment_levels, environment_blend, prefiltered, n_full, world_to_local,
-    map_height, map_width, hypothesis_roughness, hypothesis_moments, search, params, loss, curvature,
+    tangent, normal, environment, environment_blend, response, quadrature, quadrature_projection, prefiltered,
+    n_full, world_to_local, map_height, map_width, hypothesis_roughness, hypothesis_moments, search, params, loss,
+    curvature,
 ):
     """Per texel: the (base colour, roughness, metallic) of least weighted squared residual.
 
     directions (n, V, 3) local view directions; weight (n, V); observed (n, V, 3); light (n, 3, K)
     the incoming light's SH fit; diffuse_scale (n, 3) E / pi; (lmax, diag, rec_a, rec_b) as
-    `sh._sh_block` takes them. With environment_levels > 1 the environment light (world-frame SH
-    environment (K, 3), texel frames tangent and normal (n, 3)) is expanded by degree at that
-    many tilts of the reflected direction and blended in over environment_blend (start, end).
+    `sh._sh_block` takes them. With a world-frame SH environment (K > 0, 3) the environment light
+    (texel frames tangent and normal (n, 3); `environment_filtered_light` with response
+    `environment_response_table` and `_environment_quadrature`'s quadrature (Q, 3) and
+    quadrature_projection (K, Q)) is blended in over environment_blend (start, end).
     With prefiltered (H W, nodes, 3) maps (`prefiltered_environment` of an H x W map whose
     emitter frame is world_to_local (3, 3) from the world), smooth lobes read them at the world
     mirror directions instead of the fitted light. Else, per texel the light is expanded by
@@ -1807,13 +1832,19 @@ def _global_search_kernel(
         state = np.empty(4)
         best_state = np.empty(4)
         roughness_brent = np.empty(13)
-        n_gains = min(lmax, _TILT_FIT_LMAX) + 1
-        environment_proj = np.zeros((environment_levels, n_views, 3, n_gains))
-        # The environment light per roughness node of the table, lobe term, channel and sample.
-        n_environment_nodes = (table.shape[2] - 1) // _ENVIRONMENT_NODE_STEP + 1
-        environment_nodes = np.empty((n_environment_nodes, 3, 3, n_views))
-        environment_cached = np.zeros(n_environment_nodes, dtype=np.bool_)
-        environment_gain = np.empty(n_gains)
+        # The environment in the texel's frame, then in each sample's mirrored view frame.
+        n_points = quadrature.shape[0]
+        local_environment = np.empty((environment.shape[0], 3))
+        quadrature_world = np.empty((3, n_points))
+        quadrature_basis = np.empty((environment.shape[0], n_points))
+        quadrature_scratch = np.empty((5, n_points))
+        quadrature_values = np.empty((n_points, 3))
+        n_environment_degrees = _n_degrees(environment.shape[0])
+        azimuthal = np.zeros((n_views, 3, n_environment_degrees * (n_environment_degrees + 1) // 2))
+        response_scratch = np.empty(azimuthal.shape[2])
+        # The environment light per roughness node, lobe term, channel and sample.
+        environment_nodes = np.empty((_ENVIRONMENT_NODES, 3, 3, n_views))
+        environment_cached = np.zeros(_ENVIRONMENT_NODES, dtype=np.bool_)
         bitangent = np.empty(3)
         # The prefiltered light per map node, channel and sample, and each sample's lookup stencil.
         n_prefiltered = prefiltered.shape[1]
@@ -1861,9 +1892,11 @@ def _global_search_kernel(
                             for s in range(n):
                                 packed_proj[level, c, degree, s] += coefficient * basis[k, s]
             environment_cached[:] = False
-            if environment_levels > 1:
-                _environment_levels(xyz, n, tangent[t], normal[t], bitangent, environment, lmax, diag, rec_a, rec_b,
-                                    tilted, basis, sh_scratch, environment_proj)
+            if environment.shape[0] > 0:
+                _local_environment(environment, tangent[t], normal[t], bitangent, quadrature, quadrature_projection,
+                                   diag, rec_a, rec_b, quadrature_world, quadrature_basis, quadrature_scratch,
+                                   quadrature_values, local_environment)
+                _azimuthal_coefficients(xyz, n, local_environment, azimuthal)
             for s in range(n):
                 x = min(max(packed_cos[s], 0.0), 1.0) * (table.shape[1] - 1)
                 table_row[s] = min(int(x), table.shape[1] - 2)
@@ -1878,8 +1911,8 @@ def _global_search_kernel(
             args = (n, packed_cos, omega, packed_proj, values, sigma, fresnel, masking, split_sum, exact_dielectric,
                     burley, table, table_row, table_frac, tilt_level, tilt_frac, burley_terms, diffuse_moments, column,
                     kernel, kernel_derivative, albedo, diffuse_factor, level_filtered, filtered, moments, quadratics,
-                    squared_values, scale, state, metallic_grid, environment_proj, environment_blend,
-                    environment_nodes, environment_cached, environment_gain, prefiltered, n_full, corner, stencil_frac,
+                    squared_values, scale, state, metallic_grid, azimuthal, environment_blend, environment_nodes,
+                    environment_cached, response, response_scratch, prefiltered, n_full, corner, stencil_frac,
                     prefiltered_nodes, prefiltered_cached, high_filtered)
             for i in range(hypothesis_roughness.shape[0]):
                 _roughness_objective(hypothesis_roughness[i], args)
