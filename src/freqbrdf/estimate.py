@@ -24,7 +24,9 @@ and diffuse factor D come in two versions (``EstimateConfig.specular_model``, ``
   16.72 -> 16.74 (bunny), metallic MAE 0.187 -> 0.173, 0.186 -> 0.168, 0.240 -> 0.239. On the
   64-view Mitsuba captures (bunny, plane) the albedo and Burley cut roughness MAE 0.200 -> 0.169
   and 0.118 -> 0.127, metallic MAE 0.286 -> 0.238 and 0.237 -> 0.188 ("g1" lets rough metals
-  pass for dark dielectrics, Lambert makes rough dielectrics look too smooth).
+  pass for dark dielectrics, Lambert makes rough dielectrics look too smooth). With the
+  environment light (below), D is Burley's factor averaged over the environment's own light
+  instead (per channel, `environment_burley_factor`, ``EstimateConfig.burley_environment``).
 - with ``EstimateConfig.lobe_tilt`` the light of a rough lobe is read off the mirror direction,
   tilted towards the normal as the lobe leans (`lobe_tilt_table`): S_alpha,c at
   w' = normalize((1 - s) n + s w), with s per term of the lobe (A, B, E: each has its own Fresnel
@@ -251,8 +253,8 @@ def angular_loss(
             _diffuse_scale(observations)[rows], base_color[rows], metallic[rows],
             np.asarray(params.roughness, dtype=np.float64)[rows], observations.sigma, settings.fresnel,
             settings.masking, _uses_split_sum(settings), _uses_exact_dielectric(settings), _uses_burley(settings),
-            _model_tables(), environment_response_table(), azimuthal, blend, tangent[rows], normal[rows],
-            prefiltered, n_full, world_to_local, map_height, map_width, loss[rows],
+            _model_tables(), environment_response_table(), _burley_response(settings), azimuthal, blend, tangent[rows],
+            normal[rows], prefiltered, n_full, world_to_local, map_height, map_width, loss[rows],
         )
     return np.where(observations.n_samples > 0, loss, np.nan)
 
@@ -298,8 +300,8 @@ def _run_search_kernel(observations: Observations, settings: EstimateConfig, lig
         _uses_burley(settings), _model_tables(), _tilt_levels(settings), settings.roughness_grid,
         settings.metallic_grid, settings.robust_passes, observations.lmax, *sh._legendre_tables(observations.lmax),
         tangent, normal, environment, blend, environment_response_table(),
-        *_environment_quadrature(max(math.isqrt(len(environment)) - 1, 0)), *prefiltered, hypothesis_roughness,
-        hypothesis_moments, search, params, loss, curvature,
+        *_environment_quadrature(max(math.isqrt(len(environment)) - 1, 0)), _burley_response(settings),
+        *prefiltered, hypothesis_roughness, hypothesis_moments, search, params, loss, curvature,
     )
 
 
@@ -860,7 +862,82 @@ def burley_diffuse_factor(cos_theta, roughness):
             + schlick_view * (retro_squared_fresnel - retro_fresnel))
 
 
-_burley_diffuse_factor = numba.njit(fastmath=True, cache=True)(burley_diffuse_factor)
+
+# Burley's diffuse under the environment's own light: the quadrature of `burley_response_table`.
+_BURLEY_COS_STRATA = 48  # Gauss-Legendre nodes in cos theta_i
+_BURLEY_PHI_STRATA = 64
+
+
+@functools.cache
+def burley_response_table(lmax: int = _TILT_FIT_LMAX) -> np.ndarray:
+    """(4, cos nodes, P) float64, P = `environment_pairs`(lmax): Mitsuba's principled diffuse per unit
+    base colour, (1 / pi) int f_j(w_i, w_o) cos theta_i Y_lm(-x_i, -y_i, z_i) dw_i for the view
+    w_o = (sin, 0, cos theta_o) at the cos nodes of `split_sum_table`, per power j of the roughness:
+    Burley's f = f_0 + r f_1 + r^2 f_2 with f_0 = (1 - F_o / 2)(1 - F_i / 2), f_1 = (1 + w_i.w_o)
+    (F_o + F_i - F_o F_i), f_2 = (1 + w_i.w_o)^2 F_o F_i (F = (1 - cos)^5, 2 cos^2 theta_d = 1 +
+    w_i.w_o); the last row is Lambert's f = 1. The harmonics are those of `environment_azimuthal`
+    (the mirrored view frame), so sum_p coefficients_p row_p is the diffuse radiance under that
+    light. Gauss-Legendre in cos theta_i times uniform azimuths; deterministic, ~0.1 s."""
+    cos_light, weights = np.polynomial.legendre.leggauss(_BURLEY_COS_STRATA)
+    cos_light, weights = 0.5 * (cos_light + 1.0), 0.5 * weights
+    phi = 2.0 * np.pi * (np.arange(_BURLEY_PHI_STRATA) + 0.5) / _BURLEY_PHI_STRATA
+    sin_light = np.sqrt(1.0 - cos_light**2)
+    light = np.stack([np.outer(sin_light, np.cos(phi)), np.outer(sin_light, np.sin(phi)),
+                      np.repeat(cos_light[:, None], len(phi), axis=1)], axis=-1).reshape(-1, 3)
+    measure = np.repeat(weights * cos_light, len(phi)) * (2.0 * np.pi / len(phi)) / np.pi  # cos_i dw_i / pi
+    pairs = [degree * degree + degree + order for degree in range(lmax + 1) for order in range(degree + 1)]
+    basis = sh.eval_sh(light * np.array([-1.0, -1.0, 1.0]), lmax)[:, pairs]  # (Q, P)
+    schlick_light = (1.0 - light[:, 2]) ** 5
+    cos_view = np.linspace(0.0, 1.0, _TABLE_COS_NODES)
+    out = np.empty((4, len(cos_view), len(pairs)))
+    for i, mu in enumerate(cos_view):
+        schlick_view = (1.0 - mu) ** 5
+        retro = 1.0 + light @ np.array([math.sqrt(1.0 - mu * mu), 0.0, mu])
+        parts = ((1.0 - 0.5 * schlick_view) * (1.0 - 0.5 * schlick_light),
+                 retro * (schlick_view + schlick_light - schlick_view * schlick_light),
+                 retro**2 * schlick_view * schlick_light, np.ones_like(schlick_light))
+        for j, part in enumerate(parts):
+            out[j, i] = (part * measure) @ basis
+    return out
+
+
+def environment_burley_factor(directions: np.ndarray, weight: np.ndarray, tangent: np.ndarray, normal: np.ndarray,
+                              environment_coeffs: np.ndarray, roughness: np.ndarray,
+                              azimuthal: np.ndarray | None = None) -> np.ndarray:
+    """(n, V, 3) Burley's diffuse relative to Lambert's under the environment's own light (degrees
+    <= min(l*, 5); `burley_response_table`, linear in cos theta_o) per channel, for roughness (n,):
+    what `burley_diffuse_factor` gives under uniform light. Where a channel's Lambert response is
+    not positive (a map with no light there) the uniform-light factor. Written with numpy,
+    independently of the kernels; 0 where weight is 0."""
+    directions = np.asarray(directions, np.float64)
+    if azimuthal is None:
+        azimuthal = environment_azimuthal(directions, weight, tangent, normal, environment_coeffs)
+    table = burley_response_table()[:, :, :azimuthal.shape[-1]]
+    x = np.clip(directions[..., 2], 0.0, 1.0) * (_TABLE_COS_NODES - 1)
+    row = np.minimum(x.astype(np.int64), _TABLE_COS_NODES - 2)
+    fx = (x - row)[..., None]
+    response = table[:, row] * (1.0 - fx) + table[:, row + 1] * fx  # (4, n, V, P)
+    parts = np.einsum("jnvp,nvcp->jnvc", response, azimuthal)
+    roughness = np.asarray(roughness, np.float64)[:, None, None]
+    lambert = parts[3]
+    burley = parts[0] + roughness * (parts[1] + roughness * parts[2])
+    uniform = burley_diffuse_factor(directions[..., 2], roughness[..., 0])[..., None]
+    factor = np.where(lambert > _MIN_LAMBERT * np.abs(azimuthal[..., 0]), burley / np.where(lambert > 0.0, lambert,
+                                                                                               1.0), uniform)
+    return np.where(np.asarray(weight)[:, :, None] > 0.0, factor, 0.0)
+
+
+# A channel's Lambert response below this fraction of its light's DC (a dark or wildly ringing
+# low-order light) falls back to the uniform-light Burley factor.
+_MIN_LAMBERT = 1e-3
+
+
+def _burley_response(settings: EstimateConfig) -> np.ndarray:
+    """`burley_response_table` for the kernels when Burley's diffuse reads the environment's light
+    (with the environment light), else an empty one (uniform light)."""
+    if _uses_burley(settings) and settings.environment_light and settings.burley_environment:
+        return burley_response_table()
+    return np.zeros((4, _TABLE_COS_NODES, 0))
 
 
 def _uses_burley(settings: EstimateConfig) -> bool:
@@ -1030,8 +1107,8 @@ def _fill_kernel(alpha, sigma, kernel, kernel_derivative):
 @numba.njit(parallel=True, fastmath=True, cache=True)
 def _squared_residual_kernel(
     proj, directions, weight, observed, diffuse_scale, base_color, metallic, roughness, sigma, fresnel, masking,
-    split_sum, exact_dielectric, burley, table, response, azimuthal, environment_blend, tangent, normal, prefiltered,
-    n_full, world_to_local, map_height, map_width, out,
+    split_sum, exact_dielectric, burley, table, response, burley_response, azimuthal, environment_blend, tangent,
+    normal, prefiltered, n_full, world_to_local, map_height, map_width, out,
 ):
     """out[t] = sum_v,c w^2 (L - f)^2 / sum_v w^2 (0 without samples); directions (n, V, 3) local view
     directions. proj (n, levels, 3, l*+1, V):
@@ -1040,7 +1117,8 @@ def _squared_residual_kernel(
     filtered for term k, `lobe_filtered_light`) and Z = E S_E with ``exact_dielectric``, else
     Schlick's 0.04 X + Y. With azimuthal (n, V, 3, P > 0) (`environment_azimuthal`) each S_k is
     blended towards the environment light (`environment_filtered_light`; response
-    `environment_response_table`). With prefiltered maps (H W, nodes, 3) the lobes read
+    `environment_response_table`), and with burley_response (4, cos nodes, P > 0) Burley's diffuse is
+    averaged over its light (`environment_burley_factor`). With prefiltered maps (H W, nodes, 3) the lobes read
     `prefiltered_light` (texel frames tangent and normal (n, 3)) instead of proj."""
     n_texels, n_views = weight.shape
     n_levels, n_degrees = proj.shape[1], proj.shape[3]
@@ -1055,13 +1133,26 @@ def _squared_residual_kernel(
         share = _environment_share(roughness[t], environment_blend) if azimuthal.shape[3] > 0 else 0.0
         # The environment light at the roughness nodes on either side, per term, channel and view.
         environment_light = np.zeros((2, n_terms, 3, n_views))
-        if share > 0.0:
-            table_row = np.empty(n_views, dtype=np.int64)
-            table_frac = np.empty(n_views)
+        # Burley's factor c0 + r c1 + r^2 c2 per channel and view: under uniform light, or the
+        # environment's.
+        burley_terms = np.zeros((3, 3, n_views))
+        burley_terms[:, 0] = 1.0
+        if burley:
+            for v in range(n_views):
+                _burley_terms(np.float64(directions[t, v, 2]), burley_terms[0, :, v])
+                for c in range(1, 3):
+                    burley_terms[c, :, v] = burley_terms[0, :, v]
+        environment_burley = burley and burley_response.shape[2] > 0 and azimuthal.shape[3] > 0
+        table_row = np.empty(n_views, dtype=np.int64)
+        table_frac = np.empty(n_views)
+        if share > 0.0 or environment_burley:
             for v in range(n_views):
                 x = min(max(np.float64(directions[t, v, 2]), 0.0), 1.0) * (table.shape[1] - 1)
                 table_row[v] = min(int(x), table.shape[1] - 2)
                 table_frac[v] = x - table_row[v]
+        if environment_burley:
+            _environment_burley_terms(n_views, table_row, table_frac, azimuthal[t], burley_response, burley_terms)
+        if share > 0.0:
             node, node_frac = _environment_node(roughness[t])
             scratch = np.empty(azimuthal.shape[3])
             for side in range(2):
@@ -1106,7 +1197,6 @@ def _squared_residual_kernel(
                 cos_v = np.float64(directions[t, v, 2])
                 scale, bias = _specular_albedo(cos_v, roughness[t], alpha, fresnel, masking, split_sum, table)
                 dielectric = _table_lookup(table, _DIELECTRIC_PLANE, cos_v, roughness[t]) if exact_dielectric else 0.0
-                diffuse_factor = _burley_diffuse_factor(cos_v, roughness[t]) if burley else 1.0
                 if n_levels > 1:
                     for term in range(n_terms):
                         position = _table_lookup(table, _TILT_PLANE + term, cos_v, roughness[t]) * (n_levels - 1)
@@ -1135,6 +1225,8 @@ def _squared_residual_kernel(
                     x, y = scale * filtered[0], bias * filtered[1]
                     z = dielectric * filtered[2] if exact_dielectric else _DIELECTRIC_F0 * x + y
                     m, b = metallic[t], base_color[t, c]
+                    terms = burley_terms[c, :, v]
+                    diffuse_factor = terms[0] + roughness[t] * (terms[1] + roughness[t] * terms[2])
                     residual = (m * (b * x + y) + (1.0 - m) * z
                                 + (1.0 - m) * b * diffuse_scale[t, c] * diffuse_factor - observed[t, v, c])
                     total += w * w * residual * residual
@@ -1553,12 +1645,12 @@ def _roughness_objective(roughness, args):
         for s in range(n):
             albedo[0, s] += albedo[1, s]
             albedo[1, s] = 0.0
-    # Burley's factor is c0 + r c1 + r^2 c2 per sample (c from `_burley_terms`); Lambert's is 1.
-    for s in range(n):
-        diffuse_factor[s] = burley_terms[0, s] + roughness * (burley_terms[1, s] + roughness * burley_terms[2, s])
-    s_dd = 0.0
-    for power in range(4, -1, -1):
-        s_dd = s_dd * roughness + diffuse_moments[0, power]
+    # Burley's factor is c0 + r c1 + r^2 c2 per channel and sample (`_burley_terms`,
+    # `_environment_burley_terms`); Lambert's is 1.
+    for c in range(3):
+        terms = burley_terms[c]
+        for s in range(n):
+            diffuse_factor[c, s] = terms[0, s] + roughness * (terms[1, s] + roughness * terms[2, s])
     # Filter the light at the tilt levels this probe reads (contiguous, vectorised loops), then
     # interpolate each sample and term between its two levels. A lobe that reads the environment
     # light alone (share 1) needs none of it.
@@ -1630,7 +1722,7 @@ def _roughness_objective(roughness, args):
         for s in range(n):
             x, y, z = model[0, s], model[1, s], model[2, s]  # X = A S_A, Y = B S_B, Z = E S_E
             f = values[c, s]
-            d = diffuse_factor[s]
+            d = diffuse_factor[c, s]
             wx = omega[s] * x
             wy = omega[s] * y
             wz = omega[s] * z
@@ -1646,7 +1738,10 @@ def _roughness_objective(roughness, args):
             s_yf += wy * f
             s_zz += wz * z
             s_zf += wz * f
-        fd = diffuse_moments[1 + c]
+        s_dd = 0.0
+        for power in range(4, -1, -1):
+            s_dd = s_dd * roughness + diffuse_moments[c, 0, power]
+        fd = diffuse_moments[c, 1]
         s_fd = fd[0] + roughness * (fd[1] + roughness * fd[2])
         row = moments[c]
         row[0], row[1], row[2], row[3], row[4], row[5], row[6] = s_xd, s_yd, s_zd, s_xx, s_xy, s_xz, s_xf
@@ -1668,32 +1763,54 @@ def _burley_terms(cos_theta, out):
 
 @numba.njit(fastmath=True, cache=True)
 def _weighted_sums(n, omega, values, burley_terms, diffuse_moments, squared_values):
-    """The roughness-free weighted sums of a texel's samples for `_roughness_objective`: sum w^2 D^2
-    as a quartic in r and sum w^2 f_c D as quadratics (Burley's D = c0 + r c1 + r^2 c2), and
+    """The roughness-free weighted sums of a texel's samples for `_roughness_objective`, per channel
+    c: sum w^2 D_c^2 as a quartic in r (diffuse_moments[c, 0]) and sum w^2 f_c D_c as a quadratic
+    (diffuse_moments[c, 1, :3]) (Burley's D_c = c0 + r c1 + r^2 c2, burley_terms (3, 3, n)), and
     sum w^2 f_c^2. Returns sum w^2."""
-    for row in range(4):
-        for power in range(5):
-            diffuse_moments[row, power] = 0.0
+    diffuse_moments[:] = 0.0
     total_weight = 0.0
     for s in range(n):
-        c0, c1, c2 = burley_terms[0, s], burley_terms[1, s], burley_terms[2, s]
-        o = omega[s]
-        total_weight += o
-        diffuse_moments[0, 0] += o * c0 * c0
-        diffuse_moments[0, 1] += 2.0 * o * c0 * c1
-        diffuse_moments[0, 2] += o * (c1 * c1 + 2.0 * c0 * c2)
-        diffuse_moments[0, 3] += 2.0 * o * c1 * c2
-        diffuse_moments[0, 4] += o * c2 * c2
-        for c in range(3):
-            of = o * values[c, s]
-            diffuse_moments[1 + c, 0] += of * c0
-            diffuse_moments[1 + c, 1] += of * c1
-            diffuse_moments[1 + c, 2] += of * c2
+        total_weight += omega[s]
     for c in range(3):
+        quartic, quadratic = diffuse_moments[c, 0], diffuse_moments[c, 1]
         squared_values[c] = 0.0
         for s in range(n):
-            squared_values[c] += omega[s] * values[c, s] * values[c, s]
+            c0, c1, c2 = burley_terms[c, 0, s], burley_terms[c, 1, s], burley_terms[c, 2, s]
+            o = omega[s]
+            quartic[0] += o * c0 * c0
+            quartic[1] += 2.0 * o * c0 * c1
+            quartic[2] += o * (c1 * c1 + 2.0 * c0 * c2)
+            quartic[3] += 2.0 * o * c1 * c2
+            quartic[4] += o * c2 * c2
+            of = o * values[c, s]
+            quadratic[0] += of * c0
+            quadratic[1] += of * c1
+            quadratic[2] += of * c2
+            squared_values[c] += of * values[c, s]
     return total_weight
+
+
+@numba.njit(fastmath=True, cache=True)
+def _environment_burley_terms(n, table_row, table_frac, azimuthal, burley_response, out):
+    """out (3, 3, >= n): per channel, Burley's factor c0 + r c1 + r^2 c2 under the environment's own
+    light (`environment_burley_factor`) from burley_response (4, cos nodes, >= P)
+    (`burley_response_table`) and the samples' azimuthal (>= n, 3, P) coefficients; channels whose
+    Lambert response is not above `_MIN_LAMBERT` x their DC keep what out holds."""
+    n_pairs = azimuthal.shape[2]
+    parts = np.empty(4)
+    for s in range(n):
+        row, fx = table_row[s], table_frac[s]
+        for c in range(3):
+            coefficients = azimuthal[s, c]
+            for j in range(4):
+                below, above = burley_response[j, row], burley_response[j, row + 1]
+                total = 0.0
+                for pair in range(n_pairs):
+                    total += (below[pair] + fx * (above[pair] - below[pair])) * coefficients[pair]
+                parts[j] = total
+            if parts[3] > _MIN_LAMBERT * abs(coefficients[0]):
+                for j in range(3):
+                    out[c, j, s] = parts[j] / parts[3]
 
 
 @numba.njit(fastmath=True, cache=True)
@@ -1764,7 +1881,7 @@ def _residual_magnitudes(n, values, filtered, diffuse_factor, diffuse_scale, par
         for c in range(3):
             x, y, z = filtered[c, 0, s], filtered[c, 1, s], filtered[c, 2, s]
             b = params[c]
-            residual = (b * (m * x + (1.0 - m) * diffuse_scale[c] * diffuse_factor[s]) + m * y + (1.0 - m) * z
+            residual = (b * (m * x + (1.0 - m) * diffuse_scale[c] * diffuse_factor[c, s]) + m * y + (1.0 - m) * z
                         - values[c, s])
             total += residual * residual
         out[s] = math.sqrt(total)
@@ -1774,9 +1891,9 @@ def _residual_magnitudes(n, values, filtered, diffuse_factor, diffuse_scale, par
 def _global_search_kernel(
     directions, weight, observed, light, diffuse_scale, sigma, fresnel, masking, split_sum, exact_dielectric, burley,
     table, tilt_levels, roughness_grid, metallic_grid, robust_passes, lmax, diag, rec_a, rec_b,
-    tangent, normal, environment, environment_blend, response, quadrature, quadrature_projection, prefiltered,
-    n_full, world_to_local, map_height, map_width, hypothesis_roughness, hypothesis_moments, search, params, loss,
-    curvature,
+    tangent, normal, environment, environment_blend, response, quadrature, quadrature_projection, burley_response,
+    prefiltered, n_full, world_to_local, map_height, map_width, hypothesis_roughness, hypothesis_moments, search,
+    params, loss, curvature,
 ):
     """Per texel: the (base colour, roughness, metallic) of least weighted squared residual.
 
@@ -1785,7 +1902,9 @@ def _global_search_kernel(
     `sh._sh_block` takes them. With a world-frame SH environment (K > 0, 3) the environment light
     (texel frames tangent and normal (n, 3); `environment_filtered_light` with response
     `environment_response_table` and `_environment_quadrature`'s quadrature (Q, 3) and
-    quadrature_projection (K, Q)) is blended in over environment_blend (start, end).
+    quadrature_projection (K, Q)) is blended in over environment_blend (start, end), and with
+    burley_response (4, cos nodes, P > 0) (`burley_response_table`) Burley's diffuse is averaged over
+    that light (`environment_burley_factor`) instead of uniform light.
     With prefiltered (H W, nodes, 3) maps (`prefiltered_environment` of an H x W map whose
     emitter frame is world_to_local (3, 3) from the world), smooth lobes read them at the world
     mirror directions instead of the fitted light. Else, per texel the light is expanded by
@@ -1814,11 +1933,11 @@ def _global_search_kernel(
         table_frac = np.empty(n_views)
         tilt_level = np.empty((3, n_views), dtype=np.int64)  # per lobe term
         tilt_frac = np.empty((3, n_views))
-        burley_terms = np.empty((3, n_views))
-        diffuse_moments = np.empty((4, 5))  # sum w^2 D^2 as a quartic in r; sum w^2 f_c D as quadratics
+        burley_terms = np.empty((3, 3, n_views))  # per channel, power of r and sample
+        diffuse_moments = np.empty((3, 2, 5))  # per channel: sum w^2 D^2 (quartic in r), sum w^2 f D (quadratic)
         column = np.empty((table.shape[0], table.shape[1]))
         albedo = np.empty((3, n_views))  # A, B, E
-        diffuse_factor = np.empty(n_views)
+        diffuse_factor = np.empty((3, n_views))
         level_filtered = np.empty((tilt_levels, n_views))
         filtered = np.empty((3, 3, n_views))  # per channel X, Y, Z
         sample_weight = np.empty(n_views)  # w
@@ -1902,9 +2021,14 @@ def _global_search_kernel(
                 table_row[s] = min(int(x), table.shape[1] - 2)
                 table_frac[s] = x - table_row[s]
                 if burley:
-                    _burley_terms(packed_cos[s], burley_terms[:, s])
+                    _burley_terms(packed_cos[s], burley_terms[0, :, s])
                 else:
-                    burley_terms[0, s], burley_terms[1, s], burley_terms[2, s] = 1.0, 0.0, 0.0
+                    burley_terms[0, 0, s], burley_terms[0, 1, s], burley_terms[0, 2, s] = 1.0, 0.0, 0.0
+                for c in range(1, 3):
+                    for power in range(3):
+                        burley_terms[c, power, s] = burley_terms[0, power, s]
+            if burley and burley_response.shape[2] > 0 and environment.shape[0] > 0:
+                _environment_burley_terms(n, table_row, table_frac, azimuthal, burley_response, burley_terms)
             total_weight = _weighted_sums(n, omega, values, burley_terms, diffuse_moments, squared_values)
             for c in range(3):
                 scale[c] = diffuse_scale[t, c]
