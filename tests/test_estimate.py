@@ -164,6 +164,22 @@ def synthetic_observations(
     )
 
 
+def random_light_and_views(rng: np.random.Generator, n_views: int, spread: float) -> tuple:
+    """(environment (K, 3) world SH with a bright DC and structure in every direction (std spread
+    / (1 + l)), normal, tangent, bitangent (1, 3) of one random texel frame, cos theta (V,), local
+    view directions (1, V, 3) on the upper hemisphere)."""
+    environment = rng.normal(0.0, spread, (sh.num_coeffs(LMAX), 3)) / (1.0 + sh.sh_degrees(LMAX)[:, None])
+    environment[0] = 3.0
+    normal = rng.normal(size=(1, 3))
+    normal /= np.linalg.norm(normal)
+    tangent = orthonormal_basis(normal)[0]
+    cos_theta = rng.uniform(0.05, 1.0, n_views)
+    phi = rng.uniform(0.0, 2.0 * math.pi, n_views)
+    sin_theta = np.sqrt(1.0 - cos_theta**2)
+    directions = np.stack([sin_theta * np.cos(phi), sin_theta * np.sin(phi), cos_theta], axis=-1)[None]
+    return environment, normal, tangent, np.cross(normal, tangent), cos_theta, directions
+
+
 def random_truth(n_texels: int, seed: int, min_roughness: float = 0.2) -> brdf.PrincipledParams:
     """A spread of materials: base colours above the 0.04 twin ambiguity, any metallic."""
     rng = np.random.default_rng(seed)
@@ -420,16 +436,7 @@ def test_environment_light_is_the_lobe_integral_of_any_environment():
     # Monte Carlo over GGX half vectors, with the light read where each reflected ray goes.
     rng = np.random.default_rng(5)
     n_views = 40
-    environment = rng.normal(0.0, 0.4, (sh.num_coeffs(LMAX), 3)) / (1.0 + sh.sh_degrees(LMAX)[:, None])
-    environment[0] = 3.0
-    normal = rng.normal(size=(1, 3))
-    normal /= np.linalg.norm(normal)
-    tangent = orthonormal_basis(normal)[0]
-    bitangent = np.cross(normal, tangent)
-    cos_theta = rng.uniform(0.05, 1.0, n_views)
-    phi = rng.uniform(0.0, 2.0 * math.pi, n_views)
-    sin_theta = np.sqrt(1.0 - cos_theta**2)
-    directions = np.stack([sin_theta * np.cos(phi), sin_theta * np.sin(phi), cos_theta], axis=-1)[None]
+    environment, normal, tangent, bitangent, cos_theta, directions = random_light_and_views(rng, n_views, 0.4)
     u = rng.uniform(size=(2, 400_000))
     for roughness in (0.5, 0.75, 1.0):
         alpha = roughness**2
@@ -511,16 +518,7 @@ def test_environment_burley_factor_is_mitsubas_diffuse_under_that_light():
     # `environment_burley_factor`; under uniform light it is `burley_diffuse_factor`.
     rng = np.random.default_rng(8)
     n_views = 24
-    environment = rng.normal(0.0, 0.5, (sh.num_coeffs(LMAX), 3)) / (1.0 + sh.sh_degrees(LMAX)[:, None])
-    environment[0] = 3.0
-    normal = rng.normal(size=(1, 3))
-    normal /= np.linalg.norm(normal)
-    tangent = orthonormal_basis(normal)[0]
-    bitangent = np.cross(normal, tangent)
-    cos_theta = rng.uniform(0.05, 1.0, n_views)
-    phi = rng.uniform(0.0, 2.0 * math.pi, n_views)
-    sin_theta = np.sqrt(1.0 - cos_theta**2)
-    directions = np.stack([sin_theta * np.cos(phi), sin_theta * np.sin(phi), cos_theta], axis=-1)[None]
+    environment, normal, tangent, bitangent, cos_theta, directions = random_light_and_views(rng, n_views, 0.5)
     u = rng.uniform(size=(2, 400_000))
     cos_light = np.sqrt(u[0])  # cosine-distributed
     sin_light = np.sqrt(1.0 - cos_light**2)
