@@ -139,11 +139,11 @@ class EstimateConfig:
     environment_light: bool = True
     environment_blend: tuple[float, float] = (0.3, 0.6)
     # global, burley, with the environment light: Burley's view dependence averaged over the
-    # environment's own light (degrees <= 5, per channel; estimate.environment_burley_factor)
+    # environment's own light (degrees <= 3, per channel; estimate.environment_burley_factor)
     # instead of uniform light, which under the demo's forest map predicts a rough dielectric's
     # diffuse 6 % too dark at grazing views. T = 256: bunny 18.30 -> 18.43 dB (roughness MAE
     # 0.136 -> 0.128), demo capture 19.97 -> 20.14 dB (0.131 -> 0.129), plane 26.98 -> 27.01 dB;
-    # ~1 % of the estimate's time.
+    # ~1-4 % of the estimate's time.
     burley_environment: bool = True
     # global, split_sum: smooth lobes (below environment_blend[1], all of them without the
     # environment light) read the environment map itself, prefiltered by the GGX lobe's
