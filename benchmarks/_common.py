@@ -47,6 +47,24 @@ def peak_mib(run: Callable[[], object]) -> float:
     return peak_bytes / 2**20
 
 
+def control_seconds(repeats: int = 3) -> float:
+    """Median seconds of a fixed workload (eight 1500 x 1500 float64 matrix products on every core,
+    then a sort of 4M floats on one), to tell how fast this machine runs at the moment: its speed
+    drifts by up to 25 % within a session, so timings taken at different times compare fairly only
+    relative to this."""
+    import numpy as np
+
+    rng = np.random.default_rng(0)
+    matrix, values = rng.standard_normal((1500, 1500)), rng.standard_normal(4_000_000)
+
+    def workload():
+        for _ in range(8):
+            matrix @ matrix
+        np.sort(values)
+
+    return median_seconds(workload, repeats)
+
+
 def machine() -> dict:
     """What the figures depend on: core count, processor, load average at the time, Python."""
     return {

@@ -13,7 +13,9 @@ texels), rendered into benchmarks/.cache/ with the same settings if it is missin
     python benchmarks/bench_fit.py [--capture plane|bunny|PATH] [--runs 3] [--name bench_fit]
 
 Prints a table and saves benchmarks/results/<name>.json. The machine may be shared: the load
-average is recorded per run, and the table gives the minimum and the median.
+average is recorded per run, and the table gives the minimum and the median. Its speed also
+drifts (up to 25 % within a session): before each run a fixed workload is timed
+(`_common.control_seconds`), so runs made at different times can be compared relative to it.
 """
 
 from __future__ import annotations
@@ -30,7 +32,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from _common import machine, save_results
+from _common import control_seconds, machine, save_results
 
 # The modules a fit imports (cli imports the rest inside the command).
 FIT_IMPORTS = "import freqbrdf.cli, freqbrdf.pipeline, freqbrdf.capture"
@@ -67,6 +69,7 @@ def child_usage() -> tuple[float, float, int]:
 
 
 def one_fit(capture: Path, out: Path) -> dict:
+    control = control_seconds()
     load = os.getloadavg()[0]
     user_before, system_before, _ = child_usage()
     start = time.perf_counter()
@@ -86,6 +89,7 @@ def one_fit(capture: Path, out: Path) -> dict:
         # ru_maxrss of children is the largest one so far: every run is the same command.
         "peak_rss_mib": peak_kib / 1024,
         "load_average_before": round(load, 2),
+        "control_s_before": round(control, 4),
         "stages_s": stages,
         "untimed_s": wall - sum(stages.values()),
         "summary_timings_s": timings,
@@ -107,7 +111,8 @@ def table(runs: list[dict], imports: list[float]) -> str:
     rows = [("wall", [run["wall_s"] for run in runs]), ("cpu (user+sys)", [run["cpu_s"] for run in runs]),
             ("  of which sys", [run["system_cpu_s"] for run in runs])]
     rows += [(stage, [run["stages_s"].get(stage, 0.0) for run in runs]) for stage in STAGES]
-    rows += [("untimed", [run["untimed_s"] for run in runs]), ("imports (separate)", imports)]
+    rows += [("untimed", [run["untimed_s"] for run in runs]), ("imports (separate)", imports),
+             ("control (_common.control_seconds)", [run["control_s_before"] for run in runs])]
     lines = [f"{'seconds':<20} {'min':>7} {'median':>7} {'max':>7}"]
     for name, values in rows:
         stats = spread(values)
@@ -142,6 +147,7 @@ def main(argv=None) -> int:
         "stages_s": {stage: spread([run["stages_s"].get(stage, 0.0) for run in runs]) for stage in STAGES},
         "untimed_s": spread([run["untimed_s"] for run in runs]),
         "import_s": spread(imports),
+        "control_s": spread([run["control_s_before"] for run in runs]),
         "measured": time.strftime("%Y-%m-%d %H:%M"),
     }
     save_results(args.name, result)

@@ -29,7 +29,7 @@ import sys
 import time
 from pathlib import Path
 
-from _common import machine  # benchmarks/ is on sys.path when a script runs
+from _common import control_seconds, machine  # benchmarks/ is on sys.path when a script runs
 
 from freqbrdf import baselines, export, metrics
 from freqbrdf.capture import load
@@ -116,7 +116,8 @@ def run_scene(name: str, args) -> dict:
         texture = metrics.texture_scores(maps, capture.ground_truth, observed)
         relit = evaluate(capture, maps, settings=relight_settings).relighting
         rows[method] = {"seconds": timings, "texture": texture, "relighting": relit,
-                        "measured": time.strftime("%Y-%m-%d %H:%M"), "load_average": machine()["load_average"]}
+                        "measured": time.strftime("%Y-%m-%d %H:%M"), "load_average": machine()["load_average"],
+                        "control_s": round(control_seconds(), 4)}
         print(f"[{name}] {method}: {json.dumps(rows[method])}", flush=True)
     return {"settings": dataclasses.asdict(settings), "capture": str(folder), "methods": rows}
 
@@ -131,13 +132,15 @@ def markdown(results: dict) -> str:
                          f"{t['metallic_mae']:.3f} | {r['psnr_hdr']:.2f} | {r['psnr_ldr']:.2f} | {r['ssim']:.3f} | "
                          f"{row['seconds']['total']:.1f} | {cpu_seconds(row['seconds'])} |")
     notes = [f"{scene}/{method}: {row['measured']}, load {row['load_average']}"
+             + (f", control {row['control_s']:.2f} s" if "control_s" in row else "")
              for scene, data in results["scenes"].items() for method, row in data["methods"].items()
              if "measured" in row]
     text = "\n".join(lines) + "\n"
     if results.get("note"):
         text += "\n" + results["note"] + "\n"
     if notes:
-        text += "\nMeasured (2 cores; the load average is over 1 minute): " + "; ".join(notes) + ".\n"
+        text += ("\nMeasured (2 cores; the load average is over 1 minute; control: `_common.control_seconds`, "
+                 "the machine's speed at the time): " + "; ".join(notes) + ".\n")
     return text
 
 
