@@ -54,7 +54,7 @@ class UncertaintyConfig:
     # "angular": the same grid scored in the sample domain with the global estimator's own model
     # (uncertainty.entropy_angular): seconds instead of milliseconds (5 s for the 256k texels of
     # entropy_scenes.py's sphere), but it agrees with the path-traced brute force over the same grid
-    # (benchmarks/pathtraced_entropy.py, Spearman 0.77 and 0.79 against two renderings that agree
+    # (benchmarks/pathtraced_entropy.py, Spearman 0.79 and 0.82 against two renderings that agree
     # with each other at 0.94) where the spectra do not (calibrated 0.20, paper 0.04). Capture
     # guidance (which predicts spectra) needs "calibrated" or "paper".
     mode: Literal["calibrated", "paper", "angular"] = "calibrated"

@@ -863,13 +863,15 @@ def burley_diffuse_factor(cos_theta, roughness):
             + schlick_view * (retro_squared_fresnel - retro_fresnel))
 
 
-
 # Burley's diffuse under the environment's own light: the quadrature of `burley_response_table`.
 _BURLEY_COS_STRATA = 48  # Gauss-Legendre nodes in cos theta_i
 _BURLEY_PHI_STRATA = 64
 # Burley's diffuse reads the light's degrees <= 3 (10 harmonics): against degrees <= 5 its factor
 # moves by at most 0.25 % (0.1 % on average) under a random degree-5 light, at half the cost.
 _BURLEY_LMAX = 3
+# A channel's Lambert response below this fraction of its light's DC (a dark or wildly ringing
+# low-order light) falls back to the uniform-light Burley factor.
+_MIN_LAMBERT = 1e-3
 
 
 @functools.cache
@@ -931,11 +933,6 @@ def environment_burley_factor(directions: np.ndarray, weight: np.ndarray, tangen
     factor = np.where(lambert > _MIN_LAMBERT * np.abs(azimuthal[..., 0]), burley / np.where(lambert > 0.0, lambert,
                                                                                                1.0), uniform)
     return np.where(np.asarray(weight)[:, :, None] > 0.0, factor, 0.0)
-
-
-# A channel's Lambert response below this fraction of its light's DC (a dark or wildly ringing
-# low-order light) falls back to the uniform-light Burley factor.
-_MIN_LAMBERT = 1e-3
 
 
 def _burley_response(settings: EstimateConfig) -> np.ndarray:
@@ -1141,13 +1138,9 @@ def _squared_residual_kernel(
         environment_light = np.zeros((2, n_terms, 3, n_views))
         # Burley's factor c0 + r c1 + r^2 c2 per channel and view: under uniform light, or the
         # environment's.
-        burley_terms = np.zeros((3, 3, n_views))
-        burley_terms[:, 0] = 1.0
-        if burley:
-            for v in range(n_views):
-                _burley_terms(np.float64(directions[t, v, 2]), burley_terms[0, :, v])
-                for c in range(1, 3):
-                    burley_terms[c, :, v] = burley_terms[0, :, v]
+        burley_terms = np.empty((3, 3, n_views))
+        for v in range(n_views):
+            _uniform_burley_terms(np.float64(directions[t, v, 2]), burley, burley_terms[:, :, v])
         environment_burley = burley and burley_response.shape[2] > 0 and azimuthal.shape[3] > 0
         table_row = np.empty(n_views, dtype=np.int64)
         table_frac = np.empty(n_views)
@@ -1606,7 +1599,7 @@ def _roughness_objective(roughness, args):
      response_scratch, prefiltered, n_full, corner, stencil_frac, prefiltered_nodes, prefiltered_cached,
      high_filtered) = args
     n_levels = proj.shape[0]
-    # Without environment levels (environment light off) the fitted light is all there is.
+    # Without the environment (environment light off) the lobes read their own light alone.
     share = _environment_share(roughness, environment_blend) if azimuthal.shape[2] > 0 else 0.0
     # Terms with a light of their own: A and B, and E with the exact dielectric (else Z = 0.04 X + Y).
     n_terms = 3 if exact_dielectric else 2
@@ -1765,6 +1758,19 @@ def _burley_terms(cos_theta, out):
     out[1] = schlick_view * (1.0 + 2.0 * cos_theta / 3.0) + retro_fresnel - schlick_view * retro_fresnel
     out[2] = schlick_view * (1.0 / 21.0 + cos_theta / 42.0 + 11.0 * (1.0 - cos_theta * cos_theta) / 504.0
                              + cos_theta * cos_theta / 252.0)
+
+
+@numba.njit(fastmath=True, cache=True)
+def _uniform_burley_terms(cos_theta, burley, out):
+    """out (3, 3): every channel's (c0, c1, c2) of Burley's uniform-light factor (`_burley_terms`),
+    or Lambert's (1, 0, 0) without ``burley``."""
+    if burley:
+        _burley_terms(cos_theta, out[0])
+    else:
+        out[0, 0], out[0, 1], out[0, 2] = 1.0, 0.0, 0.0
+    for c in range(1, 3):
+        for power in range(3):
+            out[c, power] = out[0, power]
 
 
 @numba.njit(fastmath=True, cache=True)
@@ -2030,13 +2036,7 @@ def _global_search_kernel(
                 x = min(max(packed_cos[s], 0.0), 1.0) * (table.shape[1] - 1)
                 table_row[s] = min(int(x), table.shape[1] - 2)
                 table_frac[s] = x - table_row[s]
-                if burley:
-                    _burley_terms(packed_cos[s], burley_terms[0, :, s])
-                else:
-                    burley_terms[0, 0, s], burley_terms[0, 1, s], burley_terms[0, 2, s] = 1.0, 0.0, 0.0
-                for c in range(1, 3):
-                    for power in range(3):
-                        burley_terms[c, power, s] = burley_terms[0, power, s]
+                _uniform_burley_terms(packed_cos[s], burley, burley_terms[:, :, s])
             if burley and burley_response.shape[2] > 0 and environment.shape[0] > 0:
                 _environment_burley_terms(n, table_row, table_frac, azimuthal, burley_response, burley_terms)
             total_weight = _weighted_sums(n, omega, values, burley_terms, diffuse_moments, squared_values)

@@ -58,21 +58,21 @@ estimator's own forward model (`entropy_angular`): per hypothesis, the radiance 
 colour k and roughness sqrt(alpha) reflects at each observed view (split-sum albedo, the
 prefiltered and environment light), the best constant diffuse part, and the misfit of the
 samples; the noise model of the calibrated mode in radiance units. It is what
-benchmarks/pathtraced_entropy.py computes with a path tracer, and agrees with it (Spearman 0.77
-and 0.79 against two independent renderings, which agree with each other at 0.94; the calibrated
+benchmarks/pathtraced_entropy.py computes with a path tracer, and agrees with it (Spearman 0.79
+and 0.82 against two independent renderings, which agree with each other at 0.94; the calibrated
 mode 0.20, the paper's recipe 0.04). It costs R probes of the estimator's search per texel:
 seconds, not milliseconds. Both the brute force and this mode find the smooth-gradient ("badly
 lit") region of entropy_scenes.py about as certain as the sharply lit one (brute force 0.15 and
-0.16, this mode 0.12 and 0.15): the view dependence of Fresnel and masking, which a spectrum of the mirrored light leaves
+0.16, this mode 0.15 and 0.14): the view dependence of Fresnel and masking, which a spectrum of the mirrored light leaves
 out, pins the roughness down there; the paper's recipe calls it uncertain (0.81 against 0.22).
 
 Flags (bit field, uint8 per texel) say why a texel should not be trusted; see FLAG_*.
 
 The entropy scores the hypotheses against the spectra, not the estimate, and ranks the `global`
-estimate's per-texel roughness errors poorly (Spearman 0.25 on the Mitsuba bunny, 0.17 on the
-sphere of entropy_scenes.py; the angular mode 0.22 and 0.17). `roughness_std` is the posterior
-spread of the estimate itself (UncertaintyConfig.roughness_window, loss_curvature): 0.56 and 0.40,
-measured in benchmarks/entropy_variants.py (session-6 estimator).
+estimate's per-texel roughness errors poorly (Spearman 0.29 on the Mitsuba bunny and on the
+sphere of entropy_scenes.py; the angular mode 0.29 and 0.22). `roughness_std` is the posterior
+spread of the estimate itself (UncertaintyConfig.roughness_window, loss_curvature): 0.57 and 0.44,
+measured in benchmarks/entropy_variants.py (session-7 estimator).
 """
 
 from __future__ import annotations
@@ -382,7 +382,7 @@ def _finish(unobserved, entropy, channel, best_alpha, best_ks, likelihood, n_sam
                        channel=channel, mode=config.mode, grid=grid)
 
 
-# Texels per block of `entropy_angular`: bounds the (block, R, 3, 6) moments.
+# Texels per block of `entropy_angular`: bounds the (block, R, 3, 8) moments.
 _ANGULAR_BLOCK = 16384
 
 
