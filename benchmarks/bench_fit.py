@@ -11,6 +11,7 @@ The default capture is compare_estimators.py's plane (64 views of 256 x 256, T =
 texels), rendered into benchmarks/.cache/ with the same settings if it is missing.
 
     python benchmarks/bench_fit.py [--capture plane|bunny|PATH] [--runs 3] [--name bench_fit]
+        [--preset default|fast]
 
 Prints a table and saves benchmarks/results/<name>.json. The machine may be shared: the load
 average is recorded per run, and the table gives the minimum and the median. Its speed also
@@ -68,12 +69,12 @@ def child_usage() -> tuple[float, float, int]:
     return usage.ru_utime, usage.ru_stime, usage.ru_maxrss
 
 
-def one_fit(capture: Path, out: Path) -> dict:
+def one_fit(capture: Path, out: Path, options: list[str]) -> dict:
     control = control_seconds()
     load = os.getloadavg()[0]
     user_before, system_before, _ = child_usage()
     start = time.perf_counter()
-    done = subprocess.run([*fit_command(), "fit", str(capture), "--out", str(out), "--quiet"],
+    done = subprocess.run([*fit_command(), "fit", str(capture), "--out", str(out), "--quiet", *options],
                           capture_output=True, text=True)
     wall = time.perf_counter() - start
     user_after, system_after, peak_kib = child_usage()
@@ -127,12 +128,14 @@ def main(argv=None) -> int:
     parser.add_argument("--capture", default="plane", help="plane, bunny (compare_estimators.py's) or a path")
     parser.add_argument("--runs", type=int, default=3)
     parser.add_argument("--name", default="bench_fit", help="results file stem under benchmarks/results/")
+    parser.add_argument("--preset", default="default", help="the fit's --preset (default, fast)")
     args = parser.parse_args(argv)
+    options = [] if args.preset == "default" else ["--preset", args.preset]
     capture = capture_folder(args.capture)
     runs, imports = [], []
     with tempfile.TemporaryDirectory(prefix="bench_fit.") as scratch:
         for index in range(args.runs):
-            runs.append(one_fit(capture, Path(scratch) / "fit"))
+            runs.append(one_fit(capture, Path(scratch) / "fit", options))
             imports.append(import_seconds())
             print(f"run {index + 1}: {runs[-1]['wall_s']:.2f} s wall, "
                   f"load {runs[-1]['load_average_before']:.2f}", flush=True)
@@ -140,7 +143,7 @@ def main(argv=None) -> int:
         "benchmark": "freqbrdf fit end to end, fresh process per run (issue #5)",
         **machine(),
         "capture": str(capture),
-        "command": [*fit_command(), "fit", str(capture), "--out", "DIR", "--quiet"],
+        "command": [*fit_command(), "fit", str(capture), "--out", "DIR", "--quiet", *options],
         "runs": runs,
         "wall_s": spread([run["wall_s"] for run in runs]),
         "cpu_s": spread([run["cpu_s"] for run in runs]),

@@ -117,7 +117,7 @@ def test_bad_options_and_captures_are_refused_before_any_output(run_cli, tiny_ca
     out = tmp_path / "out"
     assert run_cli("fit", tiny_capture, "--out", out, "--estimator", "adam") == 2
     assert "unknown estimator" in capsys.readouterr().err and not out.exists()
-    assert run_cli("fit", tiny_capture, "--out", out, "--preset", "fast") == 2
+    assert run_cli("fit", tiny_capture, "--out", out, "--preset", "fastest") == 2
     assert "unknown preset" in capsys.readouterr().err and not out.exists()
 
     # --out must not replace the capture it reads.

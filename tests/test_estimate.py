@@ -223,6 +223,8 @@ def test_global_recovers_parameters_exactly(truth, unshadowed):
 
 
 def test_global_recovers_parameters_exactly_with_the_default_model(truth):
+    from freqbrdf.config import preset
+
     # The default (split-sum specular albedo, Burley diffuse), from data rendered by numpy.
     observations = synthetic_observations(truth, seed=13, model="split_sum")
     result = estimate(observations, Config())
@@ -237,6 +239,39 @@ def test_global_recovers_parameters_exactly_with_the_default_model(truth):
     assert np.median(estimate(observations, schlick).loss[truth.metallic < 1.0]) > 1e4 * np.median(result.loss)
     schlick_data = synthetic_observations(truth, seed=13, model="split_sum", exact_dielectric=False)
     _assert_recovered(estimate(schlick_data, schlick), truth, atol=1e-4)
+    # The fast preset's 5-node grid still finds each texel's global optimum.
+    _assert_recovered(estimate(observations, preset("fast")), truth, atol=1e-4)
+
+
+@pytest.mark.parametrize("seeded", [False, True])
+def test_brent_matches_scipy_fminbound(seeded):
+    # The reverse-communication Brent of the roughness search, on a smooth non-quadratic function:
+    # the minimum to its tolerance; seeded with three bracketing nodes, in fewer evaluations.
+    from scipy.optimize import fminbound
+
+    from freqbrdf.estimate import _PROBE, _X, _brent_next, _brent_seed, _brent_start
+
+    def function(x):
+        return (x - 0.3137) ** 2 * (1.0 + 3.0 * x) + 0.1 * (x - 0.3137) ** 3
+
+    lower, upper, xtol = 0.125, 0.5, 1e-5
+    state = np.zeros(13)
+    if seeded:
+        nodes = (0.125, 0.3125, 0.5)
+        values = [function(x) for x in nodes]
+        order = np.argsort(values)
+        searching = _brent_seed(state, lower, upper, xtol, *[v for i in order for v in (nodes[i], values[i])])
+    else:
+        _brent_start(state, lower, upper, xtol)
+        searching = True
+    evaluations = 0
+    while searching:
+        evaluations += 1
+        searching = _brent_next(state, function(state[_PROBE]))
+    reference, _, _, calls = fminbound(function, lower, upper, xtol=xtol, full_output=True)
+    assert abs(state[_X] - reference) < 2 * xtol
+    assert abs(state[_X] - 0.3137) < 2 * xtol
+    assert evaluations <= calls - (2 if seeded else 0)
 
 
 def test_global_recovers_parameters_exactly_with_the_tilted_lobe_lookup(truth):
@@ -749,6 +784,10 @@ def test_config_presets_and_validation(unshadowed):
 
     assert preset("default").estimate.method == "global"
     assert preset("paper").estimate.method == "paper"
+    fast = preset("fast").estimate
+    assert fast.method == "global" and fast.robust_passes == 0 and fast.roughness_grid < Config().estimate.roughness_grid
+    with pytest.raises(ValueError, match="unknown preset"):
+        preset("fastest")
     with pytest.raises(ValueError, match="angular"):
         estimate(unshadowed, Config(estimate=EstimateConfig(forward_model="spectrum")))
     with pytest.raises(ValueError, match="specular_model"):

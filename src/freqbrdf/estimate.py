@@ -1318,6 +1318,22 @@ def _brent_start(state, lower, upper, xtol):
 
 
 @numba.njit(fastmath=True, cache=True)
+def _brent_seed(state, lower, upper, xtol, x, fx, w, fw, v, fv):
+    """Begin minimising on [lower, upper] from three evaluated points: x the best, w the second
+    best, v the third (a bracketing grid's node and its neighbours), so that the first step is
+    the parabola through them rather than golden steps that re-discover them. Returns True with
+    the first point to evaluate in state[_PROBE], or False when the bracket is already within
+    tolerance (the best point is state[_X])."""
+    state[_LO], state[_HI], state[_XTOL] = lower, upper, xtol
+    state[_X], state[_FX], state[_W], state[_FW], state[_V], state[_FV] = x, fx, w, fw, v, fv
+    # As if golden steps of the bracket's size had led here: the parabola may take any step
+    # that stays inside (Brent accepts one below half the step before last).
+    state[_STEP] = state[_PREV_STEP] = upper - lower
+    state[_EVALS] = 3.0
+    return _brent_propose(state)
+
+
+@numba.njit(fastmath=True, cache=True)
 def _brent_next(state, f_probe):
     """Take f at the last point; returns True with the next point in state[_PROBE], or False when
     done, the best point being state[_X] with value state[_FX]."""
@@ -1345,6 +1361,13 @@ def _brent_next(state, f_probe):
         state[_LO], state[_HI] = a, b
         state[_X], state[_FX], state[_W], state[_FW], state[_V], state[_FV] = x, fx, w, fw, v, fv
     state[_EVALS] += 1.0
+    return _brent_propose(state)
+
+
+@numba.njit(fastmath=True, cache=True)
+def _brent_propose(state):
+    """The next point to evaluate into state[_PROBE] (True), or False when converged."""
+    a, b = state[_LO], state[_HI]
     x, fx, w, fw, v, fv = state[_X], state[_FX], state[_W], state[_FW], state[_V], state[_FV]
     middle = 0.5 * (a + b)
     tol1 = _SQRT_EPS * abs(x) + state[_XTOL] / 3.0
@@ -1516,7 +1539,7 @@ def _local_environment(environment, tangent, normal, bitangent, quadrature, proj
                        basis, sh_scratch, values, out):
     """out (K, 3) = `local_environment` of environment (K, 3) in the frame (tangent, bitangent,
     normal), with `_environment_quadrature`'s directions (Q, 3) and projection (K, Q); scratch
-    world (3, Q), basis (K, Q), sh_scratch (5, Q), values (Q, 3)."""
+    world (3, Q), basis (K, Q), sh_scratch (5, Q), values (3, Q)."""
     n_points = quadrature.shape[0]
     for q in range(n_points):
         for axis in range(3):
@@ -1524,17 +1547,18 @@ def _local_environment(environment, tangent, normal, bitangent, quadrature, proj
                               + quadrature[q, 2] * normal[axis])
     sh._sh_block(world[0], world[1], world[2], n_points, _n_degrees(environment.shape[0]) - 1, diag, rec_a, rec_b,
                  basis, sh_scratch)
-    for q in range(n_points):
+    # Loops innermost over the quadrature points, contiguous in basis, values and projection.
+    values[:] = 0.0
+    for k in range(environment.shape[0]):
         for c in range(3):
-            total = 0.0
-            for k in range(environment.shape[0]):
-                total += basis[k, q] * environment[k, c]
-            values[q, c] = total
+            coefficient = environment[k, c]
+            for q in range(n_points):
+                values[c, q] += coefficient * basis[k, q]
     for k in range(environment.shape[0]):
         for c in range(3):
             total = 0.0
             for q in range(n_points):
-                total += projection[k, q] * values[q, c]
+                total += projection[k, q] * values[c, q]
             out[k, c] = total
 
 
@@ -1604,7 +1628,6 @@ def _roughness_objective(roughness, args):
     # Terms with a light of their own: A and B, and E with the exact dielectric (else Z = 0.04 X + Y).
     n_terms = 3 if exact_dielectric else 2
     alpha = max(roughness * roughness, _ALPHA_MIN)
-    _fill_kernel(alpha, sigma, kernel, kernel_derivative)
     if split_sum:  # the table's column at this roughness, linear in it
         y = min(max(roughness, 0.0), 1.0) * (table.shape[2] - 1)
         j = min(int(y), table.shape[2] - 2)
@@ -1674,6 +1697,8 @@ def _roughness_objective(roughness, args):
             for s in range(n):
                 first_level = min(first_level, tilt_level[term, s])
                 last_level = max(last_level, tilt_level[term, s] + 1)
+    if last_level >= first_level:
+        _fill_kernel(alpha, sigma, kernel, kernel_derivative)
     for c in range(3):
         if use_prefiltered:
             lower_light, upper_light = prefiltered_nodes[lower_map, c], prefiltered_nodes[upper_map, c]
@@ -1830,39 +1855,62 @@ def _environment_burley_terms(n, table_row, table_frac, azimuthal, burley_respon
 
 
 @numba.njit(fastmath=True, cache=True)
-def _search_roughness(args, state, roughness_grid, best_state, roughness_brent, first_node, last_node, xtol):
+def _search_roughness(args, state, roughness_grid, best_state, roughness_brent, node_loss, first_node, last_node,
+                      xtol):
     """Scan the roughness grid's nodes first_node..last_node, then Brent (to xtol) in the best cell
-    unless the loss rises inwards from a boundary node. The best evaluation seen wins: returns
+    unless the loss rises inwards from a boundary node. Brent starts from the parabola through the
+    best node and its neighbours when the scan holds them. The best evaluation seen wins: returns
     (roughness, loss), its base colour and metallic in best_state (`_roughness_objective` leaves
-    each probe's in state, the array in args)."""
+    each probe's in state, the array in args). node_loss (roughness_grid,) scratch.
+
+    With xtol = 0 nothing is evaluated after the scan: returns the vertex of that parabola
+    (clipped to the cell around the best node, or the node itself on [0, 1]'s boundary) and the
+    best node's loss; best_state is then the node's."""
     cell = 1.0 / (roughness_grid - 1)
-    best_r, best_f = 0.0, np.inf
+    best_node, best_r, best_f = first_node, 0.0, np.inf
     for i in range(first_node, last_node + 1):
         r = i / (roughness_grid - 1)
-        f = _roughness_objective(r, args)
-        if f < best_f:
-            best_r, best_f = r, f
+        node_loss[i] = _roughness_objective(r, args)
+        if node_loss[i] < best_f:
+            best_node, best_r, best_f = i, r, node_loss[i]
             best_state[:] = state
     node_r, node_f = best_r, best_f
-    on_boundary = node_r == 0.0 or node_r == 1.0
-    search = not on_boundary
-    if on_boundary:
-        probe = node_r + (_BRENT_XTOL if node_r == 0.0 else -_BRENT_XTOL)
-        f = _roughness_objective(probe, args)
-        search = f < node_f
-        if f < best_f:
-            best_r, best_f = probe, f
-            best_state[:] = state
-    if search:
-        probe = _brent_start(roughness_brent, max(node_r - cell, 0.0), min(node_r + cell, 1.0), xtol)
-        while True:
+    on_boundary = best_node == 0 or best_node == roughness_grid - 1
+    bracketed = first_node < best_node < last_node
+    if xtol <= 0.0:
+        if bracketed:
+            lower_f, upper_f = node_loss[best_node - 1], node_loss[best_node + 1]
+            curvature = lower_f - 2.0 * node_f + upper_f
+            if curvature > 0.0:
+                step = 0.5 * cell * (lower_f - upper_f) / curvature
+                node_r += min(max(step, -cell), cell)
+        return node_r, node_f
+    if bracketed:
+        lower_f, upper_f = node_loss[best_node - 1], node_loss[best_node + 1]
+        lower_r, upper_r = node_r - cell, node_r + cell
+        if lower_f <= upper_f:
+            search = _brent_seed(roughness_brent, lower_r, upper_r, xtol, node_r, node_f, lower_r, lower_f, upper_r,
+                                 upper_f)
+        else:
+            search = _brent_seed(roughness_brent, lower_r, upper_r, xtol, node_r, node_f, upper_r, upper_f, lower_r,
+                                 lower_f)
+    else:
+        search = not on_boundary
+        if on_boundary:
+            probe = node_r + (_BRENT_XTOL if node_r == 0.0 else -_BRENT_XTOL)
             f = _roughness_objective(probe, args)
+            search = f < node_f
             if f < best_f:
                 best_r, best_f = probe, f
                 best_state[:] = state
-            if not _brent_next(roughness_brent, f):
-                break
-            probe = roughness_brent[_PROBE]
+        if search:
+            _brent_start(roughness_brent, max(node_r - cell, 0.0), min(node_r + cell, 1.0), xtol)
+    while search:
+        f = _roughness_objective(roughness_brent[_PROBE], args)
+        if f < best_f:
+            best_r, best_f = roughness_brent[_PROBE], f
+            best_state[:] = state
+        search = _brent_next(roughness_brent, f)
     return best_r, best_f
 
 
@@ -1967,13 +2015,14 @@ def _global_search_kernel(
         state = np.empty(4)
         best_state = np.empty(4)
         roughness_brent = np.empty(13)
+        node_loss = np.empty(roughness_grid)
         # The environment in the texel's frame, then in each sample's mirrored view frame.
         n_points = quadrature.shape[0]
         local_environment = np.empty((environment.shape[0], 3))
         quadrature_world = np.empty((3, n_points))
         quadrature_basis = np.empty((environment.shape[0], n_points))
         quadrature_scratch = np.empty((5, n_points))
-        quadrature_values = np.empty((n_points, 3))
+        quadrature_values = np.empty((3, n_points))
         n_environment_degrees = _n_degrees(environment.shape[0])
         azimuthal = np.zeros((n_views, 3, n_environment_degrees * (n_environment_degrees + 1) // 2))
         response_scratch = np.empty(azimuthal.shape[2])
@@ -2056,7 +2105,7 @@ def _global_search_kernel(
                 continue
             # A robust pass refines the roughness to _BRENT_XTOL: this search need only find its cell.
             first_xtol = _BRENT_COARSE_XTOL if robust_passes > 0 else _BRENT_XTOL
-            best_r, best_f = _search_roughness(args, state, roughness_grid, best_state, roughness_brent, 0,
+            best_r, best_f = _search_roughness(args, state, roughness_grid, best_state, roughness_brent, node_loss, 0,
                                                roughness_grid - 1, first_xtol)
             if robust_passes > 0:
                 # Towards the paper's L1 loss sum_v w |r_v| (IRLS): weight each sample by
@@ -2065,7 +2114,8 @@ def _global_search_kernel(
                 for s in range(n):
                     sample_weight[s] = math.sqrt(omega[s])
                 for _ in range(robust_passes):
-                    _roughness_objective(best_r, args)
+                    best_f = _roughness_objective(best_r, args)
+                    best_state[:] = state
                     _residual_magnitudes(n, values, filtered, diffuse_factor, scale, best_state, residual)
                     weighted_residual = weight_sum = 0.0
                     for s in range(n):
@@ -2080,7 +2130,7 @@ def _global_search_kernel(
                     # Re-weighting moves the optimum locally: scan the nodes within one cell of it.
                     node = int(round(best_r * (roughness_grid - 1)))
                     best_r, best_f = _search_roughness(args, state, roughness_grid, best_state, roughness_brent,
-                                                       max(node - _ROBUST_NODES, 0),
+                                                       node_loss, max(node - _ROBUST_NODES, 0),
                                                        min(node + _ROBUST_NODES, roughness_grid - 1), _BRENT_XTOL)
                 # The reported loss stays the weighted squared residual of `MaterialEstimate.loss`.
                 _roughness_objective(best_r, args)
