@@ -145,6 +145,11 @@ _ROBUST_NODES = 1
 MIN_SAMPLES = 2
 # Texels per parallel work item of the search: amortises the scratch buffers.
 _SEARCH_CHUNK = 64
+# The search's inner functions run ~30 times per texel and take ~40 arrays each. Compiled with
+# numba's runtime on, each call counted a reference to every array it took (an atomic add on entry
+# and exit, ~1 us per probe, as long as the probe's arithmetic at 40 samples). They allocate
+# nothing and their callers hold the arrays, so they are compiled without it.
+_borrowing_jit = numba.njit(fastmath=True, cache=True, _nrt=False)
 # Texels per block when expanding the light by degree: bounds the (block, V, K) SH basis.
 _PROJECTION_BLOCK = 8192
 # Brent's absolute tolerance on roughness; its relative part is sqrt(machine eps).
@@ -640,7 +645,7 @@ def _environment_quadrature(lmax: int) -> tuple[np.ndarray, np.ndarray]:
     return np.ascontiguousarray(directions), np.ascontiguousarray((sh.eval_sh(directions, lmax) * weights[:, None]).T)
 
 
-@numba.njit(fastmath=True, cache=True)
+@_borrowing_jit
 def _environment_node(roughness):
     """The environment light's roughness node below ``roughness`` (clipped to [0, 1]) and the
     fraction towards the next one (its nodes: every _ENVIRONMENT_NODE_STEP-th of the table's)."""
@@ -731,7 +736,7 @@ def prefiltered_light(directions: np.ndarray, tangent: np.ndarray, normal: np.nd
     return lower + frac[:, None, None] * (upper - lower)
 
 
-@numba.njit(fastmath=True, cache=True)
+@_borrowing_jit
 def _prefilter_node(roughness, n_nodes):
     """The prefiltered map's node below ``roughness`` (clipped to the nodes) and the fraction
     towards the next one."""
@@ -740,14 +745,14 @@ def _prefilter_node(roughness, n_nodes):
     return node, y - node
 
 
-@numba.njit(fastmath=True, cache=True)
+@_borrowing_jit
 def _cross(a, b, out):
     out[0] = a[1] * b[2] - a[2] * b[1]
     out[1] = a[2] * b[0] - a[0] * b[2]
     out[2] = a[0] * b[1] - a[1] * b[0]
 
 
-@numba.njit(fastmath=True, cache=True)
+@_borrowing_jit
 def _mirror_stencil(xyz, n, tangent, normal, bitangent, world_to_local, height, width, corner, stencil_frac):
     """`envmap.lookup`'s bilinear stencil at the world mirror direction of each local view direction
     xyz[:, s], s < n: corner (4, n) flat pixel indices row * width + col of (row, col), (row, col + 1),
@@ -763,7 +768,7 @@ def _mirror_stencil(xyz, n, tangent, normal, bitangent, world_to_local, height, 
         stencil_frac[0, s], stencil_frac[1, s] = fx, fy
 
 
-@numba.njit(fastmath=True, cache=True)
+@_borrowing_jit
 def _prefiltered_node_light(prefiltered, node, n, corner, stencil_frac, out):
     """out[c, s] = the map of node ``node`` of prefiltered (H W, nodes, 3) at the stencil of sample
     s < n, bilinear. (Pixel-major: a texel's lookups at several nodes share cache lines.)"""
@@ -1099,7 +1104,7 @@ def _specular_albedo(cos_theta, roughness, alpha, fresnel, masking, split_sum, t
     return scale, bias
 
 
-@numba.njit(fastmath=True, cache=True)
+@_borrowing_jit
 def _fill_kernel(alpha, sigma, kernel, kernel_derivative):
     """brdf.brdf_kernel for one texel, and its derivative in alpha: -2 alpha l^2 k(l)."""
     for degree in range(kernel.shape[0]):
@@ -1150,7 +1155,8 @@ def _squared_residual_kernel(
                 table_row[v] = min(int(x), table.shape[1] - 2)
                 table_frac[v] = x - table_row[v]
         if environment_burley:
-            _environment_burley_terms(n_views, table_row, table_frac, azimuthal[t], burley_response, burley_terms)
+            _environment_burley_terms(n_views, table_row, table_frac, azimuthal[t], burley_response,
+                                      np.empty((4, burley_response.shape[2])), np.empty(4), burley_terms)
         if share > 0.0:
             node, node_frac = _environment_node(roughness[t])
             scratch = np.empty(azimuthal.shape[3])
@@ -1306,7 +1312,7 @@ _GOLDEN = 0.5 * (3.0 - math.sqrt(5.0))
 _SQRT_EPS = math.sqrt(2.2e-16)
 
 
-@numba.njit(fastmath=True, cache=True)
+@_borrowing_jit
 def _brent_start(state, lower, upper, xtol):
     """Begin minimising on [lower, upper] to absolute tolerance xtol; returns the first point to
     evaluate."""
@@ -1317,7 +1323,7 @@ def _brent_start(state, lower, upper, xtol):
     return state[_PROBE]
 
 
-@numba.njit(fastmath=True, cache=True)
+@_borrowing_jit
 def _brent_seed(state, lower, upper, xtol, x, fx, w, fw, v, fv):
     """Begin minimising on [lower, upper] from three evaluated points: x the best, w the second
     best, v the third (a bracketing grid's node and its neighbours), so that the first step is
@@ -1333,7 +1339,7 @@ def _brent_seed(state, lower, upper, xtol, x, fx, w, fw, v, fv):
     return _brent_propose(state)
 
 
-@numba.njit(fastmath=True, cache=True)
+@_borrowing_jit
 def _brent_next(state, f_probe):
     """Take f at the last point; returns True with the next point in state[_PROBE], or False when
     done, the best point being state[_X] with value state[_FX]."""
@@ -1364,7 +1370,7 @@ def _brent_next(state, f_probe):
     return _brent_propose(state)
 
 
-@numba.njit(fastmath=True, cache=True)
+@_borrowing_jit
 def _brent_propose(state):
     """The next point to evaluate into state[_PROBE] (True), or False when converged."""
     a, b = state[_LO], state[_HI]
@@ -1404,7 +1410,7 @@ _NEWTON_MTOL = 1e-10
 _NEWTON_MAX_STEPS = 40
 
 
-@numba.njit(fastmath=True, cache=True)
+@_borrowing_jit
 def _metallic_quadratics(moments, squared_values, diffuse_scale, quadratics):
     """The loss per channel as q2 b^2 + 2 q1 b + q0 with q2, q1, q0 quadratics in the metallic m:
     quadratics (3, 3, 3) [channel, (q2, q1, q0), coefficient of (1, m, m^2)].
@@ -1413,23 +1419,26 @@ def _metallic_quadratics(moments, squared_values, diffuse_scale, quadratics):
     moments (3, 14) per channel: the weighted sums s_xd, s_yd, s_zd, s_xx, s_xy, s_xz, s_xf, s_yy,
     s_yz, s_yf, s_zz, s_zf, s_dd, s_fd (s_ab = sum_v w^2 a b), squared_values (3,) s_ff.
     """
+    # Whole indices, no row views: a view costs a reference count update (an atomic) in numba,
+    # and these run at every probe.
     for c in range(3):
-        (s_xd, s_yd, s_zd, s_xx, s_xy, s_xz, s_xf, s_yy, s_yz, s_yf, s_zz, s_zf, s_dd,
-         s_fd) = moments[c]
+        s_xd, s_yd, s_zd, s_xx, s_xy = moments[c, 0], moments[c, 1], moments[c, 2], moments[c, 3], moments[c, 4]
+        s_xz, s_xf, s_yy, s_yz, s_yf = moments[c, 5], moments[c, 6], moments[c, 7], moments[c, 8], moments[c, 9]
+        s_zz, s_zf, s_dd, s_fd = moments[c, 10], moments[c, 11], moments[c, 12], moments[c, 13]
         e = diffuse_scale[c]
-        q = quadratics[c]
-        q[0, 0] = e * e * s_dd  # sum w P^2
-        q[0, 1] = 2.0 * e * (s_xd - e * s_dd)
-        q[0, 2] = s_xx - 2.0 * e * s_xd + e * e * s_dd
-        q[1, 0] = e * (s_zd - s_fd)  # sum w P (Q - f)
-        q[1, 1] = s_xz - s_xf + e * (s_yd - 2.0 * s_zd + s_fd)
-        q[1, 2] = s_xy - s_xz + e * (s_zd - s_yd)
-        q[2, 0] = s_zz - 2.0 * s_zf + squared_values[c]  # sum w (Q - f)^2
-        q[2, 1] = 2.0 * (s_yz - s_zz - s_yf + s_zf)
-        q[2, 2] = s_yy - 2.0 * s_yz + s_zz
+        q = quadratics
+        q[c, 0, 0] = e * e * s_dd  # sum w P^2
+        q[c, 0, 1] = 2.0 * e * (s_xd - e * s_dd)
+        q[c, 0, 2] = s_xx - 2.0 * e * s_xd + e * e * s_dd
+        q[c, 1, 0] = e * (s_zd - s_fd)  # sum w P (Q - f)
+        q[c, 1, 1] = s_xz - s_xf + e * (s_yd - 2.0 * s_zd + s_fd)
+        q[c, 1, 2] = s_xy - s_xz + e * (s_zd - s_yd)
+        q[c, 2, 0] = s_zz - 2.0 * s_zf + squared_values[c]  # sum w (Q - f)^2
+        q[c, 2, 1] = 2.0 * (s_yz - s_zz - s_yf + s_zf)
+        q[c, 2, 2] = s_yy - 2.0 * s_yz + s_zz
 
 
-@numba.njit(fastmath=True, cache=True)
+@_borrowing_jit
 def _metallic_terms(metallic, quadratics, state):
     """Loss at the best base colour for this metallic (summed over channels) and its first two
     derivatives in the metallic; writes that base colour and the metallic into state[:4].
@@ -1440,17 +1449,17 @@ def _metallic_terms(metallic, quadratics, state):
     """
     m = metallic
     total = gradient = curvature = 0.0
-    for c in range(3):
-        q = quadratics[c]
-        q2 = q[0, 0] + m * (q[0, 1] + m * q[0, 2])
-        q2_1 = q[0, 1] + 2.0 * m * q[0, 2]
-        q2_2 = 2.0 * q[0, 2]
-        q1 = q[1, 0] + m * (q[1, 1] + m * q[1, 2])
-        q1_1 = q[1, 1] + 2.0 * m * q[1, 2]
-        q1_2 = 2.0 * q[1, 2]
-        q0 = q[2, 0] + m * (q[2, 1] + m * q[2, 2])
-        q0_1 = q[2, 1] + 2.0 * m * q[2, 2]
-        q0_2 = 2.0 * q[2, 2]
+    q = quadratics
+    for c in range(3):  # whole indices: see `_metallic_quadratics`
+        q2 = q[c, 0, 0] + m * (q[c, 0, 1] + m * q[c, 0, 2])
+        q2_1 = q[c, 0, 1] + 2.0 * m * q[c, 0, 2]
+        q2_2 = 2.0 * q[c, 0, 2]
+        q1 = q[c, 1, 0] + m * (q[c, 1, 1] + m * q[c, 1, 2])
+        q1_1 = q[c, 1, 1] + 2.0 * m * q[c, 1, 2]
+        q1_2 = 2.0 * q[c, 1, 2]
+        q0 = q[c, 2, 0] + m * (q[c, 2, 1] + m * q[c, 2, 2])
+        q0_1 = q[c, 2, 1] + 2.0 * m * q[c, 2, 2]
+        q0_2 = 2.0 * q[c, 2, 2]
         base = -q1 / q2 if q2 > 0.0 else 0.0
         interior = 0.0 < base < 1.0
         base = min(max(base, 0.0), 1.0)  # a 1-D convex quadratic: clip
@@ -1465,7 +1474,7 @@ def _metallic_terms(metallic, quadratics, state):
     return total, gradient, curvature
 
 
-@numba.njit(fastmath=True, cache=True)
+@_borrowing_jit
 def _profile_metallic(quadratics, state, metallic_grid):
     """min over (b, m) of the loss for fixed `_metallic_quadratics`: metallic grid, then safeguarded
     Newton on the derivative in the best cell (bisection where Newton would leave the bracket).
@@ -1505,7 +1514,7 @@ def _profile_metallic(quadratics, state, metallic_grid):
     return _metallic_terms(best_m, quadratics, state)[0]
 
 
-@numba.njit(fastmath=True, cache=True)
+@_borrowing_jit
 def _environment_node_lights(response, node, n, table_row, table_frac, azimuthal, scratch, out):
     """out[k, c, s] = the environment light of lobe term k < out.shape[0] at samples s < n for
     roughness node ``node`` of response (`environment_response_table`), linear in cos theta_o
@@ -1534,7 +1543,7 @@ def _n_degrees(n_coeffs):
     return int(math.sqrt(n_coeffs) + 0.5)
 
 
-@numba.njit(fastmath=True, cache=True)
+@_borrowing_jit
 def _local_environment(environment, tangent, normal, bitangent, quadrature, projection, diag, rec_a, rec_b, world,
                        basis, sh_scratch, values, out):
     """out (K, 3) = `local_environment` of environment (K, 3) in the frame (tangent, bitangent,
@@ -1562,7 +1571,7 @@ def _local_environment(environment, tangent, normal, bitangent, quadrature, proj
             out[k, c] = total
 
 
-@numba.njit(fastmath=True, cache=True)
+@_borrowing_jit
 def _azimuthal_coefficients(xyz, n, local, out):
     """out (>= n, 3, P) = `environment_azimuthal` of local view directions xyz (3, >= n) from the
     texel-frame coefficients local (K, 3)."""
@@ -1586,7 +1595,7 @@ def _azimuthal_coefficients(xyz, n, local, out):
                         out[s, c, pair] = local[centre + order, c] * cos_m + local[centre - order, c] * sin_m
 
 
-@numba.njit(fastmath=True, cache=True)
+@_borrowing_jit
 def _prefiltered_nodes_at(roughness, first, count, n, prefiltered, corner, stencil_frac, nodes, cached):
     """The prefiltered nodes first..first + count - 1 (roughness 0..1 by PREFILTER_STEP) on either side
     of ``roughness``, each looked up once per texel into nodes (cached): (lower, upper, fraction);
@@ -1601,14 +1610,14 @@ def _prefiltered_nodes_at(roughness, first, count, n, prefiltered, corner, stenc
     return lower, upper, (frac if upper != lower else 0.0)
 
 
-@numba.njit(fastmath=True, cache=True)
+@_borrowing_jit
 def _environment_share(roughness, blend):
     """`environment_weight` for one roughness; blend (start, end)."""
     ramp = min(max((roughness - blend[0]) / max(blend[1] - blend[0], 1e-12), 0.0), 1.0)
     return ramp * ramp * (3.0 - 2.0 * ramp)
 
 
-@numba.njit(fastmath=True, cache=True)
+@_borrowing_jit
 def _roughness_objective(roughness, args):
     """Profiled loss at this roughness: min over base colour and metallic (written to state).
 
@@ -1670,9 +1679,9 @@ def _roughness_objective(roughness, args):
     # Burley's factor is c0 + r c1 + r^2 c2 per channel and sample (`_burley_terms`,
     # `_environment_burley_terms`); Lambert's is 1.
     for c in range(3):
-        terms = burley_terms[c]
         for s in range(n):
-            diffuse_factor[c, s] = terms[0, s] + roughness * (terms[1, s] + roughness * terms[2, s])
+            diffuse_factor[c, s] = burley_terms[c, 0, s] + roughness * (burley_terms[c, 1, s]
+                                                                        + roughness * burley_terms[c, 2, s])
     # Filter the light at the tilt levels this probe reads (contiguous, vectorised loops), then
     # interpolate each sample and term between its two levels. A lobe that reads the environment
     # light alone (share 1) needs none of it.
@@ -1699,52 +1708,52 @@ def _roughness_objective(roughness, args):
                 last_level = max(last_level, tilt_level[term, s] + 1)
     if last_level >= first_level:
         _fill_kernel(alpha, sigma, kernel, kernel_derivative)
+    # Below, whole indices rather than row views (see `_metallic_quadratics`).
     for c in range(3):
         if use_prefiltered:
-            lower_light, upper_light = prefiltered_nodes[lower_map, c], prefiltered_nodes[upper_map, c]
             for s in range(n):
-                level_filtered[0, s] = lower_light[s] + map_frac * (upper_light[s] - lower_light[s])
+                lower = prefiltered_nodes[lower_map, c, s]
+                level_filtered[0, s] = lower + map_frac * (prefiltered_nodes[upper_map, c, s] - lower)
         if use_high:
-            lower_light, upper_light = prefiltered_nodes[lower_high, c], prefiltered_nodes[upper_high, c]
             for s in range(n):
-                high_filtered[s] = lower_light[s] + high_frac * (upper_light[s] - lower_light[s])
+                lower = prefiltered_nodes[lower_high, c, s]
+                high_filtered[s] = lower + high_frac * (prefiltered_nodes[upper_high, c, s] - lower)
         for level in range(first_level, last_level + 1):
-            level_row = level_filtered[level]
             k0 = kernel[0]
             for s in range(n):
-                level_row[s] = k0 * proj[level, c, 0, s]
+                level_filtered[level, s] = k0 * proj[level, c, 0, s]
             for degree in range(1, kernel.shape[0]):
                 k = kernel[degree]
                 for s in range(n):
-                    level_row[s] += k * proj[level, c, degree, s]
-        model = filtered[c]
+                    level_filtered[level, s] += k * proj[level, c, degree, s]
+        model = filtered
         for term in range(n_terms):
             if not own_light:
                 pass
             elif n_levels == 1:
                 for s in range(n):
-                    model[term, s] = albedo[term, s] * level_filtered[0, s]
+                    model[c, term, s] = albedo[term, s] * level_filtered[0, s]
             else:
                 for s in range(n):
                     lower = level_filtered[tilt_level[term, s], s]
                     upper = level_filtered[tilt_level[term, s] + 1, s]
-                    model[term, s] = albedo[term, s] * (lower + tilt_frac[term, s] * (upper - lower))
+                    model[c, term, s] = albedo[term, s] * (lower + tilt_frac[term, s] * (upper - lower))
             if share > 0.0:
-                lower_light, upper_light = environment_nodes[lower_node, term, c], environment_nodes[upper_node, term, c]
                 frac = node_frac if upper_node != lower_node else 0.0
                 keep = 1.0 - share
                 for s in range(n):
-                    light = lower_light[s] + frac * (upper_light[s] - lower_light[s])
+                    lower = environment_nodes[lower_node, term, c, s]
+                    light = lower + frac * (environment_nodes[upper_node, term, c, s] - lower)
                     if use_high:
                         light += high_filtered[s]
                     light *= albedo[term, s]
-                    model[term, s] = keep * model[term, s] + share * light if own_light else light
+                    model[c, term, s] = keep * model[c, term, s] + share * light if own_light else light
         if not exact_dielectric:
             for s in range(n):
-                model[2, s] = _DIELECTRIC_F0 * model[0, s] + model[1, s]
+                model[c, 2, s] = _DIELECTRIC_F0 * model[c, 0, s] + model[c, 1, s]
         s_xd = s_yd = s_zd = s_xx = s_xy = s_xz = s_xf = s_yy = s_yz = s_yf = s_zz = s_zf = 0.0
         for s in range(n):
-            x, y, z = model[0, s], model[1, s], model[2, s]  # X = A S_A, Y = B S_B, Z = E S_E
+            x, y, z = model[c, 0, s], model[c, 1, s], model[c, 2, s]  # X = A S_A, Y = B S_B, Z = E S_E
             f = values[c, s]
             d = diffuse_factor[c, s]
             wx = omega[s] * x
@@ -1765,16 +1774,15 @@ def _roughness_objective(roughness, args):
         s_dd = 0.0
         for power in range(4, -1, -1):
             s_dd = s_dd * roughness + diffuse_moments[c, 0, power]
-        fd = diffuse_moments[c, 1]
-        s_fd = fd[0] + roughness * (fd[1] + roughness * fd[2])
-        row = moments[c]
-        row[0], row[1], row[2], row[3], row[4], row[5], row[6] = s_xd, s_yd, s_zd, s_xx, s_xy, s_xz, s_xf
-        row[7], row[8], row[9], row[10], row[11], row[12], row[13] = s_yy, s_yz, s_yf, s_zz, s_zf, s_dd, s_fd
+        s_fd = diffuse_moments[c, 1, 0] + roughness * (diffuse_moments[c, 1, 1] + roughness * diffuse_moments[c, 1, 2])
+        for index, total in enumerate((s_xd, s_yd, s_zd, s_xx, s_xy, s_xz, s_xf, s_yy, s_yz, s_yf, s_zz, s_zf, s_dd,
+                                       s_fd)):
+            moments[c, index] = total
     _metallic_quadratics(moments, squared_values, diffuse_scale, quadratics)
     return _profile_metallic(quadratics, state, metallic_grid)
 
 
-@numba.njit(fastmath=True, cache=True)
+@_borrowing_jit
 def _burley_terms(cos_theta, out):
     """(c0, c1, c2) with `burley_diffuse_factor`(cos_theta, r) = c0 + r c1 + r^2 c2, into out[:, 0..2]."""
     schlick_view = (1.0 - cos_theta) ** 5
@@ -1785,7 +1793,7 @@ def _burley_terms(cos_theta, out):
                              + cos_theta * cos_theta / 252.0)
 
 
-@numba.njit(fastmath=True, cache=True)
+@_borrowing_jit
 def _uniform_burley_terms(cos_theta, burley, out):
     """out (3, 3): every channel's (c0, c1, c2) of Burley's uniform-light factor (`_burley_terms`),
     or Lambert's (1, 0, 0) without ``burley``."""
@@ -1798,7 +1806,7 @@ def _uniform_burley_terms(cos_theta, burley, out):
             out[c, power] = out[0, power]
 
 
-@numba.njit(fastmath=True, cache=True)
+@_borrowing_jit
 def _weighted_sums(n, omega, values, burley_terms, diffuse_moments, squared_values):
     """The roughness-free weighted sums of a texel's samples for `_roughness_objective`, per channel
     c: sum w^2 D_c^2 as a quartic in r (diffuse_moments[c, 0]) and sum w^2 f_c D_c as a quadratic
@@ -1827,15 +1835,14 @@ def _weighted_sums(n, omega, values, burley_terms, diffuse_moments, squared_valu
     return total_weight
 
 
-@numba.njit(fastmath=True, cache=True)
-def _environment_burley_terms(n, table_row, table_frac, azimuthal, burley_response, out):
+@_borrowing_jit
+def _environment_burley_terms(n, table_row, table_frac, azimuthal, burley_response, response, parts, out):
     """out (3, 3, >= n): per channel, Burley's factor c0 + r c1 + r^2 c2 under the environment's own
     light (`environment_burley_factor`) from burley_response (4, cos nodes, >= P)
     (`burley_response_table`) and the samples' azimuthal (>= n, 3, P) coefficients; channels whose
-    Lambert response is not above `_MIN_LAMBERT` x their DC keep what out holds."""
+    Lambert response is not above `_MIN_LAMBERT` x their DC keep what out holds. Scratch: response
+    (4, >= P) (the table's rows at a sample's view cosine), parts (4,)."""
     n_pairs = min(azimuthal.shape[2], burley_response.shape[2])
-    response = np.empty((4, n_pairs))  # the table's rows at this sample's view cosine
-    parts = np.empty(4)
     for s in range(n):
         row, fx = table_row[s], table_frac[s]
         for j in range(4):
@@ -1854,7 +1861,7 @@ def _environment_burley_terms(n, table_row, table_frac, azimuthal, burley_respon
                     out[c, j, s] = parts[j] / parts[3]
 
 
-@numba.njit(fastmath=True, cache=True)
+@_borrowing_jit
 def _search_roughness(args, state, roughness_grid, best_state, roughness_brent, node_loss, first_node, last_node,
                       xtol):
     """Scan the roughness grid's nodes first_node..last_node, then Brent (to xtol) in the best cell
@@ -1873,7 +1880,8 @@ def _search_roughness(args, state, roughness_grid, best_state, roughness_brent, 
         node_loss[i] = _roughness_objective(r, args)
         if node_loss[i] < best_f:
             best_node, best_r, best_f = i, r, node_loss[i]
-            best_state[:] = state
+            for i in range(4):
+                best_state[i] = state[i]
     node_r, node_f = best_r, best_f
     on_boundary = best_node == 0 or best_node == roughness_grid - 1
     bracketed = first_node < best_node < last_node
@@ -1902,19 +1910,21 @@ def _search_roughness(args, state, roughness_grid, best_state, roughness_brent, 
             search = f < node_f
             if f < best_f:
                 best_r, best_f = probe, f
-                best_state[:] = state
+                for i in range(4):
+                    best_state[i] = state[i]
         if search:
             _brent_start(roughness_brent, max(node_r - cell, 0.0), min(node_r + cell, 1.0), xtol)
     while search:
         f = _roughness_objective(roughness_brent[_PROBE], args)
         if f < best_f:
             best_r, best_f = roughness_brent[_PROBE], f
-            best_state[:] = state
+            for i in range(4):
+                best_state[i] = state[i]
         search = _brent_next(roughness_brent, f)
     return best_r, best_f
 
 
-@numba.njit(fastmath=True, cache=True)
+@_borrowing_jit
 def _specular_moments(n, omega, values, scale_terms, bias_terms, out):
     """out = [sum w, sum w u, sum w X, sum w u^2, sum w u X, sum w X^2, sum w f, sum w f^2] over
     samples s < n, with w = sqrt(omega) the sample weight, f the observed radiance, u = f - Y and
@@ -1935,7 +1945,7 @@ def _specular_moments(n, omega, values, scale_terms, bias_terms, out):
         out[7] += w * f * f
 
 
-@numba.njit(fastmath=True, cache=True)
+@_borrowing_jit
 def _residual_magnitudes(n, values, filtered, diffuse_factor, diffuse_scale, params, out):
     """out[s] = |L(w_s) - f_s| over the channels for params [b_rgb, m], with the per-channel model
     terms `_roughness_objective` left in filtered (3, 3, n) and diffuse_factor at their roughness."""
@@ -2026,6 +2036,8 @@ def _global_search_kernel(
         n_environment_degrees = _n_degrees(environment.shape[0])
         azimuthal = np.zeros((n_views, 3, n_environment_degrees * (n_environment_degrees + 1) // 2))
         response_scratch = np.empty(azimuthal.shape[2])
+        burley_rows = np.empty((4, burley_response.shape[2]))  # `_environment_burley_terms`' scratch
+        burley_parts = np.empty(4)
         # The environment light per roughness node, lobe term, channel and sample.
         environment_nodes = np.empty((_ENVIRONMENT_NODES, 3, 3, n_views))
         environment_cached = np.zeros(_ENVIRONMENT_NODES, dtype=np.bool_)
@@ -2087,7 +2099,8 @@ def _global_search_kernel(
                 table_frac[s] = x - table_row[s]
                 _uniform_burley_terms(packed_cos[s], burley, burley_terms[:, :, s])
             if burley and burley_response.shape[2] > 0 and environment.shape[0] > 0:
-                _environment_burley_terms(n, table_row, table_frac, azimuthal, burley_response, burley_terms)
+                _environment_burley_terms(n, table_row, table_frac, azimuthal, burley_response, burley_rows,
+                                          burley_parts, burley_terms)
             total_weight = _weighted_sums(n, omega, values, burley_terms, diffuse_moments, squared_values)
             for c in range(3):
                 scale[c] = diffuse_scale[t, c]
