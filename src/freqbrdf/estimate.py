@@ -85,8 +85,9 @@ and diffuse factor D come in two versions (``EstimateConfig.specular_model``, ``
   loss at it a function of quadratics in m computed from 14 weighted moments of X, Y, Z, D and f
   over the views. Roughness is searched on a grid with the metallic profiled out (grid, then
   safeguarded Newton on the exact derivatives of the profiled loss) at each node, and the best
-  cell is refined by Brent: the global optimum in (b, m, r) up to the grid resolution, with no
-  step size and no local minima to fall into. Per texel the light is expanded by degree once per tilt level and everything that
+  cell is refined by Brent, started from the parabola through the best node and its neighbours:
+  the global optimum in (b, m, r) up to the grid resolution, with no step size and no local
+  minima to fall into. Per texel the light is expanded by degree once per tilt level and everything that
   does not depend on the roughness (table positions, Burley's polynomial in r, the diffuse
   moments) is prepared before the search, so a roughness probe costs ~20 multiply-adds per sample. Then
   ``EstimateConfig.robust_passes`` (default 1) passes of iteratively re-weighted least squares move
@@ -96,7 +97,9 @@ and diffuse factor D come in two versions (``EstimateConfig.specular_model``, ``
   (bunny), 18.87 -> 19.20 (demo capture), 19.97 -> 20.11 (plane), roughness and metallic MAE
   lower on all three. The first search then only needs the optimum's cell (Brent to 1e-3), the
   robust one scans the nodes within one cell of it (two cost 6 % more time and moved no score by
-  more than 0.002 dB): about 1.3x the least-squares search time (plane, T = 512).
+  more than 0.002 dB): about 1.3x the least-squares search time (plane, T = 512). In all, ~31
+  probes per texel with the robust pass (plane, session 8); the ``fast`` preset
+  (`config.preset`) drops the pass and halves the grid.
 - ``paper`` reproduces the authors' prototype with METHOD.md's model: Adam (torch's defaults, lr
   0.02, 100 iterations) on the L1 loss of the cos-weighted residuals averaged over the whole T x T
   texture, parameters clamped to [0, 1] after every step, texture-space total variation on the
