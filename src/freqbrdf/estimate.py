@@ -1158,8 +1158,8 @@ def _squared_residual_kernel(
                 table_row[v] = min(int(x), table.shape[1] - 2)
                 table_frac[v] = x - table_row[v]
         if environment_burley:
-            _environment_burley_terms(n_views, table_row, table_frac, azimuthal[t], burley_response,
-                                      np.empty((4, burley_response.shape[2])), np.empty(4), burley_terms)
+            _environment_burley_terms(n_views, table_row, table_frac, azimuthal[t], burley_response, np.empty((4, 3)),
+                                      burley_terms)
         if share > 0.0:
             node, node_frac = _environment_node(roughness[t])
             for side in range(2):
@@ -1851,29 +1851,48 @@ def _weighted_sums(n, omega, values, burley_terms, diffuse_moments, squared_valu
 
 
 @_borrowing_jit
-def _environment_burley_terms(n, table_row, table_frac, azimuthal, burley_response, response, parts, out):
+def _environment_burley_terms(n, table_row, table_frac, azimuthal, burley_response, parts, out):
     """out (3, 3, >= n): per channel, Burley's factor c0 + r c1 + r^2 c2 under the environment's own
     light (`environment_burley_factor`) from burley_response (4, cos nodes, >= P)
     (`burley_response_table`) and the samples' azimuthal (>= n, 3, P) coefficients; channels whose
-    Lambert response is not above `_MIN_LAMBERT` x their DC keep what out holds. Scratch: response
-    (4, >= P) (the table's rows at a sample's view cosine), parts (4,)."""
+    Lambert response is not above `_MIN_LAMBERT` x their DC keep what out holds. Scratch: parts
+    (4, 3), each row's response per channel."""
     n_pairs = min(azimuthal.shape[2], burley_response.shape[2])
     for s in range(n):
         row, fx = table_row[s], table_frac[s]
-        for j in range(4):
-            below, above = burley_response[j, row], burley_response[j, row + 1]
-            for pair in range(n_pairs):
-                response[j, pair] = below[pair] + fx * (above[pair] - below[pair])
+        # All rows and channels in one pass over the harmonics, the twelve sums in registers (as
+        # `_environment_node_lights`).
+        f0r = f0g = f0b = f1r = f1g = f1b = f2r = f2g = f2b = lr = lg = lb = 0.0
+        for pair in range(n_pairs):
+            red, green, blue = azimuthal[s, 0, pair], azimuthal[s, 1, pair], azimuthal[s, 2, pair]
+            below = burley_response[0, row, pair]
+            power0 = below + fx * (burley_response[0, row + 1, pair] - below)
+            below = burley_response[1, row, pair]
+            power1 = below + fx * (burley_response[1, row + 1, pair] - below)
+            below = burley_response[2, row, pair]
+            power2 = below + fx * (burley_response[2, row + 1, pair] - below)
+            below = burley_response[3, row, pair]
+            lambert = below + fx * (burley_response[3, row + 1, pair] - below)
+            f0r += power0 * red
+            f0g += power0 * green
+            f0b += power0 * blue
+            f1r += power1 * red
+            f1g += power1 * green
+            f1b += power1 * blue
+            f2r += power2 * red
+            f2g += power2 * green
+            f2b += power2 * blue
+            lr += lambert * red
+            lg += lambert * green
+            lb += lambert * blue
+        parts[0, 0], parts[0, 1], parts[0, 2] = f0r, f0g, f0b
+        parts[1, 0], parts[1, 1], parts[1, 2] = f1r, f1g, f1b
+        parts[2, 0], parts[2, 1], parts[2, 2] = f2r, f2g, f2b
+        parts[3, 0], parts[3, 1], parts[3, 2] = lr, lg, lb
         for c in range(3):
-            coefficients = azimuthal[s, c]
-            for j in range(4):
-                total = 0.0
-                for pair in range(n_pairs):
-                    total += response[j, pair] * coefficients[pair]
-                parts[j] = total
-            if parts[3] > _MIN_LAMBERT * abs(coefficients[0]):
+            if parts[3, c] > _MIN_LAMBERT * abs(azimuthal[s, c, 0]):
                 for j in range(3):
-                    out[c, j, s] = parts[j] / parts[3]
+                    out[c, j, s] = parts[j, c] / parts[3, c]
 
 
 @_borrowing_jit
@@ -2050,8 +2069,7 @@ def _global_search_kernel(
         quadrature_values = np.empty((3, n_points))
         n_environment_degrees = _n_degrees(environment.shape[0])
         azimuthal = np.zeros((n_views, 3, n_environment_degrees * (n_environment_degrees + 1) // 2))
-        burley_rows = np.empty((4, burley_response.shape[2]))  # `_environment_burley_terms`' scratch
-        burley_parts = np.empty(4)
+        burley_parts = np.empty((4, 3))  # `_environment_burley_terms`' scratch
         # The environment light per roughness node, lobe term, channel and sample.
         environment_nodes = np.empty((_ENVIRONMENT_NODES, 3, 3, n_views))
         environment_cached = np.zeros(_ENVIRONMENT_NODES, dtype=np.bool_)
@@ -2113,8 +2131,8 @@ def _global_search_kernel(
                 table_frac[s] = x - table_row[s]
                 _uniform_burley_terms(packed_cos[s], burley, burley_terms[:, :, s])
             if burley and burley_response.shape[2] > 0 and environment.shape[0] > 0:
-                _environment_burley_terms(n, table_row, table_frac, azimuthal, burley_response, burley_rows,
-                                          burley_parts, burley_terms)
+                _environment_burley_terms(n, table_row, table_frac, azimuthal, burley_response, burley_parts,
+                                          burley_terms)
             total_weight = _weighted_sums(n, omega, values, burley_terms, diffuse_moments, squared_values)
             for c in range(3):
                 scale[c] = diffuse_scale[t, c]
