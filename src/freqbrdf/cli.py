@@ -220,8 +220,8 @@ def fit(
     lmax: int = typer.Option(None, min=0, help="Degree l* of the per-texel SH fits (default 5)."),
     estimator: str = typer.Option(None, help="global (ours, default) or paper (the prototype's Adam)."),
     model: str = typer.Option(None, help="Forward model of `paper`: angular, sh_coeffs or spectrum."),
-    preset: str = typer.Option("default", help="default; fast (no robust pass, a coarser roughness grid: a "
-                               "quarter to 40 % less estimation time); or paper (the prototype's "
+    preset: str = typer.Option("default", help="default; fast (no robust pass, a coarser roughness grid: "
+                               "about a third less estimation time); or paper (the prototype's "
                                "hyper-parameters)."),
     entropy: str = typer.Option(None, help=ENTROPY_HELP),
     share: bool = typer.Option(False, "--share", help="Pull uncertain texels towards affine confident anchors."),

@@ -225,8 +225,8 @@ def preset(name: str = "default") -> Config:
     hyper-parameters).
 
     ``fast`` is ``default`` with the least-squares optimum (no robust pass) on a 5-node roughness
-    grid: 22-41 % less estimation time (plane, T = 512, session 8: 10.5 vs 13.5 s in one process,
-    9.5 vs 16.1 s median in fresh ones). Measured against ``default`` (64 views, T = 512):
+    grid: about a third less estimation time (plane, T = 512, session 8: 6.8 vs 10.5 s in one
+    process, 7.2 vs 10.6 s median in fresh ones). Measured against ``default`` (64 views, T = 512):
     base-colour PSNR 24.99 vs 25.00 dB (plane), 18.51 vs 18.81 (bunny); roughness MAE 0.060 vs
     0.058, 0.132 vs 0.126; metallic MAE 0.084 vs 0.081, 0.187 vs 0.178; relighting PSNR-H 23.48 vs
     23.49, 22.05 vs 22.10; still ahead of ``paper`` and of Mitsuba's inverse renderer on every one
