@@ -2177,15 +2177,20 @@ def _global_search_kernel(
                     best_r, best_f = _search_roughness(args, state, roughness_grid, best_state, roughness_brent,
                                                        node_loss, max(node - _ROBUST_NODES, 0),
                                                        min(node + _ROBUST_NODES, roughness_grid - 1), _BRENT_XTOL)
-                # The reported loss stays the weighted squared residual of `MaterialEstimate.loss`.
-                _roughness_objective(best_r, args)
+                for s in range(n):  # back to least squares for the curvature
+                    omega[s] = sample_weight[s] * sample_weight[s]
+                _weighted_sums(n, omega, values, burley_terms, diffuse_moments, squared_values)
+                # The profiled least-squares loss at the optimum for the curvature (the robust
+                # pass's best_f is not profiled). The model terms this probe leaves in filtered do
+                # not depend on the weights, so they also give the reported loss: the weighted
+                # squared residual of the robust estimate (best_state), `MaterialEstimate.loss`.
+                centre_f = _roughness_objective(best_r, args)
                 _residual_magnitudes(n, values, filtered, diffuse_factor, scale, best_state, residual)
                 best_f = 0.0
                 for s in range(n):
                     best_f += sample_weight[s] * sample_weight[s] * residual[s] * residual[s]
-                for s in range(n):  # back to least squares for the curvature
-                    omega[s] = sample_weight[s] * sample_weight[s]
-                _weighted_sums(n, omega, values, burley_terms, diffuse_moments, squared_values)
+            else:
+                centre_f = best_f
             # Second divided difference through the optimum and two probes on the side within [0, 1].
             first_r = best_r + CURVATURE_STEP if best_r < CURVATURE_STEP else best_r - CURVATURE_STEP
             if best_r < CURVATURE_STEP:
@@ -2194,8 +2199,6 @@ def _global_search_kernel(
                 second_r = best_r - 2.0 * CURVATURE_STEP
             else:
                 second_r = best_r + CURVATURE_STEP
-            # The profiled least-squares loss at the optimum (the robust pass's best_f is not profiled).
-            centre_f = _roughness_objective(best_r, args) if robust_passes > 0 else best_f
             first_f = _roughness_objective(first_r, args)
             second_f = _roughness_objective(second_r, args)
             curvature[t] = 2.0 * ((first_f - centre_f) / (first_r - best_r)
