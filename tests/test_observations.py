@@ -404,3 +404,36 @@ def test_environment_occlusion_changes_nothing_on_a_sphere_and_only_darkens_the_
     np.testing.assert_array_equal(traced.mirrored[sampled & ~zeroed], plain.mirrored[sampled & ~zeroed])
     assert (traced.irradiance <= plain.irradiance + 1e-6).all()
     assert np.mean(traced.irradiance.sum(axis=1) < 0.97 * plain.irradiance.sum(axis=1)) > 0.1
+
+
+@pytest.mark.skipif(__import__("platform").machine() != "x86_64", reason="reads glibc's x86-64 fenv_t layout")
+def test_ray_tests_leave_the_floating_point_environment_as_they_found_it():
+    # Mitsuba's tracing may set flush-to-zero on the calling thread on some runs only, and numba's
+    # kernels then compute differently there than on their workers: fits changed in their last
+    # digits between runs. The guard restores the environment; fesetround is a change we can see.
+    import ctypes
+    import ctypes.util
+
+    libm = ctypes.CDLL(ctypes.util.find_library("m"))
+    before = ctypes.create_string_buffer(64)
+    libm.fegetenv(before)
+    round_to_nearest = libm.fegetround()
+    with render.restored_floating_point():
+        libm.fesetround(0x800)  # FE_UPWARD on x86
+        assert libm.fegetround() != round_to_nearest
+    assert libm.fegetround() == round_to_nearest
+    corners = np.array([[-1, -1, 1], [1, -1, 1], [1, 1, 1], [-1, 1, 1]], float)
+    roof = Mesh(vertices=corners, faces=np.array([[0, 2, 1], [0, 3, 2]]),
+                normals=np.tile([0.0, 0.0, -1.0], (4, 1)), uv=np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float))
+    rng = np.random.default_rng(0)
+    directions = rng.normal(size=(50_000, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    hits = Occluder(roof).hits(np.zeros((50_000, 3)), directions)
+    assert hits.any() and not hits.all()
+    after = ctypes.create_string_buffer(64)
+    libm.fegetenv(after)
+
+    def modes(environment):  # glibc x86-64 fenv_t: x87 control word, MXCSR without its status flags
+        return environment.raw[0:2], int.from_bytes(environment.raw[28:32], "little") & ~0x3F
+
+    assert modes(after) == modes(before)

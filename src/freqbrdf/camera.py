@@ -318,10 +318,12 @@ class Occluder:
     """A mesh loaded into Mitsuba for batched ray tests (what blocks the view of a point)."""
 
     def __init__(self, mesh):
-        from freqbrdf.render import mesh_shape, mitsuba  # render imports this module
+        from freqbrdf.render import mesh_shape, mitsuba, restored_floating_point  # render imports this module
 
         self._mitsuba = mitsuba()
-        self._scene = self._mitsuba.load_dict({"type": "scene", "object": mesh_shape(mesh, {"type": "diffuse"})})
+        self._restored_floating_point = restored_floating_point
+        with restored_floating_point():
+            self._scene = self._mitsuba.load_dict({"type": "scene", "object": mesh_shape(mesh, {"type": "diffuse"})})
 
     def hits(self, origins: np.ndarray, directions: np.ndarray, max_distance: np.ndarray | None = None) -> np.ndarray:
         """(M,) bool: the ray from each origin (M, 3) along its unit direction (M, 3) hits the mesh
@@ -341,7 +343,8 @@ class Occluder:
                            mi.Vector3f(*(mi.Float(row[rays]) for row in directions)))
             if max_distance is not None:
                 ray.maxt = mi.Float(np.asarray(max_distance, np.float32)[rays])
-            hits[rays] = np.asarray(self._scene.ray_test(ray), dtype=bool)
+            with self._restored_floating_point():
+                hits[rays] = np.asarray(self._scene.ray_test(ray), dtype=bool)
         return hits
 
 

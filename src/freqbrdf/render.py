@@ -22,6 +22,9 @@ image; a Gaussian filter would blend neighbouring pixels and widen silhouettes i
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
+import ctypes.util
 import glob
 import os
 import re
@@ -60,6 +63,26 @@ def _newest_libllvm() -> tuple[int, str] | None:
             if match:
                 found.append((int(match.group(1)), path))
     return max(found) if found else None
+
+
+_LIBM = ctypes.CDLL(ctypes.util.find_library("m"))
+
+
+@contextlib.contextmanager
+def restored_floating_point() -> Iterator[None]:
+    """Restore the calling thread's floating-point environment after Mitsuba has run on it.
+
+    Mitsuba's tracing (Embree, Dr.Jit's thread pool) may leave flush-to-zero and
+    denormals-are-zero set on the calling thread, and only on some runs. numba's kernels then
+    compute differently on this thread than on their own workers, so a fit's maps changed in
+    their last digits from one run to the next (up to 1e-4 in roughness on flat losses).
+    """
+    environment = ctypes.create_string_buffer(64)  # fenv_t: 32 bytes on x86-64 glibc
+    _LIBM.fegetenv(environment)
+    try:
+        yield
+    finally:
+        _LIBM.fesetenv(environment)
 
 
 def mitsuba() -> ModuleType:
@@ -229,14 +252,15 @@ def view_seed(seed: int, view_index: int) -> int:
 def render_view(scene, camera: Camera, spp: int, seed: int) -> RenderedView:
     """Path-trace one view and measure the object's pixel coverage with a primary-ray pass."""
     mi = mitsuba()
-    sensor = mi.load_dict(perspective_sensor(camera, spp))
-    rgba = np.array(mi.render(scene, sensor=sensor, spp=spp, seed=seed))
-    # The path tracer's alpha is 1 wherever the visible envmap is hit; the depth integrator's
-    # alpha is exactly "the camera ray hit a surface", averaged over the pixel's samples.
-    coverage_integrator = mi.load_dict({"type": "depth"})
-    depth_alpha = np.array(
-        mi.render(scene, sensor=sensor, spp=spp, seed=seed, integrator=coverage_integrator)
-    )
+    with restored_floating_point():
+        sensor = mi.load_dict(perspective_sensor(camera, spp))
+        rgba = np.array(mi.render(scene, sensor=sensor, spp=spp, seed=seed))
+        # The path tracer's alpha is 1 wherever the visible envmap is hit; the depth integrator's
+        # alpha is exactly "the camera ray hit a surface", averaged over the pixel's samples.
+        coverage_integrator = mi.load_dict({"type": "depth"})
+        depth_alpha = np.array(
+            mi.render(scene, sensor=sensor, spp=spp, seed=seed, integrator=coverage_integrator)
+        )
     return RenderedView(
         radiance=np.ascontiguousarray(rgba[..., :3], dtype=np.float32),
         coverage=np.ascontiguousarray(np.clip(depth_alpha[..., 3], 0.0, 1.0), dtype=np.float32),
