@@ -321,7 +321,6 @@ class Occluder:
         from freqbrdf.render import mesh_shape, mitsuba, restored_floating_point  # render imports this module
 
         self._mitsuba = mitsuba()
-        self._restored_floating_point = restored_floating_point
         with restored_floating_point():
             self._scene = self._mitsuba.load_dict({"type": "scene", "object": mesh_shape(mesh, {"type": "diffuse"})})
 
@@ -335,15 +334,17 @@ class Occluder:
                   ) -> np.ndarray:
         """`hits` for origins and directions given as (3, M) float32 rows (what Dr.Jit takes
         without a copy); traced in batches of RAYS_PER_BATCH."""
+        from freqbrdf.render import restored_floating_point
+
         mi = self._mitsuba
         hits = np.zeros(origins.shape[1], dtype=bool)
-        for first in range(0, origins.shape[1], RAYS_PER_BATCH):
-            rays = slice(first, first + RAYS_PER_BATCH)
-            ray = mi.Ray3f(mi.Point3f(*(mi.Float(row[rays]) for row in origins)),
-                           mi.Vector3f(*(mi.Float(row[rays]) for row in directions)))
-            if max_distance is not None:
-                ray.maxt = mi.Float(np.asarray(max_distance, np.float32)[rays])
-            with self._restored_floating_point():
+        with restored_floating_point():
+            for first in range(0, origins.shape[1], RAYS_PER_BATCH):
+                rays = slice(first, first + RAYS_PER_BATCH)
+                ray = mi.Ray3f(mi.Point3f(*(mi.Float(row[rays]) for row in origins)),
+                               mi.Vector3f(*(mi.Float(row[rays]) for row in directions)))
+                if max_distance is not None:
+                    ray.maxt = mi.Float(np.asarray(max_distance, np.float32)[rays])
                 hits[rays] = np.asarray(self._scene.ray_test(ray), dtype=bool)
         return hits
 

@@ -1158,8 +1158,7 @@ def _squared_residual_kernel(
                 table_row[v] = min(int(x), table.shape[1] - 2)
                 table_frac[v] = x - table_row[v]
         if environment_burley:
-            _environment_burley_terms(n_views, table_row, table_frac, azimuthal[t], burley_response, np.empty((4, 3)),
-                                      burley_terms)
+            _environment_burley_terms(n_views, table_row, table_frac, azimuthal[t], burley_response, burley_terms)
         if share > 0.0:
             node, node_frac = _environment_node(roughness[t])
             for side in range(2):
@@ -1851,12 +1850,11 @@ def _weighted_sums(n, omega, values, burley_terms, diffuse_moments, squared_valu
 
 
 @_borrowing_jit
-def _environment_burley_terms(n, table_row, table_frac, azimuthal, burley_response, parts, out):
+def _environment_burley_terms(n, table_row, table_frac, azimuthal, burley_response, out):
     """out (3, 3, >= n): per channel, Burley's factor c0 + r c1 + r^2 c2 under the environment's own
     light (`environment_burley_factor`) from burley_response (4, cos nodes, >= P)
     (`burley_response_table`) and the samples' azimuthal (>= n, 3, P) coefficients; channels whose
-    Lambert response is not above `_MIN_LAMBERT` x their DC keep what out holds. Scratch: parts
-    (4, 3), each row's response per channel."""
+    Lambert response is not above `_MIN_LAMBERT` x their DC keep what out holds."""
     n_pairs = min(azimuthal.shape[2], burley_response.shape[2])
     for s in range(n):
         row, fx = table_row[s], table_frac[s]
@@ -1885,14 +1883,20 @@ def _environment_burley_terms(n, table_row, table_frac, azimuthal, burley_respon
             lr += lambert * red
             lg += lambert * green
             lb += lambert * blue
-        parts[0, 0], parts[0, 1], parts[0, 2] = f0r, f0g, f0b
-        parts[1, 0], parts[1, 1], parts[1, 2] = f1r, f1g, f1b
-        parts[2, 0], parts[2, 1], parts[2, 2] = f2r, f2g, f2b
-        parts[3, 0], parts[3, 1], parts[3, 2] = lr, lg, lb
-        for c in range(3):
-            if parts[3, c] > _MIN_LAMBERT * abs(azimuthal[s, c, 0]):
-                for j in range(3):
-                    out[c, j, s] = parts[j, c] / parts[3, c]
+        for c, (power0, power1, power2, lambert) in enumerate(((f0r, f1r, f2r, lr), (f0g, f1g, f2g, lg),
+                                                               (f0b, f1b, f2b, lb))):
+            if lambert > _MIN_LAMBERT * abs(azimuthal[s, c, 0]):
+                out[c, 0, s] = power0 / lambert
+                out[c, 1, s] = power1 / lambert
+                out[c, 2, s] = power2 / lambert
+
+
+@_borrowing_jit
+def _keep_state(state, best_state):
+    """best_state[:] = state, element by element (a slice assignment may allocate, and these
+    functions run without numba's runtime)."""
+    for i in range(state.shape[0]):
+        best_state[i] = state[i]
 
 
 @_borrowing_jit
@@ -1902,11 +1906,7 @@ def _search_roughness(args, state, roughness_grid, best_state, roughness_brent, 
     unless the loss rises inwards from a boundary node. Brent starts from the parabola through the
     best node and its neighbours when the scan holds them. The best evaluation seen wins: returns
     (roughness, loss), its base colour and metallic in best_state (`_roughness_objective` leaves
-    each probe's in state, the array in args). node_loss (roughness_grid,) scratch.
-
-    With xtol = 0 nothing is evaluated after the scan: returns the vertex of that parabola
-    (clipped to the cell around the best node, or the node itself on [0, 1]'s boundary) and the
-    best node's loss; best_state is then the node's."""
+    each probe's in state, the array in args). node_loss (roughness_grid,) scratch."""
     cell = 1.0 / (roughness_grid - 1)
     best_node, best_r, best_f = first_node, 0.0, np.inf
     for i in range(first_node, last_node + 1):
@@ -1914,19 +1914,10 @@ def _search_roughness(args, state, roughness_grid, best_state, roughness_brent, 
         node_loss[i] = _roughness_objective(r, args)
         if node_loss[i] < best_f:
             best_node, best_r, best_f = i, r, node_loss[i]
-            for i in range(4):
-                best_state[i] = state[i]
+            _keep_state(state, best_state)
     node_r, node_f = best_r, best_f
     on_boundary = best_node == 0 or best_node == roughness_grid - 1
     bracketed = first_node < best_node < last_node
-    if xtol <= 0.0:
-        if bracketed:
-            lower_f, upper_f = node_loss[best_node - 1], node_loss[best_node + 1]
-            curvature = lower_f - 2.0 * node_f + upper_f
-            if curvature > 0.0:
-                step = 0.5 * cell * (lower_f - upper_f) / curvature
-                node_r += min(max(step, -cell), cell)
-        return node_r, node_f
     if bracketed:
         lower_f, upper_f = node_loss[best_node - 1], node_loss[best_node + 1]
         lower_r, upper_r = node_r - cell, node_r + cell
@@ -1944,16 +1935,14 @@ def _search_roughness(args, state, roughness_grid, best_state, roughness_brent, 
             search = f < node_f
             if f < best_f:
                 best_r, best_f = probe, f
-                for i in range(4):
-                    best_state[i] = state[i]
+                _keep_state(state, best_state)
         if search:
             _brent_start(roughness_brent, max(node_r - cell, 0.0), min(node_r + cell, 1.0), xtol)
     while search:
         f = _roughness_objective(roughness_brent[_PROBE], args)
         if f < best_f:
             best_r, best_f = roughness_brent[_PROBE], f
-            for i in range(4):
-                best_state[i] = state[i]
+            _keep_state(state, best_state)
         search = _brent_next(roughness_brent, f)
     return best_r, best_f
 
@@ -2069,7 +2058,6 @@ def _global_search_kernel(
         quadrature_values = np.empty((3, n_points))
         n_environment_degrees = _n_degrees(environment.shape[0])
         azimuthal = np.zeros((n_views, 3, n_environment_degrees * (n_environment_degrees + 1) // 2))
-        burley_parts = np.empty((4, 3))  # `_environment_burley_terms`' scratch
         # The environment light per roughness node, lobe term, channel and sample.
         environment_nodes = np.empty((_ENVIRONMENT_NODES, 3, 3, n_views))
         environment_cached = np.zeros(_ENVIRONMENT_NODES, dtype=np.bool_)
@@ -2131,8 +2119,7 @@ def _global_search_kernel(
                 table_frac[s] = x - table_row[s]
                 _uniform_burley_terms(packed_cos[s], burley, burley_terms[:, :, s])
             if burley and burley_response.shape[2] > 0 and environment.shape[0] > 0:
-                _environment_burley_terms(n, table_row, table_frac, azimuthal, burley_response, burley_parts,
-                                          burley_terms)
+                _environment_burley_terms(n, table_row, table_frac, azimuthal, burley_response, burley_terms)
             total_weight = _weighted_sums(n, omega, values, burley_terms, diffuse_moments, squared_values)
             for c in range(3):
                 scale[c] = diffuse_scale[t, c]

@@ -224,14 +224,15 @@ def path_integrator(max_depth: int = DEFAULT_MAX_DEPTH) -> dict:
 def build_scene(mesh: Mesh, bsdf: dict, envmap: Envmap, max_depth: int = DEFAULT_MAX_DEPTH):
     """The scene: ``mesh`` with ``bsdf`` under ``envmap``, path traced. Sensors are per view."""
     mi = mitsuba()
-    return mi.load_dict(
-        {
-            "type": "scene",
-            "integrator": path_integrator(max_depth),
-            "object": mesh_shape(mesh, bsdf),
-            "environment": envmap_emitter(envmap),
-        }
-    )
+    with restored_floating_point():  # building the scene traces nothing but builds Embree's BVH
+        return mi.load_dict(
+            {
+                "type": "scene",
+                "integrator": path_integrator(max_depth),
+                "object": mesh_shape(mesh, bsdf),
+                "environment": envmap_emitter(envmap),
+            }
+        )
 
 
 # ---------------------------------------------------------------------------------------------
