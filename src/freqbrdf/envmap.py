@@ -131,6 +131,42 @@ def lookup(envmap: Envmap, directions_world: np.ndarray) -> np.ndarray:
     return out.reshape(directions_world.shape)
 
 
+def local_directions(polar: np.ndarray, azimuth: np.ndarray) -> np.ndarray:
+    """(P, A, 3) emitter-local directions at Mitsuba's polar angles (P,) from +y and azimuths (A,)
+    from -z towards +x (texel centres: polar pi i / (H - 1), azimuth 2 pi (j + 0.5) / W)."""
+    return np.stack(
+        np.broadcast_arrays(
+            np.sin(polar)[:, None] * np.sin(azimuth)[None, :],
+            np.cos(polar)[:, None],
+            -np.sin(polar)[:, None] * np.cos(azimuth)[None, :],
+        ),
+        axis=-1,
+    )
+
+
+def downsample(radiance: np.ndarray, height: int) -> np.ndarray:
+    """(height, 2 height, 3) float32: the lat-long map (H, W, 3) (Mitsuba's layout) averaged over
+    each texel of the coarser grid in pixel space, so that a light smaller than a texel keeps its
+    power and nothing rings around it (as an SH resampling would): k x k bilinear lookups per
+    texel, k = ceil(H / height) + 1, weighted by sin(theta). ``height`` >= H returns a copy."""
+    if height >= radiance.shape[0]:
+        return np.array(radiance, np.float32)
+    width = 2 * height
+    source = Envmap(np.ascontiguousarray(radiance, np.float32), np.eye(4))
+    steps = math.ceil(radiance.shape[0] / height) + 1
+    offsets = (np.arange(steps) + 0.5) / steps - 0.5  # texel fractions about the centre
+    total = np.zeros((height, width, 3))
+    weight_sum = np.zeros((height, 1, 1))
+    for row_offset in offsets:
+        polar = np.pi * np.clip(np.arange(height) + row_offset, 0.0, height - 1) / (height - 1)
+        weight = np.sin(polar)[:, None, None]
+        for column_offset in offsets:
+            total += weight * lookup(source, local_directions(polar, 2.0 * np.pi * (np.arange(width) + 0.5
+                                                                                     + column_offset) / width))
+        weight_sum += steps * weight
+    return (total / np.maximum(weight_sum, np.finfo(np.float64).tiny)).astype(np.float32)
+
+
 # --------------------------------------------------------------------------------------------
 # Spherical harmonics
 

@@ -31,7 +31,7 @@ from freqbrdf.capture import (
     stanford_orb_envmap_to_world,
     write_transforms,
 )
-from freqbrdf.envmap import Envmap, load_envmap, lookup
+from freqbrdf.envmap import Envmap, load_envmap, local_directions, lookup
 from freqbrdf.errors import InputError
 from freqbrdf.fileio import atomic_directory
 from freqbrdf.images import write_exr, write_png
@@ -317,16 +317,7 @@ def resample_envmap(envmap: Envmap, to_world: np.ndarray) -> Envmap:
     ``to_world`` (4, 4), each texel looked up (bilinearly) in the direction it stands for."""
     height, width = envmap.radiance.shape[:2]
     # Mitsuba's texel centres: u = (j + 0.5) / W from -z towards +x, v = i / (H - 1) from +y.
-    azimuth = 2.0 * np.pi * (np.arange(width) + 0.5) / width  # (W,)
-    polar = np.pi * np.arange(height) / (height - 1)  # (H,)
-    local = np.stack(
-        np.broadcast_arrays(
-            np.sin(polar)[:, None] * np.sin(azimuth)[None, :],
-            np.cos(polar)[:, None],
-            -np.sin(polar)[:, None] * np.cos(azimuth)[None, :],
-        ),
-        axis=-1,
-    )  # (H, W, 3)
+    local = local_directions(np.pi * np.arange(height) / (height - 1), 2.0 * np.pi * (np.arange(width) + 0.5) / width)
     world = local @ np.asarray(to_world, np.float64)[:3, :3].T
     radiance = lookup(envmap, world.reshape(-1, 3)).reshape(height, width, 3)
     return Envmap(radiance.astype(np.float32), np.asarray(to_world, np.float64))
