@@ -94,6 +94,31 @@ def test_sh_transform_rejects_degrees_beyond_the_map_resolution():
         em.envmap_sh(em.Envmap(np.ones((8, 16, 3))), 7)
 
 
+def test_downsample_averages_in_pixel_space():
+    # A smooth map comes out as itself at the coarser texels' directions; a light smaller than a
+    # coarse texel keeps its power (solid-angle weighted), and nothing rings around it.
+    height = 64
+    polar = np.pi * np.arange(height) / (height - 1)
+    azimuth = 2.0 * np.pi * (np.arange(2 * height) + 0.5) / (2 * height)
+    smooth = 1.0 + 0.5 * em.local_directions(polar, azimuth)  # linear in the direction, per channel
+    coarse = em.downsample(smooth.astype(np.float32), 16)
+    expected = 1.0 + 0.5 * em.local_directions(np.pi * np.arange(16) / 15, 2.0 * np.pi * (np.arange(32) + 0.5) / 32)
+    assert coarse.shape == (16, 32, 3)
+    np.testing.assert_allclose(coarse[1:-1], expected[1:-1], atol=0.03)
+    lit = np.full((height, 2 * height, 3), 0.25, np.float32)
+    lit[30:32, 40:42] = 100.0
+    small = em.downsample(lit, 16)
+
+    def power(radiance):
+        rows = radiance.shape[0]
+        return float((np.sin(np.pi * np.arange(rows) / (rows - 1))[:, None, None] * (radiance - 0.25)).sum()
+                     * (np.pi / (rows - 1)) * (np.pi / rows))
+
+    assert power(small) == pytest.approx(power(lit), rel=0.05)
+    assert small.min() >= 0.25 - 1e-6  # no negative lobes
+    np.testing.assert_array_equal(em.downsample(lit, height), lit)
+
+
 @pytest.mark.parametrize("rotated", [False, True])
 def test_lowpass_and_zonal_filter_scale_each_degree(rotated):
     # The filter runs in the map's own frame; a rotated emitter checks that it commutes with the

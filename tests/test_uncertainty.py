@@ -19,7 +19,7 @@ from hypothesis import strategies as st
 
 from freqbrdf import sh
 from freqbrdf import uncertainty as unc
-from freqbrdf.config import UncertaintyConfig
+from freqbrdf.config import EstimateConfig, UncertaintyConfig
 from freqbrdf.observations import Observations
 
 LMAX = 5
@@ -525,6 +525,16 @@ def test_angular_mode_equals_a_direct_evaluation_and_is_exposure_invariant():
         observations, observed=observations.observed * kappa, mirrored=observations.mirrored * kappa,
         mirrored_coeffs=observations.mirrored_coeffs * kappa, irradiance=observations.irradiance * kappa)
     np.testing.assert_allclose(unc.entropy_map(brighter, config).entropy, result.entropy, atol=1e-5)
+    # With a map, the hypotheses' lobes are UncertaintyConfig's (anisotropic by default), whatever
+    # the estimator's setting.
+    mapped = synthetic_observations(truth, seed=8, model="split_sum", environment_light=True, prefiltered=True)
+    mapped = dataclasses.replace(mapped, observed=(mapped.observed * (
+        1.0 + 0.03 * rng.standard_normal(mapped.observed.shape))).astype(np.float32))
+    anisotropic = unc.entropy_map(mapped, config)
+    isotropic = unc.entropy_map(mapped, dataclasses.replace(config, anisotropic_lobes=False))
+    assert np.abs(anisotropic.entropy - isotropic.entropy).max() > 1e-3
+    either = unc.entropy_map(mapped, config, estimate_config=EstimateConfig(anisotropic_lobes=False))
+    np.testing.assert_array_equal(either.entropy, anisotropic.entropy)
     # Spectra alone cannot be scored in this mode.
     with pytest.raises(ValueError, match="angular"):
         unc.entropy_from_spectra(observations.mirrored_spectrum, observations.observed_spectrum, config=config)

@@ -53,11 +53,12 @@ class FitConfig:
 @dataclass(frozen=True)
 class UncertaintyConfig:
     # "angular": the same grid scored in the sample domain with the global estimator's own model
-    # (uncertainty.entropy_angular): seconds instead of milliseconds (5 s for the 256k texels of
+    # (uncertainty.entropy_angular): seconds instead of milliseconds (10 s for the 256k texels of
     # entropy_scenes.py's sphere), but it agrees with the path-traced brute force over the same grid
-    # (benchmarks/pathtraced_entropy.py, Spearman 0.79 and 0.82 against two renderings that agree
-    # with each other at 0.94) where the spectra do not (calibrated 0.20, paper 0.04). Capture
-    # guidance (which predicts spectra) needs "calibrated" or "paper".
+    # (benchmarks/pathtraced_entropy.py, 400 texels: Spearman 0.82 [0.77, 0.86] against the pooled
+    # rendering of two seeds that agree with each other at 0.92) where the spectra do not
+    # (calibrated 0.20, paper 0.16). Capture guidance (which predicts spectra) needs "calibrated"
+    # or "paper".
     mode: Literal["calibrated", "paper", "angular"] = "calibrated"
     grid_res: int = 8  # R: R x R hypotheses (alpha_i = (i/(R-1))^2, k_j = j/(R-1))
     temperature: float = 1e-5  # tau of the paper's likelihood exp(-(E - min E)/tau)  (paper mode)
@@ -99,6 +100,12 @@ class UncertaintyConfig:
     #   are held and the loss is evaluated twice more). Alone: 0.43 / 0.37 and 0.29 / 0.23; with
     #   the window: 0.51 / 0.44 (bunny) and 0.40 / 0.31 (sphere).
     loss_curvature: bool = True
+    # Angular mode: score the hypotheses with anisotropic lobes (EstimateConfig.anisotropic_lobes)
+    # whatever the estimate's setting: the entropy is about what the light can tell, and the
+    # brute force it should agree with is the path tracer's lobe. Measured
+    # (benchmarks/pathtraced_entropy.py, 400 texels, against the pooled rendering): Spearman 0.80
+    # [0.74, 0.85] isotropic, 0.82 [0.77, 0.86] anisotropic, for 2.7x the time (3.9 -> 10.4 s).
+    anisotropic_lobes: bool = True
 
 
 @dataclass(frozen=True)
@@ -159,6 +166,16 @@ class EstimateConfig:
     # capture 19.92 -> 20.25 dB, relighting 23.02 -> 24.06. The model's mean loss drops 45-72 %
     # (benchmarks/results/prefiltered_light.json).
     prefiltered_light: bool = True
+    # With prefiltered_light: read a smooth lobe's light as the anisotropic lobe it is at oblique
+    # views (narrower across the plane of incidence; three taps along it, estimate._TAP_OFFSETS)
+    # instead of an isotropic lobe at the mirror direction. Closer to the path tracer (relative
+    # RMS error of a metal's radiance against Mitsuba, benchmarks/model_fidelity.py: r = 0.14
+    # 16 -> 10 %, r = 0.29 30 -> 21 %, r = 0.43 24 -> 21 %), and the angular entropy's default
+    # (UncertaintyConfig.anisotropic_lobes). Off here: at T = 256 (64 views) it moves roughness
+    # MAE 0.0555 -> 0.0456 on the plane and 0.128 -> 0.127 on the bunny, but 0.129 -> 0.133 on the
+    # demo capture (base colour within 0.02 dB, metallic MAE 0.001-0.002 better), for 2.3-2.8x the
+    # estimate's time (three lookups per sample and roughness node instead of one).
+    anisotropic_lobes: bool = False
     fresnel: bool = True  # Schlick F; off: F = R0
     masking: bool = True  # "g1": G1(theta_o) on the reflected light
     shadowing: bool = True  # "g1": G1(theta_i) on the incoming light before its SH fit (appendix eq. 6)

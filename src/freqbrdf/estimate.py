@@ -243,7 +243,7 @@ def angular_loss(
     base_color = np.asarray(params.base_color, dtype=np.float64)
     metallic = np.asarray(params.metallic, dtype=np.float64)
     levels = _tilt_levels(settings)
-    (tangent, normal, environment, blend, prefiltered, n_full, world_to_local, map_height,
+    (tangent, normal, environment, blend, prefiltered, n_full, anisotropic, world_to_local, map_height,
      map_width) = _environment_inputs(observations, settings)
     for rows in _blocks(observations.n_texels, _PROJECTION_BLOCK // levels):
         if len(environment):
@@ -263,7 +263,7 @@ def angular_loss(
             np.asarray(params.roughness, dtype=np.float64)[rows], observations.sigma, settings.fresnel,
             settings.masking, _uses_split_sum(settings), _uses_exact_dielectric(settings), _uses_burley(settings),
             _model_tables(), environment_response_table(), _burley_response(settings), azimuthal, blend, tangent[rows],
-            normal[rows], prefiltered, n_full, world_to_local, map_height, map_width, loss[rows],
+            normal[rows], prefiltered, n_full, anisotropic, world_to_local, map_height, map_width, loss[rows],
         )
     return np.where(observations.n_samples > 0, loss, np.nan)
 
@@ -360,6 +360,7 @@ _TABLE_COS_NODES = 33
 _TABLE_ROUGHNESS_NODES = 33
 _TABLE_THETA_STRATA = 64
 _TABLE_PHI_STRATA = 32
+_SPREAD_STRATA = 256  # strata per axis of `lobe_spread`
 
 
 @functools.cache
@@ -396,6 +397,56 @@ def split_sum_table() -> np.ndarray:
     return np.stack([np.mean(integrand * weight, axis=(2, 3)) for weight in weights])
 
 
+@functools.cache
+def lobe_width_table() -> np.ndarray:
+    """(2, cos nodes, roughness nodes) float64: `lobe_spread` in the plane of incidence and across
+    it, each relative to the spread at normal incidence (same roughness); nodes as
+    `split_sum_table`'s, shipped in data/lobe_width.csv (the two tables stacked by rows;
+    scripts/make_lobe_width_table.py). A narrow lobe keeps its width in the plane and shrinks to
+    cos theta_o across it; towards grazing views the horizon cuts it and both ratios grow. Used by
+    the anisotropic lobes (`_TAP_OFFSETS`)."""
+    table = np.loadtxt(_WIDTH_TABLE_PATH, delimiter=",", ndmin=2)
+    shape = (2 * _TABLE_COS_NODES, _TABLE_ROUGHNESS_NODES)
+    if table.shape != shape or not np.all((table > 0.0) & (table < 4.0)):
+        raise InputError(_WIDTH_TABLE_PATH, f"expected a {shape[0]} x {shape[1]} table of spread ratios in (0, 4), "
+                                            f"got shape {table.shape}; regenerate it with "
+                                            "scripts/make_lobe_width_table.py")
+    return table.reshape(2, _TABLE_COS_NODES, _TABLE_ROUGHNESS_NODES)
+
+
+def lobe_spread(cos_theta: float, roughness: float, strata: int = _SPREAD_STRATA) -> tuple[float, float]:
+    """(along, across): the RMS of the GGX lobe's light directions about their mean, along the
+    plane of incidence and across it, seen from view = (sin, 0, cos theta_o). The light is drawn
+    from the distribution of visible normals (Heitz 2018), stratified (strata x strata), weighted
+    by G2 / G1(view): the lobe's f cos_i without Fresnel. GGX's heavy tails count: a map
+    prefiltered by a GGX lobe has them too. Deterministic."""
+    cos_theta = min(max(float(cos_theta), 1e-4), 1.0)
+    alpha = float(brdf.alpha_from_roughness(np.array(roughness)))
+    view = np.array([math.sqrt(1.0 - cos_theta**2), 0.0, cos_theta])
+    stretched = np.array([alpha * view[0], 0.0, view[2]])
+    stretched /= np.linalg.norm(stretched)
+    first = np.array([0.0, 1.0, 0.0]) if stretched[0] > 0.0 else np.array([1.0, 0.0, 0.0])
+    second = np.cross(stretched, first)
+    u = (np.arange(strata) + 0.5) / strata
+    radius, phi = np.sqrt(u)[:, None], 2.0 * np.pi * u[None, :]
+    t1 = (radius * np.cos(phi)).ravel()
+    t2 = (radius * np.sin(phi)).ravel()
+    blend = 0.5 * (1.0 + stretched[2])
+    t2 = (1.0 - blend) * np.sqrt(np.maximum(1.0 - t1**2, 0.0)) + blend * t2
+    normal = (t1[:, None] * first + t2[:, None] * second
+              + np.sqrt(np.maximum(1.0 - t1**2 - t2**2, 0.0))[:, None] * stretched)
+    half = np.stack([alpha * normal[:, 0], alpha * normal[:, 1], np.maximum(normal[:, 2], 1e-9)], axis=-1)
+    half /= np.linalg.norm(half, axis=1, keepdims=True)
+    light = 2.0 * (half @ view)[:, None] * half - view
+    above = light[:, 2] > 0.0
+    weight = np.where(above, brdf.smith_g1_ggx(np.maximum(light[:, 2], 1e-12), alpha), 0.0)
+    weight /= weight.sum()
+    mean = weight @ light
+    mean /= np.linalg.norm(mean)
+    in_plane = np.array([mean[2], 0.0, -mean[0]])
+    return (float(np.sqrt(weight @ (light @ in_plane) ** 2)), float(np.sqrt(weight @ light[:, 1] ** 2)))
+
+
 def dielectric_eta() -> float:
     """The relative index of refraction whose normal reflectance is brdf.DIELECTRIC_F0 (1.5)."""
     root = math.sqrt(brdf.DIELECTRIC_F0)
@@ -413,6 +464,14 @@ def dielectric_fresnel(cos_theta: np.ndarray) -> np.ndarray:
     return 0.5 * perpendicular**2 * (1.0 + ratio**2)
 
 
+def lobe_widths(cos_theta: np.ndarray, roughness: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(along, across) of `lobe_width_table`, bilinear, for broadcastable cos_theta and roughness in [0, 1]."""
+    cos_theta, roughness = np.broadcast_arrays(np.asarray(cos_theta, np.float64), np.asarray(roughness, np.float64))
+    ratios = np.empty((2, cos_theta.size))
+    _split_sum_terms_kernel(cos_theta.ravel(), roughness.ravel(), lobe_width_table(), ratios)
+    return ratios[0].reshape(cos_theta.shape), ratios[1].reshape(cos_theta.shape)
+
+
 def split_sum_terms(cos_theta: np.ndarray, roughness: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(A, B, E) of `split_sum_table`, bilinear, for broadcastable cos_theta and roughness in [0, 1]."""
     cos_theta, roughness = np.broadcast_arrays(np.asarray(cos_theta, np.float64), np.asarray(roughness, np.float64))
@@ -427,6 +486,7 @@ def split_sum_terms(cos_theta: np.ndarray, roughness: np.ndarray) -> tuple[np.nd
 # degree at the tilt levels s = j / (levels - 1) and interpolates linearly in s.
 _TILT_LEVELS = 9
 _TILT_TABLE_PATH = Path(__file__).resolve().parent / "data" / "lobe_tilt.csv"
+_WIDTH_TABLE_PATH = Path(__file__).resolve().parent / "data" / "lobe_width.csv"
 _TILT_FIT_LMAX = 5  # the default l*: the degrees whose responses the tilt is fitted to
 _TILT_CANDIDATES = 401  # tilts tried per node: s on a 0.0025 grid
 _TILT_THETA_STRATA = 64  # strata of the half vector's polar and azimuthal angle each
@@ -679,6 +739,14 @@ _GAIN_STRATA = 8192  # half-vector strata of `ggx_lobe_gains`
 # (Gibbs; roughness 0 read 8 % too bright beside entropy_scenes.py's 40x lights), so its node is
 # the map itself, averaged in pixel space (`envmap.downsample`); it is narrower than a texel.
 _SHARP_GAIN = 0.01
+# Anisotropic lobes (`EstimateConfig.anisotropic_lobes`): seen at theta from the normal, a GGX lobe
+# keeps about its width in the plane of incidence and narrows across it (`lobe_width_table`: spreads
+# w_along, w_across relative to normal incidence). Its light is read as three taps along the plane
+# of incidence at Gauss-Hermite offsets of s = alpha sqrt(w_along^2 - w_across^2) (so that the
+# in-plane variance is the lobe's), each on the isotropic map of roughness r sqrt(w_across) (a
+# map's width goes as alpha = r^2). Measured against the path tracer: benchmarks/model_fidelity.py.
+_TAP_OFFSETS = (-math.sqrt(3.0), 0.0, math.sqrt(3.0))
+_TAP_WEIGHTS = (1.0 / 6.0, 2.0 / 3.0, 1.0 / 6.0)
 
 
 @functools.cache
@@ -734,25 +802,55 @@ def prefiltered_environment(envmap, n_nodes: int, skip_degrees: int = 0) -> np.n
 
 
 def prefiltered_light(directions: np.ndarray, tangent: np.ndarray, normal: np.ndarray, prefiltered: np.ndarray,
-                      rotation: np.ndarray, roughness: np.ndarray) -> np.ndarray:
+                      rotation: np.ndarray, roughness: np.ndarray, anisotropic: bool = False) -> np.ndarray:
     """(n, V, 3) the prefiltered light a lobe of roughness (n,) reads: directions (n, V, 3) local view
     directions, tangent and normal (n, 3) world frame of each texel, prefiltered (nodes, H, W, 3)
     `prefiltered_environment` of a map with emitter-to-world ``rotation`` (3, 3), looked up at the
-    world mirror directions and linear in roughness between its nodes (as the search reads it)."""
+    world mirror directions (``anisotropic``: as the anisotropic lobe, `_TAP_OFFSETS`) and linear in
+    roughness between its nodes (as the search reads it)."""
     directions = np.asarray(directions, np.float64)
     tangent, normal = np.asarray(tangent, np.float64), np.asarray(normal, np.float64)
     bitangent = np.cross(normal, tangent)
     mirror = directions * np.array([-1.0, -1.0, 1.0])
     world = (mirror[..., :1] * tangent[:, None] + mirror[..., 1:2] * bitangent[:, None]
              + mirror[..., 2:] * normal[:, None])
+    cos_theta = np.clip(mirror[..., 2], 0.0, 1.0)
+    sin_theta = np.sqrt(1.0 - cos_theta**2)  # of the mirror direction
+    # In the plane of incidence, perpendicular to the mirror direction, on the normal's side.
+    towards_normal = np.where(sin_theta[..., None] > 1e-9, (normal[:, None] - cos_theta[..., None] * world)
+                              / np.maximum(sin_theta, 1e-9)[..., None], 0.0)
     to_world = np.eye(4)
     to_world[:3, :3] = rotation
-    node, frac = (np.array(part) for part in zip(*[_prefilter_node(r, prefiltered.shape[0])
+    n_nodes = prefiltered.shape[0]
+
+    def lookup(nodes: np.ndarray, where: np.ndarray) -> np.ndarray:  # maps (n, V) at directions (n, V, 3)
+        out = np.empty(where.shape)
+        for j in np.unique(nodes):
+            chosen = nodes == j
+            out[chosen] = envmaps.lookup(envmaps.Envmap(prefiltered[j], to_world), where[chosen])
+        return out
+
+    def node_light(node: np.ndarray) -> np.ndarray:  # (n, V, 3) the light of each texel's node (n,)
+        nodes = np.broadcast_to(node[:, None], cos_theta.shape)
+        if not anisotropic:
+            return lookup(nodes, world)
+        node_roughness = np.broadcast_to(node[:, None] * PREFILTER_STEP, cos_theta.shape)
+        along, across = lobe_widths(cos_theta, node_roughness)
+        across = np.minimum(across, 1.0)
+        spread = node_roughness**2 * np.sqrt(np.maximum(along**2 - across**2, 0.0))
+        read = np.vectorize(lambda r: _prefilter_node(r, n_nodes), otypes=[np.int64, np.float64])
+        read_node, read_frac = read(node_roughness * np.sqrt(across))
+        light = np.zeros(world.shape)
+        for offset, tap_weight in zip(_TAP_OFFSETS, _TAP_WEIGHTS):
+            angle = (offset * spread)[..., None]
+            tap = np.cos(angle) * world + np.sin(angle) * towards_normal
+            lower, upper = lookup(read_node, tap), lookup(read_node + 1, tap)
+            light += tap_weight * (lower + read_frac[..., None] * (upper - lower))
+        return light
+
+    node, frac = (np.array(part) for part in zip(*[_prefilter_node(r, n_nodes)
                                                    for r in np.asarray(roughness, np.float64)]))
-    lower = np.stack([envmaps.lookup(envmaps.Envmap(prefiltered[j], to_world), world[t])
-                      for t, j in enumerate(node)]).astype(np.float64)
-    upper = np.stack([envmaps.lookup(envmaps.Envmap(prefiltered[j + 1], to_world), world[t])
-                      for t, j in enumerate(node)]).astype(np.float64)
+    lower, upper = node_light(node), node_light(node + 1)
     return lower + frac[:, None, None] * (upper - lower)
 
 
@@ -773,33 +871,86 @@ def _cross(a, b, out):
 
 
 @_borrowing_jit
-def _mirror_stencil(xyz, n, tangent, normal, bitangent, world_to_local, height, width, corner, stencil_frac):
+def _mirror_stencil(xyz, n, tangent, normal, bitangent, world_to_local, height, width, corner, stencil_frac, frames):
     """`envmap.lookup`'s bilinear stencil at the world mirror direction of each local view direction
     xyz[:, s], s < n: corner (4, n) flat pixel indices row * width + col of (row, col), (row, col + 1),
-    (row + 1, col), (row + 1, col + 1); stencil_frac (2, n) the column and row fractions."""
+    (row + 1, col), (row + 1, col + 1); stencil_frac (2, n) the column and row fractions. With
+    frames (7, n) (else (0, n)): the world mirror direction, the unit world direction in the plane
+    of incidence perpendicular to it on the normal's side, and cos theta, per sample (the
+    anisotropic lobes' taps, `_prefiltered_node_light`)."""
     for s in range(n):
         mirror_x, mirror_y, mirror_z = -xyz[0, s], -xyz[1, s], xyz[2, s]
-        row0, col0, col1, fx, fy = envmaps.lookup_stencil(
-            world_to_local, mirror_x * tangent[0] + mirror_y * bitangent[0] + mirror_z * normal[0],
-            mirror_x * tangent[1] + mirror_y * bitangent[1] + mirror_z * normal[1],
-            mirror_x * tangent[2] + mirror_y * bitangent[2] + mirror_z * normal[2], height, width)
+        world_x = mirror_x * tangent[0] + mirror_y * bitangent[0] + mirror_z * normal[0]
+        world_y = mirror_x * tangent[1] + mirror_y * bitangent[1] + mirror_z * normal[1]
+        world_z = mirror_x * tangent[2] + mirror_y * bitangent[2] + mirror_z * normal[2]
+        row0, col0, col1, fx, fy = envmaps.lookup_stencil(world_to_local, world_x, world_y, world_z, height, width)
         corner[0, s], corner[1, s] = row0 * width + col0, row0 * width + col1
         corner[2, s], corner[3, s] = (row0 + 1) * width + col0, (row0 + 1) * width + col1
         stencil_frac[0, s], stencil_frac[1, s] = fx, fy
+        if frames.shape[0] > 0:
+            # (n - cos m) / sin: in the plane of the normal n and the mirror direction m.
+            sin_theta = math.sqrt(max(1.0 - mirror_z * mirror_z, 0.0))
+            inverse = 1.0 / sin_theta if sin_theta > 1e-9 else 0.0
+            frames[0, s], frames[1, s], frames[2, s] = world_x, world_y, world_z
+            for axis in range(3):
+                frames[3 + axis, s] = (normal[axis] - mirror_z * frames[axis, s]) * inverse
+            frames[6, s] = mirror_z
 
 
 @_borrowing_jit
-def _prefiltered_node_light(prefiltered, node, n, corner, stencil_frac, out):
-    """out[c, s] = the map of node ``node`` of prefiltered (H W, nodes, 3) at the stencil of sample
-    s < n, bilinear. (Pixel-major: a texel's lookups at several nodes share cache lines.)"""
+def _bilinear_add(prefiltered, node, row0, col0, col1, fx, fy, width, weight, out, s):
+    """out[:, s] += weight x the map of node ``node`` of prefiltered (H W, nodes, 3) at the stencil."""
+    p00, p01 = prefiltered[row0 * width + col0, node], prefiltered[row0 * width + col1, node]
+    p10, p11 = prefiltered[(row0 + 1) * width + col0, node], prefiltered[(row0 + 1) * width + col1, node]
+    for c in range(3):
+        top = (1.0 - fx) * p00[c] + fx * p01[c]
+        bottom = (1.0 - fx) * p10[c] + fx * p11[c]
+        out[c, s] += weight * ((1.0 - fy) * top + fy * bottom)
+
+
+@_borrowing_jit
+def _prefiltered_node_light(prefiltered, node, n, corner, stencil_frac, n_full, frames, world_to_local, width, table,
+                            out):
+    """out[c, s] = the light of node ``node`` of prefiltered (H W, nodes, 3) for sample s < n:
+    bilinear at the mirror stencil; for nodes below n_full with frames (`_mirror_stencil`),
+    the anisotropic lobe (`_TAP_OFFSETS`; its spreads from `_model_tables` table). (Pixel-major:
+    a texel's lookups at several nodes share cache lines.)"""
+    if frames.shape[0] == 0 or node >= n_full:
+        for s in range(n):
+            fx, fy = stencil_frac[0, s], stencil_frac[1, s]
+            p00, p01 = prefiltered[corner[0, s], node], prefiltered[corner[1, s], node]
+            p10, p11 = prefiltered[corner[2, s], node], prefiltered[corner[3, s], node]
+            for c in range(3):
+                top = (1.0 - fx) * p00[c] + fx * p01[c]
+                bottom = (1.0 - fx) * p10[c] + fx * p11[c]
+                out[c, s] = (1.0 - fy) * top + fy * bottom
+        return
+    height = prefiltered.shape[0] // width
+    roughness = node * PREFILTER_STEP
+    alpha = roughness * roughness
     for s in range(n):
-        fx, fy = stencil_frac[0, s], stencil_frac[1, s]
-        p00, p01 = prefiltered[corner[0, s], node], prefiltered[corner[1, s], node]
-        p10, p11 = prefiltered[corner[2, s], node], prefiltered[corner[3, s], node]
         for c in range(3):
-            top = (1.0 - fx) * p00[c] + fx * p01[c]
-            bottom = (1.0 - fx) * p10[c] + fx * p11[c]
-            out[c, s] = (1.0 - fy) * top + fy * bottom
+            out[c, s] = 0.0
+        cos_theta = min(max(frames[6, s], 0.0), 1.0)
+        along = _table_lookup(table, _WIDTH_PLANE, cos_theta, roughness)
+        across = min(_table_lookup(table, _WIDTH_PLANE + 1, cos_theta, roughness), 1.0)
+        spread = alpha * math.sqrt(max(along * along - across * across, 0.0))
+        # Each tap as wide as the lobe across the plane: a map's width goes as alpha = r^2.
+        read_node, read_frac = _prefilter_node(roughness * math.sqrt(across), n_full)
+        n_taps = 3 if spread > 1e-9 else 1
+        for k in range(n_taps):
+            angle = _TAP_OFFSETS[k] * spread if n_taps > 1 else 0.0
+            tap_weight = _TAP_WEIGHTS[k] if n_taps > 1 else 1.0
+            cos_angle, sin_angle = math.cos(angle), math.sin(angle)
+            row0, col0, col1, fx, fy = envmaps.lookup_stencil(
+                world_to_local, cos_angle * frames[0, s] + sin_angle * frames[3, s],
+                cos_angle * frames[1, s] + sin_angle * frames[4, s], cos_angle * frames[2, s] + sin_angle * frames[5, s],
+                height, width)
+            _bilinear_add(prefiltered, read_node, row0, col0, col1, fx, fy, width, tap_weight * (1.0 - read_frac), out,
+                          s)
+            if read_frac > 0.0:
+                _bilinear_add(prefiltered, read_node + 1, row0, col0, col1, fx, fy, width, tap_weight * read_frac, out,
+                              s)
 
 
 def lobe_tilt(cos_theta: np.ndarray, roughness: np.ndarray, term: str = "scale") -> np.ndarray:
@@ -813,14 +964,14 @@ def lobe_tilt(cos_theta: np.ndarray, roughness: np.ndarray, term: str = "scale")
 
 
 # The planes of `_model_tables`, as the kernels index them: the tilt of term k is _TILT_PLANE + k.
-_SCALE_PLANE, _BIAS_PLANE, _DIELECTRIC_PLANE, _TILT_PLANE = 0, 1, 2, 3
+_SCALE_PLANE, _BIAS_PLANE, _DIELECTRIC_PLANE, _TILT_PLANE, _WIDTH_PLANE = 0, 1, 2, 3, 6
 
 
 @functools.cache
 def _model_tables() -> np.ndarray:
-    """(6, cos nodes, roughness nodes): A, B and E of `split_sum_table`, then their tilts
-    (`lobe_tilt_table`)."""
-    return np.concatenate([split_sum_table(), lobe_tilt_table()])
+    """(8, cos nodes, roughness nodes): A, B and E of `split_sum_table`, their tilts
+    (`lobe_tilt_table`), then the lobe's relative spreads (`lobe_width_table`)."""
+    return np.concatenate([split_sum_table(), lobe_tilt_table(), lobe_width_table()])
 
 
 def _tilt_levels(settings: EstimateConfig) -> int:
@@ -994,7 +1145,7 @@ def _uses_prefiltered_light(observations: Observations, settings: EstimateConfig
 
 def _environment_inputs(observations: Observations, settings: EstimateConfig) -> tuple:
     """(tangent (N, 3), normal (N, 3), environment (K, 3) float64, blend, prefiltered (H W, nodes, 3)
-    float32, n_full, world_to_local (3, 3), H, W) for the kernels: the environment's SH up to degree
+    float32, n_full, anisotropic, world_to_local (3, 3), H, W) for the kernels: the environment's SH up to degree
     min(l*, 5) (K = 0 without the environment light), no nodes without the prefiltered light. The
     prefiltered nodes are `prefilter_nodes` full maps, then (with the environment light) the
     degrees above the environment light's at all `_HIGH_NODES` roughness nodes: what the
@@ -1010,10 +1161,10 @@ def _environment_inputs(observations: Observations, settings: EstimateConfig) ->
         n_full = prefilter_nodes(settings)
         high_degrees = environment_degrees + 1 if len(environment[0]) else None
         stack, height, width = _prefiltered_stack(observations, n_full, high_degrees)
-        prefiltered = (stack, n_full, np.ascontiguousarray(observations.environment_rotation.T, dtype=np.float64),
-                       height, width)
+        prefiltered = (stack, n_full, settings.anisotropic_lobes,
+                       np.ascontiguousarray(observations.environment_rotation.T, dtype=np.float64), height, width)
     else:
-        prefiltered = (np.zeros((1, 0, 3), np.float32), 0, np.eye(3), 2, 2)
+        prefiltered = (np.zeros((1, 0, 3), np.float32), 0, False, np.eye(3), 2, 2)
     return (tangent, observations.normal, *environment, *prefiltered)
 
 
@@ -1136,7 +1287,7 @@ def _fill_kernel(alpha, sigma, kernel, kernel_derivative):
 def _squared_residual_kernel(
     proj, directions, weight, observed, diffuse_scale, base_color, metallic, roughness, sigma, fresnel, masking,
     split_sum, exact_dielectric, burley, table, response, burley_response, azimuthal, environment_blend, tangent,
-    normal, prefiltered, n_full, world_to_local, map_height, map_width, out,
+    normal, prefiltered, n_full, anisotropic, world_to_local, map_height, map_width, out,
 ):
     """out[t] = sum_v,c w^2 (L - f)^2 / sum_v w^2 (0 without samples); directions (n, V, 3) local view
     directions. proj (n, levels, 3, l*+1, V):
@@ -1190,6 +1341,7 @@ def _squared_residual_kernel(
         map_frac = high_frac = 0.0
         corner = np.zeros((4, n_views), dtype=np.int64)
         stencil_frac = np.zeros((2, n_views))
+        frames = np.zeros((7 if anisotropic else 0, n_views))
         if use_prefiltered or use_high:
             xyz = np.empty((3, n_views))
             for v in range(n_views):
@@ -1198,16 +1350,17 @@ def _squared_residual_kernel(
             bitangent = np.empty(3)
             _cross(normal[t], tangent[t], bitangent)
             _mirror_stencil(xyz, n_views, tangent[t], normal[t], bitangent, world_to_local, map_height, map_width,
-                            corner, stencil_frac)
+                            corner, stencil_frac, frames)
         if use_prefiltered:
             map_node, map_frac = _prefilter_node(roughness[t], n_full)
             for side in range(2):
-                _prefiltered_node_light(prefiltered, map_node + side, n_views, corner, stencil_frac, map_light[side])
+                _prefiltered_node_light(prefiltered, map_node + side, n_views, corner, stencil_frac, n_full, frames,
+                                        world_to_local, map_width, table, map_light[side])
         if use_high:
             high_node, high_frac = _prefilter_node(roughness[t], n_high)
             for side in range(2):
                 _prefiltered_node_light(prefiltered, n_full + high_node + side, n_views, corner, stencil_frac,
-                                        high_light[side])
+                                        n_full, frames, world_to_local, map_width, table, high_light[side])
         # Without tilt levels or environment light every term reads the same light; Schlick's
         # dielectric needs no light of its own.
         distinct = n_levels > 1 or share > 0.0
@@ -1627,7 +1780,8 @@ def _azimuthal_coefficients(xyz, n, local, out):
 
 
 @_borrowing_jit
-def _prefiltered_nodes_at(roughness, first, count, n, prefiltered, corner, stencil_frac, nodes, cached):
+def _prefiltered_nodes_at(roughness, first, count, n, prefiltered, corner, stencil_frac, n_full, frames,
+                          world_to_local, width, table, nodes, cached):
     """The prefiltered nodes first..first + count - 1 (roughness 0..1 by PREFILTER_STEP) on either side
     of ``roughness``, each looked up once per texel into nodes (cached): (lower, upper, fraction);
     on a node both are that node and the fraction is 0."""
@@ -1636,7 +1790,8 @@ def _prefiltered_nodes_at(roughness, first, count, n, prefiltered, corner, stenc
     upper = first + (node + 1 if frac > 0.0 else node)
     for needed in range(lower, upper + 1):
         if not cached[needed]:
-            _prefiltered_node_light(prefiltered, needed, n, corner, stencil_frac, nodes[needed])
+            _prefiltered_node_light(prefiltered, needed, n, corner, stencil_frac, n_full, frames, world_to_local,
+                                    width, table, nodes[needed])
             cached[needed] = True
     return lower, upper, (frac if upper != lower else 0.0)
 
@@ -1661,7 +1816,7 @@ def _roughness_objective(roughness, args):
      albedo, diffuse_factor, level_filtered, filtered, moments, quadratics, squared_values, diffuse_scale,
      state, metallic_grid, azimuthal, environment_blend, environment_nodes, environment_cached, response,
      prefiltered, n_full, corner, stencil_frac, prefiltered_nodes, prefiltered_cached,
-     high_filtered) = args
+     high_filtered, frames, world_to_local, map_width) = args
     n_levels = proj.shape[0]
     # Without the environment (environment light off) the lobes read their own light alone.
     share = _environment_share(roughness, environment_blend) if azimuthal.shape[2] > 0 else 0.0
@@ -1724,13 +1879,16 @@ def _roughness_objective(roughness, args):
     if use_prefiltered:
         first_level, last_level = 0, -1
         lower_map, upper_map, map_frac = _prefiltered_nodes_at(roughness, 0, n_full, n, prefiltered, corner,
-                                                               stencil_frac, prefiltered_nodes, prefiltered_cached)
+                                                               stencil_frac, n_full, frames, world_to_local, map_width,
+                                                               table, prefiltered_nodes, prefiltered_cached)
     # The degrees the environment light leaves out, from the prefiltered maps' last nodes.
     n_high = prefiltered.shape[1] - n_full
     use_high = share > 0.0 and n_high > 0
     if use_high:
         lower_high, upper_high, high_frac = _prefiltered_nodes_at(roughness, n_full, n_high, n, prefiltered, corner,
-                                                                  stencil_frac, prefiltered_nodes, prefiltered_cached)
+                                                                  stencil_frac, n_full, frames, world_to_local,
+                                                                  map_width, table, prefiltered_nodes,
+                                                                  prefiltered_cached)
     if n_levels > 1 and own_light:
         first_level, last_level = n_levels, 0
         for term in range(n_terms):
@@ -2006,7 +2164,8 @@ def _global_search_kernel(
     directions, weight, observed, light, diffuse_scale, sigma, fresnel, masking, split_sum, exact_dielectric, burley,
     table, tilt_levels, roughness_grid, metallic_grid, robust_passes, lmax, diag, rec_a, rec_b,
     tangent, normal, environment, environment_blend, response, quadrature, quadrature_projection, burley_response,
-    prefiltered, n_full, world_to_local, map_height, map_width, hypothesis_roughness, hypothesis_moments, search,
+    prefiltered, n_full, anisotropic, world_to_local, map_height, map_width, hypothesis_roughness, hypothesis_moments,
+    search,
     params, loss, curvature,
 ):
     """Per texel: the (base colour, roughness, metallic) of least weighted squared residual.
@@ -2085,6 +2244,7 @@ def _global_search_kernel(
         prefiltered_cached = np.zeros(n_prefiltered, dtype=np.bool_)
         corner = np.empty((4, n_views), dtype=np.int64)
         stencil_frac = np.empty((2, n_views))
+        frames = np.empty((7 if anisotropic else 0, n_views))
         high_filtered = np.empty(n_views)
         for t in range(chunk * _SEARCH_CHUNK, min((chunk + 1) * _SEARCH_CHUNK, n_texels)):
             n = 0
@@ -2105,7 +2265,7 @@ def _global_search_kernel(
             prefiltered_cached[:] = False
             if n_full > 0:
                 _mirror_stencil(xyz, n, tangent[t], normal[t], bitangent, world_to_local, map_height, map_width,
-                                corner, stencil_frac)
+                                corner, stencil_frac, frames)
             for level in range(tilt_levels if n_full == 0 else 0):
                 tilt = level / (tilt_levels - 1) if tilt_levels > 1 else 1.0
                 for s in range(n):  # normalize((1 - tilt) n + tilt w)
@@ -2145,7 +2305,7 @@ def _global_search_kernel(
                     kernel, kernel_derivative, albedo, diffuse_factor, level_filtered, filtered, moments, quadratics,
                     squared_values, scale, state, metallic_grid, azimuthal, environment_blend, environment_nodes,
                     environment_cached, response, prefiltered, n_full, corner, stencil_frac,
-                    prefiltered_nodes, prefiltered_cached, high_filtered)
+                    prefiltered_nodes, prefiltered_cached, high_filtered, frames, world_to_local, map_width)
             for i in range(hypothesis_roughness.shape[0]):
                 _roughness_objective(hypothesis_roughness[i], args)
                 for c in range(3):

@@ -54,17 +54,19 @@ runs SIMD across texels: moments and row minima in float64, the R^2 cells in flo
 polynomial exp; measured figures in benchmarks/results/bench_entropy.json.
 
 ``angular`` scores the same grid in the sample domain instead of on spectra, with the `global`
-estimator's own forward model (`entropy_angular`): per hypothesis, the radiance a metal of base
-colour k and roughness sqrt(alpha) reflects at each observed view (split-sum albedo, the
-prefiltered and environment light), the best constant diffuse part, and the misfit of the
-samples; the noise model of the calibrated mode in radiance units. It is what
-benchmarks/pathtraced_entropy.py computes with a path tracer, and agrees with it (Spearman 0.79
-and 0.82 against two independent renderings, which agree with each other at 0.94; the calibrated
-mode 0.20, the paper's recipe 0.04). It costs R probes of the estimator's search per texel:
-seconds, not milliseconds. Both the brute force and this mode find the smooth-gradient ("badly
-lit") region of entropy_scenes.py about as certain as the sharply lit one (brute force 0.15 and
-0.16, this mode 0.15 and 0.14): the view dependence of Fresnel and masking, which a spectrum of the mirrored light leaves
-out, pins the roughness down there; the paper's recipe calls it uncertain (0.81 against 0.22).
+estimator's own forward model (`entropy_angular`; its lobes anisotropic, as
+UncertaintyConfig.anisotropic_lobes says): per hypothesis, the radiance a metal of base colour k
+and roughness sqrt(alpha) reflects at each observed view (split-sum albedo, the prefiltered and
+environment light), the best constant diffuse part, and the misfit of the samples; the noise
+model of the calibrated mode in radiance units. It is what benchmarks/pathtraced_entropy.py
+computes with a path tracer, and agrees with it: Spearman 0.82 [0.77, 0.86] (95 % bootstrap
+interval, 400 texels) against the pooled rendering of two seeds, which agree with each other at
+0.92; the calibrated mode 0.20, the paper's recipe 0.16. It costs R probes of the estimator's
+search per texel: seconds, not milliseconds (10 s for the 256k texels there). Both the brute
+force and this mode find the smooth-gradient ("badly lit") region of entropy_scenes.py about as
+certain as the sharply lit one (brute force 0.15 and 0.17, this mode 0.16 and 0.18): the view
+dependence of Fresnel and masking, which a spectrum of the mirrored light leaves out, pins the
+roughness down there; the paper's recipe calls it uncertain (0.78 against 0.20).
 
 Flags (bit field, uint8 per texel) say why a texel should not be trusted; see FLAG_*.
 
@@ -78,7 +80,7 @@ measured in benchmarks/entropy_variants.py (session-7 estimator).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import numba
@@ -389,7 +391,8 @@ _ANGULAR_BLOCK = 16384
 def entropy_angular(observations: Observations, config: Config = Config(),
                     return_likelihood: bool = True) -> Uncertainty:
     """The same hypothesis grid scored in the sample domain with the `global` estimator's own model
-    (``config.uncertainty.mode`` "angular"), as benchmarks/pathtraced_entropy.py scores it with a
+    (``config.uncertainty.mode`` "angular"; lobes anisotropic or not as
+    ``config.uncertainty.anisotropic_lobes``), as benchmarks/pathtraced_entropy.py scores it with a
     path tracer. Per texel, channel and hypothesis (alpha_i, k_j), a metal of base colour k_j and
     roughness sqrt(alpha_i) reflects s_v = k_j X_v + Y_v (`estimate.hypothesis_moments`; k = 0:
     no lobe, s = 0, not a black metal's grazing Fresnel); with
@@ -401,6 +404,7 @@ def entropy_angular(observations: Observations, config: Config = Config(),
     e and the variance by kappa^2: the map does not change. Costs R probes of the estimator's
     search per texel (seconds, not milliseconds)."""
     settings = config.uncertainty
+    config = replace(config, estimate=replace(config.estimate, anisotropic_lobes=settings.anisotropic_lobes))
     grid = hypothesis_grid(settings.grid_res)
     n_texels, resolution = observations.n_texels, grid.resolution
     entropy = np.empty(n_texels, np.float32)
