@@ -734,11 +734,6 @@ PREFILTER_STEP = 1.0 / 16.0
 # of the prefiltered stack (11 maps of 512 x 1024 x 3 float32: 69 MB) and its transforms.
 PREFILTER_MAX_HEIGHT = 512
 _GAIN_STRATA = 8192  # half-vector strata of `ggx_lobe_gains`
-# A lobe whose gain at the map's last degree exceeds this is sharper than the band limit holds
-# (roughness 0 and 1/16 for a 256-row map): filtered in SH it would ring around bright lights
-# (Gibbs; roughness 0 read 8 % too bright beside entropy_scenes.py's 40x lights), so its node is
-# the map itself, averaged in pixel space (`envmap.downsample`); it is narrower than a texel.
-_SHARP_GAIN = 0.01
 # Anisotropic lobes (`EstimateConfig.anisotropic_lobes`): seen at theta from the normal, a GGX lobe
 # keeps about its width in the plane of incidence and narrows across it (`lobe_width_table`: spreads
 # w_along, w_across relative to normal incidence). Its light is read as three taps along the plane
@@ -780,24 +775,25 @@ def prefilter_nodes(settings: EstimateConfig) -> int:
 def prefiltered_environment(envmap, n_nodes: int, skip_degrees: int = 0) -> np.ndarray:
     """(n_nodes, H, W, 3) float32 the map (an `envmap.Envmap`) filtered by `ggx_lobe_gains` at
     roughness j PREFILTER_STEP, every degree the map holds (at most PREFILTER_MAX_HEIGHT rows)
-    from ``skip_degrees`` on (the environment light holds the degrees below). Lobes sharper than
-    the band limit (`_SHARP_GAIN`) read the map itself, averaged in pixel space."""
+    from ``skip_degrees`` on (the environment light holds the degrees below). Node 0, a mirror,
+    is the map itself (averaged in pixel space to the stack's size, `envmap.downsample`): cut at
+    the map's band limit it would ring around bright lights (Gibbs; it read 8 % too bright beside
+    entropy_scenes.py's 40x lights). The next nodes' lobes are filtered in SH as the rest: read
+    raw as well, roughness between them would mix a sharp map into a blurred one (on the plane,
+    T = 256, without the robust pass: roughness MAE 0.057 -> 0.064 with a 5-node grid)."""
     height, width = envmap.radiance.shape[:2]
     out_height = min(height, PREFILTER_MAX_HEIGHT, (width + 1) // 2)
     lmax = min(height - 2, (width - 1) // 2, out_height - 2)
     gains = np.stack([ggx_lobe_gains(node * PREFILTER_STEP, lmax) for node in range(n_nodes)])
-    sharp = gains[:, lmax] > _SHARP_GAIN
     gains[:, :skip_degrees] = 0.0
     resample = out_height if out_height != height else None
     maps = np.empty((n_nodes, out_height, 2 * out_height, 3), np.float32)
-    if not sharp.all():
-        maps[~sharp] = envmaps.zonal_filters(envmap, gains[~sharp], resample)
-    if sharp.any():
-        pixels = envmaps.downsample(envmap.radiance, out_height)
-        if skip_degrees > 0:  # less the degrees below skip_degrees: smooth, so exact in SH
-            low_pass = (np.arange(lmax + 1) < skip_degrees).astype(np.float64)[None]
-            pixels -= envmaps.zonal_filters(envmap, low_pass, resample)[0]
-        maps[sharp] = pixels
+    if n_nodes > 1:
+        maps[1:] = envmaps.zonal_filters(envmap, gains[1:], resample)
+    maps[0] = envmaps.downsample(envmap.radiance, out_height)
+    if skip_degrees > 0:  # less the degrees below skip_degrees: smooth, so exact in SH
+        low_pass = (np.arange(lmax + 1) < skip_degrees).astype(np.float64)[None]
+        maps[0] -= envmaps.zonal_filters(envmap, low_pass, resample)[0]
     return maps
 
 
