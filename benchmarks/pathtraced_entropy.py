@@ -16,7 +16,8 @@ noise model mirrors our calibrated mode: variance = (NOISE_LEVEL x the RMS mirro
 radiance of the texel's samples)^2 + the best misfit per residual degree of freedom, likelihood
 exp(-n (misfit - min misfit) / (2 variance)), k = 0 column one material, normalised entropy,
 minimum over RGB. Reported: Spearman rank correlation of this entropy with ours (calibrated
-default, calibrated phase-aware and paper modes) and timings. The brute force is itself a Monte
+default, calibrated phase-aware, paper and angular modes, the angular with anisotropic lobes, its
+default, and isotropic ones) and timings. The brute force is itself a Monte
 Carlo estimate: it is rendered twice with independent seeds, and the rank correlation of the two
 brute-force entropies (its self-agreement) is the ceiling for any agreement with either. The
 reference is their pooled rendering (the mean radiance of both, 2 x SPP paths per ray), whose noise
@@ -141,6 +142,8 @@ def main() -> None:
     start = time.perf_counter()
     angular = entropy_map(observations, angular_config, return_likelihood=False)
     angular_s = time.perf_counter() - start
+    isotropic = entropy_map(observations, UncertaintyConfig(mode="angular", anisotropic_lobes=False),
+                            return_likelihood=False)
     chosen = choose_texels(ours.entropy, observations.n_samples)
 
     # One ray per (chosen texel, view with a sample), towards that view's camera.
@@ -185,8 +188,8 @@ def main() -> None:
         "grid_res": grid.resolution,
         "agreement_with_pooled_brute_force": {
             name: agreement(pooled, entropy.entropy[chosen])
-            for name, entropy in (("ours_angular", angular), ("ours_calibrated", ours), ("ours_paper_mode", paper),
-                                  ("ours_phase_aware", phase_aware))},
+            for name, entropy in (("ours_angular", angular), ("ours_angular_isotropic_lobes", isotropic),
+                                  ("ours_calibrated", ours), ("ours_paper_mode", paper), ("ours_phase_aware", phase_aware))},
         "spearman_rho_vs_ours_calibrated": round(float(stats.spearmanr(brute, ours.entropy[chosen]).statistic), 4),
         "spearman_rho_vs_ours_paper_mode": round(float(stats.spearmanr(brute, paper.entropy[chosen]).statistic), 4),
         "spearman_rho_vs_ours_phase_aware": round(

@@ -55,7 +55,7 @@ class UncertaintyConfig:
     # "angular": the same grid scored in the sample domain with the global estimator's own model
     # (uncertainty.entropy_angular): seconds instead of milliseconds (10 s for the 256k texels of
     # entropy_scenes.py's sphere), but it agrees with the path-traced brute force over the same grid
-    # (benchmarks/pathtraced_entropy.py, 400 texels: Spearman 0.82 [0.77, 0.86] against the pooled
+    # (benchmarks/pathtraced_entropy.py, 400 texels: Spearman 0.83 [0.78, 0.87] against the pooled
     # rendering of two seeds that agree with each other at 0.92) where the spectra do not
     # (calibrated 0.20, paper 0.16). Capture guidance (which predicts spectra) needs "calibrated"
     # or "paper".
@@ -104,7 +104,7 @@ class UncertaintyConfig:
     # whatever the estimate's setting: the entropy is about what the light can tell, and the
     # brute force it should agree with is the path tracer's lobe. Measured
     # (benchmarks/pathtraced_entropy.py, 400 texels, against the pooled rendering): Spearman 0.80
-    # [0.74, 0.85] isotropic, 0.82 [0.77, 0.86] anisotropic, for 2.7x the time (3.9 -> 10.4 s).
+    # [0.74, 0.85] isotropic, 0.83 [0.78, 0.87] anisotropic, for 2.3-3x the time (3.9 -> 9-13 s).
     anisotropic_lobes: bool = True
 
 
@@ -170,11 +170,12 @@ class EstimateConfig:
     # views (narrower across the plane of incidence; three taps along it, estimate._TAP_OFFSETS)
     # instead of an isotropic lobe at the mirror direction. Closer to the path tracer (relative
     # RMS error of a metal's radiance against Mitsuba, benchmarks/model_fidelity.py: r = 0.14
-    # 16 -> 10 %, r = 0.29 30 -> 21 %, r = 0.43 24 -> 21 %), and the angular entropy's default
-    # (UncertaintyConfig.anisotropic_lobes). Off here: at T = 256 (64 views) it moves roughness
-    # MAE 0.0555 -> 0.0456 on the plane and 0.128 -> 0.127 on the bunny, but 0.129 -> 0.133 on the
-    # demo capture (base colour within 0.02 dB, metallic MAE 0.001-0.002 better), for 2.3-2.8x the
-    # estimate's time (three lookups per sample and roughness node instead of one).
+    # 16 -> 9 %, r = 0.29 30 -> 21 %, r = 0.43 24 -> 21 %), and the angular entropy's default
+    # (UncertaintyConfig.anisotropic_lobes). Off here: at T = 512 (compare_estimators.md) it moves
+    # roughness MAE 0.058 -> 0.049 and relighting PSNR-H +0.10 dB on the plane, but the bunny's
+    # relighting -0.21 dB (roughness 0.126 -> 0.125), and the demo capture's roughness MAE 0.129 ->
+    # 0.133 (T = 256), for 1.8x the observe + estimate time (three lookups per sample and roughness
+    # node instead of one).
     anisotropic_lobes: bool = False
     fresnel: bool = True  # Schlick F; off: F = R0
     masking: bool = True  # "g1": G1(theta_o) on the reflected light
