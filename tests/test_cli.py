@@ -56,10 +56,13 @@ def test_fit_and_evaluate_commands(run_cli, tiny_capture, tmp_path, monkeypatch,
     assert (evaluation / "sparsification.png").is_file() and len(list((evaluation / "relight").glob("*.png"))) == 2
 
     shared_dir = tmp_path / "shared"
-    assert run_cli("fit", tiny_capture, "--out", shared_dir, "--texture-res", 32, "--share", "--quiet") == 0
+    assert run_cli("fit", tiny_capture, "--out", shared_dir, "--texture-res", 32, "--share", "--anisotropic-lobes",
+                   "--quiet") == 0
     assert capsys.readouterr().out == ""
     shared_summary = json.loads((shared_dir / "summary.json").read_text())
     assert shared_summary["settings"]["share"]["enabled"] and "share" in shared_summary["timings"]
+    assert shared_summary["settings"]["estimate"]["anisotropic_lobes"]
+    assert not summary["settings"]["estimate"]["anisotropic_lobes"]  # the default fit's
 
     paper_dir = tmp_path / "paper"
     assert run_cli("fit", tiny_capture, "--out", paper_dir, "--texture-res", 16,
