@@ -85,8 +85,9 @@ class UncertaintyConfig:
     # benchmarks/entropy_variants.py, bunny and sphere): entropy 0.27 / 0.23 and 0.18 / 0.18. With
     # the session-6 estimator (prefiltered light) the default roughness_std reaches 0.56 / 0.50
     # (bunny), 0.40 / 0.36 (sphere), 0.28, 0.37 and 0.42 on the photo-textured bunny_sunset,
-    # sphere_city and sphere_studio, 0.55 / 0.52 on the demo capture. Two
-    # terms, added as variances:
+    # sphere_city and sphere_studio, 0.55 / 0.52 on the demo capture; with session 9's (the
+    # mirror's map, the residual's degrees of freedom) 0.57 / 0.52, 0.49 / 0.45, 0.32, 0.38, 0.49,
+    # and 0.55 / 0.52 on the demo capture. Two terms, added as variances:
     # - roughness_window: the scatter of the per-texel estimates over this many texels square
     #   (0: off). Texels are estimated independently and materials are smooth at that scale, so the
     #   scatter measures the estimate's own noise, whatever caused it (interreflection, occlusion,
@@ -94,7 +95,8 @@ class UncertaintyConfig:
     #   0.48 and 0.25; 3: 0.45 and 0.17). Milliseconds.
     roughness_window: int = 7
     # - loss_curvature: the Laplace variance 2 s^2 / (n L''(r)) of the estimator's own angular
-    #   loss L around the estimate, s^2 = L + (0.02)^2 x signal; L'' is the profiled loss's (the
+    #   loss L around the estimate, s^2 = L 3n / (3n - 5) + (0.02)^2 x signal (the misfit per
+    #   residual degree of freedom: 3n values, five parameters); L'' is the profiled loss's (the
     #   marginal posterior's), which the global search returns for two more probes per texel
     #   (MaterialEstimate.roughness_curvature; for `paper` estimates, base colour and metallic
     #   are held and the loss is evaluated twice more). Alone: 0.43 / 0.37 and 0.29 / 0.23; with

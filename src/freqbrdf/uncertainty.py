@@ -120,6 +120,7 @@ PRIOR_ROUGHNESS_VARIANCE = 1.0 / 12.0
 # Noise floor of the loss curvature's noise variance: a sample's noise std relative to the RMS of
 # the texel's observed radiance, so that a texel fitted exactly is not called certain.
 CURVATURE_NOISE_FLOOR = 0.02
+_FITTED_PARAMETERS = 5  # base colour (3), roughness and metallic: the residual's lost degrees of freedom
 _LANES = 64  # texels side by side in the kernel's SIMD loops (measured 8-15 % faster than 32; 16: 1.6x slower)
 
 
@@ -239,9 +240,11 @@ def _loss_curvature_variance(observations: Observations, estimate: MaterialEstim
     samples) around the estimated roughness r: the profiled loss (base colour and metallic
     re-optimised, the marginal posterior's) when the estimate carries the global search's
     `MaterialEstimate.roughness_curvature`, else base colour and metallic held; capped at the prior
-    variance (a flat or concave loss says nothing). s^2 = L(r) + (CURVATURE_NOISE_FLOOR)^2 x the
-    weighted mean square of the observed radiance. L'' is the second divided difference through r
-    and two probes CURVATURE_STEP apart, on the side of r that stays within [0, 1]."""
+    variance (a flat or concave loss says nothing). s^2 = L(r) 3n / (3n - 5) (the residual's
+    unbiased noise variance: 3n values, five parameters fitted; the prior where 3n <= 5) +
+    (CURVATURE_NOISE_FLOOR)^2 x the weighted mean square of the observed radiance. L'' is the
+    second divided difference through r and two probes CURVATURE_STEP apart, on the side of r that
+    stays within [0, 1]."""
     loss_centre = estimate.loss
     if estimate.roughness_curvature is not None:
         curvature = estimate.roughness_curvature  # the global search's profiled curvature, for free
@@ -264,9 +267,11 @@ def _loss_curvature_variance(observations: Observations, estimate: MaterialEstim
     radiance_sq = np.nan_to_num(np.einsum("nvc,nvc->nv", observations.observed, observations.observed), copy=False)
     signal = (np.einsum("nv,nv->n", weight_sq, radiance_sq).astype(np.float64)
               / np.maximum(weight_sq.sum(axis=1, dtype=np.float64), np.finfo(np.float64).tiny))
-    noise = loss_centre + CURVATURE_NOISE_FLOOR**2 * signal
     samples = np.maximum(observations.n_samples, 1)
+    values = 3.0 * samples  # RGB per sample, against base colour, roughness and metallic
     with np.errstate(divide="ignore", invalid="ignore"):
+        noise = (np.where(values > _FITTED_PARAMETERS, loss_centre * values / (values - _FITTED_PARAMETERS), np.inf)
+                 + CURVATURE_NOISE_FLOOR**2 * signal)
         variance = 2.0 * noise / (samples * curvature)
     informative = np.isfinite(variance) & (curvature > 0)
     return np.where(informative, np.minimum(variance, PRIOR_ROUGHNESS_VARIANCE), PRIOR_ROUGHNESS_VARIANCE)
