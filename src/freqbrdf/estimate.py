@@ -76,7 +76,10 @@ and diffuse factor D come in two versions (``EstimateConfig.specular_model``, ``
   expansion of the fitted light, so it also costs less. The environment light (degrees <= 5) also
   gains the map's degrees above 5 this way (maps filtered by the same gains with degrees <= 5
   removed, at roughness nodes 1/16 apart up to 1): in the blend, a lobe of roughness 0.45 still
-  responds 0.17 to degree 6. Measured: see `EstimateConfig.prefiltered_light`.
+  responds 0.17 to degree 6. Measured: see `EstimateConfig.prefiltered_light`. The mirror's node
+  (roughness 0) is the map itself: cut at the band limit it rang around bright lights. With
+  ``EstimateConfig.anisotropic_lobes`` (default off; `_TAP_OFFSETS`) a node's light is read as the
+  lobe it is at oblique views, narrower across the plane of incidence (`lobe_width_table`).
 
 - ``global`` (ours) minimises the weighted squared residual sum_v w_v^2 (L(w_v) - f_v)^2. Write
   L = m (b X + Y) + (1 - m) Z + (1 - m) b e D with X = A S_A, Y = B S_B, Z = E S_E (S_k the light
