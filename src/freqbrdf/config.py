@@ -106,7 +106,7 @@ class UncertaintyConfig:
     # whatever the estimate's setting: the entropy is about what the light can tell, and the
     # brute force it should agree with is the path tracer's lobe. Measured
     # (benchmarks/pathtraced_entropy.py, 400 texels, against the pooled rendering): Spearman 0.80
-    # [0.74, 0.85] isotropic, 0.83 [0.78, 0.87] anisotropic, for 2.3-3x the time (3.9 -> 9-13 s).
+    # [0.74, 0.85] isotropic, 0.83 [0.78, 0.87] anisotropic, for 1.9x the time (3.9 -> 7.4 s).
     anisotropic_lobes: bool = True
 
 
@@ -176,8 +176,8 @@ class EstimateConfig:
     # (UncertaintyConfig.anisotropic_lobes). Off here: at T = 512 (compare_estimators.md) it moves
     # roughness MAE 0.058 -> 0.049 and relighting PSNR-H +0.10 dB on the plane, but the bunny's
     # relighting -0.21 dB (roughness 0.126 -> 0.125), and the demo capture's roughness MAE 0.129 ->
-    # 0.133 (T = 256), for 1.8x the observe + estimate time (three lookups per sample and roughness
-    # node instead of one).
+    # 0.133 (T = 256), for 1.3-1.4x the observe + estimate time (three lookups per sample and
+    # roughness node instead of one).
     anisotropic_lobes: bool = False
     fresnel: bool = True  # Schlick F; off: F = R0
     masking: bool = True  # "g1": G1(theta_o) on the reflected light

@@ -86,22 +86,37 @@ def load_envmap(path: str | Path, to_world: np.ndarray | None = None) -> Envmap:
 
 
 @numba.njit(fastmath=False, cache=True)
-def lookup_stencil(world_to_local, dx, dy, dz, height, width):
-    """The bilinear stencil of `lookup` for the world direction (dx, dy, dz) in an H x W map whose
-    emitter frame is world_to_local (3, 3) from the world: (row, col, next col, column fraction,
-    row fraction); the other two taps are at row + 1."""
+def map_coordinates(world_to_local, dx, dy, dz, height, width):
+    """(x, y): where `lookup` reads the world direction (dx, dy, dz) in an H x W map whose emitter
+    frame is world_to_local (3, 3) from the world, in texels: column centres at x = j (x in
+    [-0.5, W - 0.5)), rows at y = i."""
     lx = world_to_local[0, 0] * dx + world_to_local[0, 1] * dy + world_to_local[0, 2] * dz
     ly = world_to_local[1, 0] * dx + world_to_local[1, 1] * dy + world_to_local[1, 2] * dz
     lz = world_to_local[2, 0] * dx + world_to_local[2, 1] * dy + world_to_local[2, 2] * dz
     u = math.atan2(lx, -lz) / (2.0 * math.pi)
     u -= math.floor(u)
     v = math.acos(min(max(ly, -1.0), 1.0)) / math.pi
-    x = u * width - 0.5  # column centres at u = (j + 0.5) / W
+    return u * width - 0.5, v * (height - 1)  # column centres at u = (j + 0.5) / W, rows at v = i / (H - 1)
+
+
+@numba.njit(fastmath=False, cache=True)
+def stencil_at(x, y, height, width):
+    """`lookup_stencil` at texel coordinates (x, y) (`map_coordinates`; x periodic, y clamped to
+    the poles' rows)."""
     col = math.floor(x)
     col0 = int(col) % width
-    y = v * (height - 1)  # rows at v = i / (H - 1)
+    y = min(max(y, 0.0), height - 1.0)
     row0 = min(int(y), height - 2)
     return row0, col0, (col0 + 1) % width, x - col, y - row0
+
+
+@numba.njit(fastmath=False, cache=True)
+def lookup_stencil(world_to_local, dx, dy, dz, height, width):
+    """The bilinear stencil of `lookup` for the world direction (dx, dy, dz) in an H x W map whose
+    emitter frame is world_to_local (3, 3) from the world: (row, col, next col, column fraction,
+    row fraction); the other two taps are at row + 1."""
+    x, y = map_coordinates(world_to_local, dx, dy, dz, height, width)
+    return stencil_at(x, y, height, width)
 
 
 @numba.njit(parallel=True, fastmath=False, cache=True)

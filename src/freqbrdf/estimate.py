@@ -745,6 +745,9 @@ _GAIN_STRATA = 8192  # half-vector strata of `ggx_lobe_gains`
 # map's width goes as alpha = r^2). Measured against the path tracer: benchmarks/model_fidelity.py.
 _TAP_OFFSETS = (-math.sqrt(3.0), 0.0, math.sqrt(3.0))
 _TAP_WEIGHTS = (1.0 / 6.0, 2.0 / 3.0, 1.0 / 6.0)
+# The taps are read at texel coordinates linear in their angle from the mirror direction, from the
+# coordinates of a direction turned this far (radians) towards the normal: no trigonometry per tap.
+_TAP_STEP = 1e-3
 
 
 @functools.cache
@@ -814,13 +817,41 @@ def prefiltered_light(directions: np.ndarray, tangent: np.ndarray, normal: np.nd
     world = (mirror[..., :1] * tangent[:, None] + mirror[..., 1:2] * bitangent[:, None]
              + mirror[..., 2:] * normal[:, None])
     cos_theta = np.clip(mirror[..., 2], 0.0, 1.0)
-    sin_theta = np.sqrt(1.0 - cos_theta**2)  # of the mirror direction
-    # In the plane of incidence, perpendicular to the mirror direction, on the normal's side.
-    towards_normal = np.where(sin_theta[..., None] > 1e-9, (normal[:, None] - cos_theta[..., None] * world)
-                              / np.maximum(sin_theta, 1e-9)[..., None], 0.0)
     to_world = np.eye(4)
     to_world[:3, :3] = rotation
-    n_nodes = prefiltered.shape[0]
+    n_nodes, height, width = prefiltered.shape[:3]
+
+    def texel_coordinates(where: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # as envmap.map_coordinates
+        local = where @ np.asarray(rotation, np.float64)
+        u = np.arctan2(local[..., 0], -local[..., 2]) / (2.0 * np.pi)
+        return (u - np.floor(u)) * width - 0.5, np.arccos(np.clip(local[..., 1], -1.0, 1.0)) / np.pi * (height - 1)
+
+    def bilinear(nodes: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:  # as envmap.stencil_at
+        column = np.floor(x)
+        col0 = column.astype(np.int64) % width
+        col1, fx = (col0 + 1) % width, (x - column)[..., None]
+        y = np.clip(y, 0.0, height - 1.0)
+        row0 = np.minimum(y.astype(np.int64), height - 2)
+        fy = (y - row0)[..., None]
+
+        def texel(row, col):
+            return prefiltered[nodes, row, col].astype(np.float64)
+
+        top = (1.0 - fx) * texel(row0, col0) + fx * texel(row0, col1)
+        bottom = (1.0 - fx) * texel(row0 + 1, col0) + fx * texel(row0 + 1, col1)
+        return (1.0 - fy) * top + fy * bottom
+
+    if anisotropic:
+        # The mirror direction's texel coordinates and their change per radian turned towards the
+        # normal in the plane of incidence (as `_mirror_stencil`).
+        sin_theta = np.sqrt(1.0 - mirror[..., 2] ** 2)
+        across = np.where(sin_theta > 1e-9, np.sin(_TAP_STEP) / np.maximum(sin_theta, 1e-9), 0.0)[..., None]
+        turned = np.cos(_TAP_STEP) * world + across * (normal[:, None] - mirror[..., 2:] * world)
+        x, y = texel_coordinates(world)
+        turned_x, turned_y = texel_coordinates(turned)
+        step_x = turned_x - x
+        step_x = np.where(step_x > 0.5 * width, step_x - width, np.where(step_x < -0.5 * width, step_x + width, step_x))
+        step_x, step_y = step_x / _TAP_STEP, (turned_y - y) / _TAP_STEP
 
     def lookup(nodes: np.ndarray, where: np.ndarray) -> np.ndarray:  # maps (n, V) at directions (n, V, 3)
         out = np.empty(where.shape)
@@ -841,9 +872,9 @@ def prefiltered_light(directions: np.ndarray, tangent: np.ndarray, normal: np.nd
         read_node, read_frac = read(node_roughness * np.sqrt(across))
         light = np.zeros(world.shape)
         for offset, tap_weight in zip(_TAP_OFFSETS, _TAP_WEIGHTS):
-            angle = (offset * spread)[..., None]
-            tap = np.cos(angle) * world + np.sin(angle) * towards_normal
-            lower, upper = lookup(read_node, tap), lookup(read_node + 1, tap)
+            tap_x, tap_y = x + offset * spread * step_x, y + offset * spread * step_y
+            lower = bilinear(read_node, tap_x, tap_y)
+            upper = bilinear(read_node + 1, tap_x, tap_y)
             light += tap_weight * (lower + read_frac[..., None] * (upper - lower))
         return light
 
@@ -874,26 +905,38 @@ def _mirror_stencil(xyz, n, tangent, normal, bitangent, world_to_local, height, 
     """`envmap.lookup`'s bilinear stencil at the world mirror direction of each local view direction
     xyz[:, s], s < n: corner (4, n) flat pixel indices row * width + col of (row, col), (row, col + 1),
     (row + 1, col), (row + 1, col + 1); stencil_frac (2, n) the column and row fractions. With
-    frames (7, n) (else (0, n)): the world mirror direction, the unit world direction in the plane
-    of incidence perpendicular to it on the normal's side, and cos theta, per sample (the
-    anisotropic lobes' taps, `_prefiltered_node_light`)."""
+    frames (5, n) (else (0, n)), per sample for the anisotropic lobes' taps
+    (`_prefiltered_node_light`): the mirror direction's texel coordinates x, y
+    (`envmap.map_coordinates`), their change per radian of turning it towards the normal in the
+    plane of incidence, and cos theta."""
     for s in range(n):
         mirror_x, mirror_y, mirror_z = -xyz[0, s], -xyz[1, s], xyz[2, s]
         world_x = mirror_x * tangent[0] + mirror_y * bitangent[0] + mirror_z * normal[0]
         world_y = mirror_x * tangent[1] + mirror_y * bitangent[1] + mirror_z * normal[1]
         world_z = mirror_x * tangent[2] + mirror_y * bitangent[2] + mirror_z * normal[2]
-        row0, col0, col1, fx, fy = envmaps.lookup_stencil(world_to_local, world_x, world_y, world_z, height, width)
+        x, y = envmaps.map_coordinates(world_to_local, world_x, world_y, world_z, height, width)
+        row0, col0, col1, fx, fy = envmaps.stencil_at(x, y, height, width)
         corner[0, s], corner[1, s] = row0 * width + col0, row0 * width + col1
         corner[2, s], corner[3, s] = (row0 + 1) * width + col0, (row0 + 1) * width + col1
         stencil_frac[0, s], stencil_frac[1, s] = fx, fy
         if frames.shape[0] > 0:
-            # (n - cos m) / sin: in the plane of the normal n and the mirror direction m.
+            # Turned by _TAP_STEP towards the normal n: (n - cos m) / sin is in the plane of n and
+            # the mirror direction m. The taps are read linearly in texel coordinates from here.
             sin_theta = math.sqrt(max(1.0 - mirror_z * mirror_z, 0.0))
             inverse = 1.0 / sin_theta if sin_theta > 1e-9 else 0.0
-            frames[0, s], frames[1, s], frames[2, s] = world_x, world_y, world_z
-            for axis in range(3):
-                frames[3 + axis, s] = (normal[axis] - mirror_z * frames[axis, s]) * inverse
-            frames[6, s] = mirror_z
+            along, across = math.cos(_TAP_STEP), math.sin(_TAP_STEP) * inverse
+            turned_x, turned_y = envmaps.map_coordinates(
+                world_to_local, along * world_x + across * (normal[0] - mirror_z * world_x),
+                along * world_y + across * (normal[1] - mirror_z * world_y),
+                along * world_z + across * (normal[2] - mirror_z * world_z), height, width)
+            step_x = turned_x - x
+            if step_x > 0.5 * width:  # across the map's seam
+                step_x -= width
+            elif step_x < -0.5 * width:
+                step_x += width
+            frames[0, s], frames[1, s] = x, y
+            frames[2, s], frames[3, s] = step_x / _TAP_STEP, (turned_y - y) / _TAP_STEP
+            frames[4, s] = mirror_z
 
 
 @_borrowing_jit
@@ -908,8 +951,7 @@ def _bilinear_add(prefiltered, node, row0, col0, col1, fx, fy, width, weight, ou
 
 
 @_borrowing_jit
-def _prefiltered_node_light(prefiltered, node, n, corner, stencil_frac, n_full, frames, world_to_local, width, table,
-                            out):
+def _prefiltered_node_light(prefiltered, node, n, corner, stencil_frac, n_full, frames, width, table, out):
     """out[c, s] = the light of node ``node`` of prefiltered (H W, nodes, 3) for sample s < n:
     bilinear at the mirror stencil; for nodes below n_full with frames (`_mirror_stencil`),
     the anisotropic lobe (`_TAP_OFFSETS`; its spreads from `_model_tables` table). (Pixel-major:
@@ -930,7 +972,7 @@ def _prefiltered_node_light(prefiltered, node, n, corner, stencil_frac, n_full, 
     for s in range(n):
         for c in range(3):
             out[c, s] = 0.0
-        cos_theta = min(max(frames[6, s], 0.0), 1.0)
+        cos_theta = min(max(frames[4, s], 0.0), 1.0)
         along = _table_lookup(table, _WIDTH_PLANE, cos_theta, roughness)
         across = min(_table_lookup(table, _WIDTH_PLANE + 1, cos_theta, roughness), 1.0)
         spread = alpha * math.sqrt(max(along * along - across * across, 0.0))
@@ -940,11 +982,8 @@ def _prefiltered_node_light(prefiltered, node, n, corner, stencil_frac, n_full, 
         for k in range(n_taps):
             angle = _TAP_OFFSETS[k] * spread if n_taps > 1 else 0.0
             tap_weight = _TAP_WEIGHTS[k] if n_taps > 1 else 1.0
-            cos_angle, sin_angle = math.cos(angle), math.sin(angle)
-            row0, col0, col1, fx, fy = envmaps.lookup_stencil(
-                world_to_local, cos_angle * frames[0, s] + sin_angle * frames[3, s],
-                cos_angle * frames[1, s] + sin_angle * frames[4, s], cos_angle * frames[2, s] + sin_angle * frames[5, s],
-                height, width)
+            row0, col0, col1, fx, fy = envmaps.stencil_at(frames[0, s] + angle * frames[2, s],
+                                                          frames[1, s] + angle * frames[3, s], height, width)
             _bilinear_add(prefiltered, read_node, row0, col0, col1, fx, fy, width, tap_weight * (1.0 - read_frac), out,
                           s)
             if read_frac > 0.0:
@@ -1340,7 +1379,7 @@ def _squared_residual_kernel(
         map_frac = high_frac = 0.0
         corner = np.zeros((4, n_views), dtype=np.int64)
         stencil_frac = np.zeros((2, n_views))
-        frames = np.zeros((7 if anisotropic else 0, n_views))
+        frames = np.zeros((5 if anisotropic else 0, n_views))
         if use_prefiltered or use_high:
             xyz = np.empty((3, n_views))
             for v in range(n_views):
@@ -1354,12 +1393,12 @@ def _squared_residual_kernel(
             map_node, map_frac = _prefilter_node(roughness[t], n_full)
             for side in range(2):
                 _prefiltered_node_light(prefiltered, map_node + side, n_views, corner, stencil_frac, n_full, frames,
-                                        world_to_local, map_width, table, map_light[side])
+                                        map_width, table, map_light[side])
         if use_high:
             high_node, high_frac = _prefilter_node(roughness[t], n_high)
             for side in range(2):
                 _prefiltered_node_light(prefiltered, n_full + high_node + side, n_views, corner, stencil_frac,
-                                        n_full, frames, world_to_local, map_width, table, high_light[side])
+                                        n_full, frames, map_width, table, high_light[side])
         # Without tilt levels or environment light every term reads the same light; Schlick's
         # dielectric needs no light of its own.
         distinct = n_levels > 1 or share > 0.0
@@ -1780,7 +1819,7 @@ def _azimuthal_coefficients(xyz, n, local, out):
 
 @_borrowing_jit
 def _prefiltered_nodes_at(roughness, first, count, n, prefiltered, corner, stencil_frac, n_full, frames,
-                          world_to_local, width, table, nodes, cached):
+                          width, table, nodes, cached):
     """The prefiltered nodes first..first + count - 1 (roughness 0..1 by PREFILTER_STEP) on either side
     of ``roughness``, each looked up once per texel into nodes (cached): (lower, upper, fraction);
     on a node both are that node and the fraction is 0."""
@@ -1789,8 +1828,8 @@ def _prefiltered_nodes_at(roughness, first, count, n, prefiltered, corner, stenc
     upper = first + (node + 1 if frac > 0.0 else node)
     for needed in range(lower, upper + 1):
         if not cached[needed]:
-            _prefiltered_node_light(prefiltered, needed, n, corner, stencil_frac, n_full, frames, world_to_local,
-                                    width, table, nodes[needed])
+            _prefiltered_node_light(prefiltered, needed, n, corner, stencil_frac, n_full, frames, width, table,
+                                    nodes[needed])
             cached[needed] = True
     return lower, upper, (frac if upper != lower else 0.0)
 
@@ -1815,7 +1854,7 @@ def _roughness_objective(roughness, args):
      albedo, diffuse_factor, level_filtered, filtered, moments, quadratics, squared_values, diffuse_scale,
      state, metallic_grid, azimuthal, environment_blend, environment_nodes, environment_cached, response,
      prefiltered, n_full, corner, stencil_frac, prefiltered_nodes, prefiltered_cached,
-     high_filtered, frames, world_to_local, map_width) = args
+     high_filtered, frames, map_width) = args
     n_levels = proj.shape[0]
     # Without the environment (environment light off) the lobes read their own light alone.
     share = _environment_share(roughness, environment_blend) if azimuthal.shape[2] > 0 else 0.0
@@ -1878,15 +1917,15 @@ def _roughness_objective(roughness, args):
     if use_prefiltered:
         first_level, last_level = 0, -1
         lower_map, upper_map, map_frac = _prefiltered_nodes_at(roughness, 0, n_full, n, prefiltered, corner,
-                                                               stencil_frac, n_full, frames, world_to_local, map_width,
+                                                               stencil_frac, n_full, frames, map_width,
                                                                table, prefiltered_nodes, prefiltered_cached)
     # The degrees the environment light leaves out, from the prefiltered maps' last nodes.
     n_high = prefiltered.shape[1] - n_full
     use_high = share > 0.0 and n_high > 0
     if use_high:
         lower_high, upper_high, high_frac = _prefiltered_nodes_at(roughness, n_full, n_high, n, prefiltered, corner,
-                                                                  stencil_frac, n_full, frames, world_to_local,
-                                                                  map_width, table, prefiltered_nodes,
+                                                                  stencil_frac, n_full, frames, map_width, table,
+                                                                  prefiltered_nodes,
                                                                   prefiltered_cached)
     if n_levels > 1 and own_light:
         first_level, last_level = n_levels, 0
@@ -2243,7 +2282,7 @@ def _global_search_kernel(
         prefiltered_cached = np.zeros(n_prefiltered, dtype=np.bool_)
         corner = np.empty((4, n_views), dtype=np.int64)
         stencil_frac = np.empty((2, n_views))
-        frames = np.empty((7 if anisotropic else 0, n_views))
+        frames = np.empty((5 if anisotropic else 0, n_views))
         high_filtered = np.empty(n_views)
         for t in range(chunk * _SEARCH_CHUNK, min((chunk + 1) * _SEARCH_CHUNK, n_texels)):
             n = 0
@@ -2304,7 +2343,7 @@ def _global_search_kernel(
                     kernel, kernel_derivative, albedo, diffuse_factor, level_filtered, filtered, moments, quadratics,
                     squared_values, scale, state, metallic_grid, azimuthal, environment_blend, environment_nodes,
                     environment_cached, response, prefiltered, n_full, corner, stencil_frac,
-                    prefiltered_nodes, prefiltered_cached, high_filtered, frames, world_to_local, map_width)
+                    prefiltered_nodes, prefiltered_cached, high_filtered, frames, map_width)
             for i in range(hypothesis_roughness.shape[0]):
                 _roughness_objective(hypothesis_roughness[i], args)
                 for c in range(3):

@@ -62,7 +62,7 @@ model of the calibrated mode in radiance units. It is what benchmarks/pathtraced
 computes with a path tracer, and agrees with it: Spearman 0.83 [0.78, 0.87] (95 % bootstrap
 interval, 400 texels) against the pooled rendering of two seeds, which agree with each other at
 0.92; isotropic lobes 0.80, the calibrated mode 0.20, the paper's recipe 0.16. It costs R probes
-of the estimator's search per texel: seconds, not milliseconds (9-13 s for the 256k texels there).
+of the estimator's search per texel: seconds, not milliseconds (7 s for the 256k texels there).
 Both the brute force and this mode find the smooth-gradient ("badly lit") region of
 entropy_scenes.py about as certain as the sharply lit one (brute force 0.15 and 0.17, this mode
 0.16 and 0.18): the view
