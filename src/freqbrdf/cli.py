@@ -227,7 +227,7 @@ def fit(
     share: bool = typer.Option(False, "--share", help="Pull uncertain texels towards affine confident anchors."),
     anisotropic_lobes: bool = typer.Option(
         False, "--anisotropic-lobes", help="Read a smooth lobe's light as the anisotropic lobe it is at oblique "
-        "views: closer to a path tracer, about 1.4x the estimation time; more accurate on the measured plane, "
+        "views: closer to a path tracer, 1.6-1.8x the estimation time; more accurate on the measured plane, "
         "not on the bunnies."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars or messages."),
     json_output: bool = typer.Option(False, "--json", help="Print summary.json to stdout."),

@@ -53,7 +53,7 @@ class FitConfig:
 @dataclass(frozen=True)
 class UncertaintyConfig:
     # "angular": the same grid scored in the sample domain with the global estimator's own model
-    # (uncertainty.entropy_angular): seconds instead of milliseconds (10 s for the 256k texels of
+    # (uncertainty.entropy_angular): seconds instead of milliseconds (7 s for the 256k texels of
     # entropy_scenes.py's sphere), but it agrees with the path-traced brute force over the same grid
     # (benchmarks/pathtraced_entropy.py, 400 texels: Spearman 0.83 [0.78, 0.87] against the pooled
     # rendering of two seeds that agree with each other at 0.92) where the spectra do not

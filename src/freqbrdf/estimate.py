@@ -471,7 +471,7 @@ def lobe_widths(cos_theta: np.ndarray, roughness: np.ndarray) -> tuple[np.ndarra
     """(along, across) of `lobe_width_table`, bilinear, for broadcastable cos_theta and roughness in [0, 1]."""
     cos_theta, roughness = np.broadcast_arrays(np.asarray(cos_theta, np.float64), np.asarray(roughness, np.float64))
     ratios = np.empty((2, cos_theta.size))
-    _split_sum_terms_kernel(cos_theta.ravel(), roughness.ravel(), lobe_width_table(), ratios)
+    _table_terms_kernel(cos_theta.ravel(), roughness.ravel(), lobe_width_table(), ratios)
     return ratios[0].reshape(cos_theta.shape), ratios[1].reshape(cos_theta.shape)
 
 
@@ -479,7 +479,7 @@ def split_sum_terms(cos_theta: np.ndarray, roughness: np.ndarray) -> tuple[np.nd
     """(A, B, E) of `split_sum_table`, bilinear, for broadcastable cos_theta and roughness in [0, 1]."""
     cos_theta, roughness = np.broadcast_arrays(np.asarray(cos_theta, np.float64), np.asarray(roughness, np.float64))
     terms = np.empty((3, cos_theta.size))
-    _split_sum_terms_kernel(cos_theta.ravel(), roughness.ravel(), split_sum_table(), terms)
+    _table_terms_kernel(cos_theta.ravel(), roughness.ravel(), split_sum_table(), terms)
     return tuple(term.reshape(cos_theta.shape) for term in terms)
 
 
@@ -817,8 +817,6 @@ def prefiltered_light(directions: np.ndarray, tangent: np.ndarray, normal: np.nd
     world = (mirror[..., :1] * tangent[:, None] + mirror[..., 1:2] * bitangent[:, None]
              + mirror[..., 2:] * normal[:, None])
     cos_theta = np.clip(mirror[..., 2], 0.0, 1.0)
-    to_world = np.eye(4)
-    to_world[:3, :3] = rotation
     n_nodes, height, width = prefiltered.shape[:3]
 
     def texel_coordinates(where: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # as envmap.map_coordinates
@@ -841,29 +839,21 @@ def prefiltered_light(directions: np.ndarray, tangent: np.ndarray, normal: np.nd
         bottom = (1.0 - fx) * texel(row0 + 1, col0) + fx * texel(row0 + 1, col1)
         return (1.0 - fy) * top + fy * bottom
 
+    x, y = texel_coordinates(world)  # of the mirror direction
     if anisotropic:
-        # The mirror direction's texel coordinates and their change per radian turned towards the
-        # normal in the plane of incidence (as `_mirror_stencil`).
+        # Their change per radian turned towards the normal in the plane of incidence (as
+        # `_mirror_stencil`).
         sin_theta = np.sqrt(1.0 - mirror[..., 2] ** 2)
         across = np.where(sin_theta > 1e-9, np.sin(_TAP_STEP) / np.maximum(sin_theta, 1e-9), 0.0)[..., None]
         turned = np.cos(_TAP_STEP) * world + across * (normal[:, None] - mirror[..., 2:] * world)
-        x, y = texel_coordinates(world)
         turned_x, turned_y = texel_coordinates(turned)
         step_x = turned_x - x
         step_x = np.where(step_x > 0.5 * width, step_x - width, np.where(step_x < -0.5 * width, step_x + width, step_x))
         step_x, step_y = step_x / _TAP_STEP, (turned_y - y) / _TAP_STEP
 
-    def lookup(nodes: np.ndarray, where: np.ndarray) -> np.ndarray:  # maps (n, V) at directions (n, V, 3)
-        out = np.empty(where.shape)
-        for j in np.unique(nodes):
-            chosen = nodes == j
-            out[chosen] = envmaps.lookup(envmaps.Envmap(prefiltered[j], to_world), where[chosen])
-        return out
-
     def node_light(node: np.ndarray) -> np.ndarray:  # (n, V, 3) the light of each texel's node (n,)
-        nodes = np.broadcast_to(node[:, None], cos_theta.shape)
         if not anisotropic:
-            return lookup(nodes, world)
+            return bilinear(np.broadcast_to(node[:, None], cos_theta.shape), x, y)
         node_roughness = np.broadcast_to(node[:, None] * PREFILTER_STEP, cos_theta.shape)
         along, across = lobe_widths(cos_theta, node_roughness)
         across = np.minimum(across, 1.0)
@@ -939,15 +929,13 @@ def _mirror_stencil(xyz, n, tangent, normal, bitangent, world_to_local, height, 
             frames[4, s] = mirror_z
 
 
-@_borrowing_jit
-def _bilinear_add(prefiltered, node, row0, col0, col1, fx, fy, width, weight, out, s):
-    """out[:, s] += weight x the map of node ``node`` of prefiltered (H W, nodes, 3) at the stencil."""
-    p00, p01 = prefiltered[row0 * width + col0, node], prefiltered[row0 * width + col1, node]
-    p10, p11 = prefiltered[(row0 + 1) * width + col0, node], prefiltered[(row0 + 1) * width + col1, node]
-    for c in range(3):
-        top = (1.0 - fx) * p00[c] + fx * p01[c]
-        bottom = (1.0 - fx) * p10[c] + fx * p11[c]
-        out[c, s] += weight * ((1.0 - fy) * top + fy * bottom)
+@numba.njit(inline="always", fastmath=True)
+def _bilinear(prefiltered, node, c, top_left, top_right, bottom_left, bottom_right, fx, fy):
+    """Channel c of the map of node ``node`` of prefiltered (H W, nodes, 3), bilinear between four
+    flat pixel indices."""
+    top = (1.0 - fx) * prefiltered[top_left, node, c] + fx * prefiltered[top_right, node, c]
+    bottom = (1.0 - fx) * prefiltered[bottom_left, node, c] + fx * prefiltered[bottom_right, node, c]
+    return (1.0 - fy) * top + fy * bottom
 
 
 @_borrowing_jit
@@ -958,13 +946,9 @@ def _prefiltered_node_light(prefiltered, node, n, corner, stencil_frac, n_full, 
     a texel's lookups at several nodes share cache lines.)"""
     if frames.shape[0] == 0 or node >= n_full:
         for s in range(n):
-            fx, fy = stencil_frac[0, s], stencil_frac[1, s]
-            p00, p01 = prefiltered[corner[0, s], node], prefiltered[corner[1, s], node]
-            p10, p11 = prefiltered[corner[2, s], node], prefiltered[corner[3, s], node]
             for c in range(3):
-                top = (1.0 - fx) * p00[c] + fx * p01[c]
-                bottom = (1.0 - fx) * p10[c] + fx * p11[c]
-                out[c, s] = (1.0 - fy) * top + fy * bottom
+                out[c, s] = _bilinear(prefiltered, node, c, corner[0, s], corner[1, s], corner[2, s], corner[3, s],
+                                      stencil_frac[0, s], stencil_frac[1, s])
         return
     height = prefiltered.shape[0] // width
     roughness = node * PREFILTER_STEP
@@ -984,11 +968,12 @@ def _prefiltered_node_light(prefiltered, node, n, corner, stencil_frac, n_full, 
             tap_weight = _TAP_WEIGHTS[k] if n_taps > 1 else 1.0
             row0, col0, col1, fx, fy = envmaps.stencil_at(frames[0, s] + angle * frames[2, s],
                                                           frames[1, s] + angle * frames[3, s], height, width)
-            _bilinear_add(prefiltered, read_node, row0, col0, col1, fx, fy, width, tap_weight * (1.0 - read_frac), out,
-                          s)
-            if read_frac > 0.0:
-                _bilinear_add(prefiltered, read_node + 1, row0, col0, col1, fx, fy, width, tap_weight * read_frac, out,
-                              s)
+            top, bottom = row0 * width, (row0 + 1) * width
+            for side in range(2 if read_frac > 0.0 else 1):
+                share = tap_weight * (read_frac if side else 1.0 - read_frac)
+                for c in range(3):
+                    out[c, s] += share * _bilinear(prefiltered, read_node + side, c, top + col0, top + col1,
+                                                   bottom + col0, bottom + col1, fx, fy)
 
 
 def lobe_tilt(cos_theta: np.ndarray, roughness: np.ndarray, term: str = "scale") -> np.ndarray:
@@ -997,7 +982,7 @@ def lobe_tilt(cos_theta: np.ndarray, roughness: np.ndarray, term: str = "scale")
     cos_theta, roughness = np.broadcast_arrays(np.asarray(cos_theta, np.float64), np.asarray(roughness, np.float64))
     index = LOBE_TERMS.index(term)
     out = np.empty((1, cos_theta.size))
-    _split_sum_terms_kernel(cos_theta.ravel(), roughness.ravel(), lobe_tilt_table()[index:index + 1], out)
+    _table_terms_kernel(cos_theta.ravel(), roughness.ravel(), lobe_tilt_table()[index:index + 1], out)
     return out[0].reshape(cos_theta.shape)
 
 
@@ -1288,7 +1273,7 @@ def _table_lookup(table, index, cos_theta, roughness):
 
 
 @numba.njit(parallel=True, cache=True)
-def _split_sum_terms_kernel(cos_theta, roughness, table, out):  # (n,), (n,) -> out (planes, n)
+def _table_terms_kernel(cos_theta, roughness, table, out):  # (n,), (n,) -> out (planes, n)
     for k in numba.prange(cos_theta.shape[0]):
         for plane in range(table.shape[0]):
             out[plane, k] = _table_lookup(table, plane, cos_theta[k], roughness[k])

@@ -65,17 +65,17 @@ interval, 400 texels) against the pooled rendering of two seeds, which agree wit
 of the estimator's search per texel: seconds, not milliseconds (7 s for the 256k texels there).
 Both the brute force and this mode find the smooth-gradient ("badly lit") region of
 entropy_scenes.py about as certain as the sharply lit one (brute force 0.15 and 0.17, this mode
-0.16 and 0.18): the view
-dependence of Fresnel and masking, which a spectrum of the mirrored light leaves out, pins the
-roughness down there; the paper's recipe calls it uncertain (0.78 against 0.20).
+0.16 and 0.18): the view dependence of Fresnel and masking, which a spectrum of the mirrored light
+leaves out, pins the roughness down there; the paper's recipe calls it uncertain (0.78 against
+0.20).
 
 Flags (bit field, uint8 per texel) say why a texel should not be trusted; see FLAG_*.
 
 The entropy scores the hypotheses against the spectra, not the estimate, and ranks the `global`
-estimate's per-texel roughness errors poorly (Spearman 0.29 on the Mitsuba bunny and on the
-sphere of entropy_scenes.py; the angular mode 0.29 and 0.22). `roughness_std` is the posterior
-spread of the estimate itself (UncertaintyConfig.roughness_window, loss_curvature): 0.57 and 0.44,
-measured in benchmarks/entropy_variants.py (session-7 estimator).
+estimate's per-texel roughness errors poorly (Spearman 0.29 on the Mitsuba bunny, 0.32 on the
+sphere of entropy_scenes.py; the angular mode 0.29 and 0.21). `roughness_std` is the posterior
+spread of the estimate itself (UncertaintyConfig.roughness_window, loss_curvature): 0.57 and 0.49,
+measured in benchmarks/entropy_variants.py (session-9 estimator).
 """
 
 from __future__ import annotations
