@@ -680,17 +680,61 @@ def test_paper_estimator_is_approximately_right(truth, unshadowed):
 
 def test_global_optimum_is_never_worse_than_paper(truth):
     # With noise the optimum has a positive loss; the exhaustive search must beat or tie Adam on
-    # every texel (same model and light: shadowing off).
+    # every texel (same model and light: shadowing off). (Without the neighbour vote, which trades
+    # a little of a texel's fit for its neighbourhood's roughness.)
     observations = synthetic_observations(truth, seed=4, shadowing=False)
     rng = np.random.default_rng(5)
     observations.observed *= (1.0 + 0.05 * rng.standard_normal(observations.observed.shape)).astype(np.float32)
-    least_squares = Config(estimate=dataclasses.replace(NO_SHADOWING.estimate, robust_passes=0))
+    least_squares = Config(estimate=dataclasses.replace(NO_SHADOWING.estimate, robust_passes=0, neighbour_vote=False))
     best = estimate(observations, least_squares)
     adam = estimate(observations, PAPER_NO_SHADOWING)
     assert np.all(best.loss > 0)
     assert np.all(best.loss <= adam.loss * (1.0 + 1e-9))
     # ... and than the truth, which no longer fits the noisy data exactly.
     assert np.all(best.loss <= angular_loss(observations, truth, NO_SHADOWING) * (1.0 + 1e-9))
+
+
+def test_neighbour_median_leaves_out_the_texel_and_missing_values(unshadowed):
+    from freqbrdf.estimate import neighbour_median
+
+    res = unshadowed.texture_res  # texels row-major in a res x res texture
+    values = np.arange(unshadowed.n_texels, dtype=np.float64)
+    values[res * 5 + 6] = np.nan
+    median = neighbour_median(unshadowed, values)
+    for row, col in ((5, 5), (0, 0), (3, 7)):
+        neighbours = [values[r * res + c] for r in range(row - 2, row + 3) for c in range(col - 2, col + 3)
+                      if (r, c) != (row, col) and 0 <= r < res and 0 <= c < res and r * res + c < len(values)]
+        assert median[row * res + col] == np.nanmedian(neighbours)
+    assert np.isnan(neighbour_median(unshadowed, np.where(np.arange(len(values)) == 0, 1.0, np.nan))[0])
+
+
+def test_neighbour_vote_moves_only_texels_whose_data_allow_it(truth, unshadowed):
+    # Exact data reject every other roughness: the vote changes nothing.
+    without_vote = Config(estimate=dataclasses.replace(NO_SHADOWING.estimate, neighbour_vote=False))
+    assert NO_SHADOWING.estimate.neighbour_vote
+    np.testing.assert_array_equal(estimate(unshadowed, NO_SHADOWING).roughness,
+                                  estimate(unshadowed, without_vote).roughness)
+    # With 30 % noise some texels cannot tell their roughness from their neighbours' median (the
+    # truth is random per texel here): those move to a minimum within a grid cell of that median, at
+    # a least-squares loss at most chi^2(95 %) noise variances above their own estimate's.
+    noisy = synthetic_observations(truth, seed=8, shadowing=False)
+    rng = np.random.default_rng(9)
+    noisy.observed *= (1.0 + 0.3 * rng.standard_normal(noisy.observed.shape)).astype(np.float32)
+    voted, own = estimate(noisy, NO_SHADOWING), estimate(noisy, without_vote)
+    moved = voted.roughness != own.roughness
+    assert 0 < moved.sum() < len(moved)
+    cell = 1.0 / (NO_SHADOWING.estimate.roughness_grid - 1)
+    from freqbrdf.estimate import FITTED_PARAMETERS, neighbour_median
+
+    candidate = neighbour_median(noisy, own.roughness)
+    assert np.all(np.abs(voted.roughness[moved] - candidate[moved]) < cell)
+    assert np.all(np.abs(own.roughness[moved] - candidate[moved]) > cell)
+    assert np.all(np.abs(voted.roughness[moved] - own.roughness[moved]) > cell)  # another minimum
+    dof = 3 * noisy.n_samples[moved] - FITTED_PARAMETERS
+    assert np.all(voted.loss[moved] <= own.loss[moved] * (1.0 + 3.84 / dof) * (1.0 + 1e-9))
+    np.testing.assert_allclose(voted.loss, angular_loss(noisy, voted.principled(), NO_SHADOWING), rtol=1e-6)
+    for name in ("base_color", "metallic"):
+        np.testing.assert_array_equal(getattr(voted, name)[~moved], getattr(own, name)[~moved])
 
 
 def test_robust_passes_discount_outlier_samples(truth):

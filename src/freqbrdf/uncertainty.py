@@ -90,7 +90,7 @@ from scipy import ndimage
 
 from freqbrdf import brdf, sh
 from freqbrdf.config import Config, EstimateConfig, UncertaintyConfig
-from freqbrdf.estimate import CURVATURE_STEP, angular_loss, hypothesis_moments, model_light
+from freqbrdf.estimate import CURVATURE_STEP, FITTED_PARAMETERS, angular_loss, hypothesis_moments, model_light
 
 if TYPE_CHECKING:
     from freqbrdf.estimate import MaterialEstimate
@@ -120,7 +120,6 @@ PRIOR_ROUGHNESS_VARIANCE = 1.0 / 12.0
 # Noise floor of the loss curvature's noise variance: a sample's noise std relative to the RMS of
 # the texel's observed radiance, so that a texel fitted exactly is not called certain.
 CURVATURE_NOISE_FLOOR = 0.02
-_FITTED_PARAMETERS = 5  # base colour (3), roughness and metallic: the residual's lost degrees of freedom
 _LANES = 64  # texels side by side in the kernel's SIMD loops (measured 8-15 % faster than 32; 16: 1.6x slower)
 
 
@@ -270,7 +269,7 @@ def _loss_curvature_variance(observations: Observations, estimate: MaterialEstim
     samples = np.maximum(observations.n_samples, 1)
     values = 3.0 * samples  # RGB per sample, against base colour, roughness and metallic
     with np.errstate(divide="ignore", invalid="ignore"):
-        noise = (np.where(values > _FITTED_PARAMETERS, loss_centre * values / (values - _FITTED_PARAMETERS), np.inf)
+        noise = (np.where(values > FITTED_PARAMETERS, loss_centre * values / (values - FITTED_PARAMETERS), np.inf)
                  + CURVATURE_NOISE_FLOOR**2 * signal)
         variance = 2.0 * noise / (samples * curvature)
     informative = np.isfinite(variance) & (curvature > 0)
