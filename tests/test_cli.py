@@ -57,12 +57,16 @@ def test_fit_and_evaluate_commands(run_cli, tiny_capture, tmp_path, monkeypatch,
 
     shared_dir = tmp_path / "shared"
     assert run_cli("fit", tiny_capture, "--out", shared_dir, "--texture-res", 32, "--share", "--anisotropic-lobes",
-                   "--quiet") == 0
+                   "--footprint-blur", "--no-neighbour-vote", "--quiet") == 0
     assert capsys.readouterr().out == ""
     shared_summary = json.loads((shared_dir / "summary.json").read_text())
     assert shared_summary["settings"]["share"]["enabled"] and "share" in shared_summary["timings"]
-    assert shared_summary["settings"]["estimate"]["anisotropic_lobes"]
-    assert not summary["settings"]["estimate"]["anisotropic_lobes"]  # the default fit's
+    shared_settings, default_settings = shared_summary["settings"]["estimate"], summary["settings"]["estimate"]
+    assert shared_settings["anisotropic_lobes"] and shared_settings["footprint_blur"]
+    assert not shared_settings["neighbour_vote"]
+    # The default fit's:
+    assert not default_settings["anisotropic_lobes"] and not default_settings["footprint_blur"]
+    assert default_settings["neighbour_vote"]
 
     paper_dir = tmp_path / "paper"
     assert run_cli("fit", tiny_capture, "--out", paper_dir, "--texture-res", 16,

@@ -229,6 +229,12 @@ def fit(
         False, "--anisotropic-lobes", help="Read a smooth lobe's light as the anisotropic lobe it is at oblique "
         "views: closer to a path tracer, 1.6-1.8x the estimation time; more accurate on the measured plane, "
         "not on the bunnies."),
+    neighbour_vote: bool = typer.Option(
+        True, "--neighbour-vote/--no-neighbour-vote", help="Let a texel whose data fit two roughness values "
+        "about equally take the one nearer its neighbours' (a likelihood-ratio test keeps what the data decide)."),
+    footprint_blur: bool = typer.Option(
+        False, "--footprint-blur", help="Blur each sample's smooth lobe by the normals its pixel spans (more "
+        "faithful on curved surfaces, but less accurate roughness on the measured scenes)."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars or messages."),
     json_output: bool = typer.Option(False, "--json", help="Print summary.json to stdout."),
 ) -> None:
@@ -248,8 +254,11 @@ def fit(
     config = _config(preset, texture_res, lmax, estimator=estimator, model=model, entropy=entropy)
     if share:
         config = config.replace(share=dataclasses.replace(config.share, enabled=True))
-    if anisotropic_lobes:
-        config = config.replace(estimate=dataclasses.replace(config.estimate, anisotropic_lobes=True))
+    if anisotropic_lobes or footprint_blur or not neighbour_vote:
+        config = config.replace(estimate=dataclasses.replace(
+            config.estimate, anisotropic_lobes=config.estimate.anisotropic_lobes or anisotropic_lobes,
+            footprint_blur=config.estimate.footprint_blur or footprint_blur,
+            neighbour_vote=config.estimate.neighbour_vote and neighbour_vote))
     reporter = Reporter(enabled=not (quiet or json_output))
     loaded = load(capture)
     pipeline.check_output_folder(out, {"the capture": loaded.root.resolve()})  # before minutes of work
