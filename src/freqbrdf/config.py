@@ -202,7 +202,8 @@ class EstimateConfig:
     # metallic 0.178 -> 0.176, relighting PSNR-H 22.10 -> 22.11; plane 25.00 -> 25.10 dB, 0.0584 ->
     # 0.0581, 0.0807 -> 0.0802, 23.49 -> 23.50; demo capture (T = 256) 20.15 -> 20.37 dB, roughness
     # 0.129 -> 0.123, metallic 0.188 -> 0.182. Cost, in one process: +0.5-0.9 s of the bunny's
-    # 4.3 s estimate, +0-0.6 s of the plane's 10 s.
+    # 4.3 s estimate, +0-0.6 s of the plane's 10 s. Windows of 3, 9 or 15 texels instead of 5 move
+    # roughness MAE by at most 0.001 (T = 256, bunny and demo capture).
     neighbour_vote: bool = True
     fresnel: bool = True  # Schlick F; off: F = R0
     masking: bool = True  # "g1": G1(theta_o) on the reflected light
@@ -271,11 +272,11 @@ def preset(name: str = "default") -> Config:
 
     ``fast`` is ``default`` with the least-squares optimum (no robust pass) on a 5-node roughness
     grid: about a third less estimation time (plane, T = 512, session 8: 6.8 vs 10.5 s in one
-    process, 7.2 vs 10.6 s median in fresh ones). Measured against ``default`` (64 views, T = 512):
-    base-colour PSNR 24.99 vs 25.00 dB (plane), 18.51 vs 18.81 (bunny); roughness MAE 0.060 vs
-    0.058, 0.132 vs 0.126; metallic MAE 0.084 vs 0.081, 0.187 vs 0.178; relighting PSNR-H 23.48 vs
-    23.49, 22.05 vs 22.10; still ahead of ``paper`` and of Mitsuba's inverse renderer on every one
-    (benchmarks/results/compare_estimators.md).
+    process, 7.2 vs 10.6 s median in fresh ones). Measured against ``default`` (64 views, T = 512,
+    both with the neighbour vote, session 10): base-colour PSNR 25.08 vs 25.10 dB (plane), 18.65 vs
+    18.92 (bunny); roughness MAE 0.060 vs 0.058, 0.127 vs 0.121; metallic MAE 0.084 vs 0.080, 0.184
+    vs 0.176; relighting PSNR-H 23.48 vs 23.50, 22.07 vs 22.11; still ahead of ``paper`` and of
+    Mitsuba's inverse renderer on every one (benchmarks/results/compare_estimators.md).
     """
     if name == "default":
         return Config()
