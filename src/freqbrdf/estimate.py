@@ -2251,6 +2251,13 @@ def _search_roughness(args, state, roughness_grid, best_state, roughness_brent, 
                 _keep_state(state, best_state)
         if search:
             _brent_start(roughness_brent, max(node_r - cell, 0.0), min(node_r + cell, 1.0), xtol)
+    return _brent_run(args, state, best_state, roughness_brent, best_r, best_f, search)
+
+
+@_borrowing_jit
+def _brent_run(args, state, best_state, roughness_brent, best_r, best_f, search):
+    """Brent's search as started in roughness_brent (if ``search``) on the profiled loss: returns the
+    best (roughness, loss) of it and of (best_r, best_f), its base colour and metallic in best_state."""
     while search:
         f = _roughness_objective(roughness_brent[_PROBE], args)
         if f < best_f:
@@ -2492,13 +2499,7 @@ def _global_search_kernel(
                 lower = max(candidate_roughness[t] - cell, 0.0)
                 upper = min(candidate_roughness[t] + cell, 1.0)
                 _brent_start(roughness_brent, lower, upper, _BRENT_XTOL)
-                local_r, local_f, searching = 0.0, np.inf, True
-                while searching:
-                    f = _roughness_objective(roughness_brent[_PROBE], args)
-                    if f < local_f:
-                        local_r, local_f = roughness_brent[_PROBE], f
-                        _keep_state(state, best_state)
-                    searching = _brent_next(roughness_brent, f)
+                local_r, local_f = _brent_run(args, state, best_state, roughness_brent, 0.0, np.inf, True)
                 margin = _VOTE_MARGIN * cell
                 interior = (local_r - lower > margin or lower == 0.0) and (upper - local_r > margin or upper == 1.0)
                 if (not interior or not abs(local_r - params[t, 3]) > cell
