@@ -714,15 +714,17 @@ def test_neighbour_vote_moves_only_texels_whose_data_allow_it(truth, unshadowed)
     assert NO_SHADOWING.estimate.neighbour_vote
     np.testing.assert_array_equal(estimate(unshadowed, NO_SHADOWING).roughness,
                                   estimate(unshadowed, without_vote).roughness)
-    # With 30 % noise some texels cannot tell their roughness from their neighbours' median (the
-    # truth is random per texel here): those move to a minimum within a grid cell of that median, at
-    # a least-squares loss at most chi^2(95 %) noise variances above their own estimate's.
+    # With 30 % noise some texels cannot tell their roughness or metallic from their neighbours'
+    # medians (the truth is random per texel here): their roughness moves to a minimum within a
+    # grid cell of that median, or their metallic to it, at a least-squares loss at most
+    # chi^2(95 %) noise variances above their own estimate's.
     noisy = synthetic_observations(truth, seed=8, shadowing=False)
     rng = np.random.default_rng(9)
     noisy.observed *= (1.0 + 0.3 * rng.standard_normal(noisy.observed.shape)).astype(np.float32)
     voted, own = estimate(noisy, NO_SHADOWING), estimate(noisy, without_vote)
     moved = voted.roughness != own.roughness
-    assert 0 < moved.sum() < len(moved)
+    changed = moved | (voted.metallic != own.metallic)
+    assert 0 < moved.sum() and changed.sum() < len(changed)
     cell = 1.0 / (NO_SHADOWING.estimate.roughness_grid - 1)
     from freqbrdf.estimate import FITTED_PARAMETERS, neighbour_median
 
@@ -730,11 +732,16 @@ def test_neighbour_vote_moves_only_texels_whose_data_allow_it(truth, unshadowed)
     assert np.all(np.abs(voted.roughness[moved] - candidate[moved]) < cell)
     assert np.all(np.abs(own.roughness[moved] - candidate[moved]) > cell)
     assert np.all(np.abs(voted.roughness[moved] - own.roughness[moved]) > cell)  # another minimum
-    dof = 3 * noisy.n_samples[moved] - FITTED_PARAMETERS
-    assert np.all(voted.loss[moved] <= own.loss[moved] * (1.0 + 3.84 / dof) * (1.0 + 1e-9))
+    # A texel whose roughness stayed changed its metallic only to its neighbours' median.
+    metallic_voted = changed & ~moved
+    assert metallic_voted.any()
+    np.testing.assert_array_equal(voted.metallic[metallic_voted],
+                                  neighbour_median(noisy, own.metallic)[metallic_voted])
+    dof = 3 * noisy.n_samples[changed] - FITTED_PARAMETERS
+    assert np.all(voted.loss[changed] <= own.loss[changed] * (1.0 + 3.84 / dof) * (1.0 + 1e-9))
     np.testing.assert_allclose(voted.loss, angular_loss(noisy, voted.principled(), NO_SHADOWING), rtol=1e-6)
     for name in ("base_color", "metallic"):
-        np.testing.assert_array_equal(getattr(voted, name)[~moved], getattr(own, name)[~moved])
+        np.testing.assert_array_equal(getattr(voted, name)[~changed], getattr(own, name)[~changed])
 
 
 def test_robust_passes_discount_outlier_samples(truth):

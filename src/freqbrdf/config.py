@@ -195,17 +195,19 @@ class EstimateConfig:
     # residual at the truth grows). Off by default.
     footprint_blur: bool = False
     # global: after the search, each texel whose estimate lies more than a grid cell from the median
-    # roughness of its neighbours (5 x 5 texels) takes a local minimum within a cell of that median
-    # unless its data reject it (a likelihood-ratio test at 95 %, estimate._VOTE_CHI2): bimodal
-    # texels, whose smooth and rough optima fit about equally, follow their neighbourhood. At T = 512
-    # (compare_estimators.md): bunny base colour 18.81 -> 18.92 dB, roughness MAE 0.126 -> 0.121,
-    # metallic 0.178 -> 0.176, relighting PSNR-H 22.10 -> 22.11; plane 25.00 -> 25.10 dB, 0.0584 ->
-    # 0.0581, 0.0807 -> 0.0802, 23.49 -> 23.50; demo capture (T = 256) 20.15 -> 20.37 dB, roughness
-    # 0.129 -> 0.123, metallic 0.188 -> 0.182. Cost, in one process: +0.5-0.9 s of the bunny's
-    # 4.3 s estimate, +0-0.6 s of the plane's 10 s. Windows of 3, 9 or 15 texels instead of 5 move
-    # roughness MAE by at most 0.001 (T = 256, bunny and demo capture). On photo-textured materials
-    # too (applications.py's scenes, T = 512): bunny_sunset 20.71 -> 21.02 dB, roughness 0.132 ->
-    # 0.129; sphere_city 25.79 -> 26.05, 0.070 -> 0.069; sphere_studio 17.49 -> 17.52, 0.121 -> 0.118.
+    # roughness of its neighbours (5 x 5 texels) takes a local minimum within a cell of that median,
+    # and one more than a metallic grid cell from their median metallic takes that metallic, unless
+    # its data reject the result (a likelihood-ratio test at 95 %, estimate._VOTE_CHI2): bimodal
+    # texels (a smooth or a rough lobe, a metal or a dielectric, fitting about equally) follow
+    # their neighbourhood. At T = 512 (compare_estimators.md), without -> with: bunny base colour
+    # 18.81 -> 19.00 dB, roughness MAE 0.126 -> 0.121, metallic 0.178 -> 0.171, relighting PSNR-H
+    # 22.10 -> 22.12; plane 25.00 -> 25.10 dB, 0.0584 -> 0.0581, 0.0807 -> 0.0796, 23.49 -> 23.50;
+    # photo-textured scenes (applications.py's): bunny_sunset 20.71 -> 21.08 dB, roughness 0.132
+    # -> 0.129, metallic 0.217 -> 0.208; sphere_city 25.79 -> 26.14, 0.070 -> 0.069, 0.111 -> 0.108;
+    # sphere_studio 17.49 -> 17.51, 0.121 -> 0.118, 0.172 -> 0.170. Cost, in one process: +0.6 s of
+    # the bunny's 4.2 s estimate, +0.5-0.7 s of the plane's 9.8 s. Windows of 3, 9 or 15 texels
+    # instead of 5 moved roughness MAE by at most 0.001 (T = 256, bunny and demo capture; measured
+    # with the roughness vote alone).
     neighbour_vote: bool = True
     fresnel: bool = True  # Schlick F; off: F = R0
     masking: bool = True  # "g1": G1(theta_o) on the reflected light
