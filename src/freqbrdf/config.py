@@ -192,7 +192,8 @@ class EstimateConfig:
     # and that bias falls +0.111 -> +0.049, but roughness below the blur's width can no longer be
     # told apart and some texels escape to rough lobes: roughness MAE bunny 0.124 -> 0.129,
     # entropy_scenes.py's sphere 0.114 -> 0.125 (where the footprints are 3x smaller and the
-    # residual at the truth grows). Off by default.
+    # residual at the truth grows); with the neighbour vote too (T = 256: bunny 0.121 -> 0.127, demo
+    # capture 0.123 -> 0.133). Off by default.
     footprint_blur: bool = False
     # global: after the search, each texel whose estimate lies more than a grid cell from the median
     # roughness of its neighbours (5 x 5 texels) takes a local minimum within a cell of that median,
