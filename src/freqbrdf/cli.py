@@ -254,11 +254,11 @@ def fit(
     config = _config(preset, texture_res, lmax, estimator=estimator, model=model, entropy=entropy)
     if share:
         config = config.replace(share=dataclasses.replace(config.share, enabled=True))
-    if anisotropic_lobes or footprint_blur or not neighbour_vote:
-        config = config.replace(estimate=dataclasses.replace(
-            config.estimate, anisotropic_lobes=config.estimate.anisotropic_lobes or anisotropic_lobes,
-            footprint_blur=config.estimate.footprint_blur or footprint_blur,
-            neighbour_vote=config.estimate.neighbour_vote and neighbour_vote))
+    # The flags only add to what the preset sets.
+    config = config.replace(estimate=dataclasses.replace(
+        config.estimate, anisotropic_lobes=config.estimate.anisotropic_lobes or anisotropic_lobes,
+        footprint_blur=config.estimate.footprint_blur or footprint_blur,
+        neighbour_vote=config.estimate.neighbour_vote and neighbour_vote))
     reporter = Reporter(enabled=not (quiet or json_output))
     loaded = load(capture)
     pipeline.check_output_folder(out, {"the capture": loaded.root.resolve()})  # before minutes of work

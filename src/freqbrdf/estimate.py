@@ -287,7 +287,7 @@ def angular_loss(
             settings.masking, _uses_split_sum(settings), _uses_exact_dielectric(settings), _uses_burley(settings),
             _model_tables(), environment_response_table(), _burley_response(settings), azimuthal, blend, tangent[rows],
             normal[rows], prefiltered, n_full, anisotropic, world_to_local, map_height, map_width,
-            _footprint(observations, settings)[rows], loss[rows],
+            _footprint_input(observations, settings)[rows], loss[rows],
         )
     return np.where(observations.n_samples > 0, loss, np.nan)
 
@@ -335,12 +335,12 @@ def _run_search_kernel(observations: Observations, settings: EstimateConfig, lig
         settings.metallic_grid, settings.robust_passes, observations.lmax, *sh._legendre_tables(observations.lmax),
         tangent, normal, environment, blend, environment_response_table(),
         *_environment_quadrature(max(math.isqrt(len(environment)) - 1, 0)), _burley_response(settings),
-        *prefiltered, _footprint(observations, settings), hypothesis_roughness, hypothesis_moments, search,
+        *prefiltered, _footprint_input(observations, settings), hypothesis_roughness, hypothesis_moments, search,
         candidate, params, loss, curvature,
     )
 
 
-def _footprint(observations: Observations, settings: EstimateConfig) -> np.ndarray:
+def _footprint_input(observations: Observations, settings: EstimateConfig) -> np.ndarray:
     """(N, V) `Observations.footprint` where the estimator blurs by it, else (N, 0)."""
     if settings.footprint_blur and observations.footprint is not None:
         return observations.footprint

@@ -626,7 +626,9 @@ def _footprint(normal_derivative, frame, local_view, radius):
     across the line of sight, seen along local_view (3,) in the texel's frame (3, 3) (rows t, b, n):
     on the surface it is radius / cos theta along the view's azimuth and radius across it."""
     sin_theta = math.sqrt(local_view[0] * local_view[0] + local_view[1] * local_view[1])
-    cos_azimuth, sin_azimuth = (local_view[0] / sin_theta, local_view[1] / sin_theta) if sin_theta > 1e-9 else (1.0, 0.0)
+    cos_azimuth, sin_azimuth = 1.0, 0.0  # any azimuth at normal incidence
+    if sin_theta > 1e-9:
+        cos_azimuth, sin_azimuth = local_view[0] / sin_theta, local_view[1] / sin_theta
     total = 0.0
     for along in (True, False):  # the footprint's two axes, in world coordinates via the frame
         u, v = (cos_azimuth, sin_azimuth) if along else (-sin_azimuth, cos_azimuth)

@@ -145,7 +145,8 @@ def normal_derivative(corners: np.ndarray, corner_normals: np.ndarray, face_id: 
     gram = np.swapaxes(edges, 1, 2) @ edges  # (F, 2, 2)
     determinant = gram[:, 0, 0] * gram[:, 1, 1] - gram[:, 0, 1] * gram[:, 1, 0]
     usable = determinant > 1e-12 * np.maximum(gram[:, 0, 0] * gram[:, 1, 1], 1e-300)
-    adjugate = np.stack([np.stack([gram[:, 1, 1], -gram[:, 0, 1]], -1), np.stack([-gram[:, 1, 0], gram[:, 0, 0]], -1)], -2)
+    adjugate = np.stack([np.stack([gram[:, 1, 1], -gram[:, 0, 1]], -1),
+                         np.stack([-gram[:, 1, 0], gram[:, 0, 0]], -1)], -2)
     inverse = adjugate / np.where(usable, determinant, 1.0)[:, None, None]
     face_derivative = normal_steps @ inverse @ np.swapaxes(edges, 1, 2)  # (F, 3, 3)
     face_derivative[~usable] = 0.0

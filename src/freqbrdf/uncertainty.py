@@ -72,10 +72,11 @@ leaves out, pins the roughness down there; the paper's recipe calls it uncertain
 Flags (bit field, uint8 per texel) say why a texel should not be trusted; see FLAG_*.
 
 The entropy scores the hypotheses against the spectra, not the estimate, and ranks the `global`
-estimate's per-texel roughness errors poorly (Spearman 0.29 on the Mitsuba bunny, 0.32 on the
-sphere of entropy_scenes.py; the angular mode 0.29 and 0.21). `roughness_std` is the posterior
-spread of the estimate itself (UncertaintyConfig.roughness_window, loss_curvature): 0.57 and 0.49,
-measured in benchmarks/entropy_variants.py (session-9 estimator).
+estimate's per-texel roughness errors poorly (Spearman 0.28 on the Mitsuba bunny, 0.31 on the
+sphere of entropy_scenes.py; the angular mode 0.28 and 0.21). `roughness_std` is
+the posterior spread of the estimate itself (UncertaintyConfig.roughness_window, loss_curvature):
+0.56 and 0.48, measured in benchmarks/entropy_variants.py (session-10 estimator, with the
+neighbour vote).
 """
 
 from __future__ import annotations
