@@ -965,3 +965,33 @@ def test_metallic_profile_derivatives_match_finite_differences_and_brute_force()
     profiled = estimate_module._profile_metallic(quadratics, state, 4)
     scan = min(terms(m)[0] for m in np.linspace(0.0, 1.0, 20001))
     assert profiled <= scan + 1e-12
+
+
+@pytest.mark.parametrize("true_metallic", [-0.1, 0.35, 1.1])
+def test_metallic_profile_leaves_its_winner_in_state(true_metallic):
+    # The profile skips re-evaluating the winner when it was the last point evaluated: whichever
+    # path it takes (a pure dielectric, not the last node evaluated; Newton inside a cell; a pure
+    # metal, the last node), state must hold the returned loss's base colour and metallic. Data
+    # of metallic beyond [0, 1] put the optimum on the bounds.
+    from freqbrdf import estimate as estimate_module
+
+    rng = np.random.default_rng(11)
+    n = 30
+    omega = rng.uniform(0.1, 1.0, n)
+    x, y, z, d = rng.uniform(0.1, 1.0, (4, 3, n))
+    base_color = np.array([0.6, 0.4, 0.2])[:, None]
+    m = true_metallic
+    f = base_color * (m * x + (1 - m) * d) + m * y + (1 - m) * z + rng.normal(0.0, 0.01, (3, n))
+    moments = np.stack([[np.sum(omega * a * b) for a, b in
+                         ((x[c], d[c]), (y[c], d[c]), (z[c], d[c]), (x[c], x[c]), (x[c], y[c]), (x[c], z[c]),
+                          (x[c], f[c]), (y[c], y[c]), (y[c], z[c]), (y[c], f[c]), (z[c], z[c]), (z[c], f[c]),
+                          (d[c], d[c]), (f[c], d[c]))] for c in range(3)])
+    quadratics = np.empty((3, 3, 3))
+    estimate_module._metallic_quadratics(moments, np.sum(omega * f * f, axis=1), np.ones(3), quadratics)
+    state = np.empty(4)
+    profiled = estimate_module._profile_metallic(quadratics, state, 4)
+    winner = state.copy()
+    assert winner[3] == pytest.approx(min(max(true_metallic, 0.0), 1.0), abs=5e-3)
+    check = np.empty(4)
+    assert estimate_module._metallic_terms(winner[3], quadratics, check)[0] == profiled
+    np.testing.assert_array_equal(check, winner)
