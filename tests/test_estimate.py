@@ -924,6 +924,14 @@ def test_model_light_is_shadowed_only_for_the_method_model(unshadowed):
     assert np.all(shadowed[..., 0] < unshadowed.mirrored_coeffs[..., 0])
 
 
+def _metallic_moments(omega, x, y, z, d, f):
+    """(3, 14) `estimate._metallic_quadratics`' weighted sums of per-channel samples (3, n)."""
+    return np.stack([[np.sum(omega * a * b) for a, b in
+                      ((x[c], d[c]), (y[c], d[c]), (z[c], d[c]), (x[c], x[c]), (x[c], y[c]), (x[c], z[c]),
+                       (x[c], f[c]), (y[c], y[c]), (y[c], z[c]), (y[c], f[c]), (z[c], z[c]), (z[c], f[c]),
+                       (d[c], d[c]), (f[c], d[c]))] for c in range(3)])
+
+
 def test_metallic_profile_derivatives_match_finite_differences_and_brute_force():
     # The global search profiles the metallic with Newton on analytic derivatives of the loss at
     # the best (clipped) base colour; check them against finite differences, and the profile's
@@ -936,10 +944,7 @@ def test_metallic_profile_derivatives_match_finite_differences_and_brute_force()
     # per channel: base colour term X, Fresnel bias Y, dielectric Z, diffuse factor D
     x, y, z, d = rng.uniform(0.1, 1.0, (4, 3, n))
     f = 0.3 * x + 0.2 * y + 0.1 * z + 0.4 * d + rng.normal(0.0, 0.02, (3, n))
-    moments = np.stack([[np.sum(omega * a * b) for a, b in
-                         ((x[c], d[c]), (y[c], d[c]), (z[c], d[c]), (x[c], x[c]), (x[c], y[c]), (x[c], z[c]),
-                          (x[c], f[c]), (y[c], y[c]), (y[c], z[c]), (y[c], f[c]), (z[c], z[c]), (z[c], f[c]),
-                          (d[c], d[c]), (f[c], d[c]))] for c in range(3)])
+    moments = _metallic_moments(omega, x, y, z, d, f)
     squared_values = np.sum(omega * f * f, axis=1)
     diffuse_scale = np.array([1.0, 0.8, 1.2])
     quadratics = np.empty((3, 3, 3))
@@ -982,10 +987,7 @@ def test_metallic_profile_leaves_its_winner_in_state(true_metallic):
     base_color = np.array([0.6, 0.4, 0.2])[:, None]
     m = true_metallic
     f = base_color * (m * x + (1 - m) * d) + m * y + (1 - m) * z + rng.normal(0.0, 0.01, (3, n))
-    moments = np.stack([[np.sum(omega * a * b) for a, b in
-                         ((x[c], d[c]), (y[c], d[c]), (z[c], d[c]), (x[c], x[c]), (x[c], y[c]), (x[c], z[c]),
-                          (x[c], f[c]), (y[c], y[c]), (y[c], z[c]), (y[c], f[c]), (z[c], z[c]), (z[c], f[c]),
-                          (d[c], d[c]), (f[c], d[c]))] for c in range(3)])
+    moments = _metallic_moments(omega, x, y, z, d, f)
     quadratics = np.empty((3, 3, 3))
     estimate_module._metallic_quadratics(moments, np.sum(omega * f * f, axis=1), np.ones(3), quadratics)
     state = np.empty(4)

@@ -1756,7 +1756,7 @@ def _profile_metallic(quadratics, state, metallic_grid):
         f, f_slope, f_curvature = _metallic_terms(m, quadratics, state)
         if f < best_f:
             best_m, best_f, slope, curvature = m, f, f_slope, f_curvature
-    last_m = 1.0
+    last_m = 1.0  # the grid's last node
     cell = 1.0 / (metallic_grid - 1)
     if (best_m == 0.0 and slope >= 0.0) or (best_m == 1.0 and slope <= 0.0) or slope == 0.0:
         # A pure dielectric or a pure metal (or a node exactly at the minimum).
