@@ -95,7 +95,8 @@ def main(argv=None) -> int:
     for roughness in ROUGHNESS:
         costs = np.array([run["roughness"][str(roughness)]["cached_probe_us_per_texel"] for run in runs])
         slope, intercept = np.polyfit(sample_counts, costs, 1)
-        fits[str(roughness)] = {"per_texel_us": round(float(intercept), 3), "per_sample_ns": round(float(slope) * 1e3, 2)}
+        fits[str(roughness)] = {"per_texel_us": round(float(intercept), 3),
+                                "per_sample_ns": round(float(slope) * 1e3, 2)}
     save_results("bench_probe", {
         "benchmark": "cost of one probe of the global search: per texel and per sample",
         **machine(),
