@@ -12,7 +12,7 @@ smooth lobe on the prefiltered map alone, the blend of the map and the environme
 lobe on the environment light alone), and with the views cut to the first 64, 32 and 16, so that
 a straight line through the three sample counts splits a probe's cost into a part per texel and a
 part per sample. Hypothesis mode adds the texel's specular moments per probe (a few ns per
-sample), so these figures bound the search's own probes from above. Times are the minimum of
+sample), so these figures bound the search's own probes from above. Times are the median of
 ``--repeats`` runs, in seconds of one core (wall x numba's threads). Prints the figures and saves
 benchmarks/results/bench_probe.json.
 """
@@ -21,11 +21,10 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import time
 
 import numba
 import numpy as np
-from _common import control_seconds, machine, save_results
+from _common import control_seconds, machine, median_seconds, save_results
 from compare_estimators import CACHE, FULL_RENDER, SCENES  # the script's folder is on sys.path
 
 from freqbrdf import estimate
@@ -40,18 +39,14 @@ PROBES = 10  # cached probes timed on top of the first
 
 
 def kernel_seconds(observations, settings, roughness: list[float], repeats: int) -> float:
-    """Minimum wall seconds of the search kernel with these hypotheses and no search."""
+    """Median wall seconds of the search kernel with these hypotheses and no search."""
     n = observations.n_texels
     hypotheses = np.asarray(roughness, np.float64)
     moments = np.zeros((n, len(hypotheses), 3, 8))
     params, loss, curvature = np.zeros((n, 5)), np.zeros(n), np.zeros(n)
-    best = np.inf
-    for _ in range(repeats):
-        start = time.perf_counter()
-        estimate._run_search_kernel(observations, settings, observations.mirrored_coeffs, hypotheses, moments, False,
-                                    params, loss, curvature)
-        best = min(best, time.perf_counter() - start)
-    return best
+    return median_seconds(lambda: estimate._run_search_kernel(
+        observations, settings, observations.mirrored_coeffs, hypotheses, moments, False, params, loss, curvature),
+        repeats)
 
 
 def main(argv=None) -> int:

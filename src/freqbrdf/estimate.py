@@ -2530,9 +2530,11 @@ def _global_search_kernel(
                 voted_f = profiled_f
                 metallic_voted = False
                 if abs(candidate[t, 1] - state[3]) * (metallic_grid - 1) > 1.0:
+                    # Into best_state, so that state keeps the profiled fit if the test refuses it.
                     fixed_f = _metallic_terms(candidate[t, 1], quadratics, best_state)[0]
                     if fixed_f <= limit:
-                        voted_f = _metallic_terms(candidate[t, 1], quadratics, state)[0]
+                        voted_f = fixed_f
+                        _keep_state(best_state, state)
                         metallic_voted = True
                 if voted_r == estimate_r and not metallic_voted:
                     continue  # the estimate stands
