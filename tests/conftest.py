@@ -2,11 +2,16 @@
 
 from __future__ import annotations
 
+import os
 import sys
 
 import pytest
 
-from freqbrdf.cli import main
+from freqbrdf.cli import RERUN_VARIABLE, main
+
+# The command line re-runs a first run that compiled numba kernels in a fresh process (os.execve):
+# never the test process. test_cli.py tests that re-run in a child process of its own.
+os.environ[RERUN_VARIABLE] = "1"
 
 
 @pytest.fixture

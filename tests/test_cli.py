@@ -3,13 +3,17 @@
 from __future__ import annotations
 
 import json
+import os
 import shutil
+import subprocess
+import sys
 
 import numpy as np
 import pytest
 
 from freqbrdf import pipeline
 from freqbrdf.capture import load
+from freqbrdf.cli import RERUN_VARIABLE
 from freqbrdf.config import Config, TexelConfig
 from freqbrdf.synth import SynthSettings, synthesize
 
@@ -100,6 +104,29 @@ def test_uncertainty_command(run_cli, tiny_capture, tmp_path, monkeypatch, capsy
     other = tmp_path / "other"
     assert run_cli("uncertainty", tiny_capture, "--out", other, "--entropy", "sharpest") == 2
     assert "unknown entropy mode" in capsys.readouterr().err and not other.exists()
+
+
+@pytest.mark.slow
+def test_a_run_that_compiles_kernels_runs_again_from_numbas_cache(tiny_capture, tmp_path):
+    """With an empty numba cache the command compiles its kernels, says so, and runs again in a fresh
+    process that loads them: its results are those of every later run (compiled code differs in
+    the last bits from cached code)."""
+    env = {key: value for key, value in os.environ.items() if key != RERUN_VARIABLE}
+    env["NUMBA_CACHE_DIR"] = str(tmp_path / "numba_cache")
+    arrays, messages = [], []
+    for run in ("first", "second"):
+        out = tmp_path / run
+        done = subprocess.run([sys.executable, "-m", "freqbrdf.cli", "observe", str(tiny_capture), "--out", str(out),
+                               "--texture-res", "32"], env=env, capture_output=True, text=True, timeout=600)
+        assert done.returncode == 0, done.stderr
+        messages.append(" ".join(done.stderr.split()))  # rich wraps lines
+        with np.load(out / "observations.npz") as data:
+            arrays.append({name: data[name] for name in data.files if name != "timings_json"})
+    assert "running again from its cache" in messages[0] and "numba compiled" in messages[0]
+    assert "numba compiled" not in messages[1]
+    assert arrays[0].keys() == arrays[1].keys()
+    for name in arrays[0]:
+        np.testing.assert_array_equal(arrays[0][name], arrays[1][name], err_msg=name)
 
 
 def test_bad_input_is_one_line_exit_2_and_writes_nothing(run_cli, tmp_path, monkeypatch, capsys):

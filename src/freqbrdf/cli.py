@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import atexit
 import gc
+import os
 import sys
 
 import typer
@@ -22,6 +23,9 @@ app = typer.Typer(
 )
 err_console = Console(stderr=True)
 _state = {"debug": False}
+# Set in the process that re-runs a command, so that it is re-run once at most; set it yourself to
+# keep a first run's results.
+RERUN_VARIABLE = "FREQBRDF_RERUN"
 # At exit, the interpreter's last garbage collection walks every object numba and Mitsuba made:
 # 0.4-0.9 s after a fit on the 2-core machine, for memory the process hands back anyway. Exit
 # callbacks run before that collection, and frozen objects are not walked.
@@ -32,6 +36,24 @@ def _version(value: bool) -> None:
     if value:
         typer.echo(f"freqbrdf {__version__}")
         raise typer.Exit()
+
+
+def _results_from_cache(quiet: bool) -> None:
+    """Run this command again in a fresh process if numba compiled kernels in this one: compiled
+    code differs in the last bits from the cached code every later run loads (see freqbrdf.jit),
+    so a first run after an install would not reproduce. Call before writing anything."""
+    from freqbrdf.jit import compiled_here
+
+    compiled = compiled_here()
+    if not compiled or os.environ.get(RERUN_VARIABLE):
+        return
+    if not quiet:
+        err_console.print(f"numba compiled {len(compiled)} kernels in this first run; running again from its cache "
+                          "so that the results match every later run's", highlight=False)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os.execve(sys.executable, [sys.executable, "-m", "freqbrdf.cli", *sys.argv[1:]],
+              {**os.environ, RERUN_VARIABLE: "1"})
 
 
 @app.callback()
@@ -52,7 +74,8 @@ def demo(
     from freqbrdf.demo import run_demo
     from freqbrdf.progress import Reporter
 
-    result = run_demo(out, reporter=Reporter(enabled=not (quiet or json_output)))
+    result = run_demo(out, reporter=Reporter(enabled=not (quiet or json_output)),
+                      before_writing=lambda: _results_from_cache(quiet or json_output))
     if json_output:
         _print_json(result)
     elif not quiet:
@@ -146,6 +169,7 @@ def observe(
 
     config = _config("default", texture_res, lmax, environment_occlusion=environment_occlusion)
     observations = observe_capture(load(capture), config, Reporter(enabled=not quiet))
+    _results_from_cache(quiet)
     folder = Path(out)
     observations.save(folder / "observations.npz")
     maps = write_maps(observations, folder)
@@ -263,6 +287,7 @@ def fit(
     loaded = load(capture)
     pipeline.check_output_folder(out, {"the capture": loaded.root.resolve()})  # before minutes of work
     result = pipeline.fit(loaded, config, reporter)
+    _results_from_cache(quiet or json_output)
     folder = pipeline.write_fit(out, result, config)
     summary = json.loads((folder / "summary.json").read_text(encoding="utf-8"))
     if json_output:
@@ -312,6 +337,7 @@ def uncertainty(
     start = time.perf_counter()
     result = entropy_map(observations, config.uncertainty, return_likelihood=False, estimate_config=config.estimate)
     seconds = time.perf_counter() - start
+    _results_from_cache(quiet or json_output)
     summary = {
         "capture": str(loaded.root.resolve()),
         "uncertainty": uncertainty_summary(result),
@@ -456,6 +482,7 @@ def next_views(
     start = time.perf_counter()
     picks = guidance.select_views(loaded, cameras, budget, config, max_texels=max_texels,
                                   reporter=Reporter(enabled=not quiet))
+    _results_from_cache(quiet)
     summary = {
         "capture": str(loaded.root.resolve()),
         "candidates": source,

@@ -11,6 +11,7 @@ from __future__ import annotations
 import hashlib
 import json
 import time
+from collections.abc import Callable
 from dataclasses import asdict
 from pathlib import Path
 
@@ -39,8 +40,10 @@ def capture_folder(out: Path, settings: SynthSettings) -> Path:
 
 def run_demo(out: str | Path = "out/demo", settings: SynthSettings = DEFAULT_CAPTURE,
              config: Config = Config(), reporter: Reporter = SILENT,
-             relight: RelightSettings = RelightSettings(spp=RELIGHT_SPP)) -> dict:
-    """Run the whole demo; returns where things are and the seconds per step."""
+             relight: RelightSettings = RelightSettings(spp=RELIGHT_SPP),
+             before_writing: Callable[[], None] = lambda: None) -> dict:
+    """Run the whole demo; returns where things are and the seconds per step. ``before_writing``
+    is called between the fit and writing it (the command line may re-run itself there)."""
     out = Path(out)
     timings = {}
     capture_dir = capture_folder(out, settings)
@@ -53,6 +56,7 @@ def run_demo(out: str | Path = "out/demo", settings: SynthSettings = DEFAULT_CAP
     start = time.perf_counter()
     capture = load(capture_dir)
     result = pipeline.fit(capture, config, reporter)
+    before_writing()
     fit_dir = pipeline.write_fit(out / "fit", result, config)
     timings["fit"] = time.perf_counter() - start
 
