@@ -13,10 +13,11 @@ texels), rendered into benchmarks/.cache/ with the same settings if it is missin
     python benchmarks/bench_fit.py [--capture plane|bunny|PATH] [--runs 3] [--name bench_fit]
         [--preset default|fast]
 
-Prints a table and saves benchmarks/results/<name>.json. The machine may be shared: the load
-average is recorded per run, and the table gives the minimum and the median. Its speed also
-drifts (up to 25 % within a session): before each run a fixed workload is timed
-(`_common.control_seconds`), so runs made at different times can be compared relative to it.
+A fit at T = 32 first, untimed, has numba compile (or load) the kernels. Prints a table and saves
+benchmarks/results/<name>.json. The machine may be shared: the load average is recorded per run,
+and the table gives the minimum and the median. Its speed also drifts (up to 25 % within a
+session): before each run a fixed workload is timed (`_common.control_seconds`), so runs made at
+different times can be compared relative to it.
 """
 
 from __future__ import annotations
@@ -134,6 +135,10 @@ def main(argv=None) -> int:
     capture = capture_folder(args.capture)
     runs, imports = [], []
     with tempfile.TemporaryDirectory(prefix="bench_fit.") as scratch:
+        # Untimed, at a small texture size: numba compiles the kernels here if its cache is cold
+        # (a run that compiles them runs again from the cache, see freqbrdf.jit), not in a timed run.
+        subprocess.run([*fit_command(), "fit", str(capture), "--out", str(Path(scratch) / "warm_up"), "--quiet",
+                        "--texture-res", "32", *options], capture_output=True, check=True)
         for index in range(args.runs):
             runs.append(one_fit(capture, Path(scratch) / "fit", options))
             imports.append(import_seconds())
