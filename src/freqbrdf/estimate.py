@@ -2369,229 +2369,254 @@ def _global_search_kernel(
     roughness (n,) (`MaterialEstimate.roughness_curvature`) for texels with samples; others are
     left untouched.
     """
+    for chunk in numba.prange((weight.shape[0] + _SEARCH_CHUNK - 1) // _SEARCH_CHUNK):
+        # np.int64: the loop index is unsigned in numba's parallel code and signed when typed: one
+        # signature, not two (each compiles the whole search).
+        _global_search_chunk(np.int64(chunk), directions, weight, observed, light, diffuse_scale, sigma, fresnel,
+                             masking, split_sum, exact_dielectric, burley, table, table_rows, tilt_levels,
+                             roughness_grid, metallic_grid, robust_passes, lmax, diag, rec_a, rec_b, tangent, normal,
+                             environment, environment_blend, response, quadrature, quadrature_projection,
+                             burley_response, prefiltered, n_full, anisotropic, world_to_local, map_height, map_width,
+                             footprint, hypothesis_roughness, hypothesis_moments, search, candidate, params, loss,
+                             curvature)
+
+
+@numba.njit(fastmath=True, cache=True)
+def _global_search_chunk(
+    chunk, directions, weight, observed, light, diffuse_scale, sigma, fresnel, masking, split_sum,
+    exact_dielectric, burley, table, table_rows, tilt_levels, roughness_grid, metallic_grid, robust_passes, lmax,
+    diag, rec_a, rec_b, tangent, normal, environment, environment_blend, response, quadrature,
+    quadrature_projection, burley_response, prefiltered, n_full, anisotropic, world_to_local, map_height,
+    map_width, footprint, hypothesis_roughness, hypothesis_moments, search, candidate, params, loss, curvature,
+):
+    """`_global_search_kernel`'s work for the texels of one chunk: a function of its own, so that
+    numba's parallel passes see a small loop (on the whole body they took much of the kernel's
+    compile time)."""
     n_texels, n_views = weight.shape
     n_degrees = lmax + 1
     n_coeffs = n_degrees * n_degrees
-    for chunk in numba.prange((n_texels + _SEARCH_CHUNK - 1) // _SEARCH_CHUNK):
-        # The texel's samples with w > 0, packed and with the views innermost (vectorised loops).
-        xyz = np.empty((3, n_views))
-        tilted = np.empty((3, n_views))
-        basis = np.empty((n_coeffs, n_views))
-        sh_scratch = np.empty((5, n_views))
-        packed_cos = np.empty(n_views)
-        omega = np.empty(n_views)  # w^2
-        packed_proj = np.empty((tilt_levels, 3, n_degrees, n_views))
-        values = np.empty((3, n_views))
-        table_row = np.empty(n_views, dtype=np.int64)
-        table_frac = np.empty(n_views)
-        tilt_level = np.empty((3, n_views), dtype=np.int64)  # per lobe term
-        tilt_frac = np.empty((3, n_views))
-        burley_terms = np.empty((3, 3, n_views))  # per channel, power of r and sample
-        diffuse_moments = np.empty((3, 2, 5))  # per channel: sum w^2 D^2 (quartic in r), sum w^2 f D (quadratic)
-        column = np.empty((table.shape[0], table.shape[1]))
-        albedo = np.empty((3, n_views))  # A, B, E
-        diffuse_factor = np.empty((3, n_views))
-        level_filtered = np.empty((tilt_levels, n_views))
-        filtered = np.empty((3, 3, n_views))  # per channel X, Y, Z
-        sample_weight = np.empty(n_views)  # w
-        residual = np.empty(n_views)
-        kernel = np.empty(n_degrees)
-        kernel_derivative = np.empty(n_degrees)
-        moments = np.empty((3, 14))  # `_metallic_quadratics`' weighted sums
-        quadratics = np.empty((3, 3, 3))
-        squared_values = np.empty(3)  # sum_v w^2 f^2 per channel
-        scale = np.empty(3)
-        state = np.empty(4)
-        best_state = np.empty(4)
-        roughness_brent = np.empty(13)
-        node_loss = np.empty(roughness_grid)
-        # The environment in the texel's frame, then in each sample's mirrored view frame.
-        n_points = quadrature.shape[0]
-        local_environment = np.empty((environment.shape[0], 3))
-        quadrature_world = np.empty((3, n_points))
-        quadrature_basis = np.empty((environment.shape[0], n_points))
-        quadrature_scratch = np.empty((5, n_points))
-        quadrature_values = np.empty((3, n_points))
-        n_environment_degrees = _n_degrees(environment.shape[0])
-        azimuthal = np.zeros((n_views, 3, n_environment_degrees * (n_environment_degrees + 1) // 2))
-        # The environment light per roughness node, lobe term, channel and sample.
-        environment_nodes = np.empty((_ENVIRONMENT_NODES, 3, 3, n_views))
-        environment_cached = np.zeros(_ENVIRONMENT_NODES, dtype=np.bool_)
-        bitangent = np.empty(3)
-        # The prefiltered light per map node, channel and sample, and each sample's lookup stencil.
-        n_prefiltered = prefiltered.shape[1]
-        prefiltered_nodes = np.empty((n_prefiltered, 3, n_views))
-        prefiltered_cached = np.zeros(n_prefiltered, dtype=np.bool_)
-        corner = np.empty((4, n_views), dtype=np.int64)
-        stencil_frac = np.empty((2, n_views))
-        frames = np.empty((5 if anisotropic else 0, n_views))
-        high_filtered = np.empty(n_views)
-        blur = np.zeros(n_views)  # alpha^2 units
-        sample_node = np.empty((2, n_views), dtype=np.int64)  # the full and the high nodes
-        sample_frac = np.empty((2, n_views))
-        for t in range(chunk * _SEARCH_CHUNK, min((chunk + 1) * _SEARCH_CHUNK, n_texels)):
-            n = 0
-            blurred = False
-            for v in range(n_views):
-                w = np.float64(weight[t, v])
-                if w <= 0.0:
-                    continue
-                for axis in range(3):
-                    xyz[axis, n] = directions[t, v, axis]
-                packed_cos[n] = xyz[2, n]
-                omega[n] = w * w
-                for c in range(3):
-                    values[c, n] = observed[t, v, c]
-                if footprint.shape[1] > 0:
-                    blur[n] = _FOOTPRINT_GAIN * np.float64(footprint[t, v]) ** 2
-                    blurred = blurred or blur[n] > 0.0
-                n += 1
-            if n < MIN_SAMPLES:
+    # The texel's samples with w > 0, packed and with the views innermost (vectorised loops).
+    xyz = np.empty((3, n_views))
+    tilted = np.empty((3, n_views))
+    basis = np.empty((n_coeffs, n_views))
+    sh_scratch = np.empty((5, n_views))
+    packed_cos = np.empty(n_views)
+    omega = np.empty(n_views)  # w^2
+    packed_proj = np.empty((tilt_levels, 3, n_degrees, n_views))
+    values = np.empty((3, n_views))
+    table_row = np.empty(n_views, dtype=np.int64)
+    table_frac = np.empty(n_views)
+    tilt_level = np.empty((3, n_views), dtype=np.int64)  # per lobe term
+    tilt_frac = np.empty((3, n_views))
+    burley_terms = np.empty((3, 3, n_views))  # per channel, power of r and sample
+    diffuse_moments = np.empty((3, 2, 5))  # per channel: sum w^2 D^2 (quartic in r), sum w^2 f D (quadratic)
+    column = np.empty((table.shape[0], table.shape[1]))
+    albedo = np.empty((3, n_views))  # A, B, E
+    diffuse_factor = np.empty((3, n_views))
+    level_filtered = np.empty((tilt_levels, n_views))
+    filtered = np.empty((3, 3, n_views))  # per channel X, Y, Z
+    sample_weight = np.empty(n_views)  # w
+    residual = np.empty(n_views)
+    kernel = np.empty(n_degrees)
+    kernel_derivative = np.empty(n_degrees)
+    moments = np.empty((3, 14))  # `_metallic_quadratics`' weighted sums
+    quadratics = np.empty((3, 3, 3))
+    squared_values = np.empty(3)  # sum_v w^2 f^2 per channel
+    scale = np.empty(3)
+    state = np.empty(4)
+    best_state = np.empty(4)
+    roughness_brent = np.empty(13)
+    node_loss = np.empty(roughness_grid)
+    # The environment in the texel's frame, then in each sample's mirrored view frame.
+    n_points = quadrature.shape[0]
+    local_environment = np.empty((environment.shape[0], 3))
+    quadrature_world = np.empty((3, n_points))
+    quadrature_basis = np.empty((environment.shape[0], n_points))
+    quadrature_scratch = np.empty((5, n_points))
+    quadrature_values = np.empty((3, n_points))
+    n_environment_degrees = _n_degrees(environment.shape[0])
+    azimuthal = np.zeros((n_views, 3, n_environment_degrees * (n_environment_degrees + 1) // 2))
+    # The environment light per roughness node, lobe term, channel and sample.
+    environment_nodes = np.empty((_ENVIRONMENT_NODES, 3, 3, n_views))
+    environment_cached = np.zeros(_ENVIRONMENT_NODES, dtype=np.bool_)
+    bitangent = np.empty(3)
+    # The prefiltered light per map node, channel and sample, and each sample's lookup stencil.
+    n_prefiltered = prefiltered.shape[1]
+    prefiltered_nodes = np.empty((n_prefiltered, 3, n_views))
+    prefiltered_cached = np.zeros(n_prefiltered, dtype=np.bool_)
+    corner = np.empty((4, n_views), dtype=np.int64)
+    stencil_frac = np.empty((2, n_views))
+    frames = np.empty((5 if anisotropic else 0, n_views))
+    high_filtered = np.empty(n_views)
+    blur = np.zeros(n_views)  # alpha^2 units
+    sample_node = np.empty((2, n_views), dtype=np.int64)  # the full and the high nodes
+    sample_frac = np.empty((2, n_views))
+    for t in range(chunk * _SEARCH_CHUNK, min((chunk + 1) * _SEARCH_CHUNK, n_texels)):
+        # np.int64, np.bool_ and below: a literal constant where a variable goes (here into args)
+        # makes numba compile the callee once more for the literal's type.
+        n = np.int64(0)
+        blurred = np.bool_(False)
+        for v in range(n_views):
+            w = np.float64(weight[t, v])
+            if w <= 0.0:
                 continue
-            # The neighbour vote (below) concerns only texels whose candidate roughness or metallic
-            # lies more than a grid cell away: the others skip the preparation too.
-            voting = candidate.shape[0] > 0
-            far_roughness = voting and abs(candidate[t, 0] - params[t, 3]) * (roughness_grid - 1) > 1.0
-            far_metallic = voting and abs(candidate[t, 1] - params[t, 4]) * (metallic_grid - 1) > 1.0
-            if voting and not ((far_roughness or far_metallic) and 3 * n > FITTED_PARAMETERS):
-                continue
-            _cross(normal[t], tangent[t], bitangent)
-            prefiltered_cached[:] = False
-            if n_full > 0:
-                _mirror_stencil(xyz, n, tangent[t], normal[t], bitangent, world_to_local, map_height, map_width,
-                                corner, stencil_frac, frames)
-            for level in range(tilt_levels if n_full == 0 else 0):
-                tilt = level / (tilt_levels - 1) if tilt_levels > 1 else 1.0
-                for s in range(n):  # normalize((1 - tilt) n + tilt w)
-                    tilted[0, s] = tilt * xyz[0, s]
-                    tilted[1, s] = tilt * xyz[1, s]
-                    tilted[2, s] = 1.0 - tilt + tilt * xyz[2, s]
-                    norm = math.sqrt(tilted[0, s] ** 2 + tilted[1, s] ** 2 + tilted[2, s] ** 2)
-                    for axis in range(3):
-                        tilted[axis, s] /= norm
-                sh._sh_block(tilted[0], tilted[1], tilted[2], n, lmax, diag, rec_a, rec_b, basis, sh_scratch)
-                for c in range(3):
-                    for degree in range(n_degrees):
-                        for s in range(n):
-                            packed_proj[level, c, degree, s] = 0.0
-                        for k in range(degree * degree, (degree + 1) * (degree + 1)):
-                            coefficient = np.float64(light[t, c, k])
-                            for s in range(n):
-                                packed_proj[level, c, degree, s] += coefficient * basis[k, s]
-            environment_cached[:] = False
-            if environment.shape[0] > 0:
-                _local_environment(environment, tangent[t], normal[t], bitangent, quadrature, quadrature_projection,
-                                   diag, rec_a, rec_b, quadrature_world, quadrature_basis, quadrature_scratch,
-                                   quadrature_values, local_environment)
-                _azimuthal_coefficients(xyz, n, local_environment, azimuthal)
-            for s in range(n):
-                x = min(max(packed_cos[s], 0.0), 1.0) * (table.shape[1] - 1)
-                table_row[s] = min(int(x), table.shape[1] - 2)
-                table_frac[s] = x - table_row[s]
-                _uniform_burley_terms(packed_cos[s], burley, burley_terms[:, :, s])
-            if burley and burley_response.shape[2] > 0 and environment.shape[0] > 0:
-                _environment_burley_terms(n, table_row, table_frac, azimuthal, burley_response, burley_terms)
-            total_weight = _weighted_sums(n, omega, values, burley_terms, diffuse_moments, squared_values)
+            for axis in range(3):
+                xyz[axis, n] = directions[t, v, axis]
+            packed_cos[n] = xyz[2, n]
+            omega[n] = w * w
             for c in range(3):
-                scale[c] = diffuse_scale[t, c]
-            args = (n, packed_cos, omega, packed_proj, values, sigma, fresnel, masking, split_sum, exact_dielectric,
-                    burley, table, table_row, table_frac, tilt_level, tilt_frac, burley_terms, diffuse_moments, column,
-                    kernel, kernel_derivative, albedo, diffuse_factor, level_filtered, filtered, moments, quadratics,
-                    squared_values, scale, state, metallic_grid, azimuthal, environment_blend, environment_nodes,
-                    environment_cached, response, prefiltered, n_full, corner, stencil_frac,
-                    prefiltered_nodes, prefiltered_cached, high_filtered, frames, map_width, blur, blurred,
-                    sample_node, sample_frac, table_rows)
-            for i in range(hypothesis_roughness.shape[0]):
-                _roughness_objective(hypothesis_roughness[i], args)
-                for c in range(3):
-                    _specular_moments(n, omega, values[c], filtered[c, 0], filtered[c, 1], hypothesis_moments[t, i, c])
-            if voting:
-                # The neighbour vote. A likelihood-ratio test bounds what it may cost: the profiled
-                # least-squares loss may exceed the estimate's by _VOTE_CHI2 times the noise variance
-                # (the residual over its 3n - FITTED_PARAMETERS degrees of freedom). Roughness: a
-                # local minimum within a grid cell of the candidate (Brent, not at its bounds, over a
-                # cell from the estimate: another minimum). Then metallic: the candidate's, base
-                # colour profiled, at the roughness kept.
-                estimate_r = params[t, 3]
-                estimate_f = _roughness_objective(estimate_r, args)
-                limit = estimate_f + _VOTE_CHI2 * estimate_f / (3 * n - FITTED_PARAMETERS)
-                voted_r = estimate_r
-                if far_roughness:
-                    cell = 1.0 / (roughness_grid - 1)
-                    lower, upper = max(candidate[t, 0] - cell, 0.0), min(candidate[t, 0] + cell, 1.0)
-                    _brent_start(roughness_brent, lower, upper, _BRENT_XTOL)
-                    local_r, local_f = _brent_run(args, state, best_state, roughness_brent, 0.0, np.inf, True)
-                    margin = _VOTE_MARGIN * cell
-                    interior = ((local_r - lower > margin or lower == 0.0)
-                                and (upper - local_r > margin or upper == 1.0))
-                    if interior and abs(local_r - estimate_r) > cell and local_f <= limit:
-                        voted_r = local_r
-                profiled_f = _roughness_objective(voted_r, args)  # state: its base colour, metallic
-                voted_f = profiled_f
-                metallic_voted = False
-                if abs(candidate[t, 1] - state[3]) * (metallic_grid - 1) > 1.0:
-                    # Into best_state, so that state keeps the profiled fit if the test refuses it.
-                    fixed_f = _metallic_terms(candidate[t, 1], quadratics, best_state)[0]
-                    if fixed_f <= limit:
-                        voted_f = fixed_f
-                        _keep_state(best_state, state)
-                        metallic_voted = True
-                if voted_r == estimate_r and not metallic_voted:
-                    continue  # the estimate stands
-                params[t, 0], params[t, 1], params[t, 2] = state[0], state[1], state[2]
-                params[t, 3], params[t, 4] = voted_r, state[3]
-                loss[t] = max(voted_f, 0.0) / total_weight
-                curvature[t] = _loss_curvature(voted_r, profiled_f, args) / total_weight
-                continue
-            if not search:
-                continue
-            # A robust pass refines the roughness to _BRENT_XTOL: this search need only find its cell.
-            first_xtol = _BRENT_COARSE_XTOL if robust_passes > 0 else _BRENT_XTOL
-            best_r, best_f = _search_roughness(args, state, roughness_grid, best_state, roughness_brent, node_loss, 0,
-                                               roughness_grid - 1, first_xtol)
-            if robust_passes > 0:
-                # Towards the paper's L1 loss sum_v w |r_v| (IRLS): weight each sample by
-                # w / max(|r|, delta), delta a tenth of the texel's mean |r| so that near-exact
-                # samples do not take over, and search again.
-                for s in range(n):
-                    sample_weight[s] = math.sqrt(omega[s])
-                for _ in range(robust_passes):
-                    best_f = _roughness_objective(best_r, args)
-                    best_state[:] = state
-                    _residual_magnitudes(n, values, filtered, diffuse_factor, scale, best_state, residual)
-                    weighted_residual = weight_sum = 0.0
+                values[c, n] = observed[t, v, c]
+            if footprint.shape[1] > 0:
+                blur[n] = _FOOTPRINT_GAIN * np.float64(footprint[t, v]) ** 2
+                blurred = blurred or blur[n] > 0.0
+            n += 1
+        if n < MIN_SAMPLES:
+            continue
+        # The neighbour vote (below) concerns only texels whose candidate roughness or metallic
+        # lies more than a grid cell away: the others skip the preparation too.
+        voting = candidate.shape[0] > 0
+        far_roughness = voting and abs(candidate[t, 0] - params[t, 3]) * (roughness_grid - 1) > 1.0
+        far_metallic = voting and abs(candidate[t, 1] - params[t, 4]) * (metallic_grid - 1) > 1.0
+        if voting and not ((far_roughness or far_metallic) and 3 * n > FITTED_PARAMETERS):
+            continue
+        _cross(normal[t], tangent[t], bitangent)
+        prefiltered_cached[:] = False
+        if n_full > 0:
+            _mirror_stencil(xyz, n, tangent[t], normal[t], bitangent, world_to_local, map_height, map_width,
+                            corner, stencil_frac, frames)
+        for level in range(tilt_levels if n_full == 0 else 0):
+            tilt = level / (tilt_levels - 1) if tilt_levels > 1 else 1.0
+            for s in range(n):  # normalize((1 - tilt) n + tilt w)
+                tilted[0, s] = tilt * xyz[0, s]
+                tilted[1, s] = tilt * xyz[1, s]
+                tilted[2, s] = 1.0 - tilt + tilt * xyz[2, s]
+                norm = math.sqrt(tilted[0, s] ** 2 + tilted[1, s] ** 2 + tilted[2, s] ** 2)
+                for axis in range(3):
+                    tilted[axis, s] /= norm
+            sh._sh_block(tilted[0], tilted[1], tilted[2], n, lmax, diag, rec_a, rec_b, basis, sh_scratch)
+            for c in range(3):
+                for degree in range(n_degrees):
                     for s in range(n):
-                        weighted_residual += sample_weight[s] * residual[s]
-                        weight_sum += sample_weight[s]
-                    floor = 0.1 * weighted_residual / weight_sum
-                    if not floor > 0.0:
-                        break  # an exact fit: nothing to re-weight
-                    for s in range(n):
-                        omega[s] = sample_weight[s] / max(residual[s], floor)
-                    _weighted_sums(n, omega, values, burley_terms, diffuse_moments, squared_values)
-                    # Re-weighting moves the optimum locally: scan the nodes within one cell of it.
-                    node = int(round(best_r * (roughness_grid - 1)))
-                    best_r, best_f = _search_roughness(args, state, roughness_grid, best_state, roughness_brent,
-                                                       node_loss, max(node - _ROBUST_NODES, 0),
-                                                       min(node + _ROBUST_NODES, roughness_grid - 1), _BRENT_XTOL)
-                for s in range(n):  # back to least squares for the curvature
-                    omega[s] = sample_weight[s] * sample_weight[s]
-                _weighted_sums(n, omega, values, burley_terms, diffuse_moments, squared_values)
-                # The profiled least-squares loss at the optimum for the curvature (the robust
-                # pass's best_f is not profiled). The model terms this probe leaves in filtered do
-                # not depend on the weights, so they also give the reported loss: the weighted
-                # squared residual of the robust estimate (best_state), `MaterialEstimate.loss`.
-                centre_f = _roughness_objective(best_r, args)
+                        packed_proj[level, c, degree, s] = 0.0
+                    for k in range(degree * degree, (degree + 1) * (degree + 1)):
+                        coefficient = np.float64(light[t, c, k])
+                        for s in range(n):
+                            packed_proj[level, c, degree, s] += coefficient * basis[k, s]
+        environment_cached[:] = False
+        if environment.shape[0] > 0:
+            _local_environment(environment, tangent[t], normal[t], bitangent, quadrature, quadrature_projection,
+                               diag, rec_a, rec_b, quadrature_world, quadrature_basis, quadrature_scratch,
+                               quadrature_values, local_environment)
+            _azimuthal_coefficients(xyz, n, local_environment, azimuthal)
+        for s in range(n):
+            x = min(max(packed_cos[s], 0.0), 1.0) * (table.shape[1] - 1)
+            table_row[s] = min(int(x), table.shape[1] - 2)
+            table_frac[s] = x - table_row[s]
+            _uniform_burley_terms(packed_cos[s], burley, burley_terms[:, :, s])
+        if burley and burley_response.shape[2] > 0 and environment.shape[0] > 0:
+            _environment_burley_terms(n, table_row, table_frac, azimuthal, burley_response, burley_terms)
+        total_weight = _weighted_sums(n, omega, values, burley_terms, diffuse_moments, squared_values)
+        for c in range(3):
+            scale[c] = diffuse_scale[t, c]
+        args = (n, packed_cos, omega, packed_proj, values, sigma, fresnel, masking, split_sum, exact_dielectric,
+                burley, table, table_row, table_frac, tilt_level, tilt_frac, burley_terms, diffuse_moments, column,
+                kernel, kernel_derivative, albedo, diffuse_factor, level_filtered, filtered, moments, quadratics,
+                squared_values, scale, state, metallic_grid, azimuthal, environment_blend, environment_nodes,
+                environment_cached, response, prefiltered, n_full, corner, stencil_frac,
+                prefiltered_nodes, prefiltered_cached, high_filtered, frames, map_width, blur, blurred,
+                sample_node, sample_frac, table_rows)
+        for i in range(hypothesis_roughness.shape[0]):
+            _roughness_objective(hypothesis_roughness[i], args)
+            for c in range(3):
+                _specular_moments(n, omega, values[c], filtered[c, 0], filtered[c, 1], hypothesis_moments[t, i, c])
+        if voting:
+            # The neighbour vote. A likelihood-ratio test bounds what it may cost: the profiled
+            # least-squares loss may exceed the estimate's by _VOTE_CHI2 times the noise variance
+            # (the residual over its 3n - FITTED_PARAMETERS degrees of freedom). Roughness: a
+            # local minimum within a grid cell of the candidate (Brent, not at its bounds, over a
+            # cell from the estimate: another minimum). Then metallic: the candidate's, base
+            # colour profiled, at the roughness kept.
+            estimate_r = params[t, 3]
+            estimate_f = _roughness_objective(estimate_r, args)
+            limit = estimate_f + _VOTE_CHI2 * estimate_f / (3 * n - FITTED_PARAMETERS)
+            voted_r = estimate_r
+            if far_roughness:
+                cell = 1.0 / (roughness_grid - 1)
+                lower, upper = max(candidate[t, 0] - cell, 0.0), min(candidate[t, 0] + cell, 1.0)
+                _brent_start(roughness_brent, lower, upper, _BRENT_XTOL)
+                local_r, local_f = _brent_run(args, state, best_state, roughness_brent, 0.0, np.inf,
+                                              np.bool_(True))
+                margin = _VOTE_MARGIN * cell
+                interior = ((local_r - lower > margin or lower == 0.0)
+                            and (upper - local_r > margin or upper == 1.0))
+                if interior and abs(local_r - estimate_r) > cell and local_f <= limit:
+                    voted_r = local_r
+            profiled_f = _roughness_objective(voted_r, args)  # state: its base colour, metallic
+            voted_f = profiled_f
+            metallic_voted = False
+            if abs(candidate[t, 1] - state[3]) * (metallic_grid - 1) > 1.0:
+                # Into best_state, so that state keeps the profiled fit if the test refuses it.
+                fixed_f = _metallic_terms(candidate[t, 1], quadratics, best_state)[0]
+                if fixed_f <= limit:
+                    voted_f = fixed_f
+                    _keep_state(best_state, state)
+                    metallic_voted = True
+            if voted_r == estimate_r and not metallic_voted:
+                continue  # the estimate stands
+            params[t, 0], params[t, 1], params[t, 2] = state[0], state[1], state[2]
+            params[t, 3], params[t, 4] = voted_r, state[3]
+            loss[t] = max(voted_f, 0.0) / total_weight
+            curvature[t] = _loss_curvature(voted_r, profiled_f, args) / total_weight
+            continue
+        if not search:
+            continue
+        # A robust pass refines the roughness to _BRENT_XTOL: this search need only find its cell.
+        first_xtol = _BRENT_COARSE_XTOL if robust_passes > 0 else _BRENT_XTOL
+        best_r, best_f = _search_roughness(args, state, roughness_grid, best_state, roughness_brent, node_loss,
+                                           np.int64(0), roughness_grid - 1, first_xtol)
+        if robust_passes > 0:
+            # Towards the paper's L1 loss sum_v w |r_v| (IRLS): weight each sample by
+            # w / max(|r|, delta), delta a tenth of the texel's mean |r| so that near-exact
+            # samples do not take over, and search again.
+            for s in range(n):
+                sample_weight[s] = math.sqrt(omega[s])
+            for _ in range(robust_passes):
+                best_f = _roughness_objective(best_r, args)
+                best_state[:] = state
                 _residual_magnitudes(n, values, filtered, diffuse_factor, scale, best_state, residual)
-                best_f = 0.0
+                weighted_residual = weight_sum = 0.0
                 for s in range(n):
-                    best_f += sample_weight[s] * sample_weight[s] * residual[s] * residual[s]
-            else:
-                centre_f = best_f
-            curvature[t] = _loss_curvature(best_r, centre_f, args) / total_weight
-            params[t, 0], params[t, 1], params[t, 2] = best_state[0], best_state[1], best_state[2]
-            params[t, 3], params[t, 4] = best_r, best_state[3]
-            loss[t] = max(best_f, 0.0) / total_weight
+                    weighted_residual += sample_weight[s] * residual[s]
+                    weight_sum += sample_weight[s]
+                floor = 0.1 * weighted_residual / weight_sum
+                if not floor > 0.0:
+                    break  # an exact fit: nothing to re-weight
+                for s in range(n):
+                    omega[s] = sample_weight[s] / max(residual[s], floor)
+                _weighted_sums(n, omega, values, burley_terms, diffuse_moments, squared_values)
+                # Re-weighting moves the optimum locally: scan the nodes within one cell of it.
+                node = int(round(best_r * (roughness_grid - 1)))
+                best_r, best_f = _search_roughness(args, state, roughness_grid, best_state, roughness_brent,
+                                                   node_loss, max(node - _ROBUST_NODES, 0),
+                                                   min(node + _ROBUST_NODES, roughness_grid - 1), _BRENT_XTOL)
+            for s in range(n):  # back to least squares for the curvature
+                omega[s] = sample_weight[s] * sample_weight[s]
+            _weighted_sums(n, omega, values, burley_terms, diffuse_moments, squared_values)
+            # The profiled least-squares loss at the optimum for the curvature (the robust
+            # pass's best_f is not profiled). The model terms this probe leaves in filtered do
+            # not depend on the weights, so they also give the reported loss: the weighted
+            # squared residual of the robust estimate (best_state), `MaterialEstimate.loss`.
+            centre_f = _roughness_objective(best_r, args)
+            _residual_magnitudes(n, values, filtered, diffuse_factor, scale, best_state, residual)
+            best_f = 0.0
+            for s in range(n):
+                best_f += sample_weight[s] * sample_weight[s] * residual[s] * residual[s]
+        else:
+            centre_f = best_f
+        curvature[t] = _loss_curvature(best_r, centre_f, args) / total_weight
+        params[t, 0], params[t, 1], params[t, 2] = best_state[0], best_state[1], best_state[2]
+        params[t, 3], params[t, 4] = best_r, best_state[3]
+        loss[t] = max(best_f, 0.0) / total_weight
 
 
 # ---------------------------------------------------------------------------------------------

@@ -305,7 +305,7 @@ def _gram_upper(augmented, n_coeffs, n_padded, upper, lane):
             upper[j2, i, lane], upper[j2, i1, lane], upper[j2, i2, lane], upper[j2, i3, lane] = c0, c1, c2, c3
 
 
-@numba.njit(parallel=True, fastmath=_FAST_FINITE_MATH, cache=True)
+@numba.njit(parallel=True, cache=True)
 def _fit_kernel(
     directions, weights, values, lmax, diag, rec_a, rec_b, reg, reg_lambda, scale_by_weight, lanes, n_threads,
     coeffs, n_samples, solved,
@@ -325,109 +325,124 @@ def _fit_kernel(
     which keeps the kernel cacheable); each worker allocates its scratch once.
     ``solved[t]`` is False when a pivot was (numerically) non-positive.
     """
+    n_groups = (weights.shape[0] + lanes - 1) // lanes
+    n_workers = min(n_threads, n_groups)  # worker w takes groups w, w + n_workers, ...
+    for worker in numba.prange(n_workers):
+        # np.int64: the loop index is unsigned in numba's parallel code and signed when typed: one
+        # signature, not two.
+        _fit_worker(np.int64(worker), n_workers, directions, weights, values, lmax, diag, rec_a, rec_b, reg,
+                    reg_lambda, scale_by_weight, lanes, coeffs, n_samples, solved)
+
+
+@numba.njit(fastmath=_FAST_FINITE_MATH, cache=True)
+def _fit_worker(
+    worker, n_workers, directions, weights, values, lmax, diag, rec_a, rec_b, reg, reg_lambda, scale_by_weight,
+    lanes, coeffs, n_samples, solved,
+):
+    """`_fit_kernel`'s work for the texel groups worker, worker + n_workers, ...: a function of its
+    own, so that numba's parallel passes see a small loop (on the whole body they took much of the
+    kernel's compile time)."""
     n_texels, n_views = weights.shape
     n_channels = values.shape[2]
     n_coeffs = reg.shape[0]
     n_rows = n_coeffs + n_channels
     padded_views = (n_views + 7) // 8 * 8  # dot products over a multiple of the SIMD width
     n_groups = (n_texels + lanes - 1) // lanes
-    n_workers = min(n_threads, n_groups)  # worker w takes groups w, w + n_workers, ...
-    for worker in numba.prange(n_workers):
-        xyz = np.empty((3, padded_views))  # one texel's usable sample directions
-        sample_weights = np.empty(padded_views)
-        scratch = np.empty((5, padded_views))
-        augmented = np.empty((n_rows, padded_views))  # rows: w_i Y_k(d_i), then w_i f_ic
-        upper = np.empty((n_coeffs, n_rows, lanes))  # Gram | rhs, then Cholesky factor | R^-T b
-        gram_diagonal = np.empty((n_coeffs, lanes))  # before elimination, for the pivot test
-        inv_diagonal = np.empty((n_coeffs, lanes))  # 1 / diagonal of the Cholesky factor
-        solution = np.empty((n_coeffs, n_channels, lanes))
-        lane_ok = np.empty(lanes, dtype=np.bool_)
-        for group in range(worker, n_groups, n_workers):
-            first = group * lanes
-            n_lanes = min(lanes, n_texels - first)
-            for lane in range(lanes):
-                t = first + lane
-                n = 0
-                weight_sq_sum = 0.0
-                for v in range(n_views if lane < n_lanes else 0):
-                    w = np.float64(weights[t, v])
-                    usable = w > 0.0
-                    for axis in range(3):
-                        usable = usable and np.isfinite(directions[t, v, axis])
-                    for c in range(n_channels):
-                        usable = usable and np.isfinite(values[t, v, c])
-                    if not usable:
-                        continue
-                    for axis in range(3):
-                        xyz[axis, n] = directions[t, v, axis]
-                    for c in range(n_channels):
-                        augmented[n_coeffs + c, n] = w * values[t, v, c]
-                    sample_weights[n] = w
-                    weight_sq_sum += w * w
-                    n += 1
-                if lane < n_lanes:
-                    n_samples[t] = n
-                lane_ok[lane] = n > 0
-                if n == 0:  # empty (or padding) lane: an identity system with zero rhs solves to 0
-                    for j in range(n_coeffs):
-                        for i in range(n_rows):
-                            upper[j, i, lane] = 1.0 if i == j else 0.0
-                        gram_diagonal[j, lane] = 1.0
+    xyz = np.empty((3, padded_views))  # one texel's usable sample directions
+    sample_weights = np.empty(padded_views)
+    scratch = np.empty((5, padded_views))
+    augmented = np.empty((n_rows, padded_views))  # rows: w_i Y_k(d_i), then w_i f_ic
+    upper = np.empty((n_coeffs, n_rows, lanes))  # Gram | rhs, then Cholesky factor | R^-T b
+    gram_diagonal = np.empty((n_coeffs, lanes))  # before elimination, for the pivot test
+    inv_diagonal = np.empty((n_coeffs, lanes))  # 1 / diagonal of the Cholesky factor
+    solution = np.empty((n_coeffs, n_channels, lanes))
+    lane_ok = np.empty(lanes, dtype=np.bool_)
+    for group in range(worker, n_groups, n_workers):
+        first = group * lanes
+        n_lanes = min(lanes, n_texels - first)
+        for lane in range(lanes):
+            t = first + lane
+            n = 0
+            weight_sq_sum = 0.0
+            for v in range(n_views if lane < n_lanes else 0):
+                w = np.float64(weights[t, v])
+                usable = w > 0.0
+                for axis in range(3):
+                    usable = usable and np.isfinite(directions[t, v, axis])
+                for c in range(n_channels):
+                    usable = usable and np.isfinite(values[t, v, c])
+                if not usable:
                     continue
-                _sh_block(xyz[0], xyz[1], xyz[2], n, lmax, diag, rec_a, rec_b, augmented, scratch)
-                n_padded = (n + 7) // 8 * 8
-                for k in range(n_rows):
-                    for s in range(n, n_padded):
-                        augmented[k, s] = 0.0
-                for k in range(n_coeffs):
-                    for s in range(n):
-                        augmented[k, s] *= sample_weights[s]
-                _gram_upper(augmented, n_coeffs, n_padded, upper, lane)
-                lam = reg_lambda * weight_sq_sum if scale_by_weight else reg_lambda
+                for axis in range(3):
+                    xyz[axis, n] = directions[t, v, axis]
+                for c in range(n_channels):
+                    augmented[n_coeffs + c, n] = w * values[t, v, c]
+                sample_weights[n] = w
+                weight_sq_sum += w * w
+                n += 1
+            if lane < n_lanes:
+                n_samples[t] = n
+            lane_ok[lane] = n > 0
+            if n == 0:  # empty (or padding) lane: an identity system with zero rhs solves to 0
                 for j in range(n_coeffs):
-                    upper[j, j, lane] += lam * reg[j]
-                    gram_diagonal[j, lane] = upper[j, j, lane]
-            # Left-looking Cholesky on the upper triangle, row by row; its row updates also carry the
-            # rhs. Row i takes the updates of all earlier rows, two at a time, while it stays in cache
-            # (1.3x faster measured than one right-looking rank-1 update per pivot).
-            # A failed lane continues with a unit pivot (finite garbage) and is re-solved by the caller.
-            for i in range(n_coeffs):
-                for j in range(0, i - 1, 2):
-                    for k in range(i, n_rows):
-                        for lane in range(lanes):
-                            upper[i, k, lane] -= (
-                                upper[j, i, lane] * upper[j, k, lane] + upper[j + 1, i, lane] * upper[j + 1, k, lane]
-                            )
-                if i % 2 == 1:
-                    for k in range(i, n_rows):
-                        for lane in range(lanes):
-                            upper[i, k, lane] -= upper[i - 1, i, lane] * upper[i - 1, k, lane]
-                for lane in range(lanes):
-                    pivot = upper[i, i, lane]
-                    if not (pivot > 0.0 and pivot > _PIVOT_RTOL * gram_diagonal[i, lane]):
-                        lane_ok[lane] = False
-                        pivot = 1.0
-                    inv_diagonal[i, lane] = 1.0 / math.sqrt(pivot)
+                    for i in range(n_rows):
+                        upper[j, i, lane] = 1.0 if i == j else 0.0
+                    gram_diagonal[j, lane] = 1.0
+                continue
+            _sh_block(xyz[0], xyz[1], xyz[2], n, lmax, diag, rec_a, rec_b, augmented, scratch)
+            n_padded = (n + 7) // 8 * 8
+            for k in range(n_rows):
+                for s in range(n, n_padded):
+                    augmented[k, s] = 0.0
+            for k in range(n_coeffs):
+                for s in range(n):
+                    augmented[k, s] *= sample_weights[s]
+            _gram_upper(augmented, n_coeffs, n_padded, upper, lane)
+            lam = reg_lambda * weight_sq_sum if scale_by_weight else reg_lambda
+            for j in range(n_coeffs):
+                upper[j, j, lane] += lam * reg[j]
+                gram_diagonal[j, lane] = upper[j, j, lane]
+        # Left-looking Cholesky on the upper triangle, row by row; its row updates also carry the
+        # rhs. Row i takes the updates of all earlier rows, two at a time, while it stays in cache
+        # (1.3x faster measured than one right-looking rank-1 update per pivot).
+        # A failed lane continues with a unit pivot (finite garbage) and is re-solved by the caller.
+        for i in range(n_coeffs):
+            for j in range(0, i - 1, 2):
                 for k in range(i, n_rows):
                     for lane in range(lanes):
-                        upper[i, k, lane] *= inv_diagonal[i, lane]
-            # Back substitution R x = R^-T b.
-            for i in range(n_coeffs - 1, -1, -1):
+                        upper[i, k, lane] -= (
+                            upper[j, i, lane] * upper[j, k, lane] + upper[j + 1, i, lane] * upper[j + 1, k, lane]
+                        )
+            if i % 2 == 1:
+                for k in range(i, n_rows):
+                    for lane in range(lanes):
+                        upper[i, k, lane] -= upper[i - 1, i, lane] * upper[i - 1, k, lane]
+            for lane in range(lanes):
+                pivot = upper[i, i, lane]
+                if not (pivot > 0.0 and pivot > _PIVOT_RTOL * gram_diagonal[i, lane]):
+                    lane_ok[lane] = False
+                    pivot = 1.0
+                inv_diagonal[i, lane] = 1.0 / math.sqrt(pivot)
+            for k in range(i, n_rows):
+                for lane in range(lanes):
+                    upper[i, k, lane] *= inv_diagonal[i, lane]
+        # Back substitution R x = R^-T b.
+        for i in range(n_coeffs - 1, -1, -1):
+            for c in range(n_channels):
+                for lane in range(lanes):
+                    solution[i, c, lane] = upper[i, n_coeffs + c, lane]
+            for k in range(i + 1, n_coeffs):
                 for c in range(n_channels):
                     for lane in range(lanes):
-                        solution[i, c, lane] = upper[i, n_coeffs + c, lane]
-                for k in range(i + 1, n_coeffs):
-                    for c in range(n_channels):
-                        for lane in range(lanes):
-                            solution[i, c, lane] -= upper[i, k, lane] * solution[k, c, lane]
-                for c in range(n_channels):
-                    for lane in range(lanes):
-                        solution[i, c, lane] *= inv_diagonal[i, lane]
-            for lane in range(n_lanes):
-                solved[first + lane] = lane_ok[lane] or n_samples[first + lane] == 0
-                for c in range(n_channels):
-                    for k in range(n_coeffs):
-                        coeffs[first + lane, c, k] = solution[k, c, lane]
+                        solution[i, c, lane] -= upper[i, k, lane] * solution[k, c, lane]
+            for c in range(n_channels):
+                for lane in range(lanes):
+                    solution[i, c, lane] *= inv_diagonal[i, lane]
+        for lane in range(n_lanes):
+            solved[first + lane] = lane_ok[lane] or n_samples[first + lane] == 0
+            for c in range(n_channels):
+                for k in range(n_coeffs):
+                    coeffs[first + lane, c, k] = solution[k, c, lane]
 
 
 def _solve_by_svd(directions, weights, values, lmax, reg_lambda, reg, scale_lambda_with_weight):

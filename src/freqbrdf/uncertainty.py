@@ -631,7 +631,7 @@ def _moment_entropy_kernel(moments, light_mean_square, n_samples, alphas, specul
                     likelihood[t, i, j] = posterior[best_channel, i, j]
 
 
-@numba.njit(parallel=True, cache=True, error_model="numpy", fastmath={"contract", "reassoc", "nsz", "arcp"})
+@numba.njit(parallel=True, cache=True)
 def _grid_entropy_kernel(
     light, observed, cross, scale, row_filter, alphas, amplitude, use_cross, per_light_power, merge_zero,
     residual_dof, want_likelihood, n_threads,
@@ -673,6 +673,24 @@ def _grid_entropy_kernel(
     channel, one division per row instead of two, a vectorised log, a skip test that vectorises and
     64 lanes took 62 -> 36 ms (R = 8: 117 -> 73 ms).
     """
+    n_blocks = (light.shape[0] + _LANES - 1) // _LANES
+    n_workers = _smaller(n_threads, n_blocks)  # worker w takes blocks w, w + n_workers, ...
+    for worker in numba.prange(n_workers):
+        # np.int64: the loop index is unsigned in numba's parallel code and signed when typed: one
+        # signature, not two (each compiles the whole kernel).
+        _grid_entropy_worker(np.int64(worker), n_workers, light, observed, cross, scale, row_filter, alphas, amplitude,
+                             use_cross, per_light_power, merge_zero, residual_dof, want_likelihood, entropy,
+                             channel, best_alpha, best_ks, likelihood)
+
+
+@numba.njit(cache=True, error_model="numpy", fastmath={"contract", "reassoc", "nsz", "arcp"})
+def _grid_entropy_worker(
+    worker, n_workers, light, observed, cross, scale, row_filter, alphas, amplitude, use_cross, per_light_power,
+    merge_zero, residual_dof, want_likelihood, entropy, channel, best_alpha, best_ks, likelihood,
+):
+    """`_grid_entropy_kernel`'s work for the blocks of texels worker, worker + n_workers, ...: a
+    function of its own, so that numba's parallel passes see a small loop (on the whole body they
+    took most of the kernel's compile time)."""
     n_texels, n_channels, n_degrees = light.shape
     n_scales = scale.shape[1]
     resolution = row_filter.shape[0]
@@ -687,212 +705,210 @@ def _grid_entropy_kernel(
     filter_sq = row_filter * row_filter
     stored = resolution if want_likelihood else 1  # likelihood grids are kept only when returned
     n_blocks = (n_texels + _LANES - 1) // _LANES
-    n_workers = _smaller(n_threads, n_blocks)  # worker w takes blocks w, w + n_workers, ...
-    for worker in numba.prange(n_workers):
-        # Per-lane scratch, one array per quantity so that each loop over lanes reads and writes
-        # few arrays (LLVM's run-time overlap checks stay within its limits and the loops vectorise).
-        # The block's inputs, read once per texel in memory order: [channel, degree, lane].
-        light_lanes = np.zeros((n_channels, n_degrees, _LANES))
-        observed_lanes = np.zeros((n_channels, n_degrees, _LANES))
-        cross_lanes = np.zeros((n_channels if use_cross else 0, n_degrees, _LANES))
-        light_sq = np.empty((n_degrees, _LANES))  # a_l^2
-        light_observed = np.empty((n_degrees, _LANES))  # a_l b_l
-        constant = np.empty(_LANES)  # C = sum_{l >= 1} b_l^2
-        light_dc = np.empty(_LANES)  # a_0
-        observed_dc = np.empty(_LANES)  # b_0
-        to_temperature = np.empty(_LANES)
-        quad = np.empty(_LANES)  # A of the current row
-        linear = np.empty(_LANES)  # X of the current row
-        lowest = np.empty((3, _LANES))  # the least misfit, its row and column
-        sums = np.empty((2, _LANES))  # Z, sum w d
-        rows = np.empty((resolution, 4, _LANES))  # per row: A, X, t_b, misfit at t_b
-        dc_scaled = np.zeros((resolution, _LANES), np.float32)  # DC excess at t_j in temperatures
-        cell = np.empty((4, _LANES), np.float32)  # t_b, A / T, 2 (A t_b - X) / T, D_i - DC excess at t_b
-        cell_sums = np.empty((2, _LANES), np.float32)  # sum w, sum w d over the row's cells
-        row_weights = np.empty((resolution, _LANES), np.float32)
-        weights = np.empty((n_channels, stored, stored, _LANES), np.float32)
-        channel_sums = np.empty((n_channels, 2, _LANES))  # Z and the k = 0 weight per channel
-        choice = np.empty((4, _LANES))  # lowest entropy, its channel, arg-max row and column
-        light_power = np.ones(_LANES)
-        for block in range(worker, n_blocks, n_workers):
-            start = block * _LANES
-            n_lanes = _smaller(_LANES, n_texels - start)
-            if n_lanes < _LANES:  # padding lanes hold zeros and are computed like the others
-                light_lanes[:] = 0.0
-                observed_lanes[:] = 0.0
-                cross_lanes[:] = 0.0
-            for k in range(n_lanes):
-                for c in range(n_channels):
-                    for l in range(n_degrees):
-                        light_lanes[c, l, k] = light[start + k, c, l]
-                        observed_lanes[c, l, k] = observed[start + k, c, l]
-            if use_cross:
-                for k in range(n_lanes):
-                    for c in range(n_channels):
-                        for l in range(n_degrees):
-                            cross_lanes[c, l, k] = cross[start + k, c, l]
-            choice[0] = 2.0
-            if per_light_power:
-                light_power[:] = 0.0
-                for c in range(n_channels):
-                    for l in range(n_degrees):
-                        for k in range(_LANES):
-                            light_power[k] += light_lanes[c, l, k]
-                for k in range(_LANES):
-                    light_power[k] = light_power[k] / n_channels
+    # Per-lane scratch, one array per quantity so that each loop over lanes reads and writes
+    # few arrays (LLVM's run-time overlap checks stay within its limits and the loops vectorise).
+    # The block's inputs, read once per texel in memory order: [channel, degree, lane].
+    light_lanes = np.zeros((n_channels, n_degrees, _LANES))
+    observed_lanes = np.zeros((n_channels, n_degrees, _LANES))
+    cross_lanes = np.zeros((n_channels if use_cross else 0, n_degrees, _LANES))
+    light_sq = np.empty((n_degrees, _LANES))  # a_l^2
+    light_observed = np.empty((n_degrees, _LANES))  # a_l b_l
+    constant = np.empty(_LANES)  # C = sum_{l >= 1} b_l^2
+    light_dc = np.empty(_LANES)  # a_0
+    observed_dc = np.empty(_LANES)  # b_0
+    to_temperature = np.empty(_LANES)
+    quad = np.empty(_LANES)  # A of the current row
+    linear = np.empty(_LANES)  # X of the current row
+    lowest = np.empty((3, _LANES))  # the least misfit, its row and column
+    sums = np.empty((2, _LANES))  # Z, sum w d
+    rows = np.empty((resolution, 4, _LANES))  # per row: A, X, t_b, misfit at t_b
+    dc_scaled = np.zeros((resolution, _LANES), np.float32)  # DC excess at t_j in temperatures
+    cell = np.empty((4, _LANES), np.float32)  # t_b, A / T, 2 (A t_b - X) / T, D_i - DC excess at t_b
+    cell_sums = np.empty((2, _LANES), np.float32)  # sum w, sum w d over the row's cells
+    row_weights = np.empty((resolution, _LANES), np.float32)
+    weights = np.empty((n_channels, stored, stored, _LANES), np.float32)
+    channel_sums = np.empty((n_channels, 2, _LANES))  # Z and the k = 0 weight per channel
+    choice = np.empty((4, _LANES))  # lowest entropy, its channel, arg-max row and column
+    light_power = np.ones(_LANES)
+    for block in range(worker, n_blocks, n_workers):
+        start = block * _LANES
+        n_lanes = _smaller(_LANES, n_texels - start)
+        if n_lanes < _LANES:  # padding lanes hold zeros and are computed like the others
+            light_lanes[:] = 0.0
+            observed_lanes[:] = 0.0
+            cross_lanes[:] = 0.0
+        for k in range(n_lanes):
             for c in range(n_channels):
-                # 1. Moments.
-                for k in range(_LANES):
-                    light_dc[k] = math.sqrt(_larger(light_lanes[c, 0, k], 0.0))
-                    observed_dc[k] = math.sqrt(_larger(observed_lanes[c, 0, k], 0.0))
-                    constant[k] = 0.0
-                for l in range(1, n_degrees):
-                    if amplitude:  # a_l^2 = S_refl(l), a_l b_l = sqrt(S_refl(l) S_out(l)), b_l^2 = S_out(l)
-                        for k in range(_LANES):
-                            light_value = _larger(light_lanes[c, l, k], 0.0)
-                            observed_value = _larger(observed_lanes[c, l, k], 0.0)
-                            light_sq[l, k] = light_value
-                            light_observed[l, k] = math.sqrt(light_value * observed_value)
-                            constant[k] += observed_value
-                    else:
-                        for k in range(_LANES):
-                            light_value = _larger(light_lanes[c, l, k], 0.0)
-                            observed_value = _larger(observed_lanes[c, l, k], 0.0)
-                            light_sq[l, k] = light_value * light_value
-                            light_observed[l, k] = light_value * observed_value
-                            constant[k] += observed_value * observed_value
-                    if use_cross:  # padding lanes hold 0
-                        for k in range(_LANES):
-                            light_observed[l, k] = cross_lanes[c, l, k]
-                # 2. Rows. The k = 0 column (misfit C in any row) and earlier rows win ties.
-                for k in range(_LANES):
-                    lowest[0, k] = constant[k]
-                    lowest[1, k] = 0.0
-                    lowest[2, k] = 0.0
-                for i in range(resolution):
-                    for k in range(_LANES):
-                        quad[k] = filter_sq[i, 1] * light_sq[1, k]
-                        linear[k] = row_filter[i, 1] * light_observed[1, k]
-                    for l in range(2, n_degrees):
-                        for k in range(_LANES):
-                            quad[k] += filter_sq[i, l] * light_sq[l, k]
-                            linear[k] += row_filter[i, l] * light_observed[l, k]
-                    for k in range(_LANES):
-                        a = quad[k]
-                        x = linear[k]
-                        if use_cross:  # |X| <= sqrt(A C) (Cauchy-Schwarz) unless the inputs disagree
-                            bound = math.sqrt(a * constant[k])
-                            x = _smaller(_larger(x, -bound), bound)
-                        # Continuous minimiser of C - 2 X t + A t^2 + max(t a_0 - b_0, 0)^2: X / A, or
-                        # (X + a_0 b_0) / (A + a_0^2) where X / A would exceed the DC bound b_0 / a_0.
-                        numerator = x
-                        denominator = a
-                        if amplitude and x * light_dc[k] > observed_dc[k] * a:
-                            numerator += light_dc[k] * observed_dc[k]
-                            denominator += light_dc[k] * light_dc[k]
-                        target = numerator / (denominator if denominator > 0.0 else 1.0)  # no light: 0
-                        index = target * last if amplitude else math.sqrt(_larger(target, 0.0)) * last
-                        left = np.float64(_smaller(_larger(math.floor(index), 1.0), last))
-                        right = _smaller(left + 1.0, last)
-                        left_t = left * inverse_last
-                        right_t = right * inverse_last
-                        if not amplitude:
-                            left_t *= left_t
-                            right_t *= right_t
-                        left_misfit = constant[k] + left_t * (a * left_t - 2.0 * x)
-                        right_misfit = constant[k] + right_t * (a * right_t - 2.0 * x)
-                        if amplitude:
-                            left_misfit += _larger(left_t * light_dc[k] - observed_dc[k], 0.0) ** 2
-                            right_misfit += _larger(right_t * light_dc[k] - observed_dc[k], 0.0) ** 2
-                        take_right = right_misfit < left_misfit
-                        best_misfit = right_misfit if take_right else left_misfit
-                        rows[i, 0, k] = a
-                        rows[i, 1, k] = x
-                        rows[i, 2, k] = right_t if take_right else left_t
-                        rows[i, 3, k] = best_misfit
-                        if best_misfit < lowest[0, k]:
-                            lowest[0, k] = best_misfit
-                            lowest[1, k] = i
-                            lowest[2, k] = right if take_right else left
-                # 3. Cells. Temperature per lane, the k = 0 column, then row by row.
-                for k in range(_LANES):
-                    temperature = scale[start + k, _smaller(c, n_scales - 1)] if k < n_lanes else 0.0
-                    temperature = temperature / light_power[k] if light_power[k] > 0.0 else 0.0
-                    if residual_dof > 0.0 and temperature > 0.0:
-                        # Noise variance = the stated floor + the best hypothesis's residual per
-                        # degree of freedom: a texel no hypothesis explains is not sure of any.
-                        temperature = 1.0 / (1.0 / temperature + 2.0 * _larger(lowest[0, k], 0.0) / residual_dof)
-                    to_temperature[k] = temperature
-                    zero_distance = _smaller((constant[k] - lowest[0, k]) * temperature, CUTOFF)
-                    zero_weight = np.float64(_exp_neg(np.float32(zero_distance)))
-                    channel_sums[c, 1, k] = zero_weight
-                    sums[0, k] = n_zero * zero_weight
-                    sums[1, k] = n_zero * zero_weight * zero_distance
-                if amplitude:
-                    for j in range(resolution):
-                        for k in range(_LANES):
-                            excess = _larger(steps[j] * light_dc[k] - observed_dc[k], 0.0)
-                            dc_scaled[j, k] = excess * excess * to_temperature[k]
-                for i in range(resolution):
-                    # Lanes whose row minimum D_i lies within CUTOFF, counted as a float sum: a select
-                    # (min) reduction would not vectorise without assuming no NaNs.
-                    within = 0.0
-                    for k in range(_LANES):
-                        temperature = to_temperature[k]
-                        offset = (rows[i, 3, k] - lowest[0, k]) * temperature
-                        within += 1.0 if offset < CUTOFF else 0.0
-                        best_t = rows[i, 2, k]
-                        excess = _larger(best_t * light_dc[k] - observed_dc[k], 0.0)
-                        excess = excess if amplitude else 0.0
-                        # misfit(t) - misfit(t_b) = (t - t_b) (A (t - t_b) + 2 (A t_b - X)), plus the DC excess
-                        cell[0, k] = best_t
-                        cell[1, k] = rows[i, 0, k] * temperature
-                        cell[2, k] = 2.0 * (rows[i, 0, k] * best_t - rows[i, 1, k]) * temperature
-                        cell[3, k] = offset - excess * excess * temperature
-                    if within == 0.0:  # every cell of this row is beyond CUTOFF in every lane
-                        cell_sums[0] = last * clamped_weight
-                        cell_sums[1] = last * clamped_weight * np.float32(CUTOFF)
-                        row_weights[:] = clamped_weight
-                    else:
-                        cell_sums[:] = 0.0
-                        for j in range(1, resolution):
-                            t = steps32[j]
-                            for k in range(_LANES):
-                                delta = t - cell[0, k]
-                                distance = delta * (cell[1, k] * delta + cell[2, k]) + cell[3, k] + dc_scaled[j, k]
-                                distance = _smaller(_larger(distance, np.float32(0.0)), np.float32(CUTOFF))
-                                w = _exp_neg(distance)
-                                cell_sums[0, k] += w
-                                cell_sums[1, k] += w * distance
-                                row_weights[j, k] = w
-                    for k in range(_LANES):
-                        sums[0, k] += cell_sums[0, k]
-                        sums[1, k] += cell_sums[1, k]
-                    if want_likelihood:
-                        weights[c, i] = row_weights
-                # Entropy; the channel with the lowest one wins (earlier channels win ties).
-                for k in range(_LANES):
-                    total = sums[0, k]
-                    value = (_log(total) + sums[1, k] / total) / log_hypotheses
-                    value = _smaller(_larger(value, 0.0), 1.0)
-                    channel_sums[c, 0, k] = total
-                    if value < choice[0, k]:
-                        choice[0, k] = value
-                        choice[1, k] = c
-                        choice[2, k] = lowest[1, k]
-                        choice[3, k] = lowest[2, k]
+                for l in range(n_degrees):
+                    light_lanes[c, l, k] = light[start + k, c, l]
+                    observed_lanes[c, l, k] = observed[start + k, c, l]
+        if use_cross:
             for k in range(n_lanes):
-                texel = start + k
-                c = np.int64(choice[1, k])
-                entropy[texel] = choice[0, k]
-                channel[texel] = c
-                column = np.int64(choice[3, k])
-                best_alpha[texel] = alphas[np.int64(choice[2, k])] if column > 0 else np.nan  # k = 0: no lobe
-                best_ks[texel] = specular[column]
+                for c in range(n_channels):
+                    for l in range(n_degrees):
+                        cross_lanes[c, l, k] = cross[start + k, c, l]
+        choice[0] = 2.0
+        if per_light_power:
+            light_power[:] = 0.0
+            for c in range(n_channels):
+                for l in range(n_degrees):
+                    for k in range(_LANES):
+                        light_power[k] += light_lanes[c, l, k]
+            for k in range(_LANES):
+                light_power[k] = light_power[k] / n_channels
+        for c in range(n_channels):
+            # 1. Moments.
+            for k in range(_LANES):
+                light_dc[k] = math.sqrt(_larger(light_lanes[c, 0, k], 0.0))
+                observed_dc[k] = math.sqrt(_larger(observed_lanes[c, 0, k], 0.0))
+                constant[k] = 0.0
+            for l in range(1, n_degrees):
+                if amplitude:  # a_l^2 = S_refl(l), a_l b_l = sqrt(S_refl(l) S_out(l)), b_l^2 = S_out(l)
+                    for k in range(_LANES):
+                        light_value = _larger(light_lanes[c, l, k], 0.0)
+                        observed_value = _larger(observed_lanes[c, l, k], 0.0)
+                        light_sq[l, k] = light_value
+                        light_observed[l, k] = math.sqrt(light_value * observed_value)
+                        constant[k] += observed_value
+                else:
+                    for k in range(_LANES):
+                        light_value = _larger(light_lanes[c, l, k], 0.0)
+                        observed_value = _larger(observed_lanes[c, l, k], 0.0)
+                        light_sq[l, k] = light_value * light_value
+                        light_observed[l, k] = light_value * observed_value
+                        constant[k] += observed_value * observed_value
+                if use_cross:  # padding lanes hold 0
+                    for k in range(_LANES):
+                        light_observed[l, k] = cross_lanes[c, l, k]
+            # 2. Rows. The k = 0 column (misfit C in any row) and earlier rows win ties.
+            for k in range(_LANES):
+                lowest[0, k] = constant[k]
+                lowest[1, k] = 0.0
+                lowest[2, k] = 0.0
+            for i in range(resolution):
+                for k in range(_LANES):
+                    quad[k] = filter_sq[i, 1] * light_sq[1, k]
+                    linear[k] = row_filter[i, 1] * light_observed[1, k]
+                for l in range(2, n_degrees):
+                    for k in range(_LANES):
+                        quad[k] += filter_sq[i, l] * light_sq[l, k]
+                        linear[k] += row_filter[i, l] * light_observed[l, k]
+                for k in range(_LANES):
+                    a = quad[k]
+                    x = linear[k]
+                    if use_cross:  # |X| <= sqrt(A C) (Cauchy-Schwarz) unless the inputs disagree
+                        bound = math.sqrt(a * constant[k])
+                        x = _smaller(_larger(x, -bound), bound)
+                    # Continuous minimiser of C - 2 X t + A t^2 + max(t a_0 - b_0, 0)^2: X / A, or
+                    # (X + a_0 b_0) / (A + a_0^2) where X / A would exceed the DC bound b_0 / a_0.
+                    numerator = x
+                    denominator = a
+                    if amplitude and x * light_dc[k] > observed_dc[k] * a:
+                        numerator += light_dc[k] * observed_dc[k]
+                        denominator += light_dc[k] * light_dc[k]
+                    target = numerator / (denominator if denominator > 0.0 else 1.0)  # no light: 0
+                    index = target * last if amplitude else math.sqrt(_larger(target, 0.0)) * last
+                    left = np.float64(_smaller(_larger(math.floor(index), 1.0), last))
+                    right = _smaller(left + 1.0, last)
+                    left_t = left * inverse_last
+                    right_t = right * inverse_last
+                    if not amplitude:
+                        left_t *= left_t
+                        right_t *= right_t
+                    left_misfit = constant[k] + left_t * (a * left_t - 2.0 * x)
+                    right_misfit = constant[k] + right_t * (a * right_t - 2.0 * x)
+                    if amplitude:
+                        left_misfit += _larger(left_t * light_dc[k] - observed_dc[k], 0.0) ** 2
+                        right_misfit += _larger(right_t * light_dc[k] - observed_dc[k], 0.0) ** 2
+                    take_right = right_misfit < left_misfit
+                    best_misfit = right_misfit if take_right else left_misfit
+                    rows[i, 0, k] = a
+                    rows[i, 1, k] = x
+                    rows[i, 2, k] = right_t if take_right else left_t
+                    rows[i, 3, k] = best_misfit
+                    if best_misfit < lowest[0, k]:
+                        lowest[0, k] = best_misfit
+                        lowest[1, k] = i
+                        lowest[2, k] = right if take_right else left
+            # 3. Cells. Temperature per lane, the k = 0 column, then row by row.
+            for k in range(_LANES):
+                temperature = scale[start + k, _smaller(c, n_scales - 1)] if k < n_lanes else 0.0
+                temperature = temperature / light_power[k] if light_power[k] > 0.0 else 0.0
+                if residual_dof > 0.0 and temperature > 0.0:
+                    # Noise variance = the stated floor + the best hypothesis's residual per
+                    # degree of freedom: a texel no hypothesis explains is not sure of any.
+                    temperature = 1.0 / (1.0 / temperature + 2.0 * _larger(lowest[0, k], 0.0) / residual_dof)
+                to_temperature[k] = temperature
+                zero_distance = _smaller((constant[k] - lowest[0, k]) * temperature, CUTOFF)
+                zero_weight = np.float64(_exp_neg(np.float32(zero_distance)))
+                channel_sums[c, 1, k] = zero_weight
+                sums[0, k] = n_zero * zero_weight
+                sums[1, k] = n_zero * zero_weight * zero_distance
+            if amplitude:
+                for j in range(resolution):
+                    for k in range(_LANES):
+                        excess = _larger(steps[j] * light_dc[k] - observed_dc[k], 0.0)
+                        dc_scaled[j, k] = excess * excess * to_temperature[k]
+            for i in range(resolution):
+                # Lanes whose row minimum D_i lies within CUTOFF, counted as a float sum: a select
+                # (min) reduction would not vectorise without assuming no NaNs.
+                within = 0.0
+                for k in range(_LANES):
+                    temperature = to_temperature[k]
+                    offset = (rows[i, 3, k] - lowest[0, k]) * temperature
+                    within += 1.0 if offset < CUTOFF else 0.0
+                    best_t = rows[i, 2, k]
+                    excess = _larger(best_t * light_dc[k] - observed_dc[k], 0.0)
+                    excess = excess if amplitude else 0.0
+                    # misfit(t) - misfit(t_b) = (t - t_b) (A (t - t_b) + 2 (A t_b - X)), plus the DC excess
+                    cell[0, k] = best_t
+                    cell[1, k] = rows[i, 0, k] * temperature
+                    cell[2, k] = 2.0 * (rows[i, 0, k] * best_t - rows[i, 1, k]) * temperature
+                    cell[3, k] = offset - excess * excess * temperature
+                if within == 0.0:  # every cell of this row is beyond CUTOFF in every lane
+                    cell_sums[0] = last * clamped_weight
+                    cell_sums[1] = last * clamped_weight * np.float32(CUTOFF)
+                    row_weights[:] = clamped_weight
+                else:
+                    cell_sums[:] = 0.0
+                    for j in range(1, resolution):
+                        t = steps32[j]
+                        for k in range(_LANES):
+                            delta = t - cell[0, k]
+                            distance = delta * (cell[1, k] * delta + cell[2, k]) + cell[3, k] + dc_scaled[j, k]
+                            distance = _smaller(_larger(distance, np.float32(0.0)), np.float32(CUTOFF))
+                            w = _exp_neg(distance)
+                            cell_sums[0, k] += w
+                            cell_sums[1, k] += w * distance
+                            row_weights[j, k] = w
+                for k in range(_LANES):
+                    sums[0, k] += cell_sums[0, k]
+                    sums[1, k] += cell_sums[1, k]
                 if want_likelihood:
-                    inverse_total = 1.0 / channel_sums[c, 0, k]
-                    zero_share = channel_sums[c, 1, k] * n_zero / resolution * inverse_total
-                    for i in range(resolution):
-                        likelihood[texel, i, 0] = zero_share
-                        for j in range(1, resolution):
-                            likelihood[texel, i, j] = weights[c, i, j, k] * inverse_total
+                    weights[c, i] = row_weights
+            # Entropy; the channel with the lowest one wins (earlier channels win ties).
+            for k in range(_LANES):
+                total = sums[0, k]
+                value = (_log(total) + sums[1, k] / total) / log_hypotheses
+                value = _smaller(_larger(value, 0.0), 1.0)
+                channel_sums[c, 0, k] = total
+                if value < choice[0, k]:
+                    choice[0, k] = value
+                    choice[1, k] = c
+                    choice[2, k] = lowest[1, k]
+                    choice[3, k] = lowest[2, k]
+        for k in range(n_lanes):
+            texel = start + k
+            c = np.int64(choice[1, k])
+            entropy[texel] = choice[0, k]
+            channel[texel] = c
+            column = np.int64(choice[3, k])
+            best_alpha[texel] = alphas[np.int64(choice[2, k])] if column > 0 else np.nan  # k = 0: no lobe
+            best_ks[texel] = specular[column]
+            if want_likelihood:
+                inverse_total = 1.0 / channel_sums[c, 0, k]
+                zero_share = channel_sums[c, 1, k] * n_zero / resolution * inverse_total
+                for i in range(resolution):
+                    likelihood[texel, i, 0] = zero_share
+                    for j in range(1, resolution):
+                        likelihood[texel, i, j] = weights[c, i, j, k] * inverse_total
