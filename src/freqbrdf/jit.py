@@ -13,12 +13,12 @@ import sys
 from numba.core.registry import CPUDispatcher
 
 
-def compiled_here(package: str = "freqbrdf") -> list[str]:
-    """Qualified names of the cached kernels of ``package``'s loaded modules that this process
+def compiled_here() -> list[str]:
+    """Qualified names of the cached kernels of freqbrdf's loaded modules that this process
     compiled (numba's cache missed them), sorted."""
     names = set()
     for module_name, module in list(sys.modules.items()):
-        if module is None or not (module_name == package or module_name.startswith(package + ".")):
+        if module is None or not module_name.startswith("freqbrdf."):
             continue
         for attribute, value in vars(module).items():
             if isinstance(value, CPUDispatcher) and value.stats.cache_misses:
