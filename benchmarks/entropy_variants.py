@@ -50,12 +50,14 @@ from freqbrdf.observations import Observations, observe
 from freqbrdf.synth import synthesize
 from freqbrdf.uncertainty import cross_spectrum, entropy_from_spectra, entropy_map, roughness_std
 
-SPREAD_VARIANTS = {  # name: (roughness_window, loss_curvature)
-    "roughness_std window 3": (3, False),
-    "roughness_std window 5": (5, False),
-    "roughness_std window 7 (default)": (7, False),
-    "roughness_std curvature": (0, True),
-    "roughness_std window 7 + curvature": (7, True),
+SPREAD_VARIANTS = {  # name: (roughness_window, loss_curvature, split_half)
+    "roughness_std window 3": (3, False, False),
+    "roughness_std window 5": (5, False, False),
+    "roughness_std window 7": (7, False, False),
+    "roughness_std curvature": (0, True, False),
+    "roughness_std window 7 + curvature (default)": (7, True, False),
+    "roughness_std split half": (0, False, True),
+    "roughness_std window 7 + curvature + split half (fit --split-half)": (7, True, True),
 }
 TEXTURED_SCENES = ("bunny_sunset", "sphere_city", "sphere_studio")  # applications.py's, photo textures
 
@@ -143,9 +145,9 @@ def scene_scores(name: str, path) -> dict:
                     region: round(float(entropy[mask & observed].mean()), 4) for region, mask in masks.items()}
             variants[key] = entry
             print(name, key, entry, flush=True)
-    for key, (window, curvature) in SPREAD_VARIANTS.items():
-        spread_config = dataclasses.replace(
-            config, uncertainty=UncertaintyConfig(roughness_window=window, loss_curvature=curvature))
+    for key, (window, curvature, split_half) in SPREAD_VARIANTS.items():
+        spread_config = dataclasses.replace(config, uncertainty=UncertaintyConfig(
+            roughness_window=window, loss_curvature=curvature, split_half=split_half))
         start = time.perf_counter()
         spread = roughness_std(observations, result, spread_config)
         entry = {"scores": scores_of(spread), "mean_roughness_std": round(float(np.nanmean(spread[observed])), 4),

@@ -61,13 +61,15 @@ def test_fit_and_evaluate_commands(run_cli, tiny_capture, tmp_path, monkeypatch,
 
     shared_dir = tmp_path / "shared"
     assert run_cli("fit", tiny_capture, "--out", shared_dir, "--texture-res", 32, "--share", "--anisotropic-lobes",
-                   "--footprint-blur", "--no-neighbour-vote", "--quiet") == 0
+                   "--footprint-blur", "--no-neighbour-vote", "--split-half", "--quiet") == 0
     assert capsys.readouterr().out == ""
     shared_summary = json.loads((shared_dir / "summary.json").read_text())
     assert shared_summary["settings"]["share"]["enabled"] and "share" in shared_summary["timings"]
     shared_settings, default_settings = shared_summary["settings"]["estimate"], summary["settings"]["estimate"]
     assert shared_settings["anisotropic_lobes"] and shared_settings["footprint_blur"]
     assert not shared_settings["neighbour_vote"]
+    assert shared_summary["settings"]["uncertainty"]["split_half"]
+    assert not summary["settings"]["uncertainty"]["split_half"]
     # The default fit's:
     assert not default_settings["anisotropic_lobes"] and not default_settings["footprint_blur"]
     assert default_settings["neighbour_vote"]

@@ -372,6 +372,29 @@ def test_observations_round_trip_through_npz(checker_bunny, tmp_path):
         Observations.load(tmp_path / "other.npz")
 
 
+def test_with_views_is_what_observing_only_those_views_gives(checker_bunny):
+    """Dropping views from the observations and refitting equals observing a capture of only
+    those views (without the band limit, which depends on the view count)."""
+    capture = checker_bunny[0]
+    config = Config(texels=TexelConfig(texture_res=TEXTURE_RES), fit=FitConfig(band_limit=False))
+    keep = np.arange(len(capture.frames)) % 2 == 0
+    whole = observe(capture, config)
+    dropped = whole.with_views(keep, config)
+    alone = observe(replace(capture, frames=tuple(f for f, k in zip(capture.frames, keep) if k)), config)
+    assert dropped.n_views == len(capture.frames) and alone.n_views == keep.sum()
+    assert np.all(dropped.weight[:, ~keep] == 0) and not dropped.visible[:, ~keep].any()
+    for name in ("weight", "visible", "observed", "mirrored"):
+        np.testing.assert_array_equal(getattr(dropped, name)[:, keep], getattr(alone, name), err_msg=name)
+    for name in ("n_samples", "fit_status", "alpha_bound"):
+        np.testing.assert_array_equal(getattr(dropped, name), getattr(alone, name), err_msg=name)
+    assert (alone.n_samples > 0).mean() > 0.3  # the bunny is seen, with fewer samples than before
+    assert (dropped.n_samples < whole.n_samples).any()
+    for name in ("observed_coeffs", "mirrored_coeffs", "constant_coeffs"):
+        np.testing.assert_allclose(getattr(dropped, name), getattr(alone, name), rtol=1e-5, atol=1e-6, err_msg=name)
+    with pytest.raises(ValueError, match="keep must be"):
+        dropped.with_views(keep[:-1], config)
+
+
 @pytest.mark.slow
 def test_observe_command_writes_observations_and_maps(checker_bunny, tmp_path, monkeypatch, capsys):
     capture, observations, _ = checker_bunny

@@ -462,6 +462,47 @@ def test_loss_curvature_spread_ranks_and_scales_like_the_roughness_error():
     assert np.any(ratio < 0.5 * (1 - 1e-3))
 
 
+def test_split_half_spread_is_zero_on_exact_data_and_ranks_the_error_under_noise():
+    """The split-half term alone: the even and the odd views each recover exact data of the
+    estimator's own model, so they agree; with noise their scatter ranks the roughness error and is
+    on its scale, and it is the halves' own estimates' difference."""
+    import dataclasses
+
+    from scipy import stats
+    from test_estimate import random_truth, synthetic_observations
+
+    from freqbrdf.config import Config
+    from freqbrdf.estimate import estimate
+
+    truth = random_truth(200, seed=3)
+    # The default model, whose light is the map's (prefiltered, environment light) as on real
+    # captures: a light fitted to half the samples would not be the one the data were made with.
+    clean = synthetic_observations(truth, seed=4, model="split_sum", environment_light=True, prefiltered=True)
+    config = dataclasses.replace(
+        Config(), uncertainty=UncertaintyConfig(roughness_window=0, loss_curvature=False, split_half=True))
+    exact = unc.roughness_std(clean, estimate(clean, config), config)
+    assert np.nanmax(exact) < 1e-4  # measured 2e-6
+
+    rng = np.random.default_rng(5)
+    rms = np.sqrt(np.mean(np.square(clean.observed), axis=(1, 2), keepdims=True))
+    observations = dataclasses.replace(
+        clean, observed=(clean.observed + 0.05 * rms * rng.standard_normal(clean.observed.shape)).astype(np.float32))
+    result = estimate(observations, config)
+    spread = unc.roughness_std(observations, result, config)
+    error = np.abs(result.roughness - truth.roughness)
+    # One difference per texel (no window here) is a one-sample variance estimate: a noisy ranking.
+    assert stats.spearmanr(spread, error).statistic > 0.25  # measured 0.36
+    assert 0.3 < np.median(error / np.maximum(spread, 1e-6)) < 3.0  # measured 1.08
+
+    halves = [estimate(observations.with_views(np.arange(observations.n_views) % 2 == parity, config), config)
+              for parity in (0, 1)]
+    expected = np.abs(halves[0].roughness - halves[1].roughness) / 2.0
+    both = halves[0].estimated & halves[1].estimated
+    assert both.mean() > 0.9
+    np.testing.assert_allclose(spread[both], expected[both], rtol=1e-5, atol=1e-7)
+    assert np.all(spread[~both] == np.float32(np.sqrt(1 / 12)))
+
+
 def _direct_angular_entropy(observations, grid, noise_level):
     """The angular mode written out with numpy, per texel and channel, as the path-traced brute
     force (benchmarks/pathtraced_entropy.py) scores its renderings: the hypotheses' radiance from the

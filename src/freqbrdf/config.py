@@ -106,6 +106,15 @@ class UncertaintyConfig:
     #   are held and the loss is evaluated twice more). Alone: 0.43 / 0.37 and 0.29 / 0.23; with
     #   the window: 0.51 / 0.44 (bunny) and 0.40 / 0.31 (sphere).
     loss_curvature: bool = True
+    # - split_half: the scatter between two more estimates, from the even-numbered and from the
+    #   odd-numbered views alone ((r_even - r_odd)^2 / 4, averaged over roughness_window): an
+    #   empirical variance of the estimator, whatever makes it unstable. Alone (no window): 0.38 /
+    #   0.27 and 0.33 / 0.26. It adds what the two terms above miss: with all three, rho / AURG
+    #   0.57 / 0.52 (bunny), 0.51 / 0.47 (sphere; 0.48 / 0.43 without it), and 0.34, 0.40, 0.49 on
+    #   the photo-textured three (0.30, 0.37, 0.47 without). But the two more estimates (each half
+    #   observation refitted) cost 1.2-1.8x the observe + estimate time again (7.6-15.6 s there),
+    #   so it is off by default (fit --split-half).
+    split_half: bool = False
     # Angular mode: score the hypotheses with anisotropic lobes (EstimateConfig.anisotropic_lobes)
     # whatever the estimate's setting: the entropy is about what the light can tell, and the
     # brute force it should agree with is the path tracer's lobe. Measured

@@ -150,6 +150,31 @@ class Observations:
                    if isinstance(getattr(self, item.name), np.ndarray) and item.name not in _SHARED_ARRAYS}
         return replace(self, **changes)
 
+    def with_views(self, keep: np.ndarray, config: Config = Config()) -> Observations:
+        """The Observations as if only the views ``keep`` ((V,) bool) had been captured: the other
+        views' samples dropped (weight 0, not visible), then the SH spectra, fit status, sample
+        counts and alpha' refitted from the samples left, to degree l* = ``self.lmax`` with
+        ``config.fit``'s regulariser and alpha' threshold, as `observe` fits them. What describes the light rather than the samples is kept: the band limit sigma (set
+        by the whole capture's view count), the irradiance, the environment and n_facing."""
+        keep = np.asarray(keep, dtype=bool)
+        if keep.shape != (self.n_views,):
+            raise ValueError(f"keep must be ({self.n_views},) bool, got shape {keep.shape}")
+        weight = np.where(keep, self.weight, 0.0).astype(np.float32)
+        signals = np.empty((self.n_texels, self.n_views, N_SIGNALS), dtype=np.float32)
+        signals[..., OBSERVED] = self.observed
+        signals[..., MIRRORED] = self.mirrored
+        signals[..., CONSTANT] = 1.0
+        settings = config.fit
+        fit = sh.fit_sh(self.view_direction, weight, signals, self.lmax, settings.reg_lambda,
+                        settings.regulariser, settings.scale_lambda_with_weight)
+        return replace(
+            self, weight=weight, visible=self.visible & keep,
+            observed_coeffs=fit.coeffs[:, OBSERVED], mirrored_coeffs=fit.coeffs[:, MIRRORED],
+            constant_coeffs=fit.coeffs[:, CONSTANT], fit_status=fit.status, n_samples=fit.n_samples,
+            alpha_bound=texel_alpha_bound(fit.n_samples, self.lmax, settings.attenuation_threshold),
+            timings={},
+        )
+
     def mask(self) -> np.ndarray:
         """(T, T) bool: texels of the mesh (observed or not)."""
         mask = np.zeros(self.texture_res * self.texture_res, dtype=bool)

@@ -76,7 +76,8 @@ estimate's per-texel roughness errors poorly (Spearman 0.28 on the Mitsuba bunny
 sphere of entropy_scenes.py; the angular mode 0.28 and 0.21). `roughness_std` is
 the posterior spread of the estimate itself (UncertaintyConfig.roughness_window, loss_curvature):
 0.56 and 0.48, measured in benchmarks/entropy_variants.py (session-10 estimator, with the
-neighbour vote).
+neighbour vote); with the scatter between the even and the odd views' estimates too
+(UncertaintyConfig.split_half, `fit --split-half`, seconds) 0.57 and 0.51.
 """
 
 from __future__ import annotations
@@ -91,7 +92,9 @@ from scipy import ndimage
 
 from freqbrdf import brdf, sh
 from freqbrdf.config import Config, EstimateConfig, UncertaintyConfig
-from freqbrdf.estimate import CURVATURE_STEP, FITTED_PARAMETERS, angular_loss, hypothesis_moments, model_light
+from freqbrdf.estimate import (
+    CURVATURE_STEP, FITTED_PARAMETERS, angular_loss, estimate as estimate_materials, hypothesis_moments, model_light,
+)
 
 if TYPE_CHECKING:
     from freqbrdf.estimate import MaterialEstimate
@@ -198,14 +201,15 @@ def roughness_std(
     observations: Observations, estimate: MaterialEstimate, config: Config = Config()
 ) -> np.ndarray | None:
     """(N,) float32 posterior std of the estimated roughness, from ``config.uncertainty``'s
-    roughness_window and loss_curvature terms (their variances add; see UncertaintyConfig); NaN
-    where not estimated, None when both terms are off. ``config`` is the fit's: the curvature
-    scores the estimate with the estimator's model, as ``estimate.loss`` was.
+    roughness_window, loss_curvature and split_half terms (their variances add; see
+    UncertaintyConfig); NaN where not estimated, None when all terms are off. ``config`` is the
+    fit's: the curvature scores the estimate with the estimator's model, as ``estimate.loss`` was,
+    and the split halves are estimated as the whole was.
     """
     settings = config.uncertainty
     if settings.roughness_window < 0:
         raise ValueError(f"roughness_window must be >= 0, got {settings.roughness_window}")
-    if settings.roughness_window == 0 and not settings.loss_curvature:
+    if settings.roughness_window == 0 and not settings.loss_curvature and not settings.split_half:
         return None
     if estimate.n_texels != observations.n_texels:
         raise ValueError(f"the estimate has {estimate.n_texels} texels, the observations {observations.n_texels}")
@@ -215,23 +219,54 @@ def roughness_std(
         variance += _neighbour_variance(observations, roughness, settings.roughness_window)
     if settings.loss_curvature:
         variance += _loss_curvature_variance(observations, estimate, roughness, config)
+    if settings.split_half:
+        variance += _split_half_variance(observations, roughness, config)
     return np.where(np.isfinite(roughness), np.sqrt(variance), np.nan).astype(np.float32)
+
+
+def _window_sums(observations: Observations, known: np.ndarray, window: int, *values: np.ndarray):
+    """(N,) sums over the ``known`` texels of the window x window square around each texel
+    (texture space): of 1 (how many there are), then of each of ``values`` ((N,) each)."""
+    flat = observations.texel_index
+
+    def window_sum(value):
+        texture = observations.to_texture(np.where(known, value, 0.0))
+        return ndimage.uniform_filter(texture, window, mode="constant").ravel()[flat] * (window * window)
+
+    return window_sum(np.ones(observations.n_texels)), *(window_sum(value) for value in values)
 
 
 def _neighbour_variance(observations: Observations, roughness: np.ndarray, window: int) -> np.ndarray:
     """(N,) variance of the estimated roughness over the estimated texels of the window x window
     square around each texel (texture space); the prior variance where it holds no other texel."""
     known = np.isfinite(roughness)
-    values = observations.to_texture(np.where(known, roughness, 0.0))
-    counts = ndimage.uniform_filter(observations.to_texture(known.astype(np.float64)), window, mode="constant")
-    means = ndimage.uniform_filter(values, window, mode="constant")
-    squares = ndimage.uniform_filter(values * values, window, mode="constant")
-    flat = observations.texel_index
-    counts, means, squares = counts.ravel()[flat], means.ravel()[flat], squares.ravel()[flat]
-    alone = counts * window * window < 1.5  # the texel itself only (the filter's sums are rounded)
+    counts, sums, squares = _window_sums(observations, known, window, roughness, roughness * roughness)
+    alone = counts < 1.5  # the texel itself only (the filter's sums are rounded)
     safe = np.where(alone, 1.0, counts)
-    variance = np.maximum(squares / safe - np.square(means / safe), 0.0)
+    variance = np.maximum(squares / safe - np.square(sums / safe), 0.0)
     return np.where(alone, PRIOR_ROUGHNESS_VARIANCE, variance)
+
+
+def _split_half_variance(observations: Observations, roughness: np.ndarray, config: Config) -> np.ndarray:
+    """(N,) the scatter between the roughness estimated from the even-numbered views alone and
+    from the odd-numbered ones (`Observations.with_views`, the fit's estimator): each half's
+    variance is about twice the whole capture's and their difference's four times, so
+    (r_even - r_odd)^2 / 4 estimates the whole's, whatever makes the estimate unstable (noise,
+    interreflection, a model that fits two roughness values). The prior variance where a half
+    leaves the texel unestimated. One difference is a one-sample estimate, so it is averaged over
+    the estimated texels of the roughness_window square (when that is > 1)."""
+    halves = []
+    for parity in (0, 1):
+        keep = np.arange(observations.n_views) % 2 == parity
+        half = estimate_materials(observations.with_views(keep, config), config)
+        halves.append(np.where(half.estimated, half.roughness, np.nan))
+    variance = np.square(halves[0] - halves[1]) / 4.0
+    variance = np.where(np.isfinite(variance), variance, PRIOR_ROUGHNESS_VARIANCE)
+    window = config.uncertainty.roughness_window
+    if window <= 1:
+        return variance
+    counts, sums = _window_sums(observations, np.isfinite(roughness), window, variance)
+    return sums / np.maximum(counts, 1.0)  # a texel not estimated (count 0) gets NaN in roughness_std
 
 
 def _loss_curvature_variance(observations: Observations, estimate: MaterialEstimate, roughness: np.ndarray,
