@@ -11,8 +11,10 @@ the upper hemisphere, and a relighting test set of 8 views under two other bundl
 method gets the same capture and texture resolution and is scored on the observed texels
 (base-colour PSNR, roughness and metallic MAE) and by relighting (Stanford-ORB protocol,
 PSNR-H/PSNR-L/SSIM). Seconds are wall-clock from the capture to the maps (our methods: observe +
-estimate, with their CPU seconds beside them since the machine may be shared; Mitsuba: its own
-loop, image loading and compilation included). Saves JSON and a markdown table to
+estimate, with their CPU seconds beside them since the machine may be shared; `global_fast`, which
+estimates on coarser texels (TexelConfig.estimation_res "auto"), the whole `pipeline.fit`: texels,
+observe, estimate, uncertainty, upsampling and textures, all its CPU seconds under estimate;
+Mitsuba: its own loop, image loading and compilation included). Saves JSON and a markdown table to
 benchmarks/results/compare_estimators.{json,md}, merged into what is there: rows of methods left
 out with ``--skip`` (or scenes not run) are kept from the earlier run, and every row says when it
 was measured and under what load. ``--quick`` (a smoke run of a
@@ -31,7 +33,7 @@ from pathlib import Path
 
 from _common import control_seconds, machine  # benchmarks/ is on sys.path when a script runs
 
-from freqbrdf import baselines, export, metrics
+from freqbrdf import baselines, export, metrics, pipeline
 from freqbrdf.capture import load
 from freqbrdf.config import Config, EstimateConfig, TexelConfig, preset
 from freqbrdf.estimate import estimate
@@ -66,7 +68,8 @@ def method_config(method: str, texture_res: int) -> Config:
     fast preset; the paper preset (its lambda, Adam, TV) for `paper_*`."""
     texels = TexelConfig(texture_res=texture_res)
     if method == "global_fast":
-        return preset("fast").replace(texels=texels)
+        fast = preset("fast")
+        return fast.replace(texels=dataclasses.replace(fast.texels, texture_res=texture_res))
     if method.startswith("global"):
         return Config(texels=texels, estimate=EstimateConfig(
             lobe_tilt=method == "global_lobe_tilt", environment_light=method != "global_fitted_light",
@@ -108,11 +111,19 @@ def run_scene(name: str, args) -> dict:
         # Mitsuba is scored on the texels our default observation sees, like the others.
         observations, observe_seconds, observe_cpu = observations_for(
             method_config("global" if method == "mitsuba" else method, args.texture_res))
+        config = None if method == "mitsuba" else method_config(method, args.texture_res)
         if method == "mitsuba":
             maps, seconds, _ = baselines.mitsuba_inverse(capture, args.texture_res)
             timings = {"total": seconds}
+        elif config.texels.estimation_res != "full":  # the fast preset: the whole fit, on coarser texels
+            start, cpu_start = time.perf_counter(), time.process_time()
+            result = pipeline.fit(capture, config)
+            maps = result.maps
+            timings = {"observe": result.timings["texels"] + result.timings["observe"],
+                       "estimate": result.timings["estimate"] + result.timings["upsample"],
+                       "total": time.perf_counter() - start, "observe_cpu": 0.0,
+                       "estimate_cpu": time.process_time() - cpu_start, "estimation_res": result.estimation_res}
         else:
-            config = method_config(method, args.texture_res)
             start, cpu_start = time.perf_counter(), time.process_time()
             result = estimate(observations, config)
             estimate_seconds, estimate_cpu = time.perf_counter() - start, time.process_time() - cpu_start

@@ -61,7 +61,7 @@ def test_fit_and_evaluate_commands(run_cli, tiny_capture, tmp_path, monkeypatch,
 
     shared_dir = tmp_path / "shared"
     assert run_cli("fit", tiny_capture, "--out", shared_dir, "--texture-res", 32, "--share", "--anisotropic-lobes",
-                   "--footprint-blur", "--no-neighbour-vote", "--split-half", "--quiet") == 0
+                   "--footprint-blur", "--no-neighbour-vote", "--split-half", "--estimation-res", 16, "--quiet") == 0
     assert capsys.readouterr().out == ""
     shared_summary = json.loads((shared_dir / "summary.json").read_text())
     assert shared_summary["settings"]["share"]["enabled"] and "share" in shared_summary["timings"]
@@ -69,6 +69,8 @@ def test_fit_and_evaluate_commands(run_cli, tiny_capture, tmp_path, monkeypatch,
     assert shared_settings["anisotropic_lobes"] and shared_settings["footprint_blur"]
     assert not shared_settings["neighbour_vote"]
     assert shared_summary["settings"]["uncertainty"]["split_half"]
+    assert shared_summary["estimation_res"] == 16 and summary["estimation_res"] == 32
+    assert shared_summary["coverage"]["texture_res"] == 32
     assert not summary["settings"]["uncertainty"]["split_half"]
     # The default fit's:
     assert not default_settings["anisotropic_lobes"] and not default_settings["footprint_blur"]
@@ -155,6 +157,9 @@ def test_bad_options_and_captures_are_refused_before_any_output(run_cli, tiny_ca
     assert "unknown estimator" in capsys.readouterr().err and not out.exists()
     assert run_cli("fit", tiny_capture, "--out", out, "--preset", "fastest") == 2
     assert "unknown preset" in capsys.readouterr().err and not out.exists()
+    for value in ("coarse", "0", "1024"):
+        assert run_cli("fit", tiny_capture, "--out", out, "--estimation-res", value) == 2
+        assert "--estimation-res must be auto, full or a number" in capsys.readouterr().err and not out.exists()
 
     # --out must not replace the capture it reads.
     files_before = sorted(p.name for p in tiny_capture.iterdir())

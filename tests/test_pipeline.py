@@ -162,3 +162,118 @@ def test_load_fit_names_what_is_missing(tmp_path):
     (tmp_path / "summary.json").write_text("[1, 2]")
     with pytest.raises(InputError, match="JSON object"):
         pipeline.load_fit(tmp_path)
+
+
+# --- estimation on coarser texels ------------------------------------------------------------
+
+
+def _unit_square() -> "Mesh":
+    from freqbrdf.mesh import Mesh
+
+    vertices = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], np.float64)
+    return Mesh(vertices=vertices, faces=np.array([[0, 1, 2], [0, 2, 3]]),
+                normals=np.tile([0.0, 0.0, 1.0], (4, 1)), uv=vertices[:, :2].copy())
+
+
+@pytest.mark.parametrize("texture_res, focal, expected", [
+    (64, 64.0, 64),  # a pixel is a texel wide: every texel is resolved
+    (64, 200.0, 64),  # pixels finer than texels
+    (64, 32.0, 32),  # two texels a pixel: one level coarser
+    (64, 25.0, 16),  # 2.56 texels a pixel: two levels, so that a texel is at least a pixel
+    (100, 100 / 3, 25),  # three texels a pixel at T = 100: ceil(100 / 4)
+])
+def test_estimation_resolution_is_the_finest_grid_whose_texels_are_a_pixel_wide(texture_res, focal, expected):
+    from freqbrdf.texels import estimation_resolution, rasterise
+
+    texels = rasterise(_unit_square(), texture_res)
+    # The closest camera, 1 from the square's centre, decides; a farther one does not matter.
+    centres = np.array([[0.5, 0.5, 1.0], [0.5, 0.5, 5.0]])
+    assert estimation_resolution(texels, centres, np.array([focal, focal])) == expected
+    assert estimation_resolution(texels, np.zeros((0, 3)), np.zeros(0)) == texture_res
+
+
+def test_to_texels_samples_the_maps_bilinearly_and_takes_the_rest_from_the_parent_texel():
+    """A coarse 4 x 4 fit with an affine roughness and a missing texel, taken to 8 x 8 texels."""
+    from dataclasses import replace as replaced
+
+    from test_uncertainty import LMAX, _estimate_of, _observations_from_spectra
+
+    from freqbrdf import sh
+    from freqbrdf.texels import rasterise
+    from freqbrdf.uncertainty import entropy_map
+
+    coarse_index = np.array([i for i in range(16) if i != 5])  # texel (1, 1) not covered
+    rows, columns = np.divmod(coarse_index, 4)
+    n = len(coarse_index)
+    light = np.tile(np.linspace(1.0, 0.1, LMAX + 1), (n, 3, 1))
+    observations = _observations_from_spectra(light, 0.5 * light, coarse_index, texture_res=4)
+    observations = replaced(observations, n_samples=np.arange(n, dtype=np.int32) + 10,
+                            fit_status=np.where(coarse_index == 15, sh.FIT_EMPTY, sh.FIT_OK).astype(np.uint8))
+    roughness = 0.1 + 0.05 * rows + 0.02 * columns
+    estimated = coarse_index != 15  # the last texel has no estimate
+    estimate = _estimate_of(observations, roughness, estimated)
+    uncertainty = entropy_map(observations)
+    uncertainty.roughness_std = np.where(estimated, 0.1, np.nan).astype(np.float32)
+
+    fine = rasterise(_unit_square(), 8)
+    fine_observations, fine_estimate, fine_uncertainty = pipeline.to_texels(
+        observations, estimate, uncertainty, fine, dilation_px=2)
+    assert fine_estimate.texture_res == fine_observations.texture_res == 8
+    np.testing.assert_array_equal(fine_estimate.texel_index, fine.texel_index)
+    assert fine_observations.n_views == 0 and fine_observations.n_texels == fine.n_texels
+
+    fine_rows, fine_columns = np.divmod(fine.texel_index, 8)
+    parent_flat = (fine_rows // 2) * 4 + fine_columns // 2
+    parent = np.searchsorted(coarse_index, parent_flat)
+    own = np.isin(parent_flat, coarse_index)
+    # The fine texels of the uncovered coarse texel (1, 1) take a covered neighbour's fields.
+    assert (~own).sum() == 4
+    for name in ("n_samples", "fit_status"):
+        np.testing.assert_array_equal(getattr(fine_observations, name)[own], getattr(observations, name)[parent[own]])
+    np.testing.assert_array_equal(fine_uncertainty.flags[own], uncertainty.flags[parent[own]])
+    assert np.all(fine_observations.n_samples[~own] > 0)
+    # Bilinear reproduces the affine roughness wherever the four coarse texels around a fine
+    # centre are estimated texels: between the coarse centres, away from (1, 1) and (3, 3).
+    y = (fine_rows + 0.5) / 2 - 0.5
+    x = (fine_columns + 0.5) / 2 - 0.5
+    inside = (y >= 0) & (y <= 3) & (x >= 0) & (x <= 3)
+    clear = inside & ~((y < 2) & (x < 2) & (y > 0) & (x > 0)) & ~((y > 2) & (x > 2))
+    assert clear.sum() >= 10
+    np.testing.assert_allclose(fine_estimate.roughness[clear], (0.1 + 0.05 * y + 0.02 * x)[clear], atol=1e-12)
+    # Not estimated where the parent is not; the entropy of an unobserved texel stays the prior's.
+    unestimated = parent_flat == 15
+    assert np.all(np.isnan(fine_estimate.roughness[unestimated])) and not fine_estimate.estimated[unestimated].any()
+    assert np.all(np.isnan(fine_uncertainty.roughness_std[unestimated]))
+    # roughness_std as exported: the unestimated texel's prior std blends into its neighbours.
+    from freqbrdf.export import UNESTIMATED_ROUGHNESS_STD
+
+    beside = (y > 2) & (x > 2) & ~unestimated
+    np.testing.assert_allclose(fine_uncertainty.roughness_std[~unestimated & ~beside], 0.1, atol=1e-6)
+    assert np.all((fine_uncertainty.roughness_std[beside] > 0.1)
+                  & (fine_uncertainty.roughness_std[beside] < UNESTIMATED_ROUGHNESS_STD))
+    assert np.all(fine_uncertainty.entropy[unestimated] == 1.0)
+
+
+@pytest.mark.slow
+def test_fit_on_coarser_texels_writes_t_by_t_maps_that_load_and_evaluate(tiny_capture, tmp_path):
+    config = Config(texels=TexelConfig(texture_res=32, estimation_res=16))
+    capture = load(tiny_capture)
+    result = pipeline.fit(capture, config)
+    assert result.estimation_res == 16 and "upsample" in result.timings
+    assert result.estimate.texture_res == 32 and result.maps.resolution == 32
+    assert result.uncertainty.entropy.shape == (result.estimate.n_texels,)
+    folder = pipeline.write_fit(tmp_path / "fit", result, config)
+    outputs = pipeline.load_fit(folder)
+    assert outputs.summary["estimation_res"] == 16
+    assert outputs.summary["coverage"]["views"] == len(capture.frames) and outputs.summary["coverage"]["texture_res"] == 32
+    assert outputs.observed.sum() == np.count_nonzero(result.observations.n_samples)
+    document = pipeline.evaluate_fit(outputs, capture, settings=NO_LPIPS)
+    assert document["texture"]["texels"] == outputs.observed.sum()
+    # "auto" on this capture (40-pixel images): what the images resolve, whatever T above it.
+    def automatic(texture_res):
+        return pipeline.estimation_resolution(capture, Config(texels=TexelConfig(texture_res, estimation_res="auto")))
+
+    assert automatic(32) == automatic(128) == automatic(512) == 32
+    assert automatic(16) == 16
+    with pytest.raises(ValueError, match="estimation_res must be"):
+        pipeline.estimation_resolution(capture, Config(texels=TexelConfig(texture_res=32, estimation_res=64)))

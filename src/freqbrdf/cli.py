@@ -225,6 +225,16 @@ def _config(preset: str, texture_res: int | None = None, lmax: int | None = None
                           uncertainty=uncertainty_settings)
 
 
+def _estimation_res(value: str, texture_res: int):
+    """--estimation-res as TexelConfig.estimation_res: "auto", "full" or a number from 1 to T."""
+    if value in ("auto", "full"):
+        return value
+    if not value.isdigit() or not 1 <= int(value) <= texture_res:
+        raise typer.BadParameter(f"--estimation-res must be auto, full or a number from 1 to the texture "
+                                 f"resolution {texture_res}, got {value!r}")
+    return int(value)
+
+
 ENTROPY_MODES = ("calibrated", "paper", "angular")
 ENTROPY_HELP = ("Entropy mode: calibrated (spectra, milliseconds), paper (the published recipe) or angular "
                 "(the estimator's model on the samples, seconds; agrees with a path tracer). Default: the preset's.")
@@ -244,9 +254,9 @@ def fit(
     lmax: int = typer.Option(None, min=0, help="Degree l* of the per-texel SH fits (default 5)."),
     estimator: str = typer.Option(None, help="global (ours, default) or paper (the prototype's Adam)."),
     model: str = typer.Option(None, help="Forward model of `paper`: angular, sh_coeffs or spectrum."),
-    preset: str = typer.Option("default", help="default; fast (no robust pass, a coarser roughness grid: "
-                               "about a third less estimation time); or paper (the prototype's "
-                               "hyper-parameters)."),
+    preset: str = typer.Option("default", help="default; fast (estimated on texels a pixel wide, no robust "
+                               "pass, a coarser roughness grid: 3-5x less time, smoother maps); or paper (the "
+                               "prototype's hyper-parameters)."),
     entropy: str = typer.Option(None, help=ENTROPY_HELP),
     share: bool = typer.Option(False, "--share", help="Pull uncertain texels towards affine confident anchors."),
     anisotropic_lobes: bool = typer.Option(
@@ -259,6 +269,10 @@ def fit(
     footprint_blur: bool = typer.Option(
         False, "--footprint-blur", help="Blur each sample's smooth lobe by the normals its pixel spans (more "
         "faithful on curved surfaces, but less accurate roughness on the measured scenes)."),
+    estimation_res: str = typer.Option(
+        None, help="Texture resolution to observe and estimate on before the maps are sampled up to T: full (T), "
+        "auto (the coarsest whose texels are a pixel wide in the closest view) or a number. Default: the "
+        "preset's (full; fast: auto)."),
     split_half: bool = typer.Option(
         False, "--split-half", help="Add to roughness_std the scatter between two more estimates, from the even "
         "and from the odd views alone: ranks the roughness errors better, but costs 1.2-1.8x the time of "
@@ -284,6 +298,9 @@ def fit(
         config = config.replace(share=dataclasses.replace(config.share, enabled=True))
     if split_half:
         config = config.replace(uncertainty=dataclasses.replace(config.uncertainty, split_half=True))
+    if estimation_res is not None:
+        config = config.replace(texels=dataclasses.replace(config.texels, estimation_res=_estimation_res(
+            estimation_res, config.texels.texture_res)))
     # The flags only add to what the preset sets.
     config = config.replace(estimate=dataclasses.replace(
         config.estimate, anisotropic_lobes=config.estimate.anisotropic_lobes or anisotropic_lobes,

@@ -18,6 +18,12 @@ RegulariserKind = Literal["none", "constant", "exponential"]
 class TexelConfig:
     texture_res: int = 512  # T: textures are T x T
     dilation_px: int = 8  # how far exported maps are grown across chart seams
+    # The texture resolution `pipeline.fit` observes and estimates on; below T the results are
+    # then taken to the T x T texels (`pipeline.to_texels`: maps, entropy and roughness_std
+    # bilinearly). "full": T (METHOD.md's per-texel recipe); "auto" (the fast preset): the
+    # coarsest ceil(T / 2^k) whose texels are at least a pixel wide in the closest view
+    # (`texels.estimation_resolution`); or a number <= T. Measured: see `preset`.
+    estimation_res: int | Literal["auto", "full"] = "full"
 
 
 @dataclass(frozen=True)
@@ -295,7 +301,7 @@ def preset(name: str = "default") -> Config:
     if name == "default":
         return Config()
     if name == "fast":
-        return Config(estimate=EstimateConfig(robust_passes=0, roughness_grid=5))
+        return Config(texels=TexelConfig(estimation_res="auto"), estimate=EstimateConfig(robust_passes=0, roughness_grid=5))
     if name == "paper":
         return Config(
             fit=FitConfig(reg_lambda=1e-3, scale_lambda_with_weight=False),

@@ -72,6 +72,8 @@ N_SIGNALS = 7
 STAGES = ("raster", "projection", "visibility", "images", "irradiance", "occlusion", "fits")
 # The array fields of Observations that are not per texel.
 _SHARED_ARRAYS = ("environment_coeffs", "environment_radiance", "environment_rotation")
+# Per texel and view (N, V, ...).
+_SAMPLE_ARRAYS = ("view_direction", "observed", "mirrored", "weight", "visible", "footprint")
 
 
 @dataclass(eq=False)
@@ -148,6 +150,18 @@ class Observations:
         kept."""
         changes = {item.name: getattr(self, item.name)[rows] for item in fields(self)
                    if isinstance(getattr(self, item.name), np.ndarray) and item.name not in _SHARED_ARRAYS}
+        return replace(self, **changes)
+
+    def texel_fields(self, rows) -> Observations:
+        """Like `select`, without the samples: the per-view arrays are kept with no view (V = 0),
+        everything per texel (spectra, counts, normals) is indexed. For outputs on other texels
+        than the ones observed (`pipeline.to_texels`), where copying every sample would cost more
+        than the estimate (0.74 GB and 2.4 s for 64 views at T = 512)."""
+        changes = {}
+        for item in fields(self):
+            value = getattr(self, item.name)
+            if isinstance(value, np.ndarray) and item.name not in _SHARED_ARRAYS:
+                changes[item.name] = (value[:, :0] if item.name in _SAMPLE_ARRAYS else value)[rows]
         return replace(self, **changes)
 
     def with_views(self, keep: np.ndarray, config: Config = Config()) -> Observations:

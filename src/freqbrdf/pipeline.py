@@ -12,10 +12,11 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
+from scipy import ndimage
 
 from freqbrdf import export
 from freqbrdf.capture import Capture
@@ -29,6 +30,7 @@ from freqbrdf.observations import Observations, observe
 from freqbrdf.progress import SILENT, Reporter
 from freqbrdf.relight import RelightSettings, evaluate as relight_evaluate, write_evaluation
 from freqbrdf.share import share
+from freqbrdf.texels import Texels, estimation_resolution as texels_estimation_resolution, rasterise
 from freqbrdf.uncertainty import FLAG_UNOBSERVED, Uncertainty, entropy_map, roughness_std
 
 EVALUATION_FOLDER = "evaluation"
@@ -43,6 +45,9 @@ class FitResult:
     uncertainty: Uncertainty
     maps: MaterialMaps  # hole-free (T, T, ·) textures, as exported
     timings: dict[str, float] = field(default_factory=dict)  # seconds per stage
+    # The texture resolution observed and estimated on (`estimation_resolution`); below T, the
+    # observations, estimate and uncertainty above are its, taken to the T x T texels (`to_texels`).
+    estimation_res: int | None = None
 
 
 @dataclass(eq=False)
@@ -63,9 +68,38 @@ class FitOutputs:
         return None if path is None else Path(path)
 
 
+def estimation_resolution(capture: Capture, config: Config = Config(), fine: Texels | None = None) -> int:
+    """The texture resolution ``fit`` observes and estimates on (``TexelConfig.estimation_res``);
+    ``fine``: the mesh's texels at T, when already rasterised."""
+    setting, texture_res = config.texels.estimation_res, config.texels.texture_res
+    if setting == "full":
+        return texture_res
+    if setting == "auto":
+        fine = rasterise(capture.mesh, texture_res) if fine is None else fine
+        centres = np.array([frame.camera.camera_to_world[:3, 3] for frame in capture.frames]).reshape(-1, 3)
+        focal = np.array([0.5 * (frame.camera.fx + frame.camera.fy) for frame in capture.frames])
+        return texels_estimation_resolution(fine, centres, focal)
+    if isinstance(setting, bool) or not isinstance(setting, int) or not 1 <= setting <= texture_res:
+        raise ValueError(f"estimation_res must be 'auto', 'full' or a whole number from 1 to the texture "
+                         f"resolution {texture_res}, got {setting!r}")
+    return setting
+
+
 def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT) -> FitResult:
-    """Observe, estimate, compute the uncertainty and make the textures; seconds per stage."""
+    """Observe, estimate, compute the uncertainty and make the textures; seconds per stage.
+
+    The first three run at `estimation_resolution`; where that is below T, the results are then
+    taken to the T x T texels (`to_texels`)."""
     timings: dict[str, float] = {}
+    start = time.perf_counter()
+    texture_res = config.texels.texture_res
+    fine = rasterise(capture.mesh, texture_res) if config.texels.estimation_res == "auto" else None
+    estimation_res = estimation_resolution(capture, config, fine)
+    final_config = config
+    if estimation_res < texture_res:
+        config = config.replace(texels=replace(config.texels, texture_res=estimation_res))
+    timings["texels"] = time.perf_counter() - start
+
     start = time.perf_counter()
     observations = observe(capture, config, reporter)
     timings["observe"] = time.perf_counter() - start
@@ -86,11 +120,80 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
         estimate = share(observations, estimate, uncertainty, config)
         timings["share"] = time.perf_counter() - start
 
+    if estimation_res < texture_res:
+        start = time.perf_counter()
+        fine = rasterise(capture.mesh, texture_res) if fine is None else fine
+        observations, estimate, uncertainty = to_texels(observations, estimate, uncertainty, fine,
+                                                        config.texels.dilation_px)
+        timings["upsample"] = time.perf_counter() - start
+
     start = time.perf_counter()
-    maps = export.material_textures(estimate, config.texels.dilation_px)
+    maps = export.material_textures(estimate, final_config.texels.dilation_px)
     timings["textures"] = time.perf_counter() - start
     timings["total"] = sum(seconds for stage, seconds in timings.items() if "." not in stage)
-    return FitResult(capture, observations, estimate, uncertainty, maps, timings)
+    return FitResult(capture, observations, estimate, uncertainty, maps, timings, estimation_res)
+
+
+def to_texels(observations: Observations, estimate: MaterialEstimate, uncertainty: Uncertainty, fine: Texels,
+              dilation_px: int) -> tuple[Observations, MaterialEstimate, Uncertainty]:
+    """A fit made on coarser texels, on the texels ``fine`` of a finer T x T texture: base colour,
+    roughness and metallic sampled bilinearly from the coarse estimate's hole-free textures
+    (`export.material_textures`, grown by ``dilation_px`` across seams) at each fine texel's
+    centre, and so are the entropy and roughness_std; everything else per texel (spectra, sample
+    counts, flags, likelihood, whether estimated) from the coarse texel the fine one lies in, or
+    the nearest covered one where that one is not covered. The observations keep no samples
+    (`Observations.texel_fields`: V = 0); the coarse ``observations`` hold them."""
+    parent = _parent_texels(observations.texture_res, observations.texel_index, fine)
+    fine_observations = replace(observations.texel_fields(parent), texture_res=fine.texture_res,
+                                texel_index=fine.texel_index)
+    maps = export.material_textures(estimate, dilation_px)
+    rows, columns = np.divmod(fine.texel_index, fine.texture_res)
+    scale = estimate.texture_res / fine.texture_res
+    coordinates = np.stack([(rows + 0.5) * scale - 0.5, (columns + 0.5) * scale - 0.5])
+
+    def sample(texture):
+        return ndimage.map_coordinates(texture.astype(np.float64), coordinates, order=1, mode="nearest")
+
+    estimated = estimate.estimated[parent]
+
+    def where_estimated(values):
+        return np.where(estimated.reshape((-1,) + (1,) * (values.ndim - 1)), values, np.nan)
+
+    fine_estimate = replace(
+        estimate, texture_res=fine.texture_res, texel_index=fine.texel_index,
+        base_color=where_estimated(np.stack([sample(maps.base_color[..., c]) for c in range(3)], axis=1)),
+        roughness=where_estimated(sample(maps.roughness)), metallic=where_estimated(sample(maps.metallic)),
+        estimated=estimated, loss=estimate.loss[parent],
+        roughness_curvature=None if estimate.roughness_curvature is None else estimate.roughness_curvature[parent],
+    )
+    # The entropy and roughness_std vary smoothly too: bilinear, so that neighbouring fine texels
+    # are not ranked as ties (their NaN, where not estimated, from the parent).
+    changes = {name: getattr(uncertainty, name)[parent]
+               for name in ("flags", "likelihood", "best_alpha", "best_ks", "channel")
+               if getattr(uncertainty, name) is not None}
+    entropy = sample(export.entropy_texture(uncertainty, estimate, dilation_px)).astype(np.float32)
+    changes["entropy"] = np.where((changes["flags"] & FLAG_UNOBSERVED) != 0, uncertainty.entropy[parent], entropy)
+    if uncertainty.roughness_std is not None:
+        spread = sample(export.roughness_std_texture(uncertainty, estimate, dilation_px)).astype(np.float32)
+        changes["roughness_std"] = np.where(np.isfinite(uncertainty.roughness_std[parent]), spread, np.float32(np.nan))
+    return fine_observations, fine_estimate, replace(uncertainty, **changes)
+
+
+def _parent_texels(coarse_res: int, coarse_index: np.ndarray, fine: Texels) -> np.ndarray:
+    """(N_fine,) int64: per texel of ``fine``, the row in ``coarse_index`` (a coarse_res x coarse_res
+    texture's covered texels) of the coarse texel its centre lies in, or of the nearest covered
+    coarse texel where that one is not covered."""
+    if len(coarse_index) == 0:
+        raise ValueError("no coarse texel to take the fine texels' values from")
+    lookup = np.full(coarse_res * coarse_res, -1, np.int64)
+    lookup[coarse_index] = np.arange(len(coarse_index))
+    lookup = lookup.reshape(coarse_res, coarse_res)
+    _, (nearest_row, nearest_column) = ndimage.distance_transform_edt(lookup < 0, return_indices=True)
+    rows, columns = np.divmod(fine.texel_index, fine.texture_res)
+    scale = coarse_res / fine.texture_res
+    coarse_rows = np.minimum(((rows + 0.5) * scale).astype(np.int64), coarse_res - 1)
+    coarse_columns = np.minimum(((columns + 0.5) * scale).astype(np.int64), coarse_res - 1)
+    return lookup[nearest_row[coarse_rows, coarse_columns], nearest_column[coarse_rows, coarse_columns]]
 
 
 def write_fit(out_dir: str | Path, result: FitResult, config: Config = Config()) -> Path:
@@ -98,7 +201,12 @@ def write_fit(out_dir: str | Path, result: FitResult, config: Config = Config())
     start = time.perf_counter()
     capture_root = Path(result.capture.root).resolve()
     check_output_folder(out_dir, {"the capture": capture_root})
-    extra = {"capture": str(capture_root), "layout": result.capture.layout}
+    extra = {"capture": str(capture_root), "layout": result.capture.layout,
+             "estimation_res": result.estimation_res or result.estimate.texture_res,
+             # The views of the capture, also where the observations were taken to finer texels
+             # without their samples (`to_texels`).
+             "coverage": {**export.coverage(result.observations, result.estimate),
+                          "views": len(result.capture.frames)}}
     out = export.write_fit_outputs(
         out_dir, result.capture.mesh, result.observations, result.estimate, result.uncertainty,
         config, timings=result.timings, extra_summary=extra, maps=result.maps,

@@ -31,7 +31,9 @@ sign. Downstream quantities are rotation invariant about n, so no UV-aligned tan
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+
 import numba
 import numpy as np
 
@@ -377,3 +379,28 @@ def _closest_barycentrics(uv_px, face_id, rows, cols, out):
             uv_px[face, 0, 0], uv_px[face, 0, 1], uv_px[face, 1, 0], uv_px[face, 1, 1],
             uv_px[face, 2, 0], uv_px[face, 2, 1], cols[texel], rows[texel],
         )
+
+
+def estimation_resolution(texels: Texels, camera_centres: np.ndarray, focal_px: np.ndarray) -> int:
+    """The texture resolution to estimate on: ceil(T / 2^k) for the smallest k >= 0 at which a
+    texel is at least one pixel wide in the capture's closest view.
+
+    Texels finer than the pixels add no information: each one's samples are bilinear lookups
+    between the same few pixels as its neighbours', so their separate estimates share the data
+    and multiply only the work and the noise. A texel's width is the median over ``texels`` of
+    sqrt(texel_area); a pixel's width at the object is the distance from the camera centre to the
+    texels' centroid over the focal length in pixels, in the closest view. camera_centres (C, 3)
+    world positions, focal_px (C,) focal lengths in pixels. T itself where there is nothing to
+    measure (no texels, no cameras).
+    """
+    camera_centres = np.asarray(camera_centres, dtype=np.float64).reshape(-1, 3)
+    focal_px = np.asarray(focal_px, dtype=np.float64).reshape(-1)
+    if texels.n_texels == 0 or len(camera_centres) == 0:
+        return texels.texture_res
+    texel_width = float(np.median(texels.texel_size))
+    centroid = texels.position.mean(axis=0)
+    pixel_width = float(np.min(np.linalg.norm(camera_centres - centroid, axis=1) / focal_px))
+    if not (texel_width > 0.0 and pixel_width > 0.0):
+        return texels.texture_res
+    levels = max(math.ceil(math.log2(pixel_width / texel_width) - 1e-9), 0)
+    return max(math.ceil(texels.texture_res / 2**levels), 1)
