@@ -290,13 +290,18 @@ def preset(name: str = "default") -> Config:
     """Named configurations: ``default`` (ours), ``fast`` and ``paper`` (the prototype's
     hyper-parameters).
 
-    ``fast`` is ``default`` with the least-squares optimum (no robust pass) on a 5-node roughness
-    grid: about a third less estimation time (plane, T = 512, session 8: 6.8 vs 10.5 s in one
-    process, 7.2 vs 10.6 s median in fresh ones). Measured against ``default`` (64 views, T = 512,
-    both with the neighbour vote, session 10): base-colour PSNR 25.08 vs 25.10 dB (plane), 18.65 vs
-    18.92 (bunny); roughness MAE 0.060 vs 0.058, 0.127 vs 0.121; metallic MAE 0.084 vs 0.080, 0.184
-    vs 0.176; relighting PSNR-H 23.48 vs 23.50, 22.07 vs 22.11; still ahead of ``paper`` and of
-    Mitsuba's inverse renderer on every one (benchmarks/results/compare_estimators.md).
+    ``fast`` is ``default`` estimated on texels a pixel wide (``TexelConfig.estimation_res``
+    "auto", then taken to T x T), with the least-squares optimum (no robust pass) on a 5-node
+    roughness grid. ``freqbrdf fit --preset fast`` on the plane (64 views of 256 x 256, T = 512,
+    estimated on 128 x 128): 3.8-4.0 s end to end against 14.0-14.5 s for ``default`` the same
+    day (benchmarks/bench_fit.py). Against ``default`` (64 views, T = 512, session 13,
+    benchmarks/results/compare_estimators.md): base-colour PSNR 25.47 vs 25.10 dB (plane), 19.98
+    vs 19.00 (bunny, on 256 x 256); roughness MAE 0.058 vs 0.058, 0.110 vs 0.121; metallic MAE
+    0.078 vs 0.080, 0.159 vs 0.171; but relighting PSNR-H 23.33 vs 23.50 and 21.81 vs 22.12 dB:
+    its maps are smoother, closer to the truth texel by texel but with less of the detail a
+    rendering shows. Still ahead of ``paper`` and of Mitsuba's inverse renderer on every score.
+    (Before session 13 it estimated every texel of T: 25.08 and 18.76 dB, relit 23.48 and 22.08,
+    in two thirds of the default's estimation time.)
     """
     if name == "default":
         return Config()

@@ -1,6 +1,7 @@
 """The whole job on one capture: observations -> estimate -> uncertainty -> textures; its folder.
 
-``fit`` runs the stages in memory (``FitResult``), ``write_fit`` writes the fit folder
+``fit`` runs the stages in memory (``FitResult``; on coarser texels than the maps' when
+``TexelConfig.estimation_res`` says so, then `to_texels`), ``write_fit`` writes the fit folder
 (``export.write_fit_outputs``: EXR maps, previews, material.glb, entropy, roughness_std and flags,
 spectra.npz, uncertainty.npz, summary.json with the capture's path), ``load_fit`` reads it back
 for the commands that work on a fit (evaluate, report, inpaint), and ``evaluate_fit`` scores a fit
