@@ -320,7 +320,10 @@ def fit(
         Console().print(
             f"fit written to {escape(str(Path(out)))}: {coverage['observed_fraction']:.0%} of texels "
             f"observed, mean entropy {summary['uncertainty']['entropy_mean']:.2f}, "
-            f"{result.timings['total']:.1f} s", soft_wrap=True  # soft_wrap: no line break inside a path
+            f"{result.timings['total']:.1f} s"
+            + (f" (estimated on {result.estimation_res} x {result.estimation_res} texels)"
+               if result.estimation_res < coverage["texture_res"] else ""),
+            soft_wrap=True,  # no line break inside a path
         )
 
 

@@ -306,7 +306,8 @@ def preset(name: str = "default") -> Config:
     if name == "default":
         return Config()
     if name == "fast":
-        return Config(texels=TexelConfig(estimation_res="auto"), estimate=EstimateConfig(robust_passes=0, roughness_grid=5))
+        return Config(texels=TexelConfig(estimation_res="auto"),
+                      estimate=EstimateConfig(robust_passes=0, roughness_grid=5))
     if name == "paper":
         return Config(
             fit=FitConfig(reg_lambda=1e-3, scale_lambda_with_weight=False),

@@ -168,8 +168,9 @@ class Observations:
         """The Observations as if only the views ``keep`` ((V,) bool) had been captured: the other
         views' samples dropped (weight 0, not visible), then the SH spectra, fit status, sample
         counts and alpha' refitted from the samples left, to degree l* = ``self.lmax`` with
-        ``config.fit``'s regulariser and alpha' threshold, as `observe` fits them. What describes the light rather than the samples is kept: the band limit sigma (set
-        by the whole capture's view count), the irradiance, the environment and n_facing."""
+        ``config.fit``'s regulariser and alpha' threshold, as `observe` fits them. What describes
+        the light rather than the samples is kept: the band limit sigma (set by the whole
+        capture's view count), the irradiance, the environment and n_facing."""
         keep = np.asarray(keep, dtype=bool)
         if keep.shape != (self.n_views,):
             raise ValueError(f"keep must be ({self.n_views},) bool, got shape {keep.shape}")

@@ -102,7 +102,8 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
     timings["texels"] = time.perf_counter() - start
 
     start = time.perf_counter()
-    observations = observe(capture, config, reporter)
+    # "auto" rasterised T already: where it settles on T, observe those texels.
+    observations = observe(capture, config, reporter, texels=fine if estimation_res == texture_res else None)
     timings["observe"] = time.perf_counter() - start
     timings.update({f"observe.{stage}": seconds for stage, seconds in observations.timings.items()
                     if stage != "total"})  # "observe" is the total
