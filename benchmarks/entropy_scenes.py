@@ -13,7 +13,10 @@ photographed from the upper hemisphere only. Regions by world normal n:
 
 Measured: mean entropy and mean |roughness error| per region (calibrated and paper modes),
 Spearman rho (entropy vs |roughness error| of the global estimate), AUSE and AURG
-(freqbrdf.sparsification), timings. Saves benchmarks/results/entropy_scenes.json and
+(freqbrdf.sparsification), timings; and the same scores of the roughness std (as exported:
+texels without an estimate take its prior) against the error of each fit's own estimate, for the
+default fit and the fast preset, each without and with the split-half term (`fit --split-half`),
+with each fit's seconds. Saves benchmarks/results/entropy_scenes.json and
 entropy_scenes.png (entropy map, error map, regions). The capture is rendered once into
 benchmarks/.cache/ and reused; delete it to render again.
 """
@@ -28,9 +31,9 @@ import numba
 import numpy as np
 from _common import RESULTS_DIR, machine, save_results
 
-from freqbrdf import sparsification
+from freqbrdf import export, sparsification
 from freqbrdf.capture import Capture, load
-from freqbrdf.config import Config, UncertaintyConfig
+from freqbrdf.config import Config, UncertaintyConfig, preset
 from freqbrdf.images import write_exr
 from freqbrdf.materials import resize
 from freqbrdf.pipeline import FitResult, fit
@@ -47,6 +50,13 @@ N_LIGHTS = 24  # small bright lights in the cap x > LIGHT_CAP_X
 LIGHT_CAP_X = 0.6  # far from x = 0, so that the band-limit blur does not carry them into the -x half
 LIGHT_RADIUS_DEG = 4.0
 REGIONS = ("sharply_lit", "badly_lit", "rarely_seen", "rest")
+# The fits whose roughness std is scored (module docstring).
+SPREAD_FITS = {
+    "default": Config(),
+    "default + split half": Config(uncertainty=UncertaintyConfig(split_half=True)),
+    "fast": preset("fast"),
+    "fast + split half": preset("fast").replace(uncertainty=UncertaintyConfig(split_half=True)),
+}
 
 
 def capped_lights_envmap(seed: int = 0) -> np.ndarray:
@@ -95,8 +105,8 @@ def regions(normal: np.ndarray) -> dict[str, np.ndarray]:
 
 def roughness_error(result: FitResult, capture: Capture) -> np.ndarray:
     """(N,) |estimated - true roughness| per texel (NaN where not estimated)."""
-    truth = resize(capture.ground_truth, result.observations.texture_res)
-    flat = result.observations.texel_index
+    truth = resize(capture.ground_truth, result.estimate.texture_res)
+    flat = result.estimate.texel_index
     return np.abs(result.estimate.roughness - truth.roughness.ravel()[flat])
 
 
@@ -125,6 +135,26 @@ def main() -> None:
             "mean_entropy": {region: round(float(uncertainty.entropy[mask].mean()), 4)
                              for region, mask in masks.items()},
         }
+    spread_scores = {}
+    for name, config in SPREAD_FITS.items():
+        start = time.perf_counter()
+        spread_fit = result if name == "default" else fit(capture, config)
+        seconds = result.timings["total"] if name == "default" else time.perf_counter() - start
+        spread = export.roughness_std_values(spread_fit.uncertainty.roughness_std)
+        spread_error = roughness_error(spread_fit, capture)
+        curves = sparsification.sparsification(spread, spread_error)
+        spread_masks = regions(spread_fit.observations.normal)
+        spread_scores[name] = {
+            "estimation_res": spread_fit.estimation_res,
+            "spearman_rho_roughness_std_vs_roughness_error": round(float(curves.spearman), 4),
+            "ause": round(curves.ause, 4),
+            "aurg": round(curves.aurg, 4),
+            "mean_roughness_error": round(float(np.nanmean(spread_error)), 4),
+            "median_roughness_std": {region: round(float(np.median(spread[mask])), 4)
+                                     for region, mask in spread_masks.items()},
+            "fit_seconds": round(seconds, 2),
+        }
+        print(name, spread_scores[name], flush=True)
     region_facts = {
         region: {
             "texels": int(mask.sum()),
@@ -143,6 +173,7 @@ def main() -> None:
         "texels": observations.n_texels,
         "regions": region_facts,
         "scores": scores,
+        "roughness_std": spread_scores,
         "timings_s": {"render_capture (0 if cached)": round(render_s, 2),
                       **{stage: round(seconds, 4) for stage, seconds in result.timings.items()},
                       "uncertainty_paper_mode": round(paper_s, 4)},
