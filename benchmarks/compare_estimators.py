@@ -11,9 +11,10 @@ the upper hemisphere, and a relighting test set of 8 views under two other bundl
 method gets the same capture and texture resolution and is scored on the observed texels
 (base-colour PSNR, roughness and metallic MAE) and by relighting (Stanford-ORB protocol,
 PSNR-H/PSNR-L/SSIM). Seconds are wall-clock from the capture to the maps (our methods: observe +
-estimate, with their CPU seconds beside them since the machine may be shared; `global_fast`, which
-estimates on coarser texels (TexelConfig.estimation_res "auto"), the whole `pipeline.fit`: texels,
-observe, estimate, uncertainty, upsampling and textures, all its CPU seconds under estimate;
+estimate, with their CPU seconds beside them since the machine may be shared; `global` and
+`global_fast`, whose texels depend on the pixels (TexelConfig.estimation_res "pixel" and "coarse"),
+the whole `pipeline.fit`: texels, observe, estimate, uncertainty, upsampling and textures, all its
+CPU seconds under estimate;
 Mitsuba: its own loop, image loading and compilation included). Saves JSON and a markdown table to
 benchmarks/results/compare_estimators.{json,md}, merged into what is there: rows of methods left
 out with ``--skip`` (or scenes not run) are kept from the earlier run, and every row says when it
@@ -115,12 +116,12 @@ def run_scene(name: str, args) -> dict:
         if method == "mitsuba":
             maps, seconds, _ = baselines.mitsuba_inverse(capture, args.texture_res)
             timings = {"total": seconds}
-        elif config.texels.estimation_res != "full":  # the fast preset: the whole fit, on coarser texels
+        elif config.texels.estimation_res != "full":  # texels by the pixels: the whole fit
             start, cpu_start = time.perf_counter(), time.process_time()
             result = pipeline.fit(capture, config)
             maps = result.maps
             timings = {"observe": result.timings["texels"] + result.timings["observe"],
-                       "estimate": result.timings["estimate"] + result.timings["upsample"],
+                       "estimate": result.timings["estimate"] + result.timings.get("upsample", 0.0),
                        "total": time.perf_counter() - start, "observe_cpu": 0.0,
                        "estimate_cpu": time.process_time() - cpu_start, "estimation_res": result.estimation_res}
         else:

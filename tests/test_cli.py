@@ -69,7 +69,7 @@ def test_fit_and_evaluate_commands(run_cli, tiny_capture, tmp_path, monkeypatch,
     assert shared_settings["anisotropic_lobes"] and shared_settings["footprint_blur"]
     assert not shared_settings["neighbour_vote"]
     assert shared_summary["settings"]["uncertainty"]["split_half"]
-    assert shared_summary["estimation_res"] == 16 and summary["estimation_res"] == 32
+    assert shared_summary["estimation_res"] == 16 and summary["estimation_res"] == 32  # "pixel" keeps T here
     assert shared_summary["coverage"]["texture_res"] == 32
     assert not summary["settings"]["uncertainty"]["split_half"]
     # The default fit's:
@@ -157,9 +157,10 @@ def test_bad_options_and_captures_are_refused_before_any_output(run_cli, tiny_ca
     assert "unknown estimator" in capsys.readouterr().err and not out.exists()
     assert run_cli("fit", tiny_capture, "--out", out, "--preset", "fastest") == 2
     assert "unknown preset" in capsys.readouterr().err and not out.exists()
-    for value in ("coarse", "0", "1024"):
+    for value in ("auto", "0", "1024"):
         assert run_cli("fit", tiny_capture, "--out", out, "--estimation-res", value) == 2
-        assert "--estimation-res must be auto, full or a number" in capsys.readouterr().err and not out.exists()
+        assert "--estimation-res must be pixel, coarse, full or a number" in capsys.readouterr().err
+        assert not out.exists()
 
     # --out must not replace the capture it reads.
     files_before = sorted(p.name for p in tiny_capture.iterdir())

@@ -11,7 +11,7 @@ import trimesh
 
 from freqbrdf import pipeline, sparsification
 from freqbrdf.capture import load
-from freqbrdf.config import Config, TexelConfig
+from freqbrdf.config import Config, TexelConfig, preset
 from freqbrdf.errors import InputError
 from freqbrdf.materials import MaterialMaps
 from freqbrdf.relight import RelightSettings
@@ -175,21 +175,25 @@ def _unit_square() -> "Mesh":
                 normals=np.tile([0.0, 0.0, 1.0], (4, 1)), uv=vertices[:, :2].copy())
 
 
-@pytest.mark.parametrize("texture_res, focal, expected", [
-    (64, 64.0, 64),  # a pixel is a texel wide: every texel is resolved
-    (64, 200.0, 64),  # pixels finer than texels
-    (64, 32.0, 32),  # two texels a pixel: one level coarser
-    (64, 25.0, 16),  # 2.56 texels a pixel: two levels, so that a texel is at least a pixel
-    (100, 100 / 3, 25),  # three texels a pixel at T = 100: ceil(100 / 4)
+@pytest.mark.parametrize("texture_res, focal, pixel, coarse", [
+    (64, 64.0, 64, 64),  # a pixel is a texel wide: every texel is resolved
+    (64, 200.0, 64, 64),  # pixels finer than texels
+    (64, 32.0, 32, 32),  # two texels a pixel: one level coarser, texels exactly a pixel wide
+    (64, 25.0, 32, 16),  # 2.56 texels a pixel: still no wider than a pixel / at least a pixel wide
+    (100, 100 / 3, 50, 25),  # three texels a pixel at T = 100: ceil(100 / 2), ceil(100 / 4)
 ])
-def test_estimation_resolution_is_the_finest_grid_whose_texels_are_a_pixel_wide(texture_res, focal, expected):
+def test_estimation_resolution_by_texels_per_pixel(texture_res, focal, pixel, coarse):
     from freqbrdf.texels import estimation_resolution, rasterise
 
     texels = rasterise(_unit_square(), texture_res)
     # The closest camera, 1 from the square's centre, decides; a farther one does not matter.
     centres = np.array([[0.5, 0.5, 1.0], [0.5, 0.5, 5.0]])
-    assert estimation_resolution(texels, centres, np.array([focal, focal])) == expected
+    focal_px = np.array([focal, focal])
+    assert estimation_resolution(texels, centres, focal_px) == pixel  # "pixel" by default
+    assert estimation_resolution(texels, centres, focal_px, "coarse") == coarse
     assert estimation_resolution(texels, np.zeros((0, 3)), np.zeros(0)) == texture_res
+    with pytest.raises(ValueError, match="rule must be"):
+        estimation_resolution(texels, centres, focal_px, "auto")
 
 
 def test_to_texels_samples_the_maps_bilinearly_and_takes_the_rest_from_the_parent_texel():
@@ -269,11 +273,14 @@ def test_fit_on_coarser_texels_writes_t_by_t_maps_that_load_and_evaluate(tiny_ca
     assert outputs.observed.sum() == np.count_nonzero(result.observations.n_samples)
     document = pipeline.evaluate_fit(outputs, capture, settings=NO_LPIPS)
     assert document["texture"]["texels"] == outputs.observed.sum()
-    # "auto" on this capture (40-pixel images): what the images resolve, whatever T above it.
-    def automatic(texture_res):
-        return pipeline.estimation_resolution(capture, Config(texels=TexelConfig(texture_res, estimation_res="auto")))
+    # The rules on this capture (40-pixel images): what the images resolve, whatever T above it.
+    def automatic(texture_res, rule):
+        return pipeline.estimation_resolution(capture, Config(texels=TexelConfig(texture_res, estimation_res=rule)))
 
-    assert automatic(32) == automatic(128) == automatic(512) == 32
-    assert automatic(16) == 16
+    assert automatic(64, "pixel") == automatic(128, "pixel") == automatic(512, "pixel") == 64
+    assert automatic(32, "coarse") == automatic(128, "coarse") == automatic(512, "coarse") == 32
+    assert automatic(16, "pixel") == automatic(16, "coarse") == 16
+    assert pipeline.estimation_resolution(capture, Config(texels=TexelConfig(512))) == 64  # the default: pixel
+    assert preset("paper").texels.estimation_res == "full" and preset("fast").texels.estimation_res == "coarse"
     with pytest.raises(ValueError, match="estimation_res must be"):
         pipeline.estimation_resolution(capture, Config(texels=TexelConfig(texture_res=32, estimation_res=64)))

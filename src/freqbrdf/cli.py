@@ -226,12 +226,12 @@ def _config(preset: str, texture_res: int | None = None, lmax: int | None = None
 
 
 def _estimation_res(value: str, texture_res: int):
-    """--estimation-res as TexelConfig.estimation_res: "auto", "full" or a number from 1 to T."""
-    if value in ("auto", "full"):
+    """--estimation-res as TexelConfig.estimation_res: "pixel", "coarse", "full" or a number from 1 to T."""
+    if value in ("pixel", "coarse", "full"):
         return value
     if not value.isdigit() or not 1 <= int(value) <= texture_res:
-        raise typer.BadParameter(f"--estimation-res must be auto, full or a number from 1 to the texture "
-                                 f"resolution {texture_res}, got {value!r}")
+        raise typer.BadParameter(f"--estimation-res must be pixel, coarse, full or a number from 1 to the "
+                                 f"texture resolution {texture_res}, got {value!r}")
     return int(value)
 
 
@@ -254,8 +254,8 @@ def fit(
     lmax: int = typer.Option(None, min=0, help="Degree l* of the per-texel SH fits (default 5)."),
     estimator: str = typer.Option(None, help="global (ours, default) or paper (the prototype's Adam)."),
     model: str = typer.Option(None, help="Forward model of `paper`: angular, sh_coeffs or spectrum."),
-    preset: str = typer.Option("default", help="default; fast (estimated on texels a pixel wide, no robust "
-                               "pass, a coarser roughness grid: 3-5x less time, smoother maps); or paper (the "
+    preset: str = typer.Option("default", help="default; fast (estimated on texels at least a pixel wide, no "
+                               "robust pass, a coarser roughness grid: smoother maps, less time); or paper (the "
                                "prototype's hyper-parameters)."),
     entropy: str = typer.Option(None, help=ENTROPY_HELP),
     share: bool = typer.Option(False, "--share", help="Pull uncertain texels towards affine confident anchors."),
@@ -270,9 +270,10 @@ def fit(
         False, "--footprint-blur", help="Blur each sample's smooth lobe by the normals its pixel spans (more "
         "faithful on curved surfaces, but less accurate roughness on the measured scenes)."),
     estimation_res: str = typer.Option(
-        None, help="Texture resolution to observe and estimate on before the maps are sampled up to T: full (T), "
-        "auto (the coarsest whose texels are a pixel wide in the closest view) or a number. Default: the "
-        "preset's (full; fast: auto)."),
+        None, help="Texture resolution to observe and estimate on before the maps are sampled up to T: pixel "
+        "(the coarsest whose texels are no wider than a pixel of the closest view), coarse (the finest whose "
+        "texels are at least a pixel wide), full (T) or a number. Default: the preset's (pixel; fast: coarse; "
+        "paper: full)."),
     split_half: bool = typer.Option(
         False, "--split-half", help="Add to roughness_std the scatter between two more estimates, from the even "
         "and from the odd views alone: ranks the roughness errors better, but costs 1.2-1.8x the time of "

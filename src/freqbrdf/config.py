@@ -20,10 +20,15 @@ class TexelConfig:
     dilation_px: int = 8  # how far exported maps are grown across chart seams
     # The texture resolution `pipeline.fit` observes and estimates on; below T the results are
     # then taken to the T x T texels (`pipeline.to_texels`: maps, entropy and roughness_std
-    # bilinearly). "full": T (METHOD.md's per-texel recipe); "auto" (the fast preset): the
-    # coarsest ceil(T / 2^k) whose texels are at least a pixel wide in the closest view
-    # (`texels.estimation_resolution`); or a number <= T. Measured: see `preset`.
-    estimation_res: int | Literal["auto", "full"] = "full"
+    # bilinearly). "pixel" (default): the coarsest ceil(T / 2^k) whose texels are still no wider
+    # than a pixel of the closest view; "coarse" (the fast preset): the finest whose texels are at
+    # least a pixel wide (`texels.estimation_resolution`); "full": T (METHOD.md's per-texel
+    # recipe, the paper preset); or a number <= T. Measured (T = 512, six Mitsuba captures,
+    # README): "pixel" estimates on 256 x 256 where a pixel spans 2.3-3.3 texels (four captures)
+    # and on T where it spans 1.5 (two): base-colour PSNR +0.8 to +1.4 dB, relighting PSNR-H
+    # -0.06 to +0.16 dB, 2.6-3.9x faster; "coarse" estimates on 128-256 and relights 0.04-0.33 dB
+    # worse on five of the six.
+    estimation_res: int | Literal["pixel", "coarse", "full"] = "pixel"
 
 
 @dataclass(frozen=True)
@@ -290,8 +295,8 @@ def preset(name: str = "default") -> Config:
     """Named configurations: ``default`` (ours), ``fast`` and ``paper`` (the prototype's
     hyper-parameters).
 
-    ``fast`` is ``default`` estimated on texels a pixel wide (``TexelConfig.estimation_res``
-    "auto", then taken to T x T), with the least-squares optimum (no robust pass) on a 5-node
+    ``fast`` is ``default`` estimated on texels at least a pixel wide (``TexelConfig.estimation_res``
+    "coarse", then taken to T x T), with the least-squares optimum (no robust pass) on a 5-node
     roughness grid. ``freqbrdf fit --preset fast`` on the plane (64 views of 256 x 256, T = 512,
     estimated on 128 x 128): 3.8-4.0 s end to end against 14.0-14.5 s for ``default`` the same
     day (benchmarks/bench_fit.py). Against ``default`` (64 views, T = 512, session 13,
@@ -306,10 +311,11 @@ def preset(name: str = "default") -> Config:
     if name == "default":
         return Config()
     if name == "fast":
-        return Config(texels=TexelConfig(estimation_res="auto"),
+        return Config(texels=TexelConfig(estimation_res="coarse"),
                       estimate=EstimateConfig(robust_passes=0, roughness_grid=5))
     if name == "paper":
         return Config(
+            texels=TexelConfig(estimation_res="full"),  # the prototype estimates every texel of T
             fit=FitConfig(reg_lambda=1e-3, scale_lambda_with_weight=False),
             uncertainty=UncertaintyConfig(mode="paper", grid_res=8, temperature=1e-5),
             estimate=EstimateConfig(method="paper"),

@@ -75,14 +75,14 @@ def estimation_resolution(capture: Capture, config: Config = Config(), fine: Tex
     setting, texture_res = config.texels.estimation_res, config.texels.texture_res
     if setting == "full":
         return texture_res
-    if setting == "auto":
+    if setting in ("pixel", "coarse"):
         fine = rasterise(capture.mesh, texture_res) if fine is None else fine
         centres = np.array([frame.camera.camera_to_world[:3, 3] for frame in capture.frames]).reshape(-1, 3)
         focal = np.array([0.5 * (frame.camera.fx + frame.camera.fy) for frame in capture.frames])
-        return texels_estimation_resolution(fine, centres, focal)
+        return texels_estimation_resolution(fine, centres, focal, setting)
     if isinstance(setting, bool) or not isinstance(setting, int) or not 1 <= setting <= texture_res:
-        raise ValueError(f"estimation_res must be 'auto', 'full' or a whole number from 1 to the texture "
-                         f"resolution {texture_res}, got {setting!r}")
+        raise ValueError(f"estimation_res must be 'pixel', 'coarse', 'full' or a whole number from 1 to the "
+                         f"texture resolution {texture_res}, got {setting!r}")
     return setting
 
 
@@ -94,7 +94,7 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
     timings: dict[str, float] = {}
     start = time.perf_counter()
     texture_res = config.texels.texture_res
-    fine = rasterise(capture.mesh, texture_res) if config.texels.estimation_res == "auto" else None
+    fine = rasterise(capture.mesh, texture_res) if config.texels.estimation_res in ("pixel", "coarse") else None
     estimation_res = estimation_resolution(capture, config, fine)
     final_config = config
     if estimation_res < texture_res:
@@ -102,7 +102,7 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
     timings["texels"] = time.perf_counter() - start
 
     start = time.perf_counter()
-    # "auto" rasterised T already: where it settles on T, observe those texels.
+    # "pixel" and "coarse" rasterised T already: where they settle on T, observe those texels.
     observations = observe(capture, config, reporter, texels=fine if estimation_res == texture_res else None)
     timings["observe"] = time.perf_counter() - start
     timings.update({f"observe.{stage}": seconds for stage, seconds in observations.timings.items()

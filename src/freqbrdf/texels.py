@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Literal
 
 import numba
 import numpy as np
@@ -381,13 +382,18 @@ def _closest_barycentrics(uv_px, face_id, rows, cols, out):
         )
 
 
-def estimation_resolution(texels: Texels, camera_centres: np.ndarray, focal_px: np.ndarray) -> int:
-    """The texture resolution to estimate on: ceil(T / 2^k) for the smallest k >= 0 at which a
-    texel is at least one pixel wide in the capture's closest view.
+def estimation_resolution(texels: Texels, camera_centres: np.ndarray, focal_px: np.ndarray,
+                          rule: Literal["pixel", "coarse"] = "pixel") -> int:
+    """The texture resolution to estimate on, ceil(T / 2^k) with k >= 0 by ``rule``:
 
-    Texels finer than the pixels add no information: each one's samples are bilinear lookups
+    - "pixel": the largest k whose texels are still no wider than a pixel of the capture's
+      closest view: the coarsest grid that keeps a texel per pixel, so that no detail the images
+      resolve is lost;
+    - "coarse": the smallest k whose texels are at least a pixel wide.
+
+    Texels finer than the pixels add little information: each one's samples are bilinear lookups
     between the same few pixels as its neighbours', so their separate estimates share the data
-    and multiply only the work and the noise. A texel's width is the median over ``texels`` of
+    and multiply the work and the noise. A texel's width is the median over ``texels`` of
     sqrt(texel_area); a pixel's width at the object is the distance from the camera centre to the
     texels' centroid over the focal length in pixels, in the closest view. camera_centres (C, 3)
     world positions, focal_px (C,) focal lengths in pixels. T itself where there is nothing to
@@ -402,5 +408,8 @@ def estimation_resolution(texels: Texels, camera_centres: np.ndarray, focal_px: 
     pixel_width = float(np.min(np.linalg.norm(camera_centres - centroid, axis=1) / focal_px))
     if not (texel_width > 0.0 and pixel_width > 0.0):
         return texels.texture_res
-    levels = max(math.ceil(math.log2(pixel_width / texel_width) - 1e-9), 0)
+    if rule not in ("pixel", "coarse"):
+        raise ValueError(f"rule must be 'pixel' or 'coarse', got {rule!r}")
+    texels_per_pixel = math.log2(pixel_width / texel_width)
+    levels = max(math.floor(texels_per_pixel + 1e-9) if rule == "pixel" else math.ceil(texels_per_pixel - 1e-9), 0)
     return max(math.ceil(texels.texture_res / 2**levels), 1)
