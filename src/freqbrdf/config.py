@@ -296,17 +296,18 @@ def preset(name: str = "default") -> Config:
     hyper-parameters).
 
     ``fast`` is ``default`` estimated on texels at least a pixel wide (``TexelConfig.estimation_res``
-    "coarse", then taken to T x T), with the least-squares optimum (no robust pass) on a 5-node
-    roughness grid. ``freqbrdf fit --preset fast`` on the plane (64 views of 256 x 256, T = 512,
-    estimated on 128 x 128): 3.8-4.0 s end to end against 14.0-14.5 s for ``default`` the same
-    day (benchmarks/bench_fit.py). Against ``default`` (64 views, T = 512, session 13,
-    benchmarks/results/compare_estimators.md): base-colour PSNR 25.47 vs 25.10 dB (plane), 19.98
-    vs 19.00 (bunny, on 256 x 256); roughness MAE 0.058 vs 0.058, 0.110 vs 0.121; metallic MAE
-    0.078 vs 0.080, 0.159 vs 0.171; but relighting PSNR-H 23.33 vs 23.50 and 21.81 vs 22.12 dB:
-    its maps are smoother, closer to the truth texel by texel but with less of the detail a
-    rendering shows. Still ahead of ``paper`` and of Mitsuba's inverse renderer on every score.
-    (Before session 13 it estimated every texel of T: 25.08 and 18.76 dB, relit 23.48 and 22.08,
-    in two thirds of the default's estimation time.)
+    "coarse", then taken to T x T; the default's "pixel" keeps them no wider than a pixel), with
+    the least-squares optimum (no robust pass) on a 5-node roughness grid. ``freqbrdf fit --preset
+    fast`` on the plane (64 views of 256 x 256, T = 512, estimated on 128 x 128): 3.8-4.0 s end to
+    end against 5.9-6.7 s for ``default`` (256 x 256) and 14.0-14.5 s for every texel of T, the
+    same day (benchmarks/bench_fit.py). Against ``default`` (64 views, T = 512, session 13,
+    benchmarks/results/compare_estimators.md): base-colour PSNR 25.47 vs 25.88 dB (plane), 19.98
+    vs 19.00 (bunny, on 256 x 256 against every texel); roughness MAE 0.058 vs 0.056, 0.110 vs
+    0.121; metallic MAE 0.078 vs 0.076, 0.159 vs 0.171; but relighting PSNR-H 23.33 vs 23.44 and
+    21.81 vs 22.12 dB: its maps are smoother, closer to the truth texel by texel on the bunny but
+    with less of the detail a rendering shows. Still ahead of ``paper`` and of Mitsuba's inverse
+    renderer on every score. (Before session 13 it estimated every texel of T: 25.08 and 18.76 dB,
+    relit 23.48 and 22.08, in two thirds of the estimation time.)
     """
     if name == "default":
         return Config()
