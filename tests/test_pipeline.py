@@ -269,7 +269,8 @@ def test_fit_on_coarser_texels_writes_t_by_t_maps_that_load_and_evaluate(tiny_ca
     folder = pipeline.write_fit(tmp_path / "fit", result, config)
     outputs = pipeline.load_fit(folder)
     assert outputs.summary["estimation_res"] == 16
-    assert outputs.summary["coverage"]["views"] == len(capture.frames) and outputs.summary["coverage"]["texture_res"] == 32
+    coverage = outputs.summary["coverage"]
+    assert coverage["views"] == len(capture.frames) and coverage["texture_res"] == 32
     assert outputs.observed.sum() == np.count_nonzero(result.observations.n_samples)
     document = pipeline.evaluate_fit(outputs, capture, settings=NO_LPIPS)
     assert document["texture"]["texels"] == outputs.observed.sum()
