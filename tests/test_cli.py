@@ -109,6 +109,22 @@ def test_uncertainty_command(run_cli, tiny_capture, tmp_path, monkeypatch, capsy
     assert run_cli("uncertainty", tiny_capture, "--out", other, "--entropy", "sharpest") == 2
     assert "unknown entropy mode" in capsys.readouterr().err and not other.exists()
 
+    # At T = 128 both commands work on the 64 x 64 texels the 40-pixel images resolve, and their
+    # entropy maps agree on the atlas.
+    from freqbrdf.images import read_image
+    from freqbrdf.texels import rasterise
+
+    fine = tmp_path / "fine"
+    assert run_cli("uncertainty", tiny_capture, "--out", fine, "--texture-res", 128, "--json") == 0
+    assert json.loads(capsys.readouterr().out)["estimation_res"] == 64
+    fitted = tmp_path / "fitted"
+    assert run_cli("fit", tiny_capture, "--out", fitted, "--texture-res", 128, "--quiet") == 0
+    assert json.loads((fitted / "summary.json").read_text())["estimation_res"] == 64
+    atlas = rasterise(load(tiny_capture).mesh, 128).mask
+    alone, with_fit = (read_image(folder / "entropy.exr")[..., 0] for folder in (fine, fitted))
+    assert alone.shape == with_fit.shape == (128, 128)
+    np.testing.assert_allclose(alone[atlas], with_fit[atlas], atol=1e-6)
+
 
 @pytest.mark.slow
 def test_a_run_that_compiles_kernels_runs_again_from_numbas_cache(tiny_capture, tmp_path):

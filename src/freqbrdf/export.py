@@ -133,10 +133,12 @@ def material_textures(estimate: MaterialEstimate, dilation_px: int) -> MaterialM
     )
 
 
-def entropy_texture(uncertainty: Uncertainty, estimate: MaterialEstimate, dilation_px: int) -> np.ndarray:
+def entropy_texture(uncertainty: Uncertainty, estimate: MaterialEstimate | Observations,
+                    dilation_px: int) -> np.ndarray:
     """(T, T) float32 normalised entropy, dilated across seams like the material maps.
 
-    ``uncertainty`` and ``estimate`` come from the same Observations (same texel order).
+    ``uncertainty`` and ``estimate`` come from the same Observations (same texel order); the
+    Observations themselves give the same texel layout.
     """
     values = estimate.to_texture(uncertainty.entropy.astype(np.float32), fill=np.nan)
     return fill_texture(values, _atlas_mask(estimate), dilation_px, fallback=ENTROPY_RANGE[1])
@@ -441,7 +443,7 @@ def _float16_bits(float_bits, half_bits):
             half_bits[i] = sign
 
 
-def _atlas_mask(estimate: MaterialEstimate) -> np.ndarray:
+def _atlas_mask(estimate: MaterialEstimate | Observations) -> np.ndarray:
     """(T, T) bool: the texels of the mesh (estimated or not)."""
     return estimate.to_texture(np.ones(estimate.n_texels, bool), fill=False)
 

@@ -141,21 +141,11 @@ def to_texels(observations: Observations, estimate: MaterialEstimate, uncertaint
     """A fit made on coarser texels, on the texels ``fine`` of a finer T x T texture: base colour,
     roughness and metallic sampled bilinearly from the coarse estimate's hole-free textures
     (`export.material_textures`, grown by ``dilation_px`` across seams) at each fine texel's
-    centre, and so are the entropy and roughness_std; everything else per texel (spectra, sample
-    counts, flags, likelihood, whether estimated) from the coarse texel the fine one lies in, or
-    the nearest covered one where that one is not covered. The observations keep no samples
-    (`Observations.texel_fields`: V = 0); the coarse ``observations`` hold them."""
+    centre, and so is roughness_std; the rest as `uncertainty_to_texels`."""
     parent = _parent_texels(observations.texture_res, observations.texel_index, fine)
-    fine_observations = replace(observations.texel_fields(parent), texture_res=fine.texture_res,
-                                texel_index=fine.texel_index)
+    sample = _bilinear_sampler(observations.texture_res, fine)
+    fine_observations, fine_uncertainty = uncertainty_to_texels(observations, uncertainty, fine, dilation_px, parent)
     maps = export.material_textures(estimate, dilation_px)
-    rows, columns = np.divmod(fine.texel_index, fine.texture_res)
-    scale = estimate.texture_res / fine.texture_res
-    coordinates = np.stack([(rows + 0.5) * scale - 0.5, (columns + 0.5) * scale - 0.5])
-
-    def sample(texture):
-        return ndimage.map_coordinates(texture.astype(np.float64), coordinates, order=1, mode="nearest")
-
     estimated = estimate.estimated[parent]
 
     def where_estimated(values):
@@ -168,17 +158,49 @@ def to_texels(observations: Observations, estimate: MaterialEstimate, uncertaint
         estimated=estimated, loss=estimate.loss[parent],
         roughness_curvature=None if estimate.roughness_curvature is None else estimate.roughness_curvature[parent],
     )
-    # The entropy and roughness_std vary smoothly too: bilinear, so that neighbouring fine texels
-    # are not ranked as ties (their NaN, where not estimated, from the parent).
-    changes = {name: getattr(uncertainty, name)[parent]
-               for name in ("flags", "likelihood", "best_alpha", "best_ks", "channel")
-               if getattr(uncertainty, name) is not None}
-    entropy = sample(export.entropy_texture(uncertainty, estimate, dilation_px)).astype(np.float32)
-    changes["entropy"] = np.where((changes["flags"] & FLAG_UNOBSERVED) != 0, uncertainty.entropy[parent], entropy)
     if uncertainty.roughness_std is not None:
+        # Bilinear too, so that neighbouring fine texels are not ranked as ties; NaN (not
+        # estimated) from the parent.
         spread = sample(export.roughness_std_texture(uncertainty, estimate, dilation_px)).astype(np.float32)
-        changes["roughness_std"] = np.where(np.isfinite(uncertainty.roughness_std[parent]), spread, np.float32(np.nan))
-    return fine_observations, fine_estimate, replace(uncertainty, **changes)
+        fine_uncertainty.roughness_std = np.where(
+            np.isfinite(uncertainty.roughness_std[parent]), spread, np.float32(np.nan))
+    return fine_observations, fine_estimate, fine_uncertainty
+
+
+def uncertainty_to_texels(observations: Observations, uncertainty: Uncertainty, fine: Texels, dilation_px: int,
+                          parent: np.ndarray | None = None) -> tuple[Observations, Uncertainty]:
+    """Observations and their uncertainty on coarser texels, on the texels ``fine`` of a finer
+    T x T texture: the entropy sampled bilinearly from its hole-free texture (grown by
+    ``dilation_px`` across seams) at each fine texel's centre, 1 where unobserved; everything else
+    per texel (spectra, sample counts, flags, likelihood, arg-max, roughness_std) from the coarse
+    texel the fine one lies in, or the nearest covered one where that one is not covered
+    (``parent``, computed when not given). The observations keep no samples
+    (`Observations.texel_fields`: V = 0); the coarse ``observations`` hold them."""
+    if parent is None:
+        parent = _parent_texels(observations.texture_res, observations.texel_index, fine)
+    fine_observations = replace(observations.texel_fields(parent), texture_res=fine.texture_res,
+                                texel_index=fine.texel_index)
+    changes = {name: getattr(uncertainty, name)[parent]
+               for name in ("flags", "likelihood", "best_alpha", "best_ks", "channel", "roughness_std")
+               if getattr(uncertainty, name) is not None}
+    # The entropy varies smoothly: bilinear, so that neighbouring fine texels are not ranked as ties.
+    entropy_texture = export.entropy_texture(uncertainty, observations, dilation_px)
+    entropy = _bilinear_sampler(observations.texture_res, fine)(entropy_texture).astype(np.float32)
+    changes["entropy"] = np.where((changes["flags"] & FLAG_UNOBSERVED) != 0, uncertainty.entropy[parent], entropy)
+    return fine_observations, replace(uncertainty, **changes)
+
+
+def _bilinear_sampler(coarse_res: int, fine: Texels):
+    """A function sampling a coarse_res x coarse_res texture bilinearly at the centres of the
+    texels ``fine`` (clamped at the border): (coarse_res, coarse_res) -> (N_fine,) float64."""
+    rows, columns = np.divmod(fine.texel_index, fine.texture_res)
+    scale = coarse_res / fine.texture_res
+    coordinates = np.stack([(rows + 0.5) * scale - 0.5, (columns + 0.5) * scale - 0.5])
+
+    def sample(texture):
+        return ndimage.map_coordinates(texture.astype(np.float64), coordinates, order=1, mode="nearest")
+
+    return sample
 
 
 def _parent_texels(coarse_res: int, coarse_index: np.ndarray, fine: Texels) -> np.ndarray:
