@@ -12,7 +12,7 @@ import shutil
 import numpy as np
 import pytest
 
-from freqbrdf import brdf, guidance, sh
+from freqbrdf import brdf, guidance, pipeline, sh
 from freqbrdf.camera import look_at
 from freqbrdf.capture import Frame, load, write_transforms
 from freqbrdf.config import Config, FitConfig, TexelConfig
@@ -274,6 +274,8 @@ def test_next_views_command_writes_ranked_cameras_that_load_as_a_capture(sphere_
     assert document["frames"][0]["candidate"] == 1
     summary = json.loads((out / "guidance.json").read_text())
     assert summary["picks"][0]["expected_mean_entropy"] < summary["mean_entropy_before"]
+    # Scored on the texels `fit` would estimate on.
+    assert summary["estimation_res"] == pipeline.estimation_resolution(capture, Config(texels=TexelConfig(32)))
     # Shoot the views (any image of the right size will do here) and load them as a capture.
     for frame in document["frames"]:
         (out / frame["file_path"]).parent.mkdir(exist_ok=True)

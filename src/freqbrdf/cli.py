@@ -497,9 +497,10 @@ def next_views(
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars or messages."),
 ) -> None:
     """Choose the next photographs by expected entropy: ranked cameras (next_views.json) and a picture."""
+    import dataclasses
     import time
 
-    from freqbrdf import guidance
+    from freqbrdf import guidance, pipeline
     from freqbrdf.capture import load
     from freqbrdf.progress import Reporter
 
@@ -516,7 +517,11 @@ def next_views(
     if budget > len(cameras):
         raise InputError(candidates, f"budget {budget} exceeds the {len(cameras)} candidate cameras")
     start = time.perf_counter()
-    picks = guidance.select_views(loaded, cameras, budget, config, max_texels=max_texels,
+    # Scored on the texels `fit` would estimate on (observing every texel of T costs more, for
+    # the same --max-texels scored).
+    estimation_res = pipeline.estimation_resolution(loaded, config)
+    scoring = config.replace(texels=dataclasses.replace(config.texels, texture_res=estimation_res))
+    picks = guidance.select_views(loaded, cameras, budget, scoring, max_texels=max_texels,
                                   reporter=Reporter(enabled=not quiet))
     _results_from_cache(quiet)
     summary = {
@@ -530,6 +535,7 @@ def next_views(
                    "texels_seen": p.texels_seen, "seconds": p.seconds} for p in picks],
         "seconds": time.perf_counter() - start,
         "settings": config.to_dict(),
+        "estimation_res": estimation_res,
     }
     guidance.write_next_views(out, loaded, picks, summary, cameras)
     if not quiet:
