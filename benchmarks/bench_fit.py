@@ -38,7 +38,7 @@ from _common import control_seconds, machine, save_results
 
 # The modules a fit imports (cli imports the rest inside the command).
 FIT_IMPORTS = "import freqbrdf.cli, freqbrdf.pipeline, freqbrdf.capture"
-STAGES = ("texels", "observe", "estimate", "uncertainty", "share", "upsample", "textures", "write")
+STAGES = ("observe", "estimate", "uncertainty", "share", "upsample", "textures", "write")
 
 
 def fit_command() -> list[str]:

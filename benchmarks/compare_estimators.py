@@ -120,7 +120,7 @@ def run_scene(name: str, args) -> dict:
             start, cpu_start = time.perf_counter(), time.process_time()
             result = pipeline.fit(capture, config)
             maps = result.maps
-            timings = {"observe": result.timings["texels"] + result.timings["observe"],
+            timings = {"observe": result.timings["observe"],
                        "estimate": result.timings["estimate"] + result.timings.get("upsample", 0.0),
                        "total": time.perf_counter() - start, "observe_cpu": 0.0,
                        "estimate_cpu": time.process_time() - cpu_start, "estimation_res": result.estimation_res}

@@ -345,16 +345,13 @@ def uncertainty(
 ) -> None:
     """Entropy map of the capture alone (no material estimate, so no roughness_std): entropy.exr/.png,
     flags, summary."""
-    import dataclasses
     import time
 
     from freqbrdf import export, pipeline
     from freqbrdf.capture import load
     from freqbrdf.fileio import atomic_directory
     from freqbrdf.images import write_png
-    from freqbrdf.observations import observe as observe_capture
     from freqbrdf.progress import Reporter
-    from freqbrdf.texels import rasterise
     from freqbrdf.uncertainty import entropy_map, summary as uncertainty_summary
 
     config = _config(preset, texture_res, lmax, entropy=entropy)
@@ -362,15 +359,14 @@ def uncertainty(
     pipeline.check_output_folder(out, {"the capture": loaded.root.resolve()})
     start = time.perf_counter()
     # On the texels `fit` would estimate on, so that the two entropy maps agree.
-    estimation_res = pipeline.estimation_resolution(loaded, config)
-    coarse = config.replace(texels=dataclasses.replace(config.texels, texture_res=estimation_res))
-    observations = observe_capture(loaded, coarse, Reporter(enabled=not (quiet or json_output)))
+    observations, fine = pipeline.observe_on_estimation_texels(
+        loaded, config, Reporter(enabled=not (quiet or json_output)))
+    estimation_res = observations.texture_res
     observe_seconds = time.perf_counter() - start
     start = time.perf_counter()
     result = entropy_map(observations, config.uncertainty, return_likelihood=False, estimate_config=config.estimate)
-    if estimation_res < config.texels.texture_res:
-        observations, result = pipeline.uncertainty_to_texels(
-            observations, result, rasterise(loaded.mesh, config.texels.texture_res), config.texels.dilation_px)
+    if fine is not None:
+        observations, result = pipeline.uncertainty_to_texels(observations, result, fine, config.texels.dilation_px)
     seconds = time.perf_counter() - start
     _results_from_cache(quiet or json_output)
     summary = {

@@ -298,7 +298,7 @@ def preset(name: str = "default") -> Config:
     ``fast`` is ``default`` estimated on texels at least a pixel wide (``TexelConfig.estimation_res``
     "coarse", then taken to T x T; the default's "pixel" keeps them no wider than a pixel), with
     the least-squares optimum (no robust pass) on a 5-node roughness grid. ``freqbrdf fit --preset
-    fast`` on the plane (64 views of 256 x 256, T = 512, estimated on 128 x 128): 3.8-4.0 s end to
+    fast`` on the plane (64 views of 256 x 256, T = 512, estimated on 128 x 128): 3.8-4.1 s end to
     end against 5.9-6.7 s for ``default`` (256 x 256) and 14.0-14.5 s for every texel of T, the
     same day (benchmarks/bench_fit.py). Against ``default`` (64 views, T = 512, session 13,
     benchmarks/results/compare_estimators.md): base-colour PSNR 25.47 vs 25.88 dB (plane), 19.98

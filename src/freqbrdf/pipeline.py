@@ -86,24 +86,30 @@ def estimation_resolution(capture: Capture, config: Config = Config(), fine: Tex
     return setting
 
 
+def observe_on_estimation_texels(capture: Capture, config: Config = Config(),
+                                 reporter: Reporter = SILENT) -> tuple[Observations, Texels | None]:
+    """`observe` on the texels of `estimation_resolution`; where those are coarser than T, also
+    the mesh's T x T texels, to take the results there (`to_texels`, `uncertainty_to_texels`),
+    else None."""
+    texture_res = config.texels.texture_res
+    # "pixel" and "coarse" measure the texels at T: rasterised once, and observed where they settle on T.
+    fine = rasterise(capture.mesh, texture_res) if config.texels.estimation_res in ("pixel", "coarse") else None
+    estimation_res = estimation_resolution(capture, config, fine)
+    if estimation_res == texture_res:
+        return observe(capture, config, reporter, texels=fine), None
+    coarse = config.replace(texels=replace(config.texels, texture_res=estimation_res))
+    return observe(capture, coarse, reporter), rasterise(capture.mesh, texture_res) if fine is None else fine
+
+
 def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT) -> FitResult:
     """Observe, estimate, compute the uncertainty and make the textures; seconds per stage.
 
-    The first three run at `estimation_resolution`; where that is below T, the results are then
-    taken to the T x T texels (`to_texels`)."""
+    The first three run on the texels of `estimation_resolution` (`observe_on_estimation_texels`);
+    where those are coarser than T, the results are then taken to the T x T texels (`to_texels`)."""
     timings: dict[str, float] = {}
     start = time.perf_counter()
-    texture_res = config.texels.texture_res
-    fine = rasterise(capture.mesh, texture_res) if config.texels.estimation_res in ("pixel", "coarse") else None
-    estimation_res = estimation_resolution(capture, config, fine)
-    final_config = config
-    if estimation_res < texture_res:
-        config = config.replace(texels=replace(config.texels, texture_res=estimation_res))
-    timings["texels"] = time.perf_counter() - start
-
-    start = time.perf_counter()
-    # "pixel" and "coarse" rasterised T already: where they settle on T, observe those texels.
-    observations = observe(capture, config, reporter, texels=fine if estimation_res == texture_res else None)
+    observations, fine = observe_on_estimation_texels(capture, config, reporter)
+    estimation_res = observations.texture_res
     timings["observe"] = time.perf_counter() - start
     timings.update({f"observe.{stage}": seconds for stage, seconds in observations.timings.items()
                     if stage != "total"})  # "observe" is the total
@@ -122,15 +128,14 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
         estimate = share(observations, estimate, uncertainty, config)
         timings["share"] = time.perf_counter() - start
 
-    if estimation_res < texture_res:
+    if fine is not None:
         start = time.perf_counter()
-        fine = rasterise(capture.mesh, texture_res) if fine is None else fine
         observations, estimate, uncertainty = to_texels(observations, estimate, uncertainty, fine,
                                                         config.texels.dilation_px)
         timings["upsample"] = time.perf_counter() - start
 
     start = time.perf_counter()
-    maps = export.material_textures(estimate, final_config.texels.dilation_px)
+    maps = export.material_textures(estimate, config.texels.dilation_px)
     timings["textures"] = time.perf_counter() - start
     timings["total"] = sum(seconds for stage, seconds in timings.items() if "." not in stage)
     return FitResult(capture, observations, estimate, uncertainty, maps, timings, estimation_res)
