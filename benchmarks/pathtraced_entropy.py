@@ -27,20 +27,22 @@ texels. Saves benchmarks/results/pathtraced_entropy.json.
 
 from __future__ import annotations
 
+import hashlib
 import math
 import time
 
 import numpy as np
 from _common import machine, save_results
-from entropy_scenes import capture_path, regions
+from entropy_scenes import CACHE, capture_path, regions, roughness_error
 from scipy import stats
 
+from freqbrdf import sh
 from freqbrdf.capture import load
 from freqbrdf.config import Config, UncertaintyConfig
-from freqbrdf.observations import observe
+from freqbrdf.pipeline import fit
 from freqbrdf.render import build_scene, mitsuba
 from freqbrdf.texels import rasterise
-from freqbrdf.uncertainty import entropy_map, hypothesis_grid
+from freqbrdf.uncertainty import entropy_map, hypothesis_albedo, hypothesis_filter, hypothesis_grid, view_cosine
 
 SUBSET = 400  # texels scored by brute force (200: the agreement's 95 % interval was +-0.05 wide)
 MIN_VIEWS = 8  # texels with fewer samples are not candidates (the brute-force misfit needs some)
@@ -116,6 +118,77 @@ def brute_force_entropy(observed, mirrored, weight, radiance) -> np.ndarray:
     return float(min(entropies))
 
 
+def hypothesis_amplitudes(observations, chosen, texel_of, view_of, radiance) -> np.ndarray:
+    """(M, R, R, 3, l*+1) amplitudes sqrt(S(l)) of the path-traced hypotheses' radiance, fitted to
+    SH at each chosen texel's samples exactly as `observe` fits the observed radiance (its
+    directions, weights, degree and regulariser): the spectra our fast model predicts analytically."""
+    resolution = radiance.shape[0]
+    n_chosen = len(chosen)
+    values = np.zeros((n_chosen, observations.n_views, resolution * resolution * 3))
+    values[texel_of, view_of] = radiance.transpose(2, 0, 1, 3).reshape(len(texel_of), -1)
+    settings = Config().fit
+    fitted = sh.fit_sh(observations.view_direction[chosen], observations.weight[chosen], values,
+                       observations.lmax, settings.reg_lambda, settings.regulariser, settings.scale_lambda_with_weight)
+    spectrum = sh.power_spectrum(fitted.coeffs)  # (M, R R 3, l*+1)
+    return np.sqrt(np.maximum(spectrum, 0.0)).reshape(n_chosen, resolution, resolution, 3, -1)
+
+
+def analytic_amplitudes(observations, chosen, grid, settings: UncertaintyConfig) -> np.ndarray:
+    """(M, R, R, 3, l*+1) our calibrated mode's model amplitudes k A_i F_il sqrt(S_refl(l)): F the
+    hypothesis filter and A the lobe's albedo (1 for the "gaussian" lobe)."""
+    lobe_filter = hypothesis_filter(grid, observations.lmax, observations.sigma, settings.lobe)  # (R, l*+1)
+    albedo = (hypothesis_albedo(grid, view_cosine(observations)[chosen]) if settings.lobe == "ggx"
+              else np.ones((len(chosen), grid.resolution)))  # (M, R)
+    light = np.sqrt(observations.mirrored_spectrum[chosen].astype(np.float64))  # (M, 3, l*+1)
+    return (grid.specular[None, None, :, None, None] * albedo[:, :, None, None, None]
+            * lobe_filter[None, :, None, None, :] * light[:, None, None, :, :])
+
+
+def spectral_entropy(observations, chosen, model_amplitude, settings: UncertaintyConfig) -> np.ndarray:
+    """(M,) normalised entropy (minimum over RGB) of the hypotheses whose amplitude spectra are
+    ``model_amplitude`` (M, R, R, 3, l*+1), scored as our calibrated mode scores its analytic
+    ones (a direct evaluation, no fast kernel): amplitude residuals over l >= 1, the specular DC
+    no larger than the observed DC, noise variance 2 noise_level^2 P K / n + 2 min misfit / (l* - 2),
+    the k = 0 column one material."""
+    resolution = model_amplitude.shape[1]
+    lmax = observations.lmax
+    observed = np.sqrt(np.maximum(observations.observed_spectrum[chosen].astype(np.float64), 0.0))  # (M, 3, l*+1)
+    light_power = observations.mirrored_spectrum[chosen].astype(np.float64).sum(axis=-1).mean(axis=-1)  # (M,)
+    samples_per_coeff = np.maximum(observations.n_samples[chosen], 1) / (lmax + 1) ** 2
+    observed = observed[:, None, None]  # (M, 1, 1, 3, l*+1)
+    misfit = (np.square(model_amplitude[..., 1:] - observed[..., 1:]).sum(axis=-1)
+              + np.square(np.maximum(model_amplitude[..., 0] - observed[..., 0], 0.0)))  # (M, R, R, 3)
+    best = misfit.min(axis=(1, 2), keepdims=True)
+    noise = (2.0 * settings.noise_level**2 * light_power / samples_per_coeff)[:, None, None, None]
+    if settings.residual_noise:
+        noise = noise + 2.0 * best / max(lmax - 2, 1)
+    posterior = np.exp(-(misfit - best) / np.maximum(noise, 1e-300))
+    posterior[:, :, 0] /= resolution  # the k = 0 column is one material
+    posterior /= posterior.sum(axis=(1, 2), keepdims=True)
+    masses = np.concatenate([posterior[:, :, 0].sum(axis=1)[:, None], posterior[:, :, 1:].reshape(
+        len(chosen), -1, 3)], axis=1)  # (M, R (R-1) + 1, 3)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        information = np.where(masses > 0, masses * np.log(masses), 0.0)
+    entropy = -information.sum(axis=1) / math.log(resolution * (resolution - 1) + 1)
+    return entropy.min(axis=-1)
+
+
+def cached_radiance(capture, positions, directions, grid, seed: int) -> tuple[np.ndarray, float]:
+    """`hypothesis_radiance` and the seconds it took to render, rendered once and kept in
+    benchmarks/.cache/ (keyed by the rays, grid, SPP and seed)."""
+    key = hashlib.sha256(np.ascontiguousarray(positions).tobytes() + np.ascontiguousarray(directions).tobytes()
+                         + f"{grid.resolution} {SPP} {seed}".encode()).hexdigest()[:16]
+    path = CACHE / f"pathtraced_entropy_{key}.npz"
+    if path.is_file():
+        with np.load(path) as cached:
+            return cached["radiance"], float(cached["seconds"])
+    start = time.perf_counter()
+    radiance = hypothesis_radiance(capture, positions, directions, grid, seed)
+    seconds = time.perf_counter() - start
+    np.savez(path, radiance=radiance, seconds=seconds)
+    return radiance, seconds
+
+
 def agreement(reference: np.ndarray, ours: np.ndarray) -> dict:
     """Spearman rho of two (M,) entropies and its 95 % bootstrap interval over the M texels."""
     rho = float(stats.spearmanr(reference, ours).statistic)
@@ -129,8 +202,10 @@ def main() -> None:
     capture = load(capture_path())
     config = Config()
     texels = rasterise(capture.mesh, config.texels.texture_res)
-    observations = observe(capture, config, texels=texels)
-    assert np.array_equal(observations.texel_index, texels.texel_index)
+    result = fit(capture, config)  # the default fit: its observations, entropy and roughness error
+    observations = result.observations
+    assert np.array_equal(observations.texel_index, texels.texel_index)  # estimated on every texel
+    error = roughness_error(result, capture)
     entropy_map(observations, config.uncertainty, return_likelihood=False)  # loads the kernel
     start = time.perf_counter()
     ours = entropy_map(observations, config.uncertainty, return_likelihood=False)
@@ -154,9 +229,9 @@ def main() -> None:
     directions /= np.linalg.norm(directions, axis=1, keepdims=True)
 
     grid = hypothesis_grid(config.uncertainty.grid_res)
-    start = time.perf_counter()
-    radiances = [hypothesis_radiance(capture, positions, directions, grid, seed) for seed in SEEDS]
-    render_s = (time.perf_counter() - start) / len(SEEDS)
+    radiances, render_seconds = zip(*(cached_radiance(capture, positions, directions, grid, seed) for seed in SEEDS))
+    radiances = list(radiances)
+    render_s = float(np.mean(render_seconds))
 
     radiances.append(np.mean(radiances, axis=0))  # the pooled rendering
     brutes = np.empty((len(radiances), len(chosen)))
@@ -169,6 +244,19 @@ def main() -> None:
                 observations.mirrored[texel, views].astype(np.float64),
                 observations.weight[texel, views].astype(np.float64), radiance[:, :, rays])
     brute, brute_other_seed, pooled = brutes
+    # The spectral brute force: the same scoring as ours, the path-traced spectra for the analytic ones.
+    spectral, spectral_other_seed, spectral_pooled = (
+        spectral_entropy(observations, chosen, hypothesis_amplitudes(observations, chosen, texel_of, view_of, radiance),
+                         config.uncertainty) for radiance in radiances)
+    analytic = spectral_entropy(observations, chosen, analytic_amplitudes(observations, chosen, grid, config.uncertainty),
+                                config.uncertainty)
+    roughness_std = np.nan_to_num(result.uncertainty.roughness_std[chosen], nan=1.0)
+    ranks_error = {name: round(float(stats.spearmanr(values, error[chosen], nan_policy="omit").statistic), 4)
+                   for name, values in (("brute_force_pooled", pooled), ("spectral_brute_force_pooled", spectral_pooled),
+                                        ("ours_calibrated", ours.entropy[chosen]),
+                                        ("ours_angular", angular.entropy[chosen]),
+                                        ("ours_paper_mode", paper.entropy[chosen]),
+                                        ("roughness_std", roughness_std))}
     # Does each entropy call the scene's badly lit and rarely seen regions uncertain?
     by_region = {}
     for region, mask in regions(observations.normal[chosen]).items():
@@ -176,7 +264,8 @@ def main() -> None:
             by_region[region] = {"texels": int(mask.sum()), "brute_force": round(float(brute[mask].mean()), 4),
                                  "ours_calibrated": round(float(ours.entropy[chosen][mask].mean()), 4),
                                  "ours_angular": round(float(angular.entropy[chosen][mask].mean()), 4),
-                                 "ours_paper_mode": round(float(paper.entropy[chosen][mask].mean()), 4)}
+                                 "ours_paper_mode": round(float(paper.entropy[chosen][mask].mean()), 4),
+                                 "spectral_brute_force": round(float(spectral_pooled[mask].mean()), 4)}
 
     save_results("pathtraced_entropy", {
         "benchmark": "fast SH entropy vs brute-force path-traced entropy over the same hypothesis grid",
@@ -200,6 +289,16 @@ def main() -> None:
         "spearman_rho_vs_ours_calibrated_other_seed": round(
             float(stats.spearmanr(brute_other_seed, ours.entropy[chosen]).statistic), 4),
         "brute_force_self_agreement": agreement(brute, brute_other_seed),
+        "spectral_brute_force": {
+            "agreement_with_ours_calibrated": agreement(spectral_pooled, ours.entropy[chosen]),
+            "agreement_with_ours_calibrated_per_seed": [
+                agreement(values, ours.entropy[chosen]) for values in (spectral, spectral_other_seed)],
+            "self_agreement": agreement(spectral, spectral_other_seed),
+            "agreement_with_sample_brute_force": agreement(pooled, spectral_pooled),
+            "scoring_check_max_abs_difference": round(float(np.abs(analytic - ours.entropy[chosen]).max()), 6),
+            "entropy_mean": round(float(spectral_pooled.mean()), 4),
+        },
+        "spearman_rho_vs_roughness_error_of_default_fit": ranks_error,
         "seeds": list(SEEDS),
         "entropy_mean": {"brute_force": round(float(brute.mean()), 4), "brute_force_pooled": round(float(pooled.mean()), 4),
                          "ours_calibrated": round(float(ours.entropy[chosen].mean()), 4),

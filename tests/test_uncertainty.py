@@ -2,8 +2,8 @@
 texels, flags, and the fast kernel against a direct O(R^2 l*) evaluation of the grid.
 
 Spectra are built from the model itself, one SH coefficient per degree: the light's a_l =
-sqrt(S_refl(l)) from a chosen light spectrum, the observation's b_l = k_s exp(-alpha^2 l^2) a_l
-(plus noise), b_0 = specular plus diffuse; S_out = b^2 and the cross spectrum X = a b (signed).
+sqrt(S_refl(l)) from a chosen light spectrum, the observation's b_l = k_s G_l(alpha) a_l (plus
+noise; G the default "ggx" lobe's gains, `lobe_filter`), b_0 = specular plus diffuse; S_out = b^2 and the cross spectrum X = a b (signed).
 These are unit tests of the mathematics; no rendering.
 """
 
@@ -20,6 +20,7 @@ from hypothesis import strategies as st
 from freqbrdf import sh
 from freqbrdf import uncertainty as unc
 from freqbrdf.config import EstimateConfig, UncertaintyConfig
+from freqbrdf.estimate import ggx_lobe_gains, split_sum_terms
 from freqbrdf.observations import Observations
 
 LMAX = 5
@@ -30,12 +31,23 @@ CALIBRATED = UncertaintyConfig()
 PAPER = UncertaintyConfig(mode="paper")
 
 
-def model_spectra(light, alpha, specular, *, diffuse=0.3, noise=0.0, n=1, seed=0):
-    """light, observed, cross (n, 3, l*+1): S_out = k^2 exp(-2 alpha^2 l^2) S_refl, noise on amplitudes
-    (std ``noise`` x the light's RMS amplitude), DC = (k sqrt(S_refl(0)) + diffuse)^2."""
+def lobe_filter(alpha, lobe="ggx", sigma=0.0):
+    """Per-degree amplitude filter of a lobe of GGX alpha (scalar, or (..., 1) -> (..., l*+1)),
+    divided by the band-limit blur exp(-(sigma l)^2): the GGX gains or the paper's Gaussian."""
+    alpha = np.asarray(alpha, float)
+    if lobe == "gaussian":
+        return np.exp(-(alpha**2 - sigma**2) * DEGREES**2)
+    roughness = np.sqrt(alpha[..., 0] if alpha.ndim else alpha)
+    gains = np.array([ggx_lobe_gains(float(r), LMAX) for r in np.ravel(roughness)])
+    return gains.reshape(np.shape(roughness) + (LMAX + 1,)) * np.exp(sigma**2 * DEGREES**2)
+
+
+def model_spectra(light, alpha, specular, *, diffuse=0.3, noise=0.0, n=1, seed=0, lobe="ggx"):
+    """light, observed, cross (n, 3, l*+1): S_out = k^2 G(alpha)^2 S_refl (`lobe_filter`), noise on
+    amplitudes (std ``noise`` x the light's RMS amplitude), DC = (k sqrt(S_refl(0)) + diffuse)^2."""
     rng = np.random.default_rng(seed)
     light = np.broadcast_to(np.asarray(light, float), (n, 3, LMAX + 1)).copy()
-    amplitude = specular * np.exp(-(alpha**2) * DEGREES**2) * np.sqrt(light)
+    amplitude = specular * lobe_filter(alpha, lobe) * np.sqrt(light)
     amplitude = amplitude + noise * np.sqrt(light.sum(-1, keepdims=True)) * rng.standard_normal(light.shape)
     amplitude[..., 0] = np.broadcast_to(specular, light.shape)[..., 0] * np.sqrt(light[..., 0]) + diffuse
     return light, np.square(amplitude), np.sqrt(light) * amplitude
@@ -46,8 +58,9 @@ def entropy(light, observed, cross=None, **kwargs):
     return unc.entropy_from_spectra(light, observed, cross_spectrum=cross, **kwargs)
 
 
-def naive_grid(light, observed, sigma, config, cross=None, n_samples=None):
-    """Direct evaluation: per texel and channel the full (R, R) grid summed over l, exact exp.
+def naive_grid(light, observed, sigma, config, cross=None, n_samples=None, albedo=None):
+    """Direct evaluation: per texel and channel the full (R, R) grid summed over l, exact exp;
+    albedo (N, R) scales each row's lobe (calibrated mode; None: 1).
 
     Returns entropy (N, 3) per channel, likelihood (N, 3, R, R) and misfit (N, 3, R, R).
     """
@@ -70,7 +83,9 @@ def naive_grid(light, observed, sigma, config, cross=None, n_samples=None):
                 exponent = (misfit - misfit.min()) / config.temperature
                 prior = np.ones((resolution, resolution))
             else:
-                kernel = np.exp(-(alpha**2 - sigma**2) * degrees**2)
+                row_albedo = np.ones(resolution) if albedo is None else albedo[texel]
+                kernel = np.array([lobe_filter(a, config.lobe, sigma) for a in grid.alpha])[:, None, 1:]
+                kernel = kernel * row_albedo[:, None, None]
                 if cross is None:  # amplitudes in phase
                     predicted = specular * kernel * np.sqrt(s_refl[1:])
                     misfit = np.sum((predicted - np.sqrt(s_out[1:])) ** 2, axis=-1)
@@ -78,8 +93,9 @@ def naive_grid(light, observed, sigma, config, cross=None, n_samples=None):
                     misfit = np.sum(specular**2 * kernel**2 * s_refl[1:] - 2 * specular * kernel * cross[texel, c, 1:]
                                     + s_out[1:], axis=-1)
                 # The specular DC may not exceed the observed DC.
-                dc_excess = np.maximum(grid.specular * math.sqrt(s_refl[0]) - math.sqrt(s_out[0]), 0.0) ** 2
-                misfit = misfit + dc_excess[None, :]
+                dc_excess = np.maximum(row_albedo[:, None] * grid.specular[None, :] * math.sqrt(s_refl[0])
+                                       - math.sqrt(s_out[0]), 0.0) ** 2
+                misfit = misfit + dc_excess
                 samples_per_coeff = 1.0 if n_samples is None else max(n_samples[texel], 1) / (LMAX + 1) ** 2
                 noise = 2 * config.noise_level**2 * light_power / samples_per_coeff
                 if config.residual_noise:  # plus the best cell's misfit per residual degree of freedom
@@ -130,17 +146,19 @@ def test_low_frequency_light_gives_a_ridge_of_roughness_values():
 
     assert plausible_rows(low) >= 5
     assert plausible_rows(sharp) <= 2
-    # The paper's recipe sees it too, though its absolute tau makes the size exposure dependent.
-    paper_sharp = entropy(*model_spectra(SHARP_LIGHT, alpha, specular, noise=0.002), config=PAPER)
-    paper_low = entropy(*model_spectra(LOW_LIGHT, alpha, specular, noise=0.002), config=PAPER)
+    # The paper's recipe sees it too (on data of its own Gaussian lobe), though its absolute tau
+    # makes the size exposure dependent.
+    paper_sharp = entropy(*model_spectra(SHARP_LIGHT, alpha, specular, noise=0.002, lobe="gaussian"), config=PAPER)
+    paper_low = entropy(*model_spectra(LOW_LIGHT, alpha, specular, noise=0.002, lobe="gaussian"), config=PAPER)
     assert paper_low.entropy[0] > paper_sharp.entropy[0] + 0.1
 
 
 def test_weak_specular_relative_to_noise_is_uncertain():
-    config = UncertaintyConfig(noise_level=0.05)
+    # (At noise 0.05 the GGX lobe's l <= 5 gains leave even the strong lobe at entropy 0.47.)
+    config = UncertaintyConfig(noise_level=0.03)
     alpha = (4 / 7) ** 2
-    strong = entropy(*model_spectra(SHARP_LIGHT, alpha, 0.9, noise=0.05), config=config)
-    weak = entropy(*model_spectra(SHARP_LIGHT, alpha, 0.15, noise=0.05), config=config)
+    strong = entropy(*model_spectra(SHARP_LIGHT, alpha, 0.9, noise=0.03), config=config)
+    weak = entropy(*model_spectra(SHARP_LIGHT, alpha, 0.15, noise=0.03), config=config)
     assert weak.entropy[0] > 0.5
     assert weak.entropy[0] > strong.entropy[0] + 0.25
 
@@ -214,7 +232,7 @@ def test_phase_aware_mode_sees_energy_out_of_phase_with_the_light():
     observations = _observations_from_spectra(light, observed, np.array([0]), texture_res=2)
     np.testing.assert_allclose(unc.entropy_map(observations, config).entropy,
                                entropy(light, observed, aligned, n_samples=observations.n_samples,
-                                       config=config).entropy, atol=1e-5)
+                                       view_cos=unc.view_cosine(observations), config=config).entropy, atol=1e-5)
 
 
 def test_band_limit_compensation_is_applied_in_calibrated_mode():
@@ -242,22 +260,32 @@ def test_band_limit_compensation_is_applied_in_calibrated_mode():
     sigma=st.sampled_from([0.0, 0.1, 0.25]),
     residual_noise=st.booleans(),
     with_cross=st.booleans(),
+    lobe=st.sampled_from(["ggx", "gaussian"]),
+    with_albedo=st.booleans(),
 )
-def test_fast_kernel_equals_direct_evaluation(seed, grid_res, mode, sigma, residual_noise, with_cross):
+def test_fast_kernel_equals_direct_evaluation(seed, grid_res, mode, sigma, residual_noise, with_cross, lobe,
+                                              with_albedo):
     rng = np.random.default_rng(seed)
     n_texels = 7
     light = rng.uniform(0.0, 1.0, (n_texels, 3, LMAX + 1)) * np.exp(-rng.uniform(0, 1) * DEGREES)
     observed = light * rng.uniform(0.0, 1.0, (n_texels, 3, 1)) * np.exp(-rng.uniform(0, 2) * DEGREES)
     observed += rng.uniform(0.0, 0.05, observed.shape)
     config = UncertaintyConfig(mode=mode, grid_res=grid_res, noise_level=rng.uniform(0.01, 0.2),
-                               temperature=10 ** rng.uniform(-4, -1), residual_noise=residual_noise)
+                               temperature=10 ** rng.uniform(-4, -1), residual_noise=residual_noise, lobe=lobe)
     # A cross spectrum anywhere between anti-aligned and aligned (Cauchy-Schwarz), and sample counts.
     cross = np.sqrt(light * observed) * rng.uniform(-1.0, 1.0, light.shape) if with_cross else None
     n_samples = rng.integers(0, 100, n_texels) if with_cross else None
-    fast = entropy(light, observed, cross, n_samples=n_samples, sigma=sigma, config=config)
+    # The texels' mean view cosines: with the "ggx" lobe, each row's lobe is scaled by its albedo there.
+    view_cos = rng.uniform(0.0, 1.0, n_texels) if with_albedo else None
+    fast = entropy(light, observed, cross, n_samples=n_samples, view_cos=view_cos, sigma=sigma, config=config)
     calibrated = mode == "calibrated"
+    albedo = None
+    if calibrated and with_albedo and lobe == "ggx":
+        albedo = split_sum_terms(np.clip(view_cos, 1e-3, 1.0)[:, None], np.sqrt(fast.grid.alpha)[None, :])[0]
+        assert np.all((albedo > 0.0) & (albedo < 1.0))
     per_channel, likelihood, misfit = naive_grid(light, observed, sigma if calibrated else 0.0, config,
-                                                 cross if calibrated else None, n_samples if calibrated else None)
+                                                 cross if calibrated else None, n_samples if calibrated else None,
+                                                 albedo)
 
     texels = np.arange(n_texels)
     chosen = fast.channel.astype(int)
@@ -328,7 +356,8 @@ def test_entropy_map_from_observations_and_texture():
     light[1] = LOW_LIGHT
     observations = _observations_from_spectra(light, observed, np.array([0, 5, 15]), texture_res=4)
     result = unc.entropy_map(observations)
-    direct = entropy(light, observed, np.sqrt(light * observed), n_samples=observations.n_samples)
+    direct = entropy(light, observed, np.sqrt(light * observed), n_samples=observations.n_samples,
+                     view_cos=unc.view_cosine(observations))
     np.testing.assert_allclose(result.entropy, direct.entropy, atol=1e-5)  # float32 coefficients
     texture = result.to_texture(observations, "entropy", fill=-1.0)
     assert texture.shape == (4, 4)

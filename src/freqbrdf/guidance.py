@@ -7,20 +7,21 @@ Mitsuba shadow rays as `freqbrdf.observations`), and the (band-limited) environm
 direction. So for every
 specular hypothesis psi = (alpha, k) of the uncertainty grid the new sample can be simulated,
 
-    f_psi = k sum_l K(alpha, l) P_l(w_o) + D_psi,
+    f_psi = k A(alpha, w_o) sum_l K(alpha, l) P_l(w_o) + D_psi,
 
 with P_l the degree-l part of the light's SH fit (updated with the candidate's mirror sample) at
-the new direction, K the kernel the entropy uses (``brdf.brdf_kernel``; band-limit compensated in
-calibrated mode) and D_psi the Lambertian radiance that explains the rest of the texel's fitted
-DC under psi, D = max(0, (c_obs,00 - k c_light,00) / c_one,00) (0 for a texel with no sample
-yet). The observed fit is updated with that sample, its spectrum scored by
-`uncertainty.entropy_from_spectra` (with the texel's sample count and, in phase-aware mode, the
-cross spectrum, as `uncertainty.entropy_map` scores a fit), and the candidate's expected entropy at the texel is
-sum_psi P(psi) H(psi), P the texel's current posterior (of its minimum-entropy channel; the
-hypothesis is applied to all three channels, whose minimum entropy is the map, as in
-`uncertainty`). Fresnel and masking are left out: k absorbs them, as in the entropy's own model.
-The candidate's score is the mean over texels (texels it does not see keep their entropy, texels
-nobody has seen count with entropy 1); the lowest wins. Only the candidates farthest from the
+the new direction, K and A the lobe the entropy uses (`uncertainty.hypothesis_filter`, band-limit
+compensated in calibrated mode, and with the "ggx" lobe its albedo `uncertainty.hypothesis_albedo`
+at the new view's cos theta_o; A = 1 otherwise) and D_psi the Lambertian radiance that explains the
+rest of the texel's fitted DC under psi, D = max(0, (c_obs,00 - k A(alpha, mean cos) c_light,00) /
+c_one,00) (0 for a texel with no sample yet). The observed fit is updated with that sample, its
+spectrum scored by `uncertainty.entropy_from_spectra` (with the texel's sample count and mean view
+cosine and, in phase-aware mode, the cross spectrum, as `uncertainty.entropy_map` scores a fit),
+and the candidate's expected entropy at the texel is sum_psi P(psi) H(psi), P the texel's current
+posterior (of its minimum-entropy channel; the hypothesis is applied to all three channels, whose
+minimum entropy is the map, as in `uncertainty`). The candidate's score is the mean over texels
+(texels it does not see keep their entropy, texels nobody has seen count with entropy 1); the
+lowest wins. Only the candidates farthest from the
 views taken or picked so far compete (``spread``, SPREAD): the pure criterion clusters views.
 
 Incremental. Per texel we keep the normal equations of the fit, G = sum w^2 y y^T, the right-hand
@@ -61,7 +62,9 @@ from freqbrdf.observations import RAY_OFFSET_OBJECT, RAY_OFFSET_TEXELS, Observat
 from freqbrdf.progress import SILENT, Reporter
 from freqbrdf.synth import WORLD_UP, bounding_sphere, fibonacci_directions
 from freqbrdf.texels import Texels, rasterise
-from freqbrdf.uncertainty import Uncertainty, cross_spectrum, entropy_from_spectra
+from freqbrdf.uncertainty import (
+    Uncertainty, cross_spectrum, entropy_from_spectra, hypothesis_albedo, hypothesis_filter, hypothesis_grid,
+)
 
 MAX_TEXELS = 1024  # texels scored per candidate (a seeded random subset of the atlas)
 # Each pick is chosen among the (1 - SPREAD) of the remaining candidates farthest (in angle, seen
@@ -112,6 +115,10 @@ class FitState:
     rhs: np.ndarray  # (n, K, 7) float64 sum_i w_i^2 y_i f_i: light RGB, observed RGB, constant 1
     weight_sq: np.ndarray  # (n,) float64 sum_i w_i^2
     n_samples: np.ndarray  # (n,) int64
+    # (n,) float64 sum_i w_i and sum_i w_i cos(theta_o,i): the mean view cosine at which the entropy
+    # weighs each hypothesis's lobe by its albedo (`uncertainty.view_cosine`).
+    weight_sum: np.ndarray
+    cosine_sum: np.ndarray
     basis: np.ndarray  # (n, K, K) B = R^-1/2 Q: (G + s R)^-1 = B diag(1 / (mu + s)) B^T
     eigenvalues: np.ndarray  # (n, K) mu >= 0
     projected_rhs: np.ndarray  # (n, K, 7) B^T b
@@ -207,8 +214,10 @@ def initial_state(observations: Observations, config: Config = Config()) -> FitS
     gram = np.einsum("tvk,tvj->tkj", weighted, basis)
     rhs = np.einsum("tvk,tvr->tkr", weighted, values)
     n_coeffs = sh.num_coeffs(lmax)
+    weight = observations.weight.astype(np.float64)
     state = FitState(
         gram, rhs, weight_sq.sum(axis=1), (observations.weight > 0).sum(axis=1).astype(np.int64),
+        weight_sum=weight.sum(axis=1), cosine_sum=np.einsum("nv,nv->n", weight, observations.view_direction[..., 2]),
         basis=np.zeros_like(gram), eigenvalues=np.zeros((len(gram), n_coeffs)), projected_rhs=np.zeros_like(rhs),
         regulariser=sh.regulariser_weights(lmax, config.fit.regulariser),
     )
@@ -236,6 +245,8 @@ def add_samples(state: FitState, samples: CandidateSamples, observed: np.ndarray
     state.rhs[rows] += weighted[:, :, None] * values[:, None, :]
     state.weight_sq[rows] += weight_sq
     state.n_samples[rows] += 1
+    state.weight_sum[rows] += samples.weight
+    state.cosine_sum[rows] += weight_sq  # the weight is the view's cos(theta_o)
     _diagonalise(state, rows)
 
 
@@ -275,21 +286,29 @@ def expected_entropy(
     update_power = sh.power_spectrum(update)  # (m, L)
 
     # The hypotheses' radiance at the new sample.
-    grid_res = config.uncertainty.grid_res
-    steps = np.arange(grid_res) / (grid_res - 1)
-    alphas, ks = np.square(steps), steps
-    calibrated = config.uncertainty.mode == "calibrated"
-    kernel = brdf.brdf_kernel(alphas, lmax, sigma if calibrated else 0.0)  # (R, L)
+    settings = config.uncertainty
+    grid = hypothesis_grid(settings.grid_res)
+    grid_res, ks = grid.resolution, grid.specular
+    calibrated = settings.mode == "calibrated"
+    # The entropy's own lobe: filter per degree and, for the "ggx" lobe, albedo at the view angle.
+    kernel = (hypothesis_filter(grid, lmax, sigma, settings.lobe) if calibrated
+              else brdf.brdf_kernel(grid.alpha, lmax))  # (R, L)
+    with_albedo = calibrated and settings.lobe == "ggx"
+    texel_cosine = _mean_cosine(state.weight_sum[rows], state.cosine_sum[rows])  # (m,) before the sample
+    new_cosine = _mean_cosine(state.weight_sum[rows] + samples.weight, state.cosine_sum[rows] + weight_sq)
+    sample_albedo = hypothesis_albedo(grid, samples.weight) if with_albedo else np.ones((len(rows), grid_res))
+    texel_albedo = hypothesis_albedo(grid, texel_cosine) if with_albedo else np.ones((len(rows), grid_res))
     light_by_degree = cross_spectrum(light_coeffs, samples.basis[:, None, :])  # (m, 3, L): the light at the sample
-    filtered = np.einsum("il,tcl->tic", kernel, light_by_degree)  # (m, R, 3)
+    filtered = np.einsum("il,tcl->tic", kernel, light_by_degree) * sample_albedo[..., None]  # (m, R, 3)
     current = coeffs[rows]  # (m, 7, K) before the sample
     with np.errstate(divide="ignore", invalid="ignore"):
+        specular_dc = (texel_albedo[:, :, None, None] * ks[None, None, :, None]
+                       * current[:, None, None, LIGHT, 0])  # (m, R_alpha, R_k, 3)
         diffuse = np.where(
-            current[:, ONE, 0, None, None] > 0,
-            (current[:, None, OBSERVED, 0] - ks[None, :, None] * current[:, None, LIGHT, 0])
-            / current[:, ONE, 0, None, None],
+            current[:, ONE, 0, None, None, None] > 0,
+            (current[:, None, None, OBSERVED, 0] - specular_dc) / current[:, ONE, 0, None, None, None],
             0.0,
-        )  # (m, R_k, 3)
+        )  # (m, R_alpha, R_k, 3)
     diffuse = np.maximum(diffuse, 0.0)
     # Cells: (alpha_i, k_j) for j >= 1, and the one k = 0 material (all alphas alike).
     cell_alpha = np.concatenate([np.zeros(1, np.int64), np.repeat(np.arange(grid_res), grid_res - 1)])
@@ -299,7 +318,8 @@ def expected_entropy(
         [probability[:, :, 0].sum(axis=1, keepdims=True), probability[:, cell_alpha[1:], cell_k[1:]]], axis=1
     )  # (m, cells)
     pair, cell = np.nonzero(cell_probability >= MIN_CELL_PROBABILITY)
-    radiance = ks[cell_k[cell], None] * filtered[pair, cell_alpha[cell]] + diffuse[pair, cell_k[cell]]  # (P, 3)
+    radiance = (ks[cell_k[cell], None] * filtered[pair, cell_alpha[cell]]
+                + diffuse[pair, cell_alpha[cell], cell_k[cell]])  # (P, 3)
     delta = radiance - predicted[pair, OBSERVED]  # (P, 3)
     observed_spectrum = (  # of c + delta u, degree by degree
         base_spectrum[pair] + 2.0 * delta[..., None] * base_update[pair]
@@ -311,7 +331,8 @@ def expected_entropy(
                        + delta[..., None] * cross_spectrum(update[:, None, :], light_coeffs)[pair])
     entropy = entropy_from_spectra(
         light_spectrum[pair], np.maximum(observed_spectrum, 0.0), cross_spectrum=light_cross,
-        n_samples=state.n_samples[rows][pair] + 1, sigma=sigma, config=config.uncertainty, return_likelihood=False,
+        n_samples=state.n_samples[rows][pair] + 1, view_cos=new_cosine[pair], sigma=sigma, config=settings,
+        return_likelihood=False,
     ).entropy.astype(np.float64)
     weights = cell_probability[pair, cell]
     total = np.bincount(pair, weights, minlength=len(rows))
@@ -567,8 +588,14 @@ def _state_uncertainty(state: FitState, coeffs: np.ndarray, sigma: float, config
     return entropy_from_spectra(
         sh.power_spectrum(light), sh.power_spectrum(observed),
         cross_spectrum=cross_spectrum(observed, light) if config.uncertainty.phase_aware else None,
-        n_samples=state.n_samples, sigma=sigma, fit_status=status, config=config.uncertainty,
+        n_samples=state.n_samples, view_cos=_mean_cosine(state.weight_sum, state.cosine_sum), sigma=sigma,
+        fit_status=status, config=config.uncertainty,
     )
+
+
+def _mean_cosine(weight_sum: np.ndarray, cosine_sum: np.ndarray) -> np.ndarray:
+    """(n,) the weighted mean view cosine (`uncertainty.view_cosine`); 1 without samples."""
+    return np.where(weight_sum > 0, cosine_sum / np.where(weight_sum > 0, weight_sum, 1.0), 1.0)
 
 
 def _texel_subset(n_texels: int, max_texels: int, seed: int) -> np.ndarray:

@@ -93,7 +93,8 @@ from scipy import ndimage
 from freqbrdf import brdf, sh
 from freqbrdf.config import Config, EstimateConfig, UncertaintyConfig
 from freqbrdf.estimate import (
-    CURVATURE_STEP, FITTED_PARAMETERS, angular_loss, estimate as estimate_materials, hypothesis_moments, model_light,
+    CURVATURE_STEP, FITTED_PARAMETERS, angular_loss, estimate as estimate_materials, ggx_lobe_gains, hypothesis_moments,
+    model_light, split_sum_terms,
 )
 
 if TYPE_CHECKING:
@@ -189,6 +190,7 @@ def entropy_map(
         cross_spectrum=(cross_spectrum(observations.observed_coeffs, observations.mirrored_coeffs)
                         if config.phase_aware else None),
         n_samples=observations.n_samples,
+        view_cos=view_cosine(observations),
         sigma=observations.sigma,
         alpha_bound=observations.alpha_bound,
         fit_status=observations.fit_status,
@@ -319,12 +321,44 @@ def cross_spectrum(observed_coeffs: np.ndarray, light_coeffs: np.ndarray) -> np.
     return np.add.reduceat(product, np.arange(lmax + 1) ** 2, axis=-1)
 
 
+def hypothesis_filter(grid: HypothesisGrid, lmax: int, sigma: float, lobe: str) -> np.ndarray:
+    """(R, l*+1) calibrated mode's per-degree amplitude filter of each alpha row, divided by the
+    band-limit blur exp(-(sigma l)^2) the mirrored light went through: "gaussian", the paper's
+    exp(-(alpha l)^2) (``brdf.brdf_kernel``); "ggx", the GGX lobe's own response to each degree
+    (``estimate.ggx_lobe_gains``, the gains the estimator's prefiltered light uses), whose tails
+    are heavier."""
+    if lobe == "gaussian":
+        return brdf.brdf_kernel(grid.alpha, lmax, sigma)
+    if lobe != "ggx":
+        raise ValueError(f"unknown lobe {lobe!r}; choose 'ggx' or 'gaussian'")
+    gains = np.stack([ggx_lobe_gains(math.sqrt(alpha), lmax) for alpha in grid.alpha])
+    return gains * np.exp(sigma**2 * np.square(np.arange(lmax + 1)))
+
+
+def hypothesis_albedo(grid: HypothesisGrid, view_cos: np.ndarray) -> np.ndarray:
+    """(N, R) the share of the light a GGX lobe of each row's alpha reflects per unit of base
+    colour, seen at cos theta_o = view_cos (N,): the split-sum scale A (``estimate.split_sum_terms``;
+    masking-shadowing and Schlick's Fresnel), below 1 where the mirror model says 1."""
+    view_cos = np.clip(np.asarray(view_cos, dtype=np.float64), 1e-3, 1.0)
+    scale, _, _ = split_sum_terms(view_cos[:, None], np.sqrt(grid.alpha)[None, :])
+    return np.ascontiguousarray(scale)
+
+
+def view_cosine(observations: Observations) -> np.ndarray:
+    """(N,) the weighted mean cos theta_o of each texel's samples (1 where it has none)."""
+    weight = observations.weight.astype(np.float64)
+    total = weight.sum(axis=1)
+    cosine = np.einsum("nv,nv->n", weight, observations.view_direction[..., 2])
+    return np.where(total > 0, cosine / np.where(total > 0, total, 1.0), 1.0)
+
+
 def entropy_from_spectra(
     light_spectrum: np.ndarray,
     observed_spectrum: np.ndarray,
     *,
     cross_spectrum: np.ndarray | None = None,
     n_samples: np.ndarray | None = None,
+    view_cos: np.ndarray | None = None,
     sigma: float = 0.0,
     alpha_bound: np.ndarray | None = None,
     fit_status: np.ndarray | None = None,
@@ -338,7 +372,9 @@ def entropy_from_spectra(
     sqrt(S_out S_refl), an optimistic bound that ignores where on the sphere the energy lies.
     n_samples (N,): samples (views with positive weight) per texel (calibrated mode: the fitted coefficients' noise
     variance is noise_level^2 P K / n_samples for K coefficients) and FLAG_FEW_SAMPLES; None: K
-    samples assumed, no FLAG_FEW_SAMPLES.
+    samples assumed, no FLAG_FEW_SAMPLES. view_cos (N,): the texel's mean cos theta_o
+    (`view_cosine`), at which calibrated mode with lobe "ggx" scales each hypothesis by its lobe's
+    albedo (`hypothesis_albedo`); None: albedo 1.
 
     light_spectrum is the spectrum of the texel's mirrored (band-limited) environment fit,
     observed_spectrum that of its observed radiance; sigma the band-limit width (compensated in
@@ -366,7 +402,7 @@ def entropy_from_spectra(
         scale = np.square(observed_spectrum[..., 0].astype(np.float64)) / (lmax * config.temperature)
     else:
         # Amplitude residuals against the light's RMS amplitude (module docstring).
-        row_filter = brdf.brdf_kernel(grid.alpha, lmax, sigma)
+        row_filter = hypothesis_filter(grid, lmax, sigma, config.lobe)
         # Least squares: each of the K fitted coefficients has about K / n_samples times a sample's
         # variance. The kernel divides by the light power P (summing (N, 3, 6) in numpy took longer
         # than the kernel's own moments).
@@ -385,10 +421,12 @@ def entropy_from_spectra(
     best_alpha = np.empty(n_texels, dtype=np.float32)
     best_ks = np.empty(n_texels, dtype=np.float32)
     likelihood = np.empty((n_texels if return_likelihood else 0, resolution, resolution), dtype=np.float32)
+    row_scale = (hypothesis_albedo(grid, view_cos) if view_cos is not None and config.lobe == "ggx" and not paper
+                 else np.zeros((0, resolution)))
     _grid_entropy_kernel(
         _kernel_input(light_spectrum), _kernel_input(observed_spectrum),
         _kernel_input(cross_spectrum) if use_cross else np.zeros((0, 3, n_degrees)),
-        np.ascontiguousarray(scale, dtype=np.float64), row_filter, grid.alpha,
+        np.ascontiguousarray(scale, dtype=np.float64), row_filter, row_scale, grid.alpha,
         not paper, use_cross, not paper, not paper, residual_dof, return_likelihood, numba.get_num_threads(),
         entropy, channel, best_alpha, best_ks, likelihood,
     )
@@ -668,7 +706,7 @@ def _moment_entropy_kernel(moments, light_mean_square, n_samples, alphas, specul
 
 @numba.njit(parallel=True, cache=True)
 def _grid_entropy_kernel(
-    light, observed, cross, scale, row_filter, alphas, amplitude, use_cross, per_light_power, merge_zero,
+    light, observed, cross, scale, row_filter, row_scale, alphas, amplitude, use_cross, per_light_power, merge_zero,
     residual_dof, want_likelihood, n_threads,
     entropy, channel, best_alpha, best_ks, likelihood,
 ):
@@ -679,7 +717,9 @@ def _grid_entropy_kernel(
     (N, 1) for all channels alike, turns a misfit difference into temperatures, divided by the
     texel's light power P = mean over channels of sum_l S_refl(l) when per_light_power (no light:
     temperature 0, no information); row_filter (R, l*+1) the per-degree factor of alpha_i (kernel
-    for amplitudes, kernel^2 for powers); alphas (R,) the rows' alpha. amplitude: compare sqrt(S),
+    for amplitudes, kernel^2 for powers); row_scale (N, R) a per-texel factor of each row's
+    amplitudes, DC included (the lobe's albedo; amplitude mode only), or (0, R) for none; alphas
+    (R,) the rows' alpha. amplitude: compare sqrt(S),
     grid values t_j = k_j, and bound the specular DC by the observed one; otherwise powers and
     t_j = k_j^2. merge_zero: the k = 0 column is one hypothesis; residual_dof > 0: the noise
     variance 1 / (2 scale) grows by the best cell's misfit / residual_dof (0: off); n_threads:
@@ -713,15 +753,15 @@ def _grid_entropy_kernel(
     for worker in numba.prange(n_workers):
         # np.int64: the loop index is unsigned in numba's parallel code and signed when typed: one
         # signature, not two (each compiles the whole kernel).
-        _grid_entropy_worker(np.int64(worker), n_workers, light, observed, cross, scale, row_filter, alphas, amplitude,
-                             use_cross, per_light_power, merge_zero, residual_dof, want_likelihood, entropy,
-                             channel, best_alpha, best_ks, likelihood)
+        _grid_entropy_worker(np.int64(worker), n_workers, light, observed, cross, scale, row_filter, row_scale, alphas,
+                             amplitude, use_cross, per_light_power, merge_zero, residual_dof, want_likelihood,
+                             entropy, channel, best_alpha, best_ks, likelihood)
 
 
 @numba.njit(cache=True, error_model="numpy", fastmath={"contract", "reassoc", "nsz", "arcp"})
 def _grid_entropy_worker(
-    worker, n_workers, light, observed, cross, scale, row_filter, alphas, amplitude, use_cross, per_light_power,
-    merge_zero, residual_dof, want_likelihood, entropy, channel, best_alpha, best_ks, likelihood,
+    worker, n_workers, light, observed, cross, scale, row_filter, row_scale, alphas, amplitude, use_cross,
+    per_light_power, merge_zero, residual_dof, want_likelihood, entropy, channel, best_alpha, best_ks, likelihood,
 ):
     """`_grid_entropy_kernel`'s work for the blocks of texels worker, worker + n_workers, ...: a
     function of its own, so that numba's parallel passes see a small loop (on the whole body they
@@ -756,7 +796,9 @@ def _grid_entropy_worker(
     linear = np.empty(_LANES)  # X of the current row
     lowest = np.empty((3, _LANES))  # the least misfit, its row and column
     sums = np.empty((2, _LANES))  # Z, sum w d
-    rows = np.empty((resolution, 4, _LANES))  # per row: A, X, t_b, misfit at t_b
+    rows = np.empty((resolution, 5, _LANES))  # per row: A, X, t_b, misfit at t_b, the specular DC at t = 1
+    use_row_scale = row_scale.shape[0] > 0
+    scale_lanes = np.ones((resolution, _LANES))  # the block's row_scale: [row, lane]
     dc_scaled = np.zeros((resolution, _LANES), np.float32)  # DC excess at t_j in temperatures
     cell = np.empty((4, _LANES), np.float32)  # t_b, A / T, 2 (A t_b - X) / T, D_i - DC excess at t_b
     cell_sums = np.empty((2, _LANES), np.float32)  # sum w, sum w d over the row's cells
@@ -777,6 +819,10 @@ def _grid_entropy_worker(
                 for l in range(n_degrees):
                     light_lanes[c, l, k] = light[start + k, c, l]
                     observed_lanes[c, l, k] = observed[start + k, c, l]
+        if use_row_scale:
+            for k in range(n_lanes):
+                for i in range(resolution):
+                    scale_lanes[i, k] = row_scale[start + k, i]
         if use_cross:
             for k in range(n_lanes):
                 for c in range(n_channels):
@@ -829,8 +875,10 @@ def _grid_entropy_worker(
                         quad[k] += filter_sq[i, l] * light_sq[l, k]
                         linear[k] += row_filter[i, l] * light_observed[l, k]
                 for k in range(_LANES):
-                    a = quad[k]
-                    x = linear[k]
+                    row_gain = scale_lanes[i, k]
+                    a = quad[k] * row_gain * row_gain
+                    x = linear[k] * row_gain
+                    specular_dc = light_dc[k] * row_gain
                     if use_cross:  # |X| <= sqrt(A C) (Cauchy-Schwarz) unless the inputs disagree
                         bound = math.sqrt(a * constant[k])
                         x = _smaller(_larger(x, -bound), bound)
@@ -838,9 +886,9 @@ def _grid_entropy_worker(
                     # (X + a_0 b_0) / (A + a_0^2) where X / A would exceed the DC bound b_0 / a_0.
                     numerator = x
                     denominator = a
-                    if amplitude and x * light_dc[k] > observed_dc[k] * a:
-                        numerator += light_dc[k] * observed_dc[k]
-                        denominator += light_dc[k] * light_dc[k]
+                    if amplitude and x * specular_dc > observed_dc[k] * a:
+                        numerator += specular_dc * observed_dc[k]
+                        denominator += specular_dc * specular_dc
                     target = numerator / (denominator if denominator > 0.0 else 1.0)  # no light: 0
                     index = target * last if amplitude else math.sqrt(_larger(target, 0.0)) * last
                     left = np.float64(_smaller(_larger(math.floor(index), 1.0), last))
@@ -853,14 +901,15 @@ def _grid_entropy_worker(
                     left_misfit = constant[k] + left_t * (a * left_t - 2.0 * x)
                     right_misfit = constant[k] + right_t * (a * right_t - 2.0 * x)
                     if amplitude:
-                        left_misfit += _larger(left_t * light_dc[k] - observed_dc[k], 0.0) ** 2
-                        right_misfit += _larger(right_t * light_dc[k] - observed_dc[k], 0.0) ** 2
+                        left_misfit += _larger(left_t * specular_dc - observed_dc[k], 0.0) ** 2
+                        right_misfit += _larger(right_t * specular_dc - observed_dc[k], 0.0) ** 2
                     take_right = right_misfit < left_misfit
                     best_misfit = right_misfit if take_right else left_misfit
                     rows[i, 0, k] = a
                     rows[i, 1, k] = x
                     rows[i, 2, k] = right_t if take_right else left_t
                     rows[i, 3, k] = best_misfit
+                    rows[i, 4, k] = specular_dc
                     if best_misfit < lowest[0, k]:
                         lowest[0, k] = best_misfit
                         lowest[1, k] = i
@@ -879,7 +928,7 @@ def _grid_entropy_worker(
                 channel_sums[c, 1, k] = zero_weight
                 sums[0, k] = n_zero * zero_weight
                 sums[1, k] = n_zero * zero_weight * zero_distance
-            if amplitude:
+            if amplitude and not use_row_scale:  # the same for every row
                 for j in range(resolution):
                     for k in range(_LANES):
                         excess = _larger(steps[j] * light_dc[k] - observed_dc[k], 0.0)
@@ -893,7 +942,7 @@ def _grid_entropy_worker(
                     offset = (rows[i, 3, k] - lowest[0, k]) * temperature
                     within += 1.0 if offset < CUTOFF else 0.0
                     best_t = rows[i, 2, k]
-                    excess = _larger(best_t * light_dc[k] - observed_dc[k], 0.0)
+                    excess = _larger(best_t * rows[i, 4, k] - observed_dc[k], 0.0)
                     excess = excess if amplitude else 0.0
                     # misfit(t) - misfit(t_b) = (t - t_b) (A (t - t_b) + 2 (A t_b - X)), plus the DC excess
                     cell[0, k] = best_t
@@ -905,6 +954,11 @@ def _grid_entropy_worker(
                     cell_sums[1] = last * clamped_weight * np.float32(CUTOFF)
                     row_weights[:] = clamped_weight
                 else:
+                    if amplitude and use_row_scale:  # each row's lobe has its own DC
+                        for j in range(resolution):
+                            for k in range(_LANES):
+                                excess = _larger(steps[j] * rows[i, 4, k] - observed_dc[k], 0.0)
+                                dc_scaled[j, k] = excess * excess * to_temperature[k]
                     cell_sums[:] = 0.0
                     for j in range(1, resolution):
                         t = steps32[j]
