@@ -2,10 +2,13 @@
 
 Inputs are synthetic spectra of the model itself: a natural-looking light spectrum
 S_refl(l) ~ (1 + l)^-2 with per-texel log-normal jitter, random materials (roughness and k_s
-uniform in [0, 1], per-channel k_s), a diffuse DC term, and amplitude noise of 1 % of the light's
-RMS amplitude, one coefficient per degree (so the cross spectrum is the signed product of the
-amplitudes); 64 samples per texel. Calibrated mode runs as `entropy_map` calls it by default, and
-once more with ``phase_aware`` (the cross spectrum). Both modes, R = 8 and R = 32, with and without returning the (N, R, R) likelihood.
+uniform in [0, 1], per-channel k_s) seen at a view cosine uniform in [0.2, 1], GGX lobes (their
+per-degree gains and albedo, the default lobe), a diffuse DC term, and amplitude noise of 1 % of
+the light's RMS amplitude, one coefficient per degree (so the cross spectrum is the signed product
+of the amplitudes); 64 samples per texel. Calibrated mode runs as `entropy_map` calls it by
+default (with the texels' view cosines), once more with ``phase_aware`` (the cross spectrum) and
+once with the paper's Gaussian lobe (no albedo: what the per-texel albedo costs). Each mode at
+R = 8 and R = 32, with and without returning the (N, R, R) likelihood.
 
 Prints the figures and saves them to benchmarks/results/bench_entropy.json. The first call loads
 (or compiles) the numba kernel and is reported separately; the warm figure is the median of
@@ -22,6 +25,7 @@ import numpy as np
 from _common import first_call_seconds, machine, median_seconds, peak_mib, save_results
 
 from freqbrdf.config import UncertaintyConfig
+from freqbrdf.estimate import ggx_lobe_gains, split_sum_terms
 from freqbrdf.uncertainty import entropy_from_spectra
 
 TEXTURE_RES = 512
@@ -30,20 +34,26 @@ REPEATS = 5
 NOISE = 0.01
 
 
-def synthetic_spectra(n_texels: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """light, observed power spectra and their cross spectrum (N, 3, l*+1) float32: the model plus noise."""
+def synthetic_spectra(n_texels: int, seed: int = 0) -> tuple[np.ndarray, ...]:
+    """light, observed power spectra and their cross spectrum (N, 3, l*+1) float32 (the model
+    plus noise), and the view cosines (N,)."""
     rng = np.random.default_rng(seed)
     degrees = np.arange(LMAX + 1)
     light = (1.0 + degrees) ** -2.0 * rng.lognormal(0.0, 0.3, (n_texels, 3, LMAX + 1))
-    alpha = rng.uniform(0.0, 1.0, n_texels) ** 2
+    roughness = rng.uniform(0.0, 1.0, n_texels)
+    view_cos = rng.uniform(0.2, 1.0, n_texels)
     specular = rng.uniform(0.0, 1.0, (n_texels, 3))
-    kernel = np.exp(-np.square(alpha)[:, None] * degrees**2)  # (N, l*+1)
+    nodes = np.linspace(0.0, 1.0, 65)  # the GGX gains, linear between roughness nodes
+    gains = np.stack([ggx_lobe_gains(float(node), LMAX) for node in nodes])  # (65, l*+1)
+    kernel = np.stack([np.interp(roughness, nodes, gains[:, degree]) for degree in degrees], axis=1)  # (N, l*+1)
+    kernel *= split_sum_terms(view_cos, roughness)[0][:, None]  # the lobe's albedo
     amplitude = specular[..., None] * kernel[:, None, :] * np.sqrt(light)
     rms = np.sqrt(light.sum(axis=2, keepdims=True))
     amplitude += NOISE * rms * rng.standard_normal(amplitude.shape)
-    amplitude[..., 0] = specular * np.sqrt(light[..., 0]) + rng.uniform(0.0, 0.5, (n_texels, 3))
+    amplitude[..., 0] = kernel[:, None, 0] * specular * np.sqrt(light[..., 0]) + rng.uniform(0.0, 0.5, (n_texels, 3))
     cross = np.sqrt(light) * amplitude
-    return light.astype(np.float32), np.square(amplitude).astype(np.float32), cross.astype(np.float32)
+    return (light.astype(np.float32), np.square(amplitude).astype(np.float32), cross.astype(np.float32),
+            view_cos.astype(np.float32))
 
 
 def numpy_exp_ns() -> float:
@@ -54,20 +64,21 @@ def numpy_exp_ns() -> float:
 
 def main() -> None:
     n_texels = TEXTURE_RES * TEXTURE_RES
-    light, observed, cross = synthetic_spectra(n_texels)
+    light, observed, cross, view_cos = synthetic_spectra(n_texels)
     n_samples = np.full(n_texels, 64, np.int32)
     facts = machine()
     exp_ns_at_start = numpy_exp_ns()
     threads = numba.get_num_threads()
     runs = []
-    for mode, phase_aware in (("calibrated", False), ("calibrated", True), ("paper", False)):
+    for mode, phase_aware, lobe in (("calibrated", False, "ggx"), ("calibrated", True, "ggx"),
+                                    ("calibrated", False, "gaussian"), ("paper", False, "gaussian")):
         for grid_res in (8, 32):
-            config = UncertaintyConfig(mode=mode, grid_res=grid_res, phase_aware=phase_aware)
+            config = UncertaintyConfig(mode=mode, grid_res=grid_res, phase_aware=phase_aware, lobe=lobe)
             for with_likelihood in (False, True):
 
                 def run():
                     return entropy_from_spectra(light, observed, cross_spectrum=cross if phase_aware else None,
-                                                n_samples=n_samples, config=config,
+                                                n_samples=n_samples, view_cos=view_cos, config=config,
                                                 return_likelihood=with_likelihood)
 
                 first_call, result = first_call_seconds(run)
@@ -80,6 +91,7 @@ def main() -> None:
                 entry = {
                     "mode": mode,
                     "phase_aware": phase_aware,
+                    "lobe": lobe,
                     "grid_res": grid_res,
                     "likelihood": with_likelihood,
                     "first_call_s": round(first_call, 4),
