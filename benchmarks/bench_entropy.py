@@ -3,11 +3,11 @@
 Inputs are synthetic spectra of the model itself: a natural-looking light spectrum
 S_refl(l) ~ (1 + l)^-2 with per-texel log-normal jitter, random materials (roughness and k_s
 uniform in [0, 1], per-channel k_s) seen at a view cosine uniform in [0.2, 1], GGX lobes (their
-per-degree gains and albedo, the default lobe), a diffuse DC term, and amplitude noise of 1 % of
-the light's RMS amplitude, one coefficient per degree (so the cross spectrum is the signed product
-of the amplitudes); 64 samples per texel. Calibrated mode runs as `entropy_map` calls it by
-default (with the texels' view cosines), once more with ``phase_aware`` (the cross spectrum) and
-once with the paper's Gaussian lobe (no albedo: what the per-texel albedo costs). Each mode at
+per-degree gains and albedo), a diffuse DC term, and amplitude noise of 1 % of the light's RMS
+amplitude, one coefficient per degree (so the cross spectrum is the signed product of the
+amplitudes); 64 samples per texel. Calibrated mode runs as `entropy_map` calls it by default
+(with the texels' view cosines), once more with ``phase_aware`` (the cross spectrum) and once
+with the GGX lobe (`UncertaintyConfig.lobe`: what its per-texel albedo costs). Each mode at
 R = 8 and R = 32, with and without returning the (N, R, R) likelihood.
 
 Prints the figures and saves them to benchmarks/results/bench_entropy.json. The first call loads
@@ -70,8 +70,8 @@ def main() -> None:
     exp_ns_at_start = numpy_exp_ns()
     threads = numba.get_num_threads()
     runs = []
-    for mode, phase_aware, lobe in (("calibrated", False, "ggx"), ("calibrated", True, "ggx"),
-                                    ("calibrated", False, "gaussian"), ("paper", False, "gaussian")):
+    for mode, phase_aware, lobe in (("calibrated", False, "gaussian"), ("calibrated", True, "gaussian"),
+                                    ("calibrated", False, "ggx"), ("paper", False, "gaussian")):
         for grid_res in (8, 32):
             config = UncertaintyConfig(mode=mode, grid_res=grid_res, phase_aware=phase_aware, lobe=lobe)
             for with_likelihood in (False, True):

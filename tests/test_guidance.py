@@ -103,13 +103,15 @@ def test_incremental_update_equals_a_fit_from_scratch(fit):
     assert state.n_samples[0] == 1 and state.n_samples[2] == observations.n_samples[2]
 
 
-@pytest.mark.parametrize("mode, phase_aware", [("calibrated", False), ("calibrated", True), ("paper", False)])
-def test_expected_entropy_of_a_known_material_equals_the_entropy_of_the_refit(mode, phase_aware):
+@pytest.mark.parametrize("mode, phase_aware, lobe", [("calibrated", False, "gaussian"), ("calibrated", True, "gaussian"),
+                                                     ("calibrated", False, "ggx"), ("paper", False, "gaussian")])
+def test_expected_entropy_of_a_known_material_equals_the_entropy_of_the_refit(mode, phase_aware, lobe):
     """With the posterior on one hypothesis, the expectation is that hypothesis' simulated sample
     added to the data and the fits redone from scratch."""
     rng = np.random.default_rng(2)
     config = Config(fit=FitConfig(lmax=LMAX))
-    config = config.replace(uncertainty=dataclasses.replace(config.uncertainty, mode=mode, phase_aware=phase_aware))
+    config = config.replace(uncertainty=dataclasses.replace(config.uncertainty, mode=mode, phase_aware=phase_aware,
+                                                            lobe=lobe))
     observations = synthetic_observations(rng)
     state = guidance.initial_state(observations, config)
     coeffs = guidance.state_coeffs(state, config)
@@ -122,9 +124,9 @@ def test_expected_entropy_of_a_known_material_equals_the_entropy_of_the_refit(mo
     expected, radiance = guidance.expected_entropy(state, coeffs, likelihood, samples, observations.sigma, config)
 
     # The same from scratch: the light refitted with its new sample, the hypothesis' radiance at
-    # the new direction (the lobe-filtered light, in calibrated mode the GGX lobe's gains and its
-    # albedo at the new view's angle, plus the diffuse share of the current DC, less the lobe's
-    # share at the texel's mean view angle), the observed radiance refitted with it.
+    # the new direction (the lobe-filtered light, with the "ggx" lobe its gains and its albedo at
+    # the new view's angle, plus the diffuse share of the current DC, less the lobe's share at the
+    # texel's mean view angle), the observed radiance refitted with it.
     alpha, k = (alpha_index / (grid_res - 1)) ** 2, k_index / (grid_res - 1)
     light = fit_from_scratch(observations, config, (texels, directions, samples.weight, samples.light,
                                                     np.zeros((len(texels), 3))))[:, 0:3]
@@ -133,13 +135,15 @@ def test_expected_entropy_of_a_known_material_equals_the_entropy_of_the_refit(mo
                         / np.maximum(weight.sum(1), 1e-300), 1.0)
     new_mean_cos = ((weight * observations.view_direction[..., 2]).sum(1) + samples.weight**2) / (
         weight.sum(1) + samples.weight)
-    if mode == "calibrated":
+    sample_albedo = texel_albedo = np.ones(len(texels))
+    if mode == "paper":
+        kernel = brdf.brdf_kernel(np.array([alpha]), LMAX)[0]
+    elif lobe == "gaussian":
+        kernel = brdf.brdf_kernel(np.array([alpha]), LMAX, observations.sigma)[0]
+    else:
         kernel = ggx_lobe_gains(math.sqrt(alpha), LMAX) * np.exp(observations.sigma**2 * np.arange(LMAX + 1) ** 2)
         sample_albedo = split_sum_terms(samples.weight, math.sqrt(alpha))[0]  # the weight is cos theta_o
         texel_albedo = split_sum_terms(mean_cos, math.sqrt(alpha))[0]
-    else:
-        kernel = brdf.brdf_kernel(np.array([alpha]), LMAX)[0]
-        sample_albedo = texel_albedo = np.ones(len(texels))
     filtered = np.einsum("tck,tk->tc", light * kernel[sh.sh_degrees(LMAX)], samples.basis) * sample_albedo[:, None]
     current = fit_from_scratch(observations, config)
     with np.errstate(divide="ignore", invalid="ignore"):

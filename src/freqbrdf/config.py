@@ -85,13 +85,21 @@ class UncertaintyConfig:
     # power-spectrum view). Measured (benchmarks/results/entropy_variants.json): coefficients rank
     # base-colour errors a little better, amplitudes agree far better with the path-traced brute force.
     phase_aware: bool = False
-    # Calibrated mode: the lobe a hypothesis (alpha, k) is. "ggx": the GGX lobe's response to each
-    # degree (estimate.ggx_lobe_gains) times its albedo at the texel's mean view angle (split-sum,
-    # masking and Fresnel; uncertainty.hypothesis_albedo); "gaussian": the paper's exp(-(alpha l)^2)
-    # with albedo 1. Scored with path-traced spectra of the same hypotheses instead
-    # (benchmarks/pathtraced_entropy.py, 400 texels), the entropy ranks texels alike at Spearman
-    # 0.44 with "ggx" and 0.18 with "gaussian" (the path-traced spectra agree with themselves at 0.97).
-    lobe: Literal["ggx", "gaussian"] = "ggx"
+    # Calibrated mode: the lobe a hypothesis (alpha, k) is. "gaussian": the paper's
+    # exp(-(alpha l)^2), albedo 1 (k absorbs Fresnel and masking); "ggx": the GGX lobe's response
+    # to each degree (estimate.ggx_lobe_gains) times its albedo at the texel's mean view angle
+    # (split-sum, masking and Fresnel; uncertainty.hypothesis_albedo). "ggx" is the physics: with
+    # path-traced spectra of the same hypotheses scored as ours (benchmarks/pathtraced_entropy.py,
+    # 400 texels; they agree with themselves at 0.98) it ranks texels alike at Spearman 0.50
+    # against 0.18 for "gaussian", and the sample-domain brute force at 0.40 against 0.20. But it
+    # ranks the estimate's roughness errors a little worse (benchmarks/entropy_variants.py: 0.25
+    # against 0.28 on the bunny, 0.29 against 0.31 on the sphere, 0.02 against 0.09 on
+    # bunny_sunset, 0.17 against 0.12 on sphere_city, 0.13 both on sphere_studio) and raises the
+    # entropy (mean 0.48-0.53 against 0.38-0.44 there; 0.58-0.68 on 20-view fits), for which the
+    # applications' thresholds (ambiguous_entropy, ShareConfig) were not tuned: with it, sharing
+    # found no anchor on two of applications.py's four scenes and the flags masked 13-38 % of
+    # their texels instead of 2-4 %. So "gaussian" stays the default.
+    lobe: Literal["gaussian", "ggx"] = "gaussian"
     # Calibrated mode: add the best hypothesis's misfit per residual degree of freedom to the noise
     # variance (see freqbrdf.uncertainty); off reproduces a fixed noise_level.
     residual_noise: bool = True
