@@ -21,8 +21,8 @@ and the candidate's expected entropy at the texel is sum_psi P(psi) H(psi), P th
 posterior (of its minimum-entropy channel; the hypothesis is applied to all three channels, whose
 minimum entropy is the map, as in `uncertainty`). The candidate's score is the mean over texels
 (texels it does not see keep their entropy, texels nobody has seen count with entropy 1); the
-lowest wins. Only the candidates farthest from the
-views taken or picked so far compete (``spread``, SPREAD): the pure criterion clusters views.
+lowest wins. Only the candidates farthest from the views taken or picked so far compete
+(``spread``, SPREAD): the pure criterion clusters views.
 
 Incremental. Per texel we keep the normal equations of the fit, G = sum w^2 y y^T, the right-hand
 sides b = sum w^2 y f (light RGB, observed RGB, the constant 1) and sum w^2, which sets the

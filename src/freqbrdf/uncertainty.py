@@ -19,10 +19,12 @@ dark texel (S_out(0) ~ 0) gets a flat likelihood, i.e. it is called uncertain.
 - Residuals are taken on amplitudes sqrt(S(l)), not on powers. Noise on a fitted coefficient is
   additive, so on an amplitude it is roughly constant, whereas on a power it shrinks to second
   order near zero: power residuals make a black texel unable to rule out a specular lobe that
-  reflects 14 % of the light. The model is sqrt(S_psi(l)) = k K_sigma(alpha, l) sqrt(S_refl(l)),
-  with K_sigma = ``brdf.brdf_kernel(alpha, l*, sigma)``, the band-limit compensated kernel. The
-  specular DC may not exceed the observed DC: a rough lobe puts nearly all its energy in l = 0,
-  which the degrees l >= 1 alone cannot rule out on a dark texel.
+  reflects 14 % of the light. The model is sqrt(S_psi(l)) = k A F(alpha, l) sqrt(S_refl(l)),
+  F = `hypothesis_filter` divided by the band-limit blur (``lobe`` "gaussian", the default: the
+  paper's K_sigma = ``brdf.brdf_kernel(alpha, l*, sigma)``, A = 1; "ggx": the GGX lobe's gains and
+  A its albedo at the texel's mean view cosine, `hypothesis_albedo`). The specular DC
+  k A sqrt(S_refl(0)) may not exceed the observed DC: a rough lobe puts nearly all its energy in
+  l = 0, which the degrees l >= 1 alone cannot rule out on a dark texel.
 - ``phase_aware`` compares the coefficients themselves, o_lm = k K m_lm for l >= 1 (m the
   mirrored light's coefficients): the misfit sum_l S_out - 2 k K X(l) + k^2 K^2 S_refl needs the
   cross spectrum X(l) = sum_m o_lm m_lm (`cross_spectrum`) where amplitudes take the in-phase
@@ -59,24 +61,36 @@ UncertaintyConfig.anisotropic_lobes says): per hypothesis, the radiance a metal 
 and roughness sqrt(alpha) reflects at each observed view (split-sum albedo, the prefiltered and
 environment light), the best constant diffuse part, and the misfit of the samples; the noise
 model of the calibrated mode in radiance units. It is what benchmarks/pathtraced_entropy.py
-computes with a path tracer, and agrees with it: Spearman 0.83 [0.78, 0.87] (95 % bootstrap
+computes with a path tracer, and agrees with it: Spearman 0.84 [0.79, 0.88] (95 % bootstrap
 interval, 400 texels) against the pooled rendering of two seeds, which agree with each other at
-0.92; isotropic lobes 0.80, the calibrated mode 0.20, the paper's recipe 0.16. It costs R probes
-of the estimator's search per texel: seconds, not milliseconds (7 s for the 256k texels there).
+0.90; isotropic lobes 0.82, the calibrated mode 0.20 (its "ggx" lobe 0.39), the paper's recipe
+0.17. It costs R probes of the estimator's search per texel: seconds, not milliseconds (5-7 s for
+the 256k texels there).
 Both the brute force and this mode find the smooth-gradient ("badly lit") region of
 entropy_scenes.py about as certain as the sharply lit one (brute force 0.15 and 0.17, this mode
 0.16 and 0.18): the view dependence of Fresnel and masking, which a spectrum of the mirrored light
 leaves out, pins the roughness down there; the paper's recipe calls it uncertain (0.78 against
 0.20).
 
+Why the spectra disagree with the path tracer, measured by benchmarks/pathtraced_entropy.py's
+"spectral" brute force (the path-traced radiance of each hypothesis fitted to SH at the texel's
+samples and scored exactly as the calibrated mode scores its model; scoring the model's own
+spectra that way reproduces this module's entropy to 1e-6): it agrees with itself at 0.98 and
+with the calibrated mode at 0.17 only, so the model of a hypothesis's spectrum is what is wrong,
+not the scoring. The GGX lobe's gains and albedo ("ggx") take it to 0.46; the rest is what one
+zonal filter per texel cannot hold (the albedo's and the lobe's change across the texel's views,
+the sparse samples' aliasing), and to 0.68 without the residual term in the noise. Neither
+brute force ranks the estimate's roughness errors (0.09 and 0.18 on those texels; the roughness
+std 0.39): agreeing with the path tracer and ranking the errors are different goals.
+
 Flags (bit field, uint8 per texel) say why a texel should not be trusted; see FLAG_*.
 
 The entropy scores the hypotheses against the spectra, not the estimate, and ranks the `global`
 estimate's per-texel roughness errors poorly (Spearman 0.28 on the Mitsuba bunny, 0.31 on the
-sphere of entropy_scenes.py; the angular mode 0.28 and 0.21). `roughness_std` is
-the posterior spread of the estimate itself (UncertaintyConfig.roughness_window, loss_curvature):
-0.56 and 0.48, measured in benchmarks/entropy_variants.py (session-10 estimator, with the
-neighbour vote); with the scatter between the even and the odd views' estimates too
+sphere of entropy_scenes.py; the "ggx" lobe 0.25 and 0.29; the angular mode 0.28 and 0.21).
+`roughness_std` is the posterior spread of the estimate itself (UncertaintyConfig.roughness_window,
+loss_curvature): 0.56 and 0.48, measured in benchmarks/entropy_variants.py (session-10 estimator,
+with the neighbour vote); with the scatter between the even and the odd views' estimates too
 (UncertaintyConfig.split_half, `fit --split-half`, seconds) 0.57 and 0.51.
 """
 
@@ -714,8 +728,8 @@ def _moment_entropy_kernel(moments, light_mean_square, n_samples, alphas, specul
 
 @numba.njit(parallel=True, cache=True)
 def _grid_entropy_kernel(
-    light, observed, cross, scale, row_filter, view_cos, albedo_table, alphas, amplitude, use_cross, per_light_power, merge_zero,
-    residual_dof, want_likelihood, n_threads,
+    light, observed, cross, scale, row_filter, view_cos, albedo_table, alphas, amplitude, use_cross, per_light_power,
+    merge_zero, residual_dof, want_likelihood, n_threads,
     entropy, channel, best_alpha, best_ks, likelihood,
 ):
     """Fused grid misfit, likelihood and entropy per texel; the minimum-entropy channel wins.
@@ -728,8 +742,8 @@ def _grid_entropy_kernel(
     for amplitudes, kernel^2 for powers); view_cos (N,) and albedo_table (R, M): each row's
     amplitudes, DC included, are scaled by its lobe's albedo at the texel's view cosine, linear
     between M nodes uniform in [0, 1] (amplitude mode only; (0,) and (0, 0) for none); alphas (R,)
-    the rows' alpha. amplitude: compare sqrt(S),
-    grid values t_j = k_j, and bound the specular DC by the observed one; otherwise powers and
+    the rows' alpha. amplitude: compare sqrt(S), grid values t_j = k_j, and bound the specular DC
+    (k times the row's albedo) by the observed one; otherwise powers and
     t_j = k_j^2. merge_zero: the k = 0 column is one hypothesis; residual_dof > 0: the noise
     variance 1 / (2 scale) grows by the best cell's misfit / residual_dof (0: off); n_threads:
     numba's thread count (read outside, which keeps the kernel cacheable). Outputs per texel:
@@ -755,7 +769,9 @@ def _grid_entropy_kernel(
     log by _log. Measured on bench_entropy's data (one thread, R = 2, i.e. mostly the fixed per-texel
     cost; old and new interleaved under load): reading the inputs once in memory order instead of per
     channel, one division per row instead of two, a vectorised log, a skip test that vectorises and
-    64 lanes took 62 -> 36 ms (R = 8: 117 -> 73 ms).
+    64 lanes took 62 -> 36 ms (R = 8: 117 -> 73 ms). The cell loop writes the likelihood's weights
+    in place instead of into a row that was then copied: with the likelihood, T = 512, 2 threads,
+    R = 8 33 -> 27.5 ms, R = 32 290 -> 220 ms (three interleaved runs each).
     """
     n_blocks = (light.shape[0] + _LANES - 1) // _LANES
     n_workers = _smaller(n_threads, n_blocks)  # worker w takes blocks w, w + n_workers, ...
@@ -763,14 +779,15 @@ def _grid_entropy_kernel(
         # np.int64: the loop index is unsigned in numba's parallel code and signed when typed: one
         # signature, not two (each compiles the whole kernel).
         _grid_entropy_worker(np.int64(worker), n_workers, light, observed, cross, scale, row_filter, view_cos,
-                             albedo_table, alphas, amplitude, use_cross, per_light_power, merge_zero, residual_dof, want_likelihood,
-                             entropy, channel, best_alpha, best_ks, likelihood)
+                             albedo_table, alphas, amplitude, use_cross, per_light_power, merge_zero, residual_dof,
+                             want_likelihood, entropy, channel, best_alpha, best_ks, likelihood)
 
 
 @numba.njit(cache=True, error_model="numpy", fastmath={"contract", "reassoc", "nsz", "arcp"})
 def _grid_entropy_worker(
     worker, n_workers, light, observed, cross, scale, row_filter, view_cos, albedo_table, alphas, amplitude,
-    use_cross, per_light_power, merge_zero, residual_dof, want_likelihood, entropy, channel, best_alpha, best_ks, likelihood,
+    use_cross, per_light_power, merge_zero, residual_dof, want_likelihood, entropy, channel, best_alpha, best_ks,
+    likelihood,
 ):
     """`_grid_entropy_kernel`'s work for the blocks of texels worker, worker + n_workers, ...: a
     function of its own, so that numba's parallel passes see a small loop (on the whole body they
@@ -813,8 +830,9 @@ def _grid_entropy_worker(
     # observed DC, both times sqrt(1 / T) (0 outside amplitude mode: no DC bound)
     cell = np.zeros((6, _LANES), np.float32)
     cell_sums = np.empty((2, _LANES), np.float32)  # sum w, sum w d over the row's cells
-    row_weights = np.empty((resolution, _LANES), np.float32)
-    weights = np.empty((n_channels, stored, stored, _LANES), np.float32)
+    # The cells' weights [channel, row, column, lane], written in place by the cell loop; without
+    # the likelihood one row per channel is kept as scratch.
+    weights = np.empty((n_channels, stored, resolution, _LANES), np.float32)
     channel_sums = np.empty((n_channels, 2, _LANES))  # Z and the k = 0 weight per channel
     choice = np.empty((4, _LANES))  # lowest entropy, its channel, arg-max row and column
     light_power = np.ones(_LANES)
@@ -963,6 +981,7 @@ def _grid_entropy_worker(
                         root_temperature = math.sqrt(temperature)
                         cell[4, k] = rows[i, 4, k] * root_temperature
                         cell[5, k] = observed_dc[k] * root_temperature
+                row_weights = weights[c, i if want_likelihood else 0]
                 if within == 0.0:  # every cell of this row is beyond CUTOFF in every lane
                     cell_sums[0] = last * clamped_weight
                     cell_sums[1] = last * clamped_weight * np.float32(CUTOFF)
@@ -983,8 +1002,6 @@ def _grid_entropy_worker(
                 for k in range(_LANES):
                     sums[0, k] += cell_sums[0, k]
                     sums[1, k] += cell_sums[1, k]
-                if want_likelihood:
-                    weights[c, i] = row_weights
             # Entropy; the channel with the lowest one wins (earlier channels win ties).
             for k in range(_LANES):
                 total = sums[0, k]
