@@ -108,6 +108,15 @@ def test_uncertainty_command(run_cli, tiny_capture, tmp_path, monkeypatch, capsy
     other = tmp_path / "other"
     assert run_cli("uncertainty", tiny_capture, "--out", other, "--entropy", "sharpest") == 2
     assert "unknown entropy mode" in capsys.readouterr().err and not other.exists()
+    # The GGX lobe: recorded in the summary, and a different map; a lobe that does not exist.
+    assert summary["uncertainty"]["lobe"] == "gaussian" and angular["uncertainty"]["lobe"] is None
+    assert run_cli("uncertainty", tiny_capture, "--out", out, "--texture-res", 32, "--entropy-lobe", "ggx",
+                   "--json") == 0
+    ggx = json.loads(capsys.readouterr().out)
+    assert ggx["uncertainty"]["lobe"] == "ggx" and ggx["settings"]["uncertainty"]["lobe"] == "ggx"
+    assert ggx["uncertainty"]["entropy_mean"] != summary["uncertainty"]["entropy_mean"]
+    assert run_cli("uncertainty", tiny_capture, "--out", other, "--entropy-lobe", "phong") == 2
+    assert "unknown entropy lobe" in capsys.readouterr().err and not other.exists()
 
     # At T = 128 both commands work on the 64 x 64 texels the 40-pixel images resolve, and their
     # entropy maps agree on the atlas.

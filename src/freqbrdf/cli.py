@@ -197,7 +197,8 @@ def observe(
 
 def _config(preset: str, texture_res: int | None = None, lmax: int | None = None, *,
             estimator: str | None = None, model: str | None = None,
-            environment_occlusion: bool | None = None, entropy: str | None = None):
+            environment_occlusion: bool | None = None, entropy: str | None = None,
+            entropy_lobe: str | None = None):
     """The preset's Config with the options the user gave (None: keep the preset's value)."""
     import dataclasses
 
@@ -219,7 +220,11 @@ def _config(preset: str, texture_res: int | None = None, lmax: int | None = None
         estimate_changes["forward_model"] = model
     if entropy not in (None, *ENTROPY_MODES):
         raise typer.BadParameter(f"unknown entropy mode {entropy!r}; choose {', '.join(ENTROPY_MODES)}")
-    uncertainty_settings = dataclasses.replace(config.uncertainty, **({} if entropy is None else {"mode": entropy}))
+    if entropy_lobe not in (None, *ENTROPY_LOBES):
+        raise typer.BadParameter(f"unknown entropy lobe {entropy_lobe!r}; choose {', '.join(ENTROPY_LOBES)}")
+    uncertainty_changes = {"mode": entropy, "lobe": entropy_lobe}
+    uncertainty_settings = dataclasses.replace(
+        config.uncertainty, **{name: value for name, value in uncertainty_changes.items() if value is not None})
     return config.replace(texels=texels, fit=fit_settings, observe=observe_settings,
                           estimate=dataclasses.replace(config.estimate, **estimate_changes),
                           uncertainty=uncertainty_settings)
@@ -238,6 +243,10 @@ def _estimation_res(value: str, texture_res: int):
 ENTROPY_MODES = ("calibrated", "paper", "angular")
 ENTROPY_HELP = ("Entropy mode: calibrated (spectra, milliseconds), paper (the published recipe) or angular "
                 "(the estimator's model on the samples, seconds; agrees with a path tracer). Default: the preset's.")
+ENTROPY_LOBES = ("gaussian", "ggx")
+ENTROPY_LOBE_HELP = ("What a hypothesis is in the calibrated entropy: gaussian (the paper's exp(-(alpha l)^2), the "
+                     "default) or ggx (the GGX lobe with its albedo at the texel's view angle: 2.5x closer to a path "
+                     "tracer, but a higher entropy that the flags' and sharing's thresholds were not tuned for).")
 
 
 def _print_json(document: dict) -> None:
@@ -258,6 +267,7 @@ def fit(
                                "robust pass, a coarser roughness grid: smoother maps, less time); or paper (the "
                                "prototype's hyper-parameters)."),
     entropy: str = typer.Option(None, help=ENTROPY_HELP),
+    entropy_lobe: str = typer.Option(None, help=ENTROPY_LOBE_HELP),
     share: bool = typer.Option(False, "--share", help="Pull uncertain texels towards affine confident anchors."),
     anisotropic_lobes: bool = typer.Option(
         False, "--anisotropic-lobes", help="Read a smooth lobe's light as the anisotropic lobe it is at oblique "
@@ -294,7 +304,8 @@ def fit(
         raise typer.BadParameter(f"unknown estimator {estimator!r}; choose global or paper")
     if model not in (None, "angular", "sh_coeffs", "spectrum"):
         raise typer.BadParameter(f"unknown model {model!r}; choose angular, sh_coeffs or spectrum")
-    config = _config(preset, texture_res, lmax, estimator=estimator, model=model, entropy=entropy)
+    config = _config(preset, texture_res, lmax, estimator=estimator, model=model, entropy=entropy,
+                     entropy_lobe=entropy_lobe)
     if share:
         config = config.replace(share=dataclasses.replace(config.share, enabled=True))
     if split_half:
@@ -340,6 +351,7 @@ def uncertainty(
     lmax: int = typer.Option(None, min=0, help="Degree l* of the per-texel SH fits (default 5)."),
     preset: str = typer.Option("default", help="default (calibrated entropy), fast (as default here) or paper."),
     entropy: str = typer.Option(None, help=ENTROPY_HELP),
+    entropy_lobe: str = typer.Option(None, help=ENTROPY_LOBE_HELP),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars or messages."),
     json_output: bool = typer.Option(False, "--json", help="Print the summary as JSON to stdout."),
 ) -> None:
@@ -354,7 +366,7 @@ def uncertainty(
     from freqbrdf.progress import Reporter
     from freqbrdf.uncertainty import entropy_map, summary as uncertainty_summary
 
-    config = _config(preset, texture_res, lmax, entropy=entropy)
+    config = _config(preset, texture_res, lmax, entropy=entropy, entropy_lobe=entropy_lobe)
     loaded = load(capture)
     pipeline.check_output_folder(out, {"the capture": loaded.root.resolve()})
     start = time.perf_counter()

@@ -177,6 +177,7 @@ class Uncertainty:
     # (N,) float32 posterior std of the estimated roughness (`roughness_std`); NaN where not
     # estimated; None when not computed (it needs the estimate).
     roughness_std: np.ndarray | None = None
+    lobe: str | None = None  # calibrated mode's hypothesis lobe (UncertaintyConfig.lobe); None in other modes
 
     def to_texture(self, observations: Observations, quantity: str = "entropy", fill: float = 0.0) -> np.ndarray:
         """Scatter one per-texel field (e.g. "entropy", "flags", "best_alpha") into a (T, T, ...) texture."""
@@ -482,7 +483,8 @@ def _finish(unobserved, entropy, channel, best_alpha, best_ks, likelihood, n_sam
     flags[(entropy > config.ambiguous_entropy) & ~unobserved] |= FLAG_AMBIGUOUS
 
     return Uncertainty(entropy=entropy, flags=flags, likelihood=likelihood, best_alpha=best_alpha, best_ks=best_ks,
-                       channel=channel, mode=config.mode, grid=grid)
+                       channel=channel, mode=config.mode, grid=grid,
+                       lobe=config.lobe if config.mode == "calibrated" else None)
 
 
 # Texels per block of `entropy_angular`: bounds the (block, R, 3, 8) moments.
@@ -543,6 +545,7 @@ def summary(uncertainty: Uncertainty) -> dict:
                   "roughness_std_median": float(np.median(estimated)) if len(estimated) else float("nan")}
     return {
         "mode": uncertainty.mode,
+        "lobe": uncertainty.lobe,
         "grid_res": uncertainty.grid.resolution,
         "texels": n_texels,
         "observed_texels": int(observed.sum()),
