@@ -549,6 +549,51 @@ def test_split_half_spread_is_zero_on_exact_data_and_ranks_the_error_under_noise
     assert np.all(spread[~both] == np.float32(np.sqrt(1 / 12)))
 
 
+def test_split_half_on_every_other_row_and_column_is_spread_by_the_window():
+    """With split_half_stride 2, only the estimated texels of even rows and columns are estimated
+    twice more, and each texel's term is the mean of their scatters in its window."""
+    import dataclasses
+
+    from test_estimate import random_truth, synthetic_observations
+
+    from freqbrdf.config import Config
+    from freqbrdf.estimate import estimate
+
+    truth = random_truth(196, seed=3)  # a 14 x 14 texture
+    clean = synthetic_observations(truth, seed=4, model="split_sum", environment_light=True, prefiltered=True)
+    rng = np.random.default_rng(5)
+    rms = np.sqrt(np.mean(np.square(clean.observed), axis=(1, 2), keepdims=True))
+    observations = dataclasses.replace(
+        clean, observed=(clean.observed + 0.05 * rms * rng.standard_normal(clean.observed.shape)).astype(np.float32))
+    settings = UncertaintyConfig(roughness_window=3, loss_curvature=False, split_half=True, split_half_stride=2)
+    config = dataclasses.replace(Config(), uncertainty=settings)
+    result = estimate(observations, config)
+    spread = unc.roughness_std(observations, result, config)
+
+    roughness = np.where(result.estimated, result.roughness, np.nan)
+    rows, columns = np.divmod(observations.texel_index, observations.texture_res)
+    chosen = np.flatnonzero(np.isfinite(roughness) & (rows % 2 == 0) & (columns % 2 == 0))
+    assert 0.2 < len(chosen) / observations.n_texels < 0.3
+    part = observations.select(chosen)
+    halves = [estimate(part.with_views(np.arange(observations.n_views) % 2 == parity, config), config).roughness
+              for parity in (0, 1)]
+    scatter = np.nan_to_num(np.square(halves[0] - halves[1]) / 4.0, nan=1 / 12)
+    near = ((np.abs(rows[:, None] - rows[chosen][None, :]) <= 1)
+            & (np.abs(columns[:, None] - columns[chosen][None, :]) <= 1))
+    expected = (near * scatter[None, :]).sum(axis=1) / near.sum(axis=1)  # every 3 x 3 window holds one
+    neighbour = unc._neighbour_variance(observations, roughness, 3)
+    estimated = np.isfinite(roughness)
+    np.testing.assert_allclose(np.square(spread[estimated].astype(np.float64)) - neighbour[estimated],
+                               expected[estimated], rtol=1e-4, atol=1e-8)
+    assert np.all(np.isnan(spread[~estimated]))
+    # A stride of 1 (or a window no wider than the stride) re-estimates every texel.
+    every = dataclasses.replace(config, uncertainty=dataclasses.replace(settings, split_half_stride=1))
+    assert not np.allclose(unc.roughness_std(observations, result, every), spread, equal_nan=True)
+    with pytest.raises(ValueError, match="split_half_stride"):
+        unc.roughness_std(observations, result, dataclasses.replace(
+            config, uncertainty=dataclasses.replace(settings, split_half_stride=0)))
+
+
 def _direct_angular_entropy(observations, grid, noise_level):
     """The angular mode written out with numpy, per texel and channel, as the path-traced brute
     force (benchmarks/pathtraced_entropy.py) scores its renderings: the hypotheses' radiance from the

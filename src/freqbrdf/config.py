@@ -141,6 +141,10 @@ class UncertaintyConfig:
     #   observation refitted) cost 1.2-1.8x the observe + estimate time again (7.6-15.6 s there),
     #   so it is off by default (fit --split-half).
     split_half: bool = False
+    # split_half re-estimates only the texels of every this many-th texture row and column (when
+    # roughness_window is wider): the window average spreads their scatter to the rest, at about a
+    # quarter of the cost (1: every texel; uncertainty._split_half_variance has the figures).
+    split_half_stride: int = 2
     # Angular mode: score the hypotheses with anisotropic lobes (EstimateConfig.anisotropic_lobes)
     # whatever the estimate's setting: the entropy is about what the light can tell, and the
     # brute force it should agree with is the path tracer's lobe. Measured

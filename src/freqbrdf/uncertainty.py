@@ -271,19 +271,34 @@ def _split_half_variance(observations: Observations, roughness: np.ndarray, conf
     (r_even - r_odd)^2 / 4 estimates the whole's, whatever makes the estimate unstable (noise,
     interreflection, a model that fits two roughness values). The prior variance where a half
     leaves the texel unestimated. One difference is a one-sample estimate, so it is averaged over
-    the estimated texels of the roughness_window square (when that is > 1)."""
+    the roughness_window square (when that is > 1). Since it is averaged, only the estimated texels
+    of every split_half_stride-th row and column are estimated twice more (when the window is wider
+    than the stride): stride 2 took 2.7 s instead of 12.2 s on entropy_scenes.py's sphere, for a
+    Spearman rho of 0.513 instead of 0.515 (bunny: 1.6 s, 0.570 instead of 7.2 s, 0.572). A window
+    holding none of them (0.01 % of the texels there) gets the prior variance."""
+    settings = config.uncertainty
+    window, stride = settings.roughness_window, settings.split_half_stride
+    if stride < 1:
+        raise ValueError(f"split_half_stride must be >= 1, got {stride}")
+    stride = stride if window > stride else 1
+    rows, columns = np.divmod(observations.texel_index, observations.texture_res)
+    chosen = np.flatnonzero(np.isfinite(roughness) & (rows % stride == 0) & (columns % stride == 0))
+    # Every texel: no copy of the samples (0.74 GB at T = 512, 64 views).
+    part = observations if len(chosen) == observations.n_texels else observations.select(chosen)
     halves = []
     for parity in (0, 1):
         keep = np.arange(observations.n_views) % 2 == parity
-        half = estimate_materials(observations.with_views(keep, config), config)
+        half = estimate_materials(part.with_views(keep, config), config)
         halves.append(np.where(half.estimated, half.roughness, np.nan))
-    variance = np.square(halves[0] - halves[1]) / 4.0
-    variance = np.where(np.isfinite(variance), variance, PRIOR_ROUGHNESS_VARIANCE)
-    window = config.uncertainty.roughness_window
+    scatter = np.square(halves[0] - halves[1]) / 4.0
+    variance = np.full(observations.n_texels, PRIOR_ROUGHNESS_VARIANCE)
+    variance[chosen] = np.where(np.isfinite(scatter), scatter, PRIOR_ROUGHNESS_VARIANCE)
     if window <= 1:
         return variance
-    counts, sums = _window_sums(observations, np.isfinite(roughness), window, variance)
-    return sums / np.maximum(counts, 1.0)  # a texel not estimated (count 0) gets NaN in roughness_std
+    known = np.zeros(observations.n_texels, dtype=bool)
+    known[chosen] = True
+    counts, sums = _window_sums(observations, known, window, variance)
+    return np.where(counts > 0.5, sums / np.maximum(counts, 1.0), PRIOR_ROUGHNESS_VARIANCE)
 
 
 def _loss_curvature_variance(observations: Observations, estimate: MaterialEstimate, roughness: np.ndarray,
