@@ -286,7 +286,7 @@ def fit(
         "paper: full)."),
     split_half: bool = typer.Option(
         False, "--split-half", help="Add to roughness_std the scatter between two more estimates, from the even "
-        "and from the odd views alone: ranks the roughness errors better, but costs 1.2-1.8x the time of "
+        "and from the odd views alone: ranks the roughness errors better, but costs 0.3-0.4x the time of "
         "observing and estimating again."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars or messages."),
     json_output: bool = typer.Option(False, "--json", help="Print summary.json to stdout."),

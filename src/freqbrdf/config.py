@@ -136,10 +136,11 @@ class UncertaintyConfig:
     #   odd-numbered views alone ((r_even - r_odd)^2 / 4, averaged over roughness_window): an
     #   empirical variance of the estimator, whatever makes it unstable. Alone (no window): 0.38 /
     #   0.27 and 0.33 / 0.26. It adds what the two terms above miss: with all three, rho / AURG
-    #   0.57 / 0.52 (bunny), 0.51 / 0.47 (sphere; 0.48 / 0.43 without it), and 0.34, 0.40, 0.49 on
-    #   the photo-textured three (0.30, 0.37, 0.47 without). But the two more estimates (each half
-    #   observation refitted) cost 1.2-1.8x the observe + estimate time again (7.6-15.6 s there),
-    #   so it is off by default (fit --split-half).
+    #   0.57 / 0.52 (bunny), 0.51 / 0.47 (sphere; 0.48 / 0.43 without it), and 0.34, 0.40, 0.48 on
+    #   the photo-textured three (0.30, 0.37, 0.47 without). The two more estimates (each half
+    #   observation refitted) on every other row and column cost 0.3-0.4x the observe + estimate
+    #   time again (2.0-3.9 s there; on every texel 1.2-1.8x, 7.6-15.6 s), which would take the
+    #   default fit below 10x Mitsuba's speed (issue #5), so it is off by default (fit --split-half).
     split_half: bool = False
     # split_half re-estimates only the texels of every this many-th texture row and column (when
     # roughness_window is wider): the window average spreads their scatter to the rest, at about a
