@@ -33,7 +33,8 @@ Carlo estimate: it is rendered twice with independent seeds, and the rank correl
 brute-force entropies (its self-agreement) is the ceiling for any agreement with either. The
 reference is their pooled rendering (the mean radiance of both, 2 x SPP paths per ray), whose noise
 is half the variance of either; every agreement is given with a 95 % bootstrap interval over the
-texels. Saves benchmarks/results/pathtraced_entropy.json.
+texels. Saves benchmarks/results/pathtraced_entropy.json. The renderings are kept in
+benchmarks/.cache/ (keyed by the rays, SPP and seed; delete them to render again).
 """
 
 from __future__ import annotations
@@ -129,17 +130,17 @@ def brute_force_entropy(observed, mirrored, weight, radiance) -> np.ndarray:
     return float(min(entropies))
 
 
-def hypothesis_amplitudes(observations, chosen, texel_of, view_of, radiance) -> np.ndarray:
+def hypothesis_amplitudes(observations, chosen, texel_of, view_of, radiance, fit_settings) -> np.ndarray:
     """(M, R, R, 3, l*+1) amplitudes sqrt(S(l)) of the path-traced hypotheses' radiance, fitted to
     SH at each chosen texel's samples exactly as `observe` fits the observed radiance (its
-    directions, weights, degree and regulariser): the spectra our fast model predicts analytically."""
+    directions, weights, degree and ``fit_settings``' regulariser): the spectra our fast model
+    predicts analytically."""
     resolution = radiance.shape[0]
     n_chosen = len(chosen)
     values = np.zeros((n_chosen, observations.n_views, resolution * resolution * 3))
     values[texel_of, view_of] = radiance.transpose(2, 0, 1, 3).reshape(len(texel_of), -1)
-    settings = Config().fit
-    fitted = sh.fit_sh(observations.view_direction[chosen], observations.weight[chosen], values,
-                       observations.lmax, settings.reg_lambda, settings.regulariser, settings.scale_lambda_with_weight)
+    fitted = sh.fit_sh(observations.view_direction[chosen], observations.weight[chosen], values, observations.lmax,
+                       fit_settings.reg_lambda, fit_settings.regulariser, fit_settings.scale_lambda_with_weight)
     spectrum = sh.power_spectrum(fitted.coeffs)  # (M, R R 3, l*+1)
     return np.sqrt(np.maximum(spectrum, 0.0)).reshape(n_chosen, resolution, resolution, 3, -1)
 
@@ -259,7 +260,8 @@ def main() -> None:
     brute, brute_other_seed, pooled = brutes
     # The spectral brute force: the same scoring as ours, the path-traced spectra for the analytic ones.
     spectral, spectral_other_seed, spectral_pooled = (
-        spectral_entropy(observations, chosen, hypothesis_amplitudes(observations, chosen, texel_of, view_of, radiance),
+        spectral_entropy(observations, chosen, hypothesis_amplitudes(observations, chosen, texel_of, view_of,
+                                                                     radiance, config.fit),
                          config.uncertainty) for radiance in radiances)
     # Our fast entropies, recomputed by the direct scoring from their analytic amplitudes: the check.
     scoring_error = {name: float(np.abs(spectral_entropy(observations, chosen, analytic_amplitudes(
