@@ -176,10 +176,29 @@ def eval_sh(directions: np.ndarray, lmax: int) -> np.ndarray:
 
 
 def power_spectrum(coeffs: np.ndarray) -> np.ndarray:
-    """S(l) = sum_m c_lm^2 (appendix eq. 17, no normalisation): (..., K) -> (..., lmax + 1)."""
+    """S(l) = sum_m c_lm^2 (appendix eq. 17, no normalisation): (..., K) -> (..., lmax + 1), in the
+    coefficients' float type (float64 for any other). One pass in numba: numpy's square and reduceat
+    took 44 ms for a fit's (256k, 3, 36) float32 coefficients, this 7 ms (26 ms for an Observations'
+    strided view, which is copied first: reading it in place took longer)."""
     coeffs = np.asarray(coeffs)
     lmax = lmax_of(coeffs.shape[-1])
-    return np.add.reduceat(np.square(coeffs), np.arange(lmax + 1) ** 2, axis=-1)
+    if coeffs.dtype not in (np.float32, np.float64):
+        coeffs = coeffs.astype(np.float64)
+    flat = np.ascontiguousarray(coeffs).reshape(-1, coeffs.shape[-1])
+    out = np.empty((flat.shape[0], lmax + 1), dtype=coeffs.dtype)
+    _power_spectrum_kernel(flat, out)
+    return out.reshape(coeffs.shape[:-1] + (lmax + 1,))
+
+
+@numba.njit(parallel=True, cache=True)
+def _power_spectrum_kernel(coeffs, out):  # (M, K), out (M, l*+1); summed in float64, in order
+    for row in numba.prange(coeffs.shape[0]):
+        for degree in range(out.shape[1]):
+            total = 0.0
+            for index in range(degree * degree, (degree + 1) * (degree + 1)):
+                value = np.float64(coeffs[row, index])
+                total += value * value
+            out[row, degree] = total
 
 
 def gaussian_lowpass(coeffs: np.ndarray, sigma: float) -> np.ndarray:

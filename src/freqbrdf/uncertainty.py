@@ -205,7 +205,7 @@ def entropy_map(
         cross_spectrum=(cross_spectrum(observations.observed_coeffs, observations.mirrored_coeffs)
                         if config.phase_aware else None),
         n_samples=observations.n_samples,
-        view_cos=view_cosine(observations),
+        view_cos=view_cosine(observations) if config.lobe == "ggx" else None,  # only the GGX lobe reads it
         sigma=observations.sigma,
         alpha_bound=observations.alpha_bound,
         fit_status=observations.fit_status,
