@@ -70,9 +70,9 @@ class UncertaintyConfig:
     # "angular": the same grid scored in the sample domain with the global estimator's own model
     # (uncertainty.entropy_angular): seconds instead of milliseconds (7 s for the 256k texels of
     # entropy_scenes.py's sphere), but it agrees with the path-traced brute force over the same grid
-    # (benchmarks/pathtraced_entropy.py, 400 texels: Spearman 0.84 [0.79, 0.88] against the pooled
-    # rendering of two seeds that agree with each other at 0.90) where the spectra do not
-    # (calibrated 0.20, with lobe "ggx" 0.39, paper 0.17). Capture guidance (which predicts spectra)
+    # (benchmarks/pathtraced_entropy.py, 400 texels: Spearman 0.83 [0.78, 0.87] against the pooled
+    # rendering of two seeds that agree with each other at 0.91) where the spectra do not
+    # (calibrated 0.19, with lobe "ggx" 0.38, paper 0.17). Capture guidance (which predicts spectra)
     # needs "calibrated" or "paper".
     mode: Literal["calibrated", "paper", "angular"] = "calibrated"
     grid_res: int = 8  # R: R x R hypotheses (alpha_i = (i/(R-1))^2, k_j = j/(R-1))
@@ -90,8 +90,8 @@ class UncertaintyConfig:
     # to each degree (estimate.ggx_lobe_gains) times its albedo at the texel's mean view angle
     # (split-sum, masking and Fresnel; uncertainty.hypothesis_albedo). "ggx" is the physics: with
     # path-traced spectra of the same hypotheses scored as ours (benchmarks/pathtraced_entropy.py,
-    # 400 texels; they agree with themselves at 0.98) it ranks texels alike at Spearman 0.46
-    # against 0.17 for "gaussian", and the sample-domain brute force at 0.39 against 0.20. But it
+    # 400 texels; they agree with themselves at 0.98) it ranks texels alike at Spearman 0.45
+    # against 0.17 for "gaussian", and the sample-domain brute force at 0.38 against 0.19. But it
     # ranks the estimate's roughness errors a little worse (benchmarks/entropy_variants.py: 0.25
     # against 0.28 on the bunny, 0.29 against 0.31 on the sphere, 0.02 against 0.09 on
     # bunny_sunset, 0.17 against 0.12 on sphere_city, 0.13 both on sphere_studio) and raises the

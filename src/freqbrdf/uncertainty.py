@@ -61,9 +61,9 @@ UncertaintyConfig.anisotropic_lobes says): per hypothesis, the radiance a metal 
 and roughness sqrt(alpha) reflects at each observed view (split-sum albedo, the prefiltered and
 environment light), the best constant diffuse part, and the misfit of the samples; the noise
 model of the calibrated mode in radiance units. It is what benchmarks/pathtraced_entropy.py
-computes with a path tracer, and agrees with it: Spearman 0.84 [0.79, 0.88] (95 % bootstrap
+computes with a path tracer, and agrees with it: Spearman 0.83 [0.78, 0.87] (95 % bootstrap
 interval, 400 texels) against the pooled rendering of two seeds, which agree with each other at
-0.90; isotropic lobes 0.82, the calibrated mode 0.20 (its "ggx" lobe 0.39), the paper's recipe
+0.91; isotropic lobes 0.82, the calibrated mode 0.19 (its "ggx" lobe 0.38), the paper's recipe
 0.17. It costs R probes of the estimator's search per texel: seconds, not milliseconds (5-7 s for
 the 256k texels there).
 Both the brute force and this mode find the smooth-gradient ("badly lit") region of
@@ -77,11 +77,11 @@ Why the spectra disagree with the path tracer, measured by benchmarks/pathtraced
 samples and scored exactly as the calibrated mode scores its model; scoring the model's own
 spectra that way reproduces this module's entropy to 1e-6): it agrees with itself at 0.98 and
 with the calibrated mode at 0.17 only, so the model of a hypothesis's spectrum is what is wrong,
-not the scoring. The GGX lobe's gains and albedo ("ggx") take it to 0.46; the rest is what one
+not the scoring. The GGX lobe's gains and albedo ("ggx") take it to 0.45; the rest is what one
 zonal filter per texel cannot hold (the albedo's and the lobe's change across the texel's views,
 the sparse samples' aliasing), and to 0.68 without the residual term in the noise. Neither
-brute force ranks the estimate's roughness errors (0.09 and 0.18 on those texels; the roughness
-std 0.39): agreeing with the path tracer and ranking the errors are different goals.
+brute force ranks the estimate's roughness errors (0.11 and 0.18 on those texels; the roughness
+std 0.40): agreeing with the path tracer and ranking the errors are different goals.
 
 Flags (bit field, uint8 per texel) say why a texel should not be trusted; see FLAG_*.
 
