@@ -245,8 +245,9 @@ ENTROPY_HELP = ("Entropy mode: calibrated (spectra, milliseconds), paper (the pu
                 "(the estimator's model on the samples, seconds; agrees with a path tracer). Default: the preset's.")
 ENTROPY_LOBES = ("gaussian", "ggx")
 ENTROPY_LOBE_HELP = ("What a hypothesis is in the calibrated entropy: gaussian (the paper's exp(-(alpha l)^2), the "
-                     "default) or ggx (the GGX lobe with its albedo at the texel's view angle: 2.5x closer to a path "
-                     "tracer, but a higher entropy that the flags' and sharing's thresholds were not tuned for).")
+                     "default) or ggx (the GGX lobe with its albedo at the texel's view angle: agrees 2-2.6x better "
+                     "with a path tracer, but gives a higher entropy, which the flags' and sharing's thresholds were "
+                     "not tuned for).")
 
 
 def _print_json(document: dict) -> None:
