@@ -5,10 +5,10 @@ S_refl(l) ~ (1 + l)^-2 with per-texel log-normal jitter, random materials (rough
 uniform in [0, 1], per-channel k_s) seen at a view cosine uniform in [0.2, 1], GGX lobes (their
 per-degree gains and albedo), a diffuse DC term, and amplitude noise of 1 % of the light's RMS
 amplitude, one coefficient per degree (so the cross spectrum is the signed product of the
-amplitudes); 64 samples per texel. Calibrated mode runs as `entropy_map` calls it by default
-(with the texels' view cosines), once more with ``phase_aware`` (the cross spectrum) and once
-with the GGX lobe (`UncertaintyConfig.lobe`: what its per-texel albedo costs). Each mode at
-R = 8 and R = 32, with and without returning the (N, R, R) likelihood.
+amplitudes); 64 samples per texel. Calibrated mode runs as `entropy_map` calls it by default,
+once more with ``phase_aware`` (the cross spectrum) and once with the GGX lobe
+(`UncertaintyConfig.lobe`, which reads the texels' view cosines: what its per-texel albedo
+costs). Each mode at R = 8 and R = 32, with and without returning the (N, R, R) likelihood.
 
 Prints the figures and saves them to benchmarks/results/bench_entropy.json. The first call loads
 (or compiles) the numba kernel and is reported separately; the warm figure is the median of
