@@ -64,6 +64,7 @@ from freqbrdf.synth import WORLD_UP, bounding_sphere, fibonacci_directions
 from freqbrdf.texels import Texels, rasterise
 from freqbrdf.uncertainty import (
     Uncertainty, cross_spectrum, entropy_from_spectra, hypothesis_albedo, hypothesis_filter, hypothesis_grid,
+    mean_view_cosine, view_cosine_sums,
 )
 
 MAX_TEXELS = 1024  # texels scored per candidate (a seeded random subset of the atlas)
@@ -116,7 +117,7 @@ class FitState:
     weight_sq: np.ndarray  # (n,) float64 sum_i w_i^2
     n_samples: np.ndarray  # (n,) int64
     # (n,) float64 sum_i w_i and sum_i w_i cos(theta_o,i): the mean view cosine at which the entropy
-    # weighs each hypothesis's lobe by its albedo (`uncertainty.view_cosine`).
+    # weighs each hypothesis's lobe by its albedo (`uncertainty.view_cosine_sums`).
     weight_sum: np.ndarray
     cosine_sum: np.ndarray
     basis: np.ndarray  # (n, K, K) B = R^-1/2 Q: (G + s R)^-1 = B diag(1 / (mu + s)) B^T
@@ -214,10 +215,10 @@ def initial_state(observations: Observations, config: Config = Config()) -> FitS
     gram = np.einsum("tvk,tvj->tkj", weighted, basis)
     rhs = np.einsum("tvk,tvr->tkr", weighted, values)
     n_coeffs = sh.num_coeffs(lmax)
-    weight = observations.weight.astype(np.float64)
+    weight_sum, cosine_sum = view_cosine_sums(observations)
     state = FitState(
         gram, rhs, weight_sq.sum(axis=1), (observations.weight > 0).sum(axis=1).astype(np.int64),
-        weight_sum=weight.sum(axis=1), cosine_sum=np.einsum("nv,nv->n", weight, observations.view_direction[..., 2]),
+        weight_sum=weight_sum, cosine_sum=cosine_sum,
         basis=np.zeros_like(gram), eigenvalues=np.zeros((len(gram), n_coeffs)), projected_rhs=np.zeros_like(rhs),
         regulariser=sh.regulariser_weights(lmax, config.fit.regulariser),
     )
@@ -294,8 +295,8 @@ def expected_entropy(
     kernel = (hypothesis_filter(grid, lmax, sigma, settings.lobe) if calibrated
               else brdf.brdf_kernel(grid.alpha, lmax))  # (R, L)
     with_albedo = calibrated and settings.lobe == "ggx"
-    texel_cosine = _mean_cosine(state.weight_sum[rows], state.cosine_sum[rows])  # (m,) before the sample
-    new_cosine = _mean_cosine(state.weight_sum[rows] + samples.weight, state.cosine_sum[rows] + weight_sq)
+    texel_cosine = mean_view_cosine(state.weight_sum[rows], state.cosine_sum[rows])  # (m,) before the sample
+    new_cosine = mean_view_cosine(state.weight_sum[rows] + samples.weight, state.cosine_sum[rows] + weight_sq)
     sample_albedo = hypothesis_albedo(grid, samples.weight) if with_albedo else np.ones((len(rows), grid_res))
     texel_albedo = hypothesis_albedo(grid, texel_cosine) if with_albedo else np.ones((len(rows), grid_res))
     light_by_degree = cross_spectrum(light_coeffs, samples.basis[:, None, :])  # (m, 3, L): the light at the sample
@@ -588,14 +589,9 @@ def _state_uncertainty(state: FitState, coeffs: np.ndarray, sigma: float, config
     return entropy_from_spectra(
         sh.power_spectrum(light), sh.power_spectrum(observed),
         cross_spectrum=cross_spectrum(observed, light) if config.uncertainty.phase_aware else None,
-        n_samples=state.n_samples, view_cos=_mean_cosine(state.weight_sum, state.cosine_sum), sigma=sigma,
+        n_samples=state.n_samples, view_cos=mean_view_cosine(state.weight_sum, state.cosine_sum), sigma=sigma,
         fit_status=status, config=config.uncertainty,
     )
-
-
-def _mean_cosine(weight_sum: np.ndarray, cosine_sum: np.ndarray) -> np.ndarray:
-    """(n,) the weighted mean view cosine (`uncertainty.view_cosine`); 1 without samples."""
-    return np.where(weight_sum > 0, cosine_sum / np.where(weight_sum > 0, weight_sum, 1.0), 1.0)
 
 
 def _texel_subset(n_texels: int, max_texels: int, seed: int) -> np.ndarray:

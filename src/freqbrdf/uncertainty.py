@@ -382,11 +382,22 @@ def albedo_table(grid: HypothesisGrid) -> np.ndarray:
     return np.ascontiguousarray(hypothesis_albedo(grid, nodes).T)
 
 
+def view_cosine_sums(observations: Observations) -> tuple[np.ndarray, np.ndarray]:
+    """(N,) float64 sum_v w_v and sum_v w_v cos theta_o,v over each texel's samples (a capture
+    guidance state keeps and grows them)."""
+    weight_sum = observations.weight.sum(axis=1, dtype=np.float64)
+    cosine_sum = np.einsum("nv,nv->n", observations.weight, observations.view_direction[..., 2], dtype=np.float64)
+    return weight_sum, cosine_sum
+
+
+def mean_view_cosine(weight_sum: np.ndarray, cosine_sum: np.ndarray) -> np.ndarray:
+    """(N,) cosine_sum / weight_sum (`view_cosine_sums`); 1 where a texel has no sample."""
+    return np.where(weight_sum > 0, cosine_sum / np.where(weight_sum > 0, weight_sum, 1.0), 1.0)
+
+
 def view_cosine(observations: Observations) -> np.ndarray:
     """(N,) the weighted mean cos theta_o of each texel's samples (1 where it has none)."""
-    total = observations.weight.sum(axis=1, dtype=np.float64)
-    cosine = np.einsum("nv,nv->n", observations.weight, observations.view_direction[..., 2], dtype=np.float64)
-    return np.where(total > 0, cosine / np.where(total > 0, total, 1.0), 1.0)
+    return mean_view_cosine(*view_cosine_sums(observations))
 
 
 def entropy_from_spectra(
