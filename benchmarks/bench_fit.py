@@ -11,7 +11,7 @@ The default capture is compare_estimators.py's plane (64 views of 256 x 256, T =
 texels), rendered into benchmarks/.cache/ with the same settings if it is missing.
 
     python benchmarks/bench_fit.py [--capture plane|bunny|PATH] [--runs 3] [--name bench_fit]
-        [--preset default|fast]
+        [--preset default|fast] [--fit-option=--entropy=angular ...]
 
 A fit at T = 32 first, untimed, has numba compile (or load) the kernels. Prints a table and saves
 benchmarks/results/<name>.json. The machine may be shared: the load average is recorded per run,
@@ -130,8 +130,10 @@ def main(argv=None) -> int:
     parser.add_argument("--runs", type=int, default=3)
     parser.add_argument("--name", default="bench_fit", help="results file stem under benchmarks/results/")
     parser.add_argument("--preset", default="default", help="the fit's --preset (default, fast)")
+    parser.add_argument("--fit-option", action="append", default=[],
+                        help="one more option for the fit, e.g. --fit-option=--entropy=angular (repeatable)")
     args = parser.parse_args(argv)
-    options = [] if args.preset == "default" else ["--preset", args.preset]
+    options = ([] if args.preset == "default" else ["--preset", args.preset]) + args.fit_option
     capture = capture_folder(args.capture)
     runs, imports = [], []
     with tempfile.TemporaryDirectory(prefix="bench_fit.") as scratch:

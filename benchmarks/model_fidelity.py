@@ -75,7 +75,7 @@ def main() -> None:
     positions = texels.position[chosen][texel_of].astype(np.float64)
     directions = centres[view_of] - positions
     directions /= np.linalg.norm(directions, axis=1, keepdims=True)
-    grid = hypothesis_grid(config.uncertainty.grid_res)
+    grid = hypothesis_grid(config.uncertainty.resolution())
     rendered, other = (hypothesis_radiance(capture, positions, directions, grid, seed) for seed in SEEDS)
     subset = observations.select(chosen)
     sampled = subset.weight > 0  # row-major: the rays' order

@@ -25,10 +25,12 @@ sqrt(S_refl(l)) (`spectral_entropy`, a direct evaluation; scoring the analytic a
 reproduces our fast entropy: "scoring_check_max_abs_difference").
 
 Reported: Spearman rank correlation of each brute force with ours (calibrated default, with
-GGX lobes instead of the paper's Gaussian one, phase-aware, paper and angular modes, the angular
-with anisotropic lobes, its default, and isotropic ones); each entropy's rank correlation with the
+GGX lobes instead of the paper's Gaussian one, phase-aware and paper modes on the 8 x 8 grid; the
+angular mode on its own grid, the estimator's 9 roughness nodes, as `fit` computes it from its
+search and with anisotropic lobes); each entropy's rank correlation with the
 default fit's roughness error on the same texels; mean entropy per region of entropy_scenes.py;
-timings. The brute force is itself a Monte
+timings, with those of the fit with the angular entropy (the second fit in the process: compiled;
+benchmarks/bench_fit.py --fit-option=--entropy=angular times it as a user runs it). The brute force is itself a Monte
 Carlo estimate: it is rendered twice with independent seeds, and the rank correlation of the two
 brute-force entropies (its self-agreement) is the ceiling for any agreement with either. The
 reference is their pooled rendering (the mean radiance of both, 2 x SPP paths per ray), whose noise
@@ -226,13 +228,17 @@ def main() -> None:
     ggx_config = UncertaintyConfig(lobe="ggx")
     ggx = entropy_map(observations, ggx_config, return_likelihood=False)
     phase_aware = entropy_map(observations, UncertaintyConfig(phase_aware=True), return_likelihood=False)
+    # The angular mode as `fit` computes it (its grid the estimator's 9 roughness nodes, its lobes
+    # the estimator's, scored during the search), and on its own.
     angular_config = UncertaintyConfig(mode="angular")
+    angular_fit = fit(capture, config.replace(uncertainty=angular_config))
+    angular = angular_fit.uncertainty
     entropy_map(observations.select(slice(0, 64)), angular_config, return_likelihood=False)  # loads its kernels
     start = time.perf_counter()
-    angular = entropy_map(observations, angular_config, return_likelihood=False)
+    angular_alone = entropy_map(observations, angular_config, return_likelihood=False)
     angular_s = time.perf_counter() - start
-    isotropic = entropy_map(observations, UncertaintyConfig(mode="angular", anisotropic_lobes=False),
-                            return_likelihood=False)
+    anisotropic = entropy_map(observations, UncertaintyConfig(mode="angular", anisotropic_lobes=True),
+                              return_likelihood=False)
     chosen = choose_texels(ours.entropy, observations.n_samples)
 
     # One ray per (chosen texel, view with a sample), towards that view's camera.
@@ -242,22 +248,28 @@ def main() -> None:
     directions = centres[view_of] - positions
     directions /= np.linalg.norm(directions, axis=1, keepdims=True)
 
-    grid = hypothesis_grid(config.uncertainty.grid_res)
-    radiances, render_seconds = zip(*(cached_radiance(capture, positions, directions, grid, seed) for seed in SEEDS))
-    radiances = list(radiances)
-    render_s = float(np.mean(render_seconds))
+    def brute_forces(grid):
+        """The sample brute force's entropies on ``grid`` (seed 0, the other seed, the pooled
+        rendering), the renderings themselves and the seconds one seed took."""
+        radiances, render_seconds = zip(*(cached_radiance(capture, positions, directions, grid, seed)
+                                          for seed in SEEDS))
+        radiances = [*radiances, np.mean(radiances, axis=0)]  # and the pooled rendering
+        brutes = np.empty((len(radiances), len(chosen)))
+        for index, texel in enumerate(chosen):
+            rays = texel_of == index
+            views = view_of[rays]
+            for rendering, radiance in enumerate(radiances):
+                brutes[rendering, index] = brute_force_entropy(
+                    observations.observed[texel, views].astype(np.float64),
+                    observations.mirrored[texel, views].astype(np.float64),
+                    observations.weight[texel, views].astype(np.float64), radiance[:, :, rays])
+        return brutes, radiances, float(np.mean(render_seconds))
 
-    radiances.append(np.mean(radiances, axis=0))  # the pooled rendering
-    brutes = np.empty((len(radiances), len(chosen)))
-    for index, texel in enumerate(chosen):
-        rays = texel_of == index
-        views = view_of[rays]
-        for rendering, radiance in enumerate(radiances):
-            brutes[rendering, index] = brute_force_entropy(
-                observations.observed[texel, views].astype(np.float64),
-                observations.mirrored[texel, views].astype(np.float64),
-                observations.weight[texel, views].astype(np.float64), radiance[:, :, rays])
-    brute, brute_other_seed, pooled = brutes
+    grid = hypothesis_grid(config.uncertainty.resolution())
+    (brute, brute_other_seed, pooled), radiances, render_s = brute_forces(grid)
+    # The angular mode's grid (the estimator's roughness nodes) has a brute force of its own.
+    angular_grid = angular.grid
+    (angular_brute, angular_brute_other_seed, angular_pooled), _, angular_render_s = brute_forces(angular_grid)
     # The spectral brute force: the same scoring as ours, the path-traced spectra for the analytic ones.
     spectral, spectral_other_seed, spectral_pooled = (
         spectral_entropy(observations, chosen, hypothesis_amplitudes(observations, chosen, texel_of, view_of,
@@ -296,16 +308,24 @@ def main() -> None:
         "grid_res": grid.resolution,
         "agreement_with_pooled_brute_force": {
             name: agreement(pooled, entropy.entropy[chosen])
-            for name, entropy in (("ours_angular", angular), ("ours_angular_isotropic_lobes", isotropic),
-                                  ("ours_calibrated", ours), ("ours_calibrated_ggx_lobe", ggx),
+            for name, entropy in (("ours_calibrated", ours), ("ours_calibrated_ggx_lobe", ggx),
                                   ("ours_paper_mode", paper), ("ours_phase_aware", phase_aware))},
+        "angular_mode": {
+            "grid_res": angular_grid.resolution,
+            "agreement_with_pooled_brute_force": {
+                name: agreement(angular_pooled, entropy.entropy[chosen])
+                for name, entropy in (("ours_angular_in_fit", angular), ("ours_angular_anisotropic_lobes", anisotropic),
+                                      ("ours_calibrated", ours))},
+            "agreement_with_each_seed": [agreement(values, angular.entropy[chosen])
+                                         for values in (angular_brute, angular_brute_other_seed)],
+            "brute_force_self_agreement": agreement(angular_brute, angular_brute_other_seed),
+            "in_fit_equals_alone_max_abs_difference": round(float(np.abs(
+                angular.entropy - angular_alone.entropy).max()), 8),
+        },
         "spearman_rho_vs_ours_calibrated": round(float(stats.spearmanr(brute, ours.entropy[chosen]).statistic), 4),
         "spearman_rho_vs_ours_paper_mode": round(float(stats.spearmanr(brute, paper.entropy[chosen]).statistic), 4),
         "spearman_rho_vs_ours_phase_aware": round(
             float(stats.spearmanr(brute, phase_aware.entropy[chosen]).statistic), 4),
-        "spearman_rho_vs_ours_angular": round(float(stats.spearmanr(brute, angular.entropy[chosen]).statistic), 4),
-        "spearman_rho_vs_ours_angular_other_seed": round(
-            float(stats.spearmanr(brute_other_seed, angular.entropy[chosen]).statistic), 4),
         "spearman_rho_vs_ours_calibrated_other_seed": round(
             float(stats.spearmanr(brute_other_seed, ours.entropy[chosen]).statistic), 4),
         "brute_force_self_agreement": agreement(brute, brute_other_seed),
@@ -327,8 +347,12 @@ def main() -> None:
                          "ours_angular": round(float(angular.entropy[chosen].mean()), 4)},
         "mean_entropy_by_region": by_region,
         "timings_s": {"path_tracing_all_hypotheses_per_seed": round(render_s, 2),
+                      "path_tracing_angular_grid_per_seed": round(angular_render_s, 2),
                       "ours_entropy_whole_capture": round(ours_s, 4),
-                      "ours_angular_entropy_whole_capture": round(angular_s, 2)},
+                      "ours_angular_entropy_whole_capture_alone": round(angular_s, 2),
+                      "fit_with_angular_entropy": {stage: round(seconds, 2)
+                                                   for stage, seconds in angular_fit.timings.items()
+                                                   if "." not in stage}},
     })
 
 

@@ -118,7 +118,7 @@ def test_expected_entropy_of_a_known_material_equals_the_entropy_of_the_refit(mo
     texels = np.arange(observations.n_texels)
     samples, directions = new_view(rng, texels)
     alpha_index, k_index = 3, 5
-    grid_res = config.uncertainty.grid_res
+    grid_res = config.uncertainty.resolution()
     likelihood = np.zeros((len(texels), grid_res, grid_res))
     likelihood[:, alpha_index, k_index] = 1.0
     expected, radiance = guidance.expected_entropy(state, coeffs, likelihood, samples, observations.sigma, config)

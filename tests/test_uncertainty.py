@@ -65,7 +65,7 @@ def naive_grid(light, observed, sigma, config, cross=None, n_samples=None, albed
 
     Returns entropy (N, 3) per channel, likelihood (N, 3, R, R) and misfit (N, 3, R, R).
     """
-    grid = unc.hypothesis_grid(config.grid_res)
+    grid = unc.hypothesis_grid(config.resolution())
     resolution = grid.resolution
     alpha = grid.alpha[:, None, None]  # (R, 1, 1) rows
     specular = grid.specular[None, :, None]  # (1, R, 1) columns
@@ -408,7 +408,7 @@ def test_paper_preset_reproduces_the_published_grid():
     from freqbrdf.config import preset
 
     config = preset("paper").uncertainty
-    grid = unc.hypothesis_grid(config.grid_res)
+    grid = unc.hypothesis_grid(config.resolution())
     assert (config.mode, config.grid_res, config.temperature) == ("paper", 8, 1e-5)
     np.testing.assert_allclose(grid.alpha, (np.arange(8) / 7) ** 2)
     np.testing.assert_allclose(grid.specular, np.arange(8) / 7)
@@ -635,6 +635,52 @@ def _direct_angular_entropy(observations, grid, noise_level):
     return out
 
 
+def _mapped_observations(truth, rng):
+    """Synthetic observations of ``truth`` under a map (prefiltered and environment light), 3 % noise."""
+    import dataclasses
+
+    from test_estimate import synthetic_observations
+
+    mapped = synthetic_observations(truth, seed=8, model="split_sum", environment_light=True, prefiltered=True)
+    return dataclasses.replace(mapped, observed=(mapped.observed * (
+        1.0 + 0.03 * rng.standard_normal(mapped.observed.shape))).astype(np.float32))
+
+
+@pytest.mark.parametrize("grid_res", [None, 4])
+def test_the_estimators_search_scores_the_angular_hypotheses_as_the_angular_mode(grid_res, monkeypatch):
+    """The fit's shortcut: the search records the hypotheses at its roughness nodes (grid_res None:
+    all of them; 4: roughness 1/3 and 2/3 lie off the nodes and are probed apart) and the entropy
+    equals the angular mode's own pass, the estimate the plain estimator's. In blocks of 16 texels
+    here (the last one partial), as large captures are."""
+    from test_estimate import random_truth
+
+    from freqbrdf import estimate as estimate_module
+    from freqbrdf.config import Config
+    from freqbrdf.estimate import estimate
+
+    monkeypatch.setattr(estimate_module, "HYPOTHESIS_BLOCK", 16)
+    observations = _mapped_observations(random_truth(40, seed=3, min_roughness=0.0), np.random.default_rng(4))
+    config = Config(uncertainty=UncertaintyConfig(mode="angular", grid_res=grid_res))
+    assert unc.AngularEntropy.recorded_by_search(config)
+    scorer = unc.AngularEntropy(observations, config)
+    recorded = estimate(observations, config, hypotheses=scorer.recorder())
+    fused = scorer.result()
+    alone = unc.entropy_angular(observations, config)
+    assert fused.grid.resolution == (grid_res or config.estimate.roughness_grid)
+    np.testing.assert_allclose(fused.entropy, alone.entropy, atol=1e-6)
+    np.testing.assert_allclose(fused.likelihood, alone.likelihood, atol=1e-6)
+    np.testing.assert_array_equal(fused.flags, alone.flags)
+    plain = estimate(observations, config)
+    for name in ("base_color", "roughness", "metallic", "loss"):
+        np.testing.assert_array_equal(getattr(recorded, name), getattr(plain, name))
+    # Other lobes than the estimator's, or the prototype's estimator, are scored in a pass of their own.
+    assert not unc.AngularEntropy.recorded_by_search(
+        Config(uncertainty=UncertaintyConfig(mode="angular", anisotropic_lobes=True)))
+    assert not unc.AngularEntropy.recorded_by_search(
+        Config(uncertainty=UncertaintyConfig(mode="angular"), estimate=EstimateConfig(method="paper")))
+    assert not unc.AngularEntropy.recorded_by_search(Config())
+
+
 def test_angular_mode_equals_a_direct_evaluation_and_is_exposure_invariant():
     import dataclasses
 
@@ -647,9 +693,10 @@ def test_angular_mode_equals_a_direct_evaluation_and_is_exposure_invariant():
         1.0 + 0.03 * rng.standard_normal(clean.observed.shape))).astype(np.float32))
     config = UncertaintyConfig(mode="angular")
     result = unc.entropy_map(observations, config)
-    assert result.mode == "angular" and result.likelihood.shape == (24, 8, 8)
+    # The default grid: the estimator's roughness nodes.
+    assert result.mode == "angular" and result.likelihood.shape == (24, 9, 9)
     np.testing.assert_allclose(result.likelihood.sum(axis=(1, 2)), 1.0, rtol=1e-5)
-    direct = _direct_angular_entropy(observations, unc.hypothesis_grid(8), config.noise_level)
+    direct = _direct_angular_entropy(observations, unc.hypothesis_grid(9), config.noise_level)
     np.testing.assert_allclose(result.entropy, direct, atol=2e-5)
     # Fewer views, less certain: the same texels seen from their first 8 views only.
     few_weight = observations.weight.copy()
@@ -662,16 +709,18 @@ def test_angular_mode_equals_a_direct_evaluation_and_is_exposure_invariant():
         observations, observed=observations.observed * kappa, mirrored=observations.mirrored * kappa,
         mirrored_coeffs=observations.mirrored_coeffs * kappa, irradiance=observations.irradiance * kappa)
     np.testing.assert_allclose(unc.entropy_map(brighter, config).entropy, result.entropy, atol=1e-5)
-    # With a map, the hypotheses' lobes are UncertaintyConfig's (anisotropic by default), whatever
-    # the estimator's setting.
-    mapped = synthetic_observations(truth, seed=8, model="split_sum", environment_light=True, prefiltered=True)
-    mapped = dataclasses.replace(mapped, observed=(mapped.observed * (
-        1.0 + 0.03 * rng.standard_normal(mapped.observed.shape))).astype(np.float32))
-    anisotropic = unc.entropy_map(mapped, config)
-    isotropic = unc.entropy_map(mapped, dataclasses.replace(config, anisotropic_lobes=False))
+    # With a map, the hypotheses' lobes are UncertaintyConfig's if it names them, else the estimator's.
+    mapped = _mapped_observations(truth, rng)
+    forced = dataclasses.replace(config, anisotropic_lobes=True)
+    anisotropic = unc.entropy_map(mapped, forced)
+    isotropic = unc.entropy_map(mapped, config)  # the default estimator's lobes
     assert np.abs(anisotropic.entropy - isotropic.entropy).max() > 1e-3
-    either = unc.entropy_map(mapped, config, estimate_config=EstimateConfig(anisotropic_lobes=False))
-    np.testing.assert_array_equal(either.entropy, anisotropic.entropy)
+    np.testing.assert_array_equal(
+        unc.entropy_map(mapped, forced, estimate_config=EstimateConfig(anisotropic_lobes=False)).entropy,
+        anisotropic.entropy)
+    np.testing.assert_array_equal(
+        unc.entropy_map(mapped, config, estimate_config=EstimateConfig(anisotropic_lobes=True)).entropy,
+        anisotropic.entropy)
     # Spectra alone cannot be scored in this mode.
     with pytest.raises(ValueError, match="angular"):
         unc.entropy_from_spectra(observations.mirrored_spectrum, observations.observed_spectrum, config=config)

@@ -65,6 +65,10 @@ class FitConfig:
     attenuation_threshold: float = 0.5  # t in alpha' = sqrt(-ln t) / l*  (appendix eq. 12)
 
 
+# The paper's hypothesis grid, R x R (UncertaintyConfig.grid_res in the spectral modes).
+SPECTRAL_GRID_RES = 8
+
+
 @dataclass(frozen=True)
 class UncertaintyConfig:
     # "angular": the same grid scored in the sample domain with the global estimator's own model
@@ -75,7 +79,11 @@ class UncertaintyConfig:
     # (calibrated 0.19, with lobe "ggx" 0.38, paper 0.17). Capture guidance (which predicts spectra)
     # needs "calibrated" or "paper".
     mode: Literal["calibrated", "paper", "angular"] = "calibrated"
-    grid_res: int = 8  # R: R x R hypotheses (alpha_i = (i/(R-1))^2, k_j = j/(R-1))
+    # R: R x R hypotheses (alpha_i = (i/(R-1))^2, k_j = j/(R-1)). None: the paper's 8 in the
+    # spectral modes; in angular mode the estimator's roughness nodes (EstimateConfig.roughness_grid,
+    # 9), which its search probes anyway, so that `pipeline.fit` gets the angular entropy from the
+    # search's own probes (uncertainty.AngularEntropy).
+    grid_res: int | None = None
     temperature: float = 1e-5  # tau of the paper's likelihood exp(-(E - min E)/tau)  (paper mode)
     # Calibrated mode: noise std of one sample's radiance, relative to the light's RMS amplitude
     # sqrt(sum_l S_refl(l)); a fitted coefficient then has variance noise_level^2 P K / n_samples.
@@ -146,12 +154,24 @@ class UncertaintyConfig:
     # roughness_window is wider): the window average spreads their scatter to the rest, at about a
     # quarter of the cost (1: every texel; uncertainty._split_half_variance has the figures).
     split_half_stride: int = 2
-    # Angular mode: score the hypotheses with anisotropic lobes (EstimateConfig.anisotropic_lobes)
-    # whatever the estimate's setting: the entropy is about what the light can tell, and the
-    # brute force it should agree with is the path tracer's lobe. Measured
-    # (benchmarks/pathtraced_entropy.py, 400 texels, against the pooled rendering): Spearman 0.80
-    # [0.74, 0.85] isotropic, 0.83 [0.78, 0.87] anisotropic, for 1.9x the time (3.9 -> 7.4 s).
-    anisotropic_lobes: bool = True
+    # Angular mode: score the hypotheses with anisotropic lobes (EstimateConfig.anisotropic_lobes:
+    # True), isotropic ones (False) or the estimator's own (None, the default; isotropic unless
+    # fit --anisotropic-lobes), which lets `pipeline.fit` take them from its search. Measured on the
+    # 8 x 8 grid (benchmarks/pathtraced_entropy.py, 400 texels, against the pooled rendering):
+    # Spearman 0.80 [0.74, 0.85] isotropic, 0.83 [0.78, 0.87] anisotropic, for 1.9x the time
+    # (3.9 -> 7.4 s on their own).
+    anisotropic_lobes: bool | None = None
+
+    def resolution(self, roughness_grid: int | None = None) -> int:
+        """R of the hypothesis grid: grid_res, else SPECTRAL_GRID_RES, or in angular mode the
+        estimator's ``roughness_grid`` (which that mode needs then)."""
+        if self.grid_res is not None:
+            return self.grid_res
+        if self.mode != "angular":
+            return SPECTRAL_GRID_RES
+        if roughness_grid is None:
+            raise ValueError("the angular mode's default grid is the estimator's roughness nodes: pass roughness_grid")
+        return roughness_grid
 
 
 @dataclass(frozen=True)

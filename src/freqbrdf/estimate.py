@@ -146,6 +146,7 @@ import functools
 import hashlib
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -178,6 +179,9 @@ _SEARCH_CHUNK = 64
 _borrowing_jit = numba.njit(fastmath=True, cache=True, _nrt=False)
 # Texels per block when expanding the light by degree: bounds the (block, V, K) SH basis.
 _PROJECTION_BLOCK = 8192
+# Texels per block of hypothesis moments: bounds the (block, R, 3, 8) float64 moments to 28 MB at
+# R = 9 (the 256k texels of a T = 512 texture at once: 442 MB).
+HYPOTHESIS_BLOCK = 16384
 # Brent's absolute tolerance on roughness; its relative part is sqrt(machine eps).
 # A grid minimum on the boundary of [0, 1] is kept when the loss rises this far inside, instead of
 # letting Brent creep towards the boundary in golden steps.
@@ -236,16 +240,32 @@ class MaterialEstimate:
         }
 
 
-def estimate(observations: Observations, config: Config = Config(), reporter: Reporter = SILENT) -> MaterialEstimate:
+@dataclass(frozen=True)
+class HypothesisRecorder:
+    """Metal hypotheses for the `global` estimator to score on the way (`estimate`'s
+    ``hypotheses``). Its first roughness scan probes every roughness node with the light and
+    weights that `hypothesis_moments` uses, so a hypothesis on a node costs no probe of its own
+    (`uncertainty.AngularEntropy` gets the angular entropy that way)."""
+
+    roughness: np.ndarray  # (R,) the hypotheses' roughness; each value off the search's nodes costs a probe
+    # Called once per block of texels (a slice of the N) with their `hypothesis_moments` (n, R, 3, 8).
+    consume: Callable[[slice, np.ndarray], None]
+
+
+def estimate(observations: Observations, config: Config = Config(), reporter: Reporter = SILENT,
+             hypotheses: HypothesisRecorder | None = None) -> MaterialEstimate:
     """Estimate base colour, roughness and metallic per texel with ``config.estimate.method``.
 
     ``config.fit`` must be the fit the observations were made with: shadowing refreshes re-fit
-    the light with it.
+    the light with it. With ``hypotheses`` (method "global" only) the search also hands over the
+    `hypothesis_moments` of those roughness values, block by block (`HYPOTHESIS_BLOCK` texels).
     """
     settings = config.estimate
     _validate(settings)
     if settings.method == "global":
-        return _estimate_global(observations, config, reporter)
+        return _estimate_global(observations, config, reporter, hypotheses)
+    if hypotheses is not None:
+        raise ValueError("only the global estimator records hypotheses: its search probes them")
     return _estimate_paper(observations, config, reporter)
 
 
@@ -268,7 +288,7 @@ def angular_loss(
     levels = _tilt_levels(settings)
     (tangent, normal, environment, blend, prefiltered, n_full, anisotropic, world_to_local, map_height,
      map_width) = _environment_inputs(observations, settings)
-    for rows in _blocks(observations.n_texels, _PROJECTION_BLOCK // levels):
+    for rows in texel_blocks(observations.n_texels, _PROJECTION_BLOCK // levels):
         if len(environment):
             azimuthal = np.ascontiguousarray(environment_azimuthal(
                 observations.view_direction[rows], observations.weight[rows], tangent[rows], normal[rows],
@@ -321,12 +341,26 @@ def hypothesis_moments(observations: Observations, roughness: np.ndarray, config
     return moments
 
 
+def _node_rows(roughness: np.ndarray, roughness_grid: int) -> np.ndarray:
+    """(roughness_grid,) int64: per roughness node of the search, the index into ``roughness`` (R,)
+    of a hypothesis at that node, or -1."""
+    rows = np.full(roughness_grid, -1, dtype=np.int64)
+    nodes = np.rint(roughness * (roughness_grid - 1)).astype(np.int64)
+    on_node = np.abs(nodes / (roughness_grid - 1) - roughness) < 1e-12
+    rows[nodes[on_node]] = np.flatnonzero(on_node)
+    return rows
+
+
 def _run_search_kernel(observations: Observations, settings: EstimateConfig, light: np.ndarray,
                        hypothesis_roughness: np.ndarray, hypothesis_moments: np.ndarray, search: bool,
                        params: np.ndarray, loss: np.ndarray, curvature: np.ndarray,
                        candidate: np.ndarray = np.zeros((0, 2))) -> None:
-    """`_global_search_kernel` on the observations with this light fit (N, 3, K) and settings."""
+    """`_global_search_kernel` on the observations with this light fit (N, 3, K) and settings. With
+    ``search``, hypotheses on the roughness nodes are recorded by the search's first scan."""
     tangent, normal, environment, blend, *prefiltered = _environment_inputs(observations, settings)
+    hypothesis_roughness = np.ascontiguousarray(hypothesis_roughness, dtype=np.float64)
+    node_rows = (_node_rows(hypothesis_roughness, settings.roughness_grid) if search and len(hypothesis_roughness)
+                 else np.full(0, -1, dtype=np.int64))
     _global_search_kernel(
         observations.view_direction, observations.weight, observations.observed,
         np.ascontiguousarray(light, dtype=np.float32), _diffuse_scale(observations), observations.sigma,
@@ -335,8 +369,8 @@ def _run_search_kernel(observations: Observations, settings: EstimateConfig, lig
         settings.metallic_grid, settings.robust_passes, observations.lmax, *sh._legendre_tables(observations.lmax),
         tangent, normal, environment, blend, environment_response_table(),
         *_environment_quadrature(max(math.isqrt(len(environment)) - 1, 0)), _burley_response(settings),
-        *prefiltered, _footprint_input(observations, settings), hypothesis_roughness, hypothesis_moments, search,
-        candidate, params, loss, curvature,
+        *prefiltered, _footprint_input(observations, settings), hypothesis_roughness, hypothesis_moments, node_rows,
+        search, candidate, params, loss, curvature,
     )
 
 
@@ -376,7 +410,7 @@ def _validate(settings: EstimateConfig) -> None:
         raise ValueError("iterations and shadowing_refreshes must be >= 0, shadowing_refresh_every >= 1")
 
 
-def _blocks(n_texels: int, size: int = _PROJECTION_BLOCK):
+def texel_blocks(n_texels: int, size: int = _PROJECTION_BLOCK):
     for start in range(0, n_texels, size):
         yield slice(start, min(start + size, n_texels))
 
@@ -1486,7 +1520,8 @@ def _squared_residual_kernel(
 # global: exhaustive search with a closed-form base colour
 
 
-def _estimate_global(observations: Observations, config: Config, reporter: Reporter) -> MaterialEstimate:
+def _estimate_global(observations: Observations, config: Config, reporter: Reporter,
+                     hypotheses: HypothesisRecorder | None) -> MaterialEstimate:
     settings = config.estimate
     timings = {"light": 0.0, "search": 0.0}
     n_texels = observations.n_texels
@@ -1510,8 +1545,15 @@ def _estimate_global(observations: Observations, config: Config, reporter: Repor
                 light = _shadowed_light_coeffs(observations, brdf.alpha_from_roughness(shadow_roughness), config.fit)
             timings["light"] += time.perf_counter() - tick
             tick = time.perf_counter()
-            _run_search_kernel(observations, settings, light, np.zeros(0), np.zeros((0, 0, 3, 8)), True, params,
-                               loss, curvature)
+            if pass_index == 0 and hypotheses is not None:  # pass 0's light is the one hypotheses are scored in
+                for rows in texel_blocks(n_texels, HYPOTHESIS_BLOCK):
+                    moments = np.zeros((rows.stop - rows.start, len(hypotheses.roughness), 3, 8))
+                    _run_search_kernel(observations.select(rows), settings, light[rows], hypotheses.roughness,
+                                       moments, True, params[rows], loss[rows], curvature[rows])
+                    hypotheses.consume(rows, moments)
+            else:
+                _run_search_kernel(observations, settings, light, np.zeros(0), np.zeros((0, 0, 3, 8)), True, params,
+                                   loss, curvature)
             timings["search"] += time.perf_counter() - tick
             residual = params[:, 3] - shadow_roughness
             next_roughness = params[:, 3].copy()
@@ -2230,17 +2272,21 @@ def _keep_state(state, best_state):
 
 @_borrowing_jit
 def _search_roughness(args, state, roughness_grid, best_state, roughness_brent, node_loss, first_node, last_node,
-                      xtol):
+                      xtol, node_rows, node_moments):
     """Scan the roughness grid's nodes first_node..last_node, then Brent (to xtol) in the best cell
     unless the loss rises inwards from a boundary node. Brent starts from the parabola through the
     best node and its neighbours when the scan holds them. The best evaluation seen wins: returns
     (roughness, loss), its base colour and metallic in best_state (`_roughness_objective` leaves
-    each probe's in state, the array in args). node_loss (roughness_grid,) scratch."""
+    each probe's in state, the array in args). node_loss (roughness_grid,) scratch. A node whose
+    node_rows entry (`_node_rows`; (0,): none) is a row i >= 0 records its hypothesis moments into
+    node_moments[i] (R, 3, 8)."""
     cell = 1.0 / (roughness_grid - 1)
     best_node, best_r, best_f = first_node, 0.0, np.inf
     for i in range(first_node, last_node + 1):
         r = i / (roughness_grid - 1)
         node_loss[i] = _roughness_objective(r, args)
+        if node_rows.shape[0] > 0 and node_rows[i] >= 0:
+            _record_hypothesis(args, node_moments[node_rows[i]])
         if node_loss[i] < best_f:
             best_node, best_r, best_f = i, r, node_loss[i]
             _keep_state(state, best_state)
@@ -2281,6 +2327,15 @@ def _brent_run(args, state, best_state, roughness_brent, best_r, best_f, search)
             _keep_state(state, best_state)
         search = _brent_next(roughness_brent, f)
     return best_r, best_f
+
+
+@_borrowing_jit
+def _record_hypothesis(args, out):
+    """out (3, 8): per channel `_specular_moments` of the metal terms the last `_roughness_objective`
+    probe left in args (in the order `_roughness_objective` unpacks them)."""
+    n, omega, values, filtered = args[0], args[2], args[4], args[24]
+    for c in range(3):
+        _specular_moments(n, omega, values[c], filtered[c, 0], filtered[c, 1], out[c])
 
 
 @_borrowing_jit
@@ -2343,7 +2398,7 @@ def _global_search_kernel(
     table, table_rows, tilt_levels, roughness_grid, metallic_grid, robust_passes, lmax, diag, rec_a, rec_b,
     tangent, normal, environment, environment_blend, response, quadrature, quadrature_projection, burley_response,
     prefiltered, n_full, anisotropic, world_to_local, map_height, map_width, footprint, hypothesis_roughness,
-    hypothesis_moments, search, candidate,
+    hypothesis_moments, node_rows, search, candidate,
     params, loss, curvature,
 ):
     """Per texel: the (base colour, roughness, metallic) of least weighted squared residual.
@@ -2362,23 +2417,37 @@ def _global_search_kernel(
     (`Observations.footprint`; (n, 0): none). Else, per texel the light is expanded by
     degree at its samples once per tilt level (P_c,l(w'_v), `_tilted_projections`; one level:
     w' = w; fused here to keep it in cache). Then the roughness is searched (if ``search``).
-    With hypothesis_roughness (R,), before the search: `hypothesis_moments` of each texel into
-    hypothesis_moments (n, R, 3, 8). With candidate (n, 2) (roughness, metallic) instead of a
+    With hypothesis_roughness (R,): `hypothesis_moments` of each texel into hypothesis_moments
+    (n, R, 3, 8), those of node_rows (roughness_grid,) (`_node_rows`; (0,): none) recorded by the
+    search's first scan, the others probed before it. With candidate (n, 2) (roughness, metallic) instead of a
     search, the neighbour vote (`EstimateConfig.neighbour_vote`) on the estimate in params. Writes params
     (n, 5) [b_rgb, r, m], loss (n,) (divided by sum_v w^2) and the profiled loss's curvature in
     roughness (n,) (`MaterialEstimate.roughness_curvature`) for texels with samples; others are
     left untouched.
     """
-    for chunk in numba.prange((weight.shape[0] + _SEARCH_CHUNK - 1) // _SEARCH_CHUNK):
+    n_chunks = (weight.shape[0] + _SEARCH_CHUNK - 1) // _SEARCH_CHUNK
+    stride = _scattering_stride(n_chunks)
+    for item in numba.prange(n_chunks):
         # np.int64: the loop index is unsigned in numba's parallel code and signed when typed: one
         # signature, not two (each compiles the whole search).
-        _global_search_chunk(np.int64(chunk), directions, weight, observed, light, diffuse_scale, sigma, fresnel,
+        chunk = (np.int64(item) * stride) % n_chunks
+        _global_search_chunk(chunk, directions, weight, observed, light, diffuse_scale, sigma, fresnel,
                              masking, split_sum, exact_dielectric, burley, table, table_rows, tilt_levels,
                              roughness_grid, metallic_grid, robust_passes, lmax, diag, rec_a, rec_b, tangent, normal,
                              environment, environment_blend, response, quadrature, quadrature_projection,
                              burley_response, prefiltered, n_full, anisotropic, world_to_local, map_height, map_width,
-                             footprint, hypothesis_roughness, hypothesis_moments, search, candidate, params, loss,
-                             curvature)
+                             footprint, hypothesis_roughness, hypothesis_moments, node_rows, search, candidate,
+                             params, loss, curvature)
+
+
+@numba.njit(cache=True)
+def _scattering_stride(n_items):
+    """A stride coprime to n_items near the golden section of it: item i -> (i stride) mod n_items
+    visits every item once and spreads any contiguous run of i over the whole range."""
+    stride = max(int(n_items * 0.6180339887), 1)
+    while math.gcd(stride, n_items) != 1:
+        stride += 1
+    return np.int64(stride)
 
 
 @numba.njit(fastmath=True, cache=True)
@@ -2387,7 +2456,8 @@ def _global_search_chunk(
     exact_dielectric, burley, table, table_rows, tilt_levels, roughness_grid, metallic_grid, robust_passes, lmax,
     diag, rec_a, rec_b, tangent, normal, environment, environment_blend, response, quadrature,
     quadrature_projection, burley_response, prefiltered, n_full, anisotropic, world_to_local, map_height,
-    map_width, footprint, hypothesis_roughness, hypothesis_moments, search, candidate, params, loss, curvature,
+    map_width, footprint, hypothesis_roughness, hypothesis_moments, node_rows, search, candidate, params, loss,
+    curvature,
 ):
     """`_global_search_kernel`'s work for the texels of one chunk: a function of its own, so that
     numba's parallel passes see a small loop (on the whole body they took much of the kernel's
@@ -2427,6 +2497,13 @@ def _global_search_chunk(
     best_state = np.empty(4)
     roughness_brent = np.empty(13)
     node_loss = np.empty(roughness_grid)
+    # The hypotheses the first scan records: the others are probed before the search.
+    scanned = np.zeros(hypothesis_roughness.shape[0], dtype=np.bool_)
+    for node in range(node_rows.shape[0]):
+        if node_rows[node] >= 0:
+            scanned[node_rows[node]] = True
+    no_rows = np.full(0, -1, dtype=np.int64)
+    no_moments = np.zeros((0, 3, 8))
     # The environment in the texel's frame, then in each sample's mirrored view frame.
     n_points = quadrature.shape[0]
     local_environment = np.empty((environment.shape[0], 3))
@@ -2526,9 +2603,9 @@ def _global_search_chunk(
                 prefiltered_nodes, prefiltered_cached, high_filtered, frames, map_width, blur, blurred,
                 sample_node, sample_frac, table_rows)
         for i in range(hypothesis_roughness.shape[0]):
-            _roughness_objective(hypothesis_roughness[i], args)
-            for c in range(3):
-                _specular_moments(n, omega, values[c], filtered[c, 0], filtered[c, 1], hypothesis_moments[t, i, c])
+            if not scanned[i]:
+                _roughness_objective(hypothesis_roughness[i], args)
+                _record_hypothesis(args, hypothesis_moments[t, i])
         if voting:
             # The neighbour vote. A likelihood-ratio test bounds what it may cost: the profiled
             # least-squares loss may exceed the estimate's by _VOTE_CHI2 times the noise variance
@@ -2573,7 +2650,8 @@ def _global_search_chunk(
         # A robust pass refines the roughness to _BRENT_XTOL: this search need only find its cell.
         first_xtol = _BRENT_COARSE_XTOL if robust_passes > 0 else _BRENT_XTOL
         best_r, best_f = _search_roughness(args, state, roughness_grid, best_state, roughness_brent, node_loss,
-                                           np.int64(0), roughness_grid - 1, first_xtol)
+                                           np.int64(0), roughness_grid - 1, first_xtol, node_rows,
+                                           hypothesis_moments[t] if node_rows.shape[0] > 0 else no_moments)
         if robust_passes > 0:
             # Towards the paper's L1 loss sum_v w |r_v| (IRLS): weight each sample by
             # w / max(|r|, delta), delta a tenth of the texel's mean |r| so that near-exact
@@ -2598,7 +2676,8 @@ def _global_search_chunk(
                 node = int(round(best_r * (roughness_grid - 1)))
                 best_r, best_f = _search_roughness(args, state, roughness_grid, best_state, roughness_brent,
                                                    node_loss, max(node - _ROBUST_NODES, 0),
-                                                   min(node + _ROBUST_NODES, roughness_grid - 1), _BRENT_XTOL)
+                                                   min(node + _ROBUST_NODES, roughness_grid - 1), _BRENT_XTOL,
+                                                   no_rows, no_moments)
             for s in range(n):  # back to least squares for the curvature
                 omega[s] = sample_weight[s] * sample_weight[s]
             _weighted_sums(n, omega, values, burley_terms, diffuse_moments, squared_values)

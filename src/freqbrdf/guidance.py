@@ -288,7 +288,7 @@ def expected_entropy(
 
     # The hypotheses' radiance at the new sample.
     settings = config.uncertainty
-    grid = hypothesis_grid(settings.grid_res)
+    grid = hypothesis_grid(settings.resolution())
     grid_res, ks = grid.resolution, grid.specular
     calibrated = settings.mode == "calibrated"
     # The entropy's own lobe: filter per degree and, for the "ggx" lobe, albedo at the view angle.

@@ -32,7 +32,7 @@ from freqbrdf.progress import SILENT, Reporter
 from freqbrdf.relight import RelightSettings, evaluate as relight_evaluate, write_evaluation
 from freqbrdf.share import share
 from freqbrdf.texels import Texels, estimation_resolution as texels_estimation_resolution, rasterise
-from freqbrdf.uncertainty import FLAG_UNOBSERVED, Uncertainty, entropy_map, roughness_std
+from freqbrdf.uncertainty import FLAG_UNOBSERVED, AngularEntropy, Uncertainty, entropy_map, roughness_std
 
 EVALUATION_FOLDER = "evaluation"
 SPARSIFICATION_PLOT = "sparsification.png"
@@ -114,14 +114,17 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
     timings.update({f"observe.{stage}": seconds for stage, seconds in observations.timings.items()
                     if stage != "total"})  # "observe" is the total
 
+    # The angular entropy's hypotheses are probed by the estimator's search anyway: scored on the way.
+    angular = AngularEntropy(observations, config) if AngularEntropy.recorded_by_search(config) else None
     start = time.perf_counter()
-    estimate = estimate_materials(observations, config, reporter)
-    timings["estimate"] = time.perf_counter() - start
+    estimate = estimate_materials(observations, config, reporter, angular.recorder() if angular else None)
+    timings["estimate"] = time.perf_counter() - start - (angular.seconds if angular else 0.0)
 
     start = time.perf_counter()
-    uncertainty = entropy_map(observations, config.uncertainty, estimate_config=config.estimate)
+    uncertainty = (angular.result() if angular else
+                   entropy_map(observations, config.uncertainty, estimate_config=config.estimate))
     uncertainty.roughness_std = roughness_std(observations, estimate, config)
-    timings["uncertainty"] = time.perf_counter() - start
+    timings["uncertainty"] = time.perf_counter() - start + (angular.seconds if angular else 0.0)
 
     if config.share.enabled:
         start = time.perf_counter()

@@ -97,6 +97,7 @@ with the neighbour vote); with the scatter between the even and the odd views' e
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
@@ -107,8 +108,9 @@ from scipy import ndimage
 from freqbrdf import brdf, sh
 from freqbrdf.config import Config, EstimateConfig, UncertaintyConfig
 from freqbrdf.estimate import (
-    CURVATURE_STEP, FITTED_PARAMETERS, angular_loss, estimate as estimate_materials, ggx_lobe_gains, hypothesis_moments,
-    model_light, split_sum_table, split_sum_terms,
+    CURVATURE_STEP, FITTED_PARAMETERS, HYPOTHESIS_BLOCK, HypothesisRecorder, angular_loss,
+    estimate as estimate_materials, ggx_lobe_gains, hypothesis_moments, model_light, split_sum_table, split_sum_terms,
+    texel_blocks,
 )
 
 if TYPE_CHECKING:
@@ -441,7 +443,7 @@ def entropy_from_spectra(
                          "mode needs the samples: entropy_map or entropy_angular)")
     n_texels, _, n_degrees = light_spectrum.shape
     lmax = n_degrees - 1
-    grid = hypothesis_grid(config.grid_res)
+    grid = hypothesis_grid(config.resolution())
     paper = config.mode == "paper"
 
     if paper:
@@ -513,46 +515,80 @@ def _finish(unobserved, entropy, channel, best_alpha, best_ks, likelihood, n_sam
                        lobe=config.lobe if config.mode == "calibrated" else None)
 
 
-# Texels per block of `entropy_angular`: bounds the (block, R, 3, 8) moments.
-_ANGULAR_BLOCK = 16384
-
-
 def entropy_angular(observations: Observations, config: Config = Config(),
                     return_likelihood: bool = True) -> Uncertainty:
     """The same hypothesis grid scored in the sample domain with the `global` estimator's own model
     (``config.uncertainty.mode`` "angular"; lobes anisotropic or not as
-    ``config.uncertainty.anisotropic_lobes``), as benchmarks/pathtraced_entropy.py scores it with a
-    path tracer. Per texel, channel and hypothesis (alpha_i, k_j), a metal of base colour k_j and
-    roughness sqrt(alpha_i) reflects s_v = k_j X_v + Y_v (`estimate.hypothesis_moments`; k = 0:
-    no lobe, s = 0, not a black metal's grazing Fresnel); with
-    the best view-independent (diffuse) part d = max(0, mean_w(f - s)) the misfit is
-    e = mean_w (f - d - s)^2 (w the sample weights). Noise variance: (noise_level x the RMS of the
-    mirrored environment's radiance)^2 + the best misfit x n / (n - 3) (three parameters fitted);
-    likelihood exp(-n (e - min e) / (2 variance)) over n samples; the k = 0 column is one material;
-    normalised entropy, minimum over RGB. Scaling every image and the environment by kappa scales
-    e and the variance by kappa^2: the map does not change. Costs R probes of the estimator's
-    search per texel (seconds, not milliseconds)."""
-    settings = config.uncertainty
-    config = replace(config, estimate=replace(config.estimate, anisotropic_lobes=settings.anisotropic_lobes))
-    grid = hypothesis_grid(settings.grid_res)
-    n_texels, resolution = observations.n_texels, grid.resolution
-    entropy = np.empty(n_texels, np.float32)
-    channel = np.empty(n_texels, np.int8)
-    best_alpha = np.empty(n_texels, np.float32)
-    best_ks = np.empty(n_texels, np.float32)
-    likelihood = np.empty((n_texels if return_likelihood else 0, resolution, resolution), np.float32)
-    for start in range(0, n_texels, _ANGULAR_BLOCK):
-        rows = slice(start, min(start + _ANGULAR_BLOCK, n_texels))
-        moments = hypothesis_moments(observations.select(rows), np.sqrt(grid.alpha), config)
-        weight = observations.weight[rows].astype(np.float64)
-        light_mean_square = (np.einsum("nv,nvc->nc", weight, np.square(observations.mirrored[rows], dtype=np.float64))
+    ``config.uncertainty.anisotropic_lobes``, by default the estimator's), as
+    benchmarks/pathtraced_entropy.py scores it with a path tracer. Per texel, channel and
+    hypothesis (alpha_i, k_j), a metal of base colour k_j and roughness sqrt(alpha_i) reflects
+    s_v = k_j X_v + Y_v (`estimate.hypothesis_moments`; k = 0: no lobe, s = 0, not a black metal's
+    grazing Fresnel); with the best view-independent (diffuse) part d = max(0, mean_w(f - s)) the
+    misfit is e = mean_w (f - d - s)^2 (w the sample weights). Noise variance: (noise_level x the
+    RMS of the mirrored environment's radiance)^2 + the best misfit x n / (n - 3) (three parameters
+    fitted); likelihood exp(-n (e - min e) / (2 variance)) over n samples; the k = 0 column is one
+    material; normalised entropy, minimum over RGB. Scaling every image and the environment by
+    kappa scales e and the variance by kappa^2: the map does not change. Costs R probes of the
+    estimator's search per texel (seconds, not milliseconds); `pipeline.fit` takes them from its
+    own search instead (`AngularEntropy`)."""
+    scorer = AngularEntropy(observations, config, return_likelihood)
+    for rows in texel_blocks(observations.n_texels, HYPOTHESIS_BLOCK):
+        scorer.consume(rows, hypothesis_moments(observations.select(rows), scorer.roughness, scorer.config))
+    return scorer.result()
+
+
+class AngularEntropy:
+    """`entropy_angular` fed with its hypotheses' moments block by block: by `entropy_angular`, or
+    by the `global` estimator's search while it estimates (`estimate.estimate`'s ``hypotheses``,
+    `recorder`), whose first scan probes the roughness nodes anyway. With the default grid (the
+    estimator's nodes) and lobes (the estimator's) that costs the search no probe of its own."""
+
+    def __init__(self, observations: Observations, config: Config = Config(), return_likelihood: bool = True):
+        settings = config.uncertainty
+        lobes = config.estimate.anisotropic_lobes if settings.anisotropic_lobes is None else settings.anisotropic_lobes
+        self.config = replace(config, estimate=replace(config.estimate, anisotropic_lobes=lobes))
+        self.grid = hypothesis_grid(settings.resolution(config.estimate.roughness_grid))
+        self.roughness = np.sqrt(self.grid.alpha)  # (R,)
+        self.observations = observations
+        n_texels, resolution = observations.n_texels, self.grid.resolution
+        self.entropy = np.empty(n_texels, np.float32)
+        self.channel = np.empty(n_texels, np.int8)
+        self.best_alpha = np.empty(n_texels, np.float32)
+        self.best_ks = np.empty(n_texels, np.float32)
+        self.likelihood = np.empty((n_texels, resolution, resolution), np.float32) if return_likelihood else None
+        self.seconds = 0.0  # spent in `consume`
+
+    @staticmethod
+    def recorded_by_search(config: Config) -> bool:
+        """Whether the estimator of ``config`` can record this mode's hypotheses as it searches: the
+        global estimator, scoring them with its own lobes."""
+        settings = config.uncertainty
+        return (settings.mode == "angular" and config.estimate.method == "global"
+                and settings.anisotropic_lobes in (None, config.estimate.anisotropic_lobes))
+
+    def recorder(self) -> HypothesisRecorder:
+        return HypothesisRecorder(self.roughness, self.consume)
+
+    def consume(self, rows: slice, moments: np.ndarray) -> None:
+        """Score the texels ``rows`` from their `hypothesis_moments` (n, R, 3, 8)."""
+        start = time.perf_counter()
+        weight = self.observations.weight[rows].astype(np.float64)
+        mirrored = self.observations.mirrored[rows]
+        light_mean_square = (np.einsum("nv,nvc->nc", weight, np.square(mirrored, dtype=np.float64))
                              / np.maximum(weight.sum(axis=1), np.finfo(np.float64).tiny)[:, None])
-        _moment_entropy_kernel(moments, light_mean_square, observations.n_samples[rows], grid.alpha, grid.specular,
-                               settings.noise_level, return_likelihood, entropy[rows], channel[rows],
-                               best_alpha[rows], best_ks[rows], likelihood[rows] if return_likelihood else likelihood)
-    return _finish(observations.n_samples == 0, entropy, channel, best_alpha, best_ks,
-                   likelihood if return_likelihood else None, observations.n_samples,
-                   sh.num_coeffs(observations.lmax), observations.alpha_bound, grid, settings)
+        want_likelihood = self.likelihood is not None
+        _moment_entropy_kernel(moments, light_mean_square, self.observations.n_samples[rows], self.grid.alpha,
+                               self.grid.specular, self.config.uncertainty.noise_level, want_likelihood,
+                               self.entropy[rows], self.channel[rows], self.best_alpha[rows], self.best_ks[rows],
+                               self.likelihood[rows] if want_likelihood else np.empty((0, 0, 0), np.float32))
+        self.seconds += time.perf_counter() - start
+
+    def result(self) -> Uncertainty:
+        """The Uncertainty, once every texel has been consumed."""
+        observations = self.observations
+        return _finish(observations.n_samples == 0, self.entropy, self.channel, self.best_alpha, self.best_ks,
+                       self.likelihood, observations.n_samples, sh.num_coeffs(observations.lmax),
+                       observations.alpha_bound, self.grid, self.config.uncertainty)
 
 
 def summary(uncertainty: Uncertainty) -> dict:
