@@ -11,7 +11,8 @@ photographed from the upper hemisphere only. Regions by world normal n:
 - sharply lit: n_x > 0.5, not rarely seen: the reference;
 - the rest.
 
-Measured: mean entropy and mean |roughness error| per region (calibrated and paper modes),
+Measured: mean entropy and mean |roughness error| per region (calibrated, paper and angular modes,
+the last as `fit` computes it),
 Spearman rho (entropy vs |roughness error| of the global estimate), AUSE and AURG
 (freqbrdf.sparsification), timings; and the same scores of the roughness std (as exported:
 texels without an estimate take its prior) against the error of each fit's own estimate, for the
@@ -123,9 +124,12 @@ def main() -> None:
     start = time.perf_counter()
     paper = entropy_map(observations, UncertaintyConfig(mode="paper"), return_likelihood=False)
     paper_s = time.perf_counter() - start
+    # The angular mode as `fit` computes it (from its search's probes): the same estimate.
+    angular_fit = fit(capture, Config(uncertainty=UncertaintyConfig(mode="angular")))
 
     scores = {}
-    for name, uncertainty in (("calibrated", result.uncertainty), ("paper", paper)):
+    for name, uncertainty in (("calibrated", result.uncertainty), ("paper", paper),
+                              ("angular", angular_fit.uncertainty)):
         # Unobserved texels have no estimate (NaN error): sparsification leaves them out.
         curves = sparsification.sparsification(uncertainty.entropy, error)
         scores[name] = {
@@ -176,7 +180,9 @@ def main() -> None:
         "roughness_std": spread_scores,
         "timings_s": {"render_capture (0 if cached)": round(render_s, 2),
                       **{stage: round(seconds, 4) for stage, seconds in result.timings.items()},
-                      "uncertainty_paper_mode": round(paper_s, 4)},
+                      "uncertainty_paper_mode": round(paper_s, 4),
+                      "fit_with_angular_entropy": {stage: round(seconds, 4) for stage, seconds
+                                                   in angular_fit.timings.items() if "." not in stage}},
         "numba_threads": numba.get_num_threads(),
     })
     plot(result, error, masks, RESULTS_DIR / "entropy_scenes.png")

@@ -11,7 +11,7 @@ import trimesh
 
 from freqbrdf import pipeline, sparsification
 from freqbrdf.capture import load
-from freqbrdf.config import Config, TexelConfig, preset
+from freqbrdf.config import Config, TexelConfig, UncertaintyConfig, preset
 from freqbrdf.errors import InputError
 from freqbrdf.materials import MaterialMaps
 from freqbrdf.relight import RelightSettings
@@ -285,3 +285,27 @@ def test_fit_on_coarser_texels_writes_t_by_t_maps_that_load_and_evaluate(tiny_ca
     assert preset("paper").texels.estimation_res == "full" and preset("fast").texels.estimation_res == "coarse"
     with pytest.raises(ValueError, match="estimation_res must be"):
         pipeline.estimation_resolution(capture, Config(texels=TexelConfig(texture_res=32, estimation_res=64)))
+
+
+def test_fit_takes_the_angular_entropy_from_the_estimators_search(tiny_capture, monkeypatch):
+    """With the angular mode, `fit` scores the hypotheses during the estimator's search instead of
+    in a pass of its own: the same entropy and likelihood as that pass on the fit's observations,
+    and the same estimate as a fit with the default entropy."""
+    from freqbrdf import uncertainty as unc
+
+    config = Config(texels=TexelConfig(texture_res=32, estimation_res="full"),
+                    uncertainty=UncertaintyConfig(mode="angular"))
+    capture = load(tiny_capture)
+    passes = []
+    monkeypatch.setattr(unc, "entropy_angular", lambda *args, **kwargs: passes.append(args))
+    monkeypatch.setattr(pipeline, "entropy_map", lambda *args, **kwargs: passes.append(args))
+    result = pipeline.fit(capture, config)
+    assert not passes  # no pass of its own
+    monkeypatch.undo()
+    alone = unc.entropy_map(result.observations, config.uncertainty, estimate_config=config.estimate)
+    assert result.uncertainty.mode == "angular" and result.uncertainty.grid.resolution == 9
+    np.testing.assert_allclose(result.uncertainty.entropy, alone.entropy, atol=1e-6)
+    np.testing.assert_allclose(result.uncertainty.likelihood, alone.likelihood, atol=1e-6)
+    default = pipeline.fit(capture, config.replace(uncertainty=UncertaintyConfig()))
+    np.testing.assert_array_equal(result.estimate.roughness, default.estimate.roughness)
+    np.testing.assert_array_equal(result.estimate.base_color, default.estimate.base_color)

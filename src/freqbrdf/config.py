@@ -71,13 +71,15 @@ SPECTRAL_GRID_RES = 8
 
 @dataclass(frozen=True)
 class UncertaintyConfig:
-    # "angular": the same grid scored in the sample domain with the global estimator's own model
-    # (uncertainty.entropy_angular): seconds instead of milliseconds (7 s for the 256k texels of
-    # entropy_scenes.py's sphere), but it agrees with the path-traced brute force over the same grid
-    # (benchmarks/pathtraced_entropy.py, 400 texels: Spearman 0.83 [0.78, 0.87] against the pooled
-    # rendering of two seeds that agree with each other at 0.91) where the spectra do not
-    # (calibrated 0.19, with lobe "ggx" 0.38, paper 0.17). Capture guidance (which predicts spectra)
-    # needs "calibrated" or "paper".
+    # "angular": the hypotheses scored in the sample domain with the global estimator's own model
+    # (uncertainty.entropy_angular). On its own it takes seconds (2.7 s for the 256k texels of
+    # entropy_scenes.py's sphere); inside `pipeline.fit` the estimator's search probes the
+    # hypotheses anyway (uncertainty.AngularEntropy), which costs the fit about 5 % (plane, T = 512:
+    # +0.3 s of 6.3 s). It agrees with the path-traced brute force over the same grid
+    # (benchmarks/pathtraced_entropy.py, 400 texels, 9 x 9 grid: Spearman 0.81 [0.76, 0.86] against
+    # the pooled rendering of two seeds that agree with each other at 0.89) where the spectra do not
+    # (8 x 8 grid: calibrated 0.19, with lobe "ggx" 0.38, paper 0.17). Capture guidance (which
+    # predicts spectra) needs "calibrated" or "paper".
     mode: Literal["calibrated", "paper", "angular"] = "calibrated"
     # R: R x R hypotheses (alpha_i = (i/(R-1))^2, k_j = j/(R-1)). None: the paper's 8 in the
     # spectral modes; in angular mode the estimator's roughness nodes (EstimateConfig.roughness_grid,

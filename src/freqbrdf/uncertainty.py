@@ -55,17 +55,19 @@ temperature) are clamped there: their share is below e^-CUTOFF. The kernel (_gri
 runs SIMD across texels: moments and row minima in float64, the R^2 cells in float32 with a
 polynomial exp; measured figures in benchmarks/results/bench_entropy.json.
 
-``angular`` scores the same grid in the sample domain instead of on spectra, with the `global`
-estimator's own forward model (`entropy_angular`; its lobes anisotropic, as
-UncertaintyConfig.anisotropic_lobes says): per hypothesis, the radiance a metal of base colour k
-and roughness sqrt(alpha) reflects at each observed view (split-sum albedo, the prefiltered and
-environment light), the best constant diffuse part, and the misfit of the samples; the noise
-model of the calibrated mode in radiance units. It is what benchmarks/pathtraced_entropy.py
-computes with a path tracer, and agrees with it: Spearman 0.83 [0.78, 0.87] (95 % bootstrap
-interval, 400 texels) against the pooled rendering of two seeds, which agree with each other at
-0.91; isotropic lobes 0.82, the calibrated mode 0.19 (its "ggx" lobe 0.38), the paper's recipe
-0.17. It costs R probes of the estimator's search per texel: seconds, not milliseconds (5-7 s for
-the 256k texels there).
+``angular`` scores a grid of hypotheses in the sample domain instead of on spectra, with the
+`global` estimator's own forward model (`entropy_angular`; by default on the estimator's roughness
+nodes, 9 x 9, and with its lobes, as UncertaintyConfig.grid_res and anisotropic_lobes say): per
+hypothesis, the radiance a metal of base colour k and roughness sqrt(alpha) reflects at each
+observed view (split-sum albedo, the prefiltered and environment light), the best constant diffuse
+part, and the misfit of the samples; the noise model of the calibrated mode in radiance units. It
+is what benchmarks/pathtraced_entropy.py computes with a path tracer, and agrees with it: Spearman
+0.81 [0.76, 0.86] (95 % bootstrap interval, 400 texels, 9 x 9) against the pooled rendering of two
+seeds, which agree with each other at 0.89; with anisotropic lobes 0.83; on the 8 x 8 grid the
+calibrated mode 0.19 (its "ggx" lobe 0.38), the paper's recipe 0.17. It costs R probes of the
+estimator's search per texel: on its own seconds, not milliseconds (2.7 s for the 256k texels
+there); inside `pipeline.fit` the search makes those probes anyway (`AngularEntropy`), and the fit
+takes about 5 % longer.
 Both the brute force and this mode find the smooth-gradient ("badly lit") region of
 entropy_scenes.py about as certain as the sharply lit one (brute force 0.15 and 0.17, this mode
 0.16 and 0.18): the view dependence of Fresnel and masking, which a spectrum of the mirrored light
