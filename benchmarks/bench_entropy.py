@@ -8,7 +8,9 @@ amplitude, one coefficient per degree (so the cross spectrum is the signed produ
 amplitudes); 64 samples per texel. Calibrated mode runs as `entropy_map` calls it by default,
 once more with ``phase_aware`` (the cross spectrum) and once with the GGX lobe
 (`UncertaintyConfig.lobe`, which reads the texels' view cosines: what its per-texel albedo
-costs). Each mode at R = 8 and R = 32, with and without returning the (N, R, R) likelihood.
+costs). Each mode at R = 8 and R = 32, with and without returning the (N, R, R) likelihood. Then
+the angular mode from its hypotheses' moments (`entropy_from_moments`, 9 x 9, synthetic moments of
+64 samples per texel: `synthetic_moments`), with and without the likelihood.
 
 Prints the figures and saves them to benchmarks/results/bench_entropy.json. The first call loads
 (or compiles) the numba kernel and is reported separately; the warm figure is the median of
@@ -26,12 +28,14 @@ from _common import first_call_seconds, machine, median_seconds, peak_mib, save_
 
 from freqbrdf.config import UncertaintyConfig
 from freqbrdf.estimate import ggx_lobe_gains, split_sum_terms
-from freqbrdf.uncertainty import entropy_from_spectra
+from freqbrdf.uncertainty import entropy_from_moments, entropy_from_spectra
 
 TEXTURE_RES = 512
 LMAX = 5
 REPEATS = 5
 NOISE = 0.01
+ANGULAR_GRID = 9  # the angular mode's default grid: the estimator's roughness nodes
+ANGULAR_VIEWS = 64
 
 
 def synthetic_spectra(n_texels: int, seed: int = 0) -> tuple[np.ndarray, ...]:
@@ -54,6 +58,43 @@ def synthetic_spectra(n_texels: int, seed: int = 0) -> tuple[np.ndarray, ...]:
     cross = np.sqrt(light) * amplitude
     return (light.astype(np.float32), np.square(amplitude).astype(np.float32), cross.astype(np.float32),
             view_cos.astype(np.float32))
+
+
+def synthetic_moments(n_texels: int, resolution: int, seed: int = 1) -> tuple[np.ndarray, ...]:
+    """The angular mode's inputs: moments (N, R, 3, 8) of its R x R hypotheses, weights (N, V) and
+    mirrored radiance (N, V, 3). Per texel, V = ANGULAR_VIEWS samples at view cosines uniform in
+    [0.2, 1] under a light of log-normal radiance; a metal (alpha_i, k) reflects k X + Y with (X, Y)
+    the split-sum albedo terms (A, B) at the sample's cosine and roughness sqrt(alpha_i) times the
+    light; the observed radiance is a random hypothesis's (per channel k) plus a diffuse part plus
+    1 % noise. Made in blocks of texels (the (block, R, V) terms)."""
+    rng = np.random.default_rng(seed)
+    views = ANGULAR_VIEWS
+    roughness = np.arange(resolution) / (resolution - 1)
+    moments = np.empty((n_texels, resolution, 3, 8))
+    weight = rng.uniform(0.2, 1.0, (n_texels, views)).astype(np.float32)
+    mirrored = rng.lognormal(0.0, 0.5, (n_texels, views, 3)).astype(np.float32)
+    for start in range(0, n_texels, 8192):
+        rows = slice(start, min(start + 8192, n_texels))
+        count = rows.stop - rows.start
+        view_cos = rng.uniform(0.2, 1.0, (count, 1, views))
+        scale, bias, _ = split_sum_terms(view_cos, roughness[None, :, None])  # (n, R, V)
+        light = mirrored[rows].astype(np.float64)  # (n, V, 3)
+        scale_terms = scale[..., None] * light[:, None]  # (n, R, V, 3)
+        bias_terms = bias[..., None] * light[:, None]
+        truth = rng.integers(0, resolution, count)
+        specular = rng.uniform(0.0, 1.0, (count, 3))
+        picked = np.arange(count)
+        observed = (specular[:, None, :] * scale_terms[picked, truth] + bias_terms[picked, truth]
+                    + rng.uniform(0.0, 0.5, (count, 1, 3)))
+        observed *= 1.0 + NOISE * rng.standard_normal(observed.shape)
+        w = weight[rows].astype(np.float64)[:, None, :, None]  # (n, 1, V, 1)
+        f = observed[:, None]  # (n, 1, V, 3)
+        u = f - bias_terms
+        for index, value in enumerate((np.ones_like(u), u, scale_terms, u * u, u * scale_terms,
+                                       scale_terms * scale_terms, np.broadcast_to(f, u.shape),
+                                       np.broadcast_to(f * f, u.shape))):
+            moments[rows, :, :, index] = (w * value).sum(axis=2)
+    return moments, weight, mirrored
 
 
 def numpy_exp_ns() -> float:
@@ -103,8 +144,31 @@ def main() -> None:
                 print(entry)
                 runs.append(entry)
 
+    # The angular mode, scored from its hypotheses' moments (inside `fit`, the estimator's search
+    # collects them while it searches; on its own they take seconds, see UncertaintyConfig.mode).
+    moments, weight, mirrored = synthetic_moments(n_texels, ANGULAR_GRID)
+    n_views = np.full(n_texels, ANGULAR_VIEWS, np.int32)
+    for with_likelihood in (False, True):
+
+        def run_angular():
+            return entropy_from_moments(moments, weight, mirrored, n_views, return_likelihood=with_likelihood)
+
+        first_call, result = first_call_seconds(run_angular)
+        warm = median_seconds(run_angular, REPEATS)
+        numba.set_num_threads(1)
+        try:
+            one_thread = median_seconds(run_angular, REPEATS)
+        finally:
+            numba.set_num_threads(threads)
+        entry = {"mode": "angular (from moments)", "grid_res": ANGULAR_GRID, "likelihood": with_likelihood,
+                 "first_call_s": round(first_call, 4), "warm_median_s": round(warm, 4),
+                 "one_thread_median_s": round(one_thread, 4), "peak_mib": round(peak_mib(run_angular), 1),
+                 "entropy_mean": round(float(result.entropy.mean()), 4)}
+        print(entry)
+        runs.append(entry)
+
     save_results("bench_entropy", {
-        "benchmark": "uncertainty: entropy map from SH power spectra",
+        "benchmark": "uncertainty: entropy map from SH power spectra (and the angular mode's from moments)",
         **facts,
         "numba_threads": threads,
         "numpy_exp_ns_per_element": {"start": round(exp_ns_at_start, 2), "end": round(numpy_exp_ns(), 2)},

@@ -698,6 +698,16 @@ def test_angular_mode_equals_a_direct_evaluation_and_is_exposure_invariant():
     np.testing.assert_allclose(result.likelihood.sum(axis=(1, 2)), 1.0, rtol=1e-5)
     direct = _direct_angular_entropy(observations, unc.hypothesis_grid(9), config.noise_level)
     np.testing.assert_allclose(result.entropy, direct, atol=2e-5)
+    # The same from the moments alone (the angular mode's analogue of entropy_from_spectra).
+    from freqbrdf.estimate import hypothesis_moments
+
+    moments = hypothesis_moments(observations, np.arange(9) / 8)
+    scored = unc.entropy_from_moments(moments, observations.weight, observations.mirrored, observations.n_samples)
+    np.testing.assert_allclose(scored.entropy, result.entropy, atol=1e-6)
+    np.testing.assert_allclose(scored.likelihood, result.likelihood, atol=1e-6)
+    with pytest.raises(ValueError, match="angular"):
+        unc.entropy_from_moments(moments, observations.weight, observations.mirrored, observations.n_samples,
+                                 config=UncertaintyConfig())
     # Fewer views, less certain: the same texels seen from their first 8 views only.
     few_weight = observations.weight.copy()
     few_weight[:, 8:] = 0.0

@@ -2426,7 +2426,7 @@ def _global_search_kernel(
     left untouched.
     """
     n_chunks = (weight.shape[0] + _SEARCH_CHUNK - 1) // _SEARCH_CHUNK
-    stride = _scattering_stride(n_chunks)
+    stride = scattering_stride(n_chunks)
     for item in numba.prange(n_chunks):
         # np.int64: the loop index is unsigned in numba's parallel code and signed when typed: one
         # signature, not two (each compiles the whole search).
@@ -2441,7 +2441,7 @@ def _global_search_kernel(
 
 
 @numba.njit(cache=True)
-def _scattering_stride(n_items):
+def scattering_stride(n_items):
     """A stride coprime to n_items near the golden section of it: item i -> (i stride) mod n_items
     visits every item once and spreads any contiguous run of i over the whole range."""
     stride = max(int(n_items * 0.6180339887), 1)

@@ -112,7 +112,7 @@ from freqbrdf.config import Config, EstimateConfig, UncertaintyConfig
 from freqbrdf.estimate import (
     CURVATURE_STEP, FITTED_PARAMETERS, HYPOTHESIS_BLOCK, HypothesisRecorder, angular_loss,
     estimate as estimate_materials, ggx_lobe_gains, hypothesis_moments, model_light, split_sum_table, split_sum_terms,
-    texel_blocks,
+    scattering_stride, texel_blocks,
 )
 
 if TYPE_CHECKING:
@@ -143,6 +143,7 @@ PRIOR_ROUGHNESS_VARIANCE = 1.0 / 12.0
 # Noise floor of the loss curvature's noise variance: a sample's noise std relative to the RMS of
 # the texel's observed radiance, so that a texel fitted exactly is not called certain.
 CURVATURE_NOISE_FLOOR = 0.02
+_MOMENT_CHUNK = 64  # texels per parallel work item of the angular entropy: amortises the scratch arrays
 _LANES = 64  # texels side by side in the kernel's SIMD loops (measured 8-15 % faster than 32; 16: 1.6x slower)
 
 
@@ -539,6 +540,34 @@ def entropy_angular(observations: Observations, config: Config = Config(),
     return scorer.result()
 
 
+def entropy_from_moments(
+    moments: np.ndarray, weight: np.ndarray, mirrored: np.ndarray, n_samples: np.ndarray, *,
+    config: UncertaintyConfig = UncertaintyConfig(mode="angular"), return_likelihood: bool = True,
+) -> Uncertainty:
+    """The angular mode's uncertainty from the R x R hypotheses' moments (N, R, 3, 8) float64
+    (`estimate.hypothesis_moments` at roughness i / (R - 1)), with the samples' weights (N, V) and
+    mirrored radiance (N, V, 3) (the noise floor's light) and their count n_samples (N,); what
+    `entropy_angular` and `AngularEntropy` do block by block. Texels without samples get the prior;
+    no flags but FLAG_AMBIGUOUS (the sampling bound and the SH fit are not known here)."""
+    if config.mode != "angular":
+        raise ValueError(f"moments are scored in the angular mode, not {config.mode!r}")
+    n_texels, resolution = moments.shape[:2]
+    if moments.shape[2:] != (3, 8) or weight.shape[0] != n_texels or mirrored.shape[:2] != weight.shape:
+        raise ValueError(f"moments (N, R, 3, 8), weight (N, V) and mirrored (N, V, 3) disagree: {moments.shape}, "
+                         f"{weight.shape}, {mirrored.shape}")
+    grid = hypothesis_grid(resolution)
+    entropy = np.empty(n_texels, np.float32)
+    channel = np.empty(n_texels, np.int8)
+    best_alpha = np.empty(n_texels, np.float32)
+    best_ks = np.empty(n_texels, np.float32)
+    likelihood = np.empty((n_texels if return_likelihood else 0, resolution, resolution), np.float32)
+    _moment_entropy_kernel(np.ascontiguousarray(moments, dtype=np.float64), weight, mirrored, n_samples, grid.alpha,
+                           grid.specular, config.noise_level, return_likelihood, entropy, channel, best_alpha,
+                           best_ks, likelihood)
+    return _finish(np.asarray(n_samples) == 0, entropy, channel, best_alpha, best_ks,
+                   likelihood if return_likelihood else None, None, 0, None, grid, config)
+
+
 class AngularEntropy:
     """`entropy_angular` fed with its hypotheses' moments block by block: by `entropy_angular`, or
     by the `global` estimator's search while it estimates (`estimate.estimate`'s ``hypotheses``,
@@ -574,12 +603,9 @@ class AngularEntropy:
     def consume(self, rows: slice, moments: np.ndarray) -> None:
         """Score the texels ``rows`` from their `hypothesis_moments` (n, R, 3, 8)."""
         start = time.perf_counter()
-        weight = self.observations.weight[rows].astype(np.float64)
-        mirrored = self.observations.mirrored[rows]
-        light_mean_square = (np.einsum("nv,nvc->nc", weight, np.square(mirrored, dtype=np.float64))
-                             / np.maximum(weight.sum(axis=1), np.finfo(np.float64).tiny)[:, None])
         want_likelihood = self.likelihood is not None
-        _moment_entropy_kernel(moments, light_mean_square, self.observations.n_samples[rows], self.grid.alpha,
+        _moment_entropy_kernel(moments, self.observations.weight[rows], self.observations.mirrored[rows],
+                               self.observations.n_samples[rows], self.grid.alpha,
                                self.grid.specular, self.config.uncertainty.noise_level, want_likelihood,
                                self.entropy[rows], self.channel[rows], self.best_alpha[rows], self.best_ks[rows],
                                self.likelihood[rows] if want_likelihood else np.empty((0, 0, 0), np.float32))
@@ -718,79 +744,124 @@ def _smaller(a, b):
 
 
 @numba.njit(parallel=True, cache=True)
-def _moment_entropy_kernel(moments, light_mean_square, n_samples, alphas, specular, noise_level, want_likelihood,
+def _moment_entropy_kernel(moments, weight, mirrored, n_samples, alphas, specular, noise_level, want_likelihood,
                            entropy, channel, best_alpha, best_ks, likelihood):
     """`entropy_angular`'s grid per texel from `estimate.hypothesis_moments` (n, R, 3, 8) and the
-    mirrored light's weighted mean square (n, 3); texels without moments (too few samples) get the
-    prior. Outputs as `_grid_entropy_kernel`'s."""
-    n_texels, resolution = moments.shape[0], moments.shape[1]
-    log_hypotheses = math.log(resolution * (resolution - 1) + 1)
-    for t in numba.prange(n_texels):
-        misfit = np.empty((resolution, resolution))
-        posterior = np.empty((3, resolution, resolution))
-        best_entropy = 2.0
-        best_channel, best_row, best_column = 0, 0, 0
-        for c in range(3):
-            total = moments[t, 0, c, 0]
-            if not total > 0.0:  # no moments: the prior
-                for i in range(resolution):
-                    for j in range(resolution):
-                        posterior[c, i, j] = 1.0 / (resolution * (resolution - 1) + 1)
-                    posterior[c, i, 0] /= resolution
-                value, row, column = 1.0, 0, 0
-            else:
-                lowest = np.inf
-                for i in range(resolution):
-                    m = moments[t, i, c]
-                    mean_u, mean_x, mean_f = m[1] / total, m[2] / total, m[6] / total
-                    diffuse = max(mean_f, 0.0)  # k = 0: no specular lobe at all
-                    misfit[i, 0] = max(m[7] / total - 2.0 * diffuse * mean_f + diffuse * diffuse, 0.0)
-                    for j in range(1, resolution):
-                        k = specular[j]
-                        diffuse = max(mean_u - k * mean_x, 0.0)
-                        e = (m[3] - 2.0 * k * m[4] + k * k * m[5]) / total - 2.0 * diffuse * (mean_u - k * mean_x) \
-                            + diffuse * diffuse
-                        misfit[i, j] = max(e, 0.0)
-                    for j in range(resolution):
-                        lowest = min(lowest, misfit[i, j])
-                n = max(n_samples[t], 1)
-                variance = noise_level * noise_level * light_mean_square[t, c] + lowest * n / max(n - 3, 1)
-                variance = max(variance, 1e-30)
-                norm = 0.0
-                for i in range(resolution):
-                    for j in range(resolution):
-                        p = math.exp(-n * (misfit[i, j] - lowest) / (2.0 * variance))
-                        posterior[c, i, j] = p / resolution if j == 0 else p  # the k = 0 column is one material
-                        norm += posterior[c, i, j]
-                zero = 0.0
-                value = 0.0
-                row, column, largest = 0, 0, -1.0
-                for i in range(resolution):
-                    for j in range(resolution):
-                        posterior[c, i, j] /= norm
-                        if j == 0:
-                            zero += posterior[c, i, 0]
-                        else:
-                            p = posterior[c, i, j]
-                            if p > 0.0:
-                                value -= p * math.log(p)
-                            if p > largest:
-                                row, column, largest = i, j, p
-                if zero > 0.0:
-                    value -= zero * math.log(zero)
-                if zero >= largest:
-                    row, column = 0, 0
-                value = min(max(value / log_hypotheses, 0.0), 1.0)
-            if value < best_entropy:
-                best_entropy, best_channel, best_row, best_column = value, c, row, column
-        entropy[t] = best_entropy
-        channel[t] = best_channel
-        best_alpha[t] = alphas[best_row] if best_column > 0 else np.nan
-        best_ks[t] = specular[best_column]
-        if want_likelihood:
+    texel's samples' weights (n, V) and mirrored radiance (n, V, 3) (the noise floor's light);
+    texels without moments (too few samples) get the prior. Outputs as `_grid_entropy_kernel`'s."""
+    n_chunks = (moments.shape[0] + _MOMENT_CHUNK - 1) // _MOMENT_CHUNK
+    stride = scattering_stride(n_chunks)  # texels without moments cost little: spread them over the threads
+    for item in numba.prange(n_chunks):
+        _moment_entropy_chunk((np.int64(item) * stride) % n_chunks, moments, weight, mirrored, n_samples, alphas,
+                              specular, noise_level, want_likelihood, entropy, channel, best_alpha, best_ks,
+                              likelihood)
+
+
+@numba.njit(cache=True, fastmath={"contract", "reassoc", "nsz", "arcp"})
+def _moment_entropy_chunk(chunk, moments, weight, mirrored, n_samples, alphas, specular, noise_level,
+                          want_likelihood, entropy, channel, best_alpha, best_ks, likelihood):
+    """`_moment_entropy_kernel`'s work for the texels of one chunk. The cells' weights w = exp(-d)
+    (d the misfit above the least in temperatures, at most CUTOFF) in float32 with `_exp_neg`; the
+    entropy without a log per cell: for p = w / Z, -sum p log p = (sum w d) / Z + log Z over the
+    k > 0 cells, and the k = 0 column's merged mass P0 adds -P0 log P0."""
+    resolution = moments.shape[1]
+    misfit = np.empty((resolution, resolution))
+    cell_weight = np.empty((3, resolution, resolution), np.float32)
+    norm = np.empty(3)
+    light_mean_square = np.empty(3)
+    for t in range(chunk * _MOMENT_CHUNK, min((chunk + 1) * _MOMENT_CHUNK, moments.shape[0])):
+        _moment_entropy_texel(t, moments, weight, mirrored, n_samples, alphas, specular, noise_level,
+                              want_likelihood, entropy, channel, best_alpha, best_ks, likelihood, misfit,
+                              cell_weight, norm, light_mean_square)
+
+
+@numba.njit(cache=True, fastmath={"contract", "reassoc", "nsz", "arcp"})
+def _moment_entropy_texel(t, moments, weight, mirrored, n_samples, alphas, specular, noise_level, want_likelihood,
+                          entropy, channel, best_alpha, best_ks, likelihood, misfit, cell_weight, norm,
+                          light_mean_square):
+    """`_moment_entropy_chunk`'s work for texel t, with its scratch arrays."""
+    resolution = moments.shape[1]
+    n_materials = resolution * (resolution - 1) + 1
+    log_hypotheses = math.log(n_materials)
+    light_mean_square[:] = 0.0
+    weight_sum = 0.0
+    for v in range(weight.shape[1]):
+        w = np.float64(weight[t, v])
+        if w > 0.0:
+            weight_sum += w
+            for c in range(3):
+                light_mean_square[c] += w * np.float64(mirrored[t, v, c]) ** 2
+    best_entropy = 2.0
+    best_channel, best_row, best_column = 0, 0, 0
+    for c in range(3):
+        total = moments[t, 0, c, 0]
+        if not total > 0.0:  # no moments: the prior
+            norm[c] = 1.0
             for i in range(resolution):
                 for j in range(resolution):
-                    likelihood[t, i, j] = posterior[best_channel, i, j]
+                    cell_weight[c, i, j] = np.float32(1.0 / n_materials) / (resolution if j == 0 else 1)
+            value, row, column = 1.0, 0, 0
+        else:
+            lowest = np.inf
+            inverse_total = 1.0 / total
+            for i in range(resolution):
+                m = moments[t, i, c]
+                mean_u, mean_x, mean_f = m[1] * inverse_total, m[2] * inverse_total, m[6] * inverse_total
+                square_u, cross_ux, square_x = m[3] * inverse_total, m[4] * inverse_total, m[5] * inverse_total
+                diffuse = _larger(mean_f, 0.0)  # k = 0: no specular lobe at all
+                misfit[i, 0] = _larger(m[7] * inverse_total - 2.0 * diffuse * mean_f + diffuse * diffuse, 0.0)
+                for j in range(1, resolution):
+                    k = specular[j]
+                    residual = mean_u - k * mean_x  # the diffuse part's least-squares value, unclamped
+                    diffuse = _larger(residual, 0.0)
+                    e = square_u - 2.0 * k * cross_ux + k * k * square_x - 2.0 * diffuse * residual + diffuse * diffuse
+                    misfit[i, j] = _larger(e, 0.0)
+                for j in range(resolution):
+                    lowest = _smaller(lowest, misfit[i, j])
+            n = max(n_samples[t], 1)
+            mean_square = light_mean_square[c] / weight_sum if weight_sum > 0.0 else 0.0
+            variance = max(noise_level * noise_level * mean_square + lowest * n / max(n - 3, 1), 1e-30)
+            to_temperature = n / (2.0 * variance)
+            partition = 0.0  # Z
+            zero = 0.0  # the k = 0 column's weight
+            weighted_distance = 0.0  # sum w d over the k > 0 cells
+            for i in range(resolution):
+                for j in range(resolution):
+                    distance = np.float32(_smaller((misfit[i, j] - lowest) * to_temperature, CUTOFF))
+                    w = _exp_neg(distance)
+                    cell_weight[c, i, j] = w
+                    partition += w
+                    weighted_distance += w * distance
+            for i in range(resolution):  # the k = 0 column is one material
+                w = cell_weight[c, i, 0]
+                weighted_distance -= w * np.float32(_smaller((misfit[i, 0] - lowest) * to_temperature, CUTOFF))
+                partition -= w * np.float32(1.0 - 1.0 / resolution)
+                cell_weight[c, i, 0] = w / np.float32(resolution)
+                zero += cell_weight[c, i, 0]
+            row, column, largest = 0, 0, np.float32(-1.0)
+            for i in range(resolution):
+                for j in range(1, resolution):
+                    if cell_weight[c, i, j] > largest:
+                        row, column, largest = i, j, cell_weight[c, i, j]
+            norm[c] = partition
+            zero_mass = zero / partition
+            value = (weighted_distance + (partition - zero) * math.log(partition)) / partition
+            if zero_mass > 0.0:
+                value -= zero_mass * math.log(zero_mass)
+            if zero >= largest:
+                row, column = 0, 0
+            value = min(max(value / log_hypotheses, 0.0), 1.0)
+        if value < best_entropy:
+            best_entropy, best_channel, best_row, best_column = value, c, row, column
+    entropy[t] = best_entropy
+    channel[t] = best_channel
+    best_alpha[t] = alphas[best_row] if best_column > 0 else np.nan
+    best_ks[t] = specular[best_column]
+    if want_likelihood:
+        scale = 1.0 / norm[best_channel]
+        for i in range(resolution):
+            for j in range(resolution):
+                likelihood[t, i, j] = cell_weight[best_channel, i, j] * scale
 
 
 @numba.njit(parallel=True, cache=True)
