@@ -109,7 +109,9 @@ def test_uncertainty_command(run_cli, tiny_capture, tmp_path, monkeypatch, capsy
     assert run_cli("uncertainty", tiny_capture, "--out", other, "--entropy", "sharpest") == 2
     assert "unknown entropy mode" in capsys.readouterr().err and not other.exists()
     # The GGX lobe: recorded in the summary, and a different map; a lobe that does not exist.
-    assert summary["uncertainty"]["lobe"] == "gaussian" and angular["uncertainty"]["lobe"] is None
+    assert summary["uncertainty"]["lobe"] == "gaussian" and summary["uncertainty"]["grid_res"] == 8
+    # The angular mode's grid and lobes: by default the estimator's (9 roughness nodes, isotropic).
+    assert angular["uncertainty"]["lobe"] == "isotropic" and angular["uncertainty"]["grid_res"] == 9
     assert run_cli("uncertainty", tiny_capture, "--out", out, "--texture-res", 32, "--entropy-lobe", "ggx",
                    "--json") == 0
     ggx = json.loads(capsys.readouterr().out)

@@ -65,9 +65,9 @@ is what benchmarks/pathtraced_entropy.py computes with a path tracer, and agrees
 0.81 [0.76, 0.86] (95 % bootstrap interval, 400 texels, 9 x 9) against the pooled rendering of two
 seeds, which agree with each other at 0.89; with anisotropic lobes 0.83; on the 8 x 8 grid the
 calibrated mode 0.19 (its "ggx" lobe 0.38), the paper's recipe 0.17. It costs R probes of the
-estimator's search per texel: on its own seconds, not milliseconds (2.7 s for the 256k texels
+estimator's search per texel: on its own seconds, not milliseconds (2.0 s for the 256k texels
 there); inside `pipeline.fit` the search makes those probes anyway (`AngularEntropy`), and the fit
-takes about 5 % longer.
+takes about 6 % longer.
 Both the brute force and this mode find the smooth-gradient ("badly lit") region of
 entropy_scenes.py about as certain as the sharply lit one (brute force 0.15 and 0.17, this mode
 0.16 and 0.18): the view dependence of Fresnel and masking, which a spectrum of the mirrored light
@@ -182,7 +182,9 @@ class Uncertainty:
     # (N,) float32 posterior std of the estimated roughness (`roughness_std`); NaN where not
     # estimated; None when not computed (it needs the estimate).
     roughness_std: np.ndarray | None = None
-    lobe: str | None = None  # calibrated mode's hypothesis lobe (UncertaintyConfig.lobe); None in other modes
+    # The hypotheses' lobe: calibrated mode's UncertaintyConfig.lobe ("gaussian", "ggx"), angular
+    # mode's "isotropic" or "anisotropic" (as `entropy_angular` scored them); None otherwise.
+    lobe: str | None = None
 
     def to_texture(self, observations: Observations, quantity: str = "entropy", fill: float = 0.0) -> np.ndarray:
         """Scatter one per-texel field (e.g. "entropy", "flags", "best_alpha") into a (T, T, ...) texture."""
@@ -614,9 +616,11 @@ class AngularEntropy:
     def result(self) -> Uncertainty:
         """The Uncertainty, once every texel has been consumed."""
         observations = self.observations
-        return _finish(observations.n_samples == 0, self.entropy, self.channel, self.best_alpha, self.best_ks,
-                       self.likelihood, observations.n_samples, sh.num_coeffs(observations.lmax),
-                       observations.alpha_bound, self.grid, self.config.uncertainty)
+        result = _finish(observations.n_samples == 0, self.entropy, self.channel, self.best_alpha, self.best_ks,
+                         self.likelihood, observations.n_samples, sh.num_coeffs(observations.lmax),
+                         observations.alpha_bound, self.grid, self.config.uncertainty)
+        result.lobe = "anisotropic" if self.config.estimate.anisotropic_lobes else "isotropic"
+        return result
 
 
 def summary(uncertainty: Uncertainty) -> dict:
