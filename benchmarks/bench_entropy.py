@@ -103,6 +103,24 @@ def numpy_exp_ns() -> float:
     return median_seconds(lambda: np.exp(values), REPEATS) / values.size * 1e9
 
 
+def timed(run, entry: dict) -> dict:
+    """``entry`` with the first call's seconds (numba loads or compiles), the warm median with all
+    numba threads and with one, the peak memory of a warm call and the entropy's mean; printed."""
+    threads = numba.get_num_threads()
+    first_call, result = first_call_seconds(run)
+    warm = median_seconds(run, REPEATS)
+    numba.set_num_threads(1)
+    try:
+        one_thread = median_seconds(run, REPEATS)
+    finally:
+        numba.set_num_threads(threads)
+    entry = {**entry, "first_call_s": round(first_call, 4), "warm_median_s": round(warm, 4),
+             "one_thread_median_s": round(one_thread, 4), "peak_mib": round(peak_mib(run), 1),
+             "entropy_mean": round(float(result.entropy.mean()), 4)}
+    print(entry)
+    return entry
+
+
 def main() -> None:
     n_texels = TEXTURE_RES * TEXTURE_RES
     light, observed, cross, view_cos = synthetic_spectra(n_texels)
@@ -122,27 +140,8 @@ def main() -> None:
                                                 n_samples=n_samples, view_cos=view_cos, config=config,
                                                 return_likelihood=with_likelihood)
 
-                first_call, result = first_call_seconds(run)
-                warm = median_seconds(run, REPEATS)
-                numba.set_num_threads(1)
-                try:
-                    one_thread = median_seconds(run, REPEATS)
-                finally:
-                    numba.set_num_threads(threads)
-                entry = {
-                    "mode": mode,
-                    "phase_aware": phase_aware,
-                    "lobe": lobe,
-                    "grid_res": grid_res,
-                    "likelihood": with_likelihood,
-                    "first_call_s": round(first_call, 4),
-                    "warm_median_s": round(warm, 4),
-                    "one_thread_median_s": round(one_thread, 4),
-                    "peak_mib": round(peak_mib(run), 1),
-                    "entropy_mean": round(float(result.entropy.mean()), 4),
-                }
-                print(entry)
-                runs.append(entry)
+                runs.append(timed(run, {"mode": mode, "phase_aware": phase_aware, "lobe": lobe,
+                                        "grid_res": grid_res, "likelihood": with_likelihood}))
 
     # The angular mode, scored from its hypotheses' moments (inside `fit`, the estimator's search
     # collects them while it searches; on its own they take seconds, see UncertaintyConfig.mode).
@@ -153,19 +152,8 @@ def main() -> None:
         def run_angular():
             return entropy_from_moments(moments, weight, mirrored, n_views, return_likelihood=with_likelihood)
 
-        first_call, result = first_call_seconds(run_angular)
-        warm = median_seconds(run_angular, REPEATS)
-        numba.set_num_threads(1)
-        try:
-            one_thread = median_seconds(run_angular, REPEATS)
-        finally:
-            numba.set_num_threads(threads)
-        entry = {"mode": "angular (from moments)", "grid_res": ANGULAR_GRID, "likelihood": with_likelihood,
-                 "first_call_s": round(first_call, 4), "warm_median_s": round(warm, 4),
-                 "one_thread_median_s": round(one_thread, 4), "peak_mib": round(peak_mib(run_angular), 1),
-                 "entropy_mean": round(float(result.entropy.mean()), 4)}
-        print(entry)
-        runs.append(entry)
+        runs.append(timed(run_angular, {"mode": "angular (from moments)", "grid_res": ANGULAR_GRID,
+                                        "likelihood": with_likelihood}))
 
     save_results("bench_entropy", {
         "benchmark": "uncertainty: entropy map from SH power spectra (and the angular mode's from moments)",
