@@ -346,7 +346,7 @@ def _node_rows(roughness: np.ndarray, roughness_grid: int) -> np.ndarray:
     of a hypothesis at that node, or -1."""
     rows = np.full(roughness_grid, -1, dtype=np.int64)
     nodes = np.rint(roughness * (roughness_grid - 1)).astype(np.int64)
-    on_node = np.abs(nodes / (roughness_grid - 1) - roughness) < 1e-12
+    on_node = (np.abs(nodes / (roughness_grid - 1) - roughness) < 1e-12) & (nodes >= 0) & (nodes < roughness_grid)
     rows[nodes[on_node]] = np.flatnonzero(on_node)
     return rows
 
