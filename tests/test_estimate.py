@@ -997,3 +997,12 @@ def test_metallic_profile_leaves_its_winner_in_state(true_metallic):
     check = np.empty(4)
     assert estimate_module._metallic_terms(winner[3], quadratics, check)[0] == profiled
     np.testing.assert_array_equal(check, winner)
+
+
+def test_scattering_stride_visits_every_item_once():
+    """The search's and the angular entropy's order of work items: a permutation for any count."""
+    from freqbrdf.estimate import scattering_stride
+
+    for n_items in range(1, 300):
+        stride = scattering_stride(n_items)
+        assert sorted((item * stride) % n_items for item in range(n_items)) == list(range(n_items))

@@ -2426,6 +2426,8 @@ def _global_search_kernel(
     left untouched.
     """
     n_chunks = (weight.shape[0] + _SEARCH_CHUNK - 1) // _SEARCH_CHUNK
+    # numba hands each thread a contiguous run of items: where the texels the cameras see lie in
+    # one half of the texture, the other thread would wait (sphere: search 5.0 -> 3.8 s scattered).
     stride = scattering_stride(n_chunks)
     for item in numba.prange(n_chunks):
         # np.int64: the loop index is unsigned in numba's parallel code and signed when typed: one
