@@ -2272,21 +2272,21 @@ def _keep_state(state, best_state):
 
 @_borrowing_jit
 def _search_roughness(args, state, roughness_grid, best_state, roughness_brent, node_loss, first_node, last_node,
-                      xtol, node_rows, node_moments):
+                      xtol, node_rows, node_moments, sample_weight):
     """Scan the roughness grid's nodes first_node..last_node, then Brent (to xtol) in the best cell
     unless the loss rises inwards from a boundary node. Brent starts from the parabola through the
     best node and its neighbours when the scan holds them. The best evaluation seen wins: returns
     (roughness, loss), its base colour and metallic in best_state (`_roughness_objective` leaves
     each probe's in state, the array in args). node_loss (roughness_grid,) scratch. A node whose
     node_rows entry (`_node_rows`; (0,): none) is a row i >= 0 records its hypothesis moments into
-    node_moments[i] (R, 3, 8)."""
+    node_moments[i] (R, 3, 8), with the samples' weights sample_weight (n,)."""
     cell = 1.0 / (roughness_grid - 1)
     best_node, best_r, best_f = first_node, 0.0, np.inf
     for i in range(first_node, last_node + 1):
         r = i / (roughness_grid - 1)
         node_loss[i] = _roughness_objective(r, args)
         if node_rows.shape[0] > 0 and node_rows[i] >= 0:
-            _record_hypothesis(args, node_moments[node_rows[i]])
+            _record_hypothesis(args, sample_weight, node_moments[node_rows[i]])
         if node_loss[i] < best_f:
             best_node, best_r, best_f = i, r, node_loss[i]
             _keep_state(state, best_state)
@@ -2330,22 +2330,22 @@ def _brent_run(args, state, best_state, roughness_brent, best_r, best_f, search)
 
 
 @_borrowing_jit
-def _record_hypothesis(args, out):
+def _record_hypothesis(args, sample_weight, out):
     """out (3, 8): per channel `_specular_moments` of the metal terms the last `_roughness_objective`
-    probe left in args (in the order `_roughness_objective` unpacks them)."""
-    n, omega, values, filtered = args[0], args[2], args[4], args[24]
+    probe left in args (in the order `_roughness_objective` unpacks them), sample weights (n,)."""
+    n, values, filtered = args[0], args[4], args[24]
     for c in range(3):
-        _specular_moments(n, omega, values[c], filtered[c, 0], filtered[c, 1], out[c])
+        _specular_moments(n, sample_weight, values[c], filtered[c, 0], filtered[c, 1], out[c])
 
 
 @_borrowing_jit
-def _specular_moments(n, omega, values, scale_terms, bias_terms, out):
+def _specular_moments(n, sample_weight, values, scale_terms, bias_terms, out):
     """out = [sum w, sum w u, sum w X, sum w u^2, sum w u X, sum w X^2, sum w f, sum w f^2] over
-    samples s < n, with w = sqrt(omega) the sample weight, f the observed radiance, u = f - Y and
-    X, Y a metal's specular terms (scale_terms, bias_terms: specular = k X + Y for base colour k)."""
+    samples s < n, with w the sample weight, f the observed radiance, u = f - Y and X, Y a metal's
+    specular terms (scale_terms, bias_terms: specular = k X + Y for base colour k)."""
     out[:] = 0.0
     for s in range(n):
-        w = math.sqrt(omega[s])
+        w = sample_weight[s]
         f = values[s]
         u = f - bias_terms[s]
         x = scale_terms[s]
@@ -2543,6 +2543,7 @@ def _global_search_chunk(
                 xyz[axis, n] = directions[t, v, axis]
             packed_cos[n] = xyz[2, n]
             omega[n] = w * w
+            sample_weight[n] = w
             for c in range(3):
                 values[c, n] = observed[t, v, c]
             if footprint.shape[1] > 0:
@@ -2607,7 +2608,7 @@ def _global_search_chunk(
         for i in range(hypothesis_roughness.shape[0]):
             if not scanned[i]:
                 _roughness_objective(hypothesis_roughness[i], args)
-                _record_hypothesis(args, hypothesis_moments[t, i])
+                _record_hypothesis(args, sample_weight, hypothesis_moments[t, i])
         if voting:
             # The neighbour vote. A likelihood-ratio test bounds what it may cost: the profiled
             # least-squares loss may exceed the estimate's by _VOTE_CHI2 times the noise variance
@@ -2653,13 +2654,12 @@ def _global_search_chunk(
         first_xtol = _BRENT_COARSE_XTOL if robust_passes > 0 else _BRENT_XTOL
         best_r, best_f = _search_roughness(args, state, roughness_grid, best_state, roughness_brent, node_loss,
                                            np.int64(0), roughness_grid - 1, first_xtol, node_rows,
-                                           hypothesis_moments[t] if node_rows.shape[0] > 0 else no_moments)
+                                           hypothesis_moments[t] if node_rows.shape[0] > 0 else no_moments,
+                                           sample_weight)
         if robust_passes > 0:
             # Towards the paper's L1 loss sum_v w |r_v| (IRLS): weight each sample by
             # w / max(|r|, delta), delta a tenth of the texel's mean |r| so that near-exact
             # samples do not take over, and search again.
-            for s in range(n):
-                sample_weight[s] = math.sqrt(omega[s])
             for _ in range(robust_passes):
                 best_f = _roughness_objective(best_r, args)
                 best_state[:] = state
@@ -2679,7 +2679,7 @@ def _global_search_chunk(
                 best_r, best_f = _search_roughness(args, state, roughness_grid, best_state, roughness_brent,
                                                    node_loss, max(node - _ROBUST_NODES, 0),
                                                    min(node + _ROBUST_NODES, roughness_grid - 1), _BRENT_XTOL,
-                                                   no_rows, no_moments)
+                                                   no_rows, no_moments, sample_weight)
             for s in range(n):  # back to least squares for the curvature
                 omega[s] = sample_weight[s] * sample_weight[s]
             _weighted_sums(n, omega, values, burley_terms, diffuse_moments, squared_values)
