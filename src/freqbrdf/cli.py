@@ -242,7 +242,7 @@ def _estimation_res(value: str, texture_res: int):
 
 ENTROPY_MODES = ("calibrated", "paper", "angular")
 ENTROPY_HELP = ("Entropy mode: calibrated (spectra, milliseconds), paper (the published recipe) or angular "
-                "(the estimator's model on the samples; agrees with a path tracer; seconds on its own, about 6 % "
+                "(the estimator's model on the samples; agrees with a path tracer; seconds on its own, about 3 % "
                 "more time inside fit). Default: the preset's.")
 ENTROPY_LOBES = ("gaussian", "ggx")
 ENTROPY_LOBE_HELP = ("What a hypothesis is in the calibrated entropy: gaussian (the paper's exp(-(alpha l)^2), the "

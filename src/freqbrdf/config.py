@@ -74,8 +74,8 @@ class UncertaintyConfig:
     # "angular": the hypotheses scored in the sample domain with the global estimator's own model
     # (uncertainty.entropy_angular). On its own it takes seconds (2.0 s for the 256k texels of
     # entropy_scenes.py's sphere); inside `pipeline.fit` the estimator's search probes the
-    # hypotheses anyway (uncertainty.AngularEntropy), which costs the fit about 6 % (plane, T = 512:
-    # 5.8 -> 6.1 s). It agrees with the path-traced brute force over the same grid
+    # hypotheses anyway (uncertainty.AngularEntropy), which costs the fit about 3 % (plane, T = 512:
+    # 5.95 -> 6.14 s). It agrees with the path-traced brute force over the same grid
     # (benchmarks/pathtraced_entropy.py, 400 texels, 9 x 9 grid: Spearman 0.81 [0.76, 0.86] against
     # the pooled rendering of two seeds that agree with each other at 0.89) where the spectra do not
     # (8 x 8 grid: calibrated 0.19, with lobe "ggx" 0.38, paper 0.17). Capture guidance (which

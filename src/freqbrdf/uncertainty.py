@@ -67,7 +67,7 @@ seeds, which agree with each other at 0.89; with anisotropic lobes 0.83; on the 
 calibrated mode 0.19 (its "ggx" lobe 0.38), the paper's recipe 0.17. It costs R probes of the
 estimator's search per texel: on its own seconds, not milliseconds (2.0 s for the 256k texels
 there); inside `pipeline.fit` the search makes those probes anyway (`AngularEntropy`), and the fit
-takes about 6 % longer.
+takes about 3 % longer.
 Both the brute force and this mode find the smooth-gradient ("badly lit") region of
 entropy_scenes.py about as certain as the sharply lit one (brute force 0.15 and 0.17, this mode
 0.16 and 0.18): the view dependence of Fresnel and masking, which a spectrum of the mirrored light
