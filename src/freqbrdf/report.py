@@ -124,10 +124,21 @@ def _entropy_section(folder: Path, outputs: FitOutputs) -> str:
     return f"""<section id="uncertainty"><h2>Uncertainty</h2><table class="maps"><tr>{''.join(captions)}</tr>
 <tr>{''.join(cells)}</tr></table>
 <p>Mean entropy {_number(stats.get('entropy_mean'))}, median {_number(stats.get('entropy_median'))}
-over {stats.get('observed_texels', '?')} observed texels ({html.escape(str(stats.get('mode', '?')))} mode).
+over {stats.get('observed_texels', '?')} observed texels ({html.escape(_entropy_kind(stats))}).
 Flagged: {html.escape(fractions)}.</p>{_roughness_std_text(outputs)}
 <p class="note">Entropy: {export.ENTROPY_COLORMAP}, 0 certain to 1 uncertain.
 Flags (first set bit shown): {legend}</p></section>"""
+
+
+def _entropy_kind(stats: dict) -> str:
+    """What the entropy scored, from summary.json's uncertainty section: its mode, its hypotheses'
+    lobe (where the mode has one to choose) and grid."""
+    parts = [f"{stats.get('mode', '?')} mode"]
+    if stats.get("lobe"):
+        parts.append(f"{stats['lobe']} lobes")
+    if stats.get("grid_res"):
+        parts.append(f"{stats['grid_res']} x {stats['grid_res']} hypotheses")
+    return ", ".join(parts)
 
 
 def _roughness_std_text(outputs: FitOutputs) -> str:
