@@ -38,7 +38,9 @@ share and inpaint work on one fit per scene of its first ``--sparse-views`` fart
   either every map is filled ("all maps") or, on observed texels, only roughness and metallic
   ("specular"; the entropy is about the specular lobe); MAE on the masked texels before and after,
   and relighting (`relight.evaluate`, Stanford-ORB scores, 32 spp) of the fit and of each result.
-Every results file records the commit and which source files differed from it.
+Every results file records the commit and which source files differed from it. ``--entropy
+angular`` (or paper) runs share and inpaint with that entropy mode, saved beside the default's as
+applications_<application>_<mode>.{json,png}.
 """
 
 from __future__ import annotations
@@ -59,7 +61,7 @@ from _common import machine  # benchmarks/ is on sys.path when a script runs
 
 from freqbrdf import guidance
 from freqbrdf.capture import Capture, load
-from freqbrdf.config import Config, ShareConfig, TexelConfig
+from freqbrdf.config import Config, ShareConfig, TexelConfig, UncertaintyConfig
 from freqbrdf.export import write_json
 from freqbrdf.fileio import atomic_path
 from freqbrdf.inpaint import biharmonic_fill, inpaint_mask, inpaint_maps
@@ -294,10 +296,11 @@ _sparse_fits: dict = {}
 def sparse_fit(name: str, args) -> tuple[FitResult, np.ndarray, Config]:
     """The scene's fit on its first ``args.sparse_views`` farthest-point views, and the ground
     truth per texel (N, 5: base colour RGB, roughness, metallic) in the fit's texel order."""
-    key = (name, args.pool, args.sparse_views, args.texture_res)
+    key = (name, args.pool, args.sparse_views, args.texture_res, args.entropy)
     if key not in _sparse_fits:
         pool = scene_capture(name, args.pool)
-        config = Config(texels=TexelConfig(texture_res=args.texture_res))
+        config = Config(texels=TexelConfig(texture_res=args.texture_res),
+                        uncertainty=UncertaintyConfig(mode=args.entropy))
         directions = guidance.view_directions(pool, [frame.camera for frame in pool.frames])
         result = fit(with_views(pool, guidance.farthest_point_views(directions, args.sparse_views)), config)
         truth = resize(pool.ground_truth, args.texture_res)
@@ -450,19 +453,19 @@ def plot_inpaint(scenes: dict, path: Path) -> None:
 
 def share_benchmark(args) -> dict:
     scenes = {name: share_scene(name, args) for name in args.scenes}
-    plot_share(scenes, RESULTS / "applications_share.png")
+    plot_share(scenes, RESULTS / f"applications_share{args.suffix}.png")
     return {"application": "sharing across the surface (issue #8)", **sparse_settings(args), "scenes": scenes}
 
 
 def inpaint_benchmark(args) -> dict:
     scenes = {name: inpaint_scene(name, args) for name in args.scenes}
-    plot_inpaint(scenes, RESULTS / "applications_inpaint.png")
+    plot_inpaint(scenes, RESULTS / f"applications_inpaint{args.suffix}.png")
     return {"application": "inpainting uncertain regions (issue #8)", **sparse_settings(args),
             "relight": dataclasses.asdict(RELIGHT), "scenes": scenes}
 
 
 def sparse_settings(args) -> dict:
-    return {**machine(), "texture_res": args.texture_res, "pool": args.pool,
+    return {**machine(), "entropy_mode": args.entropy, "texture_res": args.texture_res, "pool": args.pool,
             "views": args.sparse_views, "views_chosen": "farthest-point", "test_views": TEST_VIEWS}
 
 
@@ -484,7 +487,13 @@ def main(argv=None) -> int:
     parser.add_argument("--share-variants", default=";".join(SHARE_VARIANTS),
                         help="ShareConfig changes measured besides the defaults, ';'-separated")
     parser.add_argument("--inpaint-entropies", default="0.3", help="entropy thresholds besides the flags")
+    parser.add_argument("--entropy", default="calibrated", choices=("calibrated", "paper", "angular"),
+                        help="the share and inpaint fits' entropy mode; results other than calibrated's are "
+                             "saved as applications_<application>_<mode>.{json,png}")
     args = parser.parse_args(argv)
+    args.suffix = "" if args.entropy == "calibrated" else f"_{args.entropy}"
+    if args.entropy == "angular" and "guidance" in args.applications.split(","):
+        parser.error("guidance predicts spectra: --entropy angular measures share and inpaint only")
     args.scenes = args.scenes.split(",")
     args.guidance_spreads = [float(value) for value in args.guidance_spreads.split(",") if value]
     args.share_variants = [value for value in args.share_variants.split(";") if value]
@@ -496,7 +505,7 @@ def main(argv=None) -> int:
         results = runners[application](args)
         results["seconds"] = time.perf_counter() - start
         results["source"] = source_state()
-        write_json(RESULTS / f"applications_{application}.json", results)
+        write_json(RESULTS / f"applications_{application}{args.suffix}.json", results)
         print(json.dumps(results.get("paired_tests", {}), indent=2))
     return 0
 
