@@ -31,7 +31,8 @@ error with each baseline's over all (scene, budget in 20/30/40) cells.
 
 share and inpaint work on one fit per scene of its first ``--sparse-views`` farthest-point views
 (sparse, so that uncertain texels are common), errors measured per texel against the ground truth:
-- share: `share.share_details` with the shipped ShareConfig and the ``--share-variants``
+- share: the Spearman rho of the entropy and the roughness std against the roughness and
+  base-colour errors; `share.share_details` with the shipped ShareConfig and the ``--share-variants``
   (SHARE_VARIANTS by default); MAE of roughness, metallic and base colour on
   the uncertain texels (those it considered) without and with sharing, and on the certain ones;
 - inpaint: masks from the flags (the command's default) and from entropy thresholds; per mask
@@ -56,10 +57,11 @@ import time
 from pathlib import Path
 
 import numpy as np
+from scipy import stats
 
 from _common import machine  # benchmarks/ is on sys.path when a script runs
 
-from freqbrdf import guidance
+from freqbrdf import export, guidance
 from freqbrdf.capture import Capture, load
 from freqbrdf.config import Config, ShareConfig, TexelConfig, UncertaintyConfig
 from freqbrdf.export import write_json
@@ -356,7 +358,21 @@ def share_scene(name: str, args) -> dict:
         }
         print(f"[{name}] share {label}: {json.dumps(variants[label])}", flush=True)
     return {"fit_seconds": result.timings["total"], "estimated_texels": int(estimate.estimated.sum()),
-            "entropy_mean": float(result.uncertainty.entropy.mean()), "variants": variants}
+            "entropy_mean": float(result.uncertainty.entropy.mean()),
+            "spearman_vs_error": error_ranking(result, truth), "variants": variants}
+
+
+def error_ranking(result: FitResult, truth: np.ndarray) -> dict:
+    """Spearman rho of the entropy and of the roughness std against the estimated texels' roughness
+    and base-colour (mean over RGB) errors."""
+    estimate = result.estimate
+    rows = np.flatnonzero(estimate.estimated)
+    error = np.abs(estimate_params(estimate)[rows] - truth[rows])
+    uncertainties = {"entropy": result.uncertainty.entropy[rows],
+                     "roughness_std": export.roughness_std_values(result.uncertainty.roughness_std)[rows]}
+    return {name: {"roughness": float(stats.spearmanr(values, error[:, 3]).statistic),
+                   "base_color": float(stats.spearmanr(values, error[:, :3].mean(axis=1)).statistic)}
+            for name, values in uncertainties.items()}
 
 
 def inpaint_scene(name: str, args) -> dict:
