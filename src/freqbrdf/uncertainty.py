@@ -826,22 +826,20 @@ def _moment_entropy_texel(t, moments, weight, mirrored, n_samples, alphas, specu
             mean_square = light_mean_square[c] / weight_sum if weight_sum > 0.0 else 0.0
             variance = max(noise_level * noise_level * mean_square + lowest * n / max(n - 3, 1), 1e-30)
             to_temperature = n / (2.0 * variance)
-            partition = 0.0  # Z
-            zero = 0.0  # the k = 0 column's weight
+            zero = 0.0  # the k = 0 column's weight: one material, so each of its cells counts 1 / R
             weighted_distance = 0.0  # sum w d over the k > 0 cells
+            partition = 0.0  # Z over the k > 0 cells, then with the k = 0 column
             for i in range(resolution):
-                for j in range(resolution):
+                w = _exp_neg(np.float32(_smaller((misfit[i, 0] - lowest) * to_temperature, CUTOFF)))
+                cell_weight[c, i, 0] = w / np.float32(resolution)
+                zero += cell_weight[c, i, 0]
+                for j in range(1, resolution):
                     distance = np.float32(_smaller((misfit[i, j] - lowest) * to_temperature, CUTOFF))
                     w = _exp_neg(distance)
                     cell_weight[c, i, j] = w
                     partition += w
                     weighted_distance += w * distance
-            for i in range(resolution):  # the k = 0 column is one material
-                w = cell_weight[c, i, 0]
-                weighted_distance -= w * np.float32(_smaller((misfit[i, 0] - lowest) * to_temperature, CUTOFF))
-                partition -= w * np.float32(1.0 - 1.0 / resolution)
-                cell_weight[c, i, 0] = w / np.float32(resolution)
-                zero += cell_weight[c, i, 0]
+            partition += zero
             row, column, largest = 0, 0, np.float32(-1.0)
             for i in range(resolution):
                 for j in range(1, resolution):
