@@ -3,8 +3,11 @@ and a rarely seen region, fitted by the pipeline, its entropy compared with its 
 
 The scene: the bundled sphere with the bundled "bands" material (stripes of roughness, metallic
 and colour), under a synthetic environment whose +x cap holds small bright lights (every
-degree l <= l* carries power) and which is elsewhere a smooth gradient (almost nothing above l = 1),
-photographed from the upper hemisphere only. Regions by world normal n:
+degree l <= l* carries power) and which is elsewhere a smooth sky, photographed from the upper
+hemisphere only. Two skies (`--sky`): `gradient` (the default; 0.25 + 0.15 y, almost nothing above
+l = 1, whose l = 1 part still tells roughness values apart: the path-traced entropy of
+pathtraced_entropy.py does not call the region below more uncertain), and `flat` (0.3: only l = 0,
+the lowest frequency there is). Regions by world normal n:
 
 - badly lit: n_x < -0.5, not rarely seen: its mirror directions see the smooth gradient;
 - rarely seen: n_y < -0.5: the cameras see it at grazing angles or not at all;
@@ -18,12 +21,14 @@ Spearman rho (entropy vs |roughness error| of the global estimate), AUSE and AUR
 texels without an estimate take its prior) against the error of each fit's own estimate, for the
 default fit and the fast preset, each without and with the split-half term (`fit --split-half`),
 with each fit's seconds. Saves benchmarks/results/entropy_scenes.json and
-entropy_scenes.png (entropy map, error map, regions). The capture is rendered once into
-benchmarks/.cache/ and reused; delete it to render again.
+entropy_scenes.png (entropy map, error map, regions); with `--sky flat`,
+entropy_scenes_flat.{json,png}. The capture is rendered once into benchmarks/.cache/ and
+reused; delete it to render again.
 """
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import time
 from pathlib import Path
@@ -50,6 +55,8 @@ SETTINGS = SynthSettings(
 N_LIGHTS = 24  # small bright lights in the cap x > LIGHT_CAP_X
 LIGHT_CAP_X = 0.6  # far from x = 0, so that the band-limit blur does not carry them into the -x half
 LIGHT_RADIUS_DEG = 4.0
+# The sky outside the lights: radiance = constant + slope x (world y, up).
+SKIES = {"gradient": (0.25, 0.15), "flat": (0.3, 0.0)}
 REGIONS = ("sharply_lit", "badly_lit", "rarely_seen", "rest")
 # The fits whose roughness std is scored (module docstring).
 SPREAD_FITS = {
@@ -60,8 +67,8 @@ SPREAD_FITS = {
 }
 
 
-def capped_lights_envmap(seed: int = 0) -> np.ndarray:
-    """(H, W, 3) float32 lat-long radiance in Mitsuba's envmap layout: a smooth sky gradient
+def capped_lights_envmap(seed: int = 0, sky: str = "gradient") -> np.ndarray:
+    """(H, W, 3) float32 lat-long radiance in Mitsuba's envmap layout: a smooth sky (SKIES)
     everywhere plus N_LIGHTS small bright disks at random directions with x > LIGHT_CAP_X."""
     height, width = ENVMAP_SIZE
     # Mitsuba's texel centres (as freqbrdf.synth.resample_envmap): azimuth from -z towards +x.
@@ -72,7 +79,8 @@ def capped_lights_envmap(seed: int = 0) -> np.ndarray:
         np.cos(polar)[:, None],
         -np.sin(polar)[:, None] * np.cos(azimuth)[None, :],
     ), axis=-1)  # (H, W, 3) world directions, +y up
-    radiance = np.repeat((0.25 + 0.15 * directions[..., 1:2]), 3, axis=-1)
+    constant, slope = SKIES[sky]
+    radiance = np.repeat((constant + slope * directions[..., 1:2]), 3, axis=-1)
     rng = np.random.default_rng(seed)
     centres = rng.normal(size=(20 * N_LIGHTS, 3))
     centres /= np.linalg.norm(centres, axis=1, keepdims=True)
@@ -83,13 +91,14 @@ def capped_lights_envmap(seed: int = 0) -> np.ndarray:
     return radiance.astype(np.float32)
 
 
-def capture_path() -> Path:
-    """The rendered capture (rendered on first use)."""
-    folder = CACHE / f"entropy_scenes_sphere_cap{LIGHT_CAP_X}"
+def capture_path(sky: str = "gradient") -> Path:
+    """The rendered capture under ``sky`` (rendered on first use)."""
+    suffix = "" if sky == "gradient" else f"_{sky}"
+    folder = CACHE / f"entropy_scenes_sphere_cap{LIGHT_CAP_X}{suffix}"
     if not (folder / "transforms.json").is_file():
         CACHE.mkdir(parents=True, exist_ok=True)
-        envmap_file = CACHE / f"entropy_scenes_cap{LIGHT_CAP_X}.exr"
-        write_exr(envmap_file, capped_lights_envmap())
+        envmap_file = CACHE / f"entropy_scenes_cap{LIGHT_CAP_X}{suffix}.exr"
+        write_exr(envmap_file, capped_lights_envmap(sky=sky))
         settings = dataclasses.replace(SETTINGS, envmap=str(envmap_file))
         synthesize(folder, settings, progress=False)
     return folder
@@ -111,9 +120,22 @@ def roughness_error(result: FitResult, capture: Capture) -> np.ndarray:
     return np.abs(result.estimate.roughness - truth.roughness.ravel()[flat])
 
 
-def main() -> None:
+def results_name(name: str, sky: str) -> str:
+    """The results file's name for ``sky``: the gradient's keeps the plain name."""
+    return name if sky == "gradient" else f"{name}_{sky}"
+
+
+def sky_argument(description: str) -> str:
+    """The --sky option of the command line."""
+    parser = argparse.ArgumentParser(description=description)
+    parser.add_argument("--sky", choices=sorted(SKIES), default="gradient",
+                        help="the sky outside the lights (module docstring)")
+    return parser.parse_args().sky
+
+
+def main(sky: str) -> None:
     start = time.perf_counter()
-    path = capture_path()
+    path = capture_path(sky)
     render_s = time.perf_counter() - start
     capture = load(path)
     result = fit(capture, Config())
@@ -168,12 +190,13 @@ def main() -> None:
         }
         for region, mask in masks.items()
     }
-    save_results("entropy_scenes", {
+    save_results(results_name("entropy_scenes", sky), {
         "benchmark": "entropy vs roughness error on a capture with badly lit and rarely seen regions",
         **machine(),
         "scene": {**{name: getattr(SETTINGS, name) for name in
                      ("mesh", "materials", "views", "resolution", "spp", "texture_res", "cameras")},
-                  "envmap": f"gradient sky + {N_LIGHTS} lights of {LIGHT_RADIUS_DEG} deg where x > {LIGHT_CAP_X}"},
+                  "envmap": f"{sky} sky {SKIES[sky]} + {N_LIGHTS} lights of {LIGHT_RADIUS_DEG} deg "
+                            f"where x > {LIGHT_CAP_X}"},
         "texels": observations.n_texels,
         "regions": region_facts,
         "scores": scores,
@@ -185,7 +208,7 @@ def main() -> None:
                                                    in angular_fit.timings.items() if "." not in stage}},
         "numba_threads": numba.get_num_threads(),
     })
-    plot(result, error, masks, RESULTS_DIR / "entropy_scenes.png")
+    plot(result, error, masks, RESULTS_DIR / f"{results_name('entropy_scenes', sky)}.png")
 
 
 def plot(result: FitResult, error: np.ndarray, masks: dict[str, np.ndarray], path: Path) -> None:
@@ -216,4 +239,4 @@ def plot(result: FitResult, error: np.ndarray, masks: dict[str, np.ndarray], pat
 
 
 if __name__ == "__main__":
-    main()
+    main(sky_argument(__doc__.splitlines()[0]))

@@ -1,7 +1,8 @@
 """The paper's check (METHOD.md §5): the hypothesis grid scored by brute force with a path tracer
 must rank texels like our fast SH-spectrum entropy.
 
-On the capture of benchmarks/entropy_scenes.py (rendered there on first use), for SUBSET texels
+On the capture of benchmarks/entropy_scenes.py (rendered there on first use; `--sky flat` for its
+flat sky, results then in pathtraced_entropy_flat.json), for SUBSET texels
 spread over the range of our entropy, every hypothesis psi = (alpha_i, k_j) of the R x R grid is
 rendered with Mitsuba's path tracer: one scene whose material is a principled BSDF with
 roughness sqrt(alpha_i), metallic 1 and base colour k_j (a specular lobe of reflectance k_j, no
@@ -29,14 +30,17 @@ GGX lobes instead of the paper's Gaussian one, phase-aware and paper modes on th
 angular mode on its own grid, the estimator's 9 roughness nodes, as `fit` computes it from its
 search and with anisotropic lobes); each entropy's rank correlation with the
 default fit's roughness error on the same texels; mean entropy per region of entropy_scenes.py;
-timings, with those of the fit with the angular entropy (the second fit in the process: compiled;
+the difference of the mean entropy between the badly and the sharply lit regions, with a 95 %
+bootstrap interval (is the badly lit region more uncertain?); timings, with those of the fit with
+the angular entropy (the second fit in the process: compiled;
 benchmarks/bench_fit.py --fit-option=--entropy=angular times it as a user runs it). The brute force is itself a Monte
 Carlo estimate: it is rendered twice with independent seeds, and the rank correlation of the two
 brute-force entropies (its self-agreement) is the ceiling for any agreement with either. The
 reference is their pooled rendering (the mean radiance of both, 2 x SPP paths per ray), whose noise
 is half the variance of either; every agreement is given with a 95 % bootstrap interval over the
 texels. Saves benchmarks/results/pathtraced_entropy.json. The renderings are kept in
-benchmarks/.cache/ (keyed by the rays, SPP and seed; delete them to render again).
+benchmarks/.cache/ (keyed by the environment map, the rays, SPP and seed; delete them to render
+again).
 """
 
 from __future__ import annotations
@@ -47,7 +51,7 @@ import time
 
 import numpy as np
 from _common import machine, save_results
-from entropy_scenes import CACHE, capture_path, regions, roughness_error
+from entropy_scenes import CACHE, capture_path, regions, results_name, roughness_error, sky_argument
 from scipy import stats
 
 from freqbrdf import sh
@@ -189,8 +193,9 @@ def spectral_entropy(observations, chosen, model_amplitude, settings: Uncertaint
 
 def cached_radiance(capture, positions, directions, grid, seed: int) -> tuple[np.ndarray, float]:
     """`hypothesis_radiance` and the seconds it took to render, rendered once and kept in
-    benchmarks/.cache/ (keyed by the rays, grid, SPP and seed)."""
-    key = hashlib.sha256(np.ascontiguousarray(positions).tobytes() + np.ascontiguousarray(directions).tobytes()
+    benchmarks/.cache/ (keyed by the environment map, the rays, grid, SPP and seed)."""
+    key = hashlib.sha256(capture.envmap.radiance.tobytes() + capture.envmap.to_world.tobytes()
+                         + np.ascontiguousarray(positions).tobytes() + np.ascontiguousarray(directions).tobytes()
                          + f"{grid.resolution} {SPP} {seed}".encode()).hexdigest()[:16]
     path = CACHE / f"pathtraced_entropy_{key}.npz"
     if path.is_file():
@@ -212,8 +217,20 @@ def agreement(reference: np.ndarray, ours: np.ndarray) -> dict:
     return {"rho": round(rho, 4), "interval_95": [round(float(low), 4), round(float(high), 4)]}
 
 
-def main() -> None:
-    capture = load(capture_path())
+def region_difference(entropy: np.ndarray, badly_lit: np.ndarray, sharply_lit: np.ndarray) -> dict:
+    """Mean entropy of the badly lit texels minus that of the sharply lit ones, with a 95 % bootstrap
+    interval (each region resampled on its own)."""
+    bad, sharp = entropy[badly_lit], entropy[sharply_lit]
+    rng = np.random.default_rng(0)
+    spread = (rng.choice(bad, (BOOTSTRAP, len(bad))).mean(axis=1)
+              - rng.choice(sharp, (BOOTSTRAP, len(sharp))).mean(axis=1))
+    low, high = np.quantile(spread, [0.025, 0.975])
+    return {"difference": round(float(bad.mean() - sharp.mean()), 4),
+            "interval_95": [round(float(low), 4), round(float(high), 4)]}
+
+
+def main(sky: str) -> None:
+    capture = load(capture_path(sky))
     config = Config()
     texels = rasterise(capture.mesh, config.texels.texture_res)
     result = fit(capture, config)  # the default fit: its observations, entropy and roughness error
@@ -289,19 +306,26 @@ def main() -> None:
                                         ("roughness_std", roughness_std))}
     # Does each entropy call the scene's badly lit and rarely seen regions uncertain?
     by_region = {}
-    for region, mask in regions(observations.normal[chosen]).items():
+    chosen_regions = regions(observations.normal[chosen])
+    badly_lit_minus_sharply_lit = {
+        name: region_difference(values, chosen_regions["badly_lit"], chosen_regions["sharply_lit"])
+        for name, values in (("brute_force_pooled", pooled), ("angular_brute_force_pooled", angular_pooled),
+                             ("ours_calibrated", ours.entropy[chosen]), ("ours_angular", angular.entropy[chosen]),
+                             ("ours_paper_mode", paper.entropy[chosen]))}
+    for region, mask in chosen_regions.items():
         if mask.any():
             by_region[region] = {"texels": int(mask.sum()), "brute_force": round(float(brute[mask].mean()), 4),
+                                 "angular_brute_force": round(float(angular_brute[mask].mean()), 4),
                                  "ours_calibrated": round(float(ours.entropy[chosen][mask].mean()), 4),
                                  "ours_calibrated_ggx_lobe": round(float(ggx.entropy[chosen][mask].mean()), 4),
                                  "ours_angular": round(float(angular.entropy[chosen][mask].mean()), 4),
                                  "ours_paper_mode": round(float(paper.entropy[chosen][mask].mean()), 4),
                                  "spectral_brute_force": round(float(spectral_pooled[mask].mean()), 4)}
 
-    save_results("pathtraced_entropy", {
+    save_results(results_name("pathtraced_entropy", sky), {
         "benchmark": "fast SH entropy vs brute-force path-traced entropy over the same hypothesis grid",
         **machine(),
-        "capture": "benchmarks/entropy_scenes.py",
+        "capture": f"benchmarks/entropy_scenes.py --sky {sky}",
         "texels": len(chosen),
         "rays": len(positions),
         "spp": SPP,
@@ -346,6 +370,7 @@ def main() -> None:
                          "ours_calibrated": round(float(ours.entropy[chosen].mean()), 4),
                          "ours_angular": round(float(angular.entropy[chosen].mean()), 4)},
         "mean_entropy_by_region": by_region,
+        "badly_lit_minus_sharply_lit": badly_lit_minus_sharply_lit,
         "timings_s": {"path_tracing_all_hypotheses_per_seed": round(render_s, 2),
                       "path_tracing_angular_grid_per_seed": round(angular_render_s, 2),
                       "ours_entropy_whole_capture": round(ours_s, 4),
@@ -357,4 +382,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    main(sky_argument(__doc__.splitlines()[0]))
