@@ -119,6 +119,17 @@ def test_uncertainty_command(run_cli, tiny_capture, tmp_path, monkeypatch, capsy
     assert ggx["uncertainty"]["entropy_mean"] != summary["uncertainty"]["entropy_mean"]
     assert run_cli("uncertainty", tiny_capture, "--out", other, "--entropy-lobe", "phong") == 2
     assert "unknown entropy lobe" in capsys.readouterr().err and not other.exists()
+    # The system refusing the write: one line naming the path, exit 1, the previous output kept.
+    files_before = sorted(p.name for p in out.iterdir())
+
+    def refuse(*args, **kwargs):
+        raise PermissionError(13, "Permission denied", str(out.parent / ".uncertainty.tmp"))
+
+    with monkeypatch.context() as patched:
+        patched.setattr("freqbrdf.fileio.tempfile.mkdtemp", refuse)
+        assert run_cli("uncertainty", tiny_capture, "--out", out, "--texture-res", 16, "--quiet") == 1
+    assert ".uncertainty.tmp: Permission denied" in capsys.readouterr().err
+    assert sorted(p.name for p in out.iterdir()) == files_before
 
     # At T = 128 both commands work on the 64 x 64 texels the 40-pixel images resolve, and their
     # entropy maps agree on the atlas.
@@ -164,6 +175,19 @@ def test_bad_input_is_one_line_exit_2_and_writes_nothing(run_cli, tmp_path, monk
     for command in ("fit", "uncertainty"):
         assert run_cli(command, tmp_path / "missing", "--out", tmp_path / "out") == 2
         assert "missing" in capsys.readouterr().err and not (tmp_path / "out").exists()
+
+    # --out that cannot become a folder is refused before any work, and the file is left as it was.
+    a_file = tmp_path / "a_file"
+    a_file.write_text("keep me")
+    missing = tmp_path / "missing"
+    for arguments in (("fit", missing, "--out", a_file), ("uncertainty", missing, "--out", a_file),
+                      ("observe", missing, "--out", a_file), ("next-views", missing, "--out", a_file),
+                      ("synth", a_file), ("demo", "--out", a_file)):
+        assert run_cli(*arguments) == 2
+        assert "a_file: exists and is not a folder" in capsys.readouterr().err
+    assert run_cli("fit", tmp_path / "missing", "--out", a_file / "fit") == 2
+    assert "a_file: is a file, so nothing can be written under it" in capsys.readouterr().err
+    assert a_file.read_text() == "keep me" and sorted(p.name for p in tmp_path.iterdir()) == ["a_file"]
 
     not_a_fit = tmp_path / "not_a_fit"
     not_a_fit.mkdir()

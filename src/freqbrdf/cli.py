@@ -38,6 +38,15 @@ def _version(value: bool) -> None:
         raise typer.Exit()
 
 
+def _output_folder(value: str | None) -> str | None:
+    """--out: refused before any work when it cannot become a folder (an existing file, or under one)."""
+    if value is not None:
+        from freqbrdf.fileio import check_output_path
+
+        check_output_path(value, folder=True)
+    return value
+
+
 def _results_from_cache(quiet: bool) -> None:
     """Run this command again in a fresh process if numba compiled kernels in this one: compiled
     code differs in the last bits from the cached code every later run loads (see freqbrdf.jit),
@@ -66,7 +75,7 @@ def _root(
 
 @app.command()
 def demo(
-    out: str = typer.Option("out/demo", "--out", help="Output folder."),
+    out: str = typer.Option("out/demo", "--out", help="Output folder.", callback=_output_folder),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars or messages."),
     json_output: bool = typer.Option(False, "--json", help="Print the demo's results as JSON."),
 ) -> None:
@@ -92,7 +101,7 @@ def demo(
 @app.command()
 def report(
     fit_dir: str = typer.Argument(..., metavar="FIT", help="Folder written by `freqbrdf fit`."),
-    out: str = typer.Option(None, "--out", help="Output folder (default: FIT/report)."),
+    out: str = typer.Option(None, "--out", help="Output folder (default: FIT/report).", callback=_output_folder),
     quiet: bool = typer.Option(False, "--quiet", help="No messages."),
 ) -> None:
     """Write report.html (maps, entropy, spectra, evaluation, 3D view); opens from disk, no network."""
@@ -118,7 +127,7 @@ def info(capture: str = typer.Argument(..., help="Capture folder or its transfor
 
 @app.command()
 def synth(
-    out: str = typer.Argument(..., help="Output folder (replaced as a whole when done)."),
+    out: str = typer.Argument(..., help="Output folder (replaced as a whole when done).", callback=_output_folder),
     mesh: str = typer.Option("bunny", help="Bundled mesh (plane, sphere, bunny) or a mesh file."),
     envmap: str = typer.Option("forest", help="Bundled environment map name or an EXR/HDR file."),
     materials: str = typer.Option("bands", help="Bundled material set or a material folder."),
@@ -148,7 +157,7 @@ def synth(
 @app.command()
 def observe(
     capture: str = typer.Argument(..., help="Capture folder or its transforms file."),
-    out: str = typer.Option(..., "--out", help="Output folder (its files are replaced one by one)."),
+    out: str = typer.Option(..., "--out", help="Output folder (its files are replaced one by one).", callback=_output_folder),
     texture_res: int = typer.Option(512, min=1, help="Texture resolution T (maps are T x T)."),
     lmax: int = typer.Option(5, min=0, help="Degree l* of the per-texel SH fits."),
     environment_occlusion: bool = typer.Option(
@@ -260,7 +269,7 @@ def _print_json(document: dict) -> None:
 @app.command()
 def fit(
     capture: str = typer.Argument(..., help="Capture folder or its transforms file."),
-    out: str = typer.Option(..., "--out", help="Output folder (replaced as a whole when done)."),
+    out: str = typer.Option(..., "--out", help="Output folder (replaced as a whole when done).", callback=_output_folder),
     texture_res: int = typer.Option(None, min=1, help="Texture resolution T (default 512)."),
     lmax: int = typer.Option(None, min=0, help="Degree l* of the per-texel SH fits (default 5)."),
     estimator: str = typer.Option(None, help="global (ours, default) or paper (the prototype's Adam)."),
@@ -348,7 +357,7 @@ ROUGHNESS_STD_NEEDS_FIT = "it is the spread of the material estimate, which this
 @app.command()
 def uncertainty(
     capture: str = typer.Argument(..., help="Capture folder or its transforms file."),
-    out: str = typer.Option(..., "--out", help="Output folder (replaced as a whole when done)."),
+    out: str = typer.Option(..., "--out", help="Output folder (replaced as a whole when done).", callback=_output_folder),
     texture_res: int = typer.Option(None, min=1, help="Texture resolution T (default 512)."),
     lmax: int = typer.Option(None, min=0, help="Degree l* of the per-texel SH fits (default 5)."),
     preset: str = typer.Option("default", help="default (calibrated entropy), fast (as default here) or paper."),
@@ -419,7 +428,7 @@ def uncertainty(
 def evaluate(
     fit_dir: str = typer.Argument(..., metavar="FIT", help="Folder written by `freqbrdf fit`."),
     capture: str = typer.Option(None, "--capture", help="Capture to score against (default: the fit's)."),
-    out: str = typer.Option(None, "--out", help="Output folder, replaced as a whole (default: FIT/evaluation)."),
+    out: str = typer.Option(None, "--out", help="Output folder, replaced as a whole (default: FIT/evaluation).", callback=_output_folder),
     spp: int = typer.Option(64, min=1, help="Samples per pixel of the relit renders."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars or messages."),
     json_output: bool = typer.Option(False, "--json", help="Print metrics.json to stdout."),
@@ -463,7 +472,7 @@ def evaluate(
 @app.command()
 def inpaint(
     fit_dir: str = typer.Argument(..., metavar="FIT", help="Folder written by `freqbrdf fit`."),
-    out: str = typer.Option(..., "--out", help="Output folder (replaced as a whole when done)."),
+    out: str = typer.Option(..., "--out", help="Output folder (replaced as a whole when done).", callback=_output_folder),
     threshold: float = typer.Option(
         None, min=0.0, max=1.0, help="Fill observed texels with entropy >= H (default: texels flagged unobserved or ambiguous)."),
     maps: str = typer.Option("base_color,roughness,metallic", help="Maps to fill, comma-separated."),
@@ -497,7 +506,7 @@ def inpaint(
 @app.command("next-views")
 def next_views(
     capture: str = typer.Argument(..., help="Capture folder or its transforms file."),
-    out: str = typer.Option(..., "--out", help="Output folder (replaced as a whole when done)."),
+    out: str = typer.Option(..., "--out", help="Output folder (replaced as a whole when done).", callback=_output_folder),
     candidates: str = typer.Option(None, "--candidates", help="Transforms file of candidate cameras."),
     sample: int = typer.Option(None, "--sample", min=1, help="Or: N candidates evenly spread around the object."),
     hemisphere: bool = typer.Option(False, "--hemisphere", help="Sampled candidates above the object only (+y)."),
@@ -564,6 +573,12 @@ def main() -> None:
         # escape: file names may contain brackets, which rich would take for markup
         err_console.print(f"[red]error:[/red] {escape(str(err))}", highlight=False, soft_wrap=True)
         sys.exit(2)
+    except OSError as err:  # the system refused a read or write: no space, no permission, no such folder
+        if _state["debug"] or err.strerror is None:
+            raise
+        where = err.filename if err.filename is not None else "input/output"
+        err_console.print(f"[red]error:[/red] {escape(f'{where}: {err.strerror}')}", highlight=False, soft_wrap=True)
+        sys.exit(1)
 
 
 if __name__ == "__main__":

@@ -9,6 +9,22 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
+from freqbrdf.errors import InputError
+
+
+def check_output_path(path: str | Path, folder: bool) -> None:
+    """InputError unless ``path`` can become a folder (``folder``) or a file: where it exists it
+    must be one already (a file is not replaced by a folder, nor a folder by a file), and its
+    nearest existing ancestor must be a folder."""
+    path = Path(path)
+    if path.exists() and path.is_dir() != folder:
+        raise InputError(path, "exists and is not a folder" if folder else "is a folder, not a file")
+    ancestor = path.parent
+    while not ancestor.exists() and ancestor != ancestor.parent:
+        ancestor = ancestor.parent
+    if ancestor.exists() and not ancestor.is_dir():
+        raise InputError(ancestor, "is a file, so nothing can be written under it")
+
 
 @contextlib.contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
@@ -17,6 +33,7 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     The temporary name keeps the suffix, so writers that pick a format by extension still work.
     """
     path = Path(path)
+    check_output_path(path, folder=False)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp_name = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
     os.close(fd)
@@ -37,6 +54,7 @@ def atomic_directory(path: str | Path) -> Iterator[Path]:
     An existing ``path`` is replaced as a whole, so readers never see a half-written result.
     """
     path = Path(path)
+    check_output_path(path, folder=True)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
     _plain_permissions(tmp, 0o777)
@@ -44,8 +62,10 @@ def atomic_directory(path: str | Path) -> Iterator[Path]:
         yield tmp
         if path.exists():
             old = path.with_name(f".{path.name}.old")
-            if old.exists():
+            if old.is_dir():
                 shutil.rmtree(old)
+            elif old.exists():  # a stray file of that name
+                old.unlink()
             os.replace(path, old)
             os.replace(tmp, path)
             shutil.rmtree(old)
