@@ -189,6 +189,16 @@ def test_bad_input_is_one_line_exit_2_and_writes_nothing(run_cli, tmp_path, monk
     assert "a_file: is a file, so nothing can be written under it" in capsys.readouterr().err
     assert a_file.read_text() == "keep me" and sorted(p.name for p in tmp_path.iterdir()) == ["a_file"]
 
+    # Running out of memory (e.g. a --texture-res far too large) is one line and exit 1.
+    def exhaust(*args, **kwargs):
+        raise MemoryError("Unable to allocate 32.0 GiB")
+
+    with monkeypatch.context() as patched:
+        patched.setattr("freqbrdf.capture.load", exhaust)
+        assert run_cli("info", missing) == 1
+    err = capsys.readouterr().err
+    assert "out of memory (Unable to allocate 32.0 GiB)" in err and "Traceback" not in err
+
     not_a_fit = tmp_path / "not_a_fit"
     not_a_fit.mkdir()
     assert run_cli("evaluate", not_a_fit) == 2

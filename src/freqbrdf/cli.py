@@ -579,6 +579,12 @@ def main() -> None:
         where = err.filename if err.filename is not None else "input/output"
         err_console.print(f"[red]error:[/red] {escape(f'{where}: {err.strerror}')}", highlight=False, soft_wrap=True)
         sys.exit(1)
+    except MemoryError as err:  # e.g. a --texture-res far beyond this machine's memory
+        if _state["debug"]:
+            raise
+        err_console.print(f"[red]error:[/red] out of memory ({escape(str(err) or 'MemoryError')}); a smaller "
+                          "--texture-res (or --max-texels, --sample) needs less", highlight=False, soft_wrap=True)
+        sys.exit(1)
 
 
 if __name__ == "__main__":
