@@ -2,7 +2,7 @@
 
     python benchmarks/bench_probe.py [--texture-res 256] [--repeats 3]
 
-The search evaluates the profiled loss at ~31 roughness values per texel (the README's speed
+The search evaluates the profiled loss at ~31 roughness values per texel (docs/measurements.md, speed
 section). This times the search kernel on compare_estimators.py's plane (64 views; rendered into
 benchmarks/.cache if missing) in its hypothesis mode, with no search: once with no hypothesis
 (the per-texel preparation), once with one (the first probe at a roughness, which also fills the

@@ -24,7 +24,7 @@ class TexelConfig:
     # than a pixel of the closest view; "coarse" (the fast preset): the finest whose texels are at
     # least a pixel wide (`texels.estimation_resolution`); "full": T (METHOD.md's per-texel
     # recipe, the paper preset); or a number <= T. Measured (T = 512, six Mitsuba captures,
-    # README): "pixel" estimates on 256 x 256 where a pixel spans 2.3-3.3 texels (four captures)
+    # docs/measurements.md): "pixel" estimates on 256 x 256 where a pixel spans 2.3-3.3 texels (four captures)
     # and on T where it spans 1.5 (two): base-colour PSNR +0.8 to +1.4 dB, relighting PSNR-H
     # -0.06 to +0.16 dB, 2.6-3.9x faster; "coarse" estimates on 128-256 and relights 0.04-0.33 dB
     # worse on five of the six.

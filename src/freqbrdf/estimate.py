@@ -53,7 +53,7 @@ and diffuse factor D come in two versions (``EstimateConfig.specular_model``, ``
   roughness MAE 0.163 -> 0.154 and 0.113 -> 0.071; metallic MAE 0.230 -> 0.200 and 0.172 ->
   0.118; relighting PSNR-H 19.79 -> 20.18, 22.40 -> 22.65 and 22.60 -> 23.02. On the demo
   capture metallic MAE rises 0.17 -> 0.20: its rough dielectrics drift towards metal (not from
-  interreflection: the material drifts as much on a sphere; see the README). (Those
+  interreflection: the material drifts as much on a sphere; see docs/measurements.md). (Those
   figures are of its first version, which read the environment at one direction tilted towards
   the normal with a gain per degree, fitted to the same responses: against Mitsuba it predicted a
   rough dielectric's specular (r = 0.86) under the demo's forest map 0.79 of the truth at grazing
