@@ -432,6 +432,19 @@ _SPREAD_STRATA = 256  # strata per axis of `lobe_spread`
 
 @functools.cache
 def split_sum_table() -> np.ndarray:
+    """(3, cos nodes, roughness nodes) float64: `integrate_split_sum_table`, shipped in
+    data/split_sum.csv (the three tables stacked by rows, every digit kept;
+    scripts/make_split_sum_table.py): integrating it took 0.1-0.4 s of every process's first fit."""
+    table = np.loadtxt(_SPLIT_SUM_TABLE_PATH, delimiter=",", ndmin=2)
+    shape = (3 * _TABLE_COS_NODES, _TABLE_ROUGHNESS_NODES)
+    if table.shape != shape or not np.all((table >= 0.0) & (table <= 1.01)):
+        raise InputError(_SPLIT_SUM_TABLE_PATH, f"expected a {shape[0]} x {shape[1]} table of albedos in [0, 1], "
+                                                f"got shape {table.shape}; regenerate it with "
+                                                "scripts/make_split_sum_table.py")
+    return table.reshape(3, _TABLE_COS_NODES, _TABLE_ROUGHNESS_NODES)
+
+
+def integrate_split_sum_table() -> np.ndarray:
     """(3, cos nodes, roughness nodes) float64: A, B and E of the GGX lobe's directional albedo.
 
     For view cosine mu_o and roughness r (alpha = r^2), with Schlick weight F_c = (1 - o.h)^5,
@@ -552,6 +565,7 @@ def split_sum_terms(cos_theta: np.ndarray, roughness: np.ndarray) -> tuple[np.nd
 # (cos theta_o, roughness) from a shipped table (`lobe_tilt_table`). The search expands the light by
 # degree at the tilt levels s = j / (levels - 1) and interpolates linearly in s.
 _TILT_LEVELS = 9
+_SPLIT_SUM_TABLE_PATH = Path(__file__).resolve().parent / "data" / "split_sum.csv"
 _TILT_TABLE_PATH = Path(__file__).resolve().parent / "data" / "lobe_tilt.csv"
 _WIDTH_TABLE_PATH = Path(__file__).resolve().parent / "data" / "lobe_width.csv"
 _TILT_FIT_LMAX = 5  # the default l*: the degrees whose responses the tilt is fitted to
