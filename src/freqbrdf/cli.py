@@ -157,7 +157,9 @@ def synth(
 @app.command()
 def observe(
     capture: str = typer.Argument(..., help="Capture folder or its transforms file."),
-    out: str = typer.Option(..., "--out", help="Output folder (its files are replaced one by one).", callback=_output_folder),
+    out: str = typer.Option(
+        ..., "--out", help="Output folder (its files are replaced one by one).", callback=_output_folder,
+    ),
     texture_res: int = typer.Option(512, min=1, help="Texture resolution T (maps are T x T)."),
     lmax: int = typer.Option(5, min=0, help="Degree l* of the per-texel SH fits."),
     environment_occlusion: bool = typer.Option(
@@ -269,7 +271,9 @@ def _print_json(document: dict) -> None:
 @app.command()
 def fit(
     capture: str = typer.Argument(..., help="Capture folder or its transforms file."),
-    out: str = typer.Option(..., "--out", help="Output folder (replaced as a whole when done).", callback=_output_folder),
+    out: str = typer.Option(
+        ..., "--out", help="Output folder (replaced as a whole when done).", callback=_output_folder,
+    ),
     texture_res: int = typer.Option(None, min=1, help="Texture resolution T (default 512)."),
     lmax: int = typer.Option(None, min=0, help="Degree l* of the per-texel SH fits (default 5)."),
     estimator: str = typer.Option(None, help="global (ours, default) or paper (the prototype's Adam)."),
@@ -357,7 +361,9 @@ ROUGHNESS_STD_NEEDS_FIT = "it is the spread of the material estimate, which this
 @app.command()
 def uncertainty(
     capture: str = typer.Argument(..., help="Capture folder or its transforms file."),
-    out: str = typer.Option(..., "--out", help="Output folder (replaced as a whole when done).", callback=_output_folder),
+    out: str = typer.Option(
+        ..., "--out", help="Output folder (replaced as a whole when done).", callback=_output_folder,
+    ),
     texture_res: int = typer.Option(None, min=1, help="Texture resolution T (default 512)."),
     lmax: int = typer.Option(None, min=0, help="Degree l* of the per-texel SH fits (default 5)."),
     preset: str = typer.Option("default", help="default (calibrated entropy), fast (as default here) or paper."),
@@ -428,7 +434,9 @@ def uncertainty(
 def evaluate(
     fit_dir: str = typer.Argument(..., metavar="FIT", help="Folder written by `freqbrdf fit`."),
     capture: str = typer.Option(None, "--capture", help="Capture to score against (default: the fit's)."),
-    out: str = typer.Option(None, "--out", help="Output folder, replaced as a whole (default: FIT/evaluation).", callback=_output_folder),
+    out: str = typer.Option(
+        None, "--out", help="Output folder, replaced as a whole (default: FIT/evaluation).", callback=_output_folder,
+    ),
     spp: int = typer.Option(64, min=1, help="Samples per pixel of the relit renders."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars or messages."),
     json_output: bool = typer.Option(False, "--json", help="Print metrics.json to stdout."),
@@ -472,7 +480,9 @@ def evaluate(
 @app.command()
 def inpaint(
     fit_dir: str = typer.Argument(..., metavar="FIT", help="Folder written by `freqbrdf fit`."),
-    out: str = typer.Option(..., "--out", help="Output folder (replaced as a whole when done).", callback=_output_folder),
+    out: str = typer.Option(
+        ..., "--out", help="Output folder (replaced as a whole when done).", callback=_output_folder,
+    ),
     threshold: float = typer.Option(
         None, min=0.0, max=1.0, help="Fill observed texels with entropy >= H (default: texels flagged unobserved or ambiguous)."),
     maps: str = typer.Option("base_color,roughness,metallic", help="Maps to fill, comma-separated."),
@@ -506,7 +516,9 @@ def inpaint(
 @app.command("next-views")
 def next_views(
     capture: str = typer.Argument(..., help="Capture folder or its transforms file."),
-    out: str = typer.Option(..., "--out", help="Output folder (replaced as a whole when done).", callback=_output_folder),
+    out: str = typer.Option(
+        ..., "--out", help="Output folder (replaced as a whole when done).", callback=_output_folder,
+    ),
     candidates: str = typer.Option(None, "--candidates", help="Transforms file of candidate cameras."),
     sample: int = typer.Option(None, "--sample", min=1, help="Or: N candidates evenly spread around the object."),
     hemisphere: bool = typer.Option(False, "--hemisphere", help="Sampled candidates above the object only (+y)."),
