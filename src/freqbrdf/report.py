@@ -125,9 +125,22 @@ def _entropy_section(folder: Path, outputs: FitOutputs) -> str:
 <tr>{''.join(cells)}</tr></table>
 <p>Mean entropy {_number(stats.get('entropy_mean'))}, median {_number(stats.get('entropy_median'))}
 over {stats.get('observed_texels', '?')} observed texels ({html.escape(_entropy_kind(stats))}).
+{_ENTROPY_MEANING.get(stats.get('mode'), '')}
 Flagged: {html.escape(fractions)}.</p>{_roughness_std_text(outputs)}
 <p class="note">Entropy: {export.ENTROPY_COLORMAP}, 0 certain to 1 uncertain.
 Flags (first set bit shown): {legend}</p></section>"""
+
+
+# What the entropy says, per mode (README, "Uncertainty"): the reader should know which question
+# the map answers and what it is good for.
+_ENTROPY_MEANING = {
+    "calibrated": "It says how ambiguous the light makes the material, from the SH spectra: high where the light "
+                  "is smooth or the texel rarely seen; it flags texels for sharing and inpainting.",
+    "paper": "It is the paper's recipe, kept for comparison: it depends on exposure and calls dark texels "
+             "uncertain.",
+    "angular": "It scores the hypotheses on the samples with the estimator's own model, as a path tracer "
+               "would rank them.",
+}
 
 
 def _entropy_kind(stats: dict) -> str:
