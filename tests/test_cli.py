@@ -189,6 +189,11 @@ def test_bad_input_is_one_line_exit_2_and_writes_nothing(run_cli, tmp_path, monk
     assert "a_file: is a file, so nothing can be written under it" in capsys.readouterr().err
     assert a_file.read_text() == "keep me" and sorted(p.name for p in tmp_path.iterdir()) == ["a_file"]
 
+    # The entropy needs degree 1 at least: refused before any work.
+    for command in ("fit", "uncertainty"):
+        assert run_cli(command, missing, "--out", tmp_path / "out", "--lmax", 0) == 2
+        assert "--lmax" in capsys.readouterr().err and not (tmp_path / "out").exists()
+
     # Running out of memory (e.g. a --texture-res far too large) is one line and exit 1.
     def exhaust(*args, **kwargs):
         raise MemoryError("Unable to allocate 32.0 GiB")

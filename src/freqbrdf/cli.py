@@ -275,7 +275,9 @@ def fit(
         ..., "--out", help="Output folder (replaced as a whole when done).", callback=_output_folder,
     ),
     texture_res: int = typer.Option(None, min=1, help="Texture resolution T (default 512)."),
-    lmax: int = typer.Option(None, min=0, help="Degree l* of the per-texel SH fits (default 5)."),
+    lmax: int = typer.Option(
+        None, min=1, help="Degree l* of the per-texel SH fits (default 5; the entropy needs >= 1).",
+    ),
     estimator: str = typer.Option(None, help="global (ours, default) or paper (the prototype's Adam)."),
     model: str = typer.Option(None, help="Forward model of `paper`: angular, sh_coeffs or spectrum."),
     preset: str = typer.Option("default", help="default; fast (estimated on texels at least a pixel wide, no "
@@ -365,7 +367,9 @@ def uncertainty(
         ..., "--out", help="Output folder (replaced as a whole when done).", callback=_output_folder,
     ),
     texture_res: int = typer.Option(None, min=1, help="Texture resolution T (default 512)."),
-    lmax: int = typer.Option(None, min=0, help="Degree l* of the per-texel SH fits (default 5)."),
+    lmax: int = typer.Option(
+        None, min=1, help="Degree l* of the per-texel SH fits (default 5; the entropy needs >= 1).",
+    ),
     preset: str = typer.Option("default", help="default (calibrated entropy), fast (as default here) or paper."),
     entropy: str = typer.Option(None, help=ENTROPY_HELP),
     entropy_lobe: str = typer.Option(None, help=ENTROPY_LOBE_HELP),
