@@ -11,7 +11,7 @@ import trimesh
 
 from freqbrdf import pipeline, sparsification
 from freqbrdf.capture import load
-from freqbrdf.config import Config, TexelConfig, UncertaintyConfig, preset
+from freqbrdf.config import Config, FitConfig, TexelConfig, UncertaintyConfig, preset
 from freqbrdf.errors import InputError
 from freqbrdf.materials import MaterialMaps
 from freqbrdf.relight import RelightSettings
@@ -28,6 +28,12 @@ def tiny_capture(tmp_path_factory):
 
 
 # --- sparsification ---------------------------------------------------------------------------
+
+
+def test_fit_refuses_degree_zero_before_any_work():
+    # The entropy compares degrees 1..l*: refused before the capture is even read.
+    with pytest.raises(ValueError, match="lmax >= 1"):
+        pipeline.fit(None, Config(fit=FitConfig(lmax=0)))
 
 
 def test_sparsification_of_a_perfect_ranking_equals_the_oracle():

@@ -106,6 +106,8 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
 
     The first three run on the texels of `estimation_resolution` (`observe_on_estimation_texels`);
     where those are coarser than T, the results are then taken to the T x T texels (`to_texels`)."""
+    if config.fit.lmax < 1:  # checked before the work: the entropy compares degrees 1..l*
+        raise ValueError(f"fit needs FitConfig.lmax >= 1 (the entropy compares degrees 1..l*), got {config.fit.lmax}")
     timings: dict[str, float] = {}
     start = time.perf_counter()
     observations, fine = observe_on_estimation_texels(capture, config, reporter)
