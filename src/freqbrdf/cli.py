@@ -550,7 +550,7 @@ def next_views(
         cameras = guidance.sample_candidates(loaded, sample, hemisphere)
         source = f"{sample} sampled on the {'hemisphere' if hemisphere else 'sphere'}"
     if budget > len(cameras):
-        raise InputError(candidates, f"budget {budget} exceeds the {len(cameras)} candidate cameras")
+        raise InputError(candidates, f"--budget {budget} exceeds the {len(cameras)} candidate cameras ({source})")
     start = time.perf_counter()
     # Scored on the texels `fit` would estimate on (observing every texel of T costs more, for
     # the same --max-texels scored).

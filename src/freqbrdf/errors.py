@@ -6,10 +6,10 @@ from pathlib import Path
 
 
 class InputError(Exception):
-    """Bad input. ``str(err)`` is ``"<file>: <problem>"``, fit for a one-line CLI message."""
+    """Bad input. ``str(err)`` is ``"<file>: <problem>"`` (the problem alone where no file is at
+    fault, e.g. an option's value), fit for a one-line CLI message."""
 
     def __init__(self, path: str | Path | None, problem: str):
         self.path = None if path is None else Path(path)
         self.problem = problem
-        where = str(self.path) if self.path is not None else "input"
-        super().__init__(f"{where}: {problem}")
+        super().__init__(problem if self.path is None else f"{self.path}: {problem}")
