@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 
 import numpy as np
 import pytest
@@ -917,6 +918,17 @@ def test_config_presets_and_validation(unshadowed):
         estimate(unshadowed, Config(estimate=EstimateConfig(forward_model="spectrum")))
     with pytest.raises(ValueError, match="specular_model"):
         estimate(unshadowed, Config(estimate=EstimateConfig(specular_model="beckmann")))
+    # A misspelt choice is refused when the settings are made, not when (and if) a stage reads it.
+    from freqbrdf.config import UncertaintyConfig
+
+    for make, message in ((lambda: UncertaintyConfig(mode="angualr"), "UncertaintyConfig.mode must be one of "
+                                                                      "'calibrated', 'paper', 'angular'; got 'angualr'"),
+                          (lambda: UncertaintyConfig(lobe="phong"), "UncertaintyConfig.lobe"),
+                          (lambda: EstimateConfig(method="adam"), "EstimateConfig.method"),
+                          (lambda: FitConfig(regulariser="l2"), "FitConfig.regulariser"),
+                          (lambda: dataclasses.replace(Config().estimate, diffuse_model="oren"), "diffuse_model")):
+        with pytest.raises(ValueError, match=re.escape(message)):
+            make()
 
 
 def test_model_light_is_shadowed_only_for_the_method_model(unshadowed):

@@ -8,10 +8,30 @@ trades a little accuracy for speed.
 from __future__ import annotations
 
 import dataclasses
+import functools
+import typing
 from dataclasses import dataclass, field
 from typing import Literal
 
 RegulariserKind = Literal["none", "constant", "exponential"]
+
+
+@functools.cache
+def _choices(settings_class: type) -> dict[str, tuple]:
+    """The fields of a settings class typed as a Literal, with their allowed values."""
+    return {name: typing.get_args(hint) for name, hint in typing.get_type_hints(settings_class).items()
+            if typing.get_origin(hint) is Literal}
+
+
+def _check_choices(settings) -> None:
+    """ValueError naming the field, its value and the choices where a field typed as a Literal holds
+    something else: dataclasses do not check, and a misspelt option would otherwise surface only
+    when (and if) the stage that reads it runs, after the work before it."""
+    for name, choices in _choices(type(settings)).items():
+        value = getattr(settings, name)
+        if value not in choices:
+            raise ValueError(f"{type(settings).__name__}.{name} must be one of "
+                             f"{', '.join(repr(choice) for choice in choices)}; got {value!r}")
 
 
 @dataclass(frozen=True)
@@ -63,6 +83,9 @@ class FitConfig:
     # and the blur is divided back out of the BRDF kernel (prototype behaviour).
     band_limit: bool = True
     attenuation_threshold: float = 0.5  # t in alpha' = sqrt(-ln t) / l*  (appendix eq. 12)
+
+    def __post_init__(self):
+        _check_choices(self)
 
 
 # The paper's hypothesis grid, R x R (UncertaintyConfig.grid_res in the spectral modes).
@@ -163,6 +186,9 @@ class UncertaintyConfig:
     # Spearman 0.80 [0.74, 0.85] isotropic, 0.83 [0.78, 0.87] anisotropic, for 1.9x the time
     # (3.9 -> 7.4 s on their own).
     anisotropic_lobes: bool | None = None
+
+    def __post_init__(self):
+        _check_choices(self)
 
     def resolution(self, roughness_grid: int | None = None) -> int:
         """R of the hypothesis grid: grid_res, else SPECTRAL_GRID_RES, or in angular mode the
@@ -296,6 +322,9 @@ class EstimateConfig:
     init_base_color: float = 0.5
     init_roughness: float = 0.5
     init_metallic: float = 0.5
+
+    def __post_init__(self):
+        _check_choices(self)
 
 
 @dataclass(frozen=True)
