@@ -918,7 +918,7 @@ def test_config_presets_and_validation(unshadowed):
         estimate(unshadowed, Config(estimate=EstimateConfig(forward_model="spectrum")))
     with pytest.raises(ValueError, match="specular_model"):
         estimate(unshadowed, Config(estimate=EstimateConfig(specular_model="beckmann")))
-    # A misspelt choice is refused when the settings are made, not when (and if) a stage reads it.
+    # A misspelt choice is refused when the settings are made, not when (and if) a stage reads it,
     from freqbrdf.config import UncertaintyConfig
 
     for make, message in ((lambda: UncertaintyConfig(mode="angualr"), "UncertaintyConfig.mode must be one of "
@@ -926,7 +926,12 @@ def test_config_presets_and_validation(unshadowed):
                           (lambda: UncertaintyConfig(lobe="phong"), "UncertaintyConfig.lobe"),
                           (lambda: EstimateConfig(method="adam"), "EstimateConfig.method"),
                           (lambda: FitConfig(regulariser="l2"), "FitConfig.regulariser"),
-                          (lambda: dataclasses.replace(Config().estimate, diffuse_model="oren"), "diffuse_model")):
+                          (lambda: dataclasses.replace(Config().estimate, diffuse_model="oren"), "diffuse_model"),
+                          # and so is a value that would give NaN or meaningless maps
+                          (lambda: UncertaintyConfig(noise_level=-0.02), "UncertaintyConfig.noise_level must lie in "
+                                                                          "(0, inf); got -0.02"),
+                          (lambda: UncertaintyConfig(ambiguous_entropy=1.5), "must lie in [0, 1]"),
+                          (lambda: FitConfig(attenuation_threshold=2.0), "FitConfig.attenuation_threshold")):
         with pytest.raises(ValueError, match=re.escape(message)):
             make()
 

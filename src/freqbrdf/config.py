@@ -23,6 +23,18 @@ def _choices(settings_class: type) -> dict[str, tuple]:
             if typing.get_origin(hint) is Literal}
 
 
+def _check_range(settings, name: str, low: float, high: float | None, closed: bool = False) -> None:
+    """ValueError unless the field ``name`` lies in (low, high), or [low, high] when ``closed`` (high None:
+    no upper bound): out of range, these settings give NaN or silently meaningless maps."""
+    value = getattr(settings, name)
+    above = low <= value if closed else low < value
+    below = high is None or (value <= high if closed else value < high)
+    if not (above and below):
+        upper = "inf)" if high is None else f"{high:g}{']' if closed else ')'}"
+        raise ValueError(f"{type(settings).__name__}.{name} must lie in {'[' if closed else '('}{low:g}, {upper}; "
+                         f"got {value!r}")
+
+
 def _check_choices(settings) -> None:
     """ValueError naming the field, its value and the choices where a field typed as a Literal holds
     something else: dataclasses do not check, and a misspelt option would otherwise surface only
@@ -86,6 +98,7 @@ class FitConfig:
 
     def __post_init__(self):
         _check_choices(self)
+        _check_range(self, "attenuation_threshold", 0.0, 1.0)
 
 
 # The paper's hypothesis grid, R x R (UncertaintyConfig.grid_res in the spectral modes).
@@ -189,6 +202,9 @@ class UncertaintyConfig:
 
     def __post_init__(self):
         _check_choices(self)
+        _check_range(self, "noise_level", 0.0, None)
+        _check_range(self, "temperature", 0.0, None)
+        _check_range(self, "ambiguous_entropy", 0.0, 1.0, closed=True)
 
     def resolution(self, roughness_grid: int | None = None) -> int:
         """R of the hypothesis grid: grid_res, else SPECTRAL_GRID_RES, or in angular mode the
