@@ -377,8 +377,7 @@ def uncertainty(
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars or messages."),
     json_output: bool = typer.Option(False, "--json", help="Print the summary as JSON to stdout."),
 ) -> None:
-    """Entropy map of the capture alone (no material estimate, so no roughness_std): entropy.exr/.png,
-    flags, summary."""
+    """The entropy map alone, no material estimate (so no roughness std): entropy.exr/.png, flags, summary."""
     import time
 
     from freqbrdf import export, pipeline
