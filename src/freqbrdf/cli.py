@@ -225,21 +225,28 @@ def _config(preset: str, texture_res: int | None = None, lmax: int | None = None
         config.observe,
         **({} if environment_occlusion is None else {"environment_occlusion": environment_occlusion}),
     )
-    estimate_changes = {}
-    if estimator is not None:
-        estimate_changes["method"] = estimator
-    if model is not None:
-        estimate_changes["forward_model"] = model
-    if entropy not in (None, *ENTROPY_MODES):
-        raise typer.BadParameter(f"unknown entropy mode {entropy!r}; choose {', '.join(ENTROPY_MODES)}")
-    if entropy_lobe not in (None, *ENTROPY_LOBES):
-        raise typer.BadParameter(f"unknown entropy lobe {entropy_lobe!r}; choose {', '.join(ENTROPY_LOBES)}")
-    uncertainty_changes = {"mode": entropy, "lobe": entropy_lobe}
-    uncertainty_settings = dataclasses.replace(
-        config.uncertainty, **{name: value for name, value in uncertainty_changes.items() if value is not None})
+    estimate_changes = _choices(config.estimate, {"method": ("estimator", estimator),
+                                                  "forward_model": ("model", model)})
+    uncertainty_changes = _choices(config.uncertainty, {"mode": ("entropy mode", entropy),
+                                                        "lobe": ("entropy lobe", entropy_lobe)})
     return config.replace(texels=texels, fit=fit_settings, observe=observe_settings,
                           estimate=dataclasses.replace(config.estimate, **estimate_changes),
-                          uncertainty=uncertainty_settings)
+                          uncertainty=dataclasses.replace(config.uncertainty, **uncertainty_changes))
+
+
+def _choices(settings, options: dict[str, tuple[str, str | None]]) -> dict:
+    """The changes to ``settings`` that the options given make ({field: (option's name, value, None
+    if not given)}), each value checked against the field's choices in `freqbrdf.config`."""
+    from freqbrdf.config import choices
+
+    allowed = choices(type(settings))
+    changes = {}
+    for name, (label, value) in options.items():
+        if value is not None:
+            if value not in allowed[name]:
+                raise typer.BadParameter(f"unknown {label} {value!r}; choose {', '.join(allowed[name])}")
+            changes[name] = value
+    return changes
 
 
 def _estimation_res(value: str, texture_res: int):
@@ -252,11 +259,9 @@ def _estimation_res(value: str, texture_res: int):
     return int(value)
 
 
-ENTROPY_MODES = ("calibrated", "paper", "angular")
 ENTROPY_HELP = ("Entropy mode: calibrated (spectra, milliseconds), paper (the published recipe) or angular "
                 "(the estimator's model on the samples; agrees with a path tracer; seconds on its own, about 3 % "
                 "more time inside fit). Default: the preset's.")
-ENTROPY_LOBES = ("gaussian", "ggx")
 ENTROPY_LOBE_HELP = ("What a hypothesis is in the calibrated entropy: gaussian (the paper's exp(-(alpha l)^2), the "
                      "default) or ggx (the GGX lobe with its albedo at the texel's view angle: agrees 2-2.6x better "
                      "with a path tracer, but gives a higher entropy, which the flags' and sharing's thresholds were "
@@ -318,10 +323,6 @@ def fit(
     from freqbrdf.capture import load
     from freqbrdf.progress import Reporter
 
-    if estimator not in (None, "global", "paper"):
-        raise typer.BadParameter(f"unknown estimator {estimator!r}; choose global or paper")
-    if model not in (None, "angular", "sh_coeffs", "spectrum"):
-        raise typer.BadParameter(f"unknown model {model!r}; choose angular, sh_coeffs or spectrum")
     config = _config(preset, texture_res, lmax, estimator=estimator, model=model, entropy=entropy,
                      entropy_lobe=entropy_lobe)
     if share:

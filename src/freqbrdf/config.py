@@ -17,33 +17,29 @@ RegulariserKind = Literal["none", "constant", "exponential"]
 
 
 @functools.cache
-def _choices(settings_class: type) -> dict[str, tuple]:
-    """The fields of a settings class typed as a Literal, with their allowed values."""
+def choices(settings_class: type) -> dict[str, tuple]:
+    """The fields of a settings class typed as a Literal, with their allowed values (the CLI's
+    option checks read them here too)."""
     return {name: typing.get_args(hint) for name, hint in typing.get_type_hints(settings_class).items()
             if typing.get_origin(hint) is Literal}
 
 
-def _check_range(settings, name: str, low: float, high: float | None, closed: bool = False) -> None:
-    """ValueError unless the field ``name`` lies in (low, high), or [low, high] when ``closed`` (high None:
-    no upper bound): out of range, these settings give NaN or silently meaningless maps."""
-    value = getattr(settings, name)
-    above = low <= value if closed else low < value
-    below = high is None or (value <= high if closed else value < high)
-    if not (above and below):
-        upper = "inf)" if high is None else f"{high:g}{']' if closed else ')'}"
-        raise ValueError(f"{type(settings).__name__}.{name} must lie in {'[' if closed else '('}{low:g}, {upper}; "
-                         f"got {value!r}")
+def _require(settings, name: str, valid: bool, rule: str) -> None:
+    """ValueError naming the field ``name`` and its allowed range ``rule`` unless ``valid``: out of
+    range, these settings give NaN or silently meaningless maps."""
+    if not valid:
+        raise ValueError(f"{type(settings).__name__}.{name} must lie in {rule}; got {getattr(settings, name)!r}")
 
 
 def _check_choices(settings) -> None:
     """ValueError naming the field, its value and the choices where a field typed as a Literal holds
     something else: dataclasses do not check, and a misspelt option would otherwise surface only
     when (and if) the stage that reads it runs, after the work before it."""
-    for name, choices in _choices(type(settings)).items():
+    for name, allowed in choices(type(settings)).items():
         value = getattr(settings, name)
-        if value not in choices:
+        if value not in allowed:
             raise ValueError(f"{type(settings).__name__}.{name} must be one of "
-                             f"{', '.join(repr(choice) for choice in choices)}; got {value!r}")
+                             f"{', '.join(repr(choice) for choice in allowed)}; got {value!r}")
 
 
 @dataclass(frozen=True)
@@ -98,7 +94,7 @@ class FitConfig:
 
     def __post_init__(self):
         _check_choices(self)
-        _check_range(self, "attenuation_threshold", 0.0, 1.0)
+        _require(self, "attenuation_threshold", 0.0 < self.attenuation_threshold < 1.0, "(0, 1)")
 
 
 # The paper's hypothesis grid, R x R (UncertaintyConfig.grid_res in the spectral modes).
@@ -202,9 +198,9 @@ class UncertaintyConfig:
 
     def __post_init__(self):
         _check_choices(self)
-        _check_range(self, "noise_level", 0.0, None)
-        _check_range(self, "temperature", 0.0, None)
-        _check_range(self, "ambiguous_entropy", 0.0, 1.0, closed=True)
+        _require(self, "noise_level", self.noise_level > 0.0, "(0, inf)")
+        _require(self, "temperature", self.temperature > 0.0, "(0, inf)")
+        _require(self, "ambiguous_entropy", 0.0 <= self.ambiguous_entropy <= 1.0, "[0, 1]")
 
     def resolution(self, roughness_grid: int | None = None) -> int:
         """R of the hypothesis grid: grid_res, else SPECTRAL_GRID_RES, or in angular mode the
