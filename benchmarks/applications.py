@@ -57,22 +57,22 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _common import machine  # benchmarks/ is on sys.path when a script runs
 from scipy import stats
 
-from _common import machine  # benchmarks/ is on sys.path when a script runs
-
-from freqbrdf import export, guidance
-from freqbrdf.capture import Capture, load
+from freqbrdf.applications import guidance
+from freqbrdf.applications.inpaint import biharmonic_fill, inpaint_maps, inpaint_mask
+from freqbrdf.applications.share import share_details
+from freqbrdf.capture.layouts import Capture, load
 from freqbrdf.config import Config, ShareConfig, TexelConfig, UncertaintyConfig
-from freqbrdf.export import write_json
-from freqbrdf.fileio import atomic_path
-from freqbrdf.inpaint import biharmonic_fill, inpaint_mask, inpaint_maps
-from freqbrdf.materials import MaterialMaps, resize
-from freqbrdf.observations import observe
+from freqbrdf.fileio import atomic_path, write_json
+from freqbrdf.model.materials import MaterialMaps, resize
+from freqbrdf.observe.observations import observe
+from freqbrdf.outputs import export
+from freqbrdf.outputs.relight import RelightSettings
+from freqbrdf.outputs.relight import evaluate as relight_evaluate
 from freqbrdf.pipeline import FitResult, fit
-from freqbrdf.relight import RelightSettings, evaluate as relight_evaluate
-from freqbrdf.share import share_details
-from freqbrdf.synth import SynthSettings, synthesize
+from freqbrdf.synthetic.synth import SynthSettings, synthesize
 from freqbrdf.uncertainty import FLAG_UNOBSERVED
 
 ROOT = Path(__file__).resolve().parent

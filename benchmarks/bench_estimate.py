@@ -24,16 +24,19 @@ import time
 from pathlib import Path
 
 import numpy as np
+from compare_estimators import (  # the script's folder is on sys.path
+    CACHE,
+    FULL_RENDER,
+    SCENES,
+)
 
-from compare_estimators import CACHE, FULL_RENDER, SCENES  # the script's folder is on sys.path
-
-from freqbrdf.capture import load
+from freqbrdf.capture.layouts import load
 from freqbrdf.config import Config, EstimateConfig, preset
 from freqbrdf.estimate import estimate
 from freqbrdf.fileio import atomic_path
-from freqbrdf.materials import resize
-from freqbrdf.observations import Observations, observe
-from freqbrdf.synth import synthesize
+from freqbrdf.model.materials import resize
+from freqbrdf.observe.observations import Observations, observe
+from freqbrdf.synthetic.synth import synthesize
 
 RESULTS = Path(__file__).resolve().parent / "results"
 RUNS = {

@@ -37,7 +37,7 @@ from pathlib import Path
 from _common import control_seconds, machine, save_results
 
 # The modules a fit imports (cli imports the rest inside the command).
-FIT_IMPORTS = "import freqbrdf.cli, freqbrdf.pipeline, freqbrdf.capture"
+FIT_IMPORTS = "import freqbrdf.cli, freqbrdf.pipeline, freqbrdf.capture.layouts"
 STAGES = ("observe", "estimate", "uncertainty", "share", "upsample", "textures", "write")
 
 
@@ -55,7 +55,7 @@ def capture_folder(name_or_path: str) -> Path:
         return Path(name_or_path)
     folder = compare_estimators.CACHE / f"compare_{name_or_path}_64"
     if not folder.is_dir():
-        from freqbrdf.synth import synthesize
+        from freqbrdf.synthetic.synth import synthesize
 
         settings = dataclasses.replace(compare_estimators.SCENES[name_or_path], views=64, texture_res=512,
                                        **compare_estimators.FULL_RENDER)

@@ -1,7 +1,7 @@
 """Time the observation stage on the bunny (T = 512, 64 views at 256 x 256) and measure whether
 tracing the environment's self-occlusion (ObserveConfig.environment_occlusion) helps.
 
-The captures are rendered once with freqbrdf.synth into benchmarks/.cache/ (about a minute each)
+The captures are rendered once with freqbrdf.synthetic.synth into benchmarks/.cache/ (about a minute each)
 and reused. Timing: per stage, for the first call in the process (cold: numba kernels loaded
 from their cache, Mitsuba's ray-test kernel compiled) and for a second call (warm); wall and CPU
 seconds, peak resident memory (ru_maxrss) and the load average, since the machine may be shared.
@@ -32,14 +32,13 @@ from pathlib import Path
 from unittest import mock
 
 import numpy as np
+from compare_estimators import FULL_RENDER, SCENES  # the script's folder is on sys.path
 
-from freqbrdf.capture import load
+from freqbrdf.capture.layouts import load
 from freqbrdf.config import Config, ObserveConfig, TexelConfig
 from freqbrdf.fileio import atomic_path
-from freqbrdf.observations import observe
-from freqbrdf.synth import SynthSettings, synthesize
-
-from compare_estimators import FULL_RENDER, SCENES  # the script's folder is on sys.path
+from freqbrdf.observe.observations import observe
+from freqbrdf.synthetic.synth import SynthSettings, synthesize
 
 HERE = Path(__file__).resolve().parent
 CACHE = HERE / ".cache"
@@ -60,7 +59,7 @@ def cached_capture(name: str, settings: SynthSettings, bsdf: dict | None = None)
         if bsdf is None:
             synthesize(folder, settings)
         else:
-            with mock.patch("freqbrdf.synth.principled_bsdf", lambda materials: dict(bsdf)):
+            with mock.patch("freqbrdf.synthetic.synth.principled_bsdf", lambda materials: dict(bsdf)):
                 synthesize(folder, settings)
     return load(folder)
 

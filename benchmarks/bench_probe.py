@@ -25,13 +25,17 @@ import dataclasses
 import numba
 import numpy as np
 from _common import control_seconds, machine, median_seconds, save_results
-from compare_estimators import CACHE, FULL_RENDER, SCENES  # the script's folder is on sys.path
+from compare_estimators import (  # the script's folder is on sys.path
+    CACHE,
+    FULL_RENDER,
+    SCENES,
+)
 
 from freqbrdf import estimate
-from freqbrdf.capture import load
+from freqbrdf.capture.layouts import load
 from freqbrdf.config import Config, TexelConfig
-from freqbrdf.observations import observe
-from freqbrdf.synth import synthesize
+from freqbrdf.observe.observations import observe
+from freqbrdf.synthetic.synth import synthesize
 
 ROUGHNESS = (0.2, 0.45, 0.8)  # prefiltered map only; map and environment light; environment light only
 VIEWS = (64, 32, 16)

@@ -1,4 +1,4 @@
-"""Benchmark of the per-texel SH fit (freqbrdf.sh.fit_sh) at full texture size.
+"""Benchmark of the per-texel SH fit (freqbrdf.sphere.harmonics.fit_sh) at full texture size.
 
 T = 512^2 texels, V = 64 views, l* = 5 (K = 36), 7 right-hand sides (3 observed + 3 mirrored
 environment + 1 constant), float32 inputs as the pipeline produces them. Two sample sets:
@@ -30,7 +30,7 @@ import numba
 import numpy as np
 from _common import machine, save_results
 
-from freqbrdf import sh
+from freqbrdf.sphere import harmonics as sh
 
 N_TEXELS = 512 * 512
 N_VIEWS = 64

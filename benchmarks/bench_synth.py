@@ -13,7 +13,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from freqbrdf.synth import SynthSettings, synthesize
+from freqbrdf.synthetic.synth import SynthSettings, synthesize
 
 RESULTS = Path(__file__).resolve().parent / "results" / "bench_synth.json"
 SETTINGS = SynthSettings(

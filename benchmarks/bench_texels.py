@@ -10,7 +10,7 @@ from __future__ import annotations
 from _common import first_call_seconds, machine, median_seconds, peak_mib, save_results
 
 from freqbrdf.assets import mesh_path
-from freqbrdf.mesh import load_mesh
+from freqbrdf.capture.mesh import load_mesh
 from freqbrdf.texels import dilate, rasterise, scatter
 
 TEXTURE_RES = 512

@@ -32,16 +32,21 @@ import sys
 import time
 from pathlib import Path
 
-from _common import control_seconds, machine  # benchmarks/ is on sys.path when a script runs
+from _common import (  # benchmarks/ is on sys.path when a script runs
+    control_seconds,
+    machine,
+)
 
-from freqbrdf import baselines, export, metrics, pipeline
-from freqbrdf.capture import load
+from freqbrdf import pipeline
+from freqbrdf.capture.layouts import load
 from freqbrdf.config import Config, EstimateConfig, TexelConfig, preset
 from freqbrdf.estimate import estimate
 from freqbrdf.fileio import atomic_path
-from freqbrdf.observations import observe
-from freqbrdf.relight import RelightSettings, evaluate
-from freqbrdf.synth import SynthSettings, synthesize
+from freqbrdf.observe.observations import observe
+from freqbrdf.outputs import export, metrics
+from freqbrdf.outputs.relight import RelightSettings, evaluate
+from freqbrdf.render import inverse as baselines
+from freqbrdf.synthetic.synth import SynthSettings, synthesize
 
 ROOT = Path(__file__).resolve().parent
 CACHE = ROOT / ".cache"

@@ -17,7 +17,7 @@ the lowest frequency there is). Regions by world normal n:
 Measured: mean entropy and mean |roughness error| per region (calibrated, paper and angular modes,
 the last as `fit` computes it),
 Spearman rho (entropy vs |roughness error| of the global estimate), AUSE and AURG
-(freqbrdf.sparsification), timings; and the same scores of the roughness std (as exported:
+(freqbrdf.outputs.sparsification), timings; and the same scores of the roughness std (as exported:
 texels without an estimate take its prior) against the error of each fit's own estimate, for the
 default fit and the fast preset, each without and with the split-half term (`fit --split-half`),
 with each fit's seconds. Saves benchmarks/results/entropy_scenes.json and
@@ -37,13 +37,13 @@ import numba
 import numpy as np
 from _common import RESULTS_DIR, machine, save_results
 
-from freqbrdf import export, sparsification
-from freqbrdf.capture import Capture, load
+from freqbrdf.capture.layouts import Capture, load
 from freqbrdf.config import Config, UncertaintyConfig, preset
 from freqbrdf.images import write_exr
-from freqbrdf.materials import resize
+from freqbrdf.model.materials import resize
+from freqbrdf.outputs import export, sparsification
 from freqbrdf.pipeline import FitResult, fit
-from freqbrdf.synth import SynthSettings, synthesize
+from freqbrdf.synthetic.synth import SynthSettings, synthesize
 from freqbrdf.uncertainty import FLAG_UNOBSERVED, entropy_map
 
 CACHE = Path(__file__).resolve().parent / ".cache"
@@ -71,7 +71,7 @@ def capped_lights_envmap(seed: int = 0, sky: str = "gradient") -> np.ndarray:
     """(H, W, 3) float32 lat-long radiance in Mitsuba's envmap layout: a smooth sky (SKIES)
     everywhere plus N_LIGHTS small bright disks at random directions with x > LIGHT_CAP_X."""
     height, width = ENVMAP_SIZE
-    # Mitsuba's texel centres (as freqbrdf.synth.resample_envmap): azimuth from -z towards +x.
+    # Mitsuba's texel centres (as freqbrdf.synthetic.synth.resample_envmap): azimuth from -z towards +x.
     azimuth = 2.0 * np.pi * (np.arange(width) + 0.5) / width
     polar = np.pi * np.arange(height) / (height - 1)
     directions = np.stack(np.broadcast_arrays(

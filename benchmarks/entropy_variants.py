@@ -8,7 +8,7 @@ On two Mitsuba-rendered captures, fitted once with our defaults (`global` estima
 - sphere: the capture of entropy_scenes.py (sharp lights on one side, a smooth gradient
   elsewhere, cameras on the upper hemisphere only), rendered there if missing;
 each entropy variant is scored on the observed texels by Spearman rho and AURG
-(freqbrdf.sparsification) against the per-texel roughness, base-colour (mean over RGB) and
+(freqbrdf.outputs.sparsification) against the per-texel roughness, base-colour (mean over RGB) and
 metallic errors, and on the sphere by its mean per region. Variants:
 
 - paper: the published recipe (UncertaintyConfig(mode="paper"));
@@ -44,14 +44,21 @@ import time
 import numpy as np
 from _common import machine, save_results
 
-from freqbrdf import sh, sparsification
-from freqbrdf.capture import load
+from freqbrdf.capture.layouts import load
 from freqbrdf.config import Config, UncertaintyConfig
 from freqbrdf.estimate import estimate
-from freqbrdf.materials import resize
-from freqbrdf.observations import Observations, observe
-from freqbrdf.synth import synthesize
-from freqbrdf.uncertainty import cross_spectrum, entropy_from_spectra, entropy_map, roughness_std, view_cosine
+from freqbrdf.model.materials import resize
+from freqbrdf.observe.observations import Observations, observe
+from freqbrdf.outputs import sparsification
+from freqbrdf.sphere import harmonics as sh
+from freqbrdf.synthetic.synth import synthesize
+from freqbrdf.uncertainty import (
+    cross_spectrum,
+    entropy_from_spectra,
+    entropy_map,
+    roughness_std,
+    view_cosine,
+)
 
 SPREAD_VARIANTS = {  # name: (roughness_window, loss_curvature, split_half)
     "roughness_std window 3": (3, False, False),

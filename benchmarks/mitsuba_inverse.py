@@ -1,15 +1,15 @@
-"""The peer baseline: Mitsuba 3 inverse rendering (``freqbrdf.baselines.mitsuba_inverse``) of a
+"""The peer baseline: Mitsuba 3 inverse rendering (``freqbrdf.render.inverse.mitsuba_inverse``) of a
 capture, timed, and scored against its ground-truth maps.
 
     python benchmarks/mitsuba_inverse.py CAPTURE [--out results/mitsuba_inverse_<name>.json]
         [--iterations N] [--spp S] [--texture-res T] [--learning-rate LR] [--tv-weight W] ...
 
 Prints and saves JSON: cpu count, seconds, settings, the loss curve and, when the capture has
-ground truth (``gt/``), `freqbrdf.metrics.texture_scores` on the observed texels (texels with at
-least one sample in `freqbrdf.observations.observe` at the estimate's resolution): base-colour
+ground truth (``gt/``), `freqbrdf.outputs.metrics.texture_scores` on the observed texels (texels with at
+least one sample in `freqbrdf.observe.observations.observe` at the estimate's resolution): base-colour
 PSNR (linear, peak 1), roughness MAE and metallic MAE, for the initial maps and at checkpoints
 along the way; with test views, the Stanford-ORB relighting scores of the final maps
-(`freqbrdf.relight.evaluate`). The estimated maps are written as EXR into a folder beside the
+(`freqbrdf.outputs.relight.evaluate`). The estimated maps are written as EXR into a folder beside the
 JSON (``--maps``).
 """
 
@@ -24,15 +24,15 @@ from pathlib import Path
 
 import numpy as np
 
-from freqbrdf import baselines
-from freqbrdf.capture import load
+from freqbrdf.capture.layouts import load
 from freqbrdf.config import Config, TexelConfig
 from freqbrdf.errors import InputError
 from freqbrdf.fileio import atomic_path
-from freqbrdf.materials import MaterialMaps, save_material_maps
-from freqbrdf.metrics import texture_scores
-from freqbrdf.observations import observe
-from freqbrdf.relight import RelightSettings, evaluate
+from freqbrdf.model.materials import MaterialMaps, save_material_maps
+from freqbrdf.observe.observations import observe
+from freqbrdf.outputs.metrics import texture_scores
+from freqbrdf.outputs.relight import RelightSettings, evaluate
+from freqbrdf.render import inverse as baselines
 
 RESULTS = Path(__file__).resolve().parent / "results"
 

@@ -26,9 +26,9 @@ from _common import machine, save_results
 from pathtraced_entropy import SEEDS, capture_path, choose_texels, hypothesis_radiance
 
 from freqbrdf import estimate as est
-from freqbrdf.capture import load
+from freqbrdf.capture.layouts import load
 from freqbrdf.config import Config, EstimateConfig
-from freqbrdf.observations import observe
+from freqbrdf.observe.observations import observe
 from freqbrdf.texels import rasterise
 from freqbrdf.uncertainty import entropy_map, hypothesis_grid
 

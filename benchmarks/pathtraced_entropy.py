@@ -51,16 +51,29 @@ import time
 
 import numpy as np
 from _common import machine, save_results
-from entropy_scenes import CACHE, capture_path, regions, results_name, roughness_error, sky_argument
+from entropy_scenes import (
+    CACHE,
+    capture_path,
+    regions,
+    results_name,
+    roughness_error,
+    sky_argument,
+)
 from scipy import stats
 
-from freqbrdf import sh
-from freqbrdf.capture import load
+from freqbrdf.capture.layouts import load
 from freqbrdf.config import Config, UncertaintyConfig
 from freqbrdf.pipeline import fit
-from freqbrdf.render import build_scene, mitsuba
+from freqbrdf.render.scenes import build_scene, mitsuba
+from freqbrdf.sphere import harmonics as sh
 from freqbrdf.texels import rasterise
-from freqbrdf.uncertainty import entropy_map, hypothesis_albedo, hypothesis_filter, hypothesis_grid, view_cosine
+from freqbrdf.uncertainty import (
+    entropy_map,
+    hypothesis_albedo,
+    hypothesis_filter,
+    hypothesis_grid,
+    view_cosine,
+)
 
 SUBSET = 400  # texels scored by brute force (200: the agreement's 95 % interval was +-0.05 wide)
 MIN_VIEWS = 8  # texels with fewer samples are not candidates (the brute-force misfit needs some)

@@ -34,13 +34,14 @@ import numpy as np
 from _common import machine, save_results
 from compare_estimators import CACHE
 
-from freqbrdf import demo, export, metrics
-from freqbrdf import envmap as envmaps
 from freqbrdf import estimate as est
-from freqbrdf.capture import load
+from freqbrdf.capture.layouts import load
 from freqbrdf.config import Config, EstimateConfig, TexelConfig
-from freqbrdf.materials import resize
-from freqbrdf.observations import observe
+from freqbrdf.model.materials import resize
+from freqbrdf.observe.observations import observe
+from freqbrdf.outputs import export, metrics
+from freqbrdf.sphere import envmap as envmaps
+from freqbrdf.synthetic import demo
 
 ROUGHNESS_SEARCH = np.linspace(0.0, 1.0, 41)
 PREFILTER_STEP = 1.0 / 16.0  # roughness between prefiltered maps

@@ -27,9 +27,17 @@ from pathlib import Path
 import numpy as np
 import skimage.data
 
+from freqbrdf.capture.mesh import (
+    Mesh,
+    generate_atlas,
+    plane_mesh,
+    save_obj,
+    smooth_normals,
+    uv_sphere_mesh,
+)
 from freqbrdf.images import read_image, write_exr
-from freqbrdf.materials import bands_material, photo_material, save_material_maps
-from freqbrdf.mesh import Mesh, generate_atlas, plane_mesh, save_obj, smooth_normals, uv_sphere_mesh
+from freqbrdf.model.materials import save_material_maps
+from freqbrdf.synthetic.materials import bands_material, photo_material
 
 PMNDRS_ASSETS = "@pmndrs/assets@1.7.0"
 BUNNY = "bunny@1.0.1"

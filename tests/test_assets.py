@@ -6,18 +6,20 @@ import skimage.data
 import trimesh
 
 from freqbrdf import assets
+from freqbrdf.capture.mesh import load_mesh
 from freqbrdf.errors import InputError
 from freqbrdf.images import read_image, srgb_to_linear, write_exr
-from freqbrdf.materials import (
-    BAND_COLOURS_SRGB,
+from freqbrdf.model.materials import (
     MaterialMaps,
-    bands_material,
     load_material_maps,
-    photo_material,
     resize,
     save_material_maps,
 )
-from freqbrdf.mesh import load_mesh
+from freqbrdf.synthetic.materials import (
+    BAND_COLOURS_SRGB,
+    bands_material,
+    photo_material,
+)
 
 # --- environment maps -----------------------------------------------------------------------------
 

@@ -1,4 +1,4 @@
-"""Tests of freqbrdf.brdf: the Principled mapping, Fresnel/G1, the BRDF kernel, the three forward
+"""Tests of freqbrdf.model.brdf: the Principled mapping, Fresnel/G1, the BRDF kernel, the three forward
 models and the sampling-theory bounds. Every reference value is computed independently here."""
 
 from __future__ import annotations
@@ -11,8 +11,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import integrate, optimize
 
-from freqbrdf import brdf, sh
 from freqbrdf.config import FitConfig
+from freqbrdf.model import brdf
+from freqbrdf.sphere import harmonics as sh
 
 LMAX = 5
 K = (LMAX + 1) ** 2

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from freqbrdf.camera import Camera, check_rigid, focal_length, look_at
+from freqbrdf.capture.camera import Camera, check_rigid, focal_length, look_at
 from freqbrdf.errors import InputError
 
 # A quarter turn about +y: the camera's x axis is world -z, its z axis world +x, so it looks

@@ -9,12 +9,18 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from freqbrdf.camera import Camera, look_at
-from freqbrdf.capture import Frame, load, stanford_orb_envmap_to_world, write_transforms
+from freqbrdf.capture.camera import Camera, look_at
+from freqbrdf.capture.layouts import (
+    Frame,
+    load,
+    stanford_orb_envmap_to_world,
+    write_transforms,
+)
+from freqbrdf.capture.mesh import Mesh, plane_mesh, save_obj, uv_sphere_mesh
 from freqbrdf.errors import InputError
 from freqbrdf.images import write_exr, write_png
-from freqbrdf.materials import bands_material, save_material_maps
-from freqbrdf.mesh import Mesh, plane_mesh, save_obj, uv_sphere_mesh
+from freqbrdf.model.materials import save_material_maps
+from freqbrdf.synthetic.materials import bands_material
 
 SIZE = 8  # fixture images are SIZE x SIZE
 

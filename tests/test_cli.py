@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 from freqbrdf import pipeline
-from freqbrdf.capture import load
+from freqbrdf.capture.layouts import load
 from freqbrdf.cli import RERUN_VARIABLE
 from freqbrdf.config import Config, TexelConfig
-from freqbrdf.synth import SynthSettings, synthesize
+from freqbrdf.synthetic.synth import SynthSettings, synthesize
 
 TINY = SynthSettings(mesh="bunny", views=6, resolution=40, spp=4, texture_res=32, test_views=2, test_envmaps=1)
 
@@ -199,7 +199,7 @@ def test_bad_input_is_one_line_exit_2_and_writes_nothing(run_cli, tmp_path, monk
         raise MemoryError("Unable to allocate 32.0 GiB")
 
     with monkeypatch.context() as patched:
-        patched.setattr("freqbrdf.capture.load", exhaust)
+        patched.setattr("freqbrdf.capture.layouts.load", exhaust)
         assert run_cli("info", missing) == 1
     err = capsys.readouterr().err
     assert "out of memory (Unable to allocate 32.0 GiB)" in err and "Traceback" not in err

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from freqbrdf import envmap as em
-from freqbrdf import sh
 from freqbrdf.errors import InputError
+from freqbrdf.sphere import envmap as em
+from freqbrdf.sphere import harmonics as sh
 
 
 def random_directions(rng, n):

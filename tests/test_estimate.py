@@ -8,20 +8,39 @@ import re
 
 import numpy as np
 import pytest
-
 from scipy.spatial.transform import Rotation
 
-from freqbrdf import brdf, sh
-from freqbrdf import envmap as envmaps
 from freqbrdf.config import Config, EstimateConfig, FitConfig
-from freqbrdf.estimate import (LOBE_TERMS, angular_loss, burley_diffuse_factor, dielectric_fresnel,
-                               environment_burley_factor, environment_filtered_light, environment_response,
-                               environment_response_table,
-                               environment_weight, estimate, fit_lobe_tilt, ggx_lobe_gains,
-                               integrate_split_sum_table, lobe_filtered_light, lobe_sh_response, lobe_spread,
-                               lobe_tilt_nodes, lobe_tilt_table, lobe_width_table, prefilter_nodes,
-                               prefiltered_environment, prefiltered_light, split_sum_table, split_sum_terms)
-from freqbrdf.observations import Observations
+from freqbrdf.estimate import (
+    LOBE_TERMS,
+    angular_loss,
+    burley_diffuse_factor,
+    dielectric_fresnel,
+    environment_burley_factor,
+    environment_filtered_light,
+    environment_response,
+    environment_response_table,
+    environment_weight,
+    estimate,
+    fit_lobe_tilt,
+    ggx_lobe_gains,
+    integrate_split_sum_table,
+    lobe_filtered_light,
+    lobe_sh_response,
+    lobe_spread,
+    lobe_tilt_nodes,
+    lobe_tilt_table,
+    lobe_width_table,
+    prefilter_nodes,
+    prefiltered_environment,
+    prefiltered_light,
+    split_sum_table,
+    split_sum_terms,
+)
+from freqbrdf.model import brdf
+from freqbrdf.observe.observations import Observations
+from freqbrdf.sphere import envmap as envmaps
+from freqbrdf.sphere import harmonics as sh
 from freqbrdf.texels import orthonormal_basis
 
 N_VIEWS = 64

@@ -11,13 +11,14 @@ import pytest
 from matplotlib import colormaps
 from PIL import Image
 
-from freqbrdf import export
+from freqbrdf.capture.mesh import plane_mesh, uv_sphere_mesh
 from freqbrdf.config import Config, TexelConfig
 from freqbrdf.estimate import MaterialEstimate
+from freqbrdf.fileio import write_json
 from freqbrdf.images import read_image
-from freqbrdf.materials import MaterialMaps, load_material_maps
-from freqbrdf.mesh import plane_mesh, uv_sphere_mesh
-from freqbrdf.texels import rasterise
+from freqbrdf.model.materials import MaterialMaps, load_material_maps
+from freqbrdf.outputs import export
+from freqbrdf.texels import fill_texture, rasterise
 from freqbrdf.uncertainty import FLAG_UNOBSERVED, Uncertainty, hypothesis_grid
 
 
@@ -28,7 +29,7 @@ def test_fill_texture_nearest_inside_atlas_dilation_outside_and_mean_beyond():
     texture = np.full((size, size), np.nan, np.float32)
     texture[2:5, 1] = 1.0  # known at its left edge ...
     texture[2:5, 10] = 5.0  # ... and right edge; the middle of the chart was never seen
-    filled = export.fill_texture(texture, atlas, dilation_px=2, fallback=-1.0)
+    filled = fill_texture(texture, atlas, dilation_px=2, fallback=-1.0)
 
     assert np.isfinite(filled).all()
     assert np.all(filled[2:5, 1] == 1.0) and np.all(filled[2:5, 10] == 5.0)  # known texels kept
@@ -39,9 +40,9 @@ def test_fill_texture_nearest_inside_atlas_dilation_outside_and_mean_beyond():
     assert filled[10, 10] == pytest.approx(atlas_mean)  # beyond the dilation: the atlas mean
     # A texel outside the atlas never counts as known, whatever it holds.
     texture[12, 12] = 100.0
-    assert export.fill_texture(texture, atlas, 2, -1.0)[12, 12] == pytest.approx(atlas_mean)
+    assert fill_texture(texture, atlas, 2, -1.0)[12, 12] == pytest.approx(atlas_mean)
     # Nothing known: the fallback everywhere; channels are filled alike.
-    assert np.all(export.fill_texture(np.full((4, 4, 3), np.nan), np.ones((4, 4), bool), 2, 0.25) == 0.25)
+    assert np.all(fill_texture(np.full((4, 4, 3), np.nan), np.ones((4, 4), bool), 2, 0.25) == 0.25)
 
 
 def test_write_scalar_map_grey_colormap_and_exr(tmp_path):
@@ -233,7 +234,7 @@ def test_write_fit_outputs_is_atomic_and_checks_the_texels(tmp_path, monkeypatch
 
 
 def test_write_json_is_strict_json(tmp_path):
-    export.write_json(tmp_path / "doc.json", {"a": np.float32(np.nan), "b": [np.inf, np.int64(3)], "c": np.ones(2)})
+    write_json(tmp_path / "doc.json", {"a": np.float32(np.nan), "b": [np.inf, np.int64(3)], "c": np.ones(2)})
     assert json.loads((tmp_path / "doc.json").read_text()) == {"a": None, "b": [None, 3], "c": [1.0, 1.0]}
 
 

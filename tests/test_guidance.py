@@ -1,4 +1,4 @@
-"""Capture guidance (freqbrdf.guidance, `freqbrdf next-views`).
+"""Capture guidance (freqbrdf.applications.guidance, `freqbrdf next-views`).
 
 The incremental fit and the candidate scoring are checked against fits from scratch
 (`sh.fit_sh`) on synthetic samples; the choice of views on a small Mitsuba-rendered sphere whose
@@ -13,13 +13,17 @@ import shutil
 import numpy as np
 import pytest
 
-from freqbrdf import brdf, guidance, pipeline, sh
-from freqbrdf.camera import look_at
-from freqbrdf.capture import Frame, load, write_transforms
+from freqbrdf import pipeline
+from freqbrdf.applications import guidance
+from freqbrdf.capture.camera import look_at
+from freqbrdf.capture.camera_layouts import bounding_sphere
+from freqbrdf.capture.layouts import Frame, load, write_transforms
 from freqbrdf.config import Config, FitConfig, TexelConfig
 from freqbrdf.estimate import ggx_lobe_gains, split_sum_terms
-from freqbrdf.observations import Observations
-from freqbrdf.synth import SynthSettings, bounding_sphere, synthesize
+from freqbrdf.model import brdf
+from freqbrdf.observe.observations import Observations
+from freqbrdf.sphere import harmonics as sh
+from freqbrdf.synthetic.synth import SynthSettings, synthesize
 from freqbrdf.uncertainty import cross_spectrum, entropy_from_spectra
 
 LMAX = 3
@@ -211,7 +215,7 @@ def test_a_view_of_the_unseen_half_beats_a_duplicate_and_lowers_the_expected_ent
     # The duplicate still adds a sample (and its penalty), but far less than the new half.
     assert picks[1].entropy_before - picks[1].expected_entropy < first.entropy_before - first.expected_entropy
     # The same texels and the same choice when a fit's observations are passed in.
-    from freqbrdf.observations import observe
+    from freqbrdf.observe.observations import observe
 
     again = guidance.select_views(capture, candidates, 1, CONFIG, observations=observe(capture, CONFIG))
     assert again[0].candidate == 1
@@ -239,9 +243,9 @@ def test_spread_lets_only_the_candidates_far_from_the_taken_views_compete(sphere
 
 @pytest.mark.slow
 def test_candidate_samples_of_the_capture_cameras_are_the_observed_samples(sphere_from_above):
-    """Camera-only sampling (camera.camera_samples through guidance) agrees with `observe` on the
+    """Camera-only sampling (visibility.camera_samples through guidance) agrees with `observe` on the
     views that were shot; only silhouette texels, which a photograph's mask drops, may differ."""
-    from freqbrdf.observations import observe
+    from freqbrdf.observe.observations import observe
     from freqbrdf.texels import rasterise
 
     capture = sphere_from_above

@@ -11,23 +11,29 @@ import trimesh
 from PIL import Image
 
 from freqbrdf import pipeline
-from freqbrdf.capture import load
-from freqbrdf.config import Config, TexelConfig
-from freqbrdf.errors import InputError
-from freqbrdf.images import srgb_to_linear
-from freqbrdf.inpaint import (
+from freqbrdf.applications.inpaint import (
     InpaintSettings,
     biharmonic_fill,
     chart_labels,
     diffusion_fill,
-    inpaint_fit,
     inpaint_maps,
     inpaint_mask,
     load_diffusion_fill,
 )
-from freqbrdf.materials import MaterialMaps, load_material_maps
-from freqbrdf.synth import SynthSettings, synthesize
-from freqbrdf.uncertainty import FLAG_AMBIGUOUS, FLAG_BELOW_BOUND, FLAG_FEW_SAMPLES, FLAG_UNOBSERVED
+from freqbrdf.capture.layouts import load
+from freqbrdf.config import Config, TexelConfig
+from freqbrdf.errors import InputError
+from freqbrdf.images import srgb_to_linear
+from freqbrdf.model.materials import MaterialMaps, load_material_maps
+from freqbrdf.outputs.fit_folder import load_fit
+from freqbrdf.pipeline import inpaint_fit
+from freqbrdf.synthetic.synth import SynthSettings, synthesize
+from freqbrdf.uncertainty import (
+    FLAG_AMBIGUOUS,
+    FLAG_BELOW_BOUND,
+    FLAG_FEW_SAMPLES,
+    FLAG_UNOBSERVED,
+)
 
 RES = 24
 
@@ -206,7 +212,7 @@ def test_inpaint_command_writes_a_complete_folder(tiny_fit, tmp_path, run_cli, m
     assert {"base_color.exr", "roughness.exr", "metallic.exr", "base_color.png", "mask.png", "material.glb",
             "summary.json"} <= names
     summary = json.loads((out / "summary.json").read_text())
-    fit = pipeline.load_fit(tiny_fit)
+    fit = load_fit(tiny_fit)
     atlas = np.zeros(32 * 32, bool)
     atlas[fit.texel_index] = True
     atlas = atlas.reshape(32, 32)

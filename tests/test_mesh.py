@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 import trimesh
 
-from freqbrdf import mesh as mesh_module
 from freqbrdf.assets import mesh_path
+from freqbrdf.capture import mesh as mesh_module
+from freqbrdf.capture.mesh import Mesh, load_mesh, plane_mesh, save_obj, uv_sphere_mesh
 from freqbrdf.errors import InputError
-from freqbrdf.mesh import Mesh, load_mesh, plane_mesh, save_obj, uv_sphere_mesh
 
 
 def uv_coverage(uv, faces, resolution=256):

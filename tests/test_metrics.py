@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from freqbrdf import metrics
-from freqbrdf.materials import MaterialMaps
+from freqbrdf.model.materials import MaterialMaps
+from freqbrdf.outputs import metrics
 
 
 def srgb(linear: float) -> float:

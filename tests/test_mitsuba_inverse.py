@@ -1,4 +1,4 @@
-"""The Mitsuba inverse-rendering baseline (freqbrdf.baselines).
+"""The Mitsuba inverse-rendering baseline (freqbrdf.render.inverse).
 
 1. Its loss pieces: the radiance compression is the prototype's formula and monotonic; texture
    total variation counts only pairs of covered texels.
@@ -9,10 +9,10 @@
 import numpy as np
 import pytest
 
-from freqbrdf import baselines
-from freqbrdf.capture import load
-from freqbrdf.render import mitsuba
-from freqbrdf.synth import SynthSettings, synthesize
+from freqbrdf.capture.layouts import load
+from freqbrdf.render import inverse as baselines
+from freqbrdf.render.scenes import mitsuba
+from freqbrdf.synthetic.synth import SynthSettings, synthesize
 from freqbrdf.texels import rasterise
 
 

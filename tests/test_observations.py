@@ -1,6 +1,6 @@
 """Observations, checked against Mitsuba's own renders (never against our forward model).
 
-Three tiny captures are path traced once per session with freqbrdf.synth:
+Three tiny captures are path traced once per session with freqbrdf.synthetic.synth:
 
 - a smooth conductor sphere (base colour 1, metallic 1, roughness 0): a mirror, so the observed
   radiance must be the environment in the mirror direction;
@@ -24,19 +24,26 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from freqbrdf import render, sh
 from freqbrdf.assets import envmap_path
-from freqbrdf.camera import Occluder
-from freqbrdf.capture import load
+from freqbrdf.capture.layouts import load
+from freqbrdf.capture.mesh import Mesh
 from freqbrdf.cli import main
-from freqbrdf.config import Config, EstimateConfig, FitConfig, ObserveConfig, TexelConfig
-from freqbrdf.envmap import Envmap, load_envmap, lookup
-from freqbrdf.estimate import prefilter_nodes, prefiltered_environment, prefiltered_light
+from freqbrdf.config import (
+    Config,
+    EstimateConfig,
+    FitConfig,
+    ObserveConfig,
+    TexelConfig,
+)
 from freqbrdf.errors import InputError
+from freqbrdf.estimate import (
+    prefilter_nodes,
+    prefiltered_environment,
+    prefiltered_light,
+)
 from freqbrdf.images import write_exr
-from freqbrdf.materials import MaterialMaps, save_material_maps
-from freqbrdf.mesh import Mesh
-from freqbrdf.observations import (
+from freqbrdf.model.materials import MaterialMaps, save_material_maps
+from freqbrdf.observe.observations import (
     Observations,
     _sample_bilinear,
     blocked_irradiance,
@@ -44,7 +51,11 @@ from freqbrdf.observations import (
     observe,
     texel_irradiance,
 )
-from freqbrdf.synth import SynthSettings, synthesize
+from freqbrdf.render import scenes as render
+from freqbrdf.render.occluder import Occluder
+from freqbrdf.sphere import harmonics as sh
+from freqbrdf.sphere.envmap import Envmap, load_envmap, lookup
+from freqbrdf.synthetic.synth import SynthSettings, synthesize
 from freqbrdf.texels import rasterise
 
 TEXTURE_RES = 64
@@ -64,7 +75,7 @@ def render_capture(folder, settings, bsdf=None):
     """synthesize, optionally with every principled BSDF replaced by the dict ``bsdf``."""
     if bsdf is None:
         return load(synthesize(folder, settings, progress=False))
-    with mock.patch("freqbrdf.synth.principled_bsdf", lambda materials: dict(bsdf)):
+    with mock.patch("freqbrdf.synthetic.synth.principled_bsdf", lambda materials: dict(bsdf)):
         return load(synthesize(folder, settings, progress=False))
 
 

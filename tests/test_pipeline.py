@@ -9,13 +9,21 @@ import numpy as np
 import pytest
 import trimesh
 
-from freqbrdf import pipeline, sparsification
-from freqbrdf.capture import load
+from freqbrdf import pipeline
+from freqbrdf.capture.layouts import load
 from freqbrdf.config import Config, FitConfig, TexelConfig, UncertaintyConfig, preset
 from freqbrdf.errors import InputError
-from freqbrdf.materials import MaterialMaps
-from freqbrdf.relight import RelightSettings
-from freqbrdf.synth import SynthSettings, synthesize
+from freqbrdf.model.materials import MaterialMaps
+from freqbrdf.outputs import sparsification
+from freqbrdf.outputs.evaluate import _uncertainty_scores, evaluate_fit
+from freqbrdf.outputs.fit_folder import (
+    EVALUATION_FOLDER,
+    SPARSIFICATION_PLOT,
+    FitOutputs,
+    load_fit,
+)
+from freqbrdf.outputs.relight import RelightSettings
+from freqbrdf.synthetic.synth import SynthSettings, synthesize
 from freqbrdf.uncertainty import FLAG_UNOBSERVED
 
 TINY = SynthSettings(mesh="bunny", views=6, resolution=40, spp=4, texture_res=32, test_views=2, test_envmaps=1)
@@ -90,18 +98,18 @@ def test_evaluation_scores_the_entropy_and_roughness_std_on_the_same_texels(tmp_
     flags[:4] = FLAG_UNOBSERVED
     arrays = {"texel_index": np.arange(n_texels), "flags": flags, "roughness_std": spread,
               "entropy": np.linspace(1.0, 0.0, n_texels).astype(np.float32)}
-    outputs = pipeline.FitOutputs(tmp_path, {}, estimated, None, np.ones((size, size), bool), arrays["texel_index"], arrays)
-    scores = pipeline._uncertainty_scores(outputs, SimpleNamespace(ground_truth=truth), tmp_path)
+    outputs = FitOutputs(tmp_path, {}, estimated, None, np.ones((size, size), bool), arrays["texel_index"], arrays)
+    scores = _uncertainty_scores(outputs, SimpleNamespace(ground_truth=truth), tmp_path)
 
     by_spread, by_entropy = scores["roughness_std"]["roughness"], scores["roughness"]
     assert by_spread["texels"] == by_entropy["texels"] == n_texels - 4
     assert by_spread["spearman"] == pytest.approx(1.0) and by_spread["ause"] == pytest.approx(0.0, abs=1e-9)
     assert by_entropy["spearman"] == pytest.approx(-1.0) and by_entropy["aurg"] < 0 < by_spread["aurg"]
     assert set(scores["roughness_std"]) == {"roughness", "base_color", "metallic"}
-    assert (tmp_path / pipeline.SPARSIFICATION_PLOT).is_file()
+    assert (tmp_path / SPARSIFICATION_PLOT).is_file()
     # A fit without roughness_std (older, or turned off) is scored on the entropy alone.
     del arrays["roughness_std"]
-    assert "roughness_std" not in pipeline._uncertainty_scores(outputs, SimpleNamespace(ground_truth=truth), tmp_path)
+    assert "roughness_std" not in _uncertainty_scores(outputs, SimpleNamespace(ground_truth=truth), tmp_path)
 
 
 # --- the pipeline -----------------------------------------------------------------------------
@@ -113,7 +121,7 @@ def test_fit_writes_a_complete_folder_that_loads_back(tiny_capture, tmp_path, mo
     result = pipeline.fit(load(tiny_capture), config)
     assert {"observe", "estimate", "uncertainty", "textures", "total"} <= set(result.timings)
     folder = pipeline.write_fit(tmp_path / "fit", result, config)
-    outputs = pipeline.load_fit(folder)
+    outputs = load_fit(folder)
     assert outputs.capture_path == tiny_capture.resolve()
     np.testing.assert_allclose(outputs.maps.roughness, result.maps.roughness)
     np.testing.assert_array_equal(outputs.arrays["flags"], result.uncertainty.flags)
@@ -124,8 +132,8 @@ def test_fit_writes_a_complete_folder_that_loads_back(tiny_capture, tmp_path, mo
     assert len(scene.geometry) == 1
 
     # The evaluation folder appears whole or not at all: a failing last step keeps the old one.
-    evaluation = folder / pipeline.EVALUATION_FOLDER
-    document = pipeline.evaluate_fit(outputs, load(tiny_capture), settings=NO_LPIPS)
+    evaluation = folder / EVALUATION_FOLDER
+    document = evaluate_fit(outputs, load(tiny_capture), settings=NO_LPIPS)
     assert document["uncertainty"]["roughness"]["texels"] == np.count_nonzero(result.observations.n_samples)
     np.testing.assert_array_equal(outputs.arrays["roughness_std"], result.uncertainty.roughness_std)
     spread_scores = document["uncertainty"]["roughness_std"]
@@ -138,7 +146,7 @@ def test_fit_writes_a_complete_folder_that_loads_back(tiny_capture, tmp_path, mo
 
     with monkeypatch.context() as patch, pytest.raises(RuntimeError, match="plot failed"):
         patch.setattr(sparsification, "plot", failing_plot)
-        pipeline.evaluate_fit(outputs, load(tiny_capture), settings=NO_LPIPS)
+        evaluate_fit(outputs, load(tiny_capture), settings=NO_LPIPS)
     assert (evaluation / "metrics.json").read_bytes() == before
     assert not [p.name for p in folder.iterdir() if p.name.startswith(".")]  # no temporary left
 
@@ -156,25 +164,25 @@ def test_outputs_never_replace_their_inputs(tiny_capture, tmp_path):
 
     folder = pipeline.write_fit(tmp_path / "fit", result, config)
     with pytest.raises(InputError, match="would replace the fit"):
-        pipeline.evaluate_fit(pipeline.load_fit(folder), capture, out_dir=folder)
+        evaluate_fit(load_fit(folder), capture, out_dir=folder)
     assert json.loads((folder / "summary.json").read_text())["capture"] == str(tiny_capture.resolve())
 
 
 def test_load_fit_names_what_is_missing(tmp_path):
     with pytest.raises(InputError, match="does not exist"):
-        pipeline.load_fit(tmp_path / "nowhere")
+        load_fit(tmp_path / "nowhere")
     with pytest.raises(InputError, match="summary.json.*not a fit folder"):
-        pipeline.load_fit(tmp_path)
+        load_fit(tmp_path)
     (tmp_path / "summary.json").write_text("[1, 2]")
     with pytest.raises(InputError, match="JSON object"):
-        pipeline.load_fit(tmp_path)
+        load_fit(tmp_path)
 
 
 # --- estimation on coarser texels ------------------------------------------------------------
 
 
 def _unit_square() -> "Mesh":
-    from freqbrdf.mesh import Mesh
+    from freqbrdf.capture.mesh import Mesh
 
     vertices = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], np.float64)
     return Mesh(vertices=vertices, faces=np.array([[0, 1, 2], [0, 2, 3]]),
@@ -208,7 +216,7 @@ def test_to_texels_samples_the_maps_bilinearly_and_takes_the_rest_from_the_paren
 
     from test_uncertainty import LMAX, _estimate_of, _observations_from_spectra
 
-    from freqbrdf import sh
+    from freqbrdf.sphere import harmonics as sh
     from freqbrdf.texels import rasterise
     from freqbrdf.uncertainty import entropy_map
 
@@ -255,7 +263,7 @@ def test_to_texels_samples_the_maps_bilinearly_and_takes_the_rest_from_the_paren
     assert np.all(np.isnan(fine_estimate.roughness[unestimated])) and not fine_estimate.estimated[unestimated].any()
     assert np.all(np.isnan(fine_uncertainty.roughness_std[unestimated]))
     # roughness_std as exported: the unestimated texel's prior std blends into its neighbours.
-    from freqbrdf.export import UNESTIMATED_ROUGHNESS_STD
+    from freqbrdf.outputs.export import UNESTIMATED_ROUGHNESS_STD
 
     beside = (y > 2) & (x > 2) & ~unestimated
     np.testing.assert_allclose(fine_uncertainty.roughness_std[~unestimated & ~beside], 0.1, atol=1e-6)
@@ -273,12 +281,12 @@ def test_fit_on_coarser_texels_writes_t_by_t_maps_that_load_and_evaluate(tiny_ca
     assert result.estimate.texture_res == 32 and result.maps.resolution == 32
     assert result.uncertainty.entropy.shape == (result.estimate.n_texels,)
     folder = pipeline.write_fit(tmp_path / "fit", result, config)
-    outputs = pipeline.load_fit(folder)
+    outputs = load_fit(folder)
     assert outputs.summary["estimation_res"] == 16
     coverage = outputs.summary["coverage"]
     assert coverage["views"] == len(capture.frames) and coverage["texture_res"] == 32
     assert outputs.observed.sum() == np.count_nonzero(result.observations.n_samples)
-    document = pipeline.evaluate_fit(outputs, capture, settings=NO_LPIPS)
+    document = evaluate_fit(outputs, capture, settings=NO_LPIPS)
     assert document["texture"]["texels"] == outputs.observed.sum()
     # The rules on this capture (40-pixel images): what the images resolve, whatever T above it.
     def automatic(texture_res, rule):

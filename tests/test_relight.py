@@ -9,14 +9,14 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from freqbrdf import export, relight
-from freqbrdf.capture import load
+from freqbrdf.capture.layouts import load
 from freqbrdf.config import Config, TexelConfig
 from freqbrdf.estimate import estimate
-from freqbrdf.materials import MaterialMaps, load_material_maps
-from freqbrdf.observations import observe
+from freqbrdf.model.materials import MaterialMaps, load_material_maps
+from freqbrdf.observe.observations import observe
+from freqbrdf.outputs import export, relight
+from freqbrdf.synthetic.synth import SynthSettings, synthesize
 from freqbrdf.uncertainty import entropy_map
-from freqbrdf.synth import SynthSettings, synthesize
 
 pytestmark = pytest.mark.slow  # renders with Mitsuba
 

@@ -25,13 +25,16 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from freqbrdf import demo, pipeline
-from freqbrdf.capture import load
+from freqbrdf import pipeline
+from freqbrdf.capture.layouts import load
 from freqbrdf.cli import main
 from freqbrdf.config import Config, TexelConfig
-from freqbrdf.relight import RelightSettings
-from freqbrdf.report import REPORT_FILE, write_report
-from freqbrdf.synth import SynthSettings, synthesize
+from freqbrdf.outputs.evaluate import evaluate_fit
+from freqbrdf.outputs.fit_folder import load_fit
+from freqbrdf.outputs.relight import RelightSettings
+from freqbrdf.outputs.report import REPORT_FILE, write_report
+from freqbrdf.synthetic import demo
+from freqbrdf.synthetic.synth import SynthSettings, synthesize
 
 TINY = SynthSettings(mesh="bunny", views=6, resolution=40, spp=4, texture_res=32, test_views=1, test_envmaps=1)
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser") or shutil.which("google-chrome")
@@ -44,7 +47,7 @@ def fit_folder(tmp_path_factory):
     capture = load(capture_dir)
     config = Config(texels=TexelConfig(texture_res=32))
     folder = pipeline.write_fit(root / "fit", pipeline.fit(capture, config), config)
-    pipeline.evaluate_fit(pipeline.load_fit(folder), capture, settings=RelightSettings(spp=2))
+    evaluate_fit(load_fit(folder), capture, settings=RelightSettings(spp=2))
     return folder
 
 

@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 from scipy.special import sph_harm_y
 
-from freqbrdf import sh
+from freqbrdf.sphere import harmonics as sh
 
 
 def random_directions(rng, n):

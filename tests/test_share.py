@@ -9,11 +9,7 @@ import numpy as np
 import pytest
 from scipy.special import rel_entr
 
-from freqbrdf import brdf, sh
-from freqbrdf.config import EstimateConfig, Config, ShareConfig, UncertaintyConfig
-from freqbrdf.estimate import angular_loss, estimate, model_light
-from freqbrdf.observations import Observations
-from freqbrdf.share import (
+from freqbrdf.applications.share import (
     PROBABILITY_FLOOR,
     anchor_affinity,
     find_anchors,
@@ -21,7 +17,18 @@ from freqbrdf.share import (
     share_details,
     texel_coordinates,
 )
-from freqbrdf.uncertainty import FLAG_BELOW_BOUND, HypothesisGrid, Uncertainty, entropy_map, hypothesis_grid
+from freqbrdf.config import Config, EstimateConfig, ShareConfig, UncertaintyConfig
+from freqbrdf.estimate import angular_loss, estimate, model_light
+from freqbrdf.model import brdf
+from freqbrdf.observe.observations import Observations
+from freqbrdf.sphere import harmonics as sh
+from freqbrdf.uncertainty import (
+    FLAG_BELOW_BOUND,
+    HypothesisGrid,
+    Uncertainty,
+    entropy_map,
+    hypothesis_grid,
+)
 
 LMAX = 5
 N_VIEWS = 48

@@ -15,15 +15,16 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from freqbrdf import render
 from freqbrdf.assets import envmap_path, mesh_path
-from freqbrdf.camera import Camera, look_at
-from freqbrdf.capture import load
+from freqbrdf.capture.camera import Camera, look_at
+from freqbrdf.capture.camera_layouts import fibonacci_directions
+from freqbrdf.capture.layouts import load
+from freqbrdf.capture.mesh import load_mesh
 from freqbrdf.cli import main
-from freqbrdf.envmap import Envmap, load_envmap, lookup
-from freqbrdf.materials import MaterialMaps
-from freqbrdf.mesh import load_mesh
-from freqbrdf.synth import CAPTURE_FORMATS, SynthSettings, fibonacci_directions, prepare, synthesize
+from freqbrdf.model.materials import MaterialMaps
+from freqbrdf.render import scenes as render
+from freqbrdf.sphere.envmap import Envmap, load_envmap, lookup
+from freqbrdf.synthetic.synth import CAPTURE_FORMATS, SynthSettings, prepare, synthesize
 
 pytestmark = pytest.mark.slow  # every test here renders with Mitsuba
 

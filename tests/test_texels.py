@@ -7,8 +7,8 @@ import pytest
 import trimesh
 
 from freqbrdf import texels as tx
+from freqbrdf.capture.mesh import Mesh, generate_atlas, plane_mesh, uv_sphere_mesh
 from freqbrdf.errors import InputError
-from freqbrdf.mesh import Mesh, generate_atlas, plane_mesh, uv_sphere_mesh
 
 
 def texel_centres_uv(texels: tx.Texels) -> np.ndarray:

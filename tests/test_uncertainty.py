@@ -18,11 +18,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from freqbrdf import sh
 from freqbrdf import uncertainty as unc
 from freqbrdf.config import EstimateConfig, UncertaintyConfig
 from freqbrdf.estimate import ggx_lobe_gains, split_sum_terms
-from freqbrdf.observations import Observations
+from freqbrdf.observe.observations import Observations
+from freqbrdf.sphere import harmonics as sh
 
 LMAX = 5
 DEGREES = np.arange(LMAX + 1)

@@ -81,8 +81,8 @@ def demo(
     json_output: bool = typer.Option(False, "--json", help="Print the demo's results as JSON."),
 ) -> None:
     """Render the bundled capture (cached), fit it, evaluate it and write the report."""
-    from freqbrdf.demo import run_demo
     from freqbrdf.progress import Reporter
+    from freqbrdf.synthetic.demo import run_demo
 
     result = run_demo(out, reporter=Reporter(enabled=not (quiet or json_output)),
                       before_writing=lambda: _results_from_cache(quiet or json_output))
@@ -106,7 +106,7 @@ def report(
     quiet: bool = typer.Option(False, "--quiet", help="No messages."),
 ) -> None:
     """Write report.html (maps, entropy, spectra, evaluation, 3D view); opens from disk, no network."""
-    from freqbrdf.report import write_report
+    from freqbrdf.outputs.report import write_report
 
     path = write_report(fit_dir, out)
     if not quiet:
@@ -118,7 +118,10 @@ def info(capture: str = typer.Argument(..., help="Capture folder or its transfor
     """Summarise a capture: views, resolution, mesh, environment map, test set, ground truth."""
     from rich.table import Table
 
-    from freqbrdf.capture import describe, load  # here: its imports would slow every command
+    from freqbrdf.capture.layouts import (  # here: its imports would slow every command
+        describe,
+        load,
+    )
 
     table = Table(show_header=False, box=None)
     for topic, text in describe(load(capture)):
@@ -143,7 +146,10 @@ def synth(
     format: str = typer.Option("ours", help="ours, or orb (the Stanford-ORB layout)."),
 ) -> None:
     """Render a synthetic capture of a known object with Mitsuba 3 (with ground truth)."""
-    from freqbrdf.synth import SynthSettings, synthesize  # imported here: it loads Mitsuba
+    from freqbrdf.synthetic.synth import (  # imported here: it loads Mitsuba
+        SynthSettings,
+        synthesize,
+    )
 
     settings = SynthSettings(
         mesh=mesh, envmap=envmap, materials=materials, views=views, resolution=resolution,
@@ -174,9 +180,10 @@ def observe(
 
     import numpy as np
 
-    from freqbrdf.capture import load
+    from freqbrdf.capture.layouts import load
     from freqbrdf.fileio import atomic_path
-    from freqbrdf.observations import observe as observe_capture, write_maps
+    from freqbrdf.observe.observations import observe as observe_capture
+    from freqbrdf.observe.observations import write_maps
     from freqbrdf.progress import Reporter
 
     config = _config("default", texture_res, lmax, environment_occlusion=environment_occlusion)
@@ -214,7 +221,8 @@ def _config(preset: str, texture_res: int | None = None, lmax: int | None = None
     """The preset's Config with the options the user gave (None: keep the preset's value)."""
     import dataclasses
 
-    from freqbrdf.config import PRESETS, preset as named_preset
+    from freqbrdf.config import PRESETS
+    from freqbrdf.config import preset as named_preset
 
     if preset not in PRESETS:
         raise typer.BadParameter(f"unknown preset {preset!r}; choose one of {', '.join(PRESETS)}")
@@ -320,7 +328,8 @@ def fit(
     from pathlib import Path
 
     from freqbrdf import pipeline
-    from freqbrdf.capture import load
+    from freqbrdf.capture.layouts import load
+    from freqbrdf.outputs.fit_folder import check_output_folder
     from freqbrdf.progress import Reporter
 
     config = _config(preset, texture_res, lmax, estimator=estimator, model=model, entropy=entropy,
@@ -339,7 +348,7 @@ def fit(
         neighbour_vote=config.estimate.neighbour_vote and neighbour_vote))
     reporter = Reporter(enabled=not (quiet or json_output))
     loaded = load(capture)
-    pipeline.check_output_folder(out, {"the capture": loaded.root.resolve()})  # before minutes of work
+    check_output_folder(out, {"the capture": loaded.root.resolve()})  # before minutes of work
     result = pipeline.fit(loaded, config, reporter)
     _results_from_cache(quiet or json_output)
     folder = pipeline.write_fit(out, result, config)
@@ -381,16 +390,19 @@ def uncertainty(
     """The entropy map alone, no material estimate (so no roughness std): entropy.exr/.png, flags, summary."""
     import time
 
-    from freqbrdf import export, pipeline
-    from freqbrdf.capture import load
-    from freqbrdf.fileio import atomic_directory
+    from freqbrdf import pipeline
+    from freqbrdf.capture.layouts import load
+    from freqbrdf.fileio import atomic_directory, write_json
     from freqbrdf.images import write_png
+    from freqbrdf.outputs import export
+    from freqbrdf.outputs.fit_folder import check_output_folder
     from freqbrdf.progress import Reporter
-    from freqbrdf.uncertainty import entropy_map, summary as uncertainty_summary
+    from freqbrdf.uncertainty import entropy_map
+    from freqbrdf.uncertainty import summary as uncertainty_summary
 
     config = _config(preset, texture_res, lmax, entropy=entropy, entropy_lobe=entropy_lobe)
     loaded = load(capture)
-    pipeline.check_output_folder(out, {"the capture": loaded.root.resolve()})
+    check_output_folder(out, {"the capture": loaded.root.resolve()})
     start = time.perf_counter()
     # On the texels `fit` would estimate on, so that the two entropy maps agree.
     observations, fine = pipeline.observe_on_estimation_texels(
@@ -423,7 +435,7 @@ def uncertainty(
                                 export.ENTROPY_RANGE)
         write_png(folder / export.FILES["flags_png"],
                          export.flags_picture(observations.to_texture(result.flags, fill=0), atlas))
-        export.write_json(folder / "uncertainty.json", summary)
+        write_json(folder / "uncertainty.json", summary)
     if json_output:
         _print_json(summary)
     elif not quiet:
@@ -447,16 +459,17 @@ def evaluate(
     json_output: bool = typer.Option(False, "--json", help="Print metrics.json to stdout."),
 ) -> None:
     """Texture metrics vs ground truth, Stanford-ORB relighting scores, and AUSE/AURG of the entropy."""
-    from freqbrdf import pipeline
-    from freqbrdf.capture import load
+    from freqbrdf.capture.layouts import load
+    from freqbrdf.outputs.evaluate import evaluate_fit
+    from freqbrdf.outputs.fit_folder import load_fit
+    from freqbrdf.outputs.relight import RelightSettings
     from freqbrdf.progress import Reporter
-    from freqbrdf.relight import RelightSettings
 
-    outputs = pipeline.load_fit(fit_dir)
+    outputs = load_fit(fit_dir)
     capture_path = capture or outputs.capture_path
     if capture_path is None:
         raise InputError(outputs.folder / "summary.json", "names no capture: pass --capture")
-    document = pipeline.evaluate_fit(outputs, load(capture_path), out, RelightSettings(spp=spp),
+    document = evaluate_fit(outputs, load(capture_path), out, RelightSettings(spp=spp),
                                      Reporter(enabled=not (quiet or json_output)))
     if json_output:
         _print_json(document)
@@ -501,7 +514,8 @@ def inpaint(
     """Fill the uncertain texels of a fit's maps from confident ones, chart by chart; EXR, PNG, glTF."""
     import json
 
-    from freqbrdf.inpaint import MAP_NAMES, InpaintSettings, inpaint_fit
+    from freqbrdf.applications.inpaint import MAP_NAMES, InpaintSettings
+    from freqbrdf.pipeline import inpaint_fit
 
     names = tuple(name.strip() for name in maps.split(",") if name.strip())
     if not names or set(names) - set(MAP_NAMES):
@@ -536,8 +550,9 @@ def next_views(
     import dataclasses
     import time
 
-    from freqbrdf import guidance, pipeline
-    from freqbrdf.capture import load
+    from freqbrdf import pipeline
+    from freqbrdf.applications import guidance
+    from freqbrdf.capture.layouts import load
     from freqbrdf.progress import Reporter
 
     if (candidates is None) == (sample is None):

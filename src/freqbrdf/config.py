@@ -341,7 +341,7 @@ class EstimateConfig:
 
 @dataclass(frozen=True)
 class ShareConfig:
-    """Sharing across the surface (`fit --share`, METHOD.md §4; see freqbrdf.share)."""
+    """Sharing across the surface (`fit --share`, METHOD.md §4; see freqbrdf.applications.share)."""
 
     enabled: bool = False
     uncertain_entropy: float = 0.5  # texels at or above this normalised entropy are pulled

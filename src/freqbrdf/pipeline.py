@@ -1,41 +1,44 @@
-"""The whole job on one capture: observations -> estimate -> uncertainty -> textures; its folder.
+"""The whole job on one capture: texels -> observations -> estimate -> uncertainty -> textures.
 
 ``fit`` runs the stages in memory (``FitResult``; on coarser texels than the maps' when
-``TexelConfig.estimation_res`` says so, then `to_texels`), ``write_fit`` writes the fit folder
-(``export.write_fit_outputs``: EXR maps, previews, material.glb, entropy, roughness_std and flags,
-spectra.npz, uncertainty.npz, summary.json with the capture's path), ``load_fit`` reads it back
-for the commands that work on a fit (evaluate, report, inpaint), and ``evaluate_fit`` scores a fit
-folder against its capture (texture metrics, relighting, and whether the entropy and
-roughness_std rank the errors).
+``TexelConfig.estimation_res`` says so, then `to_texels`); ``write_fit`` writes the fit folder
+(``outputs.export.write_fit_outputs``). Reading a fit folder back and scoring it live in
+`freqbrdf.outputs.fit_folder` and `freqbrdf.outputs.evaluate`. See METHOD.md §3.
 """
 
 from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 from scipy import ndimage
 
-from freqbrdf import export
-from freqbrdf.capture import Capture
+from freqbrdf.applications import inpaint
+from freqbrdf.applications.share import share
+from freqbrdf.capture.layouts import Capture
 from freqbrdf.config import Config
 from freqbrdf.errors import InputError
-from freqbrdf.estimate import MaterialEstimate, estimate as estimate_materials
-from freqbrdf.fileio import atomic_directory
-from freqbrdf.images import read_image
-from freqbrdf.materials import MaterialMaps, load_material_maps, resize
-from freqbrdf.observations import Observations, observe
+from freqbrdf.estimate import MaterialEstimate
+from freqbrdf.estimate import estimate as estimate_materials
+from freqbrdf.fileio import atomic_directory, write_json
+from freqbrdf.images import write_png
+from freqbrdf.model.materials import MaterialMaps, save_material_maps
+from freqbrdf.observe.observations import Observations, observe
+from freqbrdf.outputs import export
+from freqbrdf.outputs.fit_folder import check_output_folder, load_fit
 from freqbrdf.progress import SILENT, Reporter
-from freqbrdf.relight import RelightSettings, evaluate as relight_evaluate, write_evaluation
-from freqbrdf.share import share
-from freqbrdf.texels import Texels, estimation_resolution as texels_estimation_resolution, rasterise
-from freqbrdf.uncertainty import FLAG_UNOBSERVED, AngularEntropy, Uncertainty, entropy_map, roughness_std
-
-EVALUATION_FOLDER = "evaluation"
-SPARSIFICATION_PLOT = "sparsification.png"
+from freqbrdf.texels import Texels, rasterise
+from freqbrdf.texels import estimation_resolution as texels_estimation_resolution
+from freqbrdf.uncertainty import (
+    FLAG_UNOBSERVED,
+    AngularEntropy,
+    Uncertainty,
+    entropy_map,
+    roughness_std,
+)
 
 
 @dataclass(eq=False)
@@ -49,24 +52,6 @@ class FitResult:
     # The texture resolution observed and estimated on (`estimation_resolution`); below T, the
     # observations, estimate and uncertainty above are its, taken to the T x T texels (`to_texels`).
     estimation_res: int | None = None
-
-
-@dataclass(eq=False)
-class FitOutputs:
-    """A fit folder read back."""
-
-    folder: Path
-    summary: dict
-    maps: MaterialMaps  # (T, T, ·) textures
-    entropy: np.ndarray | None  # (T, T) float32, dilated like the maps; None without uncertainty
-    observed: np.ndarray  # (T, T) bool: texels with at least one sample
-    texel_index: np.ndarray  # (N,) flat indices of the mesh's texels (spectra.npz's order)
-    arrays: dict  # the per-texel arrays of spectra.npz and uncertainty.npz, (N, ...)
-
-    @property
-    def capture_path(self) -> Path | None:
-        path = self.summary.get("capture")
-        return None if path is None else Path(path)
 
 
 def estimation_resolution(capture: Capture, config: Config = Config(), fine: Texels | None = None) -> int:
@@ -250,117 +235,57 @@ def write_fit(out_dir: str | Path, result: FitResult, config: Config = Config())
     summary_path = out / export.FILES["summary"]
     summary = json.loads(summary_path.read_text(encoding="utf-8"))
     summary["timings"] = dict(result.timings)
-    export.write_json(summary_path, summary)
+    write_json(summary_path, summary)
     return out
 
 
-def load_fit(fit_dir: str | Path) -> FitOutputs:
-    """Read a fit folder written by `write_fit`; InputError naming what is missing or bad."""
-    folder = Path(fit_dir)
-    summary_path = folder / export.FILES["summary"]
-    if not folder.is_dir():
-        raise InputError(folder, "fit folder does not exist")
-    if not summary_path.is_file():
-        raise InputError(summary_path, "missing: this is not a fit folder written by `freqbrdf fit`")
-    try:
-        summary = json.loads(summary_path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise InputError(summary_path, f"unreadable: {err}") from None
-    if not isinstance(summary, dict):
-        raise InputError(summary_path, "must hold a JSON object")
-    maps = load_material_maps(folder)
-    entropy_path = folder / export.FILES["entropy"]
-    entropy = read_image(entropy_path)[..., 0] if entropy_path.is_file() else None
-    arrays: dict = {}
-    for name in ("spectra", "uncertainty"):
-        path = folder / export.FILES[name]
-        if path.is_file():
-            try:
-                with np.load(path) as data:
-                    arrays.update({key: data[key] for key in data.files})
-            except (OSError, ValueError) as err:
-                raise InputError(path, f"unreadable: {err}") from None
-    resolution = maps.resolution
-    if "texel_index" not in arrays:
-        raise InputError(folder / export.FILES["spectra"], "missing: the fit folder is incomplete")
-    texel_index = arrays["texel_index"]
-    if texel_index.size and (texel_index.min() < 0 or texel_index.max() >= resolution * resolution):
-        raise InputError(folder / export.FILES["spectra"], f"texel indices do not fit {resolution}x{resolution} maps")
-    observed = np.zeros(resolution * resolution, bool)
-    if "n_samples" in arrays:
-        observed[texel_index[arrays["n_samples"] > 0]] = True
-    return FitOutputs(folder, summary, maps, entropy, observed.reshape(resolution, resolution),
-                      texel_index, arrays)
+def inpaint_fit(fit_dir: str | Path, out_dir: str | Path, settings: inpaint.InpaintSettings = inpaint.InpaintSettings(),
+                capture: str | Path | None = None) -> Path:
+    """Inpaint a fit folder's maps; writes ``out_dir`` (replaced as a whole, atomically); returns it.
 
-
-def evaluate_fit(fit_outputs: FitOutputs, capture: Capture, out_dir: str | Path | None = None,
-                 settings: RelightSettings = RelightSettings(), reporter: Reporter = SILENT) -> dict:
-    """Score a fit against its capture; writes ``<fit>/evaluation`` (or ``out_dir``) as a whole.
-
-    - texture metrics on the observed texels when the capture has ground truth;
-    - relighting under the capture's test set (Stanford-ORB protocol) when it has one;
-    - the uncertainty's meaning: sparsification (AUSE, AURG) and Spearman rho of the entropy and
-      of roughness_std against the per-texel roughness, base-colour and metallic errors (ground
-      truth needed).
-    Returns the metrics document (also written as metrics.json).
+    Files: the three EXR maps and their PNG previews, ``mask.png`` (white: filled texels, grey:
+    the rest of the atlas), ``material.glb`` (the capture's mesh with the new maps) and
+    ``summary.json``. ``capture``: where the mesh comes from (default: the fit's capture).
     """
-    out = Path(out_dir) if out_dir is not None else fit_outputs.folder / EVALUATION_FOLDER
-    check_output_folder(out, {"the fit": fit_outputs.folder.resolve(), "the capture": Path(capture.root).resolve()})
-    evaluation = relight_evaluate(capture, fit_outputs.maps, fit_outputs.observed, settings, reporter)
-    # One folder, renamed into place when complete: a failure leaves the previous evaluation (or none).
-    with atomic_directory(out) as folder:
-        extra = {"fit": str(fit_outputs.folder.resolve()), "capture": str(Path(capture.root).resolve())}
-        uncertainty_scores = _uncertainty_scores(fit_outputs, capture, folder)
-        if uncertainty_scores is not None:
-            extra["uncertainty"] = uncertainty_scores
-        metrics_path = write_evaluation(folder, evaluation, extra)
-        document = json.loads(metrics_path.read_text(encoding="utf-8"))  # as written (inf as null)
-    return document
+    from freqbrdf.capture.layouts import load
 
-
-def check_output_folder(out_dir: str | Path, inputs: dict[str, Path]) -> None:
-    """InputError if replacing ``out_dir`` as a whole would delete one of the named input folders."""
-    out = Path(out_dir).resolve()
-    for name, folder in inputs.items():
-        if out == folder or out in folder.parents:
-            raise InputError(out_dir, f"output folder would replace {name} ({folder}); choose another --out")
-
-
-def _uncertainty_scores(fit_outputs: FitOutputs, capture: Capture, out: Path) -> dict | None:
-    """Sparsification of the entropy (and of roughness_std when the fit has it) against the
-    per-texel errors on observed texels (needs GT). The entropy's scores per error kind stay at the
-    top level (as before roughness_std existed); roughness_std's are under its own key."""
-    # Imported here: scipy.stats would add ~0.3 s to every `freqbrdf fit`, which never needs it.
-    from freqbrdf import sparsification
-
-    arrays = fit_outputs.arrays
-    if capture.ground_truth is None or "entropy" not in arrays:
-        return None
-    truth = resize(capture.ground_truth, fit_outputs.maps.resolution)
-    index = fit_outputs.texel_index
-    observed = (arrays["flags"] & FLAG_UNOBSERVED) == 0
-    # Both uncertainties on the same texels: roughness_std as exported (observed texels without an
-    # estimate, whose maps are filled from neighbours, take the prior's std).
-    uncertainties = {"entropy": arrays["entropy"][observed]}
-    if "roughness_std" in arrays:
-        uncertainties["roughness_std"] = export.roughness_std_values(arrays["roughness_std"])[observed]
-    flat = index[observed]
-    maps = fit_outputs.maps
-    errors = {
-        "roughness": np.abs(maps.roughness.ravel()[flat] - truth.roughness.ravel()[flat]),
-        "base_color": np.abs(maps.base_color.reshape(-1, 3)[flat] - truth.base_color.reshape(-1, 3)[flat]).mean(axis=1),
-        "metallic": np.abs(maps.metallic.ravel()[flat] - truth.metallic.ravel()[flat]),
+    if settings.threshold is not None and not 0.0 <= settings.threshold <= 1.0:
+        raise InputError(None, f"threshold must lie in [0, 1] (normalised entropy), got {settings.threshold}")
+    start = time.perf_counter()
+    fit = load_fit(fit_dir)
+    for name in ("flags", "entropy"):
+        if name not in fit.arrays:
+            raise InputError(fit.folder / export.FILES["uncertainty"], "missing: the fit has no uncertainty to mask by")
+    capture_path = capture if capture is not None else fit.capture_path
+    if capture_path is None:
+        raise InputError(fit.folder / export.FILES["summary"], "names no capture: pass --capture")
+    mesh = load(capture_path).mesh
+    fill = inpaint.load_diffusion_fill(settings) if settings.backend == "diffusion" else inpaint.biharmonic_fill
+    resolution = fit.maps.resolution
+    atlas = np.zeros(resolution * resolution, bool)
+    atlas[fit.texel_index] = True
+    atlas = atlas.reshape(resolution, resolution)
+    mask = inpaint.inpaint_mask(atlas, fit.texel_index, fit.arrays["flags"], fit.arrays["entropy"], settings.threshold)
+    dilation = int(fit.summary.get("settings", {}).get("texels", {}).get("dilation_px", 8))
+    result = inpaint.inpaint_maps(fit.maps, atlas, mask, fill, settings.maps, dilation)
+    seconds = time.perf_counter() - start
+    summary = {
+        "fit": str(fit.folder.resolve()),
+        "capture": str(Path(capture_path).resolve()),
+        "settings": asdict(settings),
+        "mask": "flags unobserved|ambiguous" if settings.threshold is None
+                else f"flag unobserved or entropy >= {settings.threshold}",
+        "atlas_texels": int(atlas.sum()),
+        "masked_texels": int(mask.sum()),
+        "masked_fraction": float(mask.sum() / max(atlas.sum(), 1)),
+        "charts": result.charts,
+        "unfilled_texels": result.unfilled_texels,
+        "seconds": seconds,
     }
-    results = {kind: {name: sparsification.sparsification(values, error) for name, error in errors.items()}
-               for kind, values in uncertainties.items()}
-    sparsification.plot(results, out / SPARSIFICATION_PLOT)
-    scores = {kind: {name: sparsification.to_dict(result) for name, result in by_error.items()}
-              for kind, by_error in results.items()}
-    return {
-        "error_of": "absolute per-texel error on observed texels (base colour: mean over RGB)",
-        "uncertainty_of": ("the scores per error: the entropy's; under roughness_std: the estimated roughness's "
-                           f"std (texels without an estimate: {export.UNESTIMATED_ROUGHNESS_STD:.3f})"),
-        "plot": SPARSIFICATION_PLOT,
-        **scores["entropy"],
-        **({"roughness_std": scores["roughness_std"]} if "roughness_std" in scores else {}),
-    }
+    with atomic_directory(out_dir) as folder:
+        save_material_maps(folder, result.maps)
+        export.write_material_previews(folder, result.maps)
+        export.write_gltf(folder / export.FILES["gltf"], mesh, result.maps)
+        write_png(folder / inpaint.MASK_PNG, np.where(mask, 1.0, np.where(atlas, 0.25, 0.0)).astype(np.float32))
+        write_json(folder / export.FILES["summary"], summary)
+    return Path(out_dir)

@@ -37,9 +37,10 @@ from typing import Literal
 
 import numba
 import numpy as np
+from scipy import ndimage
 
+from freqbrdf.capture.mesh import Mesh, unit_or_fallback
 from freqbrdf.errors import InputError
-from freqbrdf.mesh import Mesh, unit_or_fallback
 
 INSIDE_TOLERANCE = 1e-9  # barycentric slack of the centre test: centres on shared edges stay covered
 STRICT_INSIDE = 1e-7  # barycentric margin for "strictly inside" when counting UV overlaps
@@ -413,3 +414,26 @@ def estimation_resolution(texels: Texels, camera_centres: np.ndarray, focal_px: 
     texels_per_pixel = math.log2(pixel_width / texel_width)
     levels = max(math.floor(texels_per_pixel + 1e-9) if rule == "pixel" else math.ceil(texels_per_pixel - 1e-9), 0)
     return max(math.ceil(texels.texture_res / 2**levels), 1)
+
+
+def fill_texture(texture: np.ndarray, atlas: np.ndarray, dilation_px: int, fallback: float) -> np.ndarray:
+    """Fill a (T, T) or (T, T, C) texture whose unknown texels are NaN; (T, T[, C]) float32 out.
+
+    Known texels are the finite ones inside ``atlas`` (T, T) bool; they are returned unchanged.
+    Atlas texels without a value take the nearest known texel's; then the atlas is dilated by
+    ``dilation_px`` rings; the remaining texels take the mean over the atlas. Without any known
+    texel the whole texture is ``fallback``.
+    """
+    texture = np.asarray(texture, np.float32)
+    values = texture if texture.ndim == 3 else texture[..., None]  # (T, T, C)
+    known = atlas & np.isfinite(values).all(axis=-1)
+    if not known.any():
+        return np.full(texture.shape, fallback, np.float32)
+    # Index of the nearest known texel for every texel (distance 0 for the known ones).
+    nearest = ndimage.distance_transform_edt(~known, return_distances=False, return_indices=True)
+    filled = np.full_like(values, np.nan)
+    filled[atlas] = values[nearest[0], nearest[1]][atlas]
+    filled = dilate(filled, atlas, dilation_px)
+    far = ~np.isfinite(filled).all(axis=-1)
+    filled[far] = filled[atlas].mean(axis=0)
+    return filled if texture.ndim == 3 else filled[..., 0]

@@ -38,7 +38,7 @@ def mesh_path(name: str) -> Path:
 
 
 def material_dir(name: str) -> Path:
-    """Folder of the bundled material set ``name``, for `freqbrdf.materials.load_material_maps`."""
+    """Folder of the bundled material set ``name``, for `freqbrdf.model.materials.load_material_maps`."""
     return _bundled(MATERIALS_DIR / name, name, "material set", list_materials())
 
 

@@ -2,8 +2,8 @@
 
 Greedy next-best-view by expected entropy. What a candidate camera would add to a texel is known
 before any photograph is taken, except the radiance itself: its view direction in the texel's
-frame, its weight cos(theta_o) x visible (`camera.camera_samples`: the same projection and
-Mitsuba shadow rays as `freqbrdf.observations`), and the (band-limited) environment in the mirror
+frame, its weight cos(theta_o) x visible (`observe.visibility.camera_samples`: the same projection and
+Mitsuba shadow rays as `freqbrdf.observe.observations`), and the (band-limited) environment in the mirror
 direction. So for every
 specular hypothesis psi = (alpha, k) of the uncertainty grid the new sample can be simulated,
 
@@ -54,17 +54,36 @@ from pathlib import Path
 
 import numpy as np
 
-from freqbrdf import brdf, envmap as envmaps, sh
-from freqbrdf.camera import Camera, Occluder, camera_samples, look_at, read_cameras
-from freqbrdf.capture import Capture
+from freqbrdf.capture.camera import Camera, look_at, read_cameras
+from freqbrdf.capture.camera_layouts import (
+    WORLD_UP,
+    bounding_sphere,
+    fibonacci_directions,
+)
+from freqbrdf.capture.layouts import Capture
 from freqbrdf.config import Config
-from freqbrdf.observations import RAY_OFFSET_OBJECT, RAY_OFFSET_TEXELS, Observations, observe
+from freqbrdf.model import brdf
+from freqbrdf.observe.observations import (
+    RAY_OFFSET_OBJECT,
+    RAY_OFFSET_TEXELS,
+    Observations,
+    observe,
+)
+from freqbrdf.observe.visibility import camera_samples
 from freqbrdf.progress import SILENT, Reporter
-from freqbrdf.synth import WORLD_UP, bounding_sphere, fibonacci_directions
+from freqbrdf.render.occluder import Occluder
+from freqbrdf.sphere import envmap as envmaps
+from freqbrdf.sphere import harmonics as sh
 from freqbrdf.texels import Texels, rasterise
 from freqbrdf.uncertainty import (
-    Uncertainty, cross_spectrum, entropy_from_spectra, hypothesis_albedo, hypothesis_filter, hypothesis_grid,
-    mean_view_cosine, view_cosine_sums,
+    Uncertainty,
+    cross_spectrum,
+    entropy_from_spectra,
+    hypothesis_albedo,
+    hypothesis_filter,
+    hypothesis_grid,
+    mean_view_cosine,
+    view_cosine_sums,
 )
 
 MAX_TEXELS = 1024  # texels scored per candidate (a seeded random subset of the atlas)
@@ -466,12 +485,11 @@ def write_next_views(out_dir: str | Path, capture: Capture, picks: Sequence[Pick
 
     ``next_views.json`` is a transforms file of the capture format naming the capture's mesh and
     light: once the photographs are saved as its ``images/next_<rank>.exr`` it loads with
-    `freqbrdf.capture.load` (alone, or merged into the capture's own transforms).
+    `freqbrdf.capture.layouts.load` (alone, or merged into the capture's own transforms).
     """
-    from freqbrdf.capture import Frame, write_transforms
-    from freqbrdf.envmap import load_envmap
-    from freqbrdf.export import write_json
-    from freqbrdf.fileio import atomic_directory
+    from freqbrdf.capture.layouts import Frame, write_transforms
+    from freqbrdf.fileio import atomic_directory, write_json
+    from freqbrdf.sphere.envmap import load_envmap
 
     # The capture holds its light with envmap_scale applied; recover the scale for the file.
     stored = load_envmap(capture.envmap_path, capture.envmap.to_world).radiance

@@ -107,17 +107,30 @@ import numba
 import numpy as np
 from scipy import ndimage
 
-from freqbrdf import brdf, sh
 from freqbrdf.config import Config, EstimateConfig, UncertaintyConfig
 from freqbrdf.estimate import (
-    CURVATURE_STEP, FITTED_PARAMETERS, HYPOTHESIS_BLOCK, HypothesisRecorder, angular_loss,
-    estimate as estimate_materials, ggx_lobe_gains, hypothesis_moments, model_light, split_sum_table, split_sum_terms,
-    scattering_stride, texel_blocks,
+    CURVATURE_STEP,
+    FITTED_PARAMETERS,
+    HYPOTHESIS_BLOCK,
+    HypothesisRecorder,
+    angular_loss,
+    ggx_lobe_gains,
+    hypothesis_moments,
+    model_light,
+    scattering_stride,
+    split_sum_table,
+    split_sum_terms,
+    texel_blocks,
 )
+from freqbrdf.estimate import (
+    estimate as estimate_materials,
+)
+from freqbrdf.model import brdf
+from freqbrdf.sphere import harmonics as sh
 
 if TYPE_CHECKING:
     from freqbrdf.estimate import MaterialEstimate
-    from freqbrdf.observations import Observations
+    from freqbrdf.observe.observations import Observations
 
 FLAG_UNOBSERVED = 1  # no sample at all: entropy 1, uniform likelihood, no estimate
 # Fewer samples than a quarter of the SH coefficients: the fit mostly extrapolates. (Fewer than all

@@ -17,11 +17,23 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TextColumn,
+    TimeRemainingColumn,
+)
 
 from freqbrdf import assets
-from freqbrdf.camera import Camera, look_at
-from freqbrdf.capture import (
+from freqbrdf.capture.camera import Camera
+from freqbrdf.capture.camera_layouts import (
+    bounding_sphere,
+    camera_directions,
+    orbit_cameras,
+    random_directions,
+)
+from freqbrdf.capture.layouts import (
     GROUND_TRUTH_FOLDER,
     ORB_NORMAL_FIXES,
     ORB_NOVEL_FILE,
@@ -31,23 +43,29 @@ from freqbrdf.capture import (
     stanford_orb_envmap_to_world,
     write_transforms,
 )
-from freqbrdf.envmap import Envmap, load_envmap, local_directions, lookup
+from freqbrdf.capture.mesh import Mesh, load_mesh, save_obj
 from freqbrdf.errors import InputError
 from freqbrdf.fileio import atomic_directory
 from freqbrdf.images import write_exr, write_png
-from freqbrdf.materials import MaterialMaps, load_material_maps, resize, save_material_maps
-from freqbrdf.mesh import Mesh, load_mesh, save_obj
-from freqbrdf.render import DEFAULT_MAX_DEPTH, RenderedView, build_scene, principled_bsdf, render_views
+from freqbrdf.model.materials import (
+    MaterialMaps,
+    load_material_maps,
+    resize,
+    save_material_maps,
+)
+from freqbrdf.render.scenes import (
+    DEFAULT_MAX_DEPTH,
+    RenderedView,
+    build_scene,
+    principled_bsdf,
+    render_views,
+)
+from freqbrdf.sphere.envmap import Envmap, load_envmap, local_directions, lookup
 
 CameraLayout = Literal["hemisphere", "sphere", "random"]
 CaptureFormat = Literal["ours", "orb"]
 CAMERA_LAYOUTS: tuple[str, ...] = ("hemisphere", "sphere", "random")
 CAPTURE_FORMATS: tuple[str, ...] = ("ours", "orb")
-
-WORLD_UP = np.array([0.0, 1.0, 0.0])
-FIELD_OF_VIEW_DEG = 40.0  # horizontal = vertical: images are square
-FRAME_FILL = 0.9  # the bounding sphere's silhouette spans this fraction of the field of view
-GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
 
 
 @dataclass(frozen=True)
@@ -69,62 +87,6 @@ class SynthSettings:
     max_depth: int = DEFAULT_MAX_DEPTH
 
 
-# --- camera placement ------------------------------------------------------------------------
-
-
-def fibonacci_directions(count: int, hemisphere: bool) -> np.ndarray:
-    """Evenly spread unit directions ``(count, 3)`` on the sphere or the upper (+y) hemisphere.
-
-    The Fibonacci spiral: heights equally spaced in y (equal areas, by Archimedes) and
-    azimuths advancing by the golden angle.
-    """
-    index = np.arange(count) + 0.5
-    height = 1.0 - index / count if hemisphere else 1.0 - 2.0 * index / count  # (N,)
-    azimuth = GOLDEN_ANGLE * np.arange(count)
-    ring = np.sqrt(np.clip(1.0 - height**2, 0.0, 1.0))
-    return np.stack([ring * np.cos(azimuth), height, ring * np.sin(azimuth)], axis=1)
-
-
-def random_directions(count: int, hemisphere: bool, rng: np.random.Generator) -> np.ndarray:
-    """Uniformly random unit directions ``(count, 3)`` on the sphere or the upper hemisphere."""
-    directions = rng.normal(size=(count, 3))
-    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
-    if hemisphere:
-        directions[:, 1] = np.abs(directions[:, 1])
-    return directions
-
-
-def bounding_sphere(vertices: np.ndarray) -> tuple[np.ndarray, float]:
-    """Centre ``(3,)`` (of the bounding box) and radius enclosing all ``vertices`` ``(V, 3)``."""
-    centre = 0.5 * (vertices.min(axis=0) + vertices.max(axis=0))
-    return centre, float(np.linalg.norm(vertices - centre, axis=1).max())
-
-
-def orbit_cameras(
-    directions: np.ndarray, centre: np.ndarray, radius: float, resolution: int
-) -> list[Camera]:
-    """Square cameras at ``centre + distance * direction`` looking at ``centre``.
-
-    ``distance`` makes a sphere of ``radius`` fill ``FRAME_FILL`` of the field of view.
-    """
-    half_fov = np.radians(FIELD_OF_VIEW_DEG) / 2.0
-    distance = radius / np.sin(FRAME_FILL * half_fov)
-    cameras = []
-    for direction in directions:
-        # Straight above or below the object, world up cannot orient the image; use +z.
-        up = WORLD_UP if abs(direction @ WORLD_UP) < 0.999 else np.array([0.0, 0.0, 1.0])
-        pose = look_at(centre + distance * direction, centre, up)
-        cameras.append(Camera.from_fov(2.0 * half_fov, resolution, resolution, pose))
-    return cameras
-
-
-def camera_directions(layout: str, count: int, rng: np.random.Generator) -> np.ndarray:
-    """Training view directions ``(count, 3)``: Fibonacci on the hemisphere or sphere, or
-    uniformly random on the hemisphere."""
-    if layout == "random":
-        return random_directions(count, hemisphere=True, rng=rng)
-    return fibonacci_directions(count, hemisphere=layout == "hemisphere")
-
 
 # --- the job -----------------------------------------------------------------------------------
 
@@ -145,7 +107,7 @@ class SynthScene:
 def synthesize(out: str | Path, settings: SynthSettings = SynthSettings(), progress: bool = True) -> Path:
     """Render a synthetic capture into the folder ``out`` (replaced as a whole, atomically).
 
-    Returns the path that `freqbrdf.capture.load` takes: ``out`` itself, or for the Stanford-ORB
+    Returns the path that `freqbrdf.capture.layouts.load` takes: ``out`` itself, or for the Stanford-ORB
     layout its scene folder ``out/blender_HDR/synth``.
     """
     scene = prepare(settings)

@@ -24,7 +24,6 @@ The glTF follows its own conventions (glTF 2.0 spec, section 3.9 "Materials"):
 
 from __future__ import annotations
 
-import json
 import math
 import zipfile
 from concurrent.futures import ThreadPoolExecutor
@@ -35,16 +34,15 @@ import numpy as np
 import trimesh
 from matplotlib import colormaps
 from PIL import Image
-from scipy import ndimage
 
+from freqbrdf.capture.mesh import Mesh
 from freqbrdf.config import Config
 from freqbrdf.estimate import MaterialEstimate
-from freqbrdf.fileio import atomic_directory, atomic_path
+from freqbrdf.fileio import atomic_directory, atomic_path, write_json
 from freqbrdf.images import linear_to_srgb, write_exr, write_png
-from freqbrdf.materials import MaterialMaps, save_material_maps
-from freqbrdf.mesh import Mesh
-from freqbrdf.observations import Observations
-from freqbrdf.texels import Texels, dilate
+from freqbrdf.model.materials import MaterialMaps, save_material_maps
+from freqbrdf.observe.observations import Observations
+from freqbrdf.texels import Texels, fill_texture
 from freqbrdf.uncertainty import (
     FLAG_AMBIGUOUS,
     FLAG_BELOW_BOUND,
@@ -52,6 +50,8 @@ from freqbrdf.uncertainty import (
     FLAG_UNOBSERVED,
     PRIOR_ROUGHNESS_VARIANCE,
     Uncertainty,
+)
+from freqbrdf.uncertainty import (
     summary as uncertainty_summary,
 )
 
@@ -97,29 +97,6 @@ FILES = {
 
 # ---------------------------------------------------------------------------------------------
 # From per-texel values to textures
-
-
-def fill_texture(texture: np.ndarray, atlas: np.ndarray, dilation_px: int, fallback: float) -> np.ndarray:
-    """Fill a (T, T) or (T, T, C) texture whose unknown texels are NaN; (T, T[, C]) float32 out.
-
-    Known texels are the finite ones inside ``atlas`` (T, T) bool; they are returned unchanged.
-    Atlas texels without a value take the nearest known texel's; then the atlas is dilated by
-    ``dilation_px`` rings; the remaining texels take the mean over the atlas. Without any known
-    texel the whole texture is ``fallback``.
-    """
-    texture = np.asarray(texture, np.float32)
-    values = texture if texture.ndim == 3 else texture[..., None]  # (T, T, C)
-    known = atlas & np.isfinite(values).all(axis=-1)
-    if not known.any():
-        return np.full(texture.shape, fallback, np.float32)
-    # Index of the nearest known texel for every texel (distance 0 for the known ones).
-    nearest = ndimage.distance_transform_edt(~known, return_distances=False, return_indices=True)
-    filled = np.full_like(values, np.nan)
-    filled[atlas] = values[nearest[0], nearest[1]][atlas]
-    filled = dilate(filled, atlas, dilation_px)
-    far = ~np.isfinite(filled).all(axis=-1)
-    filled[far] = filled[atlas].mean(axis=0)
-    return filled if texture.ndim == 3 else filled[..., 0]
 
 
 def material_textures(estimate: MaterialEstimate, dilation_px: int) -> MaterialMaps:
@@ -227,12 +204,6 @@ def write_gltf(path: str | Path, mesh: Mesh, maps: MaterialMaps) -> None:
     )
     with atomic_path(path) as tmp:
         tmp.write_bytes(data)
-
-
-def write_json(path: str | Path, document: dict) -> None:
-    """Write ``document`` as indented JSON, atomically; NaN and infinities become null (strict JSON)."""
-    with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps(_json_ready(document), indent=2, allow_nan=False) + "\n", encoding="utf-8")
 
 
 def coverage(source: Texels | Observations, estimate: MaterialEstimate) -> dict:
@@ -470,18 +441,3 @@ def _masked_mean(values: np.ndarray, keep: np.ndarray):
     return mean.tolist() if np.ndim(mean) else float(mean)
 
 
-def _json_ready(value):
-    """Plain Python types for json: numpy scalars and arrays converted, non-finite floats -> None."""
-    if isinstance(value, dict):
-        return {str(key): _json_ready(item) for key, item in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_ready(item) for item in value]
-    if isinstance(value, np.ndarray):
-        return _json_ready(value.tolist())
-    if isinstance(value, (np.bool_, bool)):
-        return bool(value)
-    if isinstance(value, (np.integer, int)):
-        return int(value)
-    if isinstance(value, (np.floating, float)):
-        return float(value) if math.isfinite(value) else None
-    return value

@@ -35,13 +35,15 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from freqbrdf import brdf, envmap as envmaps, sh
-from freqbrdf.camera import RAYS_PER_BATCH, Occluder
-from freqbrdf.capture import Capture
+from freqbrdf.capture.layouts import Capture
 from freqbrdf.config import Config
 from freqbrdf.errors import InputError
 from freqbrdf.fileio import atomic_path
+from freqbrdf.model import brdf
 from freqbrdf.progress import SILENT, Reporter
+from freqbrdf.render.occluder import RAYS_PER_BATCH, Occluder
+from freqbrdf.sphere import envmap as envmaps
+from freqbrdf.sphere import harmonics as sh
 from freqbrdf.texels import Texels, rasterise
 
 # Shadow rays start this far off the surface, in units of the texel's world size, plus a small
@@ -588,7 +590,7 @@ def _view_batches(capture: Capture, n_texels: int) -> list[range]:
 @numba.njit(parallel=True, cache=True)
 def _project_kernel(position, normal, camera_to_world, intrinsics, width, height,
                     pixels, cos_theta, facing, n_facing):
-    """Project texels into a batch of B views (OpenGL cameras, see freqbrdf.camera).
+    """Project texels into a batch of B views (OpenGL cameras, see freqbrdf.capture.camera).
 
     position, normal (N, 3); camera_to_world (B, 4, 4); intrinsics (B, 4) fx, fy, cx, cy; images
     width x height. Writes pixels (N, B, 2) x, y, cos_theta (N, B) between the normal and the

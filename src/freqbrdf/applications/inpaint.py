@@ -14,7 +14,7 @@ nothing from elsewhere can leak in: every texel that is not a confident texel of
 (other charts, empty atlas space, the holes) first takes the value of the nearest confident
 texel of the chart; the backend then fills the chart's holes from that picture. A chart without
 a single confident texel keeps its values (counted as ``unfilled_texels``). After filling, the
-seam padding around the atlas is regrown from the new values (``export.fill_texture``).
+seam padding around the atlas is regrown from the new values (``texels.fill_texture``).
 
 **Backends.**
 
@@ -30,20 +30,18 @@ seam padding around the atlas is regrown from the new values (``export.fill_text
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
 import numpy as np
 from scipy import ndimage
 
-from freqbrdf import export
 from freqbrdf.errors import InputError
-from freqbrdf.fileio import atomic_directory
-from freqbrdf.images import linear_to_srgb, srgb_to_linear, write_png
-from freqbrdf.materials import MaterialMaps, save_material_maps
+from freqbrdf.images import linear_to_srgb, srgb_to_linear
+from freqbrdf.model.materials import MaterialMaps
+from freqbrdf.texels import fill_texture
 from freqbrdf.uncertainty import FLAG_AMBIGUOUS, FLAG_UNOBSERVED
 
 MAP_NAMES = ("base_color", "roughness", "metallic")
@@ -124,14 +122,16 @@ def inpaint_maps(maps: MaterialMaps, atlas: np.ndarray, mask: np.ndarray, fill: 
             values[holes] = filled[holes]
     # Regrow the seam padding from the new atlas values (the maps are hole-free on the atlas).
     off_atlas = np.where(atlas[..., None], stacked, np.nan)
-    grown = export.fill_texture(off_atlas, atlas, dilation_px, fallback=np.nan)
+    grown = fill_texture(off_atlas, atlas, dilation_px, fallback=np.nan)
     filled_maps = MaterialMaps(base_color=grown[..., 0:3], roughness=grown[..., 3], metallic=grown[..., 4])
     return Inpainted(filled_maps, mask, atlas, n_charts, unfilled)
 
 
 def biharmonic_fill(picture: np.ndarray, holes: np.ndarray) -> np.ndarray:
     """scikit-image's biharmonic inpainting of ``holes`` (h, w) in ``picture`` (h, w, C)."""
-    from skimage.restoration import inpaint_biharmonic  # its import costs ~0.5 s: only when used
+    from skimage.restoration import (
+        inpaint_biharmonic,  # its import costs ~0.5 s: only when used
+    )
 
     return inpaint_biharmonic(picture.astype(np.float64), holes, channel_axis=-1)
 
@@ -178,59 +178,6 @@ def load_diffusion_fill(settings: InpaintSettings) -> Fill:
     pipeline = AutoPipelineForInpainting.from_pretrained(path, local_files_only=True).to(device)
     pipeline.set_progress_bar_config(disable=True)
     return diffusion_fill(pipeline, settings, torch.Generator(device).manual_seed(settings.seed))
-
-
-def inpaint_fit(fit_dir: str | Path, out_dir: str | Path, settings: InpaintSettings = InpaintSettings(),
-                capture: str | Path | None = None) -> Path:
-    """Inpaint a fit folder's maps; writes ``out_dir`` (replaced as a whole, atomically); returns it.
-
-    Files: the three EXR maps and their PNG previews, ``mask.png`` (white: filled texels, grey:
-    the rest of the atlas), ``material.glb`` (the capture's mesh with the new maps) and
-    ``summary.json``. ``capture``: where the mesh comes from (default: the fit's capture).
-    """
-    from freqbrdf.capture import load
-    from freqbrdf.pipeline import load_fit
-
-    if settings.threshold is not None and not 0.0 <= settings.threshold <= 1.0:
-        raise InputError(None, f"threshold must lie in [0, 1] (normalised entropy), got {settings.threshold}")
-    start = time.perf_counter()
-    fit = load_fit(fit_dir)
-    for name in ("flags", "entropy"):
-        if name not in fit.arrays:
-            raise InputError(fit.folder / export.FILES["uncertainty"], "missing: the fit has no uncertainty to mask by")
-    capture_path = capture if capture is not None else fit.capture_path
-    if capture_path is None:
-        raise InputError(fit.folder / export.FILES["summary"], "names no capture: pass --capture")
-    mesh = load(capture_path).mesh
-    fill = load_diffusion_fill(settings) if settings.backend == "diffusion" else biharmonic_fill
-    resolution = fit.maps.resolution
-    atlas = np.zeros(resolution * resolution, bool)
-    atlas[fit.texel_index] = True
-    atlas = atlas.reshape(resolution, resolution)
-    mask = inpaint_mask(atlas, fit.texel_index, fit.arrays["flags"], fit.arrays["entropy"], settings.threshold)
-    dilation = int(fit.summary.get("settings", {}).get("texels", {}).get("dilation_px", 8))
-    result = inpaint_maps(fit.maps, atlas, mask, fill, settings.maps, dilation)
-    seconds = time.perf_counter() - start
-    summary = {
-        "fit": str(fit.folder.resolve()),
-        "capture": str(Path(capture_path).resolve()),
-        "settings": asdict(settings),
-        "mask": "flags unobserved|ambiguous" if settings.threshold is None
-                else f"flag unobserved or entropy >= {settings.threshold}",
-        "atlas_texels": int(atlas.sum()),
-        "masked_texels": int(mask.sum()),
-        "masked_fraction": float(mask.sum() / max(atlas.sum(), 1)),
-        "charts": result.charts,
-        "unfilled_texels": result.unfilled_texels,
-        "seconds": seconds,
-    }
-    with atomic_directory(out_dir) as folder:
-        save_material_maps(folder, result.maps)
-        export.write_material_previews(folder, result.maps)
-        export.write_gltf(folder / export.FILES["gltf"], mesh, result.maps)
-        write_png(folder / MASK_PNG, np.where(mask, 1.0, np.where(atlas, 0.25, 0.0)).astype(np.float32))
-        export.write_json(folder / export.FILES["summary"], summary)
-    return Path(out_dir)
 
 
 def _stack(maps: MaterialMaps) -> np.ndarray:

@@ -153,12 +153,14 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from freqbrdf import brdf, sh, texels
-from freqbrdf import envmap as envmaps
+from freqbrdf import texels
 from freqbrdf.config import Config, EstimateConfig, FitConfig
 from freqbrdf.errors import InputError
-from freqbrdf.observations import Observations
+from freqbrdf.model import brdf
+from freqbrdf.observe.observations import Observations
 from freqbrdf.progress import SILENT, Reporter
+from freqbrdf.sphere import envmap as envmaps
+from freqbrdf.sphere import harmonics as sh
 
 # A robust pass scans the roughness nodes within this many cells of the previous optimum.
 _ROBUST_NODES = 1
@@ -565,9 +567,9 @@ def split_sum_terms(cos_theta: np.ndarray, roughness: np.ndarray) -> tuple[np.nd
 # (cos theta_o, roughness) from a shipped table (`lobe_tilt_table`). The search expands the light by
 # degree at the tilt levels s = j / (levels - 1) and interpolates linearly in s.
 _TILT_LEVELS = 9
-_SPLIT_SUM_TABLE_PATH = Path(__file__).resolve().parent / "data" / "split_sum.csv"
-_TILT_TABLE_PATH = Path(__file__).resolve().parent / "data" / "lobe_tilt.csv"
-_WIDTH_TABLE_PATH = Path(__file__).resolve().parent / "data" / "lobe_width.csv"
+_SPLIT_SUM_TABLE_PATH = Path(__file__).resolve().parents[1] / "model" / "data" / "split_sum.csv"
+_TILT_TABLE_PATH = Path(__file__).resolve().parents[1] / "model" / "data" / "lobe_tilt.csv"
+_WIDTH_TABLE_PATH = Path(__file__).resolve().parents[1] / "model" / "data" / "lobe_width.csv"
 _TILT_FIT_LMAX = 5  # the default l*: the degrees whose responses the tilt is fitted to
 _TILT_CANDIDATES = 401  # tilts tried per node: s on a 0.0025 grid
 _TILT_THETA_STRATA = 64  # strata of the half vector's polar and azimuthal angle each
@@ -666,7 +668,7 @@ def lobe_sh_response(cos_theta: float, roughness: float, term: str = "scale", lm
 # to each harmonic: per (cos theta_o, roughness) node and lobe term, the response to Y_lm (m >= 0) in
 # a frame whose x axis is the mirrored view's azimuth (`environment_response_table`). Per texel the
 # environment is turned into the texel's frame once, per sample into its view's azimuth.
-_ENVIRONMENT_TABLE_PATH = Path(__file__).resolve().parent / "data" / "environment_response.csv"
+_ENVIRONMENT_TABLE_PATH = Path(__file__).resolve().parents[1] / "model" / "data" / "environment_response.csv"
 # The environment light is tabulated at every _ENVIRONMENT_NODE_STEP-th roughness node of the
 # split-sum table and interpolated linearly in roughness between them: each is computed once per
 # texel and search.

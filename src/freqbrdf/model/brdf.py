@@ -23,8 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from freqbrdf import sh
 from freqbrdf.config import FitConfig
+from freqbrdf.sphere import harmonics as sh
 
 ALPHA_MIN = 1e-3  # alpha = roughness^2 is clamped here: alpha = 0 is a delta lobe, not a kernel
 DIELECTRIC_F0 = 0.04  # normal-incidence reflectance of the Principled BRDF's dielectric (eta 1.5)

@@ -36,10 +36,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:  # only attributes are used, so importing render stays cheap
-    from freqbrdf.camera import Camera
-    from freqbrdf.envmap import Envmap
-    from freqbrdf.materials import MaterialMaps
-    from freqbrdf.mesh import Mesh
+    from freqbrdf.capture.camera import Camera
+    from freqbrdf.capture.mesh import Mesh
+    from freqbrdf.model.materials import MaterialMaps
+    from freqbrdf.sphere.envmap import Envmap
 
 MITSUBA_VARIANT = "llvm_ad_rgb"
 DEFAULT_MAX_DEPTH = 8  # path length 8: seven bounces, enough for interreflections on a convex-ish object

@@ -26,14 +26,20 @@ from pathlib import Path
 import numpy as np
 from matplotlib import colormaps
 
-from freqbrdf import brdf, export
-from freqbrdf.capture import load as load_capture
+from freqbrdf.capture.layouts import load as load_capture
+from freqbrdf.capture.mesh import Mesh
 from freqbrdf.errors import InputError
 from freqbrdf.fileio import atomic_directory
 from freqbrdf.images import linear_to_srgb, srgb_to_linear, write_png
-from freqbrdf.materials import MaterialMaps, resize
-from freqbrdf.mesh import Mesh
-from freqbrdf.pipeline import EVALUATION_FOLDER, SPARSIFICATION_PLOT, FitOutputs, load_fit
+from freqbrdf.model import brdf
+from freqbrdf.model.materials import MaterialMaps, resize
+from freqbrdf.outputs import export
+from freqbrdf.outputs.fit_folder import (
+    EVALUATION_FOLDER,
+    SPARSIFICATION_PLOT,
+    FitOutputs,
+    load_fit,
+)
 
 REPORT_FOLDER = "report"
 REPORT_FILE = "report.html"

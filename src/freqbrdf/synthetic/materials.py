@@ -1,110 +1,13 @@
-"""Principled-BRDF texture sets (base colour, roughness, metallic) and ground-truth generators.
-
-A set is stored as three EXR files in one folder: ``base_color.exr`` (RGB, linear),
-``roughness.exr`` and ``metallic.exr`` (one channel each). Textures follow the UV convention of
-`freqbrdf.mesh`: row 0 is the top of the texture (v = 1).
-"""
+"""Ground-truth material maps for synthetic captures: colour bands and photo-derived materials."""
 
 from __future__ import annotations
-
-from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 from scipy import ndimage
 from skimage.transform import resize as resize_image
 
-from freqbrdf.errors import InputError
-from freqbrdf.images import linear_to_srgb, read_image, srgb_to_linear, write_exr
-
-MAP_FILES = {
-    "base_color": "base_color.exr",
-    "roughness": "roughness.exr",
-    "metallic": "metallic.exr",
-}
-
-
-@dataclass(frozen=True, eq=False)  # holds arrays: compare fields explicitly
-class MaterialMaps:
-    base_color: np.ndarray  # (T, T, 3) float32, linear, in [0, 1]
-    roughness: np.ndarray  # (T, T) float32, in [0, 1]; alpha = roughness^2
-    metallic: np.ndarray  # (T, T) float32, in [0, 1]
-
-    def __post_init__(self):
-        resolution = self.base_color.shape[0]
-        expected = {
-            "base_color": (resolution, resolution, 3),
-            "roughness": (resolution, resolution),
-            "metallic": (resolution, resolution),
-        }
-        for name, shape in expected.items():
-            if getattr(self, name).shape != shape:
-                raise ValueError(f"{name} has shape {getattr(self, name).shape}, expected {shape}")
-
-    @property
-    def resolution(self) -> int:
-        return self.base_color.shape[0]
-
-
-def load_material_maps(folder: str | Path) -> MaterialMaps:
-    """Read a texture set written by `save_material_maps` (or by hand with the same file names)."""
-    folder = Path(folder)
-    if not folder.is_dir():
-        raise InputError(folder, "material folder does not exist")
-    maps = {}
-    for name, filename in MAP_FILES.items():
-        path = folder / filename
-        pixels = read_image(path, validate=True)  # (H, W, 3); a one-channel file is repeated
-        if name != "base_color":
-            if np.ptp(pixels, axis=2).max() > 0:
-                raise InputError(path, f"{name} must be a single channel (or grey)")
-            pixels = pixels[..., 0]
-        if pixels.shape[0] != pixels.shape[1]:
-            height, width = pixels.shape[:2]
-            raise InputError(path, f"texture must be square, got {width}x{height}")
-        above_one = int((pixels > 1.0).sum())
-        if above_one:
-            raise InputError(path, f"{above_one} values above 1 ({name} lies in [0, 1])")
-        maps[name] = np.ascontiguousarray(pixels, dtype=np.float32)
-    sizes = {name: pixels.shape[0] for name, pixels in maps.items()}
-    if len(set(sizes.values())) > 1:
-        raise InputError(folder, f"maps differ in resolution: {sizes}")
-    return MaterialMaps(**maps)
-
-
-def save_material_maps(folder: str | Path, maps: MaterialMaps, half: bool = False) -> None:
-    """Write the three maps as EXR (float32, or float16 with ``half``); each file atomically."""
-    folder = Path(folder)
-    precision = np.float16 if half else np.float32
-    for name, filename in MAP_FILES.items():
-        write_exr(folder / filename, getattr(maps, name).astype(precision))
-
-
-def resize(maps: MaterialMaps, resolution: int) -> MaterialMaps:
-    """Resample to ``resolution`` x ``resolution``: bilinear, area-prefiltered when shrinking.
-
-    Base colour is resampled in linear space, where averaging is physically meaningful.
-    """
-    if resolution == maps.resolution:
-        return maps
-
-    def resample(texture):
-        resized = resize_image(
-            texture,
-            (resolution, resolution) + texture.shape[2:],
-            order=1,
-            mode="edge",
-            anti_aliasing=resolution < maps.resolution,
-            preserve_range=True,
-        )
-        return np.clip(resized, 0.0, 1.0).astype(np.float32)
-
-    return MaterialMaps(
-        resample(maps.base_color), resample(maps.roughness), resample(maps.metallic)
-    )
-
-
-# --- ground-truth generators ----------------------------------------------------------------------
+from freqbrdf.images import linear_to_srgb, srgb_to_linear
+from freqbrdf.model.materials import MaterialMaps
 
 # sRGB display colours of the bands: red, gold, green, blue, light grey, near black (the last
 # checks that dark texels are still treated as observed).
@@ -118,7 +21,11 @@ BAND_COLOURS_SRGB = np.array(
         [0.12, 0.12, 0.12],
     ]
 )
+
+
 BAND_METALLIC = (0.0, 0.5, 1.0)  # top, middle, bottom third
+
+
 BAND_ROUGHNESS = (0.05, 1.0)  # ramp across each colour band, left to right
 
 

@@ -33,10 +33,10 @@ from pathlib import Path
 
 import numpy as np
 
-from freqbrdf.capture import Capture
+from freqbrdf.capture.layouts import Capture
 from freqbrdf.errors import InputError
-from freqbrdf.materials import MaterialMaps
-from freqbrdf.render import (
+from freqbrdf.model.materials import MaterialMaps
+from freqbrdf.render.scenes import (
     DEFAULT_MAX_DEPTH,
     build_scene,
     mitsuba,

@@ -26,8 +26,8 @@ import ducc0
 import numba
 import numpy as np
 
-from freqbrdf import sh
 from freqbrdf.errors import InputError
+from freqbrdf.sphere import harmonics as sh
 
 # Degree for irradiance from SH: the clamped-cosine kernel's even coefficients decay like
 # l^(-5/2), so truncating at 20 leaves well under 1 % error for captured HDR maps (the test with
@@ -228,7 +228,7 @@ def _check_resolution(height: int, width: int, lmax: int) -> None:
 
 
 def envmap_sh(envmap: Envmap, lmax: int) -> np.ndarray:
-    """SH coefficients (K, 3) float64 of the map in the WORLD frame (`freqbrdf.sh` basis).
+    """SH coefficients (K, 3) float64 of the map in the WORLD frame (`freqbrdf.sphere.harmonics` basis).
 
     The map is read as samples on a Clenshaw-Curtis grid (Mitsuba's rows sit on theta =
     pi i / (H - 1)) and transformed exactly for its band limit with ducc0, then rotated from

@@ -51,7 +51,7 @@ import numpy as np
 from scipy import ndimage
 
 from freqbrdf.images import linear_to_srgb
-from freqbrdf.materials import MaterialMaps, resize
+from freqbrdf.model.materials import MaterialMaps, resize
 
 ERODE_SIZE = 5  # ORB: cv2.erode with np.ones((5, 5))
 HDR_MAX = 4.0  # ORB: psnr_hdr clips to [0, 4]

@@ -41,10 +41,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from freqbrdf import brdf
 from freqbrdf.config import Config, ShareConfig
 from freqbrdf.estimate import MaterialEstimate, angular_loss, model_light
-from freqbrdf.observations import Observations
+from freqbrdf.model import brdf
+from freqbrdf.observe.observations import Observations
 from freqbrdf.uncertainty import CUTOFF, FLAG_BELOW_BOUND, FLAG_UNOBSERVED, Uncertainty
 
 # Fractions of the way to the target that are tried, nearest the target first.

@@ -16,12 +16,14 @@ from dataclasses import asdict
 from pathlib import Path
 
 from freqbrdf import __version__, pipeline
-from freqbrdf.capture import load
+from freqbrdf.capture.layouts import load
 from freqbrdf.config import Config
+from freqbrdf.outputs.evaluate import evaluate_fit
+from freqbrdf.outputs.fit_folder import load_fit
+from freqbrdf.outputs.relight import RelightSettings
+from freqbrdf.outputs.report import write_report
 from freqbrdf.progress import SILENT, Reporter
-from freqbrdf.relight import RelightSettings
-from freqbrdf.report import write_report
-from freqbrdf.synth import SynthSettings, synthesize
+from freqbrdf.synthetic.synth import SynthSettings, synthesize
 
 DEFAULT_CAPTURE = SynthSettings(
     # 96 views: each observed texel is then seen ~38 times, more than the 36 coefficients of the
@@ -61,7 +63,7 @@ def run_demo(out: str | Path = "out/demo", settings: SynthSettings = DEFAULT_CAP
     timings["fit"] = time.perf_counter() - start
 
     start = time.perf_counter()
-    metrics = pipeline.evaluate_fit(pipeline.load_fit(fit_dir), capture, settings=relight, reporter=reporter)
+    metrics = evaluate_fit(load_fit(fit_dir), capture, settings=relight, reporter=reporter)
     timings["evaluate"] = time.perf_counter() - start
 
     start = time.perf_counter()

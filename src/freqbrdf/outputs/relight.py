@@ -3,9 +3,9 @@
 For each test frame of a capture (``capture.test_frames``: a camera, its own environment map and
 a reference photograph with its mask), the mesh with the estimated textures is path traced by
 Mitsuba (``render.principled_bsdf``, the renderer of the synthetic captures) and scored with
-Stanford-ORB's protocol (`freqbrdf.metrics.relighting_scores`). Frames sharing a light share one
+Stanford-ORB's protocol (`freqbrdf.outputs.metrics.relighting_scores`). Frames sharing a light share one
 scene. Captures with ground-truth maps are also scored in texture space on the observed texels
-(`freqbrdf.metrics.texture_scores`).
+(`freqbrdf.outputs.metrics.texture_scores`).
 
 Outputs (`write_evaluation`): ``metrics.json`` (per view and mean scores, texture scores,
 settings, timings) and one side-by-side PNG per view in ``relight/``: reference | relit | error,
@@ -23,13 +23,19 @@ from pathlib import Path
 import numpy as np
 from matplotlib import colormaps
 
-from freqbrdf import metrics
-from freqbrdf.capture import Capture
-from freqbrdf.export import write_json
+from freqbrdf.capture.layouts import Capture
+from freqbrdf.fileio import write_json
 from freqbrdf.images import linear_to_srgb, write_png
-from freqbrdf.materials import MaterialMaps
+from freqbrdf.model.materials import MaterialMaps
+from freqbrdf.outputs import metrics
 from freqbrdf.progress import SILENT, Reporter
-from freqbrdf.render import DEFAULT_MAX_DEPTH, build_scene, principled_bsdf, render_view, view_seed
+from freqbrdf.render.scenes import (
+    DEFAULT_MAX_DEPTH,
+    build_scene,
+    principled_bsdf,
+    render_view,
+    view_seed,
+)
 
 ERROR_RANGE = 0.25  # sRGB units mapped to the top of the error colour map
 ERROR_COLORMAP = "magma"
@@ -42,7 +48,7 @@ class RelightSettings:
     spp: int = 64  # samples per pixel of the relit renders
     max_depth: int = DEFAULT_MAX_DEPTH
     seed: int = 0  # render noise; view k uses render.view_seed(seed, k)
-    lpips: bool = True  # LPIPS when its weights are installed (see freqbrdf.metrics)
+    lpips: bool = True  # LPIPS when its weights are installed (see freqbrdf.outputs.metrics)
     views: tuple[int, ...] | None = None  # test frame indices to evaluate; None: all
 
 
@@ -157,7 +163,7 @@ def write_evaluation(out_dir: str | Path, evaluation: Evaluation, extra: dict | 
         "texture": evaluation.texture,
         "settings": asdict(evaluation.settings),
         "timings": evaluation.timings,
-        "protocol": "Stanford-ORB relighting (see freqbrdf.metrics); PSNR in dB, inf written as null",
+        "protocol": "Stanford-ORB relighting (see freqbrdf.outputs.metrics); PSNR in dB, inf written as null",
         **(extra or {}),
     }
     write_json(out_dir / METRICS_FILE, document)

@@ -26,23 +26,29 @@ from typing import Any
 
 import numpy as np
 
-from freqbrdf.camera import (
-    DISTORTION_KEYS,
-    PINHOLE_MODELS,
+from freqbrdf.capture.camera import (
     Camera,
     check_rigid,
-    frame_camera as _camera,
-    frame_entries as _frame_entries,
-    positive_number as _number,
-    read_json_object as _read_json,
     required_key,
 )
-from freqbrdf.envmap import Envmap, load_envmap
+from freqbrdf.capture.camera import (
+    frame_camera as _camera,
+)
+from freqbrdf.capture.camera import (
+    frame_entries as _frame_entries,
+)
+from freqbrdf.capture.camera import (
+    positive_number as _number,
+)
+from freqbrdf.capture.camera import (
+    read_json_object as _read_json,
+)
+from freqbrdf.capture.mesh import Mesh, load_mesh, smooth_normals
 from freqbrdf.errors import InputError
 from freqbrdf.fileio import atomic_path
 from freqbrdf.images import IMAGE_SUFFIXES, read_image, read_mask
-from freqbrdf.materials import MaterialMaps, load_material_maps
-from freqbrdf.mesh import Mesh, load_mesh, smooth_normals
+from freqbrdf.model.materials import MaterialMaps, load_material_maps
+from freqbrdf.sphere.envmap import Envmap, load_envmap
 
 TRANSFORMS_FILE = "transforms.json"
 TEST_TRANSFORMS_FILE = "transforms_test.json"

@@ -1,0 +1,89 @@
+"""Score a fit folder against its capture: texture metrics, relighting, and how well the
+uncertainty ranks the errors (METHOD.md §5)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from freqbrdf.capture.layouts import Capture
+from freqbrdf.fileio import atomic_directory
+from freqbrdf.model.materials import resize
+from freqbrdf.outputs import export
+from freqbrdf.outputs.fit_folder import (
+    EVALUATION_FOLDER,
+    SPARSIFICATION_PLOT,
+    FitOutputs,
+    check_output_folder,
+)
+from freqbrdf.outputs.relight import RelightSettings, write_evaluation
+from freqbrdf.outputs.relight import evaluate as relight_evaluate
+from freqbrdf.progress import SILENT, Reporter
+from freqbrdf.uncertainty import FLAG_UNOBSERVED
+
+
+def evaluate_fit(fit_outputs: FitOutputs, capture: Capture, out_dir: str | Path | None = None,
+                 settings: RelightSettings = RelightSettings(), reporter: Reporter = SILENT) -> dict:
+    """Score a fit against its capture; writes ``<fit>/evaluation`` (or ``out_dir``) as a whole.
+
+    - texture metrics on the observed texels when the capture has ground truth;
+    - relighting under the capture's test set (Stanford-ORB protocol) when it has one;
+    - the uncertainty's meaning: sparsification (AUSE, AURG) and Spearman rho of the entropy and
+      of roughness_std against the per-texel roughness, base-colour and metallic errors (ground
+      truth needed).
+    Returns the metrics document (also written as metrics.json).
+    """
+    out = Path(out_dir) if out_dir is not None else fit_outputs.folder / EVALUATION_FOLDER
+    check_output_folder(out, {"the fit": fit_outputs.folder.resolve(), "the capture": Path(capture.root).resolve()})
+    evaluation = relight_evaluate(capture, fit_outputs.maps, fit_outputs.observed, settings, reporter)
+    # One folder, renamed into place when complete: a failure leaves the previous evaluation (or none).
+    with atomic_directory(out) as folder:
+        extra = {"fit": str(fit_outputs.folder.resolve()), "capture": str(Path(capture.root).resolve())}
+        uncertainty_scores = _uncertainty_scores(fit_outputs, capture, folder)
+        if uncertainty_scores is not None:
+            extra["uncertainty"] = uncertainty_scores
+        metrics_path = write_evaluation(folder, evaluation, extra)
+        document = json.loads(metrics_path.read_text(encoding="utf-8"))  # as written (inf as null)
+    return document
+
+
+def _uncertainty_scores(fit_outputs: FitOutputs, capture: Capture, out: Path) -> dict | None:
+    """Sparsification of the entropy (and of roughness_std when the fit has it) against the
+    per-texel errors on observed texels (needs GT). The entropy's scores per error kind stay at the
+    top level (as before roughness_std existed); roughness_std's are under its own key."""
+    # Imported here: scipy.stats would add ~0.3 s to every `freqbrdf fit`, which never needs it.
+    from freqbrdf.outputs import sparsification
+
+    arrays = fit_outputs.arrays
+    if capture.ground_truth is None or "entropy" not in arrays:
+        return None
+    truth = resize(capture.ground_truth, fit_outputs.maps.resolution)
+    index = fit_outputs.texel_index
+    observed = (arrays["flags"] & FLAG_UNOBSERVED) == 0
+    # Both uncertainties on the same texels: roughness_std as exported (observed texels without an
+    # estimate, whose maps are filled from neighbours, take the prior's std).
+    uncertainties = {"entropy": arrays["entropy"][observed]}
+    if "roughness_std" in arrays:
+        uncertainties["roughness_std"] = export.roughness_std_values(arrays["roughness_std"])[observed]
+    flat = index[observed]
+    maps = fit_outputs.maps
+    errors = {
+        "roughness": np.abs(maps.roughness.ravel()[flat] - truth.roughness.ravel()[flat]),
+        "base_color": np.abs(maps.base_color.reshape(-1, 3)[flat] - truth.base_color.reshape(-1, 3)[flat]).mean(axis=1),
+        "metallic": np.abs(maps.metallic.ravel()[flat] - truth.metallic.ravel()[flat]),
+    }
+    results = {kind: {name: sparsification.sparsification(values, error) for name, error in errors.items()}
+               for kind, values in uncertainties.items()}
+    sparsification.plot(results, out / SPARSIFICATION_PLOT)
+    scores = {kind: {name: sparsification.to_dict(result) for name, result in by_error.items()}
+              for kind, by_error in results.items()}
+    return {
+        "error_of": "absolute per-texel error on observed texels (base colour: mean over RGB)",
+        "uncertainty_of": ("the scores per error: the entropy's; under roughness_std: the estimated roughness's "
+                           f"std (texels without an estimate: {export.UNESTIMATED_ROUGHNESS_STD:.3f})"),
+        "plot": SPARSIFICATION_PLOT,
+        **scores["entropy"],
+        **({"roughness_std": scores["roughness_std"]} if "roughness_std" in scores else {}),
+    }
