@@ -1,11 +1,14 @@
-"""Shared test helpers."""
+"""Shared test fixtures; builders live in tests/helpers.py (importable from every test folder)."""
 
 from __future__ import annotations
 
 import os
 import sys
+from pathlib import Path
 
 import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # `import helpers` from tests in subfolders
 
 from freqbrdf.cli import RERUN_VARIABLE, main
 

@@ -13,6 +13,7 @@ import shutil
 import numpy as np
 import pytest
 
+from helpers import observations_from_samples
 from freqbrdf import pipeline
 from freqbrdf.applications import guidance
 from freqbrdf.capture.camera import look_at
@@ -39,15 +40,7 @@ def synthetic_observations(rng, n_texels=12, n_views=20, lmax=LMAX, sigma=0.25) 
     weight[1, 3:] = 0.0
     mirrored = rng.uniform(0.0, 2.0, (n_texels, n_views, 3))
     observed = 0.3 * mirrored + rng.uniform(0.0, 0.2, (n_texels, n_views, 3))
-    values = np.concatenate([mirrored, observed, np.ones((n_texels, n_views, 1))], axis=2)
-    fit = sh.fit_sh(directions, weight, values, lmax, FitConfig().reg_lambda)
-    return Observations(
-        texture_res=4, texel_index=np.arange(n_texels), normal=np.tile([0.0, 0.0, 1.0], (n_texels, 1)),
-        view_direction=directions, observed=observed, mirrored=mirrored, weight=weight, visible=weight > 0,
-        irradiance=np.ones((n_texels, 3)), lmax=lmax, sigma=sigma, observed_coeffs=fit.coeffs[:, 3:6],
-        mirrored_coeffs=fit.coeffs[:, 0:3], constant_coeffs=fit.coeffs[:, 6], fit_status=fit.status,
-        n_samples=fit.n_samples, alpha_bound=np.zeros(n_texels), n_facing=fit.n_samples,
-    )
+    return observations_from_samples(directions, weight, observed, mirrored, lmax, sigma=sigma, texture_res=4)
 
 
 def new_view(rng, texels, lmax=LMAX) -> tuple[guidance.CandidateSamples, np.ndarray]:

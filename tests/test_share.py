@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from scipy.special import rel_entr
 
+from helpers import observations_from_samples
 from freqbrdf.applications.share import (
     PROBABILITY_FLOOR,
     anchor_affinity,
@@ -57,26 +58,14 @@ def two_light_observations(truth: brdf.PrincipledParams, informative: np.ndarray
     irradiance = np.where(informative[:, None], 1.5, 3.0) * np.ones((n_texels, 3))
     sigma = brdf.band_limit_sigma(N_VIEWS)
 
-    def fit(values):
-        return sh.fit_sh(directions, weight, values, LMAX, 1.2e-4)
-
-    light_fit = fit(np.concatenate([mirrored, np.ones((n_texels, N_VIEWS, 1))], axis=-1))
     mf = brdf.microfacet_from_principled(truth)
-    incoming = fit(brdf.shadowed_light(mirrored, cos_theta, mf.alpha)).coeffs
+    incoming = sh.fit_sh(directions, weight, brdf.shadowed_light(mirrored, cos_theta, mf.alpha), LMAX, 1.2e-4).coeffs
     observed = brdf.predict_angular(mf, directions, incoming, irradiance, sigma=sigma)
     observed = observed + rng.normal(0.0, noise, observed.shape)
-    f32 = np.float32
-    return Observations(
-        texture_res=math.isqrt(n_texels - 1) + 1, texel_index=np.arange(n_texels, dtype=np.int64),
-        normal=np.tile(np.array([0.0, 0.0, 1.0], f32), (n_texels, 1)),
-        view_direction=directions.astype(f32), observed=observed.astype(f32), mirrored=mirrored.astype(f32),
-        weight=weight.astype(f32), visible=np.ones((n_texels, N_VIEWS), bool), irradiance=irradiance.astype(f32),
-        lmax=LMAX, sigma=sigma, observed_coeffs=fit(observed).coeffs.astype(f32),
-        mirrored_coeffs=light_fit.coeffs[:, :3].astype(f32), constant_coeffs=light_fit.coeffs[:, 3].astype(f32),
-        fit_status=light_fit.status, n_samples=light_fit.n_samples,
-        n_facing=np.full(n_texels, N_VIEWS, np.int32),
-        alpha_bound=np.full(n_texels, brdf.min_resolvable_alpha(LMAX), f32),
-    )
+    return observations_from_samples(
+        directions, weight, observed, mirrored, LMAX, irradiance=irradiance, sigma=sigma, reg_lambda=1.2e-4,
+        visible=np.ones((n_texels, N_VIEWS), bool), n_facing=np.full(n_texels, N_VIEWS, np.int32),
+        alpha_bound=np.full(n_texels, brdf.min_resolvable_alpha(LMAX), np.float32))
 
 
 @pytest.fixture(scope="module")
