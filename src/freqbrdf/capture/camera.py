@@ -1,10 +1,15 @@
-"""Pinhole cameras in the NeRF/Blender convention.
+"""Pinhole cameras in the NeRF/Blender convention, and their reading from transforms files.
 
-Axes are OpenGL's: in camera space x points right, y up, and the camera looks down -z.
-``camera_to_world`` maps camera space to world space and must be rigid (a rotation and a
-translation). Pixel coordinates: (0, 0) is the top-left corner of the top-left pixel, x runs right
-and y down, and the centre of pixel (row i, column j) is (j + 0.5, i + 0.5); the principal point
-(cx, cy) is given in the same coordinates, so cx = width / 2 is the image centre.
+Axes are OpenGL's (METHOD.md §2, "Cameras"): in camera space x points right, y up, and the
+camera looks down -z. ``camera_to_world`` maps camera space to world space and must be rigid (a
+rotation and a translation). Pixel coordinates: (0, 0) is the top-left corner of the top-left
+pixel, x runs right and y down, and the centre of pixel (row i, column j) is (j + 0.5, i + 0.5);
+the principal point (cx, cy) is given in the same coordinates, so cx = width / 2 is the image
+centre.
+
+`read_cameras` reads the cameras of a ``transforms.json`` without its images; the parsing helpers
+below it (`read_json_object`, `frame_entries`, `frame_camera`, `positive_number`, `required_key`)
+are shared with `freqbrdf.capture.layouts` and raise `InputError` naming the file.
 """
 
 from __future__ import annotations
@@ -28,12 +33,34 @@ DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
 
 @dataclass(frozen=True)
 class Camera:
-    camera_to_world: np.ndarray  # (4, 4) float64, rigid, OpenGL camera axes
-    fx: float  # focal lengths in pixels
+    """A pinhole camera: pose, intrinsics in pixels and image size.
+
+    The pose is copied into a read-only float64 array on construction.
+
+    Attributes
+    ----------
+    camera_to_world : (4, 4) float64
+        Rigid camera-to-world transform, OpenGL camera axes (the camera looks down its -z).
+    fx, fy : float
+        Focal lengths in pixels, positive.
+    cx, cy : float
+        Principal point in pixels (see the module docstring).
+    width, height : int
+        Image size in pixels.
+
+    Raises
+    ------
+    ValueError
+        If the pose is not rigid, a focal length is not positive and finite, the principal point
+        is not finite or the image size is not positive.
+    """
+
+    camera_to_world: np.ndarray
+    fx: float
     fy: float
-    cx: float  # principal point in pixels (see the module docstring)
+    cx: float
     cy: float
-    width: int  # image size in pixels
+    width: int
     height: int
 
     def __post_init__(self):
@@ -59,9 +86,23 @@ class Camera:
         camera_to_world: np.ndarray,
         camera_angle_y: float | None = None,
     ) -> Camera:
-        """NeRF's intrinsics: full horizontal field of view in radians, principal point centred.
+        """Make a camera from NeRF's intrinsics: fields of view, principal point centred.
 
-        Pixels are square unless ``camera_angle_y`` (the full vertical field of view) is given.
+        Parameters
+        ----------
+        camera_angle_x : float
+            Full horizontal field of view in radians.
+        width, height : int
+            Image size in pixels.
+        camera_to_world : (4, 4) float64
+            Rigid camera-to-world transform.
+        camera_angle_y : float, optional
+            Full vertical field of view in radians; without it pixels are square.
+
+        Returns
+        -------
+        Camera
+            The camera, with its principal point at the image centre.
         """
         fx = focal_length(camera_angle_x, width)
         fy = fx if camera_angle_y is None else focal_length(camera_angle_y, height)
@@ -69,19 +110,42 @@ class Camera:
 
     @property
     def center(self) -> np.ndarray:
-        """Camera position in world space ``(3,)``."""
+        """The camera position in world space, (3,) float64 (a copy)."""
         return self.camera_to_world[:3, 3].copy()
 
     def world_to_camera(self, points: np.ndarray) -> np.ndarray:
-        """World points ``(N, 3)`` in camera space ``(N, 3)``; a rigid map's inverse is R^T."""
+        """Transform world points to camera space.
+
+        A rigid map's inverse rotation is its transpose, so no matrix is inverted.
+
+        Parameters
+        ----------
+        points : (M, 3) array_like
+            Points in world space.
+
+        Returns
+        -------
+        (M, 3) float64
+            The points in camera space.
+        """
         rotation = self.camera_to_world[:3, :3]
         return (np.asarray(points, dtype=np.float64) - self.camera_to_world[:3, 3]) @ rotation
 
     def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Project world points ``(N, 3)`` to pixels ``(N, 2)`` (x, y) and depths ``(N,)``.
+        """Project world points to pixel coordinates.
 
-        Depth is the distance along the viewing axis (-z in camera space); it is <= 0 for points
-        at or behind the camera, whose pixel coordinates are NaN.
+        Parameters
+        ----------
+        points : (M, 3) array_like
+            Points in world space.
+
+        Returns
+        -------
+        pixels : (M, 2) float64
+            Pixel coordinates (x, y) in the convention of the module docstring; NaN for points at
+            or behind the camera.
+        depth : (M,) float64
+            Distance along the viewing axis (-z in camera space); <= 0 at or behind the camera.
         """
         local = self.world_to_camera(points)  # (N, 3)
         depth = -local[:, 2]
@@ -96,7 +160,13 @@ class Camera:
         return pixels, depth
 
     def ray_directions(self) -> np.ndarray:
-        """Unit world-space directions ``(H, W, 3)`` from the centre through each pixel centre."""
+        """Return the ray direction through every pixel centre.
+
+        Returns
+        -------
+        (H, W, 3) float64
+            Unit world-space directions from the camera centre through each pixel centre.
+        """
         columns = (np.arange(self.width) + 0.5 - self.cx) / self.fx  # (W,)
         rows = (np.arange(self.height) + 0.5 - self.cy) / self.fy  # (H,)
         local = np.empty((self.height, self.width, 3))
@@ -108,14 +178,42 @@ class Camera:
 
 
 def focal_length(field_of_view: float, size: int) -> float:
-    """Focal length in pixels of a full field of view (radians) spanning ``size`` pixels."""
+    """Return the focal length of a field of view.
+
+    Parameters
+    ----------
+    field_of_view : float
+        Full field of view in radians.
+    size : int
+        Number of pixels the field of view spans.
+
+    Returns
+    -------
+    float
+        The focal length in pixels.
+    """
     return float(0.5 * size / np.tan(0.5 * field_of_view))
 
 
 def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = (0.0, 1.0, 0.0)) -> np.ndarray:
-    """Camera-to-world ``(4, 4)`` of a camera at ``eye`` looking at ``target``.
+    """Return the pose of a camera at ``eye`` looking at ``target``.
 
-    The image's up direction is ``up`` made orthogonal to the viewing direction.
+    Parameters
+    ----------
+    eye, target : (3,) array_like
+        Camera position and the point it looks at, in world space.
+    up : (3,) array_like, optional
+        The image's up direction, made orthogonal to the viewing direction (default world +y).
+
+    Returns
+    -------
+    (4, 4) float64
+        The camera-to-world transform (OpenGL axes).
+
+    Raises
+    ------
+    ValueError
+        If ``eye`` and ``target`` coincide or ``up`` is parallel to the viewing direction.
     """
     eye, target, up = (np.asarray(v, dtype=np.float64) for v in (eye, target, up))
     forward = target - eye
@@ -134,7 +232,19 @@ def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = (0.0, 1.0, 0.0
 
 
 def rigid_transform_problem(matrix: np.ndarray) -> str | None:
-    """What makes ``matrix`` not a rigid 4x4 transform (rotation + translation), or None."""
+    """Say what makes ``matrix`` not a rigid transform.
+
+    Parameters
+    ----------
+    matrix : (4, 4) array_like
+        A candidate transform; rigid means a rotation and a translation, to within
+        ``RIGID_TOLERANCE`` (no scale, shear or reflection).
+
+    Returns
+    -------
+    str or None
+        A phrase that completes "<name> ..." in an error message, or None if it is rigid.
+    """
     matrix = np.asarray(matrix, dtype=np.float64)
     if matrix.shape != (4, 4):
         return f"must be a 4x4 matrix, got shape {matrix.shape}"
@@ -158,12 +268,30 @@ def rigid_transform_problem(matrix: np.ndarray) -> str | None:
 
 
 def check_rigid(matrix: np.ndarray, source: str | Path, what: str) -> np.ndarray:
-    """``matrix`` as a rigid (4, 4) float64 array, or InputError naming ``source`` and ``what``.
+    """Validate a rigid transform read from a file.
 
-    ``what`` says where in the file the matrix was, e.g. "frame 3: transform_matrix". A rotation
-    that is orthonormal only to text precision is replaced by the nearest rotation (polar
-    decomposition), so that downstream code may invert it by transposing; rotations exact to
-    float precision are returned bit for bit.
+    A rotation that is orthonormal only to text precision is replaced by the nearest rotation
+    (polar decomposition), so that downstream code may invert it by transposing; rotations exact
+    to float precision are returned bit for bit.
+
+    Parameters
+    ----------
+    matrix : (4, 4) array_like
+        The transform as read.
+    source : str or Path
+        The file it came from, for the error message.
+    what : str
+        Where in the file the matrix was, e.g. "frame 3: transform_matrix".
+
+    Returns
+    -------
+    (4, 4) float64
+        The rigid transform, bottom row exactly (0, 0, 0, 1).
+
+    Raises
+    ------
+    InputError
+        If ``matrix`` is not a 4x4 array of numbers or not rigid.
     """
     try:
         array = np.array(matrix, dtype=np.float64)
@@ -185,10 +313,24 @@ def check_rigid(matrix: np.ndarray, source: str | Path, what: str) -> np.ndarray
 
 
 def read_cameras(path: str | Path, image_size: tuple[int, int]) -> list[Camera]:
-    """The cameras of a transforms file's frames; their images need not exist.
+    """Read the cameras of a transforms file's frames; their images need not exist.
 
-    Frames without ``w`` and ``h`` (in the frame or at the top level) get ``image_size``
-    (height, width). InputError naming the file for any problem.
+    Parameters
+    ----------
+    path : str or Path
+        A NeRF/Blender-style ``transforms.json``.
+    image_size : (int, int)
+        (height, width) of frames without ``w`` and ``h`` (in the frame or at the top level).
+
+    Returns
+    -------
+    list of Camera
+        One camera per frame, in file order.
+
+    Raises
+    ------
+    InputError
+        Naming the file, for any problem with it.
     """
     path = Path(path)
     document = read_json_object(path)
@@ -197,7 +339,23 @@ def read_cameras(path: str | Path, image_size: tuple[int, int]) -> list[Camera]:
 
 
 def read_json_object(path: Path) -> dict:
-    """A JSON file holding an object at the top level; InputError otherwise."""
+    """Read a JSON file that holds an object at the top level.
+
+    Parameters
+    ----------
+    path : Path
+        The file.
+
+    Returns
+    -------
+    dict
+        The parsed object.
+
+    Raises
+    ------
+    InputError
+        If the file is missing, unreadable, malformed or does not hold an object.
+    """
     if not path.is_file():
         raise InputError(path, "file does not exist" if not path.exists() else "is not a file")
     try:
@@ -216,7 +374,25 @@ def read_json_object(path: Path) -> dict:
 
 
 def frame_entries(source: Path, document: dict) -> list[dict]:
-    """The non-empty ``frames`` list of a transforms document, each entry an object."""
+    """Return the ``frames`` list of a transforms document.
+
+    Parameters
+    ----------
+    source : Path
+        The file the document came from, for error messages.
+    document : dict
+        The parsed transforms file.
+
+    Returns
+    -------
+    list of dict
+        The frame entries.
+
+    Raises
+    ------
+    InputError
+        If ``frames`` is missing, empty, not a list, or has an entry that is not an object.
+    """
     entries = required_key(source, "", document, "frames")
     if not isinstance(entries, list) or not entries:
         raise InputError(source, "'frames' must be a non-empty list")
@@ -233,10 +409,36 @@ def frame_camera(
     document: dict,
     size_of_first: Callable[[], tuple[int, int]],
 ) -> Camera:
-    """The camera of one frame: its keys first, then the file's top-level keys.
+    """Read the camera of one frame: its keys first, then the file's top-level keys.
 
-    Without ``w`` and ``h`` the image size (height, width) is ``size_of_first()`` (NeRF's Blender
-    datasets declare only the field of view; a capture takes its first image's size).
+    Intrinsics come from ``fl_x``/``fl_y`` or ``camera_angle_x``/``camera_angle_y``, ``cx``/``cy``
+    (default: the image centre) and ``w``/``h``; only pinhole models without distortion are
+    accepted.
+
+    Parameters
+    ----------
+    source : Path
+        The transforms file, for error messages.
+    index : int
+        The frame's index in ``frames``, for error messages.
+    entry : dict
+        The frame's entry.
+    document : dict
+        The whole transforms document (its top-level keys are the defaults).
+    size_of_first : callable () -> (int, int)
+        Gives (height, width) when neither the frame nor the file has ``w`` and ``h``. NeRF's
+        Blender datasets declare only the field of view; a capture takes its first image's size.
+
+    Returns
+    -------
+    Camera
+        The frame's camera.
+
+    Raises
+    ------
+    InputError
+        If a key is missing or invalid, the camera model is not a pinhole, or the lens has
+        distortion.
     """
     where = f"frame {index}: "
 
@@ -284,7 +486,29 @@ def frame_camera(
 
 
 def positive_number(source: Path, where: str, key: str, value: Any) -> float:
-    """A finite, positive JSON number, or InputError naming ``source``, ``where`` and ``key``."""
+    """Validate a JSON value as a finite, positive number.
+
+    Parameters
+    ----------
+    source : Path
+        The file, for the error message.
+    where : str
+        A prefix saying where in the file, e.g. "frame 3: " (may be empty).
+    key : str
+        The key the value was read from.
+    value : Any
+        The JSON value.
+
+    Returns
+    -------
+    float
+        The value.
+
+    Raises
+    ------
+    InputError
+        If the value is not a finite, positive number (booleans are refused).
+    """
     is_number = isinstance(value, (int, float)) and not isinstance(value, bool)
     if not is_number or not np.isfinite(value) or value <= 0:
         raise InputError(source, f"{where}{key!r} must be a positive number, got {value!r}")
@@ -292,7 +516,29 @@ def positive_number(source: Path, where: str, key: str, value: Any) -> float:
 
 
 def required_key(source: Path, where: str, mapping: dict, key: str) -> Any:
-    """mapping[key], or an InputError naming the file and where in it the key is missing."""
+    """Return ``mapping[key]``, refusing a missing key.
+
+    Parameters
+    ----------
+    source : Path
+        The file, for the error message.
+    where : str
+        A prefix saying where in the file, e.g. "frame 3: " (may be empty).
+    mapping : dict
+        A JSON object.
+    key : str
+        The required key.
+
+    Returns
+    -------
+    Any
+        The value.
+
+    Raises
+    ------
+    InputError
+        If ``key`` is missing.
+    """
     if key not in mapping:
         raise InputError(source, f"{where}missing required key {key!r}")
     return mapping[key]

@@ -1,7 +1,8 @@
 """Where cameras go around an object: evenly spread or random directions on an orbit.
 
-Used to place synthetic captures' views and capture guidance's candidates (METHOD.md §4).
-World +y is up.
+Places the views of synthetic captures and the candidate views of capture guidance
+(METHOD.md §4, "Capture guidance"). World +y is up; cameras are square pinholes
+(`freqbrdf.capture.camera.Camera`) that look at the object's bounding-sphere centre.
 """
 
 from __future__ import annotations
@@ -23,10 +24,22 @@ GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
 
 
 def fibonacci_directions(count: int, hemisphere: bool) -> np.ndarray:
-    """Evenly spread unit directions ``(count, 3)`` on the sphere or the upper (+y) hemisphere.
+    """Spread unit directions evenly on the sphere or the upper (+y) hemisphere.
 
     The Fibonacci spiral: heights equally spaced in y (equal areas, by Archimedes) and
     azimuths advancing by the golden angle.
+
+    Parameters
+    ----------
+    count : int
+        Number of directions (M).
+    hemisphere : bool
+        Keep to the upper hemisphere (y > 0) instead of the whole sphere.
+
+    Returns
+    -------
+    (M, 3) float64
+        Unit directions, from the top down.
     """
     index = np.arange(count) + 0.5
     height = 1.0 - index / count if hemisphere else 1.0 - 2.0 * index / count  # (N,)
@@ -36,7 +49,22 @@ def fibonacci_directions(count: int, hemisphere: bool) -> np.ndarray:
 
 
 def random_directions(count: int, hemisphere: bool, rng: np.random.Generator) -> np.ndarray:
-    """Uniformly random unit directions ``(count, 3)`` on the sphere or the upper hemisphere."""
+    """Draw uniformly random unit directions on the sphere or the upper (+y) hemisphere.
+
+    Parameters
+    ----------
+    count : int
+        Number of directions (M).
+    hemisphere : bool
+        Fold the directions into the upper hemisphere (y >= 0).
+    rng : numpy.random.Generator
+        The random source.
+
+    Returns
+    -------
+    (M, 3) float64
+        Unit directions.
+    """
     directions = rng.normal(size=(count, 3))
     directions /= np.linalg.norm(directions, axis=1, keepdims=True)
     if hemisphere:
@@ -45,7 +73,20 @@ def random_directions(count: int, hemisphere: bool, rng: np.random.Generator) ->
 
 
 def bounding_sphere(vertices: np.ndarray) -> tuple[np.ndarray, float]:
-    """Centre ``(3,)`` (of the bounding box) and radius enclosing all ``vertices`` ``(V, 3)``."""
+    """Return a sphere that encloses a point set.
+
+    Parameters
+    ----------
+    vertices : (M, 3) float64
+        The points, e.g. a mesh's vertices.
+
+    Returns
+    -------
+    centre : (3,) float64
+        The centre of the points' bounding box.
+    radius : float
+        The distance from ``centre`` to the farthest point.
+    """
     centre = 0.5 * (vertices.min(axis=0) + vertices.max(axis=0))
     return centre, float(np.linalg.norm(vertices - centre, axis=1).max())
 
@@ -53,9 +94,27 @@ def bounding_sphere(vertices: np.ndarray) -> tuple[np.ndarray, float]:
 def orbit_cameras(
     directions: np.ndarray, centre: np.ndarray, radius: float, resolution: int
 ) -> list[Camera]:
-    """Square cameras at ``centre + distance * direction`` looking at ``centre``.
+    """Place square cameras on an orbit, looking at its centre.
 
-    ``distance`` makes a sphere of ``radius`` fill ``FRAME_FILL`` of the field of view.
+    Each camera sits at ``centre + distance * direction``, where ``distance`` makes a sphere of
+    ``radius`` fill ``FRAME_FILL`` of the ``FIELD_OF_VIEW_DEG`` field of view. Straight above or
+    below the object the image's up direction is +z instead of world up.
+
+    Parameters
+    ----------
+    directions : (M, 3) float64
+        Unit directions from the centre to the cameras.
+    centre : (3,) float64
+        The point looked at.
+    radius : float
+        Radius of the sphere to frame.
+    resolution : int
+        Image side in pixels.
+
+    Returns
+    -------
+    list of Camera
+        M cameras, in the order of ``directions``.
     """
     half_fov = np.radians(FIELD_OF_VIEW_DEG) / 2.0
     distance = radius / np.sin(FRAME_FILL * half_fov)
@@ -69,8 +128,23 @@ def orbit_cameras(
 
 
 def camera_directions(layout: str, count: int, rng: np.random.Generator) -> np.ndarray:
-    """Training view directions ``(count, 3)``: Fibonacci on the hemisphere or sphere, or
-    uniformly random on the hemisphere."""
+    """Return the view directions of a camera layout.
+
+    Parameters
+    ----------
+    layout : str
+        "hemisphere" or "sphere" (Fibonacci spirals), or "random" (uniform on the upper
+        hemisphere); any other value gives the sphere.
+    count : int
+        Number of views (M).
+    rng : numpy.random.Generator
+        The random source of the "random" layout.
+
+    Returns
+    -------
+    (M, 3) float64
+        Unit directions from the object to the cameras.
+    """
     if layout == "random":
         return random_directions(count, hemisphere=True, rng=rng)
     return fibonacci_directions(count, hemisphere=layout == "hemisphere")

@@ -1,7 +1,9 @@
 """Captures: posed HDR photographs of a known mesh under a known environment map.
 
-Two layouts load into the same `Capture` (the format is described for users in
-docs/capture-format.md):
+A capture is the input of METHOD.md §1 (mesh, posed HDR photographs, distant environment map),
+with cameras in the convention of §2 and, optionally, the relighting views and ground truth used
+to judge results (§5). Two layouts load into the same `Capture` (the format is described for
+users in docs/capture-format.md):
 
 - ours: ``transforms.json`` in the NeRF/Blender style plus the keys ``mesh``, ``envmap``,
   ``envmap_to_world`` and ``envmap_scale``; optionally ``transforms_test.json`` (relighting views,
@@ -55,7 +57,6 @@ TEST_TRANSFORMS_FILE = "transforms_test.json"
 GROUND_TRUTH_FOLDER = "gt"
 # Tried in this order when a file_path has no extension, as in NeRF datasets.
 IMAGE_SUFFIX_ORDER = (".exr", ".hdr", ".png", ".jpg")
-# Lens models that are pinholes once their distortion coefficients are zero.
 
 ORB_TRAIN_FILE = "transforms_train.json"
 ORB_TEST_FILE = "transforms_test.json"
@@ -76,42 +77,138 @@ ORB_NORMAL_FIXES = (
 
 @dataclass(frozen=True)
 class Frame:
+    """One posed photograph of a capture.
+
+    Attributes
+    ----------
+    camera : Camera
+        The camera it was taken with.
+    image_path : Path
+        The linear HDR image.
+    mask_path : Path or None
+        The object mask; None means every pixel may show the object.
+    envmap_path : Path or None
+        Test (relighting) frames only: the environment map this photograph was taken under.
+    envmap_to_world : (4, 4) float64 or None
+        Test frames only: that map's Mitsuba envmap to_world.
+    envmap_scale : float
+        Test frames only: the factor applied to that map's radiance.
+    """
+
     camera: Camera
     image_path: Path
-    mask_path: Path | None = None  # None: every pixel may show the object
-    # Test (relighting) frames only: the environment map this photograph was taken under.
+    mask_path: Path | None = None
     envmap_path: Path | None = None
-    envmap_to_world: np.ndarray | None = None  # (4, 4) float64, Mitsuba's envmap to_world
+    envmap_to_world: np.ndarray | None = None
     envmap_scale: float = 1.0
 
 
 @dataclass(frozen=True)
 class Capture:
-    root: Path  # the folder holding the transforms files
-    layout: str  # "freqbrdf" or "stanford-orb"
+    """A loaded capture; images and masks are read on demand.
+
+    Attributes
+    ----------
+    root : Path
+        The folder holding the transforms files.
+    layout : str
+        "freqbrdf" or "stanford-orb".
+    mesh : Mesh
+        The object's geometry, with a UV atlas.
+    envmap : Envmap
+        The lighting of `frames`, in world space, envmap_scale applied.
+    envmap_path : Path
+        The file ``envmap`` was read from.
+    frames : tuple of Frame
+        The views to fit (V of them).
+    test_frames : tuple of Frame
+        Relighting views, each under its own environment map (may be empty).
+    ground_truth : MaterialMaps or None
+        Ground-truth material maps in texture space, when the capture has them.
+    """
+
+    root: Path
+    layout: str
     mesh: Mesh
-    envmap: Envmap  # the lighting of `frames`, envmap_scale applied
+    envmap: Envmap
     envmap_path: Path
     frames: tuple[Frame, ...]
-    test_frames: tuple[Frame, ...]  # relighting views, each under its own environment map
+    test_frames: tuple[Frame, ...]
     ground_truth: MaterialMaps | None
 
     def image(self, index: int) -> np.ndarray:
-        """Linear radiance of frame ``index`` ``(H, W, 3)`` float32, validated."""
+        """Read the image of a frame.
+
+        Parameters
+        ----------
+        index : int
+            Index into `frames`.
+
+        Returns
+        -------
+        (H, W, 3) float32
+            Linear radiance, validated (see `read_frame_image`).
+        """
         return read_frame_image(self.frames[index])
 
     def mask(self, index: int) -> np.ndarray:
-        """Object mask of frame ``index`` ``(H, W)`` bool (all True when the frame has none)."""
+        """Read the object mask of a frame.
+
+        Parameters
+        ----------
+        index : int
+            Index into `frames`.
+
+        Returns
+        -------
+        (H, W) bool
+            The mask; all True when the frame has none.
+        """
         return read_frame_mask(self.frames[index])
 
     def test_image(self, index: int) -> np.ndarray:
+        """Read the image of a test frame.
+
+        Parameters
+        ----------
+        index : int
+            Index into `test_frames`.
+
+        Returns
+        -------
+        (H, W, 3) float32
+            Linear radiance, validated (see `read_frame_image`).
+        """
         return read_frame_image(self.test_frames[index])
 
     def test_mask(self, index: int) -> np.ndarray:
+        """Read the object mask of a test frame.
+
+        Parameters
+        ----------
+        index : int
+            Index into `test_frames`.
+
+        Returns
+        -------
+        (H, W) bool
+            The mask; all True when the frame has none.
+        """
         return read_frame_mask(self.test_frames[index])
 
     def test_envmap(self, index: int) -> Envmap:
-        """The environment map of test frame ``index``, in world space, scale applied."""
+        """Load the environment map a test frame was taken under.
+
+        Parameters
+        ----------
+        index : int
+            Index into `test_frames`.
+
+        Returns
+        -------
+        Envmap
+            The map in world space, its scale applied.
+        """
         frame = self.test_frames[index]
         return _load_scaled_envmap(frame.envmap_path, frame.envmap_to_world, frame.envmap_scale)
 
@@ -121,7 +218,26 @@ class Capture:
 
 
 def load(path: str | Path) -> Capture:
-    """Load a capture from its folder or its transforms file (ours or the Stanford-ORB layout)."""
+    """Load a capture from its folder or its transforms file.
+
+    The layout is recognised from the files: a folder with ``transforms.json`` (or that file) is
+    ours; a folder with ``transforms_train.json`` (or that file) is a Stanford-ORB scene.
+
+    Parameters
+    ----------
+    path : str or Path
+        The capture folder or its transforms file.
+
+    Returns
+    -------
+    Capture
+        The capture, its mesh and environment map loaded, its images not yet read.
+
+    Raises
+    ------
+    InputError
+        Naming the file, for anything missing or malformed.
+    """
     path = Path(path)
     if not path.exists():
         raise InputError(path, "capture does not exist")
@@ -136,14 +252,47 @@ def load(path: str | Path) -> Capture:
 
 
 def read_frame_image(frame: Frame) -> np.ndarray:
-    """Linear radiance ``(H, W, 3)`` float32; non-finite or negative pixels raise InputError."""
+    """Read a frame's image.
+
+    Parameters
+    ----------
+    frame : Frame
+        The frame.
+
+    Returns
+    -------
+    (H, W, 3) float32
+        Linear radiance.
+
+    Raises
+    ------
+    InputError
+        If the image cannot be read, has non-finite or negative pixels, or its size is not its
+        camera's.
+    """
     image = read_image(frame.image_path, validate=True)
     _check_size(frame.image_path, image.shape[:2], frame.camera)
     return image
 
 
 def read_frame_mask(frame: Frame) -> np.ndarray:
-    """Object mask ``(H, W)`` bool; all True when the frame has no mask."""
+    """Read a frame's object mask.
+
+    Parameters
+    ----------
+    frame : Frame
+        The frame.
+
+    Returns
+    -------
+    (H, W) bool
+        The mask; all True when the frame has none.
+
+    Raises
+    ------
+    InputError
+        If the mask cannot be read or its size is not its camera's.
+    """
     if frame.mask_path is None:
         return np.ones((frame.camera.height, frame.camera.width), dtype=bool)
     mask = read_mask(frame.mask_path)
@@ -176,7 +325,7 @@ def _load_ours(transforms_path: Path) -> Capture:
 
 
 def _parse_frames(source: Path, document: dict, with_envmaps: bool) -> tuple[Frame, ...]:
-    """The frames of one transforms file of ours; paths are relative to its folder.
+    """Parse the frames of one transforms file of ours; paths are relative to its folder.
 
     Any per-frame key may also be given at the top level, as the default for every frame.
     """
@@ -289,8 +438,10 @@ def _parse_orb_frames(
     image_folder: Callable[[dict], Path],
     truth_folder: Callable[[dict], Path | None],
 ) -> tuple[Frame, ...]:
-    """Frames of a Stanford-ORB transforms file. Masks are ``<images>_mask/<name>.png``;
-    with a ``truth_folder`` each frame gets its environment map, placed by its camera.
+    """Parse the frames of a Stanford-ORB transforms file.
+
+    Masks are ``<images>_mask/<name>.png``; with a ``truth_folder`` each frame gets its
+    environment map, placed by its camera.
     """
     document = _read_json(source)
     entries = _frame_entries(source, document)
@@ -338,15 +489,28 @@ def _orb_envmap_path(source: Path, index: int, entry: dict, scene_truth: Path) -
 
 
 def stanford_orb_envmap_to_world(camera_to_world: np.ndarray) -> np.ndarray:
-    """Mitsuba envmap to_world ``(4, 4)`` of a Stanford-ORB map stored in this camera's frame."""
+    """Place a Stanford-ORB environment map, stored in a camera's frame, in world space.
+
+    Parameters
+    ----------
+    camera_to_world : (4, 4) array_like
+        The pose of the camera whose frame the map is stored in.
+
+    Returns
+    -------
+    (4, 4) float64
+        The map's Mitsuba envmap to_world (a rotation).
+    """
     to_world = np.eye(4)
     to_world[:3, :3] = np.asarray(camera_to_world)[:3, :3] @ ORB_ENVMAP_TO_MITSUBA
     return to_world
 
 
 def _orb_normals(mesh: Mesh) -> Mesh:
-    """Undo the axis exchange of Stanford-ORB's normals: keep the candidate in ORB_NORMAL_FIXES
-    that agrees best with the area-weighted normals of the triangles themselves.
+    """Undo the axis exchange of Stanford-ORB's normals.
+
+    Keeps the candidate in ORB_NORMAL_FIXES that agrees best with the area-weighted normals of
+    the triangles themselves.
     """
     geometric = smooth_normals(mesh.vertices, mesh.faces)  # (V, 3)
     agreement = [
@@ -418,11 +582,30 @@ def write_transforms(
 ) -> None:
     """Write a transforms file of our format, atomically; `load` reads back identical cameras.
 
-    Paths are stored relative to the file's folder. ``mesh`` and ``envmap`` belong in
-    ``transforms.json``; the test file ``transforms_test.json`` gives each frame its own
-    ``envmap_path`` (and to_world and scale). Intrinsics shared by all frames go to the top level.
-    ``frame_fields`` (one dict per frame) adds or overrides keys of each frame's entry, e.g.
-    Stanford-ORB's ``scene_name`` with a ``file_path`` relative to that scene's folder.
+    Paths are stored relative to the file's folder. Intrinsics shared by all frames go to the top
+    level. Frames with an ``envmap_path`` (test frames) get their own ``envmap``, to_world and
+    scale.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file to write (``transforms.json`` or ``transforms_test.json``).
+    frames : sequence of Frame
+        The frames, at least one.
+    mesh, envmap : str or Path, optional
+        The mesh and environment map; they belong in ``transforms.json``.
+    envmap_to_world : (4, 4) array_like, optional
+        The environment map's Mitsuba to_world.
+    envmap_scale : float, optional
+        The factor applied to the environment map's radiance.
+    frame_fields : sequence of dict, optional
+        One dict per frame, adding or overriding keys of its entry, e.g. Stanford-ORB's
+        ``scene_name`` with a ``file_path`` relative to that scene's folder.
+
+    Raises
+    ------
+    ValueError
+        If ``frames`` is empty or ``frame_fields`` does not have one entry per frame.
     """
     path = Path(path)
     if not frames:
@@ -486,7 +669,19 @@ def _intrinsics(camera: Camera) -> dict[str, float | int]:
 
 
 def describe(capture: Capture) -> list[tuple[str, str]]:
-    """(topic, text) lines summarising a capture without reading its images."""
+    """Summarise a capture without reading its images.
+
+    Parameters
+    ----------
+    capture : Capture
+        The capture.
+
+    Returns
+    -------
+    list of (str, str)
+        (topic, text) lines: the capture, frames, resolution, mesh, environment map, test set and
+        ground truth.
+    """
     sizes = sorted({(frame.camera.width, frame.camera.height) for frame in capture.frames})
     masked = sum(frame.mask_path is not None for frame in capture.frames)
     mesh = capture.mesh

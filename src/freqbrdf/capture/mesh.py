@@ -1,5 +1,6 @@
 """Triangle meshes with one UV atlas: loading, atlas generation (xatlas), OBJ output.
 
+The mesh is the known geometry of METHOD.md §1; meshes without UVs get an xatlas atlas (§3.1).
 UV convention: origin at the bottom-left of the texture, as in OBJ (and glTF after trimesh's
 flip on import). Texel (row i, column j) of a T x T texture covers
 uv = ((j + 0.5) / T, 1 - (i + 0.5) / T); row 0 is the top row of the stored image.
@@ -23,7 +24,7 @@ from freqbrdf.fileio import atomic_path
 MESH_SUFFIXES = (".obj", ".ply", ".gltf", ".glb")
 
 # xatlas packing: charts are laid out for a 1024^2 atlas with 8 texels between them, i.e. gutters
-# of 4 texels at the default T = 512 and 2 at T = 256, so UV-space rasterisation never mixes charts.
+# of 4 texels at T = 512 and 2 at T = 256, so UV-space rasterisation never mixes charts.
 ATLAS_RESOLUTION = 1024
 ATLAS_PADDING = 8
 # Part of the cache key: change it whenever the atlas settings or algorithm change.
@@ -33,11 +34,29 @@ _CACHE_TAG = "# freqbrdf atlas cache"
 
 @dataclass(frozen=True, eq=False)  # holds arrays: compare fields explicitly
 class Mesh:
-    vertices: np.ndarray  # (V, 3) float64
-    faces: np.ndarray  # (F, 3) int64, counter-clockwise seen from outside
-    normals: np.ndarray  # (V, 3) float64, unit shading normals
-    uv: np.ndarray  # (V, 2) float64, origin bottom-left; vertices are split along UV seams
-    path: Path | None = None  # the file it was loaded from
+    """A triangle mesh with one shading normal and one UV per vertex.
+
+    Vertices are split along UV seams, so one index addresses position, normal and UV.
+
+    Attributes
+    ----------
+    vertices : (n_vertices, 3) float64
+        Positions in world space.
+    faces : (n_faces, 3) int64
+        Vertex indices, counter-clockwise seen from outside.
+    normals : (n_vertices, 3) float64
+        Unit shading normals.
+    uv : (n_vertices, 2) float64
+        Texture coordinates in [0, 1], origin bottom-left (see the module docstring).
+    path : Path or None
+        The file it was loaded from.
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    normals: np.ndarray
+    uv: np.ndarray
+    path: Path | None = None
 
 
 def load_mesh(path: str | Path, atlas_cache: str | Path | None = None) -> Mesh:
@@ -45,10 +64,28 @@ def load_mesh(path: str | Path, atlas_cache: str | Path | None = None) -> Mesh:
 
     Normals from the file are kept; missing ones are smooth (area-weighted over faces sharing a
     position, so they do not break along UV seams). A mesh without UVs on every part gets an
-    xatlas atlas; with ``atlas_cache`` (an ``.obj`` path) the atlas mesh is stored there and reused
-    while the source file's content (SHA-256) and the atlas settings are unchanged (for ``.gltf``
-    only the JSON file is hashed, not external buffers). UVs outside [0, 1] (tiling) are replaced
-    by an atlas, with a warning.
+    xatlas atlas. UVs outside [0, 1] (tiling) are replaced by an atlas, with a warning.
+    Unreferenced vertices are dropped.
+
+    Parameters
+    ----------
+    path : str or Path
+        The mesh file (``.obj``, ``.ply``, ``.gltf`` or ``.glb``).
+    atlas_cache : str or Path, optional
+        An ``.obj`` path where a generated atlas mesh is stored and reused while the source
+        file's content (SHA-256) and the atlas settings are unchanged (for ``.gltf`` only the
+        JSON file is hashed, not external buffers).
+
+    Returns
+    -------
+    Mesh
+        The mesh, with ``path`` set.
+
+    Raises
+    ------
+    InputError
+        If the file type is unsupported, the file is missing or unreadable, it holds no
+        triangles, or it has non-finite vertices or faces indexing missing vertices.
     """
     path = Path(path)
     if path.suffix.lower() not in MESH_SUFFIXES:
@@ -77,10 +114,30 @@ def load_mesh(path: str | Path, atlas_cache: str | Path | None = None) -> Mesh:
 def generate_atlas(
     vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """UV atlas by xatlas: returns (vertices, faces, normals, uv) with vertices split at seams.
+    """Generate a UV atlas with xatlas, splitting vertices at its seams.
 
     UVs are scaled uniformly into [0, 1]^2 (xatlas normalises width and height separately, which
     would make texels non-square on the surface).
+
+    Parameters
+    ----------
+    vertices : (n_vertices, 3) float64
+        Positions.
+    faces : (n_faces, 3) int64
+        Vertex indices.
+    normals : (n_vertices, 3) float64
+        Unit shading normals.
+
+    Returns
+    -------
+    vertices : (n_split, 3) float64
+        Positions of the split vertices.
+    faces : (n_faces, 3) int64
+        The faces, indexing the split vertices.
+    normals : (n_split, 3) float64
+        Normals of the split vertices.
+    uv : (n_split, 2) float64
+        Texture coordinates in [0, 1].
     """
     atlas = xatlas.Atlas()
     atlas.add_mesh(
@@ -98,7 +155,20 @@ def generate_atlas(
 
 
 def smooth_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Area-weighted vertex normals ``(V, 3)``, shared by all vertices at the same position."""
+    """Compute area-weighted vertex normals, shared by all vertices at the same position.
+
+    Parameters
+    ----------
+    vertices : (n_vertices, 3) float64
+        Positions (vertices split at UV seams are welded by position).
+    faces : (n_faces, 3) int64
+        Vertex indices.
+
+    Returns
+    -------
+    (n_vertices, 3) float64
+        Unit normals; +z where the faces around a position cancel or degenerate.
+    """
     _, welded = np.unique(vertices, axis=0, return_inverse=True)
     welded = welded.reshape(-1)
     corners = vertices[faces]  # (F, 3, 3)
@@ -115,6 +185,15 @@ def save_obj(path: str | Path, mesh: Mesh, comment: str | None = None) -> None:
     """Write positions, UVs and normals (one shared index per vertex) as OBJ, atomically.
 
     Floats are written in shortest round-trip form, so `load_mesh` gives back identical arrays.
+
+    Parameters
+    ----------
+    path : str or Path
+        The ``.obj`` file to write.
+    mesh : Mesh
+        The mesh.
+    comment : str, optional
+        Header lines, each written as an OBJ comment (``#`` added where missing).
     """
     lines = [] if comment is None else [line if line.startswith("#") else f"# {line}"
                                         for line in comment.splitlines()]
@@ -127,9 +206,14 @@ def save_obj(path: str | Path, mesh: Mesh, comment: str | None = None) -> None:
 
 
 def plane_mesh() -> Mesh:
-    """Unit square at y = 0 facing +y: x, z in [-0.5, 0.5], u = x + 0.5, v = 0.5 - z.
+    """Make a unit square at y = 0 facing +y: x, z in [-0.5, 0.5], u = x + 0.5, v = 0.5 - z.
 
     Seen from above with -z pointing up the image, the texture appears upright.
+
+    Returns
+    -------
+    Mesh
+        Four vertices, two faces, normals +y.
     """
     vertices = np.array([[-0.5, 0, 0.5], [0.5, 0, 0.5], [0.5, 0, -0.5], [-0.5, 0, -0.5]], float)
     faces = np.array([[0, 1, 2], [0, 2, 3]], dtype=np.int64)
@@ -139,11 +223,24 @@ def plane_mesh() -> Mesh:
 
 
 def uv_sphere_mesh(n_longitude: int = 64, n_latitude: int = 32) -> Mesh:
-    """Unit sphere at the origin, poles on the y axis: u = longitude / 2 pi, v = 0 at south pole.
+    """Make a unit sphere at the origin, poles on the y axis, u = longitude / 2 pi.
 
-    Longitude phi runs from +x towards -z (counter-clockwise seen from +y). The seam column
-    (u = 0 and u = 1) is duplicated, and each pole has one vertex per longitude segment with u at
-    the segment centre, so no triangle spans the seam or degenerates in UV.
+    v is 0 at the south pole and 1 at the north pole. Longitude phi runs from +x towards -z
+    (counter-clockwise seen from +y). The seam column (u = 0 and u = 1) is duplicated, and each
+    pole has one vertex per longitude segment with u at the segment centre, so no triangle spans
+    the seam or degenerates in UV.
+
+    Parameters
+    ----------
+    n_longitude : int, optional
+        Number of longitude segments.
+    n_latitude : int, optional
+        Number of latitude segments (pole to pole).
+
+    Returns
+    -------
+    Mesh
+        The sphere; its normals equal its positions.
     """
     # Ring vertices: latitude rows 1 .. n_latitude - 1, longitude columns 0 .. n_longitude.
     ring_v = 1.0 - np.arange(1, n_latitude) / n_latitude  # (n_latitude - 1,)
@@ -187,7 +284,7 @@ def uv_sphere_mesh(n_longitude: int = 64, n_latitude: int = 32) -> Mesh:
 
 
 def _read_geometry(path: Path):
-    """(vertices, faces, normals, uv or None) of all mesh parts, in world space, validated."""
+    """Read (vertices, faces, normals, uv or None) of all mesh parts, in world space, validated."""
     try:
         scene = trimesh.load_scene(path, process=False)
     except Exception as err:  # trimesh raises many types on malformed input
@@ -246,6 +343,7 @@ def _read_geometry(path: Path):
 
 
 def _check_geometry(path: Path, vertices: np.ndarray, faces: np.ndarray) -> None:
+    """Refuse non-finite vertices and faces that index missing vertices (InputError)."""
     bad_vertices = ~np.isfinite(vertices).all(axis=1)
     if bad_vertices.any():
         first = int(np.argmax(bad_vertices))
@@ -263,10 +361,22 @@ def _check_geometry(path: Path, vertices: np.ndarray, faces: np.ndarray) -> None
 
 
 def unit_or_fallback(vectors: np.ndarray, fallback: np.ndarray) -> np.ndarray:
-    """Normalise rows; rows that are zero or non-finite take the fallback (row or array).
+    """Normalise rows; rows that are zero or non-finite take the fallback.
 
     Rows already of unit length (to 1e-12) are kept bit for bit, so that loading a saved mesh
     gives back exactly the normals that were saved.
+
+    Parameters
+    ----------
+    vectors : (M, 3) float64
+        The vectors.
+    fallback : (3,) or (M, 3) float64
+        What replaces zero or non-finite rows (one row for all, or one per row).
+
+    Returns
+    -------
+    (M, 3) float64
+        Unit vectors.
     """
     length = np.linalg.norm(vectors, axis=1, keepdims=True)
     valid = np.isfinite(length) & (length > 1e-12)
@@ -276,7 +386,7 @@ def unit_or_fallback(vectors: np.ndarray, fallback: np.ndarray) -> np.ndarray:
 
 
 def _read_atlas_cache(cache: Path, key: str):
-    """The cached (vertices, faces, normals, uv) when ``cache`` was made for ``key``, else None."""
+    """Read the cached (vertices, faces, normals, uv) when ``cache`` was made for ``key``, else None."""
     if not cache.is_file():
         return None
     with cache.open(errors="replace") as file:
