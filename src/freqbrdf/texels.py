@@ -1,32 +1,31 @@
-"""Texels: the mesh rasterised in UV space (METHOD.md §3, step 1).
+"""Texels: the mesh rasterised in UV space (METHOD.md §3.1), and texture helpers.
 
-Convention (docs/dev-interfaces.md): texel (row i, column j) of a T x T texture is centred at
-uv = ((j + 0.5)/T, 1 - (i + 0.5)/T), UV origin bottom-left. Internally UVs are mapped to texel
-coordinates x = u T - 0.5, y = (1 - v) T - 0.5, so texel (i, j) is centred at the lattice point
-(x, y) = (j, i) and covers the unit square around it.
+Texel (row i, column j) of a T x T texture is centred at uv = ((j + 0.5)/T, 1 - (i + 0.5)/T), UV
+origin bottom-left (as in `freqbrdf.capture.mesh`). Internally UVs map to texel coordinates
+x = u T - 0.5, y = (1 - v) T - 0.5, so texel (i, j) is centred at the lattice point (x, y) = (j, i)
+and covers the unit square around it.
 
 Coverage rule:
 
-- Centre sampling (the baseline): a texel belongs to a triangle whose UV footprint contains its
-  centre (edges included, with a 1e-9 barycentric tolerance so a centre on a shared edge is never
-  lost to round-off). Its sample point is the centre itself.
+- Centre sampling: a texel belongs to a triangle whose UV footprint contains its centre (edges
+  included, with a 1e-9 barycentric tolerance so a centre on a shared edge is never lost to
+  round-off). Its sample point is the centre itself.
 - Conservative extension (``conservative=True``, the default): a texel whose centre lies in no
   triangle but whose square a triangle overlaps with positive area (exact separating-axis test)
-  is kept too, and is sampled at the point of that triangle closest to its centre ("snapped").
-  Thin charts and slivers narrower than a texel are then not lost, and the one-texel ring around
-  every chart carries real surface values, which is what bilinear filtering reads at chart edges.
-  The snapped point lies within half a texel diagonal of the centre.
+  is kept too, sampled at the point of that triangle closest to its centre ("snapped", within
+  half a texel diagonal). Slivers narrower than a texel are then not lost, and the one-texel ring
+  around every chart carries real surface values, which bilinear filtering reads at chart edges.
 
-Winners, so that the result does not depend on anything but the mesh: a centre-covered texel goes
-to the lowest face id containing its centre; a snapped texel to the triangle closest to its centre
-(ties: lowest face id); centre coverage always beats snapping. Texels whose centre lies strictly
-inside two or more triangles (overlapping UV charts) are counted in ``Texels.overlap_texels``.
-Faces with (numerically) zero UV area own no texture space and are skipped and counted.
+Winners depend on nothing but the mesh: a centre-covered texel goes to the lowest face id
+containing its centre; a snapped texel to the triangle closest to its centre (ties: lowest face
+id); centre coverage beats snapping. Texels whose centre lies strictly inside two or more
+triangles (overlapping charts) are counted in ``Texels.overlap_texels``; faces with
+(numerically) zero UV area own no texture space and are skipped and counted.
 
-Each texel gets a local frame (tangent, bitangent, normal) from the shading normal alone, by the
+Each texel's local frame (tangent, bitangent, normal) comes from the shading normal alone, by the
 branchless orthonormal basis of Duff et al. 2017 ("Building an Orthonormal Basis, Revisited"):
-deterministic, right-handed (tangent x bitangent = normal) and continuous except where n_z changes
-sign. Downstream quantities are rotation invariant about n, so no UV-aligned tangent is needed.
+deterministic, right-handed and continuous except where n_z changes sign. Downstream quantities
+are rotation invariant about n (METHOD.md §2), so no UV-aligned tangent is needed.
 """
 
 from __future__ import annotations
@@ -51,37 +50,88 @@ UV_RANGE_TOLERANCE = 1e-6  # loaders may round UVs slightly outside [0, 1]
 
 @dataclass(frozen=True, eq=False)
 class Texels:
-    """The covered texels of a T x T texture, in flat row-major order of ``texel_index``."""
+    """The covered texels of a T x T texture, in flat row-major order of ``texel_index``.
 
-    texture_res: int  # T
-    mask: np.ndarray  # (T, T) bool, True where a texel is covered
-    texel_index: np.ndarray  # (N,) int64 flat row-major indices i * T + j of the covered texels
-    face_id: np.ndarray  # (N,) int64 face each texel samples
-    barycentric: np.ndarray  # (N, 3) float64 of the sample point in that face (>= 0, sum 1)
-    position: np.ndarray  # (N, 3) float64 world position of the sample point
-    normal: np.ndarray  # (N, 3) float64 interpolated, normalised shading normal
-    tangent: np.ndarray  # (N, 3) float64 local frame: tangent x bitangent = normal
-    bitangent: np.ndarray  # (N, 3) float64
-    texel_area: np.ndarray  # (N,) float64 world-space area one texel covers on its face
-    # (N, 3, 3) float64 d normal / d position: how the shading normal turns per unit of world
-    # displacement along the texel's face (zero along the face normal); see `normal_derivative`.
+    Attributes
+    ----------
+    texture_res : int
+        The texture side T.
+    mask : (T, T) bool
+        True where a texel is covered.
+    texel_index : (N,) int64
+        Flat row-major indices i * T + j of the covered texels, ascending.
+    face_id : (N,) int64
+        The face each texel samples.
+    barycentric : (N, 3) float64
+        The sample point in that face (>= 0, summing to 1).
+    position : (N, 3) float64
+        World position of the sample point.
+    normal : (N, 3) float64
+        Interpolated, normalised shading normal.
+    tangent, bitangent : (N, 3) float64
+        The rest of the local frame: tangent x bitangent = normal.
+    texel_area : (N,) float64
+        World-space area one texel covers on its face.
+    normal_derivative : (N, 3, 3) float64
+        d normal / d position: how the shading normal turns per unit of world displacement along
+        the texel's face (zero along the face normal); see `normal_derivative`.
+    snapped : (N,) bool
+        True where the centre missed every triangle (conservative coverage).
+    overlap_texels : int
+        Texels whose centre lies strictly inside two or more triangles.
+    degenerate_uv_faces : int
+        Faces skipped because their UV area is zero.
+    """
+
+    texture_res: int
+    mask: np.ndarray
+    texel_index: np.ndarray
+    face_id: np.ndarray
+    barycentric: np.ndarray
+    position: np.ndarray
+    normal: np.ndarray
+    tangent: np.ndarray
+    bitangent: np.ndarray
+    texel_area: np.ndarray
     normal_derivative: np.ndarray
-    snapped: np.ndarray  # (N,) bool, True where the centre missed every triangle (conservative)
-    overlap_texels: int  # texels whose centre lies strictly inside two or more triangles
-    degenerate_uv_faces: int  # faces skipped because their UV area is zero
+    snapped: np.ndarray
+    overlap_texels: int
+    degenerate_uv_faces: int
 
     @property
     def n_texels(self) -> int:
+        """The number of covered texels, N."""
         return len(self.texel_index)
 
     @property
     def texel_size(self) -> np.ndarray:
-        """(N,) world-space edge length of a texel, sqrt(texel_area): the scale for ray offsets."""
+        """World-space edge length of each texel, sqrt(texel_area), (N,) float64: the scale for ray offsets."""
         return np.sqrt(self.texel_area)
 
 
 def rasterise(mesh: Mesh, texture_res: int = 512, conservative: bool = True) -> Texels:
-    """Rasterise ``mesh`` in UV space at ``texture_res`` x ``texture_res`` (coverage rule above)."""
+    """Rasterise a mesh in UV space, by the coverage rule of the module docstring.
+
+    Parameters
+    ----------
+    mesh : Mesh
+        The mesh; its UVs must lie in [0, 1].
+    texture_res : int, optional
+        The texture side T.
+    conservative : bool, optional
+        Also keep texels whose centre misses every triangle but whose square one overlaps.
+
+    Returns
+    -------
+    Texels
+        The covered texels (N of them) and their surface samples.
+
+    Raises
+    ------
+    InputError
+        If ``texture_res`` is not a positive integer, the UVs are malformed, non-finite or
+        outside [0, 1], or the UV layout covers no texel.
+    """
     uv_px = _validated_texel_coords(mesh, texture_res)  # (F, 3, 2)
     edge_1 = uv_px[:, 1] - uv_px[:, 0]
     edge_2 = uv_px[:, 2] - uv_px[:, 0]
@@ -137,12 +187,31 @@ def rasterise(mesh: Mesh, texture_res: int = 512, conservative: bool = True) -> 
 
 def normal_derivative(corners: np.ndarray, corner_normals: np.ndarray, face_id: np.ndarray, shading: np.ndarray,
                       normal: np.ndarray) -> np.ndarray:
-    """(N, 3, 3) d n / d p of the normalised interpolated shading normal n = s / |s| at each texel:
-    corners and corner_normals (F, 3, 3) per face and corner, face_id (N,) each texel's face,
-    shading (N, 3) its unnormalised s and normal (N, 3) n. On a face s is affine in the position,
-    ds = D (E^T E)^-1 E^T dp with E, D the face's edge vectors and normal differences (the
-    least-norm map, zero along the face normal), and dn = (I - n n^T) ds / |s|. Zero on faces
-    without area and where s vanished (the face normal stood in)."""
+    """Differentiate the normalised interpolated shading normal n = s / |s| by position.
+
+    On a face s is affine in the position, ds = D (E^T E)^-1 E^T dp with E, D the face's edge
+    vectors and normal differences (the least-norm map, zero along the face normal), and
+    dn = (I - n n^T) ds / |s|.
+
+    Parameters
+    ----------
+    corners : (n_faces, 3, 3) float64
+        World positions of each face's corners.
+    corner_normals : (n_faces, 3, 3) float64
+        Shading normals at each face's corners.
+    face_id : (N,) int64
+        Each texel's face.
+    shading : (N, 3) float64
+        Each texel's unnormalised interpolated shading normal s.
+    normal : (N, 3) float64
+        Each texel's unit normal n.
+
+    Returns
+    -------
+    (N, 3, 3) float64
+        d n / d p at each texel; zero on faces without area and where s vanished (the face
+        normal stood in).
+    """
     edges = np.stack([corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]], axis=-1)  # (F, 3, 2)
     normal_steps = np.stack([corner_normals[:, 1] - corner_normals[:, 0],
                              corner_normals[:, 2] - corner_normals[:, 0]], axis=-1)
@@ -161,9 +230,19 @@ def normal_derivative(corners: np.ndarray, corner_normals: np.ndarray, face_id: 
 
 
 def orthonormal_basis(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Tangent and bitangent (each (N, 3)) completing unit ``normals`` (N, 3) to a right-handed frame.
+    """Complete unit normals to right-handed orthonormal frames.
 
     Duff et al. 2017: branchless, exact at n = (0, 0, -1), continuous except across n_z = 0.
+
+    Parameters
+    ----------
+    normals : (N, 3) float64
+        Unit normals.
+
+    Returns
+    -------
+    tangent, bitangent : (N, 3) float64
+        Unit vectors with tangent x bitangent = normal.
     """
     x, y, z = normals[..., 0], normals[..., 1], normals[..., 2]
     sign = np.where(z >= 0.0, 1.0, -1.0)
@@ -175,7 +254,20 @@ def orthonormal_basis(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def world_to_local(texels: Texels, directions: np.ndarray) -> np.ndarray:
-    """World directions (N, ..., 3) of each texel in its (tangent, bitangent, normal) frame, z = normal."""
+    """Express world directions in each texel's (tangent, bitangent, normal) frame.
+
+    Parameters
+    ----------
+    texels : Texels
+        The texels (N of them).
+    directions : (N, ..., 3) float64
+        World directions, any number of them per texel.
+
+    Returns
+    -------
+    (N, ..., 3) float64
+        The directions in the local frames, z along the normal.
+    """
     frame = np.stack([texels.tangent, texels.bitangent, texels.normal], axis=1)  # (N, 3, 3) rows
     extra_axes = (1,) * (directions.ndim - 2)
     frame = frame.reshape(frame.shape[:1] + extra_axes + (3, 3))
@@ -183,7 +275,22 @@ def world_to_local(texels: Texels, directions: np.ndarray) -> np.ndarray:
 
 
 def scatter(texels: Texels, values: np.ndarray, fill: float = 0.0) -> np.ndarray:
-    """Per-texel ``values`` (N,) or (N, C) as a (T, T) or (T, T, C) image; uncovered texels = ``fill``."""
+    """Lay per-texel values out as a texture; the inverse of `gather`.
+
+    Parameters
+    ----------
+    texels : Texels
+        The texels (N of them).
+    values : (N,) or (N, C) array
+        One value (or C channels) per texel.
+    fill : float, optional
+        The value of uncovered texels.
+
+    Returns
+    -------
+    (T, T) or (T, T, C) array
+        The texture, of ``values``'s dtype.
+    """
     res = texels.texture_res
     image = np.full((res * res,) + values.shape[1:], fill, dtype=values.dtype)
     image[texels.texel_index] = values
@@ -191,18 +298,49 @@ def scatter(texels: Texels, values: np.ndarray, fill: float = 0.0) -> np.ndarray
 
 
 def gather(texels: Texels, image: np.ndarray) -> np.ndarray:
-    """The covered texels of a (T, T) or (T, T, C) ``image`` as (N,) or (N, C): the inverse of scatter."""
+    """Sample a texture at the covered texels; the inverse of `scatter`.
+
+    Parameters
+    ----------
+    texels : Texels
+        The texels (N of them).
+    image : (T, T) or (T, T, C) array
+        The texture.
+
+    Returns
+    -------
+    (N,) or (N, C) array
+        The texture's value at each texel.
+    """
     res = texels.texture_res
     return image.reshape((res * res,) + image.shape[2:])[texels.texel_index]
 
 
 def dilate(texture: np.ndarray, mask: np.ndarray, pixels: int) -> np.ndarray:
-    """Grow ``texture`` (T, T) or (T, T, C) from its ``mask`` (T, T) texels by ``pixels`` rings.
+    """Grow a texture outwards from its masked texels, ring by ring.
 
     Each ring is the set of empty texels with a filled 8-neighbour; it takes the mean of those
     neighbours. Texture filtering at chart edges (bilinear, mip levels) then blends surface values
-    with plausible continuations instead of empty atlas space. Texels in ``mask`` are returned
-    unchanged; texels farther than ``pixels`` (in the chessboard metric) keep their input values.
+    with plausible continuations instead of empty atlas space (METHOD.md §3.1).
+
+    Parameters
+    ----------
+    texture : (T, T) or (T, T, C) float array
+        The texture; texels outside ``mask`` may hold anything, NaN included.
+    mask : (T, T) bool
+        The filled texels; they are returned unchanged.
+    pixels : int
+        Number of rings to grow. Texels farther (in the chessboard metric) keep their input values.
+
+    Returns
+    -------
+    (T, T) or (T, T, C) float array
+        The dilated texture, of ``texture``'s shape and dtype.
+
+    Raises
+    ------
+    ValueError
+        If ``texture`` and ``mask`` differ in size.
     """
     if texture.shape[:2] != mask.shape:
         raise ValueError(f"texture {texture.shape} and mask {mask.shape} differ in size")
@@ -222,13 +360,13 @@ def dilate(texture: np.ndarray, mask: np.ndarray, pixels: int) -> np.ndarray:
 
 
 def _interpolate(per_vertex: np.ndarray, texel_faces: np.ndarray, barycentric: np.ndarray) -> np.ndarray:
-    """(N, 3) barycentric interpolation of ``per_vertex`` (V, 3) over each texel's face corners."""
+    """Interpolate ``per_vertex`` (n_vertices, 3) barycentrically over each texel's face: (N, 3)."""
     per_vertex = np.asarray(per_vertex, np.float64)
     return sum(barycentric[:, [k]] * per_vertex[texel_faces[:, k]] for k in range(3))
 
 
 def _box_sum_3x3(image: np.ndarray) -> np.ndarray:
-    """Sum over each texel's 3x3 neighbourhood, zero outside the image. (T, T[, C]) -> same shape."""
+    """Sum over each texel's 3x3 neighbourhood, zero outside the image: (T, T[, C]) -> same shape."""
     res_y, res_x = image.shape[:2]
     padded = np.pad(image, [(1, 1), (1, 1)] + [(0, 0)] * (image.ndim - 2))
     total = np.zeros_like(image)
@@ -239,7 +377,7 @@ def _box_sum_3x3(image: np.ndarray) -> np.ndarray:
 
 
 def _validated_texel_coords(mesh: Mesh, texture_res: int) -> np.ndarray:
-    """(F, 3, 2) face corners in texel coordinates (texel (i, j) centred at (x, y) = (j, i))."""
+    """Return (n_faces, 3, 2) face corners in texel coordinates (texel (i, j) centred at (j, i))."""
     if not isinstance(texture_res, (int, np.integer)) or texture_res < 1:
         raise InputError(None, f"texture resolution must be a positive integer, got {texture_res!r}")
     uv = np.asarray(mesh.uv, np.float64)
@@ -259,7 +397,7 @@ def _validated_texel_coords(mesh: Mesh, texture_res: int) -> np.ndarray:
 # --------------------------------------------------------------------------------------------
 # Kernels. The face loop is serial on purpose: faces compete for texels, and visiting them in
 # order makes "lowest face id wins" hold without atomics. It touches each texel of a face's
-# bounding box once, a few milliseconds for a 512^2 atlas.
+# bounding box once.
 
 
 @numba.njit(cache=True)
@@ -307,8 +445,10 @@ def _rasterise_faces(uv_px, has_uv_area, conservative, face_of_texel, snap_dista
 
 @numba.njit(cache=True)
 def _overlaps_texel(ax, ay, bx, by, cx, cy, px, py):
-    """Separating-axis test: does the triangle overlap the unit square centred at (px, py) with
-    positive area? Axes: the square's two and the triangle's three edge normals."""
+    """Test whether the triangle overlaps the unit square centred at (px, py) with positive area.
+
+    Separating axes: the square's two and the triangle's three edge normals.
+    """
     lo = px - 0.5 + SEPARATION_TOLERANCE
     hi = px + 0.5 - SEPARATION_TOLERANCE
     if max(ax, bx, cx) <= lo or min(ax, bx, cx) >= hi:
@@ -335,8 +475,11 @@ def _overlaps_texel(ax, ay, bx, by, cx, cy, px, py):
 
 @numba.njit(cache=True)
 def _closest_point_barycentrics(ax, ay, bx, by, cx, cy, px, py):
-    """Barycentrics of the triangle's point closest to (px, py): Ericson, Real-Time Collision
-    Detection, 5.1.5 (Voronoi regions of vertices, then edges, else the interior)."""
+    """Return the barycentrics of the triangle's point closest to (px, py).
+
+    Ericson, Real-Time Collision Detection, 5.1.5 (Voronoi regions of vertices, then edges, else
+    the interior).
+    """
     abx, aby, acx, acy = bx - ax, by - ay, cx - ax, cy - ay
     apx, apy = px - ax, py - ay
     d1 = abx * apx + aby * apy
@@ -373,8 +516,11 @@ def _closest_point_barycentrics(ax, ay, bx, by, cx, cy, px, py):
 
 @numba.njit(cache=True)
 def _closest_barycentrics(uv_px, face_id, rows, cols, out):
-    """Barycentrics (N, 3) of each texel's sample point: its centre, or the winning face's point
-    closest to it; for a centre inside the face both are the same point."""
+    """Write into ``out`` (N, 3) the barycentrics of each texel's sample point.
+
+    The sample point is the winning face's point closest to the texel centre: for a centre
+    inside the face, the centre itself.
+    """
     for texel in range(face_id.shape[0]):
         face = face_id[texel]
         out[texel, 0], out[texel, 1], out[texel, 2] = _closest_point_barycentrics(
@@ -385,20 +531,36 @@ def _closest_barycentrics(uv_px, face_id, rows, cols, out):
 
 def estimation_resolution(texels: Texels, camera_centres: np.ndarray, focal_px: np.ndarray,
                           rule: Literal["pixel", "coarse"] = "pixel") -> int:
-    """The texture resolution to estimate on, ceil(T / 2^k) with k >= 0 by ``rule``:
-
-    - "pixel": the largest k whose texels are still no wider than a pixel of the capture's
-      closest view: the coarsest grid that keeps a texel per pixel, so that no detail the images
-      resolve is lost;
-    - "coarse": the smallest k whose texels are at least a pixel wide.
+    """Choose the texture resolution to estimate on, ceil(T / 2^k) with k >= 0.
 
     Texels finer than the pixels add little information: each one's samples are bilinear lookups
     between the same few pixels as its neighbours', so their separate estimates share the data
     and multiply the work and the noise. A texel's width is the median over ``texels`` of
     sqrt(texel_area); a pixel's width at the object is the distance from the camera centre to the
-    texels' centroid over the focal length in pixels, in the closest view. camera_centres (C, 3)
-    world positions, focal_px (C,) focal lengths in pixels. T itself where there is nothing to
-    measure (no texels, no cameras).
+    texels' centroid over the focal length in pixels, in the closest view.
+
+    Parameters
+    ----------
+    texels : Texels
+        The texels at full resolution T.
+    camera_centres : (V, 3) array_like
+        World positions of the views' cameras.
+    focal_px : (V,) array_like
+        Their focal lengths in pixels.
+    rule : {"pixel", "coarse"}, optional
+        "pixel": the largest k whose texels are still no wider than a pixel of the closest view
+        (the coarsest grid that keeps a texel per pixel, so that no detail the images resolve is
+        lost); "coarse": the smallest k whose texels are at least a pixel wide.
+
+    Returns
+    -------
+    int
+        The resolution; T itself where there is nothing to measure (no texels, no cameras).
+
+    Raises
+    ------
+    ValueError
+        If ``rule`` is neither "pixel" nor "coarse".
     """
     camera_centres = np.asarray(camera_centres, dtype=np.float64).reshape(-1, 3)
     focal_px = np.asarray(focal_px, dtype=np.float64).reshape(-1)
@@ -417,12 +579,26 @@ def estimation_resolution(texels: Texels, camera_centres: np.ndarray, focal_px: 
 
 
 def fill_texture(texture: np.ndarray, atlas: np.ndarray, dilation_px: int, fallback: float) -> np.ndarray:
-    """Fill a (T, T) or (T, T, C) texture whose unknown texels are NaN; (T, T[, C]) float32 out.
+    """Fill the unknown (NaN) texels of a texture.
 
-    Known texels are the finite ones inside ``atlas`` (T, T) bool; they are returned unchanged.
     Atlas texels without a value take the nearest known texel's; then the atlas is dilated by
-    ``dilation_px`` rings; the remaining texels take the mean over the atlas. Without any known
-    texel the whole texture is ``fallback``.
+    ``dilation_px`` rings (`dilate`); the remaining texels take the mean over the atlas.
+
+    Parameters
+    ----------
+    texture : (T, T) or (T, T, C) float array
+        The texture, NaN where unknown.
+    atlas : (T, T) bool
+        The texels on the surface; its finite texels are the known ones, returned unchanged.
+    dilation_px : int
+        Rings of dilation beyond the atlas.
+    fallback : float
+        The value of every texel when no texel is known.
+
+    Returns
+    -------
+    (T, T) or (T, T, C) float32
+        The filled texture.
     """
     texture = np.asarray(texture, np.float32)
     values = texture if texture.ndim == 3 else texture[..., None]  # (T, T, C)
