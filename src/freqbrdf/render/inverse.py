@@ -1,7 +1,7 @@
 """The peer baseline: Mitsuba 3 inverse rendering of the material maps from the same capture.
 
-This is what a user would otherwise run (METHOD.md §5 quotes it as the best relighting result
-on Stanford-ORB, at about 10x the prototype's time): the Principled BSDF's base colour,
+This is what a user would otherwise run, and a baseline of every results table (METHOD.md §5,
+which also quotes its Stanford-ORB relighting scores): the Principled BSDF's base colour,
 roughness and metallic textures are optimised by gradient descent through Mitsuba's path-replay
 backpropagation integrator (``prb``), with the authors' prototype's recipe:
 
@@ -19,7 +19,7 @@ Departures from the prototype, each for a stated reason:
   chart borders towards the initial value; ours only couples pairs of covered texels;
 - it initialised metallic at 0.5 like the other maps; we start at 0 (see ``INITIAL_METALLIC``).
 
-The scene is `render.build_scene` with `render.principled_bsdf`, i.e. exactly the scene the
+The scene is `freqbrdf.render.scenes.build_scene` with `principled_bsdf`, i.e. exactly the scene the
 synthetic captures were rendered from: on those captures its errors come from the data and the
 optimisation, never from a mismatched forward model.
 """
@@ -47,7 +47,7 @@ from freqbrdf.render.scenes import (
 )
 from freqbrdf.texels import rasterise
 
-# Defaults for a 2-core CPU: 256 steps on a 16-view, 96 x 96 pixel capture take 0.1-0.3 s each.
+# Defaults sized for a CPU and the small synthetic captures.
 DEFAULT_TEXTURE_RES = 256
 DEFAULT_ITERATIONS = 256
 DEFAULT_SPP = 16  # per pixel, primal and adjoint pass alike; the prototype's Stanford-ORB setting
@@ -82,7 +82,18 @@ CheckpointCallback = Callable[[int, float, MaterialMaps], None]
 
 
 def compress_radiance(radiance):
-    """Log-then-gamma compression of linear radiance, a Dr.Jit array or tensor of any shape."""
+    """Compress linear radiance by log then gamma, as the prototype's loss did.
+
+    Parameters
+    ----------
+    radiance : Dr.Jit array or tensor
+        Linear radiance, any shape.
+
+    Returns
+    -------
+    Dr.Jit array or tensor
+        The compressed radiance, same shape.
+    """
     import drjit as dr
 
     scaled = radiance * (LOG_SCALE / LOG_EPSILON)
@@ -92,9 +103,23 @@ def compress_radiance(radiance):
 
 
 def texture_total_variation(texture, pair_weights: tuple, n_texels: int):
-    """Sum of |differences| between horizontally and vertically adjacent covered texels, summed
-    over channels, per covered texel. ``texture`` (T, T, C) Dr.Jit tensor; ``pair_weights`` the
-    (T, T-1, 1) and (T-1, T, 1) tensors that are 1 where both texels of a pair are covered."""
+    """Sum |differences| between adjacent covered texels, per covered texel.
+
+    Parameters
+    ----------
+    texture : (T, T, C) Dr.Jit tensor
+        The texture.
+    pair_weights : tuple of two Dr.Jit tensors
+        (T, T-1, 1) and (T-1, T, 1): 1 where both texels of a horizontal or vertical pair are
+        covered, else 0.
+    n_texels : int
+        The number of covered texels.
+
+    Returns
+    -------
+    Dr.Jit scalar
+        The total variation, summed over channels and pairs, divided by ``n_texels``.
+    """
     import drjit as dr
 
     across, down = pair_weights
@@ -116,17 +141,52 @@ def mitsuba_inverse(
     checkpoints: Sequence[int] = (),
     on_checkpoint: CheckpointCallback | None = None,
 ) -> tuple[MaterialMaps, float, np.ndarray]:
-    """Estimate the material maps of ``capture`` by Mitsuba inverse rendering.
+    """Estimate the material maps of a capture by Mitsuba inverse rendering.
 
-    Each of ``iterations`` Adam steps renders ``views_per_step`` training views chosen at random
-    (seeded by ``seed``) with ``spp`` samples per pixel and back-propagates the masked L1 loss of
-    the compressed radiance plus ``tv_weight`` times the total variation of the three textures.
-    ``max_depth`` should match the renderer of the photographs (8 for our synthetic captures).
+    Each Adam step renders ``views_per_step`` training views chosen at random and
+    back-propagates the masked L1 loss of the compressed radiance plus ``tv_weight`` times the
+    total variation of the three textures.
 
-    Returns the maps (texture_res x texture_res; texels outside the UV charts keep their initial
-    values), the wall-clock seconds from capture to maps (loading images, building the scene and
-    compiling kernels included; time spent in ``on_checkpoint`` excluded) and the loss per step
-    ``(iterations,)``.
+    Parameters
+    ----------
+    capture : Capture
+        The capture (V views).
+    texture_res : int, optional
+        The texture side T of the estimated maps.
+    iterations : int, optional
+        Number of Adam steps.
+    spp : int, optional
+        Samples per pixel, primal and adjoint pass alike.
+    learning_rate : float, optional
+        Adam's learning rate, > 0.
+    tv_weight : float, optional
+        Weight of the texture-space total variation, >= 0.
+    seed : int, optional
+        Seeds the choice of views and the renders.
+    views_per_step : int, optional
+        Views rendered per step (at most V).
+    max_depth : int, optional
+        Maximum path length; should match the renderer of the photographs
+        (``DEFAULT_MAX_DEPTH`` for our synthetic captures).
+    checkpoints : sequence of int, optional
+        Step counts after which ``on_checkpoint`` is called.
+    on_checkpoint : callable (int, float, MaterialMaps) -> None, optional
+        Called with the steps done, the seconds so far and the current maps.
+
+    Returns
+    -------
+    maps : MaterialMaps
+        The maps, T x T; texels outside the UV charts keep their initial values.
+    seconds : float
+        Wall-clock time from capture to maps (loading images, building the scene and compiling
+        kernels included; time spent in ``on_checkpoint`` excluded).
+    loss : (iterations,) float64
+        The loss of each step.
+
+    Raises
+    ------
+    InputError
+        If a count is not a positive integer, ``learning_rate`` <= 0 or ``tv_weight`` < 0.
     """
     counts = {"texture_res": texture_res, "iterations": iterations, "spp": spp,
               "views_per_step": views_per_step, "max_depth": max_depth}

@@ -1,4 +1,8 @@
-"""Batched ray tests against a mesh with Mitsuba: what blocks the view of a point (METHOD.md §3.2)."""
+"""Batched ray tests against a mesh with Mitsuba: what blocks the view of a point.
+
+The observation stage casts a ray from each texel to each camera centre to test visibility, and
+optionally towards the environment for self-occlusion (METHOD.md §3.2).
+"""
 
 from __future__ import annotations
 
@@ -6,13 +10,19 @@ import numpy as np
 
 from freqbrdf.render.scenes import mesh_shape, mitsuba, restored_floating_point
 
-# Rays per Mitsuba call: one call costs ~10 ms besides the tracing; 2^21 rays keep its transient
-# buffers near 100 MB.
+# Rays per Mitsuba call: large enough to amortise the fixed cost of a call, small enough to bound
+# its transient buffers.
 RAYS_PER_BATCH = 1 << 21
 
 
 class Occluder:
-    """A mesh loaded into Mitsuba for batched ray tests (what blocks the view of a point)."""
+    """A mesh loaded into Mitsuba for batched ray tests (what blocks the view of a point).
+
+    Parameters
+    ----------
+    mesh : Mesh
+        The occluding geometry.
+    """
 
     def __init__(self, mesh):
         self._mitsuba = mitsuba()
@@ -20,15 +30,45 @@ class Occluder:
             self._scene = self._mitsuba.load_dict({"type": "scene", "object": mesh_shape(mesh, {"type": "diffuse"})})
 
     def hits(self, origins: np.ndarray, directions: np.ndarray, max_distance: np.ndarray | None = None) -> np.ndarray:
-        """(M,) bool: the ray from each origin (M, 3) along its unit direction (M, 3) hits the mesh
-        before ``max_distance`` (M,) (None: unbounded)."""
+        """Test which rays hit the mesh.
+
+        Parameters
+        ----------
+        origins : (M, 3) array_like
+            Ray origins in world space.
+        directions : (M, 3) array_like
+            Unit ray directions.
+        max_distance : (M,) array_like, optional
+            How far each ray reaches; None: unbounded.
+
+        Returns
+        -------
+        (M,) bool
+            True where the ray hits the mesh before ``max_distance``.
+        """
         return self.hits_rows(np.ascontiguousarray(np.asarray(origins, np.float32).T),
                               np.ascontiguousarray(np.asarray(directions, np.float32).T), max_distance)
 
     def hits_rows(self, origins: np.ndarray, directions: np.ndarray, max_distance: np.ndarray | None = None
                   ) -> np.ndarray:
-        """`hits` for origins and directions given as (3, M) float32 rows (what Dr.Jit takes
-        without a copy); traced in batches of RAYS_PER_BATCH."""
+        """Test which rays hit the mesh, rays given as rows (what Dr.Jit takes without a copy).
+
+        Rays are traced in batches of RAYS_PER_BATCH.
+
+        Parameters
+        ----------
+        origins : (3, M) float32, C-contiguous
+            Ray origins in world space, one row per coordinate.
+        directions : (3, M) float32, C-contiguous
+            Unit ray directions, one row per coordinate.
+        max_distance : (M,) array_like, optional
+            How far each ray reaches; None: unbounded.
+
+        Returns
+        -------
+        (M,) bool
+            True where the ray hits the mesh before ``max_distance``.
+        """
         mi = self._mitsuba
         hits = np.zeros(origins.shape[1], dtype=bool)
         with restored_floating_point():

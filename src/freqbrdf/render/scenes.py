@@ -1,8 +1,11 @@
 """Mitsuba 3 scenes built from our arrays, and rendering helpers.
 
-Scenes are Python dicts in Mitsuba's own style; only the mesh is built as an ``mi.Mesh`` object
-because its buffers come from our arrays. The conventions that join our data to Mitsuba's are
-each proved by a test in tests/test_synth.py:
+Mitsuba renders the synthetic captures and the relighting views that results are judged on
+(METHOD.md §5); its ``envmap`` convention is the one our environment maps follow (§2). Mitsuba
+itself is imported only when a function here needs it (`mitsuba`). Scenes are Python dicts in
+Mitsuba's own style; only the mesh is built as an ``mi.Mesh`` object because its buffers come
+from our arrays. The conventions that join our data to Mitsuba's are each proved by a test in
+tests/test_synth.py:
 
 - UVs: ours are OBJ's (origin bottom-left: texel row i, column j is centred at
   uv = ((j + 0.5)/T, 1 - (i + 0.5)/T)); Mitsuba's ``bitmap`` reads texel row floor(v T), row 0
@@ -55,7 +58,7 @@ _GL_TO_MITSUBA_CAMERA = np.diag([-1.0, 1.0, -1.0, 1.0])
 
 
 def _newest_libllvm() -> tuple[int, str] | None:
-    """(major version, path) of the newest system libLLVM, or None if none is found."""
+    """Find (major version, path) of the newest system libLLVM, or None if none is found."""
     found = []
     for pattern in _LIBLLVM_PATTERNS:
         for path in glob.glob(pattern):
@@ -73,9 +76,14 @@ def restored_floating_point() -> Iterator[None]:
     """Restore the calling thread's floating-point environment after Mitsuba has run on it.
 
     Mitsuba's tracing (Embree, Dr.Jit's thread pool) may leave flush-to-zero and
-    denormals-are-zero set on the calling thread, and only on some runs. numba's kernels then
-    compute differently on this thread than on their own workers, so a fit's maps changed in
-    their last digits from one run to the next (up to 1e-4 in roughness on flat losses).
+    denormals-are-zero set on the calling thread, and only on some runs. numba's kernels would
+    then compute differently on this thread than on their own workers, and a fit's maps would
+    change in their last digits from one run to the next.
+
+    Yields
+    ------
+    None
+        Control, inside the saved environment; it is restored on exit, also on an exception.
     """
     environment = ctypes.create_string_buffer(64)  # fenv_t: 32 bytes on x86-64 glibc
     _LIBM.fegetenv(environment)
@@ -89,7 +97,17 @@ def mitsuba() -> ModuleType:
     """Import Mitsuba with the CPU variant ``llvm_ad_rgb`` set, or fail with what to install.
 
     Dr.Jit picks the first libLLVM it finds; with several installed that may be an old one that
-    aborts the process, so unless DRJIT_LIBLLVM_PATH is set we point it at the newest.
+    aborts the process, so unless DRJIT_LIBLLVM_PATH is set it is pointed at the newest.
+
+    Returns
+    -------
+    module
+        The ``mitsuba`` module, variant set.
+
+    Raises
+    ------
+    RuntimeError
+        If only a libLLVM older than ``MIN_LLVM_VERSION`` is found or the variant cannot be set.
     """
     if "DRJIT_LIBLLVM_PATH" not in os.environ:
         newest = _newest_libllvm()
@@ -119,12 +137,22 @@ def mitsuba() -> ModuleType:
 
 
 def principled_bsdf(materials: MaterialMaps) -> dict:
-    """A ``principled`` BSDF whose base colour, roughness and metallic are texture maps.
+    """Make a ``principled`` BSDF whose base colour, roughness and metallic are texture maps.
 
     Base colour is linear RGB, so no sRGB decoding is wanted (Mitsuba applies none to float
     tensors in RGB variants); roughness and metallic are data, hence ``raw``. Filtering is
     bilinear between texel centres, which is where our texels hold their values; ``clamp``
     wrapping keeps the edges of the UV square from bleeding into each other.
+
+    Parameters
+    ----------
+    materials : MaterialMaps
+        The maps: base colour (T, T, 3), roughness and metallic (T, T), float.
+
+    Returns
+    -------
+    dict
+        A Mitsuba BSDF dict holding the maps as float32 bitmap tensors.
     """
     mi = mitsuba()
 
@@ -148,9 +176,22 @@ def principled_bsdf(materials: MaterialMaps) -> dict:
 
 
 def mesh_shape(mesh: Mesh, bsdf: dict, name: str = "mesh"):
-    """An ``mi.Mesh`` holding our vertex positions, faces, normals and UVs, with ``bsdf``.
+    """Build an ``mi.Mesh`` holding our vertex positions, faces, normals and UVs.
 
-    ``bsdf`` is used up: Mitsuba takes over the tensors of bitmap textures when it loads them.
+    Parameters
+    ----------
+    mesh : Mesh
+        The mesh.
+    bsdf : dict
+        Its BSDF, as a Mitsuba dict. It is used up: Mitsuba takes over the tensors of bitmap
+        textures when it loads them.
+    name : str, optional
+        The shape's name in the scene.
+
+    Returns
+    -------
+    mitsuba.Mesh
+        The shape, texcoords (u, 1 - v) as Mitsuba's bitmaps expect.
     """
     mi = mitsuba()
     props = mi.Properties()
@@ -175,7 +216,18 @@ def mesh_shape(mesh: Mesh, bsdf: dict, name: str = "mesh"):
 
 
 def envmap_emitter(envmap: Envmap) -> dict:
-    """An ``envmap`` emitter showing our Envmap (same convention, so no conversion)."""
+    """Make an ``envmap`` emitter showing our environment map (same convention, no conversion).
+
+    Parameters
+    ----------
+    envmap : Envmap
+        The map: radiance (H, W, 3) float32 and its to_world.
+
+    Returns
+    -------
+    dict
+        A Mitsuba emitter dict.
+    """
     mi = mitsuba()
     return {
         "type": "envmap",
@@ -185,12 +237,43 @@ def envmap_emitter(envmap: Envmap) -> dict:
 
 
 def mitsuba_to_world(camera: Camera) -> np.ndarray:
-    """Mitsuba sensor to_world (4, 4) of an OpenGL camera-to-world matrix."""
+    """Convert a camera's OpenGL camera-to-world matrix to Mitsuba's sensor to_world.
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera.
+
+    Returns
+    -------
+    (4, 4) float64
+        camera_to_world diag(-1, 1, -1, 1): a half turn about the camera's y axis.
+    """
     return np.asarray(camera.camera_to_world, np.float64) @ _GL_TO_MITSUBA_CAMERA
 
 
 def perspective_sensor(camera: Camera, spp: int) -> dict:
-    """A pinhole ``perspective`` sensor reproducing ``camera`` exactly (square pixels only)."""
+    """Make a pinhole ``perspective`` sensor reproducing a camera exactly.
+
+    The film is float32 RGBA with a box reconstruction filter (see the module docstring).
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera; its pixels must be square (fx = fy).
+    spp : int
+        Samples per pixel of the sensor's sampler.
+
+    Returns
+    -------
+    dict
+        A Mitsuba sensor dict.
+
+    Raises
+    ------
+    ValueError
+        If fx and fy differ.
+    """
     mi = mitsuba()
     if not np.isclose(camera.fx, camera.fy, rtol=1e-6):
         raise ValueError(
@@ -217,12 +300,42 @@ def perspective_sensor(camera: Camera, spp: int) -> dict:
 
 
 def path_integrator(max_depth: int = DEFAULT_MAX_DEPTH) -> dict:
-    """Unidirectional path tracer; the environment stays visible behind the object, as in photos."""
+    """Make a unidirectional path tracer; the environment stays visible behind the object.
+
+    Parameters
+    ----------
+    max_depth : int, optional
+        Maximum path length (Mitsuba's ``max_depth``).
+
+    Returns
+    -------
+    dict
+        A Mitsuba integrator dict.
+    """
     return {"type": "path", "max_depth": int(max_depth), "hide_emitters": False}
 
 
 def build_scene(mesh: Mesh, bsdf: dict, envmap: Envmap, max_depth: int = DEFAULT_MAX_DEPTH):
-    """The scene: ``mesh`` with ``bsdf`` under ``envmap``, path traced. Sensors are per view."""
+    """Build the scene: a mesh with a BSDF under an environment map, path traced.
+
+    Sensors are given per view (`render_view`).
+
+    Parameters
+    ----------
+    mesh : Mesh
+        The object, named "object" in the scene.
+    bsdf : dict
+        Its BSDF as a Mitsuba dict (used up, see `mesh_shape`).
+    envmap : Envmap
+        The lighting.
+    max_depth : int, optional
+        Maximum path length.
+
+    Returns
+    -------
+    mitsuba.Scene
+        The loaded scene.
+    """
     mi = mitsuba()
     with restored_floating_point():  # building the scene traces nothing but builds Embree's BVH
         return mi.load_dict(
@@ -241,17 +354,57 @@ def build_scene(mesh: Mesh, bsdf: dict, envmap: Envmap, max_depth: int = DEFAULT
 
 @dataclass(frozen=True)
 class RenderedView:
-    radiance: np.ndarray  # (H, W, 3) float32 linear: box-filtered pixel averages, envmap behind
-    coverage: np.ndarray  # (H, W) float32 in [0, 1]: fraction of the pixel covered by the scene's shapes
+    """One rendered view.
+
+    Attributes
+    ----------
+    radiance : (H, W, 3) float32
+        Linear radiance: box-filtered pixel averages, the environment visible behind the object.
+    coverage : (H, W) float32
+        Fraction of each pixel covered by the scene's shapes, in [0, 1].
+    """
+
+    radiance: np.ndarray
+    coverage: np.ndarray
 
 
 def view_seed(seed: int, view_index: int) -> int:
-    """A 32-bit render seed per view, distinct across views and runs with different ``seed``."""
+    """Derive a view's render seed, distinct across views and across runs' seeds.
+
+    Parameters
+    ----------
+    seed : int
+        The run's seed.
+    view_index : int
+        The view's index.
+
+    Returns
+    -------
+    int
+        A 32-bit seed.
+    """
     return int(np.random.SeedSequence([seed, view_index]).generate_state(1)[0])
 
 
 def render_view(scene, camera: Camera, spp: int, seed: int) -> RenderedView:
-    """Path-trace one view and measure the object's pixel coverage with a primary-ray pass."""
+    """Path-trace one view and measure the object's pixel coverage with a primary-ray pass.
+
+    Parameters
+    ----------
+    scene : mitsuba.Scene
+        A scene from `build_scene`.
+    camera : Camera
+        The view (square pixels).
+    spp : int
+        Samples per pixel.
+    seed : int
+        The render seed.
+
+    Returns
+    -------
+    RenderedView
+        Radiance and coverage of the view.
+    """
     mi = mitsuba()
     with restored_floating_point():
         sensor = mi.load_dict(perspective_sensor(camera, spp))
@@ -271,10 +424,28 @@ def render_view(scene, camera: Camera, spp: int, seed: int) -> RenderedView:
 def render_views(
     scene, cameras: Sequence[Camera], spp: int, seed: int, first_index: int = 0
 ) -> Iterator[RenderedView]:
-    """Render ``cameras`` one after another; view k gets ``view_seed(seed, first_index + k)``.
+    """Render views one after another.
 
     The scene is built once; each view only adds a sensor, and Dr.Jit reuses the compiled
     kernels because a sensor's transform and intrinsics are not baked into them.
+
+    Parameters
+    ----------
+    scene : mitsuba.Scene
+        A scene from `build_scene`.
+    cameras : sequence of Camera
+        The views.
+    spp : int
+        Samples per pixel.
+    seed : int
+        The run's seed; view k gets ``view_seed(seed, first_index + k)``.
+    first_index : int, optional
+        The index of the first camera among all the run's views.
+
+    Yields
+    ------
+    RenderedView
+        One per camera, in order.
     """
     for index, camera in enumerate(cameras, start=first_index):
         yield render_view(scene, camera, spp, view_seed(seed, index))
