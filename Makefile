@@ -27,7 +27,7 @@ demo: setup
 	$(VENV)/bin/freqbrdf demo
 
 bench: setup
-	$(PY) benchmarks/bench_sh.py
+	$(PY) benchmarks/timing/bench_sh.py
 
 clean:
 	rm -rf $(VENV) build *.egg-info src/*.egg-info

@@ -1,7 +1,9 @@
-"""Set-up shared by the micro-benchmarks: timing, peak memory, machine facts, saving results.
+"""Set-up shared by the benchmarks: timing, peak memory, machine facts, saving results.
 
-Benchmarks are run as scripts (``python benchmarks/bench_x.py``), so this folder is on sys.path
-and ``from _common import ...`` finds this module.
+The benchmarks are scripts in timing/ (how fast) and studies/ (measurements that informed a
+decision), run from the repository root as ``python benchmarks/timing/bench_x.py``. Each inserts
+this folder (benchmarks/) into sys.path before importing this module and scenes.py (the captures
+they measure on). Results are written to benchmarks/results/ (``RESULTS_DIR``).
 """
 
 from __future__ import annotations
@@ -50,8 +52,7 @@ def peak_mib(run: Callable[[], object]) -> float:
 def control_seconds(repeats: int = 3) -> float:
     """Median seconds of a fixed workload (eight 1500 x 1500 float64 matrix products on every core,
     then a sort of 4M floats on one), to tell how fast this machine runs at the moment: its speed
-    drifts by up to 25 % within a session, so timings taken at different times compare fairly only
-    relative to this."""
+    drifts over time, so timings taken at different times compare fairly only relative to this."""
     import numpy as np
 
     rng = np.random.default_rng(0)

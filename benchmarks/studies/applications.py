@@ -1,18 +1,18 @@
 """The applications of the uncertainty (issue #8), measured on Mitsuba-rendered captures.
 
-    python benchmarks/applications.py [--applications guidance,share,inpaint] [--scenes bunny_forest,...]
-        [--texture-res 128] [--pool 100] [--random-seeds 3] [--sparse-views 20]
+    python benchmarks/studies/applications.py [--applications guidance,share,inpaint]
+        [--scenes bunny_forest,...] [--texture-res 128] [--pool 100] [--random-seeds 3] [--sparse-views 20]
 
 Re-measuring after a change to the entropy, the estimator or an application is this one line (the
-renders are cached; about 10 minutes on 2 cores for all three parts).
+renders are cached).
 
 One function per application; each returns its results, which are saved as JSON (and a plot) in
 benchmarks/results/applications_<application>.{json,png}.
 
-Scenes (``SCENES``): bundled meshes, materials and environment maps, each rendered once by Mitsuba
-as a pool of ``--pool`` views evenly spread (Fibonacci) over the whole sphere around the object,
-128 x 128 pixels at 16 spp, with 8 relighting views under two other maps, cached in
-benchmarks/.cache/applications_<scene>_<pool>.
+Scenes (scenes.APPLICATION_SCENES): bundled meshes, materials and environment maps, each rendered
+once by Mitsuba as a pool of ``--pool`` views evenly spread (Fibonacci) over the whole sphere
+around the object, 128 x 128 pixels at 16 spp, with 8 relighting views under two other maps,
+cached in benchmarks/.cache/applications_<scene>_<pool> (scenes.application_capture).
 
 guidance: every strategy starts from the same 10 farthest-point views of the pool and grows to 40,
 10 views a round, at equal budgets:
@@ -57,7 +57,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-from _common import machine  # benchmarks/ is on sys.path when a script runs
 from scipy import stats
 
 from freqbrdf.applications import guidance
@@ -72,18 +71,13 @@ from freqbrdf.outputs import export
 from freqbrdf.outputs.relight import RelightSettings
 from freqbrdf.outputs.relight import evaluate as relight_evaluate
 from freqbrdf.pipeline import FitResult, fit
-from freqbrdf.synthetic.synth import SynthSettings, synthesize
 from freqbrdf.uncertainty import FLAG_UNOBSERVED
 
-ROOT = Path(__file__).resolve().parent
-CACHE = ROOT / ".cache"
-RESULTS = ROOT / "results"
-SCENES = {
-    "bunny_forest": SynthSettings(mesh="bunny", envmap="forest", materials="bands"),
-    "bunny_sunset": SynthSettings(mesh="bunny", envmap="sunset", materials="chelsea"),
-    "sphere_city": SynthSettings(mesh="sphere", envmap="city", materials="coffee"),
-    "sphere_studio": SynthSettings(mesh="sphere", envmap="studio", materials="astronaut"),
-}
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/: _common and scenes
+from _common import RESULTS_DIR as RESULTS
+from _common import machine
+from scenes import APPLICATION_SCENES, APPLICATION_TEST_VIEWS, application_capture
+
 APPLICATIONS = ("guidance", "share", "inpaint")
 INITIAL_VIEWS = 10
 STEP_VIEWS = 10
@@ -92,19 +86,11 @@ FINAL_VIEWS = 40
 # entropy up, less certain anchors, and a looser data-loss tolerance (ShareConfig's fields).
 SHARE_VARIANTS = ("uncertain_entropy=0.7", "anchor_certainty=0.6", "uncertain_entropy=0.7,anchor_certainty=0.6",
                   "loss_tolerance=0.2")
-TEST_VIEWS = 8  # relighting views (two other environment maps), for the inpainting part
 
 
 def scene_capture(name: str, pool: int) -> Capture:
     """The scene's pool of views, rendered once (cached)."""
-    settings = dataclasses.replace(SCENES[name], views=pool, cameras="sphere", resolution=128, spp=16,
-                                   texture_res=256, test_views=TEST_VIEWS)
-    folder = CACHE / f"applications_{name}_{pool}"
-    if not folder.is_dir():
-        start = time.perf_counter()
-        synthesize(folder, settings, progress=False)
-        print(f"[{name}] rendered {pool} views in {time.perf_counter() - start:.0f} s", flush=True)
-    return load(folder)
+    return load(application_capture(name, pool))
 
 
 def source_state() -> dict:
@@ -200,7 +186,8 @@ def guidance_scene(name: str, args) -> dict:
         for step in range(len(random_runs[0]))
     ]
     return {
-        "settings": dataclasses.asdict(dataclasses.replace(SCENES[name], views=args.pool, cameras="sphere")),
+        "settings": dataclasses.asdict(dataclasses.replace(APPLICATION_SCENES[name], views=args.pool,
+                                                           cameras="sphere")),
         "coverable_texels": int(coverable.sum()),
         "curves": curves,
         "random_runs": random_runs,
@@ -482,7 +469,8 @@ def inpaint_benchmark(args) -> dict:
 
 def sparse_settings(args) -> dict:
     return {**machine(), "entropy_mode": args.entropy, "texture_res": args.texture_res, "pool": args.pool,
-            "views": args.sparse_views, "views_chosen": "farthest-point", "test_views": TEST_VIEWS}
+            "views": args.sparse_views, "views_chosen": "farthest-point",
+            "test_views": APPLICATION_TEST_VIEWS}
 
 
 # --------------------------------------------------------------------------------------------
@@ -491,7 +479,7 @@ def sparse_settings(args) -> dict:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--applications", default=",".join(APPLICATIONS))
-    parser.add_argument("--scenes", default=",".join(SCENES))
+    parser.add_argument("--scenes", default=",".join(APPLICATION_SCENES))
     parser.add_argument("--texture-res", type=int, default=128)
     parser.add_argument("--pool", type=int, default=100)
     parser.add_argument("--random-seeds", type=int, default=3)

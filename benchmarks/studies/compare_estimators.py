@@ -1,26 +1,27 @@
 """The comparison of issue #5: our `global` estimator (also its fast preset, with anisotropic
-lobes, with the footprint blur, without its neighbour vote, without its environment light, and with its optional lobe tilt), the paper's recipe (angular and spectrum forward models) and Mitsuba 3 inverse rendering, on
-Mitsuba-rendered captures.
+lobes, with the footprint blur, without its neighbour vote, without its environment light, and
+with its optional lobe tilt), the paper's recipe (angular and spectrum forward models) and
+Mitsuba 3 inverse rendering, on Mitsuba-rendered captures.
 
-    python benchmarks/compare_estimators.py [--scenes bunny,plane] [--texture-res 512]
+    python benchmarks/studies/compare_estimators.py [--scenes bunny,plane] [--texture-res 512]
         [--views 64] [--relight-spp 32] [--skip mitsuba,paper_spectrum] [--quick]
 
-Each scene is rendered once by Mitsuba (cached in benchmarks/.cache/compare_<scene>_<views>): a
-bundled mesh with the procedural `bands` material under a bundled environment map, 64 views on
-the upper hemisphere, and a relighting test set of 8 views under two other bundled maps. Every
-method gets the same capture and texture resolution and is scored on the observed texels
-(base-colour PSNR, roughness and metallic MAE) and by relighting (Stanford-ORB protocol,
-PSNR-H/PSNR-L/SSIM). Seconds are wall-clock from the capture to the maps (our methods: observe +
-estimate, with their CPU seconds beside them since the machine may be shared; `global` and
-`global_fast`, whose texels depend on the pixels (TexelConfig.estimation_res "pixel" and "coarse"),
-the whole `pipeline.fit`: texels, observe, estimate, uncertainty, upsampling and textures, all its
-CPU seconds under estimate;
-Mitsuba: its own loop, image loading and compilation included). Saves JSON and a markdown table to
-benchmarks/results/compare_estimators.{json,md}, merged into what is there: rows of methods left
-out with ``--skip`` (or scenes not run) are kept from the earlier run, and every row says when it
-was measured and under what load. ``--quick`` (a smoke run of a
-few minutes on 2 cores: 24 views of 128x128 pixels, T = 128, 4 test views at 8 spp) writes
-compare_estimators_quick.{json,md} instead, so that it never overwrites the full table.
+Each scene (scenes.COMPARE_SCENES) is rendered once by Mitsuba (cached in
+benchmarks/.cache/compare_<scene>_<views>, scenes.compare_capture): a bundled mesh with the
+procedural `bands` material under a bundled environment map, 64 views on the upper hemisphere,
+and a relighting test set of 8 views under two other bundled maps. Every method gets the same
+capture and texture resolution and is scored on the observed texels (base-colour PSNR, roughness
+and metallic MAE) and by relighting (Stanford-ORB protocol, PSNR-H/PSNR-L/SSIM). Seconds are
+wall-clock from the capture to the maps (our methods: observe + estimate, with their CPU seconds
+beside them since the machine may be shared; `global` and `global_fast`, whose texels depend on
+the pixels (TexelConfig.estimation_res "pixel" and "coarse"), the whole `pipeline.fit`: texels,
+observe, estimate, uncertainty, upsampling and textures, all its CPU seconds under estimate;
+Mitsuba: its own loop, image loading and compilation included). Saves JSON and a markdown table
+to benchmarks/results/compare_estimators.{json,md}, merged into what is there: rows of methods
+left out with ``--skip`` (or scenes not run) are kept from the earlier run, and every row says
+when it was measured and under what load. ``--quick`` (a smoke run: 24 views of 128x128 pixels,
+T = 128, 4 test views at 8 spp) writes compare_estimators_quick.{json,md} instead, so that it
+never overwrites the full table.
 """
 
 from __future__ import annotations
@@ -32,11 +33,6 @@ import sys
 import time
 from pathlib import Path
 
-from _common import (  # benchmarks/ is on sys.path when a script runs
-    control_seconds,
-    machine,
-)
-
 from freqbrdf import pipeline
 from freqbrdf.capture.layouts import load
 from freqbrdf.config import Config, EstimateConfig, TexelConfig, preset
@@ -46,32 +42,27 @@ from freqbrdf.observe.observations import observe
 from freqbrdf.outputs import export, metrics
 from freqbrdf.outputs.relight import RelightSettings, evaluate
 from freqbrdf.render import inverse as baselines
-from freqbrdf.synthetic.synth import SynthSettings, synthesize
 
-ROOT = Path(__file__).resolve().parent
-CACHE = ROOT / ".cache"
-RESULTS = ROOT / "results"
-SCENES = {
-    "bunny": SynthSettings(mesh="bunny", envmap="forest", materials="bands", test_envmaps=("studio", "sunset")),
-    "plane": SynthSettings(mesh="plane", envmap="city", materials="bands", test_envmaps=("forest", "lobby")),
-}
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/: _common and scenes
+from _common import RESULTS_DIR as RESULTS
+from _common import control_seconds, machine
+from scenes import FULL_RENDER, QUICK_RENDER, compare_capture, compare_settings
+
 METHODS = ("global", "global_without_vote", "global_fast", "global_anisotropic", "global_footprint",
            "global_environment_light", "global_fitted_light", "global_lobe_tilt", "paper_angular", "paper_spectrum",
            "mitsuba")
-FULL_RENDER = {"resolution": 256, "spp": 64, "test_views": 8}
-QUICK_RENDER = {"resolution": 128, "spp": 16, "test_views": 4}
 QUICK_ARGS = {"views": 24, "texture_res": 128, "relight_spp": 8}
 
 
 def method_config(method: str, texture_res: int) -> Config:
     """Our default Config for `global`; `global_environment_light` without the prefiltered light
-    (smooth lobes read the per-texel fit of the mirrored light, the session-5 default);
+    (smooth lobes read the per-texel fit of the mirrored light, the default before commit 8e664ea);
     `global_fitted_light` without the environment light either (every lobe reads that fit, the
-    session-4 default); `global_lobe_tilt`: the session-5 default with EstimateConfig.lobe_tilt;
-    `global_anisotropic`: the default with EstimateConfig.anisotropic_lobes; `global_footprint`: the
-    default with EstimateConfig.footprint_blur; `global_without_vote`: without
-    EstimateConfig.neighbour_vote; `global_fast`: the
-    fast preset; the paper preset (its lambda, Adam, TV) for `paper_*`."""
+    default before commit 235c542); `global_lobe_tilt`: the default before commit 8e664ea with
+    EstimateConfig.lobe_tilt; `global_anisotropic`: the default with EstimateConfig.anisotropic_lobes;
+    `global_footprint`: the default with EstimateConfig.footprint_blur; `global_without_vote`:
+    without EstimateConfig.neighbour_vote; `global_fast`: the fast preset; the paper preset (its
+    lambda, Adam, TV) for `paper_*`."""
     texels = TexelConfig(texture_res=texture_res)
     if method == "global_fast":
         fast = preset("fast")
@@ -89,14 +80,8 @@ def method_config(method: str, texture_res: int) -> Config:
 
 def run_scene(name: str, args) -> dict:
     render = QUICK_RENDER if args.quick else FULL_RENDER
-    settings = dataclasses.replace(SCENES[name], views=args.views, texture_res=args.texture_res, **render)
-    # The cache is keyed by everything that changes the capture (the ground-truth maps are
-    # resampled to texture_res); the full default keeps its short name.
-    suffix = "" if (render is FULL_RENDER and args.texture_res == 512) else \
-        f"_{settings.resolution}px_{settings.spp}spp_t{args.texture_res}"
-    folder = CACHE / f"compare_{name}_{args.views}{suffix}"
-    if not folder.is_dir():
-        synthesize(folder, settings, progress=False)
+    settings = compare_settings(name, args.views, args.texture_res, render)
+    folder = compare_capture(name, args.views, args.texture_res, render)
     capture = load(folder)
     relight_settings = RelightSettings(spp=args.relight_spp)
     rows = {}

@@ -1,12 +1,12 @@
 """Which definition of the entropy ranks the estimate's errors best? (issue #6)
 
-    python benchmarks/entropy_variants.py
+    python benchmarks/studies/entropy_variants.py
 
 On two Mitsuba-rendered captures, fitted once with our defaults (`global` estimator, T = 512):
-- bunny: benchmarks/.cache/compare_bunny_64 (compare_estimators.py's bunny: bands material,
-  forest map, 64 views on the upper hemisphere), rendered here if missing;
-- sphere: the capture of entropy_scenes.py (sharp lights on one side, a smooth gradient
-  elsewhere, cameras on the upper hemisphere only), rendered there if missing;
+- bunny: benchmarks/.cache/compare_bunny_64 (scenes.compare_capture, compare_estimators.py's
+  bunny: bands material, forest map, 64 views on the upper hemisphere), rendered if missing;
+- sphere: the capture of entropy_scenes.py (scenes.entropy_capture: sharp lights on one side, a
+  smooth gradient elsewhere, cameras on the upper hemisphere only), rendered if missing;
 each entropy variant is scored on the observed texels by Spearman rho and AURG
 (freqbrdf.outputs.sparsification) against the per-texel roughness, base-colour (mean over RGB) and
 metallic errors, and on the sphere by its mean per region. Variants:
@@ -28,8 +28,8 @@ and the posterior spread of the estimated roughness (`uncertainty.roughness_std`
 entropy over the hypotheses but the estimate's own uncertainty: the neighbour scatter alone
 (windows 3, 5, 7; 7 is the default), the loss curvature alone, and both. To check that it is not
 an artefact of the striped "bands" material, it is also scored on three photo-textured captures
-of applications.py (100 views all around, rendered there if missing): bunny_sunset (chelsea),
-sphere_city (coffee), sphere_studio (astronaut).
+of applications.py (scenes.application_capture: 100 views all around, rendered if missing):
+bunny_sunset (chelsea), sphere_city (coffee), sphere_studio (astronaut).
 
 Agreement with the path-traced brute force is measured by pathtraced_entropy.py. Saves
 benchmarks/results/entropy_variants.json.
@@ -40,9 +40,9 @@ from __future__ import annotations
 import dataclasses
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
-from _common import machine, save_results
 
 from freqbrdf.capture.layouts import load
 from freqbrdf.config import Config, UncertaintyConfig
@@ -51,7 +51,6 @@ from freqbrdf.model.materials import resize
 from freqbrdf.observe.observations import Observations, observe
 from freqbrdf.outputs import sparsification
 from freqbrdf.sphere import harmonics as sh
-from freqbrdf.synthetic.synth import synthesize
 from freqbrdf.uncertainty import (
     cross_spectrum,
     entropy_from_spectra,
@@ -59,6 +58,10 @@ from freqbrdf.uncertainty import (
     roughness_std,
     view_cosine,
 )
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/: _common and scenes
+from _common import machine, save_results
+from scenes import application_capture, compare_capture, entropy_capture, entropy_regions
 
 SPREAD_VARIANTS = {  # name: (roughness_window, loss_curvature, split_half)
     "roughness_std window 3": (3, False, False),
@@ -73,19 +76,11 @@ TEXTURED_SCENES = ("bunny_sunset", "sphere_city", "sphere_studio")  # applicatio
 
 
 def bunny_path():
-    from compare_estimators import CACHE, FULL_RENDER, SCENES
-
-    folder = CACHE / "compare_bunny_64"
-    if not folder.is_dir():
-        synthesize(folder, dataclasses.replace(SCENES["bunny"], views=64, texture_res=512, **FULL_RENDER),
-                   progress=False)
-    return folder
+    return compare_capture("bunny")
 
 
 def sphere_path():
-    from entropy_scenes import capture_path
-
-    return capture_path()
+    return entropy_capture()
 
 
 def variant_entropy(observations: Observations, name: str, noise_level: float) -> np.ndarray:
@@ -110,9 +105,7 @@ def variant_entropy(observations: Observations, name: str, noise_level: float) -
 
 
 def textured_path(name: str):
-    from applications import scene_capture
-
-    return scene_capture(name, 100).root
+    return application_capture(name, 100)
 
 
 def scene_scores(name: str, path) -> dict:
@@ -132,9 +125,7 @@ def scene_scores(name: str, path) -> dict:
     }
     masks = None
     if name == "sphere":
-        from entropy_scenes import regions
-
-        masks = regions(observations.normal)
+        masks = entropy_regions(observations.normal)
 
     def scores_of(uncertainty: np.ndarray) -> dict:
         scores = {}

@@ -1,10 +1,10 @@
 """The peer baseline: Mitsuba 3 inverse rendering (``freqbrdf.render.inverse.mitsuba_inverse``) of a
 capture, timed, and scored against its ground-truth maps.
 
-    python benchmarks/mitsuba_inverse.py CAPTURE [--out results/mitsuba_inverse_<name>.json]
+    python benchmarks/studies/mitsuba_inverse.py CAPTURE [--out benchmarks/results/mitsuba_inverse_<name>.json]
         [--iterations N] [--spp S] [--texture-res T] [--learning-rate LR] [--tv-weight W] ...
 
-Prints and saves JSON: cpu count, seconds, settings, the loss curve and, when the capture has
+Prints and saves JSON (by default benchmarks/results/mitsuba_inverse_<name>.json): cpu count, seconds, settings, the loss curve and, when the capture has
 ground truth (``gt/``), `freqbrdf.outputs.metrics.texture_scores` on the observed texels (texels with at
 least one sample in `freqbrdf.observe.observations.observe` at the estimate's resolution): base-colour
 PSNR (linear, peak 1), roughness MAE and metallic MAE, for the initial maps and at checkpoints
@@ -34,7 +34,8 @@ from freqbrdf.outputs.metrics import texture_scores
 from freqbrdf.outputs.relight import RelightSettings, evaluate
 from freqbrdf.render import inverse as baselines
 
-RESULTS = Path(__file__).resolve().parent / "results"
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/: _common and scenes
+from _common import RESULTS_DIR as RESULTS
 
 
 def observed_texels(capture, texture_res: int) -> np.ndarray:
@@ -54,7 +55,7 @@ def parse_arguments(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("capture", type=Path, help="capture folder or transforms file")
     parser.add_argument("--out", type=Path,
-                        help="JSON file (default: results/mitsuba_inverse_<capture>.json)")
+                        help="JSON file (default: benchmarks/results/mitsuba_inverse_<capture>.json)")
     parser.add_argument("--maps", type=Path,
                         help="folder for the estimated maps (default: beside --out)")
     parser.add_argument("--texture-res", type=int, help="default: the ground truth's, else "

@@ -1,8 +1,8 @@
 """How close is the estimator's forward model to Mitsuba's path tracer, sample by sample? (issues #5, #6)
 
-    python benchmarks/model_fidelity.py
+    python benchmarks/studies/model_fidelity.py
 
-On the capture of entropy_scenes.py (a sphere under a gradient sky and 24 small lights, no
+On the capture of studies/entropy_scenes.py (scenes.entropy_capture: a sphere under a gradient sky and 24 small lights, no
 interreflection), for the texels pathtraced_entropy.py scores, a metal of base colour k and
 roughness r (the hypothesis grid's) is rendered with Mitsuba's path tracer along every observed
 view (pathtraced_entropy.hypothesis_radiance, two seeds) and predicted by the `global` model of
@@ -20,10 +20,10 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import sys
+from pathlib import Path
 
 import numpy as np
-from _common import machine, save_results
-from pathtraced_entropy import SEEDS, capture_path, choose_texels, hypothesis_radiance
 
 from freqbrdf import estimate as est
 from freqbrdf.capture.layouts import load
@@ -31,6 +31,12 @@ from freqbrdf.config import Config, EstimateConfig
 from freqbrdf.observe.observations import observe
 from freqbrdf.texels import rasterise
 from freqbrdf.uncertainty import entropy_map, hypothesis_grid
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/: _common and scenes
+from pathtraced_entropy import SEEDS, choose_texels, hypothesis_radiance
+
+from _common import machine, save_results
+from scenes import entropy_capture
 
 COSINE_BANDS = ((0.0, 0.3), (0.3, 0.5), (0.5, 0.7), (0.7, 0.85), (0.85, 1.0001))
 
@@ -64,7 +70,7 @@ def model_terms(observations, roughness: float, settings: EstimateConfig) -> tup
 
 
 def main() -> None:
-    capture = load(capture_path())
+    capture = load(entropy_capture())
     config = Config()
     texels = rasterise(capture.mesh, config.texels.texture_res)
     observations = observe(capture, config, texels=texels)
@@ -108,7 +114,7 @@ def main() -> None:
         print(f"r = {roughness:.3f}: {rows[f'{roughness:.3f}']}", flush=True)
     save_results("model_fidelity", {
         "benchmark": "the global model's per-sample radiance against Mitsuba's path tracer (metal hypotheses)",
-        **machine(), "capture": "benchmarks/entropy_scenes.py", "texels": len(chosen), "rays": len(positions),
+        **machine(), "capture": "benchmarks/studies/entropy_scenes.py", "texels": len(chosen), "rays": len(positions),
         "by_roughness": rows,
     })
 

@@ -1,8 +1,10 @@
 """The paper's check (METHOD.md §5): the hypothesis grid scored by brute force with a path tracer
 must rank texels like our fast SH-spectrum entropy.
 
-On the capture of benchmarks/entropy_scenes.py (rendered there on first use; `--sky flat` for its
-flat sky, results then in pathtraced_entropy_flat.json), for SUBSET texels
+    python benchmarks/studies/pathtraced_entropy.py [--sky gradient|flat]
+
+On the capture of studies/entropy_scenes.py (scenes.entropy_capture, rendered on first use;
+`--sky flat` for its flat sky, results then in pathtraced_entropy_flat.json), for SUBSET texels
 spread over the range of our entropy, every hypothesis psi = (alpha_i, k_j) of the R x R grid is
 rendered with Mitsuba's path tracer: one scene whose material is a principled BSDF with
 roughness sqrt(alpha_i), metallic 1 and base colour k_j (a specular lobe of reflectance k_j, no
@@ -29,12 +31,12 @@ Reported: Spearman rank correlation of each brute force with ours (calibrated de
 GGX lobes instead of the paper's Gaussian one, phase-aware and paper modes on the 8 x 8 grid; the
 angular mode on its own grid, the estimator's 9 roughness nodes, as `fit` computes it from its
 search and with anisotropic lobes); each entropy's rank correlation with the
-default fit's roughness error on the same texels; mean entropy per region of entropy_scenes.py;
+default fit's roughness error on the same texels; mean entropy per region (scenes.entropy_regions);
 the difference of the mean entropy between the badly and the sharply lit regions, with a 95 %
 bootstrap interval (is the badly lit region more uncertain?); timings, with those of the fit with
 the angular entropy (the second fit in the process: compiled;
-benchmarks/bench_fit.py --fit-option=--entropy=angular times it as a user runs it). The brute force is itself a Monte
-Carlo estimate: it is rendered twice with independent seeds, and the rank correlation of the two
+benchmarks/timing/bench_fit.py --fit-option=--entropy=angular times it as a user runs it). The
+brute force is itself a Monte Carlo estimate: it is rendered twice with independent seeds, and the rank correlation of the two
 brute-force entropies (its self-agreement) is the ceiling for any agreement with either. The
 reference is their pooled rendering (the mean radiance of both, 2 x SPP paths per ray), whose noise
 is half the variance of either; every agreement is given with a 95 % bootstrap interval over the
@@ -47,18 +49,11 @@ from __future__ import annotations
 
 import hashlib
 import math
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
-from _common import machine, save_results
-from entropy_scenes import (
-    CACHE,
-    capture_path,
-    regions,
-    results_name,
-    roughness_error,
-    sky_argument,
-)
 from scipy import stats
 
 from freqbrdf.capture.layouts import load
@@ -75,9 +70,15 @@ from freqbrdf.uncertainty import (
     view_cosine,
 )
 
-SUBSET = 400  # texels scored by brute force (200: the agreement's 95 % interval was +-0.05 wide)
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/: _common and scenes
+from entropy_scenes import results_name, roughness_error, sky_argument
+
+from _common import machine, save_results
+from scenes import CACHE, entropy_capture, entropy_regions
+
+SUBSET = 400  # texels scored by brute force (enough for a narrow 95 % interval of the agreement)
 MIN_VIEWS = 8  # texels with fewer samples are not candidates (the brute-force misfit needs some)
-SPP = 512  # path samples per (texel, view) radiance (128: the brute force agreed with itself at 0.84 only)
+SPP = 512  # path samples per (texel, view) radiance (fewer: the brute force agrees less with itself)
 NOISE_LEVEL = UncertaintyConfig().noise_level
 RAY_OFFSET = 1e-3  # ray origins this far (x the object's radius) in front of the texel
 SEEDS = (0, 1000)  # two independent renderings of every hypothesis
@@ -243,7 +244,7 @@ def region_difference(entropy: np.ndarray, badly_lit: np.ndarray, sharply_lit: n
 
 
 def main(sky: str) -> None:
-    capture = load(capture_path(sky))
+    capture = load(entropy_capture(sky))
     config = Config()
     texels = rasterise(capture.mesh, config.texels.texture_res)
     result = fit(capture, config)  # the default fit: its observations, entropy and roughness error
@@ -319,7 +320,7 @@ def main(sky: str) -> None:
                                         ("roughness_std", roughness_std))}
     # Does each entropy call the scene's badly lit and rarely seen regions uncertain?
     by_region = {}
-    chosen_regions = regions(observations.normal[chosen])
+    chosen_regions = entropy_regions(observations.normal[chosen])
     badly_lit_minus_sharply_lit = {
         name: region_difference(values, chosen_regions["badly_lit"], chosen_regions["sharply_lit"])
         for name, values in (("brute_force_pooled", pooled), ("angular_brute_force_pooled", angular_pooled),
@@ -338,7 +339,7 @@ def main(sky: str) -> None:
     save_results(results_name("pathtraced_entropy", sky), {
         "benchmark": "fast SH entropy vs brute-force path-traced entropy over the same hypothesis grid",
         **machine(),
-        "capture": f"benchmarks/entropy_scenes.py --sky {sky}",
+        "capture": f"benchmarks/studies/entropy_scenes.py --sky {sky}",
         "texels": len(chosen),
         "rays": len(positions),
         "spp": SPP,

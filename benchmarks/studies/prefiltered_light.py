@@ -1,11 +1,11 @@
 """What would prefiltered environment maps buy smooth lobes? (issue #5; a measurement, not a product path)
 
-    python benchmarks/prefiltered_light.py [--scenes demo,bunny,plane] [--texture-res 128]
+    python benchmarks/studies/prefiltered_light.py [--scenes demo,bunny,plane] [--texture-res 128]
 
-Smooth texels are estimated too rough (demo capture: true r < 0.3 comes out +0.16 on average, and
-the model's loss at the true parameters is 1.3x that at the estimate): below r = 0.3 the
-estimator's lobes read the per-texel SH fit (l* = 5) of the mirrored samples, which cannot hold a
-smooth lobe's sharp reflections. This benchmark scores two lights with the same brute-force
+Before commit 8e664ea smooth texels were estimated too rough (on the demo capture, with the
+model's loss at the true parameters above that at the estimate): below r = 0.3 the estimator's
+lobes read the per-texel SH fit (l* = 5) of the mirrored samples, which cannot hold a smooth
+lobe's sharp reflections. This benchmark scores these lights with the same brute-force
 least-squares search (41 roughness nodes, the metallic profiled by `estimate._profile_metallic`,
 no Brent, no robust pass), so that only the smooth lobes' light differs:
 
@@ -16,23 +16,23 @@ no Brent, no robust pass), so that only the smooth lobes' light differs:
   at each sample's world mirror direction, at roughness nodes 1/16 apart and linear between them;
 - ``prefiltered_ggx``: the same with the GGX lobe's own per-degree gains at normal incidence
   (`estimate.ggx_lobe_gains`: heavier tails than the Gaussian), to see how much of what is left is
-  the Gaussian's shape. This one became the estimator's default in session 6
+  the Gaussian's shape. This one became the estimator's default in commit 8e664ea
   (`EstimateConfig.prefiltered_light`, built into the search kernel).
 
 Scenes: the demo capture (rendered by `make demo`) and compare_estimators.py's 64-view bunny and
-plane (rendered there). Saves benchmarks/results/prefiltered_light.json.
+plane (scenes.compare_folder; rendered by compare_estimators.py). Saves
+benchmarks/results/prefiltered_light.json.
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from pathlib import Path
 
 import numba
 import numpy as np
-from _common import machine, save_results
-from compare_estimators import CACHE
 
 from freqbrdf import estimate as est
 from freqbrdf.capture.layouts import load
@@ -42,6 +42,10 @@ from freqbrdf.observe.observations import observe
 from freqbrdf.outputs import export, metrics
 from freqbrdf.sphere import envmap as envmaps
 from freqbrdf.synthetic import demo
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/: _common and scenes
+from _common import machine, save_results
+from scenes import compare_folder
 
 ROUGHNESS_SEARCH = np.linspace(0.0, 1.0, 41)
 PREFILTER_STEP = 1.0 / 16.0  # roughness between prefiltered maps
@@ -74,11 +78,11 @@ def profile_texels(x, y, z, diffuse, values, omega, diffuse_scale, out_state, ou
 
 def capture_path(name: str):
     if name == "demo":
-        folder = demo.capture_folder(Path(__file__).resolve().parents[1] / "out" / "demo", demo.DEFAULT_CAPTURE)
+        folder = demo.capture_folder(Path(__file__).resolve().parents[2] / "out" / "demo", demo.DEFAULT_CAPTURE)
         hint = "run `make demo` first"
     else:
-        folder = CACHE / f"compare_{name}_64"
-        hint = f"run benchmarks/compare_estimators.py --scenes {name} first"
+        folder = compare_folder(name)
+        hint = f"run benchmarks/studies/compare_estimators.py --scenes {name} first"
     if not folder.is_dir():
         raise SystemExit(f"{folder} is missing: {hint}")
     return folder

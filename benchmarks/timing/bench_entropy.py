@@ -1,5 +1,7 @@
 """Time the entropy map (freqbrdf.uncertainty) on T = 512 (262,144 texels), l* = 5, RGB.
 
+    python benchmarks/timing/bench_entropy.py
+
 Inputs are synthetic spectra of the model itself: a natural-looking light spectrum
 S_refl(l) ~ (1 + l)^-2 with per-texel log-normal jitter, random materials (roughness and k_s
 uniform in [0, 1], per-channel k_s) seen at a view cosine uniform in [0.2, 1], GGX lobes (their
@@ -22,13 +24,18 @@ is a yardstick of the machine's speed at the time, numpy's exp per element.
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
 import numba
 import numpy as np
-from _common import first_call_seconds, machine, median_seconds, peak_mib, save_results
 
 from freqbrdf.config import UncertaintyConfig
 from freqbrdf.estimate import ggx_lobe_gains, split_sum_terms
 from freqbrdf.uncertainty import entropy_from_moments, entropy_from_spectra
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/: _common and scenes
+from _common import first_call_seconds, machine, median_seconds, peak_mib, save_results
 
 TEXTURE_RES = 512
 LMAX = 5

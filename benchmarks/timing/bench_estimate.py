@@ -1,15 +1,16 @@
 """Time the material estimators on a Mitsuba-rendered capture and score them against its ground truth.
 
-    python benchmarks/bench_estimate.py [--scene bunny|plane] [--skip paper]
+    python benchmarks/timing/bench_estimate.py [--scene bunny|plane] [--skip paper]
 
-The capture is compare_estimators.py's (64 views, T = 512, the `bands` material; rendered once and
-cached in benchmarks/.cache). Observations are made once with the default settings; each
-estimator then runs warm (kernels compiled, or loaded from numba's cache, on a small slice
-first). Scores are on the observed texels: base-colour PSNR, roughness and metallic MAE. Runs:
-``global`` (the default: split-sum specular albedo, Burley diffuse), ``global_method_model``
-(METHOD.md's angular model, G1 masking and shadowing with one light refresh, Lambert diffuse: the
-previous default) and ``paper`` (the prototype's Adam). Prints the figures and saves them to
-benchmarks/results/bench_estimate_<scene>.json with os.cpu_count().
+The capture is studies/compare_estimators.py's (scenes.compare_capture: 64 views, T = 512, the
+`bands` material; rendered once and cached in benchmarks/.cache). Observations are made once with
+the default settings; each estimator then runs warm (kernels compiled, or loaded from numba's
+cache, on a small slice first). Scores are on the observed texels: base-colour PSNR, roughness and
+metallic MAE. Runs: ``global`` (the default: split-sum specular albedo, Burley diffuse),
+``global_method_model`` (METHOD.md's angular model, G1 masking and shadowing with one light
+refresh, Lambert diffuse: the default before commit 944fbe4) and ``paper`` (the prototype's Adam).
+Prints the figures and saves them to benchmarks/results/bench_estimate_<scene>.json with
+os.cpu_count().
 """
 
 from __future__ import annotations
@@ -24,11 +25,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-from compare_estimators import (  # the script's folder is on sys.path
-    CACHE,
-    FULL_RENDER,
-    SCENES,
-)
 
 from freqbrdf.capture.layouts import load
 from freqbrdf.config import Config, EstimateConfig, preset
@@ -36,9 +32,11 @@ from freqbrdf.estimate import estimate
 from freqbrdf.fileio import atomic_path
 from freqbrdf.model.materials import resize
 from freqbrdf.observe.observations import Observations, observe
-from freqbrdf.synthetic.synth import synthesize
 
-RESULTS = Path(__file__).resolve().parent / "results"
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/: _common and scenes
+from _common import RESULTS_DIR as RESULTS
+from scenes import COMPARE_SCENES, compare_capture
+
 RUNS = {
     "global": Config(),
     "global_method_model": Config(estimate=EstimateConfig(specular_model="g1", diffuse_model="lambert")),
@@ -63,13 +61,10 @@ def scores(result, observations: Observations, truth) -> dict:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--scene", default="bunny", choices=sorted(SCENES))
+    parser.add_argument("--scene", default="bunny", choices=sorted(COMPARE_SCENES))
     parser.add_argument("--skip", default="", help="comma-separated runs to leave out")
     args = parser.parse_args(argv)
-    settings = dataclasses.replace(SCENES[args.scene], views=64, texture_res=512, **FULL_RENDER)
-    folder = CACHE / f"compare_{args.scene}_64"
-    if not folder.is_dir():
-        synthesize(folder, settings, progress=False)
+    folder = compare_capture(args.scene)
     capture = load(folder)
     start = time.perf_counter()
     observations = observe(capture, Config())

@@ -7,23 +7,22 @@ fit folder's summary.json. What no stage counts (``untimed``: interpreter start,
 the capture's description, process exit) is the wall time minus the stages. The import time of
 the modules a fit needs is measured separately, also in fresh processes.
 
-The default capture is compare_estimators.py's plane (64 views of 256 x 256, T = 512: 262k
-texels), rendered into benchmarks/.cache/ with the same settings if it is missing.
+The default capture is studies/compare_estimators.py's plane (scenes.compare_capture: 64 views of
+256 x 256, T = 512), rendered into benchmarks/.cache/ if it is missing.
 
-    python benchmarks/bench_fit.py [--capture plane|bunny|PATH] [--runs 3] [--name bench_fit]
+    python benchmarks/timing/bench_fit.py [--capture plane|bunny|PATH] [--runs 3] [--name bench_fit]
         [--preset default|fast] [--fit-option=--entropy=angular ...]
 
 A fit at T = 32 first, untimed, has numba compile (or load) the kernels. Prints a table and saves
 benchmarks/results/<name>.json. The machine may be shared: the load average is recorded per run,
-and the table gives the minimum and the median. Its speed also drifts (up to 25 % within a
-session): before each run a fixed workload is timed (`_common.control_seconds`), so runs made at
-different times can be compared relative to it.
+and the table gives the minimum and the median. Its speed also drifts: before each run a fixed
+workload is timed (`_common.control_seconds`), so runs made at different times can be compared
+relative to it.
 """
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import os
 import resource
@@ -34,7 +33,9 @@ import tempfile
 import time
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/: _common and scenes
 from _common import control_seconds, machine, save_results
+from scenes import COMPARE_SCENES, compare_capture
 
 # The modules a fit imports (cli imports the rest inside the command).
 FIT_IMPORTS = "import freqbrdf.cli, freqbrdf.pipeline, freqbrdf.capture.layouts"
@@ -49,19 +50,9 @@ def fit_command() -> list[str]:
 
 def capture_folder(name_or_path: str) -> Path:
     """A capture path as given, or compare_estimators.py's scene of that name (rendered if missing)."""
-    import compare_estimators  # here: it imports Mitsuba, needed only to render a missing capture
-
-    if name_or_path not in compare_estimators.SCENES:
+    if name_or_path not in COMPARE_SCENES:
         return Path(name_or_path)
-    folder = compare_estimators.CACHE / f"compare_{name_or_path}_64"
-    if not folder.is_dir():
-        from freqbrdf.synthetic.synth import synthesize
-
-        settings = dataclasses.replace(compare_estimators.SCENES[name_or_path], views=64, texture_res=512,
-                                       **compare_estimators.FULL_RENDER)
-        print(f"rendering {folder} (once) ...", flush=True)
-        synthesize(folder, settings, progress=False)
-    return folder
+    return compare_capture(name_or_path)
 
 
 def child_usage() -> tuple[float, float, int]:

@@ -1,10 +1,13 @@
 """Time the observation stage on the bunny (T = 512, 64 views at 256 x 256) and measure whether
 tracing the environment's self-occlusion (ObserveConfig.environment_occlusion) helps.
 
-The captures are rendered once with freqbrdf.synthetic.synth into benchmarks/.cache/ (about a minute each)
-and reused. Timing: per stage, for the first call in the process (cold: numba kernels loaded
-from their cache, Mitsuba's ray-test kernel compiled) and for a second call (warm); wall and CPU
-seconds, peak resident memory (ru_maxrss) and the load average, since the machine may be shared.
+    python benchmarks/timing/bench_observe.py [--scene plane|bunny]
+
+The captures (scenes.observe_timing_capture, scenes.occlusion_capture) are rendered once with
+freqbrdf.synthetic.synth into benchmarks/.cache/ and reused. Timing: per stage, for the first call
+in the process (cold: numba kernels loaded from their cache, Mitsuba's ray-test kernel compiled)
+and for a second call (warm); wall and CPU seconds, peak resident memory (ru_maxrss) and the load
+average, since the machine may be shared.
 
 Occlusion: a white (and a 50 % grey) Lambertian bunny, rendered by Mitsuba's path tracer (a plain
 ``diffuse`` BSDF swapped in for synth's principled one). Per texel the mean observed radiance is
@@ -12,56 +15,37 @@ compared with albedo x E / pi, with E unoccluded (the paper) and with occlusion 
 observed texels and over the concave ones (where occlusion removes over 10 % of E).
 Prints the figures and saves them to benchmarks/results/bench_observe.json.
 
-    python benchmarks/bench_observe.py [--scene plane|bunny]
-
-``--scene`` times only the observation of compare_estimators.py's capture of that scene (64
-views at 256 x 256, T = 512; the plane is its largest case, 262k texels seen ~60 times each) and
-stores it under ``timing_<scene>`` in the same JSON, keeping the rest.
+``--scene`` times only the observation of studies/compare_estimators.py's capture of that scene
+(scenes.compare_capture: 64 views at 256 x 256, T = 512; the plane is its largest case) and stores
+it under ``timing_<scene>`` in the same JSON, keeping the rest.
 """
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import os
 import platform
 import resource
+import sys
 import time
 from pathlib import Path
-from unittest import mock
 
 import numpy as np
-from compare_estimators import FULL_RENDER, SCENES  # the script's folder is on sys.path
 
 from freqbrdf.capture.layouts import load
 from freqbrdf.config import Config, ObserveConfig, TexelConfig
 from freqbrdf.fileio import atomic_path
 from freqbrdf.observe.observations import observe
-from freqbrdf.synthetic.synth import SynthSettings, synthesize
 
-HERE = Path(__file__).resolve().parent
-CACHE = HERE / ".cache"
-RESULTS = HERE / "results" / "bench_observe.json"
-TIMING_CAPTURE = SynthSettings(mesh="bunny", envmap="forest", materials="bands", views=64,
-                               resolution=256, spp=16, texture_res=512, test_views=0, seed=0)
-OCCLUSION_CAPTURE = SynthSettings(mesh="bunny", envmap="forest", materials="bands", views=32,
-                                  resolution=128, spp=128, texture_res=64, test_views=0, seed=0)
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/: _common and scenes
+from _common import RESULTS_DIR
+from scenes import COMPARE_SCENES, OBSERVE_TIMING_SCENE, compare_capture, observe_timing_capture, occlusion_capture
+
+RESULTS = RESULTS_DIR / "bench_observe.json"
 OCCLUSION_TEXTURE_RES = 128
 ALBEDOS = (1.0, 0.5)
 CONCAVE_BLOCKED_FRACTION = 0.1
-
-
-def cached_capture(name: str, settings: SynthSettings, bsdf: dict | None = None):
-    folder = CACHE / name
-    if not (folder / "transforms.json").is_file():
-        print(f"rendering {folder} (once)")
-        if bsdf is None:
-            synthesize(folder, settings)
-        else:
-            with mock.patch("freqbrdf.synthetic.synth.principled_bsdf", lambda materials: dict(bsdf)):
-                synthesize(folder, settings)
-    return load(folder)
 
 
 def peak_rss_mib() -> float:
@@ -82,19 +66,18 @@ def timed_run(capture, config: Config) -> dict:
 
 
 def timing() -> dict:
-    capture = cached_capture("bunny_v64_r256", TIMING_CAPTURE)
+    capture = load(observe_timing_capture())
     config = Config()
     cold = timed_run(capture, config)
     warm = timed_run(capture, config)
     occlusion = timed_run(capture, config.replace(observe=ObserveConfig(environment_occlusion=True)))
     return {"texture_res": config.texels.texture_res, "views": len(capture.frames),
-            "image_size": TIMING_CAPTURE.resolution, "cold": cold, "warm": warm,
+            "image_size": OBSERVE_TIMING_SCENE.resolution, "cold": cold, "warm": warm,
             "warm_with_environment_occlusion": occlusion}
 
 
 def occlusion_accuracy(albedo: float) -> dict:
-    diffuse = {"type": "diffuse", "reflectance": {"type": "rgb", "value": [albedo] * 3}}
-    capture = cached_capture(f"bunny_diffuse{albedo:g}_v32_r128", OCCLUSION_CAPTURE, diffuse)
+    capture = load(occlusion_capture(albedo))
     config = Config(texels=TexelConfig(texture_res=OCCLUSION_TEXTURE_RES))
     plain = observe(capture, config)
     traced = observe(capture, config.replace(observe=ObserveConfig(environment_occlusion=True)))
@@ -118,11 +101,7 @@ def occlusion_accuracy(albedo: float) -> dict:
 
 def scene_timing(scene: str) -> dict:
     """Cold and warm observation of compare_estimators.py's capture of ``scene``."""
-    settings = dataclasses.replace(SCENES[scene], views=64, texture_res=512, **FULL_RENDER)
-    folder = CACHE / f"compare_{scene}_64"
-    if not (folder / "transforms.json").is_file():
-        print(f"rendering {folder} (once)")
-        synthesize(folder, settings, progress=False)
+    folder = compare_capture(scene)
     capture = load(folder)
     config = Config()
     return {"capture": str(folder), "texture_res": config.texels.texture_res, "views": len(capture.frames),
@@ -133,7 +112,7 @@ def scene_timing(scene: str) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--scene", choices=sorted(SCENES), help="only time the observation of this scene")
+    parser.add_argument("--scene", choices=sorted(COMPARE_SCENES), help="only time the observation of this scene")
     args = parser.parse_args()
     previous = json.loads(RESULTS.read_text()) if RESULTS.is_file() else {}
     if args.scene:

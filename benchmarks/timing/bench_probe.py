@@ -1,9 +1,10 @@
 """What one probe of the global search costs, per texel and per sample (issue #5).
 
-    python benchmarks/bench_probe.py [--texture-res 256] [--repeats 3]
+    python benchmarks/timing/bench_probe.py [--texture-res 256] [--repeats 3]
 
-The search evaluates the profiled loss at ~31 roughness values per texel (docs/measurements.md, speed
-section). This times the search kernel on compare_estimators.py's plane (64 views; rendered into
+The search evaluates the profiled loss at a few tens of roughness values per texel
+(docs/measurements.md, speed section). This times the search kernel on
+studies/compare_estimators.py's plane (scenes.compare_capture: 64 views; rendered into
 benchmarks/.cache if missing) in its hypothesis mode, with no search: once with no hypothesis
 (the per-texel preparation), once with one (the first probe at a roughness, which also fills the
 light of the roughness nodes around it for every sample), and once with eleven at the same
@@ -11,7 +12,7 @@ roughness (ten more probes at nodes already filled). It does so at three roughne
 smooth lobe on the prefiltered map alone, the blend of the map and the environment light, a rough
 lobe on the environment light alone), and with the views cut to the first 64, 32 and 16, so that
 a straight line through the three sample counts splits a probe's cost into a part per texel and a
-part per sample. Hypothesis mode adds the texel's specular moments per probe (a few ns per
+part per sample. Hypothesis mode adds the texel's specular moments per probe (a small cost per
 sample), so these figures bound the search's own probes from above. Times are the median of
 ``--repeats`` runs, in seconds of one core (wall x numba's threads). Prints the figures and saves
 benchmarks/results/bench_probe.json.
@@ -21,21 +22,20 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import sys
+from pathlib import Path
 
 import numba
 import numpy as np
-from _common import control_seconds, machine, median_seconds, save_results
-from compare_estimators import (  # the script's folder is on sys.path
-    CACHE,
-    FULL_RENDER,
-    SCENES,
-)
 
 from freqbrdf import estimate
 from freqbrdf.capture.layouts import load
 from freqbrdf.config import Config, TexelConfig
 from freqbrdf.observe.observations import observe
-from freqbrdf.synthetic.synth import synthesize
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/: _common and scenes
+from _common import control_seconds, machine, median_seconds, save_results
+from scenes import compare_capture
 
 ROUGHNESS = (0.2, 0.45, 0.8)  # prefiltered map only; map and environment light; environment light only
 VIEWS = (64, 32, 16)
@@ -58,10 +58,7 @@ def main(argv=None) -> int:
     parser.add_argument("--texture-res", type=int, default=256)
     parser.add_argument("--repeats", type=int, default=3)
     args = parser.parse_args(argv)
-    folder = CACHE / "compare_plane_64"
-    if not folder.is_dir():
-        synthesize(folder, dataclasses.replace(SCENES["plane"], views=64, texture_res=512, **FULL_RENDER),
-                   progress=False)
+    folder = compare_capture("plane")
     config = Config(texels=TexelConfig(texture_res=args.texture_res))
     full = observe(load(folder), config)
     settings = config.estimate

@@ -1,13 +1,15 @@
-"""Benchmark of the per-texel SH fit (freqbrdf.sphere.harmonics.fit_sh) at full texture size.
+"""Time the per-texel SH fit (freqbrdf.sphere.harmonics.fit_sh) at full texture size.
+
+    python benchmarks/timing/bench_sh.py
 
 T = 512^2 texels, V = 64 views, l* = 5 (K = 36), 7 right-hand sides (3 observed + 3 mirrored
 environment + 1 constant), float32 inputs as the pipeline produces them. Two sample sets:
 
 - ``sphere_cameras``: 64 cameras spread evenly over the sphere (Fibonacci), random texel normals,
-  w = max(0, cos theta_o) and a 20 % chance that a view is occluded: about 26 samples per texel,
-  fewer than K, as on a closed object (the bunny);
+  w = max(0, cos theta_o) and a 20 % chance that a view is occluded: fewer samples per texel than
+  K, as on a closed object (the bunny);
 - ``hemisphere_cameras``: 64 cameras over the upper hemisphere of a plane whose normals tilt by at
-  most 10 degrees, 5 % occluded: about 60 samples per texel, like the Mitsuba-rendered plane
+  most 10 degrees, 5 % occluded: more samples per texel than K, like the Mitsuba-rendered plane
   capture. The fit's cost grows with the samples per texel, so this is the slower case.
 
 It also reports sum_i w_i^2 over the first sample set: with scale_lambda_with_weight the effective
@@ -24,13 +26,17 @@ Prints and saves JSON to benchmarks/results/bench_sh.json.
 from __future__ import annotations
 
 import resource
+import sys
 import time
+from pathlib import Path
 
 import numba
 import numpy as np
-from _common import machine, save_results
 
 from freqbrdf.sphere import harmonics as sh
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/: _common and scenes
+from _common import machine, save_results
 
 N_TEXELS = 512 * 512
 N_VIEWS = 64

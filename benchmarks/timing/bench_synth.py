@@ -1,5 +1,8 @@
 """Time a synthetic capture: 64 views of the bunny, 256 x 256 pixels, 64 samples per pixel.
 
+    python benchmarks/timing/bench_synth.py
+
+The capture is scenes.SYNTH_TIMING_SCENE, rendered into a scratch folder after a one-view warm-up.
 Prints the figures and saves them to benchmarks/results/bench_synth.json. Rendering runs on
 Mitsuba's LLVM (CPU) backend, which uses every core, so the core count is part of the result.
 """
@@ -9,16 +12,18 @@ from __future__ import annotations
 import json
 import os
 import platform
+import sys
 import tempfile
 import time
 from pathlib import Path
 
 from freqbrdf.synthetic.synth import SynthSettings, synthesize
 
-RESULTS = Path(__file__).resolve().parent / "results" / "bench_synth.json"
-SETTINGS = SynthSettings(
-    mesh="bunny", views=64, resolution=256, spp=64, texture_res=512, test_views=0, seed=0
-)
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/: _common and scenes
+from _common import RESULTS_DIR
+from scenes import SYNTH_TIMING_SCENE as SETTINGS
+
+RESULTS = RESULTS_DIR / "bench_synth.json"
 
 
 def main() -> None:

@@ -1,5 +1,7 @@
 """Time UV-space rasterisation of the bundled bunny (3.7k faces, xatlas atlas) at T = 512.
 
+    python benchmarks/timing/bench_texels.py
+
 Prints the figures and saves them to benchmarks/results/bench_texels.json. The first call loads
 (or compiles) the numba kernels and is reported separately; the warm figure is the median of
 several runs. Peak memory is the largest Python-visible allocation (tracemalloc) of one warm run.
@@ -7,11 +9,15 @@ several runs. Peak memory is the largest Python-visible allocation (tracemalloc)
 
 from __future__ import annotations
 
-from _common import first_call_seconds, machine, median_seconds, peak_mib, save_results
+import sys
+from pathlib import Path
 
 from freqbrdf.assets import mesh_path
 from freqbrdf.capture.mesh import load_mesh
 from freqbrdf.texels import dilate, rasterise, scatter
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/: _common and scenes
+from _common import first_call_seconds, machine, median_seconds, peak_mib, save_results
 
 TEXTURE_RES = 512
 DILATION_PX = 8

@@ -1,0 +1,212 @@
+"""The scenes the benchmarks render, and the cache they are rendered into.
+
+Every capture a timing script or a study measures on is defined here, once, so that scripts naming
+the same scene measure the same capture. Captures are rendered by Mitsuba
+(`freqbrdf.synthetic.synth.synthesize`) on first use into benchmarks/.cache/<name> and reused;
+delete a folder to render it again. The folder names are recorded in the results (their
+``capture`` fields) and say what was rendered, so they stay as they are.
+
+- ``COMPARE_SCENES``: the bunny and the plane of studies/compare_estimators.py (`compare_capture`),
+  also measured by timing/bench_estimate.py, bench_fit.py, bench_observe.py, bench_probe.py and by
+  studies/entropy_variants.py and prefiltered_light.py;
+- ``APPLICATION_SCENES``: the four scenes of studies/applications.py, pools of views all around the
+  object (`application_capture`), also scored by studies/entropy_variants.py;
+- the entropy scene of studies/entropy_scenes.py: the sphere under small bright lights on one side
+  and a smooth sky elsewhere, seen from the upper hemisphere (`entropy_capture`, its regions
+  `entropy_regions`), also measured by studies/entropy_variants.py, pathtraced_entropy.py and
+  model_fidelity.py;
+- the bunny captures of timing/bench_observe.py (`observe_timing_capture`, `occlusion_capture`) and
+  the capture timed by timing/bench_synth.py (``SYNTH_TIMING_SCENE``, rendered into a scratch folder).
+
+Scripts import this module after inserting benchmarks/ into sys.path (see _common.py).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from pathlib import Path
+from unittest import mock
+
+import numpy as np
+
+from freqbrdf.images import write_exr
+from freqbrdf.synthetic.synth import SynthSettings, synthesize
+
+CACHE = Path(__file__).resolve().parent / ".cache"
+
+# --------------------------------------------------------------------------------------------
+# studies/compare_estimators.py's scenes: a bundled mesh with the procedural `bands` material under
+# a bundled environment map, views on the upper hemisphere, relighting test views under two others.
+
+COMPARE_SCENES = {
+    "bunny": SynthSettings(mesh="bunny", envmap="forest", materials="bands", test_envmaps=("studio", "sunset")),
+    "plane": SynthSettings(mesh="plane", envmap="city", materials="bands", test_envmaps=("forest", "lobby")),
+}
+FULL_RENDER = {"resolution": 256, "spp": 64, "test_views": 8}
+QUICK_RENDER = {"resolution": 128, "spp": 16, "test_views": 4}
+COMPARE_VIEWS = 64
+COMPARE_TEXTURE_RES = 512
+
+
+def compare_settings(name: str, views: int = COMPARE_VIEWS, texture_res: int = COMPARE_TEXTURE_RES,
+                     render: dict = FULL_RENDER) -> SynthSettings:
+    """The synth settings of compare_estimators.py's scene ``name`` at these views and rendering."""
+    return dataclasses.replace(COMPARE_SCENES[name], views=views, texture_res=texture_res, **render)
+
+
+def compare_folder(name: str, views: int = COMPARE_VIEWS, texture_res: int = COMPARE_TEXTURE_RES,
+                   render: dict = FULL_RENDER) -> Path:
+    """The cache folder of that capture (rendered or not)."""
+    settings = compare_settings(name, views, texture_res, render)
+    # The cache is keyed by everything that changes the capture (the ground-truth maps are
+    # resampled to texture_res); the full default keeps its short name.
+    suffix = "" if (render == FULL_RENDER and texture_res == COMPARE_TEXTURE_RES) else \
+        f"_{settings.resolution}px_{settings.spp}spp_t{texture_res}"
+    return CACHE / f"compare_{name}_{views}{suffix}"
+
+
+def compare_capture(name: str, views: int = COMPARE_VIEWS, texture_res: int = COMPARE_TEXTURE_RES,
+                    render: dict = FULL_RENDER) -> Path:
+    """The cache folder of that capture, rendered first if it is missing."""
+    folder = compare_folder(name, views, texture_res, render)
+    if not folder.is_dir():
+        print(f"rendering {folder} (once) ...", flush=True)
+        synthesize(folder, compare_settings(name, views, texture_res, render), progress=False)
+    return folder
+
+
+# --------------------------------------------------------------------------------------------
+# studies/applications.py's scenes: bundled meshes, materials and environment maps, each rendered
+# as a pool of views evenly spread (Fibonacci) over the whole sphere around the object.
+
+APPLICATION_SCENES = {
+    "bunny_forest": SynthSettings(mesh="bunny", envmap="forest", materials="bands"),
+    "bunny_sunset": SynthSettings(mesh="bunny", envmap="sunset", materials="chelsea"),
+    "sphere_city": SynthSettings(mesh="sphere", envmap="city", materials="coffee"),
+    "sphere_studio": SynthSettings(mesh="sphere", envmap="studio", materials="astronaut"),
+}
+APPLICATION_TEST_VIEWS = 8  # relighting views (two other environment maps), for the inpainting part
+
+
+def application_settings(name: str, pool: int) -> SynthSettings:
+    """The synth settings of applications.py's scene ``name`` with ``pool`` views."""
+    return dataclasses.replace(APPLICATION_SCENES[name], views=pool, cameras="sphere", resolution=128, spp=16,
+                               texture_res=256, test_views=APPLICATION_TEST_VIEWS)
+
+
+def application_capture(name: str, pool: int) -> Path:
+    """The cache folder of the scene's pool of views, rendered first if it is missing."""
+    folder = CACHE / f"applications_{name}_{pool}"
+    if not folder.is_dir():
+        start = time.perf_counter()
+        synthesize(folder, application_settings(name, pool), progress=False)
+        print(f"[{name}] rendered {pool} views in {time.perf_counter() - start:.0f} s", flush=True)
+    return folder
+
+
+# --------------------------------------------------------------------------------------------
+# studies/entropy_scenes.py's scene: the bundled sphere with the "bands" material under a synthetic
+# environment whose +x cap holds small bright lights (every degree l <= l* carries power) and which
+# is elsewhere a smooth sky (ENTROPY_SKIES), photographed from the upper hemisphere only.
+
+ENTROPY_ENVMAP_SIZE = (256, 512)  # H, W
+ENTROPY_SCENE = SynthSettings(
+    mesh="sphere", materials="bands", views=48, resolution=192, spp=64, texture_res=256,
+    cameras="hemisphere", seed=0, test_envmaps=0, test_views=0,
+)
+ENTROPY_LIGHTS = 24  # small bright lights in the cap x > ENTROPY_LIGHT_CAP_X
+ENTROPY_LIGHT_CAP_X = 0.6  # far from x = 0, so that the band-limit blur does not carry them into the -x half
+ENTROPY_LIGHT_RADIUS_DEG = 4.0
+# The sky outside the lights: radiance = constant + slope x (world y, up).
+ENTROPY_SKIES = {"gradient": (0.25, 0.15), "flat": (0.3, 0.0)}
+ENTROPY_REGIONS = ("sharply_lit", "badly_lit", "rarely_seen", "rest")
+
+
+def entropy_envmap(seed: int = 0, sky: str = "gradient") -> np.ndarray:
+    """(H, W, 3) float32 lat-long radiance in Mitsuba's envmap layout: a smooth sky (ENTROPY_SKIES)
+    everywhere plus ENTROPY_LIGHTS small bright disks at random directions with x > ENTROPY_LIGHT_CAP_X."""
+    height, width = ENTROPY_ENVMAP_SIZE
+    # Mitsuba's texel centres (as freqbrdf.synthetic.synth.resample_envmap): azimuth from -z towards +x.
+    azimuth = 2.0 * np.pi * (np.arange(width) + 0.5) / width
+    polar = np.pi * np.arange(height) / (height - 1)
+    directions = np.stack(np.broadcast_arrays(
+        np.sin(polar)[:, None] * np.sin(azimuth)[None, :],
+        np.cos(polar)[:, None],
+        -np.sin(polar)[:, None] * np.cos(azimuth)[None, :],
+    ), axis=-1)  # (H, W, 3) world directions, +y up
+    constant, slope = ENTROPY_SKIES[sky]
+    radiance = np.repeat((constant + slope * directions[..., 1:2]), 3, axis=-1)
+    rng = np.random.default_rng(seed)
+    centres = rng.normal(size=(20 * ENTROPY_LIGHTS, 3))
+    centres /= np.linalg.norm(centres, axis=1, keepdims=True)
+    centres = centres[centres[:, 0] > ENTROPY_LIGHT_CAP_X][:ENTROPY_LIGHTS]
+    cos_radius = np.cos(np.radians(ENTROPY_LIGHT_RADIUS_DEG))
+    for centre, colour in zip(centres, rng.uniform(0.6, 1.0, (ENTROPY_LIGHTS, 3))):
+        radiance[directions @ centre > cos_radius] += 40.0 * colour
+    return radiance.astype(np.float32)
+
+
+def entropy_capture(sky: str = "gradient") -> Path:
+    """The cache folder of the entropy scene under ``sky``, rendered first if it is missing."""
+    suffix = "" if sky == "gradient" else f"_{sky}"
+    folder = CACHE / f"entropy_scenes_sphere_cap{ENTROPY_LIGHT_CAP_X}{suffix}"
+    if not (folder / "transforms.json").is_file():
+        CACHE.mkdir(parents=True, exist_ok=True)
+        envmap_file = CACHE / f"entropy_scenes_cap{ENTROPY_LIGHT_CAP_X}{suffix}.exr"
+        write_exr(envmap_file, entropy_envmap(sky=sky))
+        settings = dataclasses.replace(ENTROPY_SCENE, envmap=str(envmap_file))
+        synthesize(folder, settings, progress=False)
+    return folder
+
+
+def entropy_regions(normal: np.ndarray) -> dict[str, np.ndarray]:
+    """Boolean masks (N,) of the entropy scene's regions from world normals (N, 3).
+
+    badly lit: n_x < -0.5, not rarely seen (its mirror directions see the smooth sky); rarely seen:
+    n_y < -0.5 (the cameras see it at grazing angles or not at all); sharply lit: n_x > 0.5, not
+    rarely seen (the reference); the rest.
+    """
+    rarely_seen = normal[:, 1] < -0.5
+    badly_lit = (normal[:, 0] < -0.5) & ~rarely_seen
+    sharply_lit = (normal[:, 0] > 0.5) & ~rarely_seen
+    return {"sharply_lit": sharply_lit, "badly_lit": badly_lit, "rarely_seen": rarely_seen,
+            "rest": ~(rarely_seen | badly_lit | sharply_lit)}
+
+
+# --------------------------------------------------------------------------------------------
+# timing/bench_observe.py's bunny captures and timing/bench_synth.py's timed capture.
+
+OBSERVE_TIMING_SCENE = SynthSettings(mesh="bunny", envmap="forest", materials="bands", views=64,
+                                     resolution=256, spp=16, texture_res=512, test_views=0, seed=0)
+OCCLUSION_SCENE = SynthSettings(mesh="bunny", envmap="forest", materials="bands", views=32,
+                                resolution=128, spp=128, texture_res=64, test_views=0, seed=0)
+SYNTH_TIMING_SCENE = SynthSettings(
+    mesh="bunny", views=64, resolution=256, spp=64, texture_res=512, test_views=0, seed=0
+)
+
+
+def _cached_capture(name: str, settings: SynthSettings, bsdf: dict | None = None) -> Path:
+    """The cache folder ``name``, rendered first if it is missing (with ``bsdf`` for synth's
+    principled BSDF when given)."""
+    folder = CACHE / name
+    if not (folder / "transforms.json").is_file():
+        print(f"rendering {folder} (once)")
+        if bsdf is None:
+            synthesize(folder, settings)
+        else:
+            with mock.patch("freqbrdf.synthetic.synth.principled_bsdf", lambda materials: dict(bsdf)):
+                synthesize(folder, settings)
+    return folder
+
+
+def observe_timing_capture() -> Path:
+    """The bunny whose observation bench_observe.py times (OBSERVE_TIMING_SCENE)."""
+    return _cached_capture("bunny_v64_r256", OBSERVE_TIMING_SCENE)
+
+
+def occlusion_capture(albedo: float) -> Path:
+    """The bunny of OCCLUSION_SCENE as a Lambertian of this grey ``albedo``, rendered by Mitsuba's
+    path tracer (a plain ``diffuse`` BSDF swapped in for synth's principled one)."""
+    diffuse = {"type": "diffuse", "reflectance": {"type": "rgb", "value": [albedo] * 3}}
+    return _cached_capture(f"bunny_diffuse{albedo:g}_v32_r128", OCCLUSION_SCENE, diffuse)
