@@ -1,5 +1,9 @@
-"""Score a fit folder against its capture: texture metrics, relighting, and how well the
-uncertainty ranks the errors (METHOD.md §5)."""
+"""Score a fit folder against its capture: texture metrics, relighting, uncertainty quality.
+
+Implements how results are judged (METHOD.md §5): parameter recovery in texture space, relighting
+with the Stanford-ORB protocol (`freqbrdf.outputs.relight`), and sparsification and Spearman
+correlation of the uncertainty against the per-texel errors (`freqbrdf.outputs.sparsification`).
+"""
 
 from __future__ import annotations
 
@@ -26,14 +30,39 @@ from freqbrdf.uncertainty import FLAG_UNOBSERVED
 
 def evaluate_fit(fit_outputs: FitOutputs, capture: Capture, out_dir: str | Path | None = None,
                  settings: RelightSettings = RelightSettings(), reporter: Reporter = SILENT) -> dict:
-    """Score a fit against its capture; writes ``<fit>/evaluation`` (or ``out_dir``) as a whole.
+    """Score a fit against its capture, writing ``<fit>/evaluation`` (or ``out_dir``) as a whole.
+
+    The scores:
 
     - texture metrics on the observed texels when the capture has ground truth;
     - relighting under the capture's test set (Stanford-ORB protocol) when it has one;
     - the uncertainty's meaning: sparsification (AUSE, AURG) and Spearman rho of the entropy and
       of roughness_std against the per-texel roughness, base-colour and metallic errors (ground
       truth needed).
-    Returns the metrics document (also written as metrics.json).
+
+    Parameters
+    ----------
+    fit_outputs : FitOutputs
+        The fit folder, read back (`freqbrdf.outputs.fit_folder.load_fit`).
+    capture : Capture
+        The capture it was fitted on.
+    out_dir : str or Path, optional
+        Where to write the evaluation; default ``<fit>/evaluation``. It must not contain the fit
+        or the capture.
+    settings : RelightSettings, optional
+        Render settings of the relit views.
+    reporter : Reporter, optional
+        Receives progress.
+
+    Returns
+    -------
+    dict
+        The metrics document, as written to ``metrics.json`` (infinities as null).
+
+    Raises
+    ------
+    InputError
+        If ``out_dir`` would replace the fit or the capture folder.
     """
     out = Path(out_dir) if out_dir is not None else fit_outputs.folder / EVALUATION_FOLDER
     check_output_folder(out, {"the fit": fit_outputs.folder.resolve(), "the capture": Path(capture.root).resolve()})
@@ -50,10 +79,12 @@ def evaluate_fit(fit_outputs: FitOutputs, capture: Capture, out_dir: str | Path 
 
 
 def _uncertainty_scores(fit_outputs: FitOutputs, capture: Capture, out: Path) -> dict | None:
-    """Sparsification of the entropy (and of roughness_std when the fit has it) against the
-    per-texel errors on observed texels (needs GT). The entropy's scores per error kind stay at the
-    top level (as before roughness_std existed); roughness_std's are under its own key."""
-    # Imported here: scipy.stats would add ~0.3 s to every `freqbrdf fit`, which never needs it.
+    """Score the sparsification of the entropy (and of roughness_std) against per-texel errors.
+
+    On observed texels, ground truth needed (None without). The entropy's scores per error kind
+    are at the top level of the result; roughness_std's are under its own key.
+    """
+    # Imported here: scipy.stats is slow to import, and `freqbrdf fit` never needs it.
     from freqbrdf.outputs import sparsification
 
     arrays = fit_outputs.arrays

@@ -1,13 +1,14 @@
 """Outputs of a fit: hole-free textures, EXR/PNG maps, a glTF 2.0 binary and ``summary.json``.
 
-Per-texel estimates become T x T textures in two fill steps, so that renderers and texture
+These are the outputs of METHOD.md §3.9. Per-texel estimates become T x T textures in two fill steps, so that renderers and texture
 filtering never see holes or dark seams:
 
 1. Texels of the mesh's atlas without an estimate (no sample) take the value of the nearest
    estimated texel in texture space (Euclidean distance transform).
 2. The atlas is grown ``config.texels.dilation_px`` rings into the empty texture space by
    `texels.dilate` (mean of filled neighbours), so bilinear and mip-mapped lookups across chart
-   seams blend surface values. Texels farther from every chart take the mean over the atlas.
+   seams blend surface values. Texels farther from every chart take the mean over the atlas
+  (`freqbrdf.texels.fill_texture`).
 
 The glTF follows its own conventions (glTF 2.0 spec, section 3.9 "Materials"):
 
@@ -19,7 +20,7 @@ The glTF follows its own conventions (glTF 2.0 spec, section 3.9 "Materials"):
 - UV origin at the image's top-left: our OBJ-style v (up) is flipped to 1 - v (trimesh's exporter
   does this), and texture row 0, which is v = 1 in our convention, lands at v_glTF = 0;
 - vertex normals are included; samplers are bilinear with mip-maps and clamp to edge, as the
-  Mitsuba textures of `render.principled_bsdf`.
+  Mitsuba textures of `freqbrdf.render.scenes.principled_bsdf`.
 """
 
 from __future__ import annotations
@@ -64,10 +65,9 @@ ENTROPY_COLORMAP = "viridis"
 # Roughness std of a texel without an estimate: the prior's, roughness uniform on [0, 1] (sqrt(1/12)
 # ~ 0.29), as the entropy of an unobserved texel is 1: nothing is known there.
 UNESTIMATED_ROUGHNESS_STD = math.sqrt(PRIOR_ROUGHNESS_VARIANCE)
-# The PNG's range, in roughness units. Measured on the default fits (T = 512) of the Mitsuba bunny
-# of compare_estimators.py and the demo capture: median 0.12, 90th percentile 0.27-0.28, 95th 0.31,
-# maximum 0.45-0.47. The top, 0.3, is about the prior's std: brighter means no better than knowing
-# nothing; the ~6.5 % of estimated texels above it are clipped to it.
+# The PNG's range, in roughness units. The top, 0.3, is about the prior's std: brighter means no
+# better than knowing nothing; the few estimated texels above it are clipped to it (their spread
+# on the default fits: docs/measurements.md).
 ROUGHNESS_STD_RANGE = (0.0, 0.3)
 ROUGHNESS_STD_COLORMAP = "magma"  # not viridis: a different quantity and unit than the entropy
 METALLIC_ROUGHNESS_R = 255  # unused channel of the glTF metallic-roughness texture (see above)
@@ -100,7 +100,21 @@ FILES = {
 
 
 def material_textures(estimate: MaterialEstimate, dilation_px: int) -> MaterialMaps:
-    """The estimate as hole-free textures (see the module docstring); the atlas is its texels."""
+    """Make hole-free textures of an estimate (see the module docstring).
+
+    Parameters
+    ----------
+    estimate : MaterialEstimate
+        The per-texel estimate (N texels of a T x T texture); its texels are the atlas.
+    dilation_px : int
+        Rings of dilation beyond the atlas.
+
+    Returns
+    -------
+    MaterialMaps
+        Base colour (T, T, 3), roughness and metallic (T, T), float32; textures without any
+        estimated texel take ``FALLBACK_*``.
+    """
     atlas = _atlas_mask(estimate)
     maps = estimate.textures()  # NaN off the estimated texels
     return MaterialMaps(
@@ -112,25 +126,60 @@ def material_textures(estimate: MaterialEstimate, dilation_px: int) -> MaterialM
 
 def entropy_texture(uncertainty: Uncertainty, estimate: MaterialEstimate | Observations,
                     dilation_px: int) -> np.ndarray:
-    """(T, T) float32 normalised entropy, dilated across seams like the material maps.
+    """Make the normalised-entropy texture, dilated across seams like the material maps.
 
-    ``uncertainty`` and ``estimate`` come from the same Observations (same texel order); the
-    Observations themselves give the same texel layout.
+    Parameters
+    ----------
+    uncertainty : Uncertainty
+        The uncertainty (N texels).
+    estimate : MaterialEstimate or Observations
+        Gives the texel layout; from the same Observations as ``uncertainty`` (same texel order).
+    dilation_px : int
+        Rings of dilation beyond the atlas.
+
+    Returns
+    -------
+    (T, T) float32
+        Entropy in [0, 1]; 1 (nothing known) where no texel is.
     """
     values = estimate.to_texture(uncertainty.entropy.astype(np.float32), fill=np.nan)
     return fill_texture(values, _atlas_mask(estimate), dilation_px, fallback=ENTROPY_RANGE[1])
 
 
 def roughness_std_values(roughness_std: np.ndarray) -> np.ndarray:
-    """(N,) float32 per-texel roughness std as exported and evaluated: texels without an estimate
-    (NaN) take UNESTIMATED_ROUGHNESS_STD."""
+    """Return the per-texel roughness std as exported and evaluated.
+
+    Parameters
+    ----------
+    roughness_std : (N,) float array
+        The posterior std of the roughness, NaN where not estimated.
+
+    Returns
+    -------
+    (N,) float32
+        The std; texels without an estimate take ``UNESTIMATED_ROUGHNESS_STD`` (the prior's).
+    """
     values = np.asarray(roughness_std, np.float32)
     return np.where(np.isfinite(values), values, np.float32(UNESTIMATED_ROUGHNESS_STD))
 
 
 def roughness_std_texture(uncertainty: Uncertainty, estimate: MaterialEstimate, dilation_px: int) -> np.ndarray:
-    """(T, T) float32 ``roughness_std_values(uncertainty.roughness_std)``, dilated across seams like the
-    material maps; ``uncertainty.roughness_std`` must have been computed."""
+    """Make the roughness-std texture, dilated across seams like the material maps.
+
+    Parameters
+    ----------
+    uncertainty : Uncertainty
+        The uncertainty; its ``roughness_std`` must have been computed.
+    estimate : MaterialEstimate
+        Gives the texel layout (same texel order).
+    dilation_px : int
+        Rings of dilation beyond the atlas.
+
+    Returns
+    -------
+    (T, T) float32
+        ``roughness_std_values(uncertainty.roughness_std)`` as a texture.
+    """
     values = estimate.to_texture(roughness_std_values(uncertainty.roughness_std), fill=np.nan)
     return fill_texture(values, _atlas_mask(estimate), dilation_px, fallback=UNESTIMATED_ROUGHNESS_STD)
 
@@ -141,10 +190,24 @@ def roughness_std_texture(uncertainty: Uncertainty, estimate: MaterialEstimate, 
 
 def write_scalar_map(path: str | Path, texture: np.ndarray, colormap: str | None = None,
                      value_range: tuple[float, float] = (0.0, 1.0)) -> None:
-    """Write a (T, T) scalar texture: ``.exr`` as float values, ``.png`` as an 8-bit picture.
+    """Write a scalar texture: ``.exr`` as float values, ``.png`` as an 8-bit picture.
 
-    The PNG maps ``value_range`` linearly onto grey (``colormap=None``) or onto a matplotlib colour
-    map (e.g. "viridis", "magma"); values outside the range are clipped, NaN is black.
+    Parameters
+    ----------
+    path : str or Path
+        The file; its suffix (``.exr`` or ``.png``) chooses the format.
+    texture : (T, T) float array
+        The values.
+    colormap : str, optional
+        A matplotlib colour map for the PNG (e.g. "viridis", "magma"); None: grey.
+    value_range : (float, float), optional
+        The values mapped linearly onto the PNG's range; values outside are clipped, NaN is
+        black.
+
+    Raises
+    ------
+    ValueError
+        If ``texture`` is not 2-D or the suffix is neither ``.exr`` nor ``.png``.
     """
     path = Path(path)
     texture = np.asarray(texture, np.float32)
@@ -166,7 +229,15 @@ def write_scalar_map(path: str | Path, texture: np.ndarray, colormap: str | None
 
 
 def write_material_previews(folder: str | Path, maps: MaterialMaps) -> None:
-    """``base_color.png`` (sRGB-encoded), ``roughness.png`` and ``metallic.png`` (grey, linear)."""
+    """Write ``base_color.png`` (sRGB-encoded), ``roughness.png`` and ``metallic.png`` (grey, linear).
+
+    Parameters
+    ----------
+    folder : str or Path
+        The folder to write into.
+    maps : MaterialMaps
+        The textures.
+    """
     folder = Path(folder)
     write_png(folder / FILES["base_color_png"], linear_to_srgb(maps.base_color))
     write_scalar_map(folder / FILES["roughness_png"], maps.roughness)
@@ -174,7 +245,19 @@ def write_material_previews(folder: str | Path, maps: MaterialMaps) -> None:
 
 
 def write_gltf(path: str | Path, mesh: Mesh, maps: MaterialMaps) -> None:
-    """A glTF 2.0 binary of ``mesh`` with ``maps`` as its PBR metallic-roughness material."""
+    """Write a glTF 2.0 binary of a mesh with its PBR metallic-roughness material, atomically.
+
+    Conventions: see the module docstring.
+
+    Parameters
+    ----------
+    path : str or Path
+        The ``.glb`` file.
+    mesh : Mesh
+        The mesh; its vertices are kept as they are (no merging across UV seams).
+    maps : MaterialMaps
+        Base colour (T, T, 3), roughness and metallic (T, T) in [0, 1].
+    """
     base_color = _to_uint8(linear_to_srgb(maps.base_color))  # (T, T, 3)
     metallic_roughness = np.stack(
         [
@@ -207,7 +290,22 @@ def write_gltf(path: str | Path, mesh: Mesh, maps: MaterialMaps) -> None:
 
 
 def coverage(source: Texels | Observations, estimate: MaterialEstimate) -> dict:
-    """Coverage statistics: texels, fraction observed (estimated), mean views per texel."""
+    """Compute coverage statistics for ``summary.json``.
+
+    Parameters
+    ----------
+    source : Texels or Observations
+        What the estimate was made on; only Observations know views.
+    estimate : MaterialEstimate
+        The estimate (N texels).
+
+    Returns
+    -------
+    dict
+        ``texture_res``, ``texels``, ``estimated_fraction`` and ``observed_fraction`` (with
+        Texels alone: the estimated fraction); with Observations also ``views``,
+        ``mean_views_per_texel`` and ``mean_views_per_observed_texel``.
+    """
     n_texels = estimate.n_texels
     stats = {
         "texture_res": estimate.texture_res,
@@ -238,14 +336,44 @@ def write_fit_outputs(
     extra_summary: dict | None = None,
     maps: MaterialMaps | None = None,
 ) -> Path:
-    """Write the whole output folder of a fit (replaced as a whole, atomically); returns it.
+    """Write the whole output folder of a fit, replacing it as a whole, atomically.
 
-    ``source`` is the Texels or Observations the estimate was made on (same texel order).
     Files: see ``FILES``; the entropy maps, ``flags.png`` and ``uncertainty.npz`` only with
     ``uncertainty``, the roughness_std maps only when it holds them, ``spectra.npz`` only when
-    ``source`` is Observations. ``extra_summary`` is merged into ``summary.json`` (e.g. the
-    capture's path). ``maps``: the estimate's textures when already made
-    (``material_textures(estimate, config.texels.dilation_px)``).
+    ``source`` is Observations.
+
+    Parameters
+    ----------
+    out_dir : str or Path
+        The output folder.
+    mesh : Mesh
+        The mesh, for the glTF.
+    source : Texels or Observations
+        What the estimate was made on (same texel order).
+    estimate : MaterialEstimate
+        The estimate.
+    uncertainty : Uncertainty, optional
+        The uncertainty of the same texels.
+    config : Config, optional
+        The settings; recorded in ``summary.json``, and ``config.texels.dilation_px`` dilates the
+        textures.
+    timings : dict, optional
+        Seconds per stage, recorded in ``summary.json``.
+    extra_summary : dict, optional
+        Merged into ``summary.json`` (e.g. the capture's path).
+    maps : MaterialMaps, optional
+        The estimate's textures when already made
+        (``material_textures(estimate, config.texels.dilation_px)``).
+
+    Returns
+    -------
+    Path
+        ``out_dir``.
+
+    Raises
+    ------
+    ValueError
+        If the estimate was not made on ``source``'s texels.
     """
     if not np.array_equal(source.texel_index, estimate.texel_index):
         raise ValueError("the estimate was not made on these texels (texel_index differs)")
@@ -301,7 +429,7 @@ def write_fit_outputs(
 
 def _write_uncertainty_maps(folder: Path, uncertainty: Uncertainty, estimate: MaterialEstimate,
                             dilation_px: int) -> None:
-    """entropy.exr, entropy.png and flags.png."""
+    """Write entropy.exr, entropy.png and flags.png."""
     entropy = entropy_texture(uncertainty, estimate, dilation_px)
     write_scalar_map(folder / FILES["entropy"], entropy)
     write_scalar_map(folder / FILES["entropy_png"], entropy, ENTROPY_COLORMAP, ENTROPY_RANGE)
@@ -311,15 +439,17 @@ def _write_uncertainty_maps(folder: Path, uncertainty: Uncertainty, estimate: Ma
 
 def _write_roughness_std_maps(folder: Path, uncertainty: Uncertainty, estimate: MaterialEstimate,
                               dilation_px: int) -> None:
-    """roughness_std.exr and roughness_std.png."""
+    """Write roughness_std.exr and roughness_std.png."""
     spread = roughness_std_texture(uncertainty, estimate, dilation_px)
     write_scalar_map(folder / FILES["roughness_std"], spread)
     write_scalar_map(folder / FILES["roughness_std_png"], spread, ROUGHNESS_STD_COLORMAP, ROUGHNESS_STD_RANGE)
 
 
 def _save_uncertainty(path: Path, uncertainty: Uncertainty, texel_index: np.ndarray) -> None:
-    """uncertainty.npz, deflated: the float16 likelihood grids shrink 3x for ~0.6 s (T = 512).
-    roughness_std is stored as computed (NaN where not estimated)."""
+    """Write uncertainty.npz, deflated (the float16 likelihood grids compress well).
+
+    roughness_std is stored as computed (NaN where not estimated).
+    """
     optional = {"likelihood": None if uncertainty.likelihood is None else to_float16(uncertainty.likelihood),
                 "roughness_std": uncertainty.roughness_std}
     _save_npz(path, True, texel_index=texel_index, entropy=uncertainty.entropy, flags=uncertainty.flags,
@@ -328,7 +458,7 @@ def _save_uncertainty(path: Path, uncertainty: Uncertainty, texel_index: np.ndar
 
 
 def _save_spectra(path: Path, source: Observations) -> None:
-    """spectra.npz, stored: deflate took ~1 s per spectrum (T = 512) to shrink the file by 6 %."""
+    """Write spectra.npz, stored: deflating costs time and barely shrinks the spectra."""
     _save_npz(path, False, texel_index=source.texel_index,
               observed_spectrum=source.observed_spectrum.astype(np.float32),
               mirrored_spectrum=source.mirrored_spectrum.astype(np.float32),
@@ -347,7 +477,20 @@ FLAG_COLOURS = {
 
 
 def flags_picture(flags: np.ndarray, atlas: np.ndarray) -> np.ndarray:
-    """(T, T, 3) float32 picture of a (T, T) flag texture; ``atlas`` (T, T) bool: the mesh's texels."""
+    """Paint a flag texture as a picture, one colour per flag (``FLAG_COLOURS``).
+
+    Parameters
+    ----------
+    flags : (T, T) uint8
+        Bit fields of ``FLAG_*``; the first set bit in priority order gives the colour.
+    atlas : (T, T) bool
+        The mesh's texels: white where no flag is set; texels off the atlas are black.
+
+    Returns
+    -------
+    (T, T, 3) float32
+        The picture, RGB in [0, 1].
+    """
     picture = np.zeros(flags.shape + (3,), np.float32)
     picture[atlas] = 1.0
     for bit, colour in reversed(FLAG_COLOURS.items()):  # reversed: higher priority painted last
@@ -360,8 +503,11 @@ def flags_picture(flags: np.ndarray, atlas: np.ndarray) -> np.ndarray:
 
 
 def _save_npz(path: Path, compress: bool, **arrays) -> None:
-    """An .npz that np.load reads (atomically), deflated at level 1 (numpy's default level took
-    1.3 s of a 2.6 s bunny write) when ``compress``, else stored."""
+    """Write an .npz that np.load reads, atomically; deflated at level 1 when ``compress``, else stored.
+
+    Level 1 rather than numpy's default level: the higher level costs much more time for little
+    gain on these arrays.
+    """
     with atomic_path(path) as tmp:
         compression = zipfile.ZIP_DEFLATED if compress else zipfile.ZIP_STORED
         with zipfile.ZipFile(tmp, "w", compression=compression, compresslevel=1 if compress else None) as archive:
@@ -371,11 +517,21 @@ def _save_npz(path: Path, compress: bool, **arrays) -> None:
 
 
 def to_float16(values: np.ndarray) -> np.ndarray:
-    """``values.astype(np.float16)``, bit for bit, in one pass.
+    """Cast to float16 like ``values.astype(np.float16)``, bit for bit, in one pass.
 
-    numpy's cast took 1.5 s for a plane's likelihood grids (17 M values, T = 512): most of them are
-    tiny, and a float16 result below 2**-14 (subnormal) costs the processor a slow assist each.
-    Serial on purpose: it runs in a writer thread (write_fit_outputs), beside other writes.
+    numpy's cast is slow on likelihood grids: most of their values are tiny, and a float16 result
+    below 2**-14 (subnormal) costs the processor a slow assist each. Serial on purpose: it runs in
+    a writer thread (`write_fit_outputs`), beside other writes.
+
+    Parameters
+    ----------
+    values : float array
+        Any shape; cast to float32 first.
+
+    Returns
+    -------
+    float16 array
+        Same shape, rounded to nearest even.
     """
     values = np.ascontiguousarray(values, dtype=np.float32)
     bits = np.empty(values.shape, np.uint16)
@@ -385,7 +541,7 @@ def to_float16(values: np.ndarray) -> np.ndarray:
 
 @numba.njit(cache=True)
 def _float16_bits(float_bits, half_bits):
-    """IEEE binary32 -> binary16 bits, round to nearest even (what numpy's cast does)."""
+    """Convert IEEE binary32 to binary16 bits, round to nearest even (what numpy's cast does)."""
     for i in range(float_bits.shape[0]):
         f = float_bits[i]
         sign = np.uint16((f >> 16) & 0x8000)
@@ -415,7 +571,7 @@ def _float16_bits(float_bits, half_bits):
 
 
 def _atlas_mask(estimate: MaterialEstimate | Observations) -> np.ndarray:
-    """(T, T) bool: the texels of the mesh (estimated or not)."""
+    """Return the (T, T) bool mask of the mesh's texels (estimated or not)."""
     return estimate.to_texture(np.ones(estimate.n_texels, bool), fill=False)
 
 
@@ -424,8 +580,11 @@ def _to_uint8(values: np.ndarray) -> np.ndarray:
 
 
 def _clamped_samplers(tree: dict) -> None:
-    """trimesh writes no sampler (glTF's default is REPEAT): add one bilinear, mip-mapped sampler
-    that clamps to the edge, like the Mitsuba textures the estimate was made for."""
+    """Add one bilinear, mip-mapped sampler that clamps to the edge to a glTF tree.
+
+    trimesh writes no sampler (glTF's default is REPEAT); the Mitsuba textures the estimate was
+    made for clamp.
+    """
     tree["samplers"] = [
         {"magFilter": GL_LINEAR, "minFilter": GL_LINEAR_MIPMAP_LINEAR,
          "wrapS": GL_CLAMP_TO_EDGE, "wrapT": GL_CLAMP_TO_EDGE}

@@ -24,24 +24,59 @@ SPARSIFICATION_PLOT = "sparsification.png"
 
 @dataclass(eq=False)
 class FitOutputs:
-    """A fit folder read back."""
+    """A fit folder read back.
+
+    Attributes
+    ----------
+    folder : Path
+        The fit folder.
+    summary : dict
+        Its ``summary.json``.
+    maps : MaterialMaps
+        The material textures, T x T.
+    entropy : (T, T) float32 or None
+        The entropy texture, dilated like the maps; None for a fit without uncertainty.
+    observed : (T, T) bool
+        Texels with at least one sample.
+    texel_index : (N,) int64
+        Flat indices of the mesh's texels (the order of spectra.npz and uncertainty.npz).
+    arrays : dict of str to array
+        The per-texel arrays of spectra.npz and uncertainty.npz, (N, ...) each.
+    """
 
     folder: Path
     summary: dict
-    maps: MaterialMaps  # (T, T, ·) textures
-    entropy: np.ndarray | None  # (T, T) float32, dilated like the maps; None without uncertainty
-    observed: np.ndarray  # (T, T) bool: texels with at least one sample
-    texel_index: np.ndarray  # (N,) flat indices of the mesh's texels (spectra.npz's order)
-    arrays: dict  # the per-texel arrays of spectra.npz and uncertainty.npz, (N, ...)
+    maps: MaterialMaps
+    entropy: np.ndarray | None
+    observed: np.ndarray
+    texel_index: np.ndarray
+    arrays: dict
 
     @property
     def capture_path(self) -> Path | None:
+        """The capture the fit was made from, as recorded in ``summary.json``; None if unknown."""
         path = self.summary.get("capture")
         return None if path is None else Path(path)
 
 
 def load_fit(fit_dir: str | Path) -> FitOutputs:
-    """Read a fit folder written by `write_fit`; InputError naming what is missing or bad."""
+    """Read a fit folder written by ``freqbrdf fit`` (`freqbrdf.pipeline.write_fit`).
+
+    Parameters
+    ----------
+    fit_dir : str or Path
+        The fit folder.
+
+    Returns
+    -------
+    FitOutputs
+        Its maps, entropy, observed texels and per-texel arrays.
+
+    Raises
+    ------
+    InputError
+        Naming what is missing or unreadable (summary.json, the maps, spectra.npz, ...).
+    """
     folder = Path(fit_dir)
     summary_path = folder / export.FILES["summary"]
     if not folder.is_dir():
@@ -80,7 +115,20 @@ def load_fit(fit_dir: str | Path) -> FitOutputs:
 
 
 def check_output_folder(out_dir: str | Path, inputs: dict[str, Path]) -> None:
-    """InputError if replacing ``out_dir`` as a whole would delete one of the named input folders."""
+    """Refuse an output folder whose replacement would delete an input folder.
+
+    Parameters
+    ----------
+    out_dir : str or Path
+        The output folder, to be replaced as a whole.
+    inputs : dict of str to Path
+        Input folders (resolved), by the name the error message gives them, e.g. "the fit".
+
+    Raises
+    ------
+    InputError
+        If ``out_dir`` is one of the inputs or contains one.
+    """
     out = Path(out_dir).resolve()
     for name, folder in inputs.items():
         if out == folder or out in folder.parents:

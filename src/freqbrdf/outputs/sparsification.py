@@ -1,6 +1,6 @@
 """Does the uncertainty mean something? Rank correlation and sparsification curves.
 
-A per-texel uncertainty is useful when it ranks texels by their error. Two standard measures:
+The uncertainty-quality measures of METHOD.md §5. A per-texel uncertainty is useful when it ranks texels by their error. Two standard measures:
 
 - Spearman's rho between uncertainty and absolute error.
 - Sparsification (Ilg et al., ECCV 2018): remove the most uncertain fraction f of the texels and
@@ -21,22 +21,66 @@ from scipy import stats
 
 @dataclass(eq=False)
 class Sparsification:
-    fractions: np.ndarray  # (S,) fraction of texels removed
-    by_uncertainty: np.ndarray  # (S,) mean error of the kept texels / full-set mean error
-    oracle: np.ndarray  # (S,) the same, removing the largest errors first
-    random: np.ndarray  # (S,) the expectation under a random order: all ones
+    """Sparsification curves and scores of one uncertainty against one error (S steps).
+
+    Attributes
+    ----------
+    fractions : (S,) float64
+        Fraction of texels removed.
+    by_uncertainty : (S,) float64
+        Mean error of the kept texels over the full-set mean error, most uncertain removed first.
+    oracle : (S,) float64
+        The same, removing the largest errors first.
+    random : (S,) float64
+        The expectation under a random order: all ones.
+    ause : float
+        Area between ``by_uncertainty`` and ``oracle`` (0 is perfect).
+    aurg : float
+        Area between ``random`` and ``by_uncertainty`` (> 0: better than chance).
+    spearman : float
+        Rank correlation of uncertainty and error; NaN if either is constant.
+    texels : int
+        Number of texels scored (finite in both).
+    """
+
+    fractions: np.ndarray
+    by_uncertainty: np.ndarray
+    oracle: np.ndarray
+    random: np.ndarray
     ause: float
     aurg: float
-    spearman: float  # rank correlation of uncertainty and error (NaN if either is constant)
+    spearman: float
     texels: int
 
 
 def sparsification(uncertainty: np.ndarray, error: np.ndarray, steps: int = 50,
                    max_fraction: float = 0.99) -> Sparsification:
-    """Curves and scores for per-texel ``uncertainty`` (N,) against absolute ``error`` (N,).
+    """Compute sparsification curves and scores of an uncertainty against an error.
 
     Non-finite entries (of either) are left out. Ties in uncertainty are broken by texel order
     (stable sort), so the result is deterministic.
+
+    Parameters
+    ----------
+    uncertainty : (N,) array_like
+        Per-texel uncertainty, higher meaning less certain.
+    error : (N,) array_like
+        Per-texel error (its absolute value is used).
+    steps : int, optional
+        Number of fractions S, evenly spaced on [0, max_fraction].
+    max_fraction : float, optional
+        The largest fraction of texels removed.
+
+    Returns
+    -------
+    Sparsification
+        The curves and AUSE, AURG and Spearman's rho; flat curves and zero areas when no texel
+        is left or the mean error is 0.
+
+    Raises
+    ------
+    ValueError
+        If ``uncertainty`` and ``error`` differ in length.
     """
     uncertainty = np.asarray(uncertainty, np.float64).ravel()
     error = np.abs(np.asarray(error, np.float64).ravel())
@@ -67,7 +111,7 @@ def sparsification(uncertainty: np.ndarray, error: np.ndarray, steps: int = 50,
 
 
 def _kept_mean(error_removed_first: np.ndarray, fractions: np.ndarray) -> np.ndarray:
-    """Mean of ``error_removed_first[k:]`` with k = floor(f N) for each fraction f."""
+    """Return the mean of ``error_removed_first[k:]`` with k = floor(f N) for each fraction f."""
     n_texels = len(error_removed_first)
     suffix_sum = np.concatenate([np.cumsum(error_removed_first[::-1])[::-1], [0.0]])  # (N + 1,)
     removed = np.minimum(np.floor(fractions * n_texels).astype(np.int64), n_texels - 1)
@@ -75,6 +119,19 @@ def _kept_mean(error_removed_first: np.ndarray, fractions: np.ndarray) -> np.nda
 
 
 def to_dict(result: Sparsification) -> dict:
+    """Convert a result to JSON-ready values for ``metrics.json``.
+
+    Parameters
+    ----------
+    result : Sparsification
+        The result.
+
+    Returns
+    -------
+    dict
+        ``texels``, ``spearman`` (None for NaN), ``ause``, ``aurg`` and the ``fractions``,
+        ``by_uncertainty`` and ``oracle`` curves as rounded lists.
+    """
     return {
         "texels": result.texels,
         "spearman": None if np.isnan(result.spearman) else result.spearman,
@@ -91,10 +148,20 @@ PLOT_COLOURS = {"entropy": "C0", "roughness_std": "C3"}
 
 
 def plot(results: dict[str, dict[str, Sparsification]], path) -> None:
-    """One panel per error kind (e.g. roughness, base colour) with one curve per uncertainty
-    (``results[uncertainty][error kind]``, e.g. "entropy", "roughness_std") and their AUSE, AURG and
-    Spearman in the legend, the oracle and random curves (of the first uncertainty: the same for
-    all when they are scored on the same texels)."""
+    """Plot sparsification curves as a PNG, one panel per error kind.
+
+    Each panel has one curve per uncertainty with its AUSE, AURG and Spearman in the legend, and
+    the oracle and random curves of the first uncertainty (the same for all when they are scored
+    on the same texels).
+
+    Parameters
+    ----------
+    results : dict of str to dict of str to Sparsification
+        ``results[uncertainty][error kind]``, e.g. ``results["entropy"]["roughness"]``; every
+        uncertainty has the same error kinds.
+    path : str or Path
+        The PNG file, written atomically.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
