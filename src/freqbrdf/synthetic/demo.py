@@ -1,9 +1,9 @@
 """``freqbrdf demo``: from nothing to a report on the bundled default capture.
 
 Renders the default synthetic capture with Mitsuba (the bunny with an image-based material under a
-bundled HDR map, 96 views, and a relighting test set under two other maps), fits it, evaluates it
-and writes the report. The capture is cached under ``<out>/capture-<hash of its settings>``, so a
-second run starts at the fit.
+bundled HDR map, 96 views, and a relighting test set under two other maps), fits it (METHOD.md
+§3), evaluates it (§5) and writes the report. The capture is cached under
+``<out>/capture-<hash of its settings>``, so a second run starts at the fit.
 """
 
 from __future__ import annotations
@@ -26,8 +26,8 @@ from freqbrdf.progress import SILENT, Reporter
 from freqbrdf.synthetic.synth import SynthSettings, synthesize
 
 DEFAULT_CAPTURE = SynthSettings(
-    # 96 views: each observed texel is then seen ~38 times, more than the 36 coefficients of the
-    # degree-5 fits (with 48, ~19 times: 88 % of texels were underdetermined and flagged).
+    # 96 views: each observed texel is then seen more often than the 36 coefficients of the
+    # degree-5 fits, so that few texels are underdetermined (docs/measurements.md).
     mesh="bunny", envmap="forest", materials="coffee", views=96, resolution=256, spp=64,
     texture_res=512, test_envmaps=("studio", "sunset"), test_views=6,
 )
@@ -35,7 +35,20 @@ RELIGHT_SPP = 64
 
 
 def capture_folder(out: Path, settings: SynthSettings) -> Path:
-    """Where the capture of ``settings`` is cached: the hash covers the settings and our version."""
+    """Return where the capture of some settings is cached.
+
+    Parameters
+    ----------
+    out : Path
+        The demo's output folder.
+    settings : SynthSettings
+        The capture's settings.
+
+    Returns
+    -------
+    Path
+        ``out/capture-<hash>``; the hash covers the settings and the package version.
+    """
     key = json.dumps({"settings": asdict(settings), "version": __version__}, sort_keys=True)
     return out / f"capture-{hashlib.sha256(key.encode()).hexdigest()[:12]}"
 
@@ -44,8 +57,30 @@ def run_demo(out: str | Path = "out/demo", settings: SynthSettings = DEFAULT_CAP
              config: Config = Config(), reporter: Reporter = SILENT,
              relight: RelightSettings = RelightSettings(spp=RELIGHT_SPP),
              before_writing: Callable[[], None] = lambda: None) -> dict:
-    """Run the whole demo; returns where things are and the seconds per step. ``before_writing``
-    is called between the fit and writing it (the command line may re-run itself there)."""
+    """Run the whole demo: render (or reuse) the capture, fit, evaluate, report.
+
+    Parameters
+    ----------
+    out : str or Path, optional
+        The output folder: the cached capture, ``fit/`` with its evaluation and report.
+    settings : SynthSettings, optional
+        The synthetic capture.
+    config : Config, optional
+        The fit's settings.
+    reporter : Reporter, optional
+        Receives progress.
+    relight : RelightSettings, optional
+        Render settings of the evaluation's relit views.
+    before_writing : callable () -> None, optional
+        Called between the fit and writing it (the command line may re-run itself there).
+
+    Returns
+    -------
+    dict
+        ``capture``, ``fit`` and ``report`` paths, ``capture_cached``, the ``texture`` and
+        ``relighting`` scores, the ``uncertainty`` headline scores (Spearman, AUSE, AURG per error
+        kind, of the entropy and of the roughness std) and ``timings`` (seconds per step).
+    """
     out = Path(out)
     timings = {}
     capture_dir = capture_folder(out, settings)
@@ -82,8 +117,11 @@ def run_demo(out: str | Path = "out/demo", settings: SynthSettings = DEFAULT_CAP
 
 
 def _headline_scores(uncertainty: dict) -> dict:
-    """Spearman, AUSE and AURG per error kind of the entropy and of the roughness std, from
-    metrics.json's "uncertainty" (the entropy's scores at its top level, roughness_std's nested)."""
+    """Pick Spearman, AUSE and AURG per error kind of the entropy and of the roughness std.
+
+    From metrics.json's "uncertainty" (the entropy's scores at its top level, roughness_std's
+    nested).
+    """
     def pick(scores: dict) -> dict:
         return {kind: {key: value for key, value in result.items() if key in ("spearman", "ause", "aurg")}
                 for kind, result in scores.items() if isinstance(result, dict) and "spearman" in result}

@@ -1,4 +1,8 @@
-"""Ground-truth material maps for synthetic captures: colour bands and photo-derived materials."""
+"""Ground-truth material maps for synthetic captures: colour bands and photo-derived materials.
+
+Synthetic captures judge parameter recovery against known maps (METHOD.md §5); the photographs
+come from ``skimage.data`` (§6).
+"""
 
 from __future__ import annotations
 
@@ -30,11 +34,21 @@ BAND_ROUGHNESS = (0.05, 1.0)  # ramp across each colour band, left to right
 
 
 def bands_material(resolution: int = 512) -> MaterialMaps:
-    """Factorial test pattern in the spirit of the paper's plane scene.
+    """Make a factorial test pattern in the spirit of the paper's plane scene.
 
     Six vertical colour bands; inside each band roughness ramps linearly from 0.05 (left edge)
     to 1 (right edge); three horizontal strips with metallic 0, 0.5 and 1 from top to bottom.
     Every colour thus appears with every roughness and metallic level.
+
+    Parameters
+    ----------
+    resolution : int, optional
+        The texture side T.
+
+    Returns
+    -------
+    MaterialMaps
+        Base colour (T, T, 3) linear, roughness and metallic (T, T), float32.
     """
     n_bands = len(BAND_COLOURS_SRGB)
     column = (np.arange(resolution) + 0.5) / resolution * n_bands  # band coordinate per column
@@ -57,7 +71,7 @@ def bands_material(resolution: int = 512) -> MaterialMaps:
 
 
 def photo_material(photo_srgb: np.ndarray, resolution: int = 512) -> MaterialMaps:
-    """Ground-truth maps from an 8-bit sRGB photograph ``(H, W, 3)`` uint8, deterministically.
+    """Derive ground-truth maps from an 8-bit sRGB photograph, deterministically.
 
     - The central square crop is resized to ``resolution`` (in linear space).
     - base colour: the linear image mapped into [0.03, 0.93], the range of real albedos.
@@ -66,6 +80,18 @@ def photo_material(photo_srgb: np.ndarray, resolution: int = 512) -> MaterialMap
       percentile, clipped to 1): busy regions (hair, fabric) are rough, smooth ones glossy.
     - metallic: bright, unsaturated regions are metal (HSV value ramps 0.5 -> 0.75 times
       (1 - saturation ramp 0.1 -> 0.25), blurred over one texel): mostly 0 or 1, soft borders.
+
+    Parameters
+    ----------
+    photo_srgb : (H, W, 3) uint8
+        The photograph (extra channels are ignored).
+    resolution : int, optional
+        The texture side T.
+
+    Returns
+    -------
+    MaterialMaps
+        Base colour (T, T, 3) linear, roughness and metallic (T, T), float32.
     """
     height, width = photo_srgb.shape[:2]
     side = min(height, width)

@@ -1,13 +1,15 @@
 """The ``synth`` job: a synthetic capture of a known object, path traced with Mitsuba 3.
 
 A capture is what a real acquisition would give (HDR photographs, masks, camera poses, the mesh
-and the environment map) plus what only a synthetic one can: the ground-truth material maps
-(``gt/``) and test views under other environment maps with their reference renders.
+and the environment map; METHOD.md §1) plus what only a synthetic one can: the ground-truth
+material maps (``gt/``) and test views under other environment maps with their reference renders,
+which results are judged on (§5). It is written in our layout or Stanford-ORB's
+(`freqbrdf.capture.layouts`).
 
 World axes are Mitsuba's and OBJ's: +y is up (the zenith of an environment map with identity
 to_world, and the normal of the bundled plane). Cameras sit on a sphere around the object's
 bounding sphere, looking at its centre, far enough that the bounding sphere fills
-``FRAME_FILL`` of the field of view.
+``FRAME_FILL`` of the field of view (`freqbrdf.capture.camera_layouts`).
 """
 
 from __future__ import annotations
@@ -70,17 +72,48 @@ CAPTURE_FORMATS: tuple[str, ...] = ("ours", "orb")
 
 @dataclass(frozen=True)
 class SynthSettings:
-    mesh: str = "bunny"  # bundled name or a mesh file
-    envmap: str = "forest"  # bundled name or an EXR/HDR file; lights the training views
-    materials: str = "bands"  # bundled name or a folder written by save_material_maps
+    """What a synthetic capture is rendered from, and how.
+
+    Attributes
+    ----------
+    mesh : str
+        A bundled mesh's name or a mesh file.
+    envmap : str
+        A bundled environment map's name or an EXR/HDR file; lights the training views.
+    materials : str
+        A bundled material's name or a folder written by ``save_material_maps``.
+    views : int
+        Number of training views.
+    resolution : int
+        Images are resolution x resolution pixels.
+    spp : int
+        Samples per pixel.
+    texture_res : int
+        The ground-truth maps are resampled to texture_res x texture_res.
+    cameras : {"hemisphere", "sphere", "random"}
+        The training views' layout (`freqbrdf.capture.camera_layouts.camera_directions`).
+    seed : int
+        Camera placement (random layouts), the choice of test maps and Monte Carlo noise.
+    test_envmaps : tuple of str, or int
+        Environment maps of the test views: names or paths, or a count of bundled maps other
+        than ``envmap`` chosen with ``seed``.
+    test_views : int
+        Number of test (relighting) views, randomly placed; may be 0 for our layout.
+    format : {"ours", "orb"}
+        Our layout or Stanford-ORB's.
+    max_depth : int
+        Maximum path length of the renders.
+    """
+
+    mesh: str = "bunny"
+    envmap: str = "forest"
+    materials: str = "bands"
     views: int = 32
-    resolution: int = 256  # images are resolution x resolution pixels
-    spp: int = 64  # samples per pixel
-    texture_res: int = 512  # ground-truth maps are resampled to texture_res x texture_res
+    resolution: int = 256
+    spp: int = 64
+    texture_res: int = 512
     cameras: CameraLayout = "hemisphere"
-    seed: int = 0  # camera placement (random layouts) and Monte Carlo noise
-    # Environment maps of the test views: names/paths, or a count of bundled maps other than
-    # ``envmap`` chosen with ``seed``.
+    seed: int = 0
     test_envmaps: tuple[str, ...] | int = 2
     test_views: int = 8
     format: CaptureFormat = "ours"
@@ -93,22 +126,57 @@ class SynthSettings:
 
 @dataclass(frozen=True)
 class SynthScene:
-    """Everything a capture is rendered from, resolved from the settings."""
+    """Everything a capture is rendered from, resolved from the settings.
+
+    Attributes
+    ----------
+    mesh : Mesh
+        The object.
+    envmap : Envmap
+        The training views' light.
+    envmap_path : Path
+        Its file.
+    materials : MaterialMaps
+        The ground-truth maps, T x T.
+    cameras : list of Camera
+        The training views.
+    test_cameras : list of Camera
+        The test views.
+    test_envmap_paths : list of Path
+        One environment map per test view.
+    """
 
     mesh: Mesh
     envmap: Envmap
     envmap_path: Path
     materials: MaterialMaps
-    cameras: list[Camera]  # training views
+    cameras: list[Camera]
     test_cameras: list[Camera]
-    test_envmap_paths: list[Path]  # one per test view
+    test_envmap_paths: list[Path]
 
 
 def synthesize(out: str | Path, settings: SynthSettings = SynthSettings(), progress: bool = True) -> Path:
-    """Render a synthetic capture into the folder ``out`` (replaced as a whole, atomically).
+    """Render a synthetic capture into a folder, replacing it as a whole, atomically.
 
-    Returns the path that `freqbrdf.capture.layouts.load` takes: ``out`` itself, or for the Stanford-ORB
-    layout its scene folder ``out/blender_HDR/synth``.
+    Parameters
+    ----------
+    out : str or Path
+        The capture folder.
+    settings : SynthSettings, optional
+        What to render.
+    progress : bool, optional
+        Show a progress bar.
+
+    Returns
+    -------
+    Path
+        What `freqbrdf.capture.layouts.load` takes: ``out`` itself, or for the Stanford-ORB layout
+        its scene folder ``out/blender_HDR/synth``.
+
+    Raises
+    ------
+    InputError
+        If the settings are invalid (see `prepare`), or the Stanford-ORB layout has no test view.
     """
     scene = prepare(settings)
     out = Path(out)
@@ -118,7 +186,24 @@ def synthesize(out: str | Path, settings: SynthSettings = SynthSettings(), progr
 
 
 def prepare(settings: SynthSettings) -> SynthScene:
-    """Validate the settings, load the assets and place the cameras (deterministic in seed)."""
+    """Validate the settings, load the assets and place the cameras, deterministically in the seed.
+
+    Parameters
+    ----------
+    settings : SynthSettings
+        What to render.
+
+    Returns
+    -------
+    SynthScene
+        The mesh, lights, ground-truth maps and cameras.
+
+    Raises
+    ------
+    InputError
+        If a count is not positive, a layout or format is unknown, ``test_envmaps`` is empty or
+        asks for more bundled maps than there are, or an asset cannot be loaded.
+    """
     _check_settings(settings)
     mesh = load_mesh(_asset(settings.mesh, assets.list_meshes(), assets.mesh_path))
     envmap_path = _asset(settings.envmap, assets.list_envmaps(), assets.envmap_path)
@@ -187,7 +272,7 @@ def _write_view(image_path: Path, mask_path: Path, view: RenderedView) -> None:
 
 
 def _write_ours(folder: Path, scene: SynthScene, render) -> None:
-    """``transforms.json``, images/, masks/, mesh.obj, envmap.exr, gt/, and the test set."""
+    """Write ``transforms.json``, images/, masks/, mesh.obj, envmap.exr, gt/, and the test set."""
     save_obj(folder / "mesh.obj", scene.mesh)
     write_exr(folder / "envmap.exr", scene.envmap.radiance)
     save_material_maps(folder / GROUND_TRUTH_FOLDER, scene.materials)
@@ -223,7 +308,7 @@ ORB_SCENE = "synth"
 
 
 def _write_stanford_orb(folder: Path, scene: SynthScene, render) -> None:
-    """``blender_HDR/synth`` and ``ground_truth/synth`` as Stanford-ORB lays them out.
+    """Write ``blender_HDR/synth`` and ``ground_truth/synth`` as Stanford-ORB lays them out.
 
     Stanford-ORB has no map for its training views: a scene's light is the map of its first test
     photograph, stored in that camera's frame. So the test split here is the test cameras under
@@ -275,8 +360,23 @@ def _write_stanford_orb(folder: Path, scene: SynthScene, render) -> None:
 
 
 def resample_envmap(envmap: Envmap, to_world: np.ndarray) -> Envmap:
-    """The same light as ``envmap`` stored in another frame: the map whose Mitsuba to_world is
-    ``to_world`` (4, 4), each texel looked up (bilinearly) in the direction it stands for."""
+    """Store the same light in another frame.
+
+    Each texel of the new map is looked up (bilinearly) in ``envmap`` in the direction it stands
+    for.
+
+    Parameters
+    ----------
+    envmap : Envmap
+        The light, radiance (H, W, 3).
+    to_world : (4, 4) array_like
+        The new map's Mitsuba to_world.
+
+    Returns
+    -------
+    Envmap
+        The map with that to_world, (H, W, 3) float32.
+    """
     height, width = envmap.radiance.shape[:2]
     # Mitsuba's texel centres: u = (j + 0.5) / W from -z towards +x, v = i / (H - 1) from +y.
     local = local_directions(np.pi * np.arange(height) / (height - 1), 2.0 * np.pi * (np.arange(width) + 0.5) / width)
@@ -303,7 +403,7 @@ def _check_settings(settings: SynthSettings) -> None:
 
 
 def _asset(name: str, bundled: list[str], bundled_path) -> Path:
-    """A bundled asset by name, otherwise ``name`` as a path (its loader reports if it is bad)."""
+    """Resolve a bundled asset by name, otherwise ``name`` as a path (its loader reports if it is bad)."""
     return bundled_path(name) if name in bundled else Path(name)
 
 
