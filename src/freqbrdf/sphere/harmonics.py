@@ -1,7 +1,9 @@
 """Real spherical harmonics: evaluation, regularised fitting, spectra, filtering, rotation.
 
-Convention (appendix eqs. 14-16, METHOD.md §2). Polar axis +z, theta = acos(z), phi = atan2(y, x);
-flat index k = l*l + l + m, m = -l..l, K = (lmax + 1)^2 coefficients.
+The SH fits of METHOD.md §3.3 (`fit_sh`), the power spectrum of §2 (`power_spectrum`) and the
+band-limit filter of §3.4 (`gaussian_lowpass`). Convention (appendix eqs. 14-16, METHOD.md §2):
+polar axis +z, theta = acos(z), phi = atan2(y, x); flat index k = l*l + l + m, m = -l..l,
+K = (lmax + 1)^2 coefficients, L = lmax + 1 degrees.
 
     Y_lm = sqrt(2) N_lm P_l^m(cos theta) cos(m phi)       m > 0
     Y_l0 =         N_l0 P_l^0(cos theta)
@@ -38,24 +40,67 @@ FIT_EMPTY = 2  # no weighted sample at all: coefficients are zero
 # A Cholesky pivot below this fraction of its diagonal entry marks the normal equations as
 # numerically singular (cond >~ 1e11); such texels are re-solved by an SVD least-squares solve.
 _PIVOT_RTOL = 1e-11
-# Texels factorised together in the fit kernel, one per SIMD lane (32: fastest of 16, 32, 64 measured).
+# Texels factorised together in the fit kernel, one per SIMD lane.
 _LANES = 32
 
 
 def num_coeffs(lmax: int) -> int:
-    """K = (lmax + 1)^2: the number of real SH up to and including degree lmax."""
+    """Count the real SH up to and including a degree.
+
+    Parameters
+    ----------
+    lmax : int
+        The highest degree, >= 0.
+
+    Returns
+    -------
+    int
+        K = (lmax + 1)^2.
+
+    Raises
+    ------
+    ValueError
+        If ``lmax`` is negative.
+    """
     if lmax < 0:
         raise ValueError(f"lmax must be >= 0, got {lmax}")
     return (lmax + 1) ** 2
 
 
 def sh_degrees(lmax: int) -> np.ndarray:
-    """The degree l of each flat index: (K,) int64, e.g. [0, 1, 1, 1, 2, ...]."""
+    """Return the degree l of each flat index.
+
+    Parameters
+    ----------
+    lmax : int
+        The highest degree.
+
+    Returns
+    -------
+    (K,) int64
+        E.g. [0, 1, 1, 1, 2, ...].
+    """
     return np.repeat(np.arange(lmax + 1), 2 * np.arange(lmax + 1) + 1)
 
 
 def lmax_of(n_coeffs: int) -> int:
-    """Inverse of `num_coeffs`; raises ValueError when n_coeffs is not a perfect square."""
+    """Return the highest degree of K coefficients: the inverse of `num_coeffs`.
+
+    Parameters
+    ----------
+    n_coeffs : int
+        The number of coefficients K.
+
+    Returns
+    -------
+    int
+        lmax with (lmax + 1)^2 = K.
+
+    Raises
+    ------
+    ValueError
+        If ``n_coeffs`` is not a positive perfect square.
+    """
     lmax = math.isqrt(n_coeffs) - 1
     if lmax < 0 or num_coeffs(lmax) != n_coeffs:
         raise ValueError(f"{n_coeffs} SH coefficients is not (lmax + 1)^2 for any lmax")
@@ -93,7 +138,7 @@ def _legendre_tables(lmax: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 @numba.njit(fastmath=True, cache=True)
 def _sh_block(x, y, z, n, lmax, diag, rec_a, rec_b, out, scratch):
-    """All K real SH at n unit directions (x, y, z: (>= n,)), written to out[:, :n] (K, >= n).
+    """Write all K real SH at n unit directions (x, y, z: (>= n,)) to out[:, :n] (K, >= n).
 
     Every loop runs over the directions innermost, so it vectorises. scratch (5, >= n) holds
     Q_mm, the two previous Q_lm of the degree recurrence, and Re/Im (x + i y)^m.
@@ -157,9 +202,26 @@ def _eval_sh_kernel(directions, lmax, diag, rec_a, rec_b, out):
 
 
 def eval_sh(directions: np.ndarray, lmax: int) -> np.ndarray:
-    """Real SH at unit directions: (..., 3) -> (..., K), float32 for float32 input else float64.
+    """Evaluate the real SH at unit directions.
 
     Directions are not renormalised (off-unit input gives the harmonic polynomials' values).
+
+    Parameters
+    ----------
+    directions : (..., 3) array_like
+        Unit directions.
+    lmax : int
+        The highest degree.
+
+    Returns
+    -------
+    (..., K) float32 or float64
+        The basis at each direction; float32 for float32 input, else float64.
+
+    Raises
+    ------
+    ValueError
+        If the trailing axis is not 3.
     """
     directions = np.asarray(directions)
     if directions.shape[-1] != 3:
@@ -176,10 +238,26 @@ def eval_sh(directions: np.ndarray, lmax: int) -> np.ndarray:
 
 
 def power_spectrum(coeffs: np.ndarray) -> np.ndarray:
-    """S(l) = sum_m c_lm^2 (appendix eq. 17, no normalisation): (..., K) -> (..., lmax + 1), in the
-    coefficients' float type (float64 for any other). One pass in numba: numpy's square and reduceat
-    took 44 ms for a fit's (256k, 3, 36) float32 coefficients, this 7 ms (26 ms for an Observations'
-    strided view, which is copied first: reading it in place took longer)."""
+    """Compute the power spectrum S(l) = sum_m c_lm^2 (appendix eq. 17, no normalisation).
+
+    One pass in numba, summed in float64 in index order (faster than numpy's square and
+    reduceat); a strided view is copied first, which is faster than reading it in place.
+
+    Parameters
+    ----------
+    coeffs : (..., K) array_like
+        SH coefficients.
+
+    Returns
+    -------
+    (..., L) float32 or float64
+        S(l) for l = 0 .. lmax, in the coefficients' float type (float64 for any other).
+
+    Raises
+    ------
+    ValueError
+        If K is not a perfect square.
+    """
     coeffs = np.asarray(coeffs)
     lmax = lmax_of(coeffs.shape[-1])
     if coeffs.dtype not in (np.float32, np.float64):
@@ -191,7 +269,7 @@ def power_spectrum(coeffs: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(parallel=True, cache=True)
-def _power_spectrum_kernel(coeffs, out):  # (M, K), out (M, l*+1); summed in float64, in order
+def _power_spectrum_kernel(coeffs, out):  # (M, K), out (M, L); summed in float64, in order
     for row in numba.prange(coeffs.shape[0]):
         for degree in range(out.shape[1]):
             total = 0.0
@@ -202,18 +280,42 @@ def _power_spectrum_kernel(coeffs, out):  # (M, K), out (M, l*+1); summed in flo
 
 
 def gaussian_lowpass(coeffs: np.ndarray, sigma: float) -> np.ndarray:
-    """Multiply each degree by exp(-(sigma l)^2): (..., K) -> (..., K)."""
+    """Low-pass SH coefficients: multiply each degree l by exp(-(sigma l)^2) (METHOD.md §3.4).
+
+    Parameters
+    ----------
+    coeffs : (..., K) array_like
+        SH coefficients.
+    sigma : float
+        The filter width.
+
+    Returns
+    -------
+    (..., K) array
+        The filtered coefficients, at least float32.
+    """
     coeffs = np.asarray(coeffs)
     degrees = sh_degrees(lmax_of(coeffs.shape[-1]))
     return coeffs * np.exp(-np.square(sigma * degrees)).astype(np.result_type(coeffs, np.float32))
 
 
 def sphere_quadrature(degree: int) -> tuple[np.ndarray, np.ndarray]:
-    """Gauss-Legendre (in cos theta) x uniform (in phi) quadrature on the unit sphere.
+    """Make a Gauss-Legendre (in cos theta) x uniform (in phi) quadrature on the unit sphere.
 
     Exact for polynomials of total degree <= ``degree`` restricted to the sphere, e.g. for the
-    product of two SH of degree <= degree / 2. Returns directions (N, 3) and weights (N,)
-    summing to 4 pi, N = (degree // 2 + 1) (degree + 1).
+    product of two SH of degree <= degree / 2.
+
+    Parameters
+    ----------
+    degree : int
+        The highest total degree integrated exactly.
+
+    Returns
+    -------
+    directions : (M, 3) float64
+        Unit nodes, M = (degree // 2 + 1) (degree + 1).
+    weights : (M,) float64
+        Their weights, summing to 4 pi.
     """
     cos_theta, gl_weights = np.polynomial.legendre.leggauss(degree // 2 + 1)
     n_phi = degree + 1
@@ -232,10 +334,27 @@ def sphere_quadrature(degree: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def rotation_matrix_sh(rotation: np.ndarray, lmax: int) -> np.ndarray:
-    """The (K, K) block-diagonal matrix D with rotate_sh(c, rotation) = c @ D.T.
+    """Build the SH rotation matrix D, with rotate_sh(c, rotation) = c @ D.T.
 
     D[j, i] = integral of Y_j(w) Y_i(R^T w) dw, computed with a quadrature that is exact for these
     degree-2 lmax products, so it is exact to rounding for any degree.
+
+    Parameters
+    ----------
+    rotation : (3, 3) array_like
+        A proper rotation R (see `rotate_sh`).
+    lmax : int
+        The highest degree.
+
+    Returns
+    -------
+    (K, K) float64
+        D, block diagonal (rotations never mix degrees).
+
+    Raises
+    ------
+    ValueError
+        If ``rotation`` is not a (3, 3) proper rotation.
     """
     rotation = np.asarray(rotation, dtype=np.float64)
     if rotation.shape != (3, 3):
@@ -252,10 +371,25 @@ def rotation_matrix_sh(rotation: np.ndarray, lmax: int) -> np.ndarray:
 
 
 def rotate_sh(coeffs: np.ndarray, rotation: np.ndarray) -> np.ndarray:
-    """Coefficients of the rotated function g(w) = f(R^T w): (..., K) -> (..., K).
+    """Rotate a function given by SH coefficients: g(w) = f(R^T w).
 
-    ``rotation`` (3, 3) maps directions of f's frame to g's frame (g(R w) = f(w)), e.g. an
-    object-to-world rotation turns object-frame coefficients into world-frame ones.
+    Parameters
+    ----------
+    coeffs : (..., K) array_like
+        Coefficients of f.
+    rotation : (3, 3) array_like
+        R, mapping directions of f's frame to g's frame (g(R w) = f(w)); e.g. an object-to-world
+        rotation turns object-frame coefficients into world-frame ones.
+
+    Returns
+    -------
+    (..., K) array
+        Coefficients of g, at least float32.
+
+    Raises
+    ------
+    ValueError
+        If ``rotation`` is not a proper rotation or K is not a perfect square.
     """
     coeffs = np.asarray(coeffs)
     matrix = rotation_matrix_sh(rotation, lmax_of(coeffs.shape[-1]))
@@ -268,13 +402,43 @@ def rotate_sh(coeffs: np.ndarray, rotation: np.ndarray) -> np.ndarray:
 
 @dataclass
 class SHFit:
-    coeffs: np.ndarray  # (T, C, K) float32 when all inputs are float32, else float64
-    n_samples: np.ndarray  # (T,) int32: samples with positive weight and finite data
-    status: np.ndarray  # (T,) uint8: FIT_OK, FIT_UNDERDETERMINED or FIT_EMPTY
+    """The result of `fit_sh` for N texels and C channels.
+
+    Attributes
+    ----------
+    coeffs : (N, C, K) float32 or float64
+        Coefficients; float32 when all inputs were float32, else float64.
+    n_samples : (N,) int32
+        Samples with positive weight and finite data.
+    status : (N,) uint8
+        ``FIT_OK``, ``FIT_UNDERDETERMINED`` or ``FIT_EMPTY``.
+    """
+
+    coeffs: np.ndarray
+    n_samples: np.ndarray
+    status: np.ndarray
 
 
 def regulariser_weights(lmax: int, regulariser: RegulariserKind) -> np.ndarray:
-    """reg(l) per flat index (K,): e^l ("exponential", the paper's), 1 ("constant"), 0 ("none")."""
+    """Return the regulariser's weight reg(l) at each flat index.
+
+    Parameters
+    ----------
+    lmax : int
+        The highest degree.
+    regulariser : {"exponential", "constant", "none"}
+        e^l (the paper's), 1 or 0.
+
+    Returns
+    -------
+    (K,) float64
+        reg(l_k).
+
+    Raises
+    ------
+    ValueError
+        If ``regulariser`` is unknown.
+    """
     degrees = sh_degrees(lmax).astype(np.float64)
     if regulariser == "exponential":
         return np.exp(degrees)
@@ -291,10 +455,10 @@ _FAST_FINITE_MATH = {"nsz", "arcp", "contract", "afn", "reassoc"}
 
 @numba.njit(fastmath=_FAST_FINITE_MATH, cache=True)
 def _gram_upper(augmented, n_coeffs, n_padded, upper, lane):
-    """upper[j, i, lane] = sum_s augmented[j, s] augmented[i, s] for j < n_coeffs, i >= j.
+    """Set upper[j, i, lane] = sum_s augmented[j, s] augmented[i, s] for j < n_coeffs, i >= j.
 
     Register-tiled: rows j .. j + 2 against columns i .. i + 3 share every load, so each sample costs
-    7 loads for 12 multiply-adds (one dot product per entry needs 2 per 1; 2x faster measured).
+    7 loads for 12 multiply-adds (one dot product per entry needs 2 per 1).
     Tiles that overhang the matrix repeat its last row or column; entries below the diagonal that
     a tile also computes are written but never read.
     """
@@ -329,7 +493,7 @@ def _fit_kernel(
     directions, weights, values, lmax, diag, rec_a, rec_b, reg, reg_lambda, scale_by_weight, lanes, n_threads,
     coeffs, n_samples, solved,
 ):
-    """Per texel: regularised normal equations in float64, one Cholesky for all C channels.
+    """Solve the regularised normal equations per texel in float64, one Cholesky for all C channels.
 
     Per texel, the usable samples are compacted into an augmented design matrix
     A = [w Y; w f] (K + C, n) with contiguous rows; `_gram_upper` fills the upper triangle
@@ -339,7 +503,7 @@ def _fit_kernel(
     it vectorises without reductions): eliminating the first K pivots in place turns U into the
     Cholesky factor and the forward-substituted right-hand sides, leaving one back substitution.
     ``lanes`` is a run-time value on purpose: with a compile-time trip count LLVM unrolls the lane
-    loops into scalar code it cannot prove alias-free (2x slower measured); as a run-time count
+    loops into scalar code it cannot prove alias-free (much slower); as a run-time count
     they are vectorised behind one overlap check. n_threads: numba's thread count (read outside,
     which keeps the kernel cacheable); each worker allocates its scratch once.
     ``solved[t]`` is False when a pivot was (numerically) non-positive.
@@ -358,9 +522,11 @@ def _fit_worker(
     worker, n_workers, directions, weights, values, lmax, diag, rec_a, rec_b, reg, reg_lambda, scale_by_weight,
     lanes, coeffs, n_samples, solved,
 ):
-    """`_fit_kernel`'s work for the texel groups worker, worker + n_workers, ...: a function of its
-    own, so that numba's parallel passes see a small loop (on the whole body they took much of the
-    kernel's compile time)."""
+    """Do `_fit_kernel`'s work for the texel groups worker, worker + n_workers, ....
+
+    A function of its own, so that numba's parallel passes see a small loop (on the whole body
+    they took much of the kernel's compile time).
+    """
     n_texels, n_views = weights.shape
     n_channels = values.shape[2]
     n_coeffs = reg.shape[0]
@@ -423,7 +589,7 @@ def _fit_worker(
                 gram_diagonal[j, lane] = upper[j, j, lane]
         # Left-looking Cholesky on the upper triangle, row by row; its row updates also carry the
         # rhs. Row i takes the updates of all earlier rows, two at a time, while it stays in cache
-        # (1.3x faster measured than one right-looking rank-1 update per pivot).
+        # (faster than one right-looking rank-1 update per pivot).
         # A failed lane continues with a unit pivot (finite garbage) and is re-solved by the caller.
         for i in range(n_coeffs):
             for j in range(0, i - 1, 2):
@@ -465,7 +631,7 @@ def _fit_worker(
 
 
 def _solve_by_svd(directions, weights, values, lmax, reg_lambda, reg, scale_lambda_with_weight):
-    """Min-norm solution of one texel's regularised problem by SVD least squares.
+    """Solve one texel's regularised problem by SVD least squares (the minimum-norm solution).
 
     directions (V, 3), weights (V,), values (V, C). Stacks [w Y; sqrt(lambda_eff reg)] against
     [w f; 0]; with no regulariser this is the minimum-norm weighted least-squares solution.
@@ -492,26 +658,49 @@ def fit_sh(
     regulariser: RegulariserKind = "exponential",
     scale_lambda_with_weight: bool = True,
 ) -> SHFit:
-    """Per-texel weighted, degree-regularised SH least squares.
+    """Fit SH to each texel's samples by weighted, degree-regularised least squares (METHOD.md §3.3).
 
     Minimises, per texel and channel c,
 
         sum_i w_i^2 (sum_k x_ck Y_k(d_i) - f_ic)^2 + lambda_eff sum_k reg(l_k) x_ck^2,
 
-    with reg(l) = e^l, 1 or 0 (`regulariser_weights`) and lambda_eff = reg_lambda * sum_i w_i^2
-    when ``scale_lambda_with_weight`` (the penalty then has the same strength relative to the data
-    term whatever the number of views or their weights: doubling every sample leaves the solution
-    unchanged) or lambda_eff = reg_lambda otherwise (the paper's absolute lambda).
-
-    directions (T, V, 3) unit; weights (T, V), a sample counts only where w > 0 (and its direction
-    and values are finite); values (T, V, C). The normal equations (Y^T W^2 Y + lambda_eff R) are
+    with reg(l) from `regulariser_weights`. The normal equations (Y^T W^2 Y + lambda_eff R) are
     factorised once per texel (Cholesky, float64) and serve all C right-hand sides.
 
-    Robustness: a texel without samples gets zeros and FIT_EMPTY; one with fewer samples than K
-    gets FIT_UNDERDETERMINED (its regularised solution is still well defined). Where the normal
+    A texel without samples gets zeros and FIT_EMPTY; one with fewer samples than K gets
+    FIT_UNDERDETERMINED (its regularised solution is still well defined). Where the normal
     equations are numerically singular (no regulariser and too few or degenerate samples), the
     texel is solved by SVD least squares instead, which returns the minimum-norm solution, and is
     flagged FIT_UNDERDETERMINED when that system is rank deficient.
+
+    Parameters
+    ----------
+    directions : (N, V, 3) array_like
+        Unit sample directions per texel.
+    weights : (N, V) array_like
+        Sample weights; a sample counts only where w > 0 and its direction and values are finite.
+    values : (N, V, C) array_like
+        Sample values.
+    lmax : int
+        The highest degree l*.
+    reg_lambda : float
+        The regulariser's strength lambda, >= 0.
+    regulariser : {"exponential", "constant", "none"}, optional
+        reg(l) = e^l (the paper's), 1 or 0.
+    scale_lambda_with_weight : bool, optional
+        lambda_eff = reg_lambda * sum_i w_i^2: the penalty then has the same strength relative to
+        the data term whatever the number of views or their weights (doubling every sample leaves
+        the solution unchanged). Otherwise lambda_eff = reg_lambda (the paper's absolute lambda).
+
+    Returns
+    -------
+    SHFit
+        Coefficients (N, C, K), sample counts and status per texel.
+
+    Raises
+    ------
+    ValueError
+        If the shapes do not match, ``reg_lambda`` < 0 or ``regulariser`` is unknown.
     """
     directions = np.asarray(directions)
     weights = np.asarray(weights)
