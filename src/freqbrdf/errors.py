@@ -6,8 +6,25 @@ from pathlib import Path
 
 
 class InputError(Exception):
-    """Bad input. ``str(err)`` is ``"<file>: <problem>"`` (the problem alone where no file is at
-    fault, e.g. an option's value), fit for a one-line CLI message."""
+    """Bad input from the user, naming the file at fault.
+
+    ``str(err)`` is ``"<file>: <problem>"`` (the problem alone where no file is at fault, e.g. an
+    option's value), fit for a one-line CLI message.
+
+    Parameters
+    ----------
+    path : str or Path or None
+        The file at fault; None where none is.
+    problem : str
+        What is wrong with it.
+
+    Attributes
+    ----------
+    path : Path or None
+        The file at fault.
+    problem : str
+        What is wrong with it.
+    """
 
     def __init__(self, path: str | Path | None, problem: str):
         self.path = None if path is None else Path(path)

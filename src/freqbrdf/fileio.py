@@ -17,9 +17,23 @@ from freqbrdf.errors import InputError
 
 
 def check_output_path(path: str | Path, folder: bool) -> None:
-    """InputError unless ``path`` can become a folder (``folder``) or a file: where it exists it
-    must be one already (a file is not replaced by a folder, nor a folder by a file), and its
-    nearest existing ancestor must be a folder."""
+    """Refuse a path that cannot become a folder or a file.
+
+    Where it exists it must be one already (a file is not replaced by a folder, nor a folder by a
+    file), and its nearest existing ancestor must be a folder.
+
+    Parameters
+    ----------
+    path : str or Path
+        The output path.
+    folder : bool
+        Whether it is to be a folder (else a file).
+
+    Raises
+    ------
+    InputError
+        If ``path`` is of the other kind or an ancestor is a file.
+    """
     path = Path(path)
     if path.exists() and path.is_dir() != folder:
         raise InputError(path, "exists and is not a folder" if folder else "is a folder, not a file")
@@ -35,6 +49,22 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     """Yield a temporary path next to ``path``; it replaces ``path`` only if the block succeeds.
 
     The temporary name keeps the suffix, so writers that pick a format by extension still work.
+    On failure the temporary file is removed and ``path`` is left as it was.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file to write; its parent folders are created.
+
+    Yields
+    ------
+    Path
+        The temporary file to write to (it exists, empty).
+
+    Raises
+    ------
+    InputError
+        If ``path`` cannot become a file (`check_output_path`).
     """
     path = Path(path)
     check_output_path(path, folder=False)
@@ -55,7 +85,23 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
 def atomic_directory(path: str | Path) -> Iterator[Path]:
     """Yield a temporary directory that becomes ``path`` only if the block succeeds.
 
-    An existing ``path`` is replaced as a whole, so readers never see a half-written result.
+    An existing ``path`` is replaced as a whole, so readers never see a half-written result; on
+    failure the temporary directory is removed and ``path`` is left as it was.
+
+    Parameters
+    ----------
+    path : str or Path
+        The folder to write; its parent folders are created.
+
+    Yields
+    ------
+    Path
+        The temporary directory to write into (it exists, empty).
+
+    Raises
+    ------
+    InputError
+        If ``path`` cannot become a folder (`check_output_path`).
     """
     path = Path(path)
     check_output_path(path, folder=True)
@@ -81,20 +127,28 @@ def atomic_directory(path: str | Path) -> Iterator[Path]:
 
 
 def _plain_permissions(path: Path, mode: int) -> None:
-    """mkstemp/mkdtemp create 0600/0700; give ``path`` what a plain open()/mkdir() would (umask)."""
+    """Give ``path`` what a plain open()/mkdir() would (umask); mkstemp/mkdtemp create 0600/0700."""
     umask = os.umask(0)
     os.umask(umask)
     os.chmod(path, mode & ~umask)
 
 
 def write_json(path: str | Path, document: dict) -> None:
-    """Write ``document`` as indented JSON, atomically; NaN and infinities become null (strict JSON)."""
+    """Write a document as indented JSON, atomically; NaN and infinities become null (strict JSON).
+
+    Parameters
+    ----------
+    path : str or Path
+        The file.
+    document : dict
+        The document; numpy scalars and arrays are converted to plain Python values.
+    """
     with atomic_path(path) as tmp:
         tmp.write_text(json.dumps(_json_ready(document), indent=2, allow_nan=False) + "\n", encoding="utf-8")
 
 
 def _json_ready(value):
-    """Plain Python types for json: numpy scalars and arrays converted, non-finite floats -> None."""
+    """Convert to plain Python types for json: numpy scalars and arrays, non-finite floats -> None."""
     if isinstance(value, dict):
         return {str(key): _json_ready(item) for key, item in value.items()}
     if isinstance(value, (list, tuple)):

@@ -4,6 +4,9 @@ Everything inside freqbrdf is linear radiance in float32 arrays ``(H, W, 3)`` wi
 top of the picture. Readers accept OpenEXR (RGB, RGBA or a single channel such as Y; half or
 float), Radiance ``.hdr`` (RGBE, flat or run-length encoded) and, with a warning, 8-bit PNG/JPEG
 (decoded from sRGB). Every writer is atomic: a failed write leaves no file behind.
+
+Photographs are the posed HDR images of METHOD.md §1; environment maps are read by
+`freqbrdf.sphere.envmap` through `read_image`.
 """
 
 from __future__ import annotations
@@ -29,7 +32,18 @@ IMAGE_SUFFIXES = HDR_SUFFIXES + LDR_SUFFIXES
 
 
 def srgb_to_linear(encoded: np.ndarray) -> np.ndarray:
-    """Decode sRGB values in [0, 1] to linear values in [0, 1] (float32, same shape)."""
+    """Decode sRGB values to linear values (IEC 61966-2-1).
+
+    Parameters
+    ----------
+    encoded : array_like
+        sRGB values, clipped to [0, 1] first.
+
+    Returns
+    -------
+    float32 array
+        Linear values in [0, 1], same shape.
+    """
     encoded = np.clip(np.asarray(encoded, dtype=np.float32), 0.0, 1.0)
     return np.where(
         encoded <= 0.04045, encoded / 12.92, ((encoded + 0.055) / 1.055) ** 2.4
@@ -37,7 +51,18 @@ def srgb_to_linear(encoded: np.ndarray) -> np.ndarray:
 
 
 def linear_to_srgb(linear: np.ndarray) -> np.ndarray:
-    """Encode linear values to sRGB display values in [0, 1]; input is clipped to [0, 1] first."""
+    """Encode linear values to sRGB display values (IEC 61966-2-1).
+
+    Parameters
+    ----------
+    linear : array_like
+        Linear values, clipped to [0, 1] first.
+
+    Returns
+    -------
+    float32 array
+        sRGB values in [0, 1], same shape.
+    """
     linear = np.clip(np.asarray(linear, dtype=np.float32), 0.0, 1.0)
     return np.where(
         linear <= 0.0031308, linear * 12.92, 1.055 * linear ** (1.0 / 2.4) - 0.055
@@ -48,12 +73,29 @@ def linear_to_srgb(linear: np.ndarray) -> np.ndarray:
 
 
 def read_image(path: str | Path, validate: bool = False) -> np.ndarray:
-    """Read an image as linear radiance ``(H, W, 3)`` float32.
+    """Read an image as linear radiance.
 
     Single-channel images are repeated into RGB; an alpha channel is ignored (see `read_mask`).
     PNG/JPEG are decoded from sRGB with a warning: 8-bit images clip highlights, so HDR input is
-    preferred. With ``validate=True`` non-finite or negative pixels raise `InputError` saying how
-    many there are and where the first one is.
+    preferred.
+
+    Parameters
+    ----------
+    path : str or Path
+        An ``.exr``, ``.hdr``, ``.png``, ``.jpg`` or ``.jpeg`` file.
+    validate : bool, optional
+        Refuse non-finite or negative pixels.
+
+    Returns
+    -------
+    (H, W, 3) float32
+        Linear radiance, row 0 at the top.
+
+    Raises
+    ------
+    InputError
+        If the type is unsupported, the file is missing or unreadable, or (with ``validate``) it
+        has non-finite or negative pixels (how many, and where the first one is).
     """
     path = Path(path)
     pixels, is_srgb = _read_pixels(path)  # (H, W, C)
@@ -74,8 +116,23 @@ def read_image(path: str | Path, validate: bool = False) -> np.ndarray:
 
 
 def read_mask(path: str | Path) -> np.ndarray:
-    """Read a mask ``(H, W)`` bool: alpha > 0.5 when the image has a non-constant alpha channel,
-    otherwise mean colour > 0.5 (of full scale for PNG/JPEG, of 1.0 for HDR files).
+    """Read an object mask.
+
+    Parameters
+    ----------
+    path : str or Path
+        An image file of a type `read_image` reads; no sRGB decoding (masks are not radiance).
+
+    Returns
+    -------
+    (H, W) bool
+        alpha > 0.5 when the image has a non-constant alpha channel, otherwise mean colour > 0.5
+        (of full scale for PNG/JPEG, of 1.0 for HDR files).
+
+    Raises
+    ------
+    InputError
+        If the type is unsupported or the file is missing or unreadable.
     """
     pixels, _ = _read_pixels(Path(path))  # (H, W, C); no sRGB decoding: masks are not radiance
     channels = pixels.shape[2]
@@ -87,7 +144,7 @@ def read_mask(path: str | Path) -> np.ndarray:
 
 
 def _read_pixels(path: Path) -> tuple[np.ndarray, bool]:
-    """All channels of the file ``(H, W, C)`` float32, and whether they are sRGB-encoded."""
+    """Read all channels of the file ``(H, W, C)`` float32, and whether they are sRGB-encoded."""
     suffix = path.suffix.lower()
     if suffix not in IMAGE_SUFFIXES:
         raise InputError(
@@ -282,9 +339,21 @@ def _encode_rgbe_rle(rgbe, out):  # rgbe (H, W, 4) uint8; out (bytes,) uint8 lar
 
 
 def write_hdr(path: str | Path, image: np.ndarray) -> None:
-    """Write linear radiance ``(H, W, 3)`` as run-length encoded Radiance RGBE (0.4 % precision).
+    """Write linear radiance as run-length encoded Radiance RGBE, atomically.
 
-    RGBE stores non-negative values below 2^127 only; anything else raises ValueError.
+    RGBE's shared exponent and 8-bit mantissas give a relative precision of about 1/256.
+
+    Parameters
+    ----------
+    path : str or Path
+        The ``.hdr`` file.
+    image : (H, W, 3) array_like
+        Linear radiance.
+
+    Raises
+    ------
+    ValueError
+        If ``image`` is not (H, W, 3) or has values outside [0, 2^127) (RGBE stores no others).
     """
     rgb = np.asarray(image, dtype=np.float64)
     if rgb.ndim != 3 or rgb.shape[2] != 3:
@@ -314,9 +383,19 @@ def write_hdr(path: str | Path, image: np.ndarray) -> None:
 
 
 def write_exr(path: str | Path, image: np.ndarray) -> None:
-    """Write ``(H, W)``, ``(H, W, 1)`` (channel Y) or ``(H, W, 3)`` (R, G, B) as ZIP-compressed EXR.
+    """Write an image as ZIP-compressed OpenEXR, atomically.
 
-    A float16 array is stored as half, anything else as float32.
+    Parameters
+    ----------
+    path : str or Path
+        The ``.exr`` file.
+    image : (H, W), (H, W, 1) or (H, W, 3) array_like
+        Channel Y, or R, G, B. A float16 array is stored as half, anything else as float32.
+
+    Raises
+    ------
+    ValueError
+        If ``image`` has another shape.
     """
     pixels = np.asarray(image)
     if pixels.ndim == 3 and pixels.shape[2] == 1:
@@ -338,9 +417,20 @@ def write_exr(path: str | Path, image: np.ndarray) -> None:
 
 
 def write_png(path: str | Path, image: np.ndarray) -> None:
-    """Write display values in [0, 1] (already sRGB-encoded, e.g. by `linear_to_srgb`) as 8-bit PNG.
+    """Write display values as an 8-bit PNG, atomically.
 
-    Accepts ``(H, W)``, ``(H, W, 3)`` or ``(H, W, 4)``; values are clipped to [0, 1], NaN is black.
+    Parameters
+    ----------
+    path : str or Path
+        The ``.png`` file.
+    image : (H, W), (H, W, 3) or (H, W, 4) array_like
+        Display values in [0, 1], already sRGB-encoded where they are colours (e.g. by
+        `linear_to_srgb`); clipped to [0, 1], NaN is black.
+
+    Raises
+    ------
+    ValueError
+        If ``image`` has another shape.
     """
     pixels = np.asarray(image, dtype=np.float32)
     if not (pixels.ndim == 2 or (pixels.ndim == 3 and pixels.shape[2] in (3, 4))):

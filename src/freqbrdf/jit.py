@@ -14,8 +14,13 @@ from numba.core.registry import CPUDispatcher
 
 
 def compiled_here() -> list[str]:
-    """Qualified names of the cached kernels of freqbrdf's loaded modules that this process
-    compiled (numba's cache missed them), sorted."""
+    """List the cached kernels of freqbrdf's loaded modules that this process compiled.
+
+    Returns
+    -------
+    list of str
+        Qualified names of the kernels numba's cache missed, sorted.
+    """
     names = set()
     for module_name, module in list(sys.modules.items()):
         if module is None or not module_name.startswith("freqbrdf."):

@@ -18,7 +18,15 @@ Advance = Callable[[int], None]
 
 
 class Reporter:
-    """Hands out progress bars per stage; ``enabled=False`` makes every bar a no-op."""
+    """Hand out progress bars per stage.
+
+    Parameters
+    ----------
+    enabled : bool, optional
+        Show bars; False makes every bar a no-op.
+    console : rich.console.Console, optional
+        Where bars are drawn; default a console on standard error.
+    """
 
     def __init__(self, enabled: bool = True, console: Console | None = None):
         self.enabled = enabled
@@ -26,7 +34,20 @@ class Reporter:
 
     @contextlib.contextmanager
     def stage(self, description: str, total: int) -> Iterator[Advance]:
-        """A progress bar for one stage of ``total`` steps; yields ``advance(steps=1)``."""
+        """Show a progress bar for one stage while the block runs.
+
+        Parameters
+        ----------
+        description : str
+            The stage's name, shown left of the bar.
+        total : int
+            Number of steps.
+
+        Yields
+        ------
+        callable (steps: int = 1) -> None
+            Advances the bar by ``steps``.
+        """
         if not self.enabled:
             yield lambda steps=1: None
             return
