@@ -1,9 +1,10 @@
 """The whole job on one capture: texels -> observations -> estimate -> uncertainty -> textures.
 
-``fit`` runs the stages in memory (``FitResult``; on coarser texels than the maps' when
-``TexelConfig.estimation_res`` says so, then `to_texels`); ``write_fit`` writes the fit folder
-(``outputs.export.write_fit_outputs``). Reading a fit folder back and scoring it live in
-`freqbrdf.outputs.fit_folder` and `freqbrdf.outputs.evaluate`. See METHOD.md §3.
+The pipeline of METHOD.md §3. `fit` runs the stages in memory (`FitResult`; on coarser texels than
+the maps' when ``TexelConfig.estimation_res`` says so, then `to_texels`); `write_fit` writes the
+fit folder (`freqbrdf.outputs.export.write_fit_outputs`); `inpaint_fit` fills a fit's uncertain
+texels (METHOD.md §4). Reading a fit folder back and scoring it live in
+`freqbrdf.outputs.fit_folder` and `freqbrdf.outputs.evaluate`.
 """
 
 from __future__ import annotations
@@ -43,20 +44,61 @@ from freqbrdf.uncertainty import (
 
 @dataclass(eq=False)
 class FitResult:
+    """A fit of one capture, in memory.
+
+    Attributes
+    ----------
+    capture : Capture
+        The capture fitted.
+    observations : Observations
+        The observations of its N texels (without samples where taken to finer texels).
+    estimate : MaterialEstimate
+        The material estimate of those texels.
+    uncertainty : Uncertainty
+        Their uncertainty.
+    maps : MaterialMaps
+        The hole-free T x T textures, as exported.
+    timings : dict of str to float
+        Seconds per stage; sub-stages are named ``"<stage>.<part>"``, ``total`` sums the stages.
+    estimation_res : int or None
+        The texture resolution observed and estimated on (`estimation_resolution`); below T, the
+        observations, estimate and uncertainty above are its, taken to the T x T texels
+        (`to_texels`).
+    """
+
     capture: Capture
     observations: Observations
     estimate: MaterialEstimate
     uncertainty: Uncertainty
-    maps: MaterialMaps  # hole-free (T, T, ·) textures, as exported
-    timings: dict[str, float] = field(default_factory=dict)  # seconds per stage
-    # The texture resolution observed and estimated on (`estimation_resolution`); below T, the
-    # observations, estimate and uncertainty above are its, taken to the T x T texels (`to_texels`).
+    maps: MaterialMaps
+    timings: dict[str, float] = field(default_factory=dict)
     estimation_res: int | None = None
 
 
 def estimation_resolution(capture: Capture, config: Config = Config(), fine: Texels | None = None) -> int:
-    """The texture resolution ``fit`` observes and estimates on (``TexelConfig.estimation_res``);
-    ``fine``: the mesh's texels at T, when already rasterised."""
+    """Return the texture resolution `fit` observes and estimates on (``TexelConfig.estimation_res``).
+
+    Parameters
+    ----------
+    capture : Capture
+        The capture; its cameras measure a pixel's width for "pixel" and "coarse".
+    config : Config, optional
+        The settings: ``texels.estimation_res`` ("full", "pixel", "coarse" or a whole number) and
+        ``texels.texture_res`` T.
+    fine : Texels, optional
+        The mesh's texels at T, when already rasterised.
+
+    Returns
+    -------
+    int
+        The resolution, from 1 to T (`freqbrdf.texels.estimation_resolution` for "pixel" and
+        "coarse").
+
+    Raises
+    ------
+    ValueError
+        If ``estimation_res`` is none of these or a number outside [1, T].
+    """
     setting, texture_res = config.texels.estimation_res, config.texels.texture_res
     if setting == "full":
         return texture_res
@@ -73,9 +115,25 @@ def estimation_resolution(capture: Capture, config: Config = Config(), fine: Tex
 
 def observe_on_estimation_texels(capture: Capture, config: Config = Config(),
                                  reporter: Reporter = SILENT) -> tuple[Observations, Texels | None]:
-    """`observe` on the texels of `estimation_resolution`; where those are coarser than T, also
-    the mesh's T x T texels, to take the results there (`to_texels`, `uncertainty_to_texels`),
-    else None."""
+    """Observe a capture on the texels of `estimation_resolution`.
+
+    Parameters
+    ----------
+    capture : Capture
+        The capture.
+    config : Config, optional
+        The settings.
+    reporter : Reporter, optional
+        Receives progress.
+
+    Returns
+    -------
+    observations : Observations
+        The observations on the estimation texels.
+    fine : Texels or None
+        Where those are coarser than T, the mesh's T x T texels, to take the results there
+        (`to_texels`, `uncertainty_to_texels`); else None.
+    """
     texture_res = config.texels.texture_res
     # "pixel" and "coarse" measure the texels at T: rasterised once, and observed where they settle on T.
     fine = rasterise(capture.mesh, texture_res) if config.texels.estimation_res in ("pixel", "coarse") else None
@@ -87,10 +145,32 @@ def observe_on_estimation_texels(capture: Capture, config: Config = Config(),
 
 
 def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT) -> FitResult:
-    """Observe, estimate, compute the uncertainty and make the textures; seconds per stage.
+    """Observe, estimate, compute the uncertainty and make the textures (METHOD.md §3).
 
     The first three run on the texels of `estimation_resolution` (`observe_on_estimation_texels`);
-    where those are coarser than T, the results are then taken to the T x T texels (`to_texels`)."""
+    where those are coarser than T, the results are then taken to the T x T texels (`to_texels`).
+    With ``config.share.enabled`` the estimate is shared across the surface after the uncertainty
+    (METHOD.md §4).
+
+    Parameters
+    ----------
+    capture : Capture
+        The capture.
+    config : Config, optional
+        The settings.
+    reporter : Reporter, optional
+        Receives progress.
+
+    Returns
+    -------
+    FitResult
+        The observations, estimate, uncertainty, textures and seconds per stage.
+
+    Raises
+    ------
+    ValueError
+        If ``config.fit.lmax`` < 1 (the entropy compares degrees 1 .. l*).
+    """
     if config.fit.lmax < 1:  # checked before the work: the entropy compares degrees 1..l*
         raise ValueError(f"fit needs FitConfig.lmax >= 1 (the entropy compares degrees 1..l*), got {config.fit.lmax}")
     timings: dict[str, float] = {}
@@ -133,10 +213,35 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
 
 def to_texels(observations: Observations, estimate: MaterialEstimate, uncertainty: Uncertainty, fine: Texels,
               dilation_px: int) -> tuple[Observations, MaterialEstimate, Uncertainty]:
-    """A fit made on coarser texels, on the texels ``fine`` of a finer T x T texture: base colour,
-    roughness and metallic sampled bilinearly from the coarse estimate's hole-free textures
-    (`export.material_textures`, grown by ``dilation_px`` across seams) at each fine texel's
-    centre, and so is roughness_std; the rest as `uncertainty_to_texels`."""
+    """Take a fit made on coarser texels to the texels of a finer T x T texture.
+
+    Base colour, roughness and metallic are sampled bilinearly from the coarse estimate's
+    hole-free textures (`freqbrdf.outputs.export.material_textures`, grown by ``dilation_px``
+    across seams) at each fine texel's centre, and so is roughness_std; the rest as
+    `uncertainty_to_texels`.
+
+    Parameters
+    ----------
+    observations : Observations
+        The coarse observations.
+    estimate : MaterialEstimate
+        The coarse estimate.
+    uncertainty : Uncertainty
+        The coarse uncertainty.
+    fine : Texels
+        The mesh's texels at T (N of them).
+    dilation_px : int
+        Rings of dilation of the coarse textures across seams.
+
+    Returns
+    -------
+    observations : Observations
+        On the fine texels, without samples (V = 0).
+    estimate : MaterialEstimate
+        On the fine texels; NaN where the coarse texel was not estimated.
+    uncertainty : Uncertainty
+        On the fine texels.
+    """
     parent = _parent_texels(observations.texture_res, observations.texel_index, fine)
     sample = _bilinear_sampler(observations.texture_res, fine)
     fine_observations, fine_uncertainty = uncertainty_to_texels(observations, uncertainty, fine, dilation_px, parent)
@@ -164,13 +269,35 @@ def to_texels(observations: Observations, estimate: MaterialEstimate, uncertaint
 
 def uncertainty_to_texels(observations: Observations, uncertainty: Uncertainty, fine: Texels, dilation_px: int,
                           parent: np.ndarray | None = None) -> tuple[Observations, Uncertainty]:
-    """Observations and their uncertainty on coarser texels, on the texels ``fine`` of a finer
-    T x T texture: the entropy sampled bilinearly from its hole-free texture (grown by
-    ``dilation_px`` across seams) at each fine texel's centre, 1 where unobserved; everything else
-    per texel (spectra, sample counts, flags, likelihood, arg-max, roughness_std) from the coarse
-    texel the fine one lies in, or the nearest covered one where that one is not covered
-    (``parent``, computed when not given). The observations keep no samples
-    (`Observations.texel_fields`: V = 0); the coarse ``observations`` hold them."""
+    """Take observations and their uncertainty on coarser texels to the texels of a finer texture.
+
+    The entropy is sampled bilinearly from its hole-free texture (grown by ``dilation_px`` across
+    seams) at each fine texel's centre, and is the coarse texel's (1) where unobserved;
+    everything else per texel (spectra, sample counts, flags, likelihood, arg-max, roughness_std)
+    comes from the coarse parent texel.
+
+    Parameters
+    ----------
+    observations : Observations
+        The coarse observations.
+    uncertainty : Uncertainty
+        Their uncertainty.
+    fine : Texels
+        The mesh's texels at T (N of them).
+    dilation_px : int
+        Rings of dilation of the entropy texture across seams.
+    parent : (N,) int64, optional
+        Per fine texel, the row of the coarse texel its centre lies in, or of the nearest covered
+        one where that one is not covered; computed when not given.
+
+    Returns
+    -------
+    observations : Observations
+        On the fine texels, without samples (`Observations.texel_fields`: V = 0); the coarse
+        ``observations`` hold them.
+    uncertainty : Uncertainty
+        On the fine texels.
+    """
     if parent is None:
         parent = _parent_texels(observations.texture_res, observations.texel_index, fine)
     fine_observations = replace(observations.texel_fields(parent), texture_res=fine.texture_res,
@@ -186,8 +313,10 @@ def uncertainty_to_texels(observations: Observations, uncertainty: Uncertainty, 
 
 
 def _bilinear_sampler(coarse_res: int, fine: Texels):
-    """A function sampling a coarse_res x coarse_res texture bilinearly at the centres of the
-    texels ``fine`` (clamped at the border): (coarse_res, coarse_res) -> (N_fine,) float64."""
+    """Make a function that samples a coarse texture bilinearly at the centres of ``fine``'s texels.
+
+    The function maps (coarse_res, coarse_res) -> (N_fine,) float64, clamped at the border.
+    """
     rows, columns = np.divmod(fine.texel_index, fine.texture_res)
     scale = coarse_res / fine.texture_res
     coordinates = np.stack([(rows + 0.5) * scale - 0.5, (columns + 0.5) * scale - 0.5])
@@ -199,9 +328,12 @@ def _bilinear_sampler(coarse_res: int, fine: Texels):
 
 
 def _parent_texels(coarse_res: int, coarse_index: np.ndarray, fine: Texels) -> np.ndarray:
-    """(N_fine,) int64: per texel of ``fine``, the row in ``coarse_index`` (a coarse_res x coarse_res
-    texture's covered texels) of the coarse texel its centre lies in, or of the nearest covered
-    coarse texel where that one is not covered."""
+    """Find each fine texel's parent: (N_fine,) int64 rows in ``coarse_index``.
+
+    ``coarse_index`` lists a coarse_res x coarse_res texture's covered texels; the parent is the
+    coarse texel the fine centre lies in, or the nearest covered coarse texel where that one is
+    not covered.
+    """
     if len(coarse_index) == 0:
         raise ValueError("no coarse texel to take the fine texels' values from")
     lookup = np.full(coarse_res * coarse_res, -1, np.int64)
@@ -216,7 +348,30 @@ def _parent_texels(coarse_res: int, coarse_index: np.ndarray, fine: Texels) -> n
 
 
 def write_fit(out_dir: str | Path, result: FitResult, config: Config = Config()) -> Path:
-    """Write the fit folder (replaced as a whole, atomically); returns it."""
+    """Write the fit folder, replacing it as a whole, atomically.
+
+    ``summary.json`` also records the capture, its layout, the estimation resolution, the
+    capture's number of views and the time taken to write.
+
+    Parameters
+    ----------
+    out_dir : str or Path
+        The fit folder; it must not contain the capture.
+    result : FitResult
+        The fit; its ``timings`` gain ``write``.
+    config : Config, optional
+        The settings the fit was made with.
+
+    Returns
+    -------
+    Path
+        The fit folder.
+
+    Raises
+    ------
+    InputError
+        If ``out_dir`` would replace the capture's folder.
+    """
     start = time.perf_counter()
     capture_root = Path(result.capture.root).resolve()
     check_output_folder(out_dir, {"the capture": capture_root})
@@ -241,11 +396,33 @@ def write_fit(out_dir: str | Path, result: FitResult, config: Config = Config())
 
 def inpaint_fit(fit_dir: str | Path, out_dir: str | Path, settings: inpaint.InpaintSettings = inpaint.InpaintSettings(),
                 capture: str | Path | None = None) -> Path:
-    """Inpaint a fit folder's maps; writes ``out_dir`` (replaced as a whole, atomically); returns it.
+    """Inpaint a fit folder's uncertain texels (METHOD.md §4), writing a new folder atomically.
 
     Files: the three EXR maps and their PNG previews, ``mask.png`` (white: filled texels, grey:
     the rest of the atlas), ``material.glb`` (the capture's mesh with the new maps) and
-    ``summary.json``. ``capture``: where the mesh comes from (default: the fit's capture).
+    ``summary.json``.
+
+    Parameters
+    ----------
+    fit_dir : str or Path
+        The fit folder; it must hold the uncertainty.
+    out_dir : str or Path
+        The output folder, replaced as a whole.
+    settings : InpaintSettings, optional
+        The mask's entropy threshold (None: the flags), the fill backend and the maps to fill.
+    capture : str or Path, optional
+        Where the mesh comes from; default the fit's capture.
+
+    Returns
+    -------
+    Path
+        ``out_dir``.
+
+    Raises
+    ------
+    InputError
+        If the threshold is outside [0, 1], the fit folder is unreadable or has no uncertainty,
+        or no capture is known.
     """
     from freqbrdf.capture.layouts import load
 
