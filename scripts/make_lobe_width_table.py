@@ -15,7 +15,7 @@ from freqbrdf.fileio import atomic_path
 
 
 def main() -> None:
-    cos_nodes, roughness_nodes = estimate.lobe_tilt_nodes()
+    cos_nodes, roughness_nodes = estimate.table_nodes()
     table = np.empty((2, len(cos_nodes), len(roughness_nodes)))
     for column, roughness in enumerate(roughness_nodes):
         normal_incidence = estimate.lobe_spread(1.0, roughness)[1]

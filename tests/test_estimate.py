@@ -17,10 +17,11 @@ from freqbrdf.config import Config, EstimateConfig, FitConfig
 from freqbrdf.estimate import (LOBE_TERMS, angular_loss, burley_diffuse_factor, dielectric_fresnel,
                                environment_burley_factor, environment_filtered_light, environment_response,
                                environment_response_table,
-                               environment_weight, estimate, fit_lobe_tilt, ggx_lobe_gains,
+                               environment_weight, estimate, ggx_lobe_gains,
                                integrate_split_sum_table, lobe_filtered_light, lobe_sh_response, lobe_spread,
-                               lobe_tilt_nodes, lobe_tilt_table, lobe_width_table, prefilter_nodes,
-                               prefiltered_environment, prefiltered_light, split_sum_table, split_sum_terms)
+                               lobe_width_table, prefilter_nodes,
+                               prefiltered_environment, prefiltered_light, split_sum_table, split_sum_terms,
+                               table_nodes)
 from freqbrdf.observations import Observations
 from freqbrdf.texels import orthonormal_basis
 
@@ -37,7 +38,6 @@ def synthetic_observations(
     shadowing: bool = True,
     unobserved: np.ndarray | None = None,
     fit: FitConfig = FitConfig(),
-    lobe_tilt: bool = False,
     exact_dielectric: bool = True,
     environment_light: bool = False,
     prefiltered: bool = False,
@@ -49,8 +49,7 @@ def synthetic_observations(
 
     ``model`` "angular": brdf.predict_angular (METHOD.md §3.6, G1-shadowed light when
     ``shadowing``); "split_sum": our default, m (b A S_A + B S_B) + (1 - m) E S_E with S_k the
-    filtered unshadowed light read in the mirror direction, or with ``lobe_tilt`` at the direction
-    tilted for lobe term k (`lobe_filtered_light`), E the exact dielectric's albedo (Schlick's
+    filtered unshadowed light read in the mirror direction (`lobe_filtered_light`), E the exact dielectric's albedo (Schlick's
     0.04 A S_A + B S_B without ``exact_dielectric``), plus Burley's diffuse, written here with numpy
     from `split_sum_terms` and `burley_diffuse_factor`. With ``environment_light`` each S_k is
     blended towards `environment_filtered_light` of a world-frame environment (random frames) over
@@ -120,7 +119,7 @@ def synthetic_observations(
 
         def light(term):
             fitted = own_light if prefiltered else lobe_filtered_light(
-                directions, weight, light_fit.coeffs[:, :3], LMAX, sigma, truth.roughness, lobe_tilt, term)
+                directions, weight, light_fit.coeffs[:, :3], LMAX, sigma, truth.roughness)
             if not environment_light:
                 return fitted
             return (1.0 - share) * fitted + share * (environment_filtered_light(
@@ -281,15 +280,6 @@ def test_brent_matches_scipy_fminbound(seeded):
     assert abs(state[_X] - reference) < 2 * xtol
     assert abs(state[_X] - 0.3137) < 2 * xtol
     assert evaluations <= calls - (2 if seeded else 0)
-
-
-def test_global_recovers_parameters_exactly_with_the_tilted_lobe_lookup(truth):
-    observations = synthetic_observations(truth, seed=17, model="split_sum", lobe_tilt=True)
-    result = estimate(observations, Config(estimate=EstimateConfig(lobe_tilt=True, prefiltered_light=False)))
-    _assert_recovered(result, truth, atol=1e-4)
-    assert np.all(result.loss < 1e-10)
-    # The mirror lookup (the default) does not explain these data.
-    assert np.median(estimate(observations, Config()).loss) > 1e4 * np.median(result.loss)
 
 
 def test_global_recovers_parameters_exactly_with_the_environment_light(truth):
@@ -467,24 +457,6 @@ def test_split_sum_table_is_mitsubas_principled_bsdf():
             assert np.mean(np.array(weight.x)) == pytest.approx(expected, abs=6e-3)
 
 
-def test_shipped_lobe_tilt_table_matches_a_fresh_fit():
-    tables = lobe_tilt_table()
-    cos_nodes, roughness_nodes = lobe_tilt_nodes()
-    assert tables.shape == (len(LOBE_TERMS), len(cos_nodes), len(roughness_nodes))
-    for term, table in zip(LOBE_TERMS, tables):
-        for i, j in [(4, 26), (16, 13), (28, 20), (10, 32)]:
-            assert fit_lobe_tilt(cos_nodes[i], roughness_nodes[j], term) == pytest.approx(table[i, j], abs=1e-3)
-        # A mirror is read in the mirror direction; a rough lobe leans towards the normal, the more
-        # so the rougher it is (up to cos theta_o 0.9: near normal incidence all tilts look alike).
-        assert np.all(table[:, 0] > 0.98)
-        assert np.all(np.diff(table[4:30, 8:], axis=1) <= 1e-3)
-    # Fresnel weights the grazing half vectors up: E's lobe leans less than A's, and Schlick's F_c
-    # part hardly at all away from grazing views.
-    scale, bias, dielectric = tables
-    assert np.all(scale[:30, -1] < 0.01) and np.all(dielectric[4:30, 24:] > scale[4:30, 24:] + 0.05)
-    assert np.all(bias[12:30] > 0.95)
-
-
 def test_the_prefiltered_map_of_a_mirror_is_the_map_itself():
     # A small bright light on a dim sky: filtered in SH up to the map's limit, a mirror's map would
     # ring (Gibbs) across the sky; it is the map itself, and the other lobes are filtered.
@@ -508,7 +480,7 @@ def test_the_prefiltered_map_of_a_mirror_is_the_map_itself():
 
 def test_shipped_lobe_width_table_matches_a_fresh_computation():
     along, across = lobe_width_table()
-    cos_nodes, roughness_nodes = lobe_tilt_nodes()
+    cos_nodes, roughness_nodes = table_nodes()
     assert along.shape == across.shape == (len(cos_nodes), len(roughness_nodes))
     for i, j in [(4, 5), (16, 9), (28, 14), (10, 20)]:
         normal_incidence = lobe_spread(1.0, roughness_nodes[j])[1]
@@ -524,7 +496,7 @@ def test_shipped_lobe_width_table_matches_a_fresh_computation():
 
 def test_shipped_environment_response_table_matches_a_fresh_computation():
     tables = environment_response_table()
-    cos_nodes = lobe_tilt_nodes()[0]
+    cos_nodes = table_nodes()[0]
     roughness_nodes = np.linspace(0.0, 1.0, tables.shape[1])
     pairs = [(l, m) for l in range(LMAX + 1) for m in range(l + 1)]
     assert tables.shape == (len(LOBE_TERMS), 17, len(cos_nodes), len(pairs))
@@ -570,10 +542,10 @@ def test_environment_light_is_the_lobe_integral_of_any_environment():
         assert error.mean() < 0.005 and error.max() < 0.02
 
 
-def test_tilted_lookup_predicts_a_rough_lobe_under_a_sky():
+def test_environment_light_predicts_a_rough_lobe_under_a_sky():
     # A rough metal under a sky brighter overhead (L = 1 + 2 z^2 + z, z up), viewed at grazing
-    # angles: the split-sum prediction with the tilted lookup against the lobe integrated by Monte
-    # Carlo. The mirror-direction lookup sees the dim horizon.
+    # angles: the split-sum prediction with the environment light against the lobe integrated by
+    # Monte Carlo. The mirror-direction lookup of the fitted light sees the dim horizon.
     rng = np.random.default_rng(21)
     n_views, roughness, alpha = 48, 0.8, 0.64
     cos_theta = rng.uniform(0.05, 0.5, n_views)
@@ -591,8 +563,6 @@ def test_tilted_lookup_predicts_a_rough_lobe_under_a_sky():
     grid /= np.linalg.norm(grid, axis=1, keepdims=True)
     coeffs, *_ = np.linalg.lstsq(sh.eval_sh(grid, LMAX), sky(grid[:, 2]), rcond=None)
     light = np.repeat(coeffs[None, None, :], 3, axis=1)
-    tilted_scale, tilted_bias = (lobe_filtered_light(directions, weight, light, LMAX, 0.0, np.array([roughness]),
-                                                     term=term)[0, :, 0] for term in ("scale", "bias"))
     mirror = np.exp(-(alpha * np.arange(LMAX + 1)) ** 2) @ np.stack(
         [sh.eval_sh(directions[0], LMAX)[:, sh.sh_degrees(LMAX) == l] @ coeffs[sh.sh_degrees(LMAX) == l]
          for l in range(LMAX + 1)])
@@ -609,17 +579,17 @@ def test_tilted_lookup_predicts_a_rough_lobe_under_a_sky():
         lobe = np.where((light_z > 0) & (view_dot_half > 0), brdf.smith_g1_ggx(np.maximum(light_z, 1e-9), alpha)
                         * brdf.smith_g1_ggx(cos_theta[v], alpha) * view_dot_half / (cos_theta[v] * cos_half), 0.0)
         truth[v] = np.mean(lobe * sky(light_z))  # R0 = 1: the lobe integral of the light
-    tilted_error = np.abs((scale * tilted_scale + bias * tilted_bias) / truth - 1.0)
     mirror_error = np.abs((scale + bias) * mirror / truth - 1.0)
-    assert np.mean(tilted_error) < 0.05 and np.mean(tilted_error) < 0.3 * np.mean(mirror_error)
+    np.testing.assert_allclose(mirror, lobe_filtered_light(directions, weight, light, LMAX, 0.0,
+                                                           np.array([roughness]))[0, :, 0], rtol=1e-4)
     # The environment light reads the sky's own SH (here in a texel frame turned about the normal,
-    # which a zonal sky does not notice) with the lobe's per-degree gains: closer still.
+    # which a zonal sky does not notice) with the lobe's per-degree gains.
     normal, tangent = np.array([[0.0, 0.0, 1.0]]), np.array([[0.6, 0.8, 0.0]])
     environment_scale, environment_bias = (
         environment_filtered_light(directions, weight, tangent, normal, light[0].T, np.array([roughness]), term)[0, :, 0]
         for term in ("scale", "bias"))
     environment_error = np.abs((scale * environment_scale + bias * environment_bias) / truth - 1.0)
-    assert np.mean(environment_error) < 0.02 and np.mean(environment_error) < 0.5 * np.mean(tilted_error)
+    assert np.mean(environment_error) < 0.02 and np.mean(environment_error) < 0.15 * np.mean(mirror_error)
 
 
 def test_environment_burley_factor_is_mitsubas_diffuse_under_that_light():

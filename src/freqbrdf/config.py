@@ -229,14 +229,6 @@ class EstimateConfig:
     # global: "burley" is Mitsuba's principled diffuse (view-dependent, with retro-reflection on
     # rough texels) averaged over uniform light; "lambert": METHOD.md's d E / pi. "paper": lambert.
     diffuse_model: Literal["burley", "lambert"] = "burley"
-    # global, split_sum: read the light of a rough lobe at the view direction tilted towards the
-    # normal (estimate.lobe_tilt_table, one tilt per lobe term) instead of the mirror direction.
-    # Measured with the other defaults (64 views, T = 512): plane base colour 20.11 -> 22.90 dB,
-    # roughness MAE 0.113 -> 0.078, metallic 0.172 -> 0.116; bunny 17.17 -> 17.18 dB, metallic
-    # 0.230 -> 0.209; but the demo capture (coffee) 19.20 -> 17.48 dB, and observe + estimate
-    # costs 1.5-2.6x. Off until it wins everywhere; with the environment light (below) it no longer
-    # helps (bunny 18.40 vs 18.42 dB, plane 23.94 vs 24.24).
-    lobe_tilt: bool = False
     # global, split_sum: the dielectric part's Fresnel. "exact": the unpolarised Fresnel equations
     # at eta 1.5, as Mitsuba's principled BSDF reflects (its metallic part is Schlick's);
     # "schlick": R0 = 0.04 (1 - m) + m b in Schlick's approximation, 10-27 % below at view

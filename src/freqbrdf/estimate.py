@@ -27,17 +27,6 @@ and diffuse factor D come in two versions (``EstimateConfig.specular_model``, ``
   pass for dark dielectrics, Lambert makes rough dielectrics look too smooth). With the
   environment light (below), D is Burley's factor averaged over the environment's own light
   instead (per channel, `environment_burley_factor`, ``EstimateConfig.burley_environment``).
-- with ``EstimateConfig.lobe_tilt`` the light of a rough lobe is read off the mirror direction,
-  tilted towards the normal as the lobe leans (`lobe_tilt_table`): S_alpha,c at
-  w' = normalize((1 - s) n + s w), with s per term of the lobe (A, B, E: each has its own Fresnel
-  weighting and so its own lean). The mirror lookup predicts rough metals 0.67 of their
-  path-traced specular on the plane, so they are fitted as half dielectric. With the other
-  defaults (exact dielectric, one robust pass) the tilt takes base-colour PSNR 17.17 -> 17.18 dB
-  (bunny) and 20.11 -> 22.90 dB (plane), roughness MAE to 0.151 and 0.078, metallic MAE to 0.209
-  and 0.116, but the demo capture's 19.20 -> 17.48 dB (its rough dielectrics drift towards metal),
-  at 1.5-2.6x the observe + estimate time: off by default. (Measured before the environment
-  light below, which makes it redundant: with both, bunny 18.40 dB and plane 23.94 dB, against
-  18.42 and 24.24 with the environment light alone.)
 - the environment light (``EstimateConfig.environment_light``, default on): the per-texel fit of
   the ~40-64 mirrored samples (l* = 5) extrapolates where a wide lobe reads it, and the Gaussian
   kernel exp(-alpha^2 l^2) is far from the GGX lobe's true per-degree response. On rough
@@ -90,7 +79,7 @@ and diffuse factor D come in two versions (``EstimateConfig.specular_model``, ``
   safeguarded Newton on the exact derivatives of the profiled loss) at each node, and the best
   cell is refined by Brent, started from the parabola through the best node and its neighbours:
   the global optimum in (b, m, r) up to the grid resolution, with no step size and no local
-  minima to fall into. Per texel the light is expanded by degree once per tilt level and everything that
+  minima to fall into. Per texel the light is expanded by degree once and everything that
   does not depend on the roughness (table positions, Burley's polynomial in r, the diffuse
   moments) is prepared before the search, so a roughness probe costs ~20 multiply-adds per sample. Then
   ``EstimateConfig.robust_passes`` (default 1) passes of iteratively re-weighted least squares move
@@ -285,10 +274,9 @@ def angular_loss(
     loss = np.empty(observations.n_texels)
     base_color = np.asarray(params.base_color, dtype=np.float64)
     metallic = np.asarray(params.metallic, dtype=np.float64)
-    levels = _tilt_levels(settings)
     (tangent, normal, environment, blend, prefiltered, n_full, anisotropic, world_to_local, map_height,
      map_width) = _environment_inputs(observations, settings)
-    for rows in texel_blocks(observations.n_texels, _PROJECTION_BLOCK // levels):
+    for rows in texel_blocks(observations.n_texels, _PROJECTION_BLOCK):
         if len(environment):
             azimuthal = np.ascontiguousarray(environment_azimuthal(
                 observations.view_direction[rows], observations.weight[rows], tangent[rows], normal[rows],
@@ -296,9 +284,9 @@ def angular_loss(
         else:
             azimuthal = np.zeros((rows.stop - rows.start, observations.n_views, 3, 0))
         # The prefiltered light replaces the fitted one: its expansion would be read by nothing.
-        fitted = (np.zeros((rows.stop - rows.start, 1, 3, 1, observations.n_views), np.float32) if n_full else
-                  _tilted_projections(observations.view_direction[rows], observations.weight[rows], light[rows],
-                                      observations.lmax, levels))
+        fitted = (np.zeros((rows.stop - rows.start, 3, 1, observations.n_views), np.float32) if n_full else
+                  _mirror_projections(observations.view_direction[rows], observations.weight[rows], light[rows],
+                                      observations.lmax))
         _squared_residual_kernel(
             fitted,
             observations.view_direction[rows], observations.weight[rows], observations.observed[rows],
@@ -365,7 +353,7 @@ def _run_search_kernel(observations: Observations, settings: EstimateConfig, lig
         observations.view_direction, observations.weight, observations.observed,
         np.ascontiguousarray(light, dtype=np.float32), _diffuse_scale(observations), observations.sigma,
         settings.fresnel, settings.masking, _uses_split_sum(settings), _uses_exact_dielectric(settings),
-        _uses_burley(settings), _model_tables(), _model_rows(), _tilt_levels(settings), settings.roughness_grid,
+        _uses_burley(settings), _model_tables(), _model_rows(), settings.roughness_grid,
         settings.metallic_grid, settings.robust_passes, observations.lmax, *sh._legendre_tables(observations.lmax),
         tangent, normal, environment, blend, environment_response_table(),
         *_environment_quadrature(max(math.isqrt(len(environment)) - 1, 0)), _burley_response(settings),
@@ -399,8 +387,6 @@ def _validate(settings: EstimateConfig) -> None:
         raise ValueError(f"unknown dielectric_fresnel {settings.dielectric_fresnel!r}; choose 'exact' or 'schlick'")
     if settings.robust_passes < 0:
         raise ValueError("robust_passes must be >= 0")
-    if settings.lobe_tilt and settings.prefiltered_light:
-        raise ValueError("lobe_tilt tilts the fitted light, which prefiltered_light replaces; turn one of them off")
     if not 0.0 <= settings.environment_blend[0] < settings.environment_blend[1]:
         raise ValueError(f"environment_blend must be (start, end) with 0 <= start < end, got "
                          f"{settings.environment_blend}")
@@ -560,76 +546,24 @@ def split_sum_terms(cos_theta: np.ndarray, roughness: np.ndarray) -> tuple[np.nd
     return tuple(term.reshape(cos_theta.shape) for term in terms)
 
 
-# With lobe_tilt, the light of a rough lobe is looked up off the mirror direction, at the view
-# direction tilted towards the normal: w' = normalize((1 - s) n + s w) (s = 1 the mirror, 0 the normal), with s per
-# (cos theta_o, roughness) from a shipped table (`lobe_tilt_table`). The search expands the light by
-# degree at the tilt levels s = j / (levels - 1) and interpolates linearly in s.
-_TILT_LEVELS = 9
 _SPLIT_SUM_TABLE_PATH = Path(__file__).resolve().parent / "data" / "split_sum.csv"
-_TILT_TABLE_PATH = Path(__file__).resolve().parent / "data" / "lobe_tilt.csv"
 _WIDTH_TABLE_PATH = Path(__file__).resolve().parent / "data" / "lobe_width.csv"
-_TILT_FIT_LMAX = 5  # the default l*: the degrees whose responses the tilt is fitted to
-_TILT_CANDIDATES = 401  # tilts tried per node: s on a 0.0025 grid
-_TILT_THETA_STRATA = 64  # strata of the half vector's polar and azimuthal angle each
+_ENVIRONMENT_LMAX = 5  # the default l*: the degrees of the environment light (`environment_response_table`)
+_RESPONSE_STRATA = 64  # strata of the half vector's polar and azimuthal angle each (`lobe_sh_response`)
 
 
 # The terms of the split-sum specular, each with its own Fresnel weight over the lobe and so its
-# own tilt: A (1 - F_c), B (F_c, Schlick's weight) and E (the exact dielectric Fresnel).
+# own response to the light: A (1 - F_c), B (F_c, Schlick's weight) and E (the exact dielectric Fresnel).
 LOBE_TERMS = ("scale", "bias", "dielectric")
 
 
-@functools.cache
-def lobe_tilt_table() -> np.ndarray:
-    """(3, cos nodes, roughness nodes) float64: per `LOBE_TERMS` term, the tilt s in [0, 1] of
-    its split-sum light lookup.
-
-    The cos-weighted GGX lobe of a rough surface leans from the mirror direction towards the
-    normal, so the mirror-direction lookup sees too much of the horizon: on the plane capture it
-    predicted 0.45 of the path-traced specular of rough metals (r >= 0.65) at grazing views and
-    0.90 near the normal; the tilted lookup 0.93-0.98. Fresnel weights the lobe's grazing half
-    vectors up, which lean the other way: Schlick's F_c term and the dielectric's Fresnel tilt far
-    less than A's (at cos theta_o 0.4, r 0.8: s = 0.36 for A, 0.63 for E, 1.0 for B). Nodes as
-    `split_sum_table`'s; the values are `fit_lobe_tilt`'s, shipped in data/lobe_tilt.csv (the
-    three tables stacked by rows; scripts/make_lobe_tilt_table.py).
-    """
-    table = np.loadtxt(_TILT_TABLE_PATH, delimiter=",", ndmin=2)
-    shape = (len(LOBE_TERMS) * _TABLE_COS_NODES, _TABLE_ROUGHNESS_NODES)
-    if table.shape != shape or not np.all((table >= 0.0) & (table <= 1.0)):
-        raise InputError(_TILT_TABLE_PATH, f"expected a {shape[0]} x {shape[1]} table of tilts in [0, 1] (one "
-                                           f"{_TABLE_COS_NODES}-row block per lobe term), got shape {table.shape}; "
-                                           "regenerate it with scripts/make_lobe_tilt_table.py")
-    return table.reshape(len(LOBE_TERMS), _TABLE_COS_NODES, _TABLE_ROUGHNESS_NODES)
-
-
-def lobe_tilt_nodes() -> tuple[np.ndarray, np.ndarray]:
-    """The (cos theta_o, roughness) nodes of `lobe_tilt_table` (and of `split_sum_table`)."""
+def table_nodes() -> tuple[np.ndarray, np.ndarray]:
+    """The (cos theta_o, roughness) nodes of `split_sum_table` (and of `lobe_width_table`)."""
     return np.linspace(0.0, 1.0, _TABLE_COS_NODES), np.linspace(0.0, 1.0, _TABLE_ROUGHNESS_NODES)
 
 
-def fit_lobe_tilt(cos_theta: float, roughness: float, term: str = "scale", lmax: int = _TILT_FIT_LMAX) -> float:
-    """The tilt s whose split-sum lookup best reproduces the GGX lobe's response to each real SH
-    of degree 1..l* (degree 0 does not depend on s), in the least-squares sense over the 3 + ... +
-    (2 l* + 1) harmonics, the best of s on a grid.
-
-    The lobe (masking-shadowing included, weighted by the ``term``'s Fresnel factor, see
-    `LOBE_TERMS`) is integrated by stratified sampling of GGX half vectors, as `split_sum_table`;
-    its response to a light that is Y_lm in the mirrored parameterisation is
-    int Y_lm(mirror(w_i)) f cos_i dw_i, the model's is its albedo times exp(-alpha^2 l^2) Y_lm(w'(s)).
-    Deterministic. At normal incidence every s gives the normal.
-    """
-    albedo, responses, view = lobe_sh_response(cos_theta, roughness, term, lmax)
-    alpha = float(brdf.alpha_from_roughness(np.array(roughness)))
-    degree = sh.sh_degrees(lmax)
-    tilts = np.linspace(0.0, 1.0, _TILT_CANDIDATES)
-    looked_up = tilts[:, None] * view + (1.0 - tilts)[:, None] * np.array([0.0, 0.0, 1.0])
-    looked_up /= np.linalg.norm(looked_up, axis=1, keepdims=True)
-    model = albedo * np.exp(-alpha**2 * degree**2) * sh.eval_sh(looked_up, lmax)
-    misfit = np.sum(((model - responses) ** 2)[:, degree >= 1], axis=1)
-    return float(tilts[np.argmin(misfit)])
-
-
-def lobe_sh_response(cos_theta: float, roughness: float, term: str = "scale", lmax: int = _TILT_FIT_LMAX,
-                     strata: int = _TILT_THETA_STRATA) -> tuple[float, np.ndarray, np.ndarray]:
+def lobe_sh_response(cos_theta: float, roughness: float, term: str = "scale", lmax: int = _ENVIRONMENT_LMAX,
+                     strata: int = _RESPONSE_STRATA) -> tuple[float, np.ndarray, np.ndarray]:
     """(albedo, responses (K,), view (3,)): the GGX lobe seen from view = (sin, 0, cos theta_o),
     masking-shadowing included and weighted by the ``term``'s Fresnel factor (`LOBE_TERMS`), its
     albedo int f cos_i dw_i and its response int Y_lm(mirror(w_i)) f cos_i dw_i to each real SH
@@ -662,7 +596,7 @@ def lobe_sh_response(cos_theta: float, roughness: float, term: str = "scale", lm
 
 
 # With the environment light (`EstimateConfig.environment_light`), a rough lobe reads the
-# environment's own SH (degrees up to `_TILT_FIT_LMAX`, unoccluded) through the lobe's exact response
+# environment's own SH (degrees up to `_ENVIRONMENT_LMAX`, unoccluded) through the lobe's exact response
 # to each harmonic: per (cos theta_o, roughness) node and lobe term, the response to Y_lm (m >= 0) in
 # a frame whose x axis is the mirrored view's azimuth (`environment_response_table`). Per texel the
 # environment is turned into the texel's frame once, per sample into its view's azimuth.
@@ -680,7 +614,7 @@ def environment_pairs(lmax: int) -> int:
 
 
 def environment_response(cos_theta: float, roughness: float, term: str = "scale",
-                         lmax: int = _TILT_FIT_LMAX) -> np.ndarray:
+                         lmax: int = _ENVIRONMENT_LMAX) -> np.ndarray:
     """((lmax + 1)(lmax + 2) / 2,) the ``term``'s lobe response to each real SH Y_lm with m >= 0
     (order: l, then m), relative to its albedo, for the view (sin, 0, cos theta_o), in the mirrored
     parameterisation (`lobe_sh_response`). The lobe is symmetric about its plane of incidence, so
@@ -705,7 +639,7 @@ def environment_response_table() -> np.ndarray:
     columns: the harmonics; scripts/make_environment_response_table.py).
     """
     table = np.loadtxt(_ENVIRONMENT_TABLE_PATH, delimiter=",", ndmin=2)
-    pairs = environment_pairs(_TILT_FIT_LMAX)
+    pairs = environment_pairs(_ENVIRONMENT_LMAX)
     shape = (len(LOBE_TERMS) * _ENVIRONMENT_NODES * _TABLE_COS_NODES, pairs)
     if table.shape != shape or not np.all(np.isfinite(table)):
         raise InputError(_ENVIRONMENT_TABLE_PATH, f"expected a {shape[0]} x {shape[1]} table of finite responses, "
@@ -752,7 +686,7 @@ def environment_azimuthal(directions: np.ndarray, weight: np.ndarray, tangent: n
     normal by the azimuth beta of the mirrored view direction (-x, -y), c_lm cos(m beta) +
     c_l,-m sin(m beta); P = `environment_pairs`. 0 where weight is 0."""
     directions = np.asarray(directions, np.float64)
-    degrees = min(sh.lmax_of(environment_coeffs.shape[0]), _TILT_FIT_LMAX)
+    degrees = min(sh.lmax_of(environment_coeffs.shape[0]), _ENVIRONMENT_LMAX)
     local = local_environment(environment_coeffs, tangent, normal, degrees)  # (n, K, 3)
     beta = np.arctan2(-directions[..., 1], -directions[..., 0])[..., None]  # (n, V, 1)
     out = np.empty(directions.shape[:2] + (3, environment_pairs(degrees)))
@@ -1065,77 +999,44 @@ def _prefiltered_node_light(prefiltered, node, n, corner, stencil_frac, n_full, 
                                                    bottom + col0, bottom + col1, fx, fy)
 
 
-def lobe_tilt(cos_theta: np.ndarray, roughness: np.ndarray, term: str = "scale") -> np.ndarray:
-    """`lobe_tilt_table` of one `LOBE_TERMS` term, bilinear, for broadcastable cos_theta and
-    roughness in [0, 1]."""
-    cos_theta, roughness = np.broadcast_arrays(np.asarray(cos_theta, np.float64), np.asarray(roughness, np.float64))
-    index = LOBE_TERMS.index(term)
-    out = np.empty((1, cos_theta.size))
-    _table_terms_kernel(cos_theta.ravel(), roughness.ravel(), lobe_tilt_table()[index:index + 1], out)
-    return out[0].reshape(cos_theta.shape)
-
-
-# The planes of `_model_tables`, as the kernels index them: the tilt of term k is _TILT_PLANE + k.
-_SCALE_PLANE, _BIAS_PLANE, _DIELECTRIC_PLANE, _TILT_PLANE, _WIDTH_PLANE = 0, 1, 2, 3, 6
+# The planes of `_model_tables`, as the kernels index them: the term k of `LOBE_TERMS` is plane k.
+_SCALE_PLANE, _BIAS_PLANE, _DIELECTRIC_PLANE, _WIDTH_PLANE = 0, 1, 2, 3
 
 
 @functools.cache
 def _model_tables() -> np.ndarray:
-    """(8, cos nodes, roughness nodes): A, B and E of `split_sum_table`, their tilts
-    (`lobe_tilt_table`), then the lobe's relative spreads (`lobe_width_table`)."""
-    return np.concatenate([split_sum_table(), lobe_tilt_table(), lobe_width_table()])
+    """(5, cos nodes, roughness nodes): A, B and E of `split_sum_table`, then the lobe's relative
+    spreads (`lobe_width_table`)."""
+    return np.concatenate([split_sum_table(), lobe_width_table()])
 
 
 @functools.cache
 def _model_rows() -> np.ndarray:
-    """(8, roughness nodes, cos nodes) `_model_tables` with the roughness first: each probe of the
+    """(5, roughness nodes, cos nodes) `_model_tables` with the roughness first: each probe of the
     search interpolates all its cos theta_o nodes at one roughness, contiguous this way (22 against
     75 ns strided, measured)."""
     return np.ascontiguousarray(_model_tables().transpose(0, 2, 1))
 
 
-def _tilt_levels(settings: EstimateConfig) -> int:
-    """Tilt levels the search expands the light at: one (the mirror lookup) without lobe_tilt."""
-    return _TILT_LEVELS if (_uses_split_sum(settings) and settings.lobe_tilt) else 1
-
-
 def lobe_filtered_light(directions: np.ndarray, weight: np.ndarray, light_coeffs: np.ndarray, lmax: int,
-                        sigma: float, roughness: np.ndarray, tilted: bool = True, term: str = "scale") -> np.ndarray:
-    """(n, V, 3) the light as the split-sum model filters it for one term of a lobe of roughness (n,).
+                        sigma: float, roughness: np.ndarray) -> np.ndarray:
+    """(n, V, 3) the fitted light as the split-sum model filters it for a lobe of roughness (n,).
 
     directions (n, V, 3) local view directions, weight (n, V), light_coeffs (n, 3, K): the SH fit
-    of the mirrored light, low-passed by the BRDF kernel and read at the directions tilted for
-    the `LOBE_TERMS` ``term`` (`lobe_tilt_table`), linear in s between the search's tilt levels;
-    0 where weight is 0.
-    Not ``tilted``: read in the mirror direction (`EstimateConfig.lobe_tilt` off).
+    of the mirrored light, low-passed by the BRDF kernel and read in the mirror direction; 0
+    where weight is 0.
     """
     alpha = brdf.alpha_from_roughness(np.asarray(roughness, np.float64))
     kernel = brdf.brdf_kernel(alpha, lmax, sigma)  # (n, l*+1)
-    if not tilted:
-        mirror = _tilted_projections(directions, weight, light_coeffs, lmax, 1)[:, 0]  # (n, 3, l*+1, V)
-        return np.einsum("nl,nclv->nvc", kernel, mirror)
-    levels = _tilted_projections(directions, weight, light_coeffs, lmax, _TILT_LEVELS)
-    position = lobe_tilt(directions[..., 2], np.asarray(roughness, np.float64)[:, None], term) * (_TILT_LEVELS - 1)
-    level = np.minimum(position.astype(np.int64), _TILT_LEVELS - 2)  # (n, V)
-    frac = position - level
-    lower = np.take_along_axis(levels, level[:, None, None, None, :], axis=1)[:, 0]  # (n, 3, l*+1, V)
-    upper = np.take_along_axis(levels, level[:, None, None, None, :] + 1, axis=1)[:, 0]
-    interpolated = lower + frac[:, None, None, :] * (upper - lower)
-    return np.einsum("nl,nclv->nvc", kernel, interpolated)
+    return np.einsum("nl,nclv->nvc", kernel, _mirror_projections(directions, weight, light_coeffs, lmax))
 
 
-def _tilted_projections(directions, weight, coeffs, lmax, levels) -> np.ndarray:
-    """(n, levels, 3, l*+1, V) `_degree_projections` at the view directions tilted towards the
-    normal by s = j / (levels - 1); one level: the view directions themselves."""
+def _mirror_projections(directions, weight, coeffs, lmax) -> np.ndarray:
+    """(n, 3, l*+1, V) `_degree_projections` at the view directions, normalised in float64 as the
+    search kernel normalises them."""
     directions = np.asarray(directions, dtype=np.float64)
-    out = []
-    for j in range(levels):
-        tilt = j / (levels - 1) if levels > 1 else 1.0
-        tilted = directions * tilt
-        tilted[..., 2] += 1.0 - tilt
-        tilted /= np.maximum(np.linalg.norm(tilted, axis=-1, keepdims=True), 1e-12)  # unsampled: (0, 0, 0)
-        out.append(_degree_projections(tilted, weight, coeffs, lmax))
-    return np.stack(out, axis=1)
+    unit = directions / np.maximum(np.linalg.norm(directions, axis=-1, keepdims=True), 1e-12)  # unsampled: (0, 0, 0)
+    return _degree_projections(unit, weight, coeffs, lmax)
 
 
 def burley_diffuse_factor(cos_theta, roughness):
@@ -1271,7 +1172,7 @@ def _environment_inputs(observations: Observations, settings: EstimateConfig) ->
     degrees above the environment light's at all `_HIGH_NODES` roughness nodes: what the
     environment light adds."""
     tangent = np.zeros((observations.n_texels, 3), np.float32) if observations.tangent is None else observations.tangent
-    environment_degrees = min(observations.lmax, _TILT_FIT_LMAX)
+    environment_degrees = min(observations.lmax, _ENVIRONMENT_LMAX)
     if _uses_environment_light(observations, settings):
         environment = (np.ascontiguousarray(observations.environment_coeffs[:sh.num_coeffs(environment_degrees)],
                                             dtype=np.float64), tuple(float(b) for b in settings.environment_blend))
@@ -1410,9 +1311,7 @@ def _squared_residual_kernel(
     normal, prefiltered, n_full, anisotropic, world_to_local, map_height, map_width, footprint, out,
 ):
     """out[t] = sum_v,c w^2 (L - f)^2 / sum_v w^2 (0 without samples); directions (n, V, 3) local view
-    directions. proj (n, levels, 3, l*+1, V):
-    `_tilted_projections`, interpolated at each sample's tilt per lobe term when there are several
-    levels. The specular is m (b X + Y) + (1 - m) Z with X = A S_A, Y = B S_B (S_k: the light
+    directions. proj (n, 3, l*+1, V): `_mirror_projections`. The specular is m (b X + Y) + (1 - m) Z with X = A S_A, Y = B S_B (S_k: the light
     filtered for term k, `lobe_filtered_light`) and Z = E S_E with ``exact_dielectric``, else
     Schlick's 0.04 X + Y. With azimuthal (n, V, 3, P > 0) (`environment_azimuthal`) each S_k is
     blended towards the environment light (`environment_filtered_light`; response
@@ -1421,14 +1320,12 @@ def _squared_residual_kernel(
     `prefiltered_light` (texel frames tangent and normal (n, 3); blurred by footprint (n, V), or (n, 0):
     none) instead of proj."""
     n_texels, n_views = weight.shape
-    n_levels, n_degrees = proj.shape[1], proj.shape[3]
+    n_degrees = proj.shape[2]
     n_terms = len(LOBE_TERMS)
     for t in numba.prange(n_texels):
         alpha = max(roughness[t] * roughness[t], _ALPHA_MIN)
         kernel = np.empty(n_degrees)
         _fill_kernel(alpha, sigma, kernel, np.empty(n_degrees))
-        level = np.zeros(n_terms, dtype=np.int64)
-        frac = np.zeros(n_terms)
         filtered = np.empty(n_terms)
         share = _environment_share(roughness[t], environment_blend) if azimuthal.shape[3] > 0 else 0.0
         # The environment light at the roughness nodes on either side, per term, channel and view.
@@ -1483,9 +1380,9 @@ def _squared_residual_kernel(
         if use_high:
             _prefiltered_sample_nodes(roughness[t], blur, n_full, n_high, n_views, prefiltered, corner, stencil_frac,
                                       n_full, frames, map_width, table, nodes, cached, sample_node[1], sample_frac[1])
-        # Without tilt levels or environment light every term reads the same light; Schlick's
-        # dielectric needs no light of its own.
-        distinct = n_levels > 1 or share > 0.0
+        # Without the environment light every term reads the same light; Schlick's dielectric needs
+        # no light of its own.
+        distinct = share > 0.0
         distinct_terms = (n_terms if exact_dielectric else n_terms - 1) if distinct else 1
         total = 0.0
         weight_sq = 0.0
@@ -1495,11 +1392,6 @@ def _squared_residual_kernel(
                 cos_v = np.float64(directions[t, v, 2])
                 scale, bias = _specular_albedo(cos_v, roughness[t], alpha, fresnel, masking, split_sum, table)
                 dielectric = _table_lookup(table, _DIELECTRIC_PLANE, cos_v, roughness[t]) if exact_dielectric else 0.0
-                if n_levels > 1:
-                    for term in range(n_terms):
-                        position = _table_lookup(table, _TILT_PLANE + term, cos_v, roughness[t]) * (n_levels - 1)
-                        level[term] = min(int(position), n_levels - 2)
-                        frac[term] = position - level[term]
                 for c in range(3):
                     for term in range(distinct_terms):
                         filtered[term] = 0.0
@@ -1507,9 +1399,7 @@ def _squared_residual_kernel(
                             filtered[term] = _prefiltered_at(nodes, c, v, sample_node[0], sample_frac[0])
                         else:
                             for degree in range(n_degrees):
-                                lower = proj[t, level[term], c, degree, v]
-                                upper = proj[t, level[term] + 1, c, degree, v] if n_levels > 1 else lower
-                                filtered[term] += kernel[degree] * (lower + frac[term] * (upper - lower))
+                                filtered[term] += kernel[degree] * proj[t, c, degree, v]
                         if share > 0.0:
                             lower = environment_light[0, term, c, v]
                             light = lower + node_frac * (environment_light[1, term, c, v] - lower)
@@ -1999,17 +1889,16 @@ def _environment_share(roughness, blend):
 def _roughness_objective(roughness, args):
     """Profiled loss at this roughness: min over base colour and metallic (written to state).
 
-    Per sample, only the specular albedo (A, B, E), the lobe terms' tilts and the diffuse factor D
-    depend on the roughness besides the kernel; their roughness-free parts were prepared per texel
+    Per sample, only the specular albedo (A, B, E) and the diffuse factor D depend on the roughness
+    besides the kernel; their roughness-free parts were prepared per texel
     (`_global_search_kernel`).
     """
     (n, cos_theta, omega, proj, values, sigma, fresnel, masking, split_sum, exact_dielectric, burley, table,
-     table_row, table_frac, tilt_level, tilt_frac, burley_terms, diffuse_moments, column, kernel, kernel_derivative,
-     albedo, diffuse_factor, level_filtered, filtered, moments, quadratics, squared_values, diffuse_scale,
+     table_row, table_frac, burley_terms, diffuse_moments, column, kernel, kernel_derivative,
+     albedo, diffuse_factor, own_filtered, filtered, moments, quadratics, squared_values, diffuse_scale,
      state, metallic_grid, azimuthal, environment_blend, environment_nodes, environment_cached, response,
      prefiltered, n_full, corner, stencil_frac, prefiltered_nodes, prefiltered_cached,
      high_filtered, frames, map_width, blur, blurred, sample_node, sample_frac, table_rows) = args
-    n_levels = proj.shape[0]
     # Without the environment (environment light off) the lobes read their own light alone.
     share = _environment_share(roughness, environment_blend) if azimuthal.shape[2] > 0 else 0.0
     # Terms with a light of their own: A and B, and E with the exact dielectric (else Z = 0.04 X + Y).
@@ -2019,12 +1908,9 @@ def _roughness_objective(roughness, args):
         y = min(max(roughness, 0.0), 1.0) * (table_rows.shape[1] - 1)
         j = min(int(y), table_rows.shape[1] - 2)
         fy = y - j
-        for side in range(table_rows.shape[0]):
-            term = side - _TILT_PLANE if side >= _TILT_PLANE else side
-            if term >= n_terms or (side >= _TILT_PLANE and n_levels == 1):
-                continue
+        for term in range(n_terms):
             for i in range(table_rows.shape[2]):
-                column[side, i] = table_rows[side, j, i] * (1.0 - fy) + table_rows[side, j + 1, i] * fy
+                column[term, i] = table_rows[term, j, i] * (1.0 - fy) + table_rows[term, j + 1, i] * fy
         if share > 0.0:
             # The environment light at its roughness nodes on either side, each computed once per
             # texel (the search visits few, most of them many times); on a node (the grid's nodes
@@ -2041,11 +1927,6 @@ def _roughness_objective(roughness, args):
             row, fx = table_row[s], table_frac[s]
             for term in range(n_terms):
                 albedo[term, s] = column[term, row] + fx * (column[term, row + 1] - column[term, row])
-                if n_levels > 1:  # the light's tilt level for this sample's lobe term
-                    side = _TILT_PLANE + term
-                    position = (column[side, row] + fx * (column[side, row + 1] - column[side, row])) * (n_levels - 1)
-                    tilt_level[term, s] = min(int(position), n_levels - 2)
-                    tilt_frac[term, s] = position - tilt_level[term, s]
     else:
         for s in range(n):
             albedo[0, s], albedo[1, s] = _specular_albedo(cos_theta[s], roughness, alpha, fresnel, masking, False,
@@ -2060,19 +1941,17 @@ def _roughness_objective(roughness, args):
         for s in range(n):
             diffuse_factor[c, s] = burley_terms[c, 0, s] + roughness * (burley_terms[c, 1, s]
                                                                         + roughness * burley_terms[c, 2, s])
-    # Filter the light at the tilt levels this probe reads (contiguous, vectorised loops), then
-    # interpolate each sample and term between its two levels. A lobe that reads the environment
-    # light alone (share 1) needs none of it.
+    # The lobe's own light (contiguous, vectorised loops): the fitted light filtered by the kernel,
+    # or the prefiltered light. A lobe that reads the environment light alone (share 1) needs none.
     own_light = share < 1.0
-    first_level, last_level = (0, 0) if own_light else (0, -1)  # (0, -1): no level at all
-    # The prefiltered light replaces the fitted one (one level): its nodes around this roughness,
-    # each looked up once per texel.
+    # The prefiltered light replaces the fitted one: its nodes around this roughness, each looked
+    # up once per texel.
     use_prefiltered = own_light and n_full > 0
+    use_fitted = own_light and n_full == 0
     # (Without a footprint blur every sample reads the same nodes.)
     lower_map = upper_map = lower_high = upper_high = 0
     map_frac = high_frac = 0.0
     if use_prefiltered:
-        first_level, last_level = 0, -1
         if blurred:
             _prefiltered_sample_nodes(roughness, blur, 0, n_full, n, prefiltered, corner, stencil_frac, n_full,
                                       frames, map_width, table, prefiltered_nodes, prefiltered_cached,
@@ -2093,23 +1972,17 @@ def _roughness_objective(roughness, args):
             lower_high, upper_high, high_frac = _prefiltered_nodes_at(roughness, n_full, n_high, n, prefiltered,
                                                                       corner, stencil_frac, n_full, frames, map_width,
                                                                       table, prefiltered_nodes, prefiltered_cached)
-    if n_levels > 1 and own_light:
-        first_level, last_level = n_levels, 0
-        for term in range(n_terms):
-            for s in range(n):
-                first_level = min(first_level, tilt_level[term, s])
-                last_level = max(last_level, tilt_level[term, s] + 1)
-    if last_level >= first_level:
+    if use_fitted:
         _fill_kernel(alpha, sigma, kernel, kernel_derivative)
     # Below, whole indices rather than row views (see `_metallic_quadratics`).
     for c in range(3):
         if use_prefiltered and blurred:
             for s in range(n):
-                level_filtered[0, s] = _prefiltered_at(prefiltered_nodes, c, s, sample_node[0], sample_frac[0])
+                own_filtered[s] = _prefiltered_at(prefiltered_nodes, c, s, sample_node[0], sample_frac[0])
         elif use_prefiltered:
             for s in range(n):
                 lower = prefiltered_nodes[lower_map, c, s]
-                level_filtered[0, s] = lower + map_frac * (prefiltered_nodes[upper_map, c, s] - lower)
+                own_filtered[s] = lower + map_frac * (prefiltered_nodes[upper_map, c, s] - lower)
         if use_high and blurred:
             for s in range(n):
                 high_filtered[s] = _prefiltered_at(prefiltered_nodes, c, s, sample_node[1], sample_frac[1])
@@ -2117,26 +1990,19 @@ def _roughness_objective(roughness, args):
             for s in range(n):
                 lower = prefiltered_nodes[lower_high, c, s]
                 high_filtered[s] = lower + high_frac * (prefiltered_nodes[upper_high, c, s] - lower)
-        for level in range(first_level, last_level + 1):
+        if use_fitted:
             k0 = kernel[0]
             for s in range(n):
-                level_filtered[level, s] = k0 * proj[level, c, 0, s]
+                own_filtered[s] = k0 * proj[c, 0, s]
             for degree in range(1, kernel.shape[0]):
                 k = kernel[degree]
                 for s in range(n):
-                    level_filtered[level, s] += k * proj[level, c, degree, s]
+                    own_filtered[s] += k * proj[c, degree, s]
         model = filtered
         for term in range(n_terms):
-            if not own_light:
-                pass
-            elif n_levels == 1:
+            if own_light:
                 for s in range(n):
-                    model[c, term, s] = albedo[term, s] * level_filtered[0, s]
-            else:
-                for s in range(n):
-                    lower = level_filtered[tilt_level[term, s], s]
-                    upper = level_filtered[tilt_level[term, s] + 1, s]
-                    model[c, term, s] = albedo[term, s] * (lower + tilt_frac[term, s] * (upper - lower))
+                    model[c, term, s] = albedo[term, s] * own_filtered[s]
             if share > 0.0:
                 frac = node_frac if upper_node != lower_node else 0.0
                 keep = 1.0 - share
@@ -2347,7 +2213,7 @@ def _brent_run(args, state, best_state, roughness_brent, best_r, best_f, search)
 def _record_hypothesis(args, sample_weight, out):
     """out (3, 8): per channel `_specular_moments` of the metal terms the last `_roughness_objective`
     probe left in args (in the order `_roughness_objective` unpacks them), sample weights (n,)."""
-    n, values, filtered = args[0], args[4], args[24]
+    n, values, filtered = args[0], args[4], args[22]
     for c in range(3):
         _specular_moments(n, sample_weight, values[c], filtered[c, 0], filtered[c, 1], out[c])
 
@@ -2409,7 +2275,7 @@ def _loss_curvature(best_r, centre_f, args):
 @numba.njit(parallel=True, fastmath=True, cache=True)
 def _global_search_kernel(
     directions, weight, observed, light, diffuse_scale, sigma, fresnel, masking, split_sum, exact_dielectric, burley,
-    table, table_rows, tilt_levels, roughness_grid, metallic_grid, robust_passes, lmax, diag, rec_a, rec_b,
+    table, table_rows, roughness_grid, metallic_grid, robust_passes, lmax, diag, rec_a, rec_b,
     tangent, normal, environment, environment_blend, response, quadrature, quadrature_projection, burley_response,
     prefiltered, n_full, anisotropic, world_to_local, map_height, map_width, footprint, hypothesis_roughness,
     hypothesis_moments, node_rows, search, candidate,
@@ -2429,8 +2295,7 @@ def _global_search_kernel(
     emitter frame is world_to_local (3, 3) from the world), smooth lobes read them at the world
     mirror directions instead of the fitted light, each sample's blurred by its footprint (n, V)
     (`Observations.footprint`; (n, 0): none). Else, per texel the light is expanded by
-    degree at its samples once per tilt level (P_c,l(w'_v), `_tilted_projections`; one level:
-    w' = w; fused here to keep it in cache). Then the roughness is searched (if ``search``).
+    degree at its samples (P_c,l(w_v), `_mirror_projections`; fused here to keep it in cache). Then the roughness is searched (if ``search``).
     With hypothesis_roughness (R,): `hypothesis_moments` of each texel into hypothesis_moments
     (n, R, 3, 8), those of node_rows (roughness_grid,) (`_node_rows`; (0,): none) recorded by the
     search's first scan, the others probed before it. With candidate (n, 2) (roughness, metallic) instead of a
@@ -2448,7 +2313,7 @@ def _global_search_kernel(
         # signature, not two (each compiles the whole search).
         chunk = (np.int64(item) * stride) % n_chunks
         _global_search_chunk(chunk, directions, weight, observed, light, diffuse_scale, sigma, fresnel,
-                             masking, split_sum, exact_dielectric, burley, table, table_rows, tilt_levels,
+                             masking, split_sum, exact_dielectric, burley, table, table_rows,
                              roughness_grid, metallic_grid, robust_passes, lmax, diag, rec_a, rec_b, tangent, normal,
                              environment, environment_blend, response, quadrature, quadrature_projection,
                              burley_response, prefiltered, n_full, anisotropic, world_to_local, map_height, map_width,
@@ -2469,7 +2334,7 @@ def scattering_stride(n_items):
 @numba.njit(fastmath=True, cache=True)
 def _global_search_chunk(
     chunk, directions, weight, observed, light, diffuse_scale, sigma, fresnel, masking, split_sum,
-    exact_dielectric, burley, table, table_rows, tilt_levels, roughness_grid, metallic_grid, robust_passes, lmax,
+    exact_dielectric, burley, table, table_rows, roughness_grid, metallic_grid, robust_passes, lmax,
     diag, rec_a, rec_b, tangent, normal, environment, environment_blend, response, quadrature,
     quadrature_projection, burley_response, prefiltered, n_full, anisotropic, world_to_local, map_height,
     map_width, footprint, hypothesis_roughness, hypothesis_moments, node_rows, search, candidate, params, loss,
@@ -2483,23 +2348,21 @@ def _global_search_chunk(
     n_coeffs = n_degrees * n_degrees
     # The texel's samples with w > 0, packed and with the views innermost (vectorised loops).
     xyz = np.empty((3, n_views))
-    tilted = np.empty((3, n_views))
+    unit = np.empty((3, n_views))
     basis = np.empty((n_coeffs, n_views))
     sh_scratch = np.empty((5, n_views))
     packed_cos = np.empty(n_views)
     omega = np.empty(n_views)  # w^2
-    packed_proj = np.empty((tilt_levels, 3, n_degrees, n_views))
+    packed_proj = np.empty((3, n_degrees, n_views))
     values = np.empty((3, n_views))
     table_row = np.empty(n_views, dtype=np.int64)
     table_frac = np.empty(n_views)
-    tilt_level = np.empty((3, n_views), dtype=np.int64)  # per lobe term
-    tilt_frac = np.empty((3, n_views))
     burley_terms = np.empty((3, 3, n_views))  # per channel, power of r and sample
     diffuse_moments = np.empty((3, 2, 5))  # per channel: sum w^2 D^2 (quartic in r), sum w^2 f D (quadratic)
     column = np.empty((table.shape[0], table.shape[1]))
     albedo = np.empty((3, n_views))  # A, B, E
     diffuse_factor = np.empty((3, n_views))
-    level_filtered = np.empty((tilt_levels, n_views))
+    own_filtered = np.empty(n_views)  # the lobe's own light of one channel
     filtered = np.empty((3, 3, n_views))  # per channel X, Y, Z
     sample_weight = np.empty(n_views)  # w
     residual = np.empty(n_views)
@@ -2578,24 +2441,20 @@ def _global_search_chunk(
         if n_full > 0:
             _mirror_stencil(xyz, n, tangent[t], normal[t], bitangent, world_to_local, map_height, map_width,
                             corner, stencil_frac, frames)
-        for level in range(tilt_levels if n_full == 0 else 0):
-            tilt = level / (tilt_levels - 1) if tilt_levels > 1 else 1.0
-            for s in range(n):  # normalize((1 - tilt) n + tilt w)
-                tilted[0, s] = tilt * xyz[0, s]
-                tilted[1, s] = tilt * xyz[1, s]
-                tilted[2, s] = 1.0 - tilt + tilt * xyz[2, s]
-                norm = math.sqrt(tilted[0, s] ** 2 + tilted[1, s] ** 2 + tilted[2, s] ** 2)
+        if n_full == 0:  # the fitted light, expanded by degree at the (normalised) view directions
+            for s in range(n):
+                norm = math.sqrt(xyz[0, s] ** 2 + xyz[1, s] ** 2 + xyz[2, s] ** 2)
                 for axis in range(3):
-                    tilted[axis, s] /= norm
-            sh._sh_block(tilted[0], tilted[1], tilted[2], n, lmax, diag, rec_a, rec_b, basis, sh_scratch)
+                    unit[axis, s] = xyz[axis, s] / norm
+            sh._sh_block(unit[0], unit[1], unit[2], n, lmax, diag, rec_a, rec_b, basis, sh_scratch)
             for c in range(3):
                 for degree in range(n_degrees):
                     for s in range(n):
-                        packed_proj[level, c, degree, s] = 0.0
+                        packed_proj[c, degree, s] = 0.0
                     for k in range(degree * degree, (degree + 1) * (degree + 1)):
                         coefficient = np.float64(light[t, c, k])
                         for s in range(n):
-                            packed_proj[level, c, degree, s] += coefficient * basis[k, s]
+                            packed_proj[c, degree, s] += coefficient * basis[k, s]
         environment_cached[:] = False
         if environment.shape[0] > 0:
             _local_environment(environment, tangent[t], normal[t], bitangent, quadrature, quadrature_projection,
@@ -2613,8 +2472,8 @@ def _global_search_chunk(
         for c in range(3):
             scale[c] = diffuse_scale[t, c]
         args = (n, packed_cos, omega, packed_proj, values, sigma, fresnel, masking, split_sum, exact_dielectric,
-                burley, table, table_row, table_frac, tilt_level, tilt_frac, burley_terms, diffuse_moments, column,
-                kernel, kernel_derivative, albedo, diffuse_factor, level_filtered, filtered, moments, quadratics,
+                burley, table, table_row, table_frac, burley_terms, diffuse_moments, column,
+                kernel, kernel_derivative, albedo, diffuse_factor, own_filtered, filtered, moments, quadratics,
                 squared_values, scale, state, metallic_grid, azimuthal, environment_blend, environment_nodes,
                 environment_cached, response, prefiltered, n_full, corner, stencil_frac,
                 prefiltered_nodes, prefiltered_cached, high_filtered, frames, map_width, blur, blurred,
