@@ -43,7 +43,6 @@ def synthetic_observations(
     prefiltered: bool = False,
     environment_blend: tuple[float, float] = EstimateConfig().environment_blend,
     anisotropic: bool = EstimateConfig().anisotropic_lobes,
-    footprint: bool = False,
 ) -> Observations:
     """Observations of texels with known parameters, rendered by one of the global estimator's models.
 
@@ -55,8 +54,7 @@ def synthetic_observations(
     blended towards `environment_filtered_light` of a world-frame environment (random frames) over
     ``environment_blend``, and Burley's factor is `environment_burley_factor` under it. With ``prefiltered`` the lobes read `prefiltered_light` of a rotated
     32 x 64 map (degrees up to 12; as ``anisotropic`` lobes) instead of the fitted light, the environment light gains the
-    map's degrees above 5 (prefiltered), and the observations carry the map (with ``footprint``, a
-    random `Observations.footprint` of 0-0.06 rad per sample blurs those lobes); the environment is
+    map's degrees above 5 (prefiltered), and the observations carry the map; the environment is
     then that map's SH. Without either, the observations carry no environment
     (tangent None), as hand-made ones.
 
@@ -88,7 +86,6 @@ def synthetic_observations(
     environment = rng.normal(0.0, 0.3, (sh.num_coeffs(LMAX), 3))  # world-frame SH, a bright DC
     environment[0] = 3.0
     environment_map = None
-    sample_footprint = rng.uniform(0.0, 0.06, (n_texels, n_views)) if footprint else None
     if prefiltered:
         detail = rng.normal(0.0, 0.4, (sh.num_coeffs(12), 3)) / (1.0 + sh.sh_degrees(12)[:, None]) ** 0.5
         detail[0] = 3.0
@@ -110,12 +107,11 @@ def synthetic_observations(
             settings = EstimateConfig(environment_light=environment_light, environment_blend=environment_blend)
             maps = prefiltered_environment(environment_map, prefilter_nodes(settings))
             own_light = prefiltered_light(directions, tangent, normal, maps, environment_map.rotation, truth.roughness,
-                                          anisotropic, sample_footprint)
+                                          anisotropic)
             # The environment light holds degrees <= 5; the prefiltered maps add the ones above.
             high = prefiltered_environment(environment_map, prefilter_nodes(EstimateConfig(environment_light=False)),
                                            skip_degrees=LMAX + 1)
-            high_light = prefiltered_light(directions, tangent, normal, high, environment_map.rotation, truth.roughness,
-                                           footprint=sample_footprint)
+            high_light = prefiltered_light(directions, tangent, normal, high, environment_map.rotation, truth.roughness)
 
         def light(term):
             fitted = own_light if prefiltered else lobe_filtered_light(
@@ -168,7 +164,6 @@ def synthetic_observations(
         environment_coeffs=environment.astype(f32) if environment_light or prefiltered else None,
         environment_radiance=environment_map.radiance if prefiltered else None,
         environment_rotation=environment_map.rotation if prefiltered else None,
-        footprint=None if sample_footprint is None else np.where(visible, sample_footprint, 0.0).astype(f32),
     )
 
 
@@ -331,19 +326,6 @@ def test_global_recovers_parameters_exactly_with_the_prefiltered_light(truth):
                                                               Config(estimate=EstimateConfig(anisotropic_lobes=True))),
                                atol=1e-12)
     assert np.median(estimate(anisotropic_data, Config()).loss[smooth]) > 1e4 * np.median(anisotropic.loss[smooth])
-    # Each sample's lobe blurred by the normals across its footprint: recovered exactly with
-    # footprint_blur, not without it; with anisotropic lobes as well.
-    for lobes in (False, True):
-        blurred = synthetic_observations(truth, seed=31, model="split_sum", environment_light=True, prefiltered=True,
-                                         anisotropic=lobes, footprint=True)
-        settings = EstimateConfig(anisotropic_lobes=lobes, footprint_blur=True)
-        result = estimate(blurred, Config(estimate=settings))
-        _assert_recovered(result, truth, atol=1e-4)
-        assert np.all(result.loss < 1e-10)
-        np.testing.assert_allclose(angular_loss(blurred, result.principled(), Config(estimate=settings)), result.loss,
-                                   atol=1e-12)
-        unblurred = estimate(blurred, Config(estimate=dataclasses.replace(settings, footprint_blur=False)))
-        assert np.median(unblurred.loss[smooth]) > 1e4 * np.median(result.loss[smooth])
 
 
 def test_ggx_lobe_gains_match_the_lobe_response_at_normal_incidence():

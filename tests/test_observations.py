@@ -29,9 +29,8 @@ from freqbrdf.assets import envmap_path
 from freqbrdf.camera import Occluder
 from freqbrdf.capture import load
 from freqbrdf.cli import main
-from freqbrdf.config import Config, EstimateConfig, FitConfig, ObserveConfig, TexelConfig
+from freqbrdf.config import Config, FitConfig, ObserveConfig, TexelConfig
 from freqbrdf.envmap import Envmap, load_envmap, lookup
-from freqbrdf.estimate import prefilter_nodes, prefiltered_environment, prefiltered_light
 from freqbrdf.errors import InputError
 from freqbrdf.images import write_exr
 from freqbrdf.materials import MaterialMaps, save_material_maps
@@ -193,56 +192,6 @@ def test_observed_radiance_is_the_pixel_the_texel_projects_to(mirror_sphere):
         near_centre_errors.append(difference / image[rows, cols])
     near_centre_errors = np.concatenate(near_centre_errors)
     assert len(near_centre_errors) > 200 and np.median(near_centre_errors) < 0.015  # measured: 0.9 %
-
-
-def test_footprint_is_the_normal_spread_over_half_a_pixel_on_a_sphere(mirror_sphere):
-    """On a sphere of radius R the normal turns by the distance moved / R. Half a pixel (RMS, the
-    default footprint_pixels) at distance d is 0.5 d / f across the line of sight and 1 / cos theta
-    times that along the view's azimuth on the surface, so the RMS angle per axis is
-    0.5 d / (f R) sqrt((1 + 1 / cos^2) / 2)."""
-    capture, observations = mirror_sphere
-    texels = rasterise(capture.mesh, TEXTURE_RES)
-    radius = np.linalg.norm(texels.position, axis=1).mean()
-    for view, frame in enumerate(capture.frames):
-        camera = frame.camera
-        sampled = observations.weight[:, view] > 0
-        distance = np.linalg.norm(texels.position[sampled] - camera.camera_to_world[:3, 3], axis=1)
-        cos_theta = observations.view_direction[sampled, view, 2].astype(np.float64)
-        expected = (ObserveConfig().footprint_pixels * distance / (math.sqrt(camera.fx * camera.fy) * radius)
-                    * np.sqrt(0.5 * (1.0 + 1.0 / cos_theta**2)))
-        np.testing.assert_allclose(observations.footprint[sampled, view], expected, rtol=0.01)
-        assert np.all(observations.footprint[~sampled, view] == 0.0)
-
-
-@pytest.mark.slow
-def test_footprint_blur_explains_a_mirror_sphere_under_the_full_map(tmp_path):
-    """Mitsuba's mirror sphere under the full (unsmoothed) forest map, 128 x 128 pixels: a pixel
-    averages the map over the spread of normals in its footprint. The smooth lobe's light read
-    through that blur (estimate.prefiltered_light with the footprint) halves the error of the
-    point lookup (measured at 16 spp: median relative error 0.21 -> 0.11, relative RMS 0.60 ->
-    0.22; at 64 spp 0.21 -> 0.10 and 0.60 -> 0.21, and a footprint of 0.35 or 0.7 px instead of
-    0.5 does worse by RMS: 0.22 and 0.24)."""
-    materials = constant_materials(tmp_path / "materials", 1.0, 0.0, 1.0)
-    capture = render_capture(tmp_path / "capture", sphere_settings(materials, 6, 128, 16))
-    observations = observe(capture, Config(texels=TexelConfig(texture_res=TEXTURE_RES),
-                                           fit=FitConfig(band_limit=False)))
-    environment = observations.environment()
-    maps = prefiltered_environment(environment, prefilter_nodes(EstimateConfig(environment_light=False)))
-    mirror = np.zeros(observations.n_texels)
-    arguments = (observations.view_direction, observations.tangent, observations.normal, maps,
-                 environment.rotation, mirror)
-    sampled = observations.weight > 0.2
-    observed = observations.observed[sampled]
-
-    def errors(predicted):
-        predicted = predicted[sampled]
-        relative = np.abs(predicted - observed).sum(axis=-1) / observed.sum(axis=-1)
-        return np.median(relative), np.sqrt(((predicted - observed) ** 2).sum() / (observed**2).sum())
-
-    point_median, point_rms = errors(prefiltered_light(*arguments))
-    blurred_median, blurred_rms = errors(prefiltered_light(*arguments, footprint=observations.footprint))
-    assert point_median > 0.15 and point_rms > 0.45
-    assert blurred_median < 0.6 * point_median and blurred_rms < 0.45 * point_rms
 
 
 @pytest.mark.slow

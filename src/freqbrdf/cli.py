@@ -299,9 +299,6 @@ def fit(
     neighbour_vote: bool = typer.Option(
         True, "--neighbour-vote/--no-neighbour-vote", help="Let a texel whose data fit two roughness values "
         "about equally take the one nearer its neighbours' (a likelihood-ratio test keeps what the data decide)."),
-    footprint_blur: bool = typer.Option(
-        False, "--footprint-blur", help="Blur each sample's smooth lobe by the normals its pixel spans (more "
-        "faithful on curved surfaces, but less accurate roughness on the measured scenes)."),
     estimation_res: str = typer.Option(
         None, help="Texture resolution to observe and estimate on before the maps are sampled up to T: pixel "
         "(the coarsest whose texels are no wider than a pixel of the closest view), coarse (the finest whose "
@@ -335,7 +332,6 @@ def fit(
     # The flags only add to what the preset sets.
     config = config.replace(estimate=dataclasses.replace(
         config.estimate, anisotropic_lobes=config.estimate.anisotropic_lobes or anisotropic_lobes,
-        footprint_blur=config.estimate.footprint_blur or footprint_blur,
         neighbour_vote=config.estimate.neighbour_vote and neighbour_vote))
     reporter = Reporter(enabled=not (quiet or json_output))
     loaded = load(capture)

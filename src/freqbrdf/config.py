@@ -69,10 +69,6 @@ class ObserveConfig:
     # Off until it is shown to help (benchmarks/bench_observe.py measures it).
     environment_occlusion: bool = False
     occlusion_rays: int = 64
-    # RMS radius (per axis, pixels) of the image footprint a sample averages: a pixel's box (1/12
-    # px^2) and the bilinear lookup between pixels (1/6 on average). A curved surface turns its
-    # normal across that footprint, which blurs smooth reflections (`Observations.footprint`).
-    footprint_pixels: float = 0.5
 
 
 @dataclass(frozen=True)
@@ -275,18 +271,6 @@ class EstimateConfig:
     # 0.133 (T = 256), for 1.3-1.4x the observe + estimate time (three lookups per sample and
     # roughness node instead of one).
     anisotropic_lobes: bool = False
-    # With prefiltered_light: blur each sample's smooth lobe by how far the surface's normal turns
-    # across its image footprint (`Observations.footprint`; estimate._FOOTPRINT_GAIN). A pixel on a
-    # curved surface averages the reflections of a spread of normals: on the 64-view bunny
-    # (T = 256) the smooth texels' roughness bias grows with the footprint (true r < 0.15: +0.04
-    # for the third of texels with the smallest, +0.21 for the largest). With the blur the model
-    # explains the truth there 4x better (squared residual at the true parameters 0.118 -> 0.030)
-    # and that bias falls +0.111 -> +0.049, but roughness below the blur's width can no longer be
-    # told apart and some texels escape to rough lobes: roughness MAE bunny 0.124 -> 0.129,
-    # entropy_scenes.py's sphere 0.114 -> 0.125 (where the footprints are 3x smaller and the
-    # residual at the truth grows); with the neighbour vote too (T = 256: bunny 0.121 -> 0.127, demo
-    # capture 0.123 -> 0.133). Off by default.
-    footprint_blur: bool = False
     # global: after the search, each texel whose estimate lies more than a grid cell from the median
     # roughness of its neighbours (5 x 5 texels) takes a local minimum within a cell of that median,
     # and one more than a metallic grid cell from their median metallic takes that metallic, unless

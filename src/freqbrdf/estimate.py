@@ -104,8 +104,6 @@ and diffuse factor D come in two versions (``EstimateConfig.specular_model``, ``
   reject it: a likelihood-ratio test at 95 % (the profiled least-squares loss may rise by chi^2_1
   3.84 noise variances, the residual over 3n - 5 degrees of freedom), so exact data never move.
   Measured: see `EstimateConfig.neighbour_vote`.
-- with ``EstimateConfig.footprint_blur`` (off) each sample's smooth lobe is read blurred by the
-  spread of normals across its pixel footprint (`Observations.footprint`, `_FOOTPRINT_GAIN`).
 - ``paper`` reproduces the authors' prototype with METHOD.md's model: Adam (torch's defaults, lr
   0.02, 100 iterations) on the L1 loss of the cos-weighted residuals averaged over the whole T x T
   texture, parameters clamped to [0, 1] after every step, texture-space total variation on the
@@ -294,8 +292,7 @@ def angular_loss(
             np.asarray(params.roughness, dtype=np.float64)[rows], observations.sigma, settings.fresnel,
             settings.masking, _uses_split_sum(settings), _uses_exact_dielectric(settings), _uses_burley(settings),
             _model_tables(), environment_response_table(), _burley_response(settings), azimuthal, blend, tangent[rows],
-            normal[rows], prefiltered, n_full, anisotropic, world_to_local, map_height, map_width,
-            _footprint_input(observations, settings)[rows], loss[rows],
+            normal[rows], prefiltered, n_full, anisotropic, world_to_local, map_height, map_width, loss[rows],
         )
     return np.where(observations.n_samples > 0, loss, np.nan)
 
@@ -357,16 +354,9 @@ def _run_search_kernel(observations: Observations, settings: EstimateConfig, lig
         settings.metallic_grid, settings.robust_passes, observations.lmax, *sh._legendre_tables(observations.lmax),
         tangent, normal, environment, blend, environment_response_table(),
         *_environment_quadrature(max(math.isqrt(len(environment)) - 1, 0)), _burley_response(settings),
-        *prefiltered, _footprint_input(observations, settings), hypothesis_roughness, hypothesis_moments, node_rows,
+        *prefiltered, hypothesis_roughness, hypothesis_moments, node_rows,
         search, candidate, params, loss, curvature,
     )
-
-
-def _footprint_input(observations: Observations, settings: EstimateConfig) -> np.ndarray:
-    """(N, V) `Observations.footprint` where the estimator blurs by it, else (N, 0)."""
-    if settings.footprint_blur and observations.footprint is not None:
-        return observations.footprint
-    return np.zeros((observations.n_texels, 0), np.float32)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -757,12 +747,6 @@ _GAIN_STRATA = 8192  # half-vector strata of `ggx_lobe_gains`
 # map's width goes as alpha = r^2). Measured against the path tracer: benchmarks/model_fidelity.py.
 _TAP_OFFSETS = (-math.sqrt(3.0), 0.0, math.sqrt(3.0))
 _TAP_WEIGHTS = (1.0 / 6.0, 2.0 / 3.0, 1.0 / 6.0)
-# A GGX lobe of width alpha seen through normals spread by sigma (radians, per axis; the sample's
-# footprint, `Observations.footprint`) reads about like one of alpha^2 + _FOOTPRINT_GAIN sigma^2:
-# least squares on `ggx_lobe_gains` (weights 1 / (l + 1), degrees <= 400) of the GGX gains times
-# the Gaussian's exp(-l (l + 1) (2 sigma)^2 / 2) gave 1.3-1.9 for sigma / alpha in 0.25-4 and alpha
-# in 0.002-0.03 (relative misfit 0.2-6.5 %).
-_FOOTPRINT_GAIN = 1.6
 # The taps are read at texel coordinates linear in their angle from the mirror direction, from the
 # coordinates of a direction turned this far (radians) towards the normal: no trigonometry per tap.
 _TAP_STEP = 1e-3
@@ -822,14 +806,12 @@ def prefiltered_environment(envmap, n_nodes: int, skip_degrees: int = 0) -> np.n
 
 
 def prefiltered_light(directions: np.ndarray, tangent: np.ndarray, normal: np.ndarray, prefiltered: np.ndarray,
-                      rotation: np.ndarray, roughness: np.ndarray, anisotropic: bool = False,
-                      footprint: np.ndarray | None = None) -> np.ndarray:
+                      rotation: np.ndarray, roughness: np.ndarray, anisotropic: bool = False) -> np.ndarray:
     """(n, V, 3) the prefiltered light a lobe of roughness (n,) reads: directions (n, V, 3) local view
     directions, tangent and normal (n, 3) world frame of each texel, prefiltered (nodes, H, W, 3)
     `prefiltered_environment` of a map with emitter-to-world ``rotation`` (3, 3), looked up at the
     world mirror directions (``anisotropic``: as the anisotropic lobe, `_TAP_OFFSETS`) and linear in
-    roughness between its nodes (as the search reads it), each sample's lobe blurred by its
-    ``footprint`` (n, V) (`Observations.footprint`, `_FOOTPRINT_GAIN`) if given."""
+    roughness between its nodes (as the search reads it)."""
     directions = np.asarray(directions, np.float64)
     tangent, normal = np.asarray(tangent, np.float64), np.asarray(normal, np.float64)
     bitangent = np.cross(normal, tangent)
@@ -889,9 +871,6 @@ def prefiltered_light(directions: np.ndarray, tangent: np.ndarray, normal: np.nd
         return light
 
     roughness = np.broadcast_to(np.asarray(roughness, np.float64)[:, None], cos_theta.shape)
-    if footprint is not None:
-        blur = _FOOTPRINT_GAIN * np.asarray(footprint, np.float64) ** 2
-        roughness = np.where(blur > 0.0, (roughness**4 + blur) ** 0.25, roughness)
     node, frac = np.vectorize(lambda r: _prefilter_node(r, n_nodes), otypes=[np.int64, np.float64])(roughness)
     lower, upper = node_light(node), node_light(node + 1)
     return lower + frac[..., None] * (upper - lower)
@@ -1308,7 +1287,7 @@ def _fill_kernel(alpha, sigma, kernel, kernel_derivative):
 def _squared_residual_kernel(
     proj, directions, weight, observed, diffuse_scale, base_color, metallic, roughness, sigma, fresnel, masking,
     split_sum, exact_dielectric, burley, table, response, burley_response, azimuthal, environment_blend, tangent,
-    normal, prefiltered, n_full, anisotropic, world_to_local, map_height, map_width, footprint, out,
+    normal, prefiltered, n_full, anisotropic, world_to_local, map_height, map_width, out,
 ):
     """out[t] = sum_v,c w^2 (L - f)^2 / sum_v w^2 (0 without samples); directions (n, V, 3) local view
     directions. proj (n, 3, l*+1, V): `_mirror_projections`. The specular is m (b X + Y) + (1 - m) Z with X = A S_A, Y = B S_B (S_k: the light
@@ -1317,8 +1296,7 @@ def _squared_residual_kernel(
     blended towards the environment light (`environment_filtered_light`; response
     `environment_response_table`), and with burley_response (4, cos nodes, P > 0) Burley's diffuse is
     averaged over its light (`environment_burley_factor`). With prefiltered maps (H W, nodes, 3) the lobes read
-    `prefiltered_light` (texel frames tangent and normal (n, 3); blurred by footprint (n, V), or (n, 0):
-    none) instead of proj."""
+    `prefiltered_light` (texel frames tangent and normal (n, 3)) instead of proj."""
     n_texels, n_views = weight.shape
     n_degrees = proj.shape[2]
     n_terms = len(LOBE_TERMS)
@@ -1356,12 +1334,8 @@ def _squared_residual_kernel(
         use_high = n_high > 0 and share > 0.0
         nodes = np.empty((prefiltered.shape[1], 3, n_views))
         cached = np.zeros(prefiltered.shape[1], dtype=np.bool_)
-        sample_node = np.zeros((2, n_views), dtype=np.int64)  # the full and the high nodes
-        sample_frac = np.zeros((2, n_views))
-        blur = np.zeros(n_views)
-        if footprint.shape[1] > 0:
-            for v in range(n_views):
-                blur[v] = _FOOTPRINT_GAIN * np.float64(footprint[t, v]) ** 2
+        lower_map = upper_map = lower_high = upper_high = 0  # the full and the high nodes
+        map_frac = high_frac = 0.0
         corner = np.zeros((4, n_views), dtype=np.int64)
         stencil_frac = np.zeros((2, n_views))
         frames = np.zeros((5 if anisotropic else 0, n_views))
@@ -1375,11 +1349,13 @@ def _squared_residual_kernel(
             _mirror_stencil(xyz, n_views, tangent[t], normal[t], bitangent, world_to_local, map_height, map_width,
                             corner, stencil_frac, frames)
         if use_prefiltered:
-            _prefiltered_sample_nodes(roughness[t], blur, 0, n_full, n_views, prefiltered, corner, stencil_frac,
-                                      n_full, frames, map_width, table, nodes, cached, sample_node[0], sample_frac[0])
+            lower_map, upper_map, map_frac = _prefiltered_nodes_at(roughness[t], 0, n_full, n_views, prefiltered,
+                                                                   corner, stencil_frac, n_full, frames, map_width,
+                                                                   table, nodes, cached)
         if use_high:
-            _prefiltered_sample_nodes(roughness[t], blur, n_full, n_high, n_views, prefiltered, corner, stencil_frac,
-                                      n_full, frames, map_width, table, nodes, cached, sample_node[1], sample_frac[1])
+            lower_high, upper_high, high_frac = _prefiltered_nodes_at(roughness[t], n_full, n_high, n_views,
+                                                                      prefiltered, corner, stencil_frac, n_full,
+                                                                      frames, map_width, table, nodes, cached)
         # Without the environment light every term reads the same light; Schlick's dielectric needs
         # no light of its own.
         distinct = share > 0.0
@@ -1396,7 +1372,7 @@ def _squared_residual_kernel(
                     for term in range(distinct_terms):
                         filtered[term] = 0.0
                         if use_prefiltered:
-                            filtered[term] = _prefiltered_at(nodes, c, v, sample_node[0], sample_frac[0])
+                            filtered[term] = _prefiltered_between(nodes, c, v, lower_map, upper_map, map_frac)
                         else:
                             for degree in range(n_degrees):
                                 filtered[term] += kernel[degree] * proj[t, c, degree, v]
@@ -1404,7 +1380,7 @@ def _squared_residual_kernel(
                             lower = environment_light[0, term, c, v]
                             light = lower + node_frac * (environment_light[1, term, c, v] - lower)
                             if use_high:
-                                light += _prefiltered_at(nodes, c, v, sample_node[1], sample_frac[1])
+                                light += _prefiltered_between(nodes, c, v, lower_high, upper_high, high_frac)
                             filtered[term] = (1.0 - share) * filtered[term] + share * light
                     for term in range(distinct_terms, n_terms):
                         filtered[term] = filtered[0]
@@ -1830,9 +1806,10 @@ def _azimuthal_coefficients(xyz, n, local, out):
 @_borrowing_jit
 def _prefiltered_nodes_at(roughness, first, count, n, prefiltered, corner, stencil_frac, n_full, frames,
                           width, table, nodes, cached):
-    """`_prefiltered_sample_nodes` for samples without blur, all reading the same nodes: (lower,
-    upper, fraction); on a node both are that node and the fraction is 0. (Kept apart: the
-    per-sample nodes cost ~12 % of the estimate's time on the plane, T = 512.)"""
+    """Where the light of a lobe of ``roughness`` lies among the prefiltered nodes first..first +
+    count - 1 (roughness 0..1 by PREFILTER_STEP), for samples s < n: (lower, upper, fraction),
+    indices into nodes; on a node both are that node and the fraction is 0. The nodes read are
+    looked up once per texel into nodes (cached)."""
     node, frac = _prefilter_node(roughness, count)
     lower = first + (node if frac < 1.0 else node + 1)
     upper = first + (node + 1 if frac > 0.0 else node)
@@ -1844,38 +1821,11 @@ def _prefiltered_nodes_at(roughness, first, count, n, prefiltered, corner, stenc
     return lower, upper, (frac if upper != lower else 0.0)
 
 
-@_borrowing_jit
-def _prefiltered_sample_nodes(roughness, blur, first, count, n, prefiltered, corner, stencil_frac, n_full, frames,
-                              width, table, nodes, cached, sample_node, sample_frac):
-    """Per sample s < n, where the light of a lobe of ``roughness`` lies among the prefiltered nodes
-    first..first + count - 1 (roughness 0..1 by PREFILTER_STEP): the lobe blurred by the sample's
-    footprint, blur[s] (`_FOOTPRINT_GAIN`; alpha^2 units), reads at roughness (alpha^2 + blur)^(1/4).
-    sample_node[s] is the node below (index into nodes), sample_frac[s] the fraction towards the
-    next (0 on a node). The nodes read are looked up once per texel into nodes (cached)."""
-    # Unclamped alpha (not _ALPHA_MIN): the read roughness must tend to the lobe's as blur -> 0.
-    alpha = roughness * roughness
-    lowest, highest = count, -1
-    for s in range(n):
-        read = math.sqrt(math.sqrt(alpha * alpha + blur[s])) if blur[s] > 0.0 else roughness
-        node, frac = _prefilter_node(read, count)
-        if frac >= 1.0:
-            node, frac = node + 1, 0.0
-        sample_node[s], sample_frac[s] = first + node, frac
-        lowest = min(lowest, node)
-        highest = max(highest, node + 1 if frac > 0.0 else node)
-    for needed in range(first + lowest, first + highest + 1):
-        if not cached[needed]:
-            _prefiltered_node_light(prefiltered, needed, n, corner, stencil_frac, n_full, frames, width, table,
-                                    nodes[needed])
-            cached[needed] = True
-
-
 @numba.njit(inline="always")
-def _prefiltered_at(nodes, c, s, sample_node, sample_frac):
-    """Channel c of the light `_prefiltered_sample_nodes` placed for sample s."""
-    lower = nodes[sample_node[s], c, s]
-    frac = sample_frac[s]
-    return lower + frac * (nodes[sample_node[s] + 1, c, s] - lower) if frac > 0.0 else lower
+def _prefiltered_between(nodes, c, s, lower, upper, frac):
+    """Channel c of sample s's light between the nodes `_prefiltered_nodes_at` returned."""
+    value = nodes[lower, c, s]
+    return value + frac * (nodes[upper, c, s] - value) if frac > 0.0 else value
 
 
 @_borrowing_jit
@@ -1898,7 +1848,7 @@ def _roughness_objective(roughness, args):
      albedo, diffuse_factor, own_filtered, filtered, moments, quadratics, squared_values, diffuse_scale,
      state, metallic_grid, azimuthal, environment_blend, environment_nodes, environment_cached, response,
      prefiltered, n_full, corner, stencil_frac, prefiltered_nodes, prefiltered_cached,
-     high_filtered, frames, map_width, blur, blurred, sample_node, sample_frac, table_rows) = args
+     high_filtered, frames, map_width, table_rows) = args
     # Without the environment (environment light off) the lobes read their own light alone.
     share = _environment_share(roughness, environment_blend) if azimuthal.shape[2] > 0 else 0.0
     # Terms with a light of their own: A and B, and E with the exact dielectric (else Z = 0.04 X + Y).
@@ -1948,45 +1898,28 @@ def _roughness_objective(roughness, args):
     # up once per texel.
     use_prefiltered = own_light and n_full > 0
     use_fitted = own_light and n_full == 0
-    # (Without a footprint blur every sample reads the same nodes.)
     lower_map = upper_map = lower_high = upper_high = 0
     map_frac = high_frac = 0.0
     if use_prefiltered:
-        if blurred:
-            _prefiltered_sample_nodes(roughness, blur, 0, n_full, n, prefiltered, corner, stencil_frac, n_full,
-                                      frames, map_width, table, prefiltered_nodes, prefiltered_cached,
-                                      sample_node[0], sample_frac[0])
-        else:
-            lower_map, upper_map, map_frac = _prefiltered_nodes_at(roughness, 0, n_full, n, prefiltered, corner,
-                                                                   stencil_frac, n_full, frames, map_width, table,
-                                                                   prefiltered_nodes, prefiltered_cached)
+        lower_map, upper_map, map_frac = _prefiltered_nodes_at(roughness, 0, n_full, n, prefiltered, corner,
+                                                               stencil_frac, n_full, frames, map_width, table,
+                                                               prefiltered_nodes, prefiltered_cached)
     # The degrees the environment light leaves out, from the prefiltered maps' last nodes.
     n_high = prefiltered.shape[1] - n_full
     use_high = share > 0.0 and n_high > 0
     if use_high:
-        if blurred:
-            _prefiltered_sample_nodes(roughness, blur, n_full, n_high, n, prefiltered, corner, stencil_frac, n_full,
-                                      frames, map_width, table, prefiltered_nodes, prefiltered_cached,
-                                      sample_node[1], sample_frac[1])
-        else:
-            lower_high, upper_high, high_frac = _prefiltered_nodes_at(roughness, n_full, n_high, n, prefiltered,
-                                                                      corner, stencil_frac, n_full, frames, map_width,
-                                                                      table, prefiltered_nodes, prefiltered_cached)
+        lower_high, upper_high, high_frac = _prefiltered_nodes_at(roughness, n_full, n_high, n, prefiltered,
+                                                                  corner, stencil_frac, n_full, frames, map_width,
+                                                                  table, prefiltered_nodes, prefiltered_cached)
     if use_fitted:
         _fill_kernel(alpha, sigma, kernel, kernel_derivative)
     # Below, whole indices rather than row views (see `_metallic_quadratics`).
     for c in range(3):
-        if use_prefiltered and blurred:
-            for s in range(n):
-                own_filtered[s] = _prefiltered_at(prefiltered_nodes, c, s, sample_node[0], sample_frac[0])
-        elif use_prefiltered:
+        if use_prefiltered:
             for s in range(n):
                 lower = prefiltered_nodes[lower_map, c, s]
                 own_filtered[s] = lower + map_frac * (prefiltered_nodes[upper_map, c, s] - lower)
-        if use_high and blurred:
-            for s in range(n):
-                high_filtered[s] = _prefiltered_at(prefiltered_nodes, c, s, sample_node[1], sample_frac[1])
-        elif use_high:
+        if use_high:
             for s in range(n):
                 lower = prefiltered_nodes[lower_high, c, s]
                 high_filtered[s] = lower + high_frac * (prefiltered_nodes[upper_high, c, s] - lower)
@@ -2277,7 +2210,7 @@ def _global_search_kernel(
     directions, weight, observed, light, diffuse_scale, sigma, fresnel, masking, split_sum, exact_dielectric, burley,
     table, table_rows, roughness_grid, metallic_grid, robust_passes, lmax, diag, rec_a, rec_b,
     tangent, normal, environment, environment_blend, response, quadrature, quadrature_projection, burley_response,
-    prefiltered, n_full, anisotropic, world_to_local, map_height, map_width, footprint, hypothesis_roughness,
+    prefiltered, n_full, anisotropic, world_to_local, map_height, map_width, hypothesis_roughness,
     hypothesis_moments, node_rows, search, candidate,
     params, loss, curvature,
 ):
@@ -2293,8 +2226,7 @@ def _global_search_kernel(
     that light (`environment_burley_factor`) instead of uniform light.
     With prefiltered (H W, nodes, 3) maps (`prefiltered_environment` of an H x W map whose
     emitter frame is world_to_local (3, 3) from the world), smooth lobes read them at the world
-    mirror directions instead of the fitted light, each sample's blurred by its footprint (n, V)
-    (`Observations.footprint`; (n, 0): none). Else, per texel the light is expanded by
+    mirror directions instead of the fitted light. Else, per texel the light is expanded by
     degree at its samples (P_c,l(w_v), `_mirror_projections`; fused here to keep it in cache). Then the roughness is searched (if ``search``).
     With hypothesis_roughness (R,): `hypothesis_moments` of each texel into hypothesis_moments
     (n, R, 3, 8), those of node_rows (roughness_grid,) (`_node_rows`; (0,): none) recorded by the
@@ -2317,7 +2249,7 @@ def _global_search_kernel(
                              roughness_grid, metallic_grid, robust_passes, lmax, diag, rec_a, rec_b, tangent, normal,
                              environment, environment_blend, response, quadrature, quadrature_projection,
                              burley_response, prefiltered, n_full, anisotropic, world_to_local, map_height, map_width,
-                             footprint, hypothesis_roughness, hypothesis_moments, node_rows, search, candidate,
+                             hypothesis_roughness, hypothesis_moments, node_rows, search, candidate,
                              params, loss, curvature)
 
 
@@ -2337,7 +2269,7 @@ def _global_search_chunk(
     exact_dielectric, burley, table, table_rows, roughness_grid, metallic_grid, robust_passes, lmax,
     diag, rec_a, rec_b, tangent, normal, environment, environment_blend, response, quadrature,
     quadrature_projection, burley_response, prefiltered, n_full, anisotropic, world_to_local, map_height,
-    map_width, footprint, hypothesis_roughness, hypothesis_moments, node_rows, search, candidate, params, loss,
+    map_width, hypothesis_roughness, hypothesis_moments, node_rows, search, candidate, params, loss,
     curvature,
 ):
     """`_global_search_kernel`'s work for the texels of one chunk: a function of its own, so that
@@ -2404,14 +2336,10 @@ def _global_search_chunk(
     stencil_frac = np.empty((2, n_views))
     frames = np.empty((5 if anisotropic else 0, n_views))
     high_filtered = np.empty(n_views)
-    blur = np.zeros(n_views)  # alpha^2 units
-    sample_node = np.empty((2, n_views), dtype=np.int64)  # the full and the high nodes
-    sample_frac = np.empty((2, n_views))
     for t in range(chunk * _SEARCH_CHUNK, min((chunk + 1) * _SEARCH_CHUNK, n_texels)):
         # np.int64, np.bool_ and below: a literal constant where a variable goes (here into args)
         # makes numba compile the callee once more for the literal's type.
         n = np.int64(0)
-        blurred = np.bool_(False)
         for v in range(n_views):
             w = np.float64(weight[t, v])
             if w <= 0.0:
@@ -2423,9 +2351,6 @@ def _global_search_chunk(
             sample_weight[n] = w
             for c in range(3):
                 values[c, n] = observed[t, v, c]
-            if footprint.shape[1] > 0:
-                blur[n] = _FOOTPRINT_GAIN * np.float64(footprint[t, v]) ** 2
-                blurred = blurred or blur[n] > 0.0
             n += 1
         if n < MIN_SAMPLES:
             continue
@@ -2476,8 +2401,7 @@ def _global_search_chunk(
                 kernel, kernel_derivative, albedo, diffuse_factor, own_filtered, filtered, moments, quadratics,
                 squared_values, scale, state, metallic_grid, azimuthal, environment_blend, environment_nodes,
                 environment_cached, response, prefiltered, n_full, corner, stencil_frac,
-                prefiltered_nodes, prefiltered_cached, high_filtered, frames, map_width, blur, blurred,
-                sample_node, sample_frac, table_rows)
+                prefiltered_nodes, prefiltered_cached, high_filtered, frames, map_width, table_rows)
         for i in range(hypothesis_roughness.shape[0]):
             if not scanned[i]:
                 _roughness_objective(hypothesis_roughness[i], args)

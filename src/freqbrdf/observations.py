@@ -73,7 +73,7 @@ STAGES = ("raster", "projection", "visibility", "images", "irradiance", "occlusi
 # The array fields of Observations that are not per texel.
 _SHARED_ARRAYS = ("environment_coeffs", "environment_radiance", "environment_rotation")
 # Per texel and view (N, V, ...).
-_SAMPLE_ARRAYS = ("view_direction", "observed", "mirrored", "weight", "visible", "footprint")
+_SAMPLE_ARRAYS = ("view_direction", "observed", "mirrored", "weight", "visible")
 
 
 @dataclass(eq=False)
@@ -101,11 +101,6 @@ class Observations:
     # before the occlusion and mask tests (n_samples / n_facing is the visible fraction).
     n_facing: np.ndarray
     environment_occlusion: bool = False  # mirrored and irradiance account for self-occlusion
-    # (N, V) float32 RMS angle (radians, per axis) by which the shading normal turns across each
-    # sample's footprint on the surface (`ObserveConfig.footprint_pixels` pixels, stretched by
-    # 1 / cos theta along the view), 0 where there is no sample: a smooth lobe seen through it
-    # is blurred (`EstimateConfig.footprint_blur`). None where unknown (hand-made observations).
-    footprint: np.ndarray | None = None
     # (N, 3) float32 world tangent of the local frame (bitangent = normal x tangent), and (K, 3)
     # float32 the environment's SH in the world frame, unfiltered: what the estimator's environment
     # light reads (`EstimateConfig.environment_light`). None where unknown (hand-made observations).
@@ -255,7 +250,6 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
     _initialise_signals(signals, CONSTANT)
     view_direction = np.zeros((n_texels, n_views, 3), dtype=np.float32)
     weight = np.zeros((n_texels, n_views), dtype=np.float32)
-    footprint = np.zeros((n_texels, n_views), dtype=np.float32)
     visible = np.zeros((n_texels, n_views), dtype=bool)
     n_facing = np.zeros(n_texels, dtype=np.int32)
 
@@ -292,10 +286,8 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
             timings["visibility"] += time.perf_counter() - tick
 
             tick = time.perf_counter()
-            footprint_angle = config.observe.footprint_pixels / np.sqrt(intrinsics[:, 0] * intrinsics[:, 1])
-            _record_kernel(seen, images, masks, pixels, cos_theta, position, frame, centres,
-                           texels.normal_derivative, footprint_angle, batch.start, signals, view_direction, weight,
-                           footprint, visible)
+            _record_kernel(seen, images, masks, pixels, cos_theta, position, frame, centres, batch.start, signals,
+                           view_direction, weight, visible)
             timings["projection"] += time.perf_counter() - tick
             advance(len(batch))
 
@@ -360,7 +352,6 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
         alpha_bound=alpha_bound,
         n_facing=n_facing,
         environment_occlusion=config.observe.environment_occlusion,
-        footprint=footprint,
         tangent=texels.tangent.astype(np.float32),
         environment_coeffs=envmaps.envmap_sh(capture.envmap, config.fit.lmax).astype(np.float32),
         environment_radiance=capture.envmap.radiance,
@@ -623,16 +614,14 @@ def _project_kernel(position, normal, camera_to_world, intrinsics, width, height
 
 
 @numba.njit(parallel=True, cache=True)
-def _record_kernel(seen, images, masks, pixels, cos_theta, position, frame, centres, normal_derivative,
-                   footprint_angle, first_view, signals, view_direction, weight, footprint, visible):
+def _record_kernel(seen, images, masks, pixels, cos_theta, position, frame, centres, first_view, signals,
+                   view_direction, weight, visible):
     """Record the samples of a batch of B views, texel by texel (contiguous writes).
 
     seen (N, B): facing and unoccluded; images (B, H, W, 3), masks (B, H, W, 1) in [0, 1], both
     sampled bilinearly; a sample counts where the mask is 1 at all four neighbours. For counted
-    samples writes the observed radiance, local view direction, weight, footprint and visibility
-    into columns first_view + b of the (N, V, ...) outputs. The footprint (`Observations.footprint`)
-    comes from normal_derivative (N, 3, 3) (`Texels.normal_derivative`) and footprint_angle (B,),
-    the footprint's RMS radius as an angle seen from the camera (radians).
+    samples writes the observed radiance, local view direction, weight and visibility into columns
+    first_view + b of the (N, V, ...) outputs.
     """
     height, width = images.shape[1], images.shape[2]
     for t in numba.prange(seen.shape[0]):
@@ -655,30 +644,7 @@ def _record_kernel(seen, images, masks, pixels, cos_theta, position, frame, cent
             for axis in range(3):
                 view_direction[t, view, axis] = frame[t, axis, 0] * dx + frame[t, axis, 1] * dy + frame[t, axis, 2] * dz
             weight[t, view] = cos_theta[t, b]
-            footprint[t, view] = _footprint(normal_derivative[t], frame[t], view_direction[t, view],
-                                            footprint_angle[b] / inverse_distance)
             visible[t, view] = True
-
-
-@numba.njit(inline="always")
-def _footprint(normal_derivative, frame, local_view, radius):
-    """RMS angle (per axis) of the normal over a footprint of RMS radius ``radius`` (world units)
-    across the line of sight, seen along local_view (3,) in the texel's frame (3, 3) (rows t, b, n):
-    on the surface it is radius / cos theta along the view's azimuth and radius across it."""
-    sin_theta = math.sqrt(local_view[0] * local_view[0] + local_view[1] * local_view[1])
-    cos_azimuth, sin_azimuth = 1.0, 0.0  # any azimuth at normal incidence
-    if sin_theta > 1e-9:
-        cos_azimuth, sin_azimuth = local_view[0] / sin_theta, local_view[1] / sin_theta
-    total = 0.0
-    for along in (True, False):  # the footprint's two axes, in world coordinates via the frame
-        u, v = (cos_azimuth, sin_azimuth) if along else (-sin_azimuth, cos_azimuth)
-        stretch = radius / max(local_view[2], 1e-6) if along else radius
-        for row in range(3):
-            turn = 0.0
-            for column in range(3):
-                turn += normal_derivative[row, column] * (u * frame[0, column] + v * frame[1, column])
-            total += (turn * stretch) ** 2
-    return math.sqrt(0.5 * total)
 
 
 @numba.njit(inline="always")

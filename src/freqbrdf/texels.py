@@ -62,9 +62,6 @@ class Texels:
     tangent: np.ndarray  # (N, 3) float64 local frame: tangent x bitangent = normal
     bitangent: np.ndarray  # (N, 3) float64
     texel_area: np.ndarray  # (N,) float64 world-space area one texel covers on its face
-    # (N, 3, 3) float64 d normal / d position: how the shading normal turns per unit of world
-    # displacement along the texel's face (zero along the face normal); see `normal_derivative`.
-    normal_derivative: np.ndarray
     snapped: np.ndarray  # (N,) bool, True where the centre missed every triangle (conservative)
     overlap_texels: int  # texels whose centre lies strictly inside two or more triangles
     degenerate_uv_faces: int  # faces skipped because their UV area is zero
@@ -111,7 +108,6 @@ def rasterise(mesh: Mesh, texture_res: int = 512, conservative: bool = True) -> 
     # Opposed vertex normals can cancel; the face's own normal is then the only sensible choice.
     normal = unit_or_fallback(shading, unit_or_fallback(geometric[face_id], np.array([0.0, 0.0, 1.0])))
     tangent, bitangent = orthonormal_basis(normal)
-    derivative = normal_derivative(corners, np.asarray(mesh.normals, np.float64)[mesh.faces], face_id, shading, normal)
 
     # The UV -> world map is affine per face, so every texel of a face covers the same world area.
     twice_world_area = np.linalg.norm(geometric, axis=-1)
@@ -127,36 +123,10 @@ def rasterise(mesh: Mesh, texture_res: int = 512, conservative: bool = True) -> 
         tangent=tangent,
         bitangent=bitangent,
         texel_area=world_area_per_uv_area[face_id],
-        normal_derivative=derivative,
         snapped=snap_distance.ravel()[texel_index] > 0.0,
         overlap_texels=int(np.count_nonzero(centre_hits >= 2)),
         degenerate_uv_faces=int(np.count_nonzero(~has_uv_area)),
     )
-
-
-def normal_derivative(corners: np.ndarray, corner_normals: np.ndarray, face_id: np.ndarray, shading: np.ndarray,
-                      normal: np.ndarray) -> np.ndarray:
-    """(N, 3, 3) d n / d p of the normalised interpolated shading normal n = s / |s| at each texel:
-    corners and corner_normals (F, 3, 3) per face and corner, face_id (N,) each texel's face,
-    shading (N, 3) its unnormalised s and normal (N, 3) n. On a face s is affine in the position,
-    ds = D (E^T E)^-1 E^T dp with E, D the face's edge vectors and normal differences (the
-    least-norm map, zero along the face normal), and dn = (I - n n^T) ds / |s|. Zero on faces
-    without area and where s vanished (the face normal stood in)."""
-    edges = np.stack([corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]], axis=-1)  # (F, 3, 2)
-    normal_steps = np.stack([corner_normals[:, 1] - corner_normals[:, 0],
-                             corner_normals[:, 2] - corner_normals[:, 0]], axis=-1)
-    gram = np.swapaxes(edges, 1, 2) @ edges  # (F, 2, 2)
-    determinant = gram[:, 0, 0] * gram[:, 1, 1] - gram[:, 0, 1] * gram[:, 1, 0]
-    usable = determinant > 1e-12 * np.maximum(gram[:, 0, 0] * gram[:, 1, 1], 1e-300)
-    adjugate = np.stack([np.stack([gram[:, 1, 1], -gram[:, 0, 1]], -1),
-                         np.stack([-gram[:, 1, 0], gram[:, 0, 0]], -1)], -2)
-    inverse = adjugate / np.where(usable, determinant, 1.0)[:, None, None]
-    face_derivative = normal_steps @ inverse @ np.swapaxes(edges, 1, 2)  # (F, 3, 3)
-    face_derivative[~usable] = 0.0
-    length = np.linalg.norm(shading, axis=-1)
-    projector = np.eye(3) - normal[:, :, None] * normal[:, None, :]
-    scale = np.where(length > 1e-12, 1.0 / np.maximum(length, 1e-12), 0.0)
-    return projector @ face_derivative[face_id] * scale[:, None, None]
 
 
 def orthonormal_basis(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
