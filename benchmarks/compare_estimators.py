@@ -1,6 +1,6 @@
-"""The comparison of issue #5: our `global` estimator (also its fast preset, with anisotropic
-lobes, without its neighbour vote and without its environment light), the paper's recipe (angular and spectrum forward models) and Mitsuba 3 inverse rendering, on
-Mitsuba-rendered captures.
+"""The comparison of issue #5: our `global` estimator (also its fast preset, without its neighbour
+vote and without its environment light), the paper's recipe (angular and spectrum forward models)
+and Mitsuba 3 inverse rendering, on Mitsuba-rendered captures.
 
     python benchmarks/compare_estimators.py [--scenes bunny,plane] [--texture-res 512]
         [--views 64] [--relight-spp 32] [--skip mitsuba,paper_spectrum] [--quick]
@@ -50,7 +50,7 @@ SCENES = {
     "bunny": SynthSettings(mesh="bunny", envmap="forest", materials="bands", test_envmaps=("studio", "sunset")),
     "plane": SynthSettings(mesh="plane", envmap="city", materials="bands", test_envmaps=("forest", "lobby")),
 }
-METHODS = ("global", "global_without_vote", "global_fast", "global_anisotropic", "global_environment_light", "global_fitted_light", "paper_angular", "paper_spectrum",
+METHODS = ("global", "global_without_vote", "global_fast", "global_environment_light", "global_fitted_light", "paper_angular", "paper_spectrum",
            "mitsuba")
 FULL_RENDER = {"resolution": 256, "spp": 64, "test_views": 8}
 QUICK_RENDER = {"resolution": 128, "spp": 16, "test_views": 4}
@@ -61,8 +61,7 @@ def method_config(method: str, texture_res: int) -> Config:
     """Our default Config for `global`; `global_environment_light` without the prefiltered light
     (smooth lobes read the per-texel fit of the mirrored light, the session-5 default);
     `global_fitted_light` without the environment light either (every lobe reads that fit, the
-    session-4 default); `global_anisotropic`: the default with EstimateConfig.anisotropic_lobes;
-    `global_without_vote`: without
+    session-4 default); `global_without_vote`: without
     EstimateConfig.neighbour_vote; `global_fast`: the
     fast preset; the paper preset (its lambda, Adam, TV) for `paper_*`."""
     texels = TexelConfig(texture_res=texture_res)
@@ -72,8 +71,7 @@ def method_config(method: str, texture_res: int) -> Config:
     if method.startswith("global"):
         return Config(texels=texels, estimate=EstimateConfig(
             environment_light=method != "global_fitted_light",
-            prefiltered_light=method in ("global", "global_anisotropic", "global_without_vote"),
-            anisotropic_lobes=method == "global_anisotropic",
+            prefiltered_light=method in ("global", "global_without_vote"),
             neighbour_vote=method != "global_without_vote"))
     model = method.split("_", 1)[1]
     config = preset("paper")

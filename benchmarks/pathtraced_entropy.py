@@ -28,7 +28,7 @@ reproduces our fast entropy: "scoring_check_max_abs_difference").
 Reported: Spearman rank correlation of each brute force with ours (calibrated default, with
 GGX lobes instead of the paper's Gaussian one, phase-aware and paper modes on the 8 x 8 grid; the
 angular mode on its own grid, the estimator's 9 roughness nodes, as `fit` computes it from its
-search and with anisotropic lobes); each entropy's rank correlation with the
+search); each entropy's rank correlation with the
 default fit's roughness error on the same texels; mean entropy per region of entropy_scenes.py;
 the difference of the mean entropy between the badly and the sharply lit regions, with a 95 %
 bootstrap interval (is the badly lit region more uncertain?); timings, with those of the fit with
@@ -245,8 +245,8 @@ def main(sky: str) -> None:
     ggx_config = UncertaintyConfig(lobe="ggx")
     ggx = entropy_map(observations, ggx_config, return_likelihood=False)
     phase_aware = entropy_map(observations, UncertaintyConfig(phase_aware=True), return_likelihood=False)
-    # The angular mode as `fit` computes it (its grid the estimator's 9 roughness nodes, its lobes
-    # the estimator's, scored during the search), and on its own.
+    # The angular mode as `fit` computes it (its grid the estimator's 9 roughness nodes, scored during
+    # the search), and on its own.
     angular_config = UncertaintyConfig(mode="angular")
     angular_fit = fit(capture, config.replace(uncertainty=angular_config))
     angular = angular_fit.uncertainty
@@ -254,8 +254,6 @@ def main(sky: str) -> None:
     start = time.perf_counter()
     angular_alone = entropy_map(observations, angular_config, return_likelihood=False)
     angular_s = time.perf_counter() - start
-    anisotropic = entropy_map(observations, UncertaintyConfig(mode="angular", anisotropic_lobes=True),
-                              return_likelihood=False)
     chosen = choose_texels(ours.entropy, observations.n_samples)
 
     # One ray per (chosen texel, view with a sample), towards that view's camera.
@@ -338,8 +336,7 @@ def main(sky: str) -> None:
             "grid_res": angular_grid.resolution,
             "agreement_with_pooled_brute_force": {
                 name: agreement(angular_pooled, entropy.entropy[chosen])
-                for name, entropy in (("ours_angular_in_fit", angular), ("ours_angular_anisotropic_lobes", anisotropic),
-                                      ("ours_calibrated", ours))},
+                for name, entropy in (("ours_angular_in_fit", angular), ("ours_calibrated", ours))},
             "agreement_with_each_seed": [agreement(values, angular.entropy[chosen])
                                          for values in (angular_brute, angular_brute_other_seed)],
             "brute_force_self_agreement": agreement(angular_brute, angular_brute_other_seed),

@@ -60,20 +60,18 @@ def test_fit_and_evaluate_commands(run_cli, tiny_capture, tmp_path, monkeypatch,
     assert (evaluation / "sparsification.png").is_file() and len(list((evaluation / "relight").glob("*.png"))) == 2
 
     shared_dir = tmp_path / "shared"
-    assert run_cli("fit", tiny_capture, "--out", shared_dir, "--texture-res", 32, "--share", "--anisotropic-lobes",
+    assert run_cli("fit", tiny_capture, "--out", shared_dir, "--texture-res", 32, "--share",
                    "--no-neighbour-vote", "--split-half", "--estimation-res", 16, "--quiet") == 0
     assert capsys.readouterr().out == ""
     shared_summary = json.loads((shared_dir / "summary.json").read_text())
     assert shared_summary["settings"]["share"]["enabled"] and "share" in shared_summary["timings"]
     shared_settings, default_settings = shared_summary["settings"]["estimate"], summary["settings"]["estimate"]
-    assert shared_settings["anisotropic_lobes"]
     assert not shared_settings["neighbour_vote"]
     assert shared_summary["settings"]["uncertainty"]["split_half"]
     assert shared_summary["estimation_res"] == 16 and summary["estimation_res"] == 32  # "pixel" keeps T here
     assert shared_summary["coverage"]["texture_res"] == 32
     assert not summary["settings"]["uncertainty"]["split_half"]
     # The default fit's:
-    assert not default_settings["anisotropic_lobes"]
     assert default_settings["neighbour_vote"]
 
     paper_dir = tmp_path / "paper"

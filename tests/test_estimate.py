@@ -18,8 +18,7 @@ from freqbrdf.estimate import (LOBE_TERMS, angular_loss, burley_diffuse_factor, 
                                environment_burley_factor, environment_filtered_light, environment_response,
                                environment_response_table,
                                environment_weight, estimate, ggx_lobe_gains,
-                               integrate_split_sum_table, lobe_filtered_light, lobe_sh_response, lobe_spread,
-                               lobe_width_table, prefilter_nodes,
+                               integrate_split_sum_table, lobe_filtered_light, lobe_sh_response, prefilter_nodes,
                                prefiltered_environment, prefiltered_light, split_sum_table, split_sum_terms,
                                table_nodes)
 from freqbrdf.observations import Observations
@@ -42,7 +41,6 @@ def synthetic_observations(
     environment_light: bool = False,
     prefiltered: bool = False,
     environment_blend: tuple[float, float] = EstimateConfig().environment_blend,
-    anisotropic: bool = EstimateConfig().anisotropic_lobes,
 ) -> Observations:
     """Observations of texels with known parameters, rendered by one of the global estimator's models.
 
@@ -53,7 +51,7 @@ def synthetic_observations(
     from `split_sum_terms` and `burley_diffuse_factor`. With ``environment_light`` each S_k is
     blended towards `environment_filtered_light` of a world-frame environment (random frames) over
     ``environment_blend``, and Burley's factor is `environment_burley_factor` under it. With ``prefiltered`` the lobes read `prefiltered_light` of a rotated
-    32 x 64 map (degrees up to 12; as ``anisotropic`` lobes) instead of the fitted light, the environment light gains the
+    32 x 64 map (degrees up to 12) instead of the fitted light, the environment light gains the
     map's degrees above 5 (prefiltered), and the observations carry the map; the environment is
     then that map's SH. Without either, the observations carry no environment
     (tangent None), as hand-made ones.
@@ -106,8 +104,7 @@ def synthetic_observations(
         if prefiltered:
             settings = EstimateConfig(environment_light=environment_light, environment_blend=environment_blend)
             maps = prefiltered_environment(environment_map, prefilter_nodes(settings))
-            own_light = prefiltered_light(directions, tangent, normal, maps, environment_map.rotation, truth.roughness,
-                                          anisotropic)
+            own_light = prefiltered_light(directions, tangent, normal, maps, environment_map.rotation, truth.roughness)
             # The environment light holds degrees <= 5; the prefiltered maps add the ones above.
             high = prefiltered_environment(environment_map, prefilter_nodes(EstimateConfig(environment_light=False)),
                                            skip_degrees=LMAX + 1)
@@ -316,16 +313,6 @@ def test_global_recovers_parameters_exactly_with_the_prefiltered_light(truth):
         result = estimate(data, Config(estimate=settings))
         _assert_recovered(result, truth, atol=1e-4)
         assert np.all(result.loss < 1e-10)
-    # Anisotropic lobes: recovered exactly by that model, not by the default's isotropic ones.
-    anisotropic_data = synthetic_observations(truth, seed=23, model="split_sum", environment_light=True,
-                                              prefiltered=True, anisotropic=True)
-    anisotropic = estimate(anisotropic_data, Config(estimate=EstimateConfig(anisotropic_lobes=True)))
-    _assert_recovered(anisotropic, truth, atol=1e-4)
-    assert np.all(anisotropic.loss < 1e-10)
-    np.testing.assert_allclose(anisotropic.loss, angular_loss(anisotropic_data, anisotropic.principled(),
-                                                              Config(estimate=EstimateConfig(anisotropic_lobes=True))),
-                               atol=1e-12)
-    assert np.median(estimate(anisotropic_data, Config()).loss[smooth]) > 1e4 * np.median(anisotropic.loss[smooth])
 
 
 def test_ggx_lobe_gains_match_the_lobe_response_at_normal_incidence():
@@ -458,22 +445,6 @@ def test_the_prefiltered_map_of_a_mirror_is_the_map_itself():
     high = prefiltered_environment(environment_map, 2, skip_degrees=3)
     low = envmaps.zonal_filter(environment_map, (np.arange(lmax + 1) < 3).astype(float)).radiance
     np.testing.assert_allclose(high[0], radiance - low, atol=1e-3)
-
-
-def test_shipped_lobe_width_table_matches_a_fresh_computation():
-    along, across = lobe_width_table()
-    cos_nodes, roughness_nodes = table_nodes()
-    assert along.shape == across.shape == (len(cos_nodes), len(roughness_nodes))
-    for i, j in [(4, 5), (16, 9), (28, 14), (10, 20)]:
-        normal_incidence = lobe_spread(1.0, roughness_nodes[j])[1]
-        fresh = np.array(lobe_spread(cos_nodes[i], roughness_nodes[j])) / normal_incidence
-        np.testing.assert_allclose(fresh, [along[i, j], across[i, j]], atol=2e-4)
-    # Isotropic at normal incidence; a narrow lobe keeps its width in the plane of incidence and
-    # narrows to cos theta_o across it (the half vector's spread projected); a rough one less so.
-    np.testing.assert_allclose([along[-1], across[-1]], 1.0, atol=1e-6)
-    np.testing.assert_allclose(along[8:, 1], 1.0, atol=0.03)
-    np.testing.assert_allclose(across[8:, 1], cos_nodes[8:], atol=0.03)
-    assert np.all(across[8:30, 20] > cos_nodes[8:30] + 0.05)
 
 
 def test_shipped_environment_response_table_matches_a_fresh_computation():

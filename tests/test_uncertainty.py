@@ -612,7 +612,7 @@ def _direct_angular_entropy(observations, grid, noise_level):
             roughness = math.sqrt(alpha)
             scale, bias, _ = split_sum_terms(directions[0, seen, 2], roughness)
             light = lobe_filtered_light(directions, observations.weight[t:t + 1], observations.mirrored_coeffs[t:t + 1],
-                                        observations.lmax, observations.sigma, np.array([roughness]), False)[0, seen]
+                                        observations.lmax, observations.sigma, np.array([roughness]))[0, seen]
             for j, specular in enumerate(grid.specular):
                 if specular > 0:  # k = 0: no lobe
                     radiance[i, j] = (specular * scale + bias)[:, None] * light
@@ -673,9 +673,7 @@ def test_the_estimators_search_scores_the_angular_hypotheses_as_the_angular_mode
     plain = estimate(observations, config)
     for name in ("base_color", "roughness", "metallic", "loss"):
         np.testing.assert_array_equal(getattr(recorded, name), getattr(plain, name))
-    # Other lobes than the estimator's, or the prototype's estimator, are scored in a pass of their own.
-    assert not unc.AngularEntropy.recorded_by_search(
-        Config(uncertainty=UncertaintyConfig(mode="angular", anisotropic_lobes=True)))
+    # The prototype's estimator does not search: its hypotheses are scored in a pass of their own.
     assert not unc.AngularEntropy.recorded_by_search(
         Config(uncertainty=UncertaintyConfig(mode="angular"), estimate=EstimateConfig(method="paper")))
     assert not unc.AngularEntropy.recorded_by_search(Config())
@@ -719,18 +717,6 @@ def test_angular_mode_equals_a_direct_evaluation_and_is_exposure_invariant():
         observations, observed=observations.observed * kappa, mirrored=observations.mirrored * kappa,
         mirrored_coeffs=observations.mirrored_coeffs * kappa, irradiance=observations.irradiance * kappa)
     np.testing.assert_allclose(unc.entropy_map(brighter, config).entropy, result.entropy, atol=1e-5)
-    # With a map, the hypotheses' lobes are UncertaintyConfig's if it names them, else the estimator's.
-    mapped = _mapped_observations(truth, rng)
-    forced = dataclasses.replace(config, anisotropic_lobes=True)
-    anisotropic = unc.entropy_map(mapped, forced)
-    isotropic = unc.entropy_map(mapped, config)  # the default estimator's lobes
-    assert np.abs(anisotropic.entropy - isotropic.entropy).max() > 1e-3
-    np.testing.assert_array_equal(
-        unc.entropy_map(mapped, forced, estimate_config=EstimateConfig(anisotropic_lobes=False)).entropy,
-        anisotropic.entropy)
-    np.testing.assert_array_equal(
-        unc.entropy_map(mapped, config, estimate_config=EstimateConfig(anisotropic_lobes=True)).entropy,
-        anisotropic.entropy)
     # Spectra alone cannot be scored in this mode.
     with pytest.raises(ValueError, match="angular"):
         unc.entropy_from_spectra(observations.mirrored_spectrum, observations.observed_spectrum, config=config)

@@ -292,10 +292,6 @@ def fit(
     entropy: str = typer.Option(None, help=ENTROPY_HELP),
     entropy_lobe: str = typer.Option(None, help=ENTROPY_LOBE_HELP),
     share: bool = typer.Option(False, "--share", help="Pull uncertain texels towards affine confident anchors."),
-    anisotropic_lobes: bool = typer.Option(
-        False, "--anisotropic-lobes", help="Read a smooth lobe's light as the anisotropic lobe it is at oblique "
-        "views: closer to a path tracer, 1.6-1.8x the estimation time; more accurate on the measured plane, "
-        "not on the bunnies."),
     neighbour_vote: bool = typer.Option(
         True, "--neighbour-vote/--no-neighbour-vote", help="Let a texel whose data fit two roughness values "
         "about equally take the one nearer its neighbours' (a likelihood-ratio test keeps what the data decide)."),
@@ -329,10 +325,9 @@ def fit(
     if estimation_res is not None:
         config = config.replace(texels=dataclasses.replace(config.texels, estimation_res=_estimation_res(
             estimation_res, config.texels.texture_res)))
-    # The flags only add to what the preset sets.
+    # The flag only takes away from what the preset sets.
     config = config.replace(estimate=dataclasses.replace(
-        config.estimate, anisotropic_lobes=config.estimate.anisotropic_lobes or anisotropic_lobes,
-        neighbour_vote=config.estimate.neighbour_vote and neighbour_vote))
+        config.estimate, neighbour_vote=config.estimate.neighbour_vote and neighbour_vote))
     reporter = Reporter(enabled=not (quiet or json_output))
     loaded = load(capture)
     pipeline.check_output_folder(out, {"the capture": loaded.root.resolve()})  # before minutes of work

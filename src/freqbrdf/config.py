@@ -184,13 +184,6 @@ class UncertaintyConfig:
     # roughness_window is wider): the window average spreads their scatter to the rest, at about a
     # quarter of the cost (1: every texel; uncertainty._split_half_variance has the figures).
     split_half_stride: int = 2
-    # Angular mode: score the hypotheses with anisotropic lobes (EstimateConfig.anisotropic_lobes:
-    # True), isotropic ones (False) or the estimator's own (None, the default; isotropic unless
-    # fit --anisotropic-lobes), which lets `pipeline.fit` take them from its search. Measured on the
-    # 8 x 8 grid (benchmarks/pathtraced_entropy.py, 400 texels, against the pooled rendering):
-    # Spearman 0.80 [0.74, 0.85] isotropic, 0.83 [0.78, 0.87] anisotropic, for 1.9x the time
-    # (3.9 -> 7.4 s on their own).
-    anisotropic_lobes: bool | None = None
 
     def __post_init__(self):
         _check_choices(self)
@@ -260,17 +253,6 @@ class EstimateConfig:
     # capture 19.92 -> 20.25 dB, relighting 23.02 -> 24.06. The model's mean loss drops 45-72 %
     # (benchmarks/results/prefiltered_light.json).
     prefiltered_light: bool = True
-    # With prefiltered_light: read a smooth lobe's light as the anisotropic lobe it is at oblique
-    # views (narrower across the plane of incidence; three taps along it, estimate._TAP_OFFSETS)
-    # instead of an isotropic lobe at the mirror direction. Closer to the path tracer (relative
-    # RMS error of a metal's radiance against Mitsuba, benchmarks/model_fidelity.py: r = 0.14
-    # 16 -> 9 %, r = 0.29 30 -> 21 %, r = 0.43 24 -> 21 %), and the angular entropy's default
-    # (UncertaintyConfig.anisotropic_lobes). Off here: at T = 512 (compare_estimators.md) it moves
-    # roughness MAE 0.058 -> 0.049 and relighting PSNR-H +0.10 dB on the plane, but the bunny's
-    # relighting -0.21 dB (roughness 0.126 -> 0.125), and the demo capture's roughness MAE 0.129 ->
-    # 0.133 (T = 256), for 1.3-1.4x the observe + estimate time (three lookups per sample and
-    # roughness node instead of one).
-    anisotropic_lobes: bool = False
     # global: after the search, each texel whose estimate lies more than a grid cell from the median
     # roughness of its neighbours (5 x 5 texels) takes a local minimum within a cell of that median,
     # and one more than a metallic grid cell from their median metallic takes that metallic, unless

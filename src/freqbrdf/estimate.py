@@ -66,9 +66,7 @@ and diffuse factor D come in two versions (``EstimateConfig.specular_model``, ``
   gains the map's degrees above 5 this way (maps filtered by the same gains with degrees <= 5
   removed, at roughness nodes 1/16 apart up to 1): in the blend, a lobe of roughness 0.45 still
   responds 0.17 to degree 6. Measured: see `EstimateConfig.prefiltered_light`. The mirror's node
-  (roughness 0) is the map itself: cut at the band limit it rang around bright lights. With
-  ``EstimateConfig.anisotropic_lobes`` (default off; `_TAP_OFFSETS`) a node's light is read as the
-  lobe it is at oblique views, narrower across the plane of incidence (`lobe_width_table`).
+  (roughness 0) is the map itself: cut at the band limit it rang around bright lights.
 
 - ``global`` (ours) minimises the weighted squared residual sum_v w_v^2 (L(w_v) - f_v)^2. Write
   L = m (b X + Y) + (1 - m) Z + (1 - m) b e D with X = A S_A, Y = B S_B, Z = E S_E (S_k the light
@@ -272,7 +270,7 @@ def angular_loss(
     loss = np.empty(observations.n_texels)
     base_color = np.asarray(params.base_color, dtype=np.float64)
     metallic = np.asarray(params.metallic, dtype=np.float64)
-    (tangent, normal, environment, blend, prefiltered, n_full, anisotropic, world_to_local, map_height,
+    (tangent, normal, environment, blend, prefiltered, n_full, world_to_local, map_height,
      map_width) = _environment_inputs(observations, settings)
     for rows in texel_blocks(observations.n_texels, _PROJECTION_BLOCK):
         if len(environment):
@@ -291,8 +289,8 @@ def angular_loss(
             _diffuse_scale(observations)[rows], base_color[rows], metallic[rows],
             np.asarray(params.roughness, dtype=np.float64)[rows], observations.sigma, settings.fresnel,
             settings.masking, _uses_split_sum(settings), _uses_exact_dielectric(settings), _uses_burley(settings),
-            _model_tables(), environment_response_table(), _burley_response(settings), azimuthal, blend, tangent[rows],
-            normal[rows], prefiltered, n_full, anisotropic, world_to_local, map_height, map_width, loss[rows],
+            split_sum_table(), environment_response_table(), _burley_response(settings), azimuthal, blend, tangent[rows],
+            normal[rows], prefiltered, n_full, world_to_local, map_height, map_width, loss[rows],
         )
     return np.where(observations.n_samples > 0, loss, np.nan)
 
@@ -350,7 +348,7 @@ def _run_search_kernel(observations: Observations, settings: EstimateConfig, lig
         observations.view_direction, observations.weight, observations.observed,
         np.ascontiguousarray(light, dtype=np.float32), _diffuse_scale(observations), observations.sigma,
         settings.fresnel, settings.masking, _uses_split_sum(settings), _uses_exact_dielectric(settings),
-        _uses_burley(settings), _model_tables(), _model_rows(), settings.roughness_grid,
+        _uses_burley(settings), split_sum_table(), _split_sum_rows(), settings.roughness_grid,
         settings.metallic_grid, settings.robust_passes, observations.lmax, *sh._legendre_tables(observations.lmax),
         tangent, normal, environment, blend, environment_response_table(),
         *_environment_quadrature(max(math.isqrt(len(environment)) - 1, 0)), _burley_response(settings),
@@ -403,7 +401,6 @@ _TABLE_COS_NODES = 33
 _TABLE_ROUGHNESS_NODES = 33
 _TABLE_THETA_STRATA = 64
 _TABLE_PHI_STRATA = 32
-_SPREAD_STRATA = 256  # strata per axis of `lobe_spread`
 
 
 @functools.cache
@@ -453,56 +450,6 @@ def integrate_split_sum_table() -> np.ndarray:
     return np.stack([np.mean(integrand * weight, axis=(2, 3)) for weight in weights])
 
 
-@functools.cache
-def lobe_width_table() -> np.ndarray:
-    """(2, cos nodes, roughness nodes) float64: `lobe_spread` in the plane of incidence and across
-    it, each relative to the spread at normal incidence (same roughness); nodes as
-    `split_sum_table`'s, shipped in data/lobe_width.csv (the two tables stacked by rows;
-    scripts/make_lobe_width_table.py). A narrow lobe keeps its width in the plane and shrinks to
-    cos theta_o across it; towards grazing views the horizon cuts it and both ratios grow. Used by
-    the anisotropic lobes (`_TAP_OFFSETS`)."""
-    table = np.loadtxt(_WIDTH_TABLE_PATH, delimiter=",", ndmin=2)
-    shape = (2 * _TABLE_COS_NODES, _TABLE_ROUGHNESS_NODES)
-    if table.shape != shape or not np.all((table > 0.0) & (table < 4.0)):
-        raise InputError(_WIDTH_TABLE_PATH, f"expected a {shape[0]} x {shape[1]} table of spread ratios in (0, 4), "
-                                            f"got shape {table.shape}; regenerate it with "
-                                            "scripts/make_lobe_width_table.py")
-    return table.reshape(2, _TABLE_COS_NODES, _TABLE_ROUGHNESS_NODES)
-
-
-def lobe_spread(cos_theta: float, roughness: float, strata: int = _SPREAD_STRATA) -> tuple[float, float]:
-    """(along, across): the RMS of the GGX lobe's light directions about their mean, along the
-    plane of incidence and across it, seen from view = (sin, 0, cos theta_o). The light is drawn
-    from the distribution of visible normals (Heitz 2018), stratified (strata x strata), weighted
-    by G2 / G1(view): the lobe's f cos_i without Fresnel. GGX's heavy tails count: a map
-    prefiltered by a GGX lobe has them too. Deterministic."""
-    cos_theta = min(max(float(cos_theta), 1e-4), 1.0)
-    alpha = float(brdf.alpha_from_roughness(np.array(roughness)))
-    view = np.array([math.sqrt(1.0 - cos_theta**2), 0.0, cos_theta])
-    stretched = np.array([alpha * view[0], 0.0, view[2]])
-    stretched /= np.linalg.norm(stretched)
-    first = np.array([0.0, 1.0, 0.0]) if stretched[0] > 0.0 else np.array([1.0, 0.0, 0.0])
-    second = np.cross(stretched, first)
-    u = (np.arange(strata) + 0.5) / strata
-    radius, phi = np.sqrt(u)[:, None], 2.0 * np.pi * u[None, :]
-    t1 = (radius * np.cos(phi)).ravel()
-    t2 = (radius * np.sin(phi)).ravel()
-    blend = 0.5 * (1.0 + stretched[2])
-    t2 = (1.0 - blend) * np.sqrt(np.maximum(1.0 - t1**2, 0.0)) + blend * t2
-    normal = (t1[:, None] * first + t2[:, None] * second
-              + np.sqrt(np.maximum(1.0 - t1**2 - t2**2, 0.0))[:, None] * stretched)
-    half = np.stack([alpha * normal[:, 0], alpha * normal[:, 1], np.maximum(normal[:, 2], 1e-9)], axis=-1)
-    half /= np.linalg.norm(half, axis=1, keepdims=True)
-    light = 2.0 * (half @ view)[:, None] * half - view
-    above = light[:, 2] > 0.0
-    weight = np.where(above, brdf.smith_g1_ggx(np.maximum(light[:, 2], 1e-12), alpha), 0.0)
-    weight /= weight.sum()
-    mean = weight @ light
-    mean /= np.linalg.norm(mean)
-    in_plane = np.array([mean[2], 0.0, -mean[0]])
-    return (float(np.sqrt(weight @ (light @ in_plane) ** 2)), float(np.sqrt(weight @ light[:, 1] ** 2)))
-
-
 def dielectric_eta() -> float:
     """The relative index of refraction whose normal reflectance is brdf.DIELECTRIC_F0 (1.5)."""
     root = math.sqrt(brdf.DIELECTRIC_F0)
@@ -520,14 +467,6 @@ def dielectric_fresnel(cos_theta: np.ndarray) -> np.ndarray:
     return 0.5 * perpendicular**2 * (1.0 + ratio**2)
 
 
-def lobe_widths(cos_theta: np.ndarray, roughness: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(along, across) of `lobe_width_table`, bilinear, for broadcastable cos_theta and roughness in [0, 1]."""
-    cos_theta, roughness = np.broadcast_arrays(np.asarray(cos_theta, np.float64), np.asarray(roughness, np.float64))
-    ratios = np.empty((2, cos_theta.size))
-    _table_terms_kernel(cos_theta.ravel(), roughness.ravel(), lobe_width_table(), ratios)
-    return ratios[0].reshape(cos_theta.shape), ratios[1].reshape(cos_theta.shape)
-
-
 def split_sum_terms(cos_theta: np.ndarray, roughness: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(A, B, E) of `split_sum_table`, bilinear, for broadcastable cos_theta and roughness in [0, 1]."""
     cos_theta, roughness = np.broadcast_arrays(np.asarray(cos_theta, np.float64), np.asarray(roughness, np.float64))
@@ -537,7 +476,6 @@ def split_sum_terms(cos_theta: np.ndarray, roughness: np.ndarray) -> tuple[np.nd
 
 
 _SPLIT_SUM_TABLE_PATH = Path(__file__).resolve().parent / "data" / "split_sum.csv"
-_WIDTH_TABLE_PATH = Path(__file__).resolve().parent / "data" / "lobe_width.csv"
 _ENVIRONMENT_LMAX = 5  # the default l*: the degrees of the environment light (`environment_response_table`)
 _RESPONSE_STRATA = 64  # strata of the half vector's polar and azimuthal angle each (`lobe_sh_response`)
 
@@ -548,7 +486,7 @@ LOBE_TERMS = ("scale", "bias", "dielectric")
 
 
 def table_nodes() -> tuple[np.ndarray, np.ndarray]:
-    """The (cos theta_o, roughness) nodes of `split_sum_table` (and of `lobe_width_table`)."""
+    """The (cos theta_o, roughness) nodes of `split_sum_table`."""
     return np.linspace(0.0, 1.0, _TABLE_COS_NODES), np.linspace(0.0, 1.0, _TABLE_ROUGHNESS_NODES)
 
 
@@ -739,17 +677,6 @@ PREFILTER_STEP = 1.0 / 16.0
 # of the prefiltered stack (11 maps of 512 x 1024 x 3 float32: 69 MB) and its transforms.
 PREFILTER_MAX_HEIGHT = 512
 _GAIN_STRATA = 8192  # half-vector strata of `ggx_lobe_gains`
-# Anisotropic lobes (`EstimateConfig.anisotropic_lobes`): seen at theta from the normal, a GGX lobe
-# keeps about its width in the plane of incidence and narrows across it (`lobe_width_table`: spreads
-# w_along, w_across relative to normal incidence). Its light is read as three taps along the plane
-# of incidence at Gauss-Hermite offsets of s = alpha sqrt(w_along^2 - w_across^2) (so that the
-# in-plane variance is the lobe's), each on the isotropic map of roughness r sqrt(w_across) (a
-# map's width goes as alpha = r^2). Measured against the path tracer: benchmarks/model_fidelity.py.
-_TAP_OFFSETS = (-math.sqrt(3.0), 0.0, math.sqrt(3.0))
-_TAP_WEIGHTS = (1.0 / 6.0, 2.0 / 3.0, 1.0 / 6.0)
-# The taps are read at texel coordinates linear in their angle from the mirror direction, from the
-# coordinates of a direction turned this far (radians) towards the normal: no trigonometry per tap.
-_TAP_STEP = 1e-3
 
 
 @functools.cache
@@ -806,12 +733,11 @@ def prefiltered_environment(envmap, n_nodes: int, skip_degrees: int = 0) -> np.n
 
 
 def prefiltered_light(directions: np.ndarray, tangent: np.ndarray, normal: np.ndarray, prefiltered: np.ndarray,
-                      rotation: np.ndarray, roughness: np.ndarray, anisotropic: bool = False) -> np.ndarray:
+                      rotation: np.ndarray, roughness: np.ndarray) -> np.ndarray:
     """(n, V, 3) the prefiltered light a lobe of roughness (n,) reads: directions (n, V, 3) local view
     directions, tangent and normal (n, 3) world frame of each texel, prefiltered (nodes, H, W, 3)
     `prefiltered_environment` of a map with emitter-to-world ``rotation`` (3, 3), looked up at the
-    world mirror directions (``anisotropic``: as the anisotropic lobe, `_TAP_OFFSETS`) and linear in
-    roughness between its nodes (as the search reads it)."""
+    world mirror directions and linear in roughness between its nodes (as the search reads it)."""
     directions = np.asarray(directions, np.float64)
     tangent, normal = np.asarray(tangent, np.float64), np.asarray(normal, np.float64)
     bitangent = np.cross(normal, tangent)
@@ -842,37 +768,9 @@ def prefiltered_light(directions: np.ndarray, tangent: np.ndarray, normal: np.nd
         return (1.0 - fy) * top + fy * bottom
 
     x, y = texel_coordinates(world)  # of the mirror direction
-    if anisotropic:
-        # Their change per radian turned towards the normal in the plane of incidence (as
-        # `_mirror_stencil`).
-        sin_theta = np.sqrt(1.0 - mirror[..., 2] ** 2)
-        across = np.where(sin_theta > 1e-9, np.sin(_TAP_STEP) / np.maximum(sin_theta, 1e-9), 0.0)[..., None]
-        turned = np.cos(_TAP_STEP) * world + across * (normal[:, None] - mirror[..., 2:] * world)
-        turned_x, turned_y = texel_coordinates(turned)
-        step_x = turned_x - x
-        step_x = np.where(step_x > 0.5 * width, step_x - width, np.where(step_x < -0.5 * width, step_x + width, step_x))
-        step_x, step_y = step_x / _TAP_STEP, (turned_y - y) / _TAP_STEP
-
-    def node_light(node: np.ndarray) -> np.ndarray:  # (n, V, 3) the light of each sample's node (n, V)
-        if not anisotropic:
-            return bilinear(node, x, y)
-        node_roughness = node * PREFILTER_STEP
-        along, across = lobe_widths(cos_theta, node_roughness)
-        across = np.minimum(across, 1.0)
-        spread = node_roughness**2 * np.sqrt(np.maximum(along**2 - across**2, 0.0))
-        read = np.vectorize(lambda r: _prefilter_node(r, n_nodes), otypes=[np.int64, np.float64])
-        read_node, read_frac = read(node_roughness * np.sqrt(across))
-        light = np.zeros(world.shape)
-        for offset, tap_weight in zip(_TAP_OFFSETS, _TAP_WEIGHTS):
-            tap_x, tap_y = x + offset * spread * step_x, y + offset * spread * step_y
-            lower = bilinear(read_node, tap_x, tap_y)
-            upper = bilinear(read_node + 1, tap_x, tap_y)
-            light += tap_weight * (lower + read_frac[..., None] * (upper - lower))
-        return light
-
     roughness = np.broadcast_to(np.asarray(roughness, np.float64)[:, None], cos_theta.shape)
     node, frac = np.vectorize(lambda r: _prefilter_node(r, n_nodes), otypes=[np.int64, np.float64])(roughness)
-    lower, upper = node_light(node), node_light(node + 1)
+    lower, upper = bilinear(node, x, y), bilinear(node + 1, x, y)
     return lower + frac[..., None] * (upper - lower)
 
 
@@ -893,14 +791,10 @@ def _cross(a, b, out):
 
 
 @_borrowing_jit
-def _mirror_stencil(xyz, n, tangent, normal, bitangent, world_to_local, height, width, corner, stencil_frac, frames):
+def _mirror_stencil(xyz, n, tangent, normal, bitangent, world_to_local, height, width, corner, stencil_frac):
     """`envmap.lookup`'s bilinear stencil at the world mirror direction of each local view direction
     xyz[:, s], s < n: corner (4, n) flat pixel indices row * width + col of (row, col), (row, col + 1),
-    (row + 1, col), (row + 1, col + 1); stencil_frac (2, n) the column and row fractions. With
-    frames (5, n) (else (0, n)), per sample for the anisotropic lobes' taps
-    (`_prefiltered_node_light`): the mirror direction's texel coordinates x, y
-    (`envmap.map_coordinates`), their change per radian of turning it towards the normal in the
-    plane of incidence, and cos theta."""
+    (row + 1, col), (row + 1, col + 1); stencil_frac (2, n) the column and row fractions."""
     for s in range(n):
         mirror_x, mirror_y, mirror_z = -xyz[0, s], -xyz[1, s], xyz[2, s]
         world_x = mirror_x * tangent[0] + mirror_y * bitangent[0] + mirror_z * normal[0]
@@ -911,24 +805,6 @@ def _mirror_stencil(xyz, n, tangent, normal, bitangent, world_to_local, height, 
         corner[0, s], corner[1, s] = row0 * width + col0, row0 * width + col1
         corner[2, s], corner[3, s] = (row0 + 1) * width + col0, (row0 + 1) * width + col1
         stencil_frac[0, s], stencil_frac[1, s] = fx, fy
-        if frames.shape[0] > 0:
-            # Turned by _TAP_STEP towards the normal n: (n - cos m) / sin is in the plane of n and
-            # the mirror direction m. The taps are read linearly in texel coordinates from here.
-            sin_theta = math.sqrt(max(1.0 - mirror_z * mirror_z, 0.0))
-            inverse = 1.0 / sin_theta if sin_theta > 1e-9 else 0.0
-            along, across = math.cos(_TAP_STEP), math.sin(_TAP_STEP) * inverse
-            turned_x, turned_y = envmaps.map_coordinates(
-                world_to_local, along * world_x + across * (normal[0] - mirror_z * world_x),
-                along * world_y + across * (normal[1] - mirror_z * world_y),
-                along * world_z + across * (normal[2] - mirror_z * world_z), height, width)
-            step_x = turned_x - x
-            if step_x > 0.5 * width:  # across the map's seam
-                step_x -= width
-            elif step_x < -0.5 * width:
-                step_x += width
-            frames[0, s], frames[1, s] = x, y
-            frames[2, s], frames[3, s] = step_x / _TAP_STEP, (turned_y - y) / _TAP_STEP
-            frames[4, s] = mirror_z
 
 
 @numba.njit(inline="always", fastmath=True)
@@ -941,60 +817,26 @@ def _bilinear(prefiltered, node, c, top_left, top_right, bottom_left, bottom_rig
 
 
 @_borrowing_jit
-def _prefiltered_node_light(prefiltered, node, n, corner, stencil_frac, n_full, frames, width, table, out):
+def _prefiltered_node_light(prefiltered, node, n, corner, stencil_frac, out):
     """out[c, s] = the light of node ``node`` of prefiltered (H W, nodes, 3) for sample s < n:
-    bilinear at the mirror stencil; for nodes below n_full with frames (`_mirror_stencil`),
-    the anisotropic lobe (`_TAP_OFFSETS`; its spreads from `_model_tables` table). (Pixel-major:
-    a texel's lookups at several nodes share cache lines.)"""
-    if frames.shape[0] == 0 or node >= n_full:
-        for s in range(n):
-            for c in range(3):
-                out[c, s] = _bilinear(prefiltered, node, c, corner[0, s], corner[1, s], corner[2, s], corner[3, s],
-                                      stencil_frac[0, s], stencil_frac[1, s])
-        return
-    height = prefiltered.shape[0] // width
-    roughness = node * PREFILTER_STEP
-    alpha = roughness * roughness
+    bilinear at the mirror stencil (`_mirror_stencil`). (Pixel-major: a texel's lookups at several
+    nodes share cache lines.)"""
     for s in range(n):
         for c in range(3):
-            out[c, s] = 0.0
-        cos_theta = min(max(frames[4, s], 0.0), 1.0)
-        along = _table_lookup(table, _WIDTH_PLANE, cos_theta, roughness)
-        across = min(_table_lookup(table, _WIDTH_PLANE + 1, cos_theta, roughness), 1.0)
-        spread = alpha * math.sqrt(max(along * along - across * across, 0.0))
-        # Each tap as wide as the lobe across the plane: a map's width goes as alpha = r^2.
-        read_node, read_frac = _prefilter_node(roughness * math.sqrt(across), n_full)
-        n_taps = 3 if spread > 1e-9 else 1
-        for k in range(n_taps):
-            angle = _TAP_OFFSETS[k] * spread if n_taps > 1 else 0.0
-            tap_weight = _TAP_WEIGHTS[k] if n_taps > 1 else 1.0
-            row0, col0, col1, fx, fy = envmaps.stencil_at(frames[0, s] + angle * frames[2, s],
-                                                          frames[1, s] + angle * frames[3, s], height, width)
-            top, bottom = row0 * width, (row0 + 1) * width
-            for side in range(2 if read_frac > 0.0 else 1):
-                share = tap_weight * (read_frac if side else 1.0 - read_frac)
-                for c in range(3):
-                    out[c, s] += share * _bilinear(prefiltered, read_node + side, c, top + col0, top + col1,
-                                                   bottom + col0, bottom + col1, fx, fy)
+            out[c, s] = _bilinear(prefiltered, node, c, corner[0, s], corner[1, s], corner[2, s], corner[3, s],
+                                  stencil_frac[0, s], stencil_frac[1, s])
 
 
-# The planes of `_model_tables`, as the kernels index them: the term k of `LOBE_TERMS` is plane k.
-_SCALE_PLANE, _BIAS_PLANE, _DIELECTRIC_PLANE, _WIDTH_PLANE = 0, 1, 2, 3
+# The planes of `split_sum_table`, as the kernels index them: the term k of `LOBE_TERMS` is plane k.
+_SCALE_PLANE, _BIAS_PLANE, _DIELECTRIC_PLANE = 0, 1, 2
 
 
 @functools.cache
-def _model_tables() -> np.ndarray:
-    """(5, cos nodes, roughness nodes): A, B and E of `split_sum_table`, then the lobe's relative
-    spreads (`lobe_width_table`)."""
-    return np.concatenate([split_sum_table(), lobe_width_table()])
-
-
-@functools.cache
-def _model_rows() -> np.ndarray:
-    """(5, roughness nodes, cos nodes) `_model_tables` with the roughness first: each probe of the
+def _split_sum_rows() -> np.ndarray:
+    """(3, roughness nodes, cos nodes) `split_sum_table` with the roughness first: each probe of the
     search interpolates all its cos theta_o nodes at one roughness, contiguous this way (22 against
     75 ns strided, measured)."""
-    return np.ascontiguousarray(_model_tables().transpose(0, 2, 1))
+    return np.ascontiguousarray(split_sum_table().transpose(0, 2, 1))
 
 
 def lobe_filtered_light(directions: np.ndarray, weight: np.ndarray, light_coeffs: np.ndarray, lmax: int,
@@ -1145,7 +987,7 @@ def _uses_prefiltered_light(observations: Observations, settings: EstimateConfig
 
 def _environment_inputs(observations: Observations, settings: EstimateConfig) -> tuple:
     """(tangent (N, 3), normal (N, 3), environment (K, 3) float64, blend, prefiltered (H W, nodes, 3)
-    float32, n_full, anisotropic, world_to_local (3, 3), H, W) for the kernels: the environment's SH up to degree
+    float32, n_full, world_to_local (3, 3), H, W) for the kernels: the environment's SH up to degree
     min(l*, 5) (K = 0 without the environment light), no nodes without the prefiltered light. The
     prefiltered nodes are `prefilter_nodes` full maps, then (with the environment light) the
     degrees above the environment light's at all `_HIGH_NODES` roughness nodes: what the
@@ -1161,10 +1003,10 @@ def _environment_inputs(observations: Observations, settings: EstimateConfig) ->
         n_full = prefilter_nodes(settings)
         high_degrees = environment_degrees + 1 if len(environment[0]) else None
         stack, height, width = _prefiltered_stack(observations, n_full, high_degrees)
-        prefiltered = (stack, n_full, settings.anisotropic_lobes,
-                       np.ascontiguousarray(observations.environment_rotation.T, dtype=np.float64), height, width)
+        prefiltered = (stack, n_full, np.ascontiguousarray(observations.environment_rotation.T, dtype=np.float64),
+                       height, width)
     else:
-        prefiltered = (np.zeros((1, 0, 3), np.float32), 0, False, np.eye(3), 2, 2)
+        prefiltered = (np.zeros((1, 0, 3), np.float32), 0, np.eye(3), 2, 2)
     return (tangent, observations.normal, *environment, *prefiltered)
 
 
@@ -1287,7 +1129,7 @@ def _fill_kernel(alpha, sigma, kernel, kernel_derivative):
 def _squared_residual_kernel(
     proj, directions, weight, observed, diffuse_scale, base_color, metallic, roughness, sigma, fresnel, masking,
     split_sum, exact_dielectric, burley, table, response, burley_response, azimuthal, environment_blend, tangent,
-    normal, prefiltered, n_full, anisotropic, world_to_local, map_height, map_width, out,
+    normal, prefiltered, n_full, world_to_local, map_height, map_width, out,
 ):
     """out[t] = sum_v,c w^2 (L - f)^2 / sum_v w^2 (0 without samples); directions (n, V, 3) local view
     directions. proj (n, 3, l*+1, V): `_mirror_projections`. The specular is m (b X + Y) + (1 - m) Z with X = A S_A, Y = B S_B (S_k: the light
@@ -1338,7 +1180,6 @@ def _squared_residual_kernel(
         map_frac = high_frac = 0.0
         corner = np.zeros((4, n_views), dtype=np.int64)
         stencil_frac = np.zeros((2, n_views))
-        frames = np.zeros((5 if anisotropic else 0, n_views))
         if use_prefiltered or use_high:
             xyz = np.empty((3, n_views))
             for v in range(n_views):
@@ -1347,15 +1188,13 @@ def _squared_residual_kernel(
             bitangent = np.empty(3)
             _cross(normal[t], tangent[t], bitangent)
             _mirror_stencil(xyz, n_views, tangent[t], normal[t], bitangent, world_to_local, map_height, map_width,
-                            corner, stencil_frac, frames)
+                            corner, stencil_frac)
         if use_prefiltered:
             lower_map, upper_map, map_frac = _prefiltered_nodes_at(roughness[t], 0, n_full, n_views, prefiltered,
-                                                                   corner, stencil_frac, n_full, frames, map_width,
-                                                                   table, nodes, cached)
+                                                                   corner, stencil_frac, nodes, cached)
         if use_high:
             lower_high, upper_high, high_frac = _prefiltered_nodes_at(roughness[t], n_full, n_high, n_views,
-                                                                      prefiltered, corner, stencil_frac, n_full,
-                                                                      frames, map_width, table, nodes, cached)
+                                                                      prefiltered, corner, stencil_frac, nodes, cached)
         # Without the environment light every term reads the same light; Schlick's dielectric needs
         # no light of its own.
         distinct = share > 0.0
@@ -1804,8 +1643,7 @@ def _azimuthal_coefficients(xyz, n, local, out):
 
 
 @_borrowing_jit
-def _prefiltered_nodes_at(roughness, first, count, n, prefiltered, corner, stencil_frac, n_full, frames,
-                          width, table, nodes, cached):
+def _prefiltered_nodes_at(roughness, first, count, n, prefiltered, corner, stencil_frac, nodes, cached):
     """Where the light of a lobe of ``roughness`` lies among the prefiltered nodes first..first +
     count - 1 (roughness 0..1 by PREFILTER_STEP), for samples s < n: (lower, upper, fraction),
     indices into nodes; on a node both are that node and the fraction is 0. The nodes read are
@@ -1815,8 +1653,7 @@ def _prefiltered_nodes_at(roughness, first, count, n, prefiltered, corner, stenc
     upper = first + (node + 1 if frac > 0.0 else node)
     for needed in range(lower, upper + 1):
         if not cached[needed]:
-            _prefiltered_node_light(prefiltered, needed, n, corner, stencil_frac, n_full, frames, width, table,
-                                    nodes[needed])
+            _prefiltered_node_light(prefiltered, needed, n, corner, stencil_frac, nodes[needed])
             cached[needed] = True
     return lower, upper, (frac if upper != lower else 0.0)
 
@@ -1848,13 +1685,13 @@ def _roughness_objective(roughness, args):
      albedo, diffuse_factor, own_filtered, filtered, moments, quadratics, squared_values, diffuse_scale,
      state, metallic_grid, azimuthal, environment_blend, environment_nodes, environment_cached, response,
      prefiltered, n_full, corner, stencil_frac, prefiltered_nodes, prefiltered_cached,
-     high_filtered, frames, map_width, table_rows) = args
+     high_filtered, table_rows) = args
     # Without the environment (environment light off) the lobes read their own light alone.
     share = _environment_share(roughness, environment_blend) if azimuthal.shape[2] > 0 else 0.0
     # Terms with a light of their own: A and B, and E with the exact dielectric (else Z = 0.04 X + Y).
     n_terms = 3 if exact_dielectric else 2
     alpha = max(roughness * roughness, _ALPHA_MIN)
-    if split_sum:  # the table's column at this roughness, linear in it (from its rows, `_model_rows`)
+    if split_sum:  # the table's column at this roughness, linear in it (from its rows, `_split_sum_rows`)
         y = min(max(roughness, 0.0), 1.0) * (table_rows.shape[1] - 1)
         j = min(int(y), table_rows.shape[1] - 2)
         fy = y - j
@@ -1902,15 +1739,14 @@ def _roughness_objective(roughness, args):
     map_frac = high_frac = 0.0
     if use_prefiltered:
         lower_map, upper_map, map_frac = _prefiltered_nodes_at(roughness, 0, n_full, n, prefiltered, corner,
-                                                               stencil_frac, n_full, frames, map_width, table,
-                                                               prefiltered_nodes, prefiltered_cached)
+                                                               stencil_frac, prefiltered_nodes, prefiltered_cached)
     # The degrees the environment light leaves out, from the prefiltered maps' last nodes.
     n_high = prefiltered.shape[1] - n_full
     use_high = share > 0.0 and n_high > 0
     if use_high:
         lower_high, upper_high, high_frac = _prefiltered_nodes_at(roughness, n_full, n_high, n, prefiltered,
-                                                                  corner, stencil_frac, n_full, frames, map_width,
-                                                                  table, prefiltered_nodes, prefiltered_cached)
+                                                                  corner, stencil_frac, prefiltered_nodes,
+                                                                  prefiltered_cached)
     if use_fitted:
         _fill_kernel(alpha, sigma, kernel, kernel_derivative)
     # Below, whole indices rather than row views (see `_metallic_quadratics`).
@@ -2210,7 +2046,7 @@ def _global_search_kernel(
     directions, weight, observed, light, diffuse_scale, sigma, fresnel, masking, split_sum, exact_dielectric, burley,
     table, table_rows, roughness_grid, metallic_grid, robust_passes, lmax, diag, rec_a, rec_b,
     tangent, normal, environment, environment_blend, response, quadrature, quadrature_projection, burley_response,
-    prefiltered, n_full, anisotropic, world_to_local, map_height, map_width, hypothesis_roughness,
+    prefiltered, n_full, world_to_local, map_height, map_width, hypothesis_roughness,
     hypothesis_moments, node_rows, search, candidate,
     params, loss, curvature,
 ):
@@ -2248,7 +2084,7 @@ def _global_search_kernel(
                              masking, split_sum, exact_dielectric, burley, table, table_rows,
                              roughness_grid, metallic_grid, robust_passes, lmax, diag, rec_a, rec_b, tangent, normal,
                              environment, environment_blend, response, quadrature, quadrature_projection,
-                             burley_response, prefiltered, n_full, anisotropic, world_to_local, map_height, map_width,
+                             burley_response, prefiltered, n_full, world_to_local, map_height, map_width,
                              hypothesis_roughness, hypothesis_moments, node_rows, search, candidate,
                              params, loss, curvature)
 
@@ -2268,7 +2104,7 @@ def _global_search_chunk(
     chunk, directions, weight, observed, light, diffuse_scale, sigma, fresnel, masking, split_sum,
     exact_dielectric, burley, table, table_rows, roughness_grid, metallic_grid, robust_passes, lmax,
     diag, rec_a, rec_b, tangent, normal, environment, environment_blend, response, quadrature,
-    quadrature_projection, burley_response, prefiltered, n_full, anisotropic, world_to_local, map_height,
+    quadrature_projection, burley_response, prefiltered, n_full, world_to_local, map_height,
     map_width, hypothesis_roughness, hypothesis_moments, node_rows, search, candidate, params, loss,
     curvature,
 ):
@@ -2334,7 +2170,6 @@ def _global_search_chunk(
     prefiltered_cached = np.zeros(n_prefiltered, dtype=np.bool_)
     corner = np.empty((4, n_views), dtype=np.int64)
     stencil_frac = np.empty((2, n_views))
-    frames = np.empty((5 if anisotropic else 0, n_views))
     high_filtered = np.empty(n_views)
     for t in range(chunk * _SEARCH_CHUNK, min((chunk + 1) * _SEARCH_CHUNK, n_texels)):
         # np.int64, np.bool_ and below: a literal constant where a variable goes (here into args)
@@ -2365,7 +2200,7 @@ def _global_search_chunk(
         prefiltered_cached[:] = False
         if n_full > 0:
             _mirror_stencil(xyz, n, tangent[t], normal[t], bitangent, world_to_local, map_height, map_width,
-                            corner, stencil_frac, frames)
+                            corner, stencil_frac)
         if n_full == 0:  # the fitted light, expanded by degree at the (normalised) view directions
             for s in range(n):
                 norm = math.sqrt(xyz[0, s] ** 2 + xyz[1, s] ** 2 + xyz[2, s] ** 2)
@@ -2401,7 +2236,7 @@ def _global_search_chunk(
                 kernel, kernel_derivative, albedo, diffuse_factor, own_filtered, filtered, moments, quadratics,
                 squared_values, scale, state, metallic_grid, azimuthal, environment_blend, environment_nodes,
                 environment_cached, response, prefiltered, n_full, corner, stencil_frac,
-                prefiltered_nodes, prefiltered_cached, high_filtered, frames, map_width, table_rows)
+                prefiltered_nodes, prefiltered_cached, high_filtered, table_rows)
         for i in range(hypothesis_roughness.shape[0]):
             if not scanned[i]:
                 _roughness_objective(hypothesis_roughness[i], args)

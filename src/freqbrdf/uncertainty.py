@@ -57,13 +57,13 @@ polynomial exp; measured figures in benchmarks/results/bench_entropy.json.
 
 ``angular`` scores a grid of hypotheses in the sample domain instead of on spectra, with the
 `global` estimator's own forward model (`entropy_angular`; by default on the estimator's roughness
-nodes, 9 x 9, and with its lobes, as UncertaintyConfig.grid_res and anisotropic_lobes say): per
+nodes, 9 x 9, as UncertaintyConfig.grid_res says): per
 hypothesis, the radiance a metal of base colour k and roughness sqrt(alpha) reflects at each
 observed view (split-sum albedo, the prefiltered and environment light), the best constant diffuse
 part, and the misfit of the samples; the noise model of the calibrated mode in radiance units. It
 is what benchmarks/pathtraced_entropy.py computes with a path tracer, and agrees with it: Spearman
 0.81 [0.76, 0.86] (95 % bootstrap interval, 400 texels, 9 x 9) against the pooled rendering of two
-seeds, which agree with each other at 0.89; with anisotropic lobes 0.83; on the 8 x 8 grid the
+seeds, which agree with each other at 0.89; on the 8 x 8 grid the
 calibrated mode 0.19 (its "ggx" lobe 0.38), the paper's recipe 0.17. It costs R probes of the
 estimator's search per texel: on its own seconds, not milliseconds (2.0 s for the 256k texels
 there); inside `pipeline.fit` the search makes those probes anyway (`AngularEntropy`), and the fit
@@ -100,7 +100,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numba
@@ -183,7 +183,7 @@ class Uncertainty:
     # estimated; None when not computed (it needs the estimate).
     roughness_std: np.ndarray | None = None
     # The hypotheses' lobe: calibrated mode's UncertaintyConfig.lobe ("gaussian", "ggx"), angular
-    # mode's "isotropic" or "anisotropic" (as `entropy_angular` scored them); None otherwise.
+    # mode's "isotropic" (as `entropy_angular` scored them); None otherwise.
     lobe: str | None = None
 
     def to_texture(self, observations: Observations, quantity: str = "entropy", fill: float = 0.0) -> np.ndarray:
@@ -523,9 +523,7 @@ def _finish(unobserved, entropy, channel, best_alpha, best_ks, likelihood, n_sam
 def entropy_angular(observations: Observations, config: Config = Config(),
                     return_likelihood: bool = True) -> Uncertainty:
     """The same hypothesis grid scored in the sample domain with the `global` estimator's own model
-    (``config.uncertainty.mode`` "angular"; lobes anisotropic or not as
-    ``config.uncertainty.anisotropic_lobes``, by default the estimator's), as
-    benchmarks/pathtraced_entropy.py scores it with a path tracer. Per texel, channel and
+    (``config.uncertainty.mode`` "angular"), as benchmarks/pathtraced_entropy.py scores it with a path tracer. Per texel, channel and
     hypothesis (alpha_i, k_j), a metal of base colour k_j and roughness sqrt(alpha_i) reflects
     s_v = k_j X_v + Y_v (`estimate.hypothesis_moments`; k = 0: no lobe, s = 0, not a black metal's
     grazing Fresnel); with the best view-independent (diffuse) part d = max(0, mean_w(f - s)) the
@@ -574,12 +572,11 @@ class AngularEntropy:
     """`entropy_angular` fed with its hypotheses' moments block by block: by `entropy_angular`, or
     by the `global` estimator's search while it estimates (`estimate.estimate`'s ``hypotheses``,
     `recorder`), whose first scan probes the roughness nodes anyway. With the default grid (the
-    estimator's nodes) and lobes (the estimator's) that costs the search no probe of its own."""
+    estimator's nodes) that costs the search no probe of its own."""
 
     def __init__(self, observations: Observations, config: Config = Config(), return_likelihood: bool = True):
         settings = config.uncertainty
-        lobes = config.estimate.anisotropic_lobes if settings.anisotropic_lobes is None else settings.anisotropic_lobes
-        self.config = replace(config, estimate=replace(config.estimate, anisotropic_lobes=lobes))
+        self.config = config
         self.grid = hypothesis_grid(settings.resolution(config.estimate.roughness_grid))
         self.roughness = np.sqrt(self.grid.alpha)  # (R,)
         self.observations = observations
@@ -594,10 +591,8 @@ class AngularEntropy:
     @staticmethod
     def recorded_by_search(config: Config) -> bool:
         """Whether the estimator of ``config`` can record this mode's hypotheses as it searches: the
-        global estimator, scoring them with its own lobes."""
-        settings = config.uncertainty
-        return (settings.mode == "angular" and config.estimate.method == "global"
-                and settings.anisotropic_lobes in (None, config.estimate.anisotropic_lobes))
+        global estimator."""
+        return config.uncertainty.mode == "angular" and config.estimate.method == "global"
 
     def recorder(self) -> HypothesisRecorder:
         return HypothesisRecorder(self.roughness, self.consume)
@@ -619,7 +614,7 @@ class AngularEntropy:
         result = _finish(observations.n_samples == 0, self.entropy, self.channel, self.best_alpha, self.best_ks,
                          self.likelihood, observations.n_samples, sh.num_coeffs(observations.lmax),
                          observations.alpha_bound, self.grid, self.config.uncertainty)
-        result.lobe = "anisotropic" if self.config.estimate.anisotropic_lobes else "isotropic"
+        result.lobe = "isotropic"
         return result
 
 
