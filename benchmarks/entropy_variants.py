@@ -18,7 +18,6 @@ metallic errors, and on the sphere by its mean per region. Variants:
   paper's Gaussian lobe exp(-(alpha l)^2);
 - calibrated_ggx_lobe: as the default, with GGX lobes (their per-degree gains and their albedo at
   the texel's mean view angle; UncertaintyConfig.lobe "ggx");
-- phase_aware: as the default, but coefficients compared through the cross spectrum;
 - angular: the same grid scored in the sample domain with the estimator's own model
   (UncertaintyConfig(mode="angular"), `uncertainty.entropy_angular`);
 - each calibrated and angular variant also with noise_level 0.05 (default 0.02). Seconds per
@@ -51,7 +50,7 @@ from freqbrdf.estimate import estimate
 from freqbrdf.materials import resize
 from freqbrdf.observations import Observations, observe
 from freqbrdf.synth import synthesize
-from freqbrdf.uncertainty import cross_spectrum, entropy_from_spectra, entropy_map, roughness_std, view_cosine
+from freqbrdf.uncertainty import entropy_from_spectra, entropy_map, roughness_std, view_cosine
 
 SPREAD_VARIANTS = {  # name: (roughness_window, loss_curvature, split_half)
     "roughness_std window 3": (3, False, False),
@@ -89,13 +88,11 @@ def variant_entropy(observations: Observations, name: str, noise_level: float) -
     if name == "paper":
         config = UncertaintyConfig(mode="paper")
     else:
-        config = UncertaintyConfig(noise_level=noise_level, phase_aware=name == "phase_aware",
+        config = UncertaintyConfig(noise_level=noise_level,
                                    lobe="ggx" if name == "calibrated_ggx_lobe" else "gaussian")
-    cross = (cross_spectrum(observations.observed_coeffs, observations.mirrored_coeffs)
-             if config.phase_aware else None)
     n_samples = None if name == "calibrated_fixed_noise" else observations.n_samples
     return entropy_from_spectra(
-        observations.mirrored_spectrum, observations.observed_spectrum, cross_spectrum=cross,
+        observations.mirrored_spectrum, observations.observed_spectrum,
         n_samples=n_samples, view_cos=view_cosine(observations), sigma=observations.sigma,
         alpha_bound=observations.alpha_bound,
         fit_status=observations.fit_status, config=config, return_likelihood=False,
@@ -137,8 +134,7 @@ def scene_scores(name: str, path) -> dict:
         return scores
 
     variants = {}
-    for variant in ("paper", "calibrated_fixed_noise", "calibrated", "calibrated_ggx_lobe", "phase_aware",
-                    "angular"):
+    for variant in ("paper", "calibrated_fixed_noise", "calibrated", "calibrated_ggx_lobe", "angular"):
         for noise_level in ((None,) if variant == "paper" else (0.02, 0.05)):
             start = time.perf_counter()
             entropy = variant_entropy(observations, variant, noise_level)

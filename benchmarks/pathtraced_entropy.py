@@ -26,7 +26,7 @@ sqrt(S_refl(l)) (`spectral_entropy`, a direct evaluation; scoring the analytic a
 reproduces our fast entropy: "scoring_check_max_abs_difference").
 
 Reported: Spearman rank correlation of each brute force with ours (calibrated default, with
-GGX lobes instead of the paper's Gaussian one, phase-aware and paper modes on the 8 x 8 grid; the
+GGX lobes instead of the paper's Gaussian one, and paper mode on the 8 x 8 grid; the
 angular mode on its own grid, the estimator's 9 roughness nodes, as `fit` computes it from its
 search); each entropy's rank correlation with the
 default fit's roughness error on the same texels; mean entropy per region of entropy_scenes.py;
@@ -244,7 +244,6 @@ def main(sky: str) -> None:
     paper = entropy_map(observations, UncertaintyConfig(mode="paper"), return_likelihood=False)
     ggx_config = UncertaintyConfig(lobe="ggx")
     ggx = entropy_map(observations, ggx_config, return_likelihood=False)
-    phase_aware = entropy_map(observations, UncertaintyConfig(phase_aware=True), return_likelihood=False)
     # The angular mode as `fit` computes it (its grid the estimator's 9 roughness nodes, scored during
     # the search), and on its own.
     angular_config = UncertaintyConfig(mode="angular")
@@ -331,7 +330,7 @@ def main(sky: str) -> None:
         "agreement_with_pooled_brute_force": {
             name: agreement(pooled, entropy.entropy[chosen])
             for name, entropy in (("ours_calibrated", ours), ("ours_calibrated_ggx_lobe", ggx),
-                                  ("ours_paper_mode", paper), ("ours_phase_aware", phase_aware))},
+                                  ("ours_paper_mode", paper))},
         "angular_mode": {
             "grid_res": angular_grid.resolution,
             "agreement_with_pooled_brute_force": {
@@ -345,8 +344,6 @@ def main(sky: str) -> None:
         },
         "spearman_rho_vs_ours_calibrated": round(float(stats.spearmanr(brute, ours.entropy[chosen]).statistic), 4),
         "spearman_rho_vs_ours_paper_mode": round(float(stats.spearmanr(brute, paper.entropy[chosen]).statistic), 4),
-        "spearman_rho_vs_ours_phase_aware": round(
-            float(stats.spearmanr(brute, phase_aware.entropy[chosen]).statistic), 4),
         "spearman_rho_vs_ours_calibrated_other_seed": round(
             float(stats.spearmanr(brute_other_seed, ours.entropy[chosen]).statistic), 4),
         "brute_force_self_agreement": agreement(brute, brute_other_seed),

@@ -118,11 +118,6 @@ class UncertaintyConfig:
     # Calibrated mode: noise std of one sample's radiance, relative to the light's RMS amplitude
     # sqrt(sum_l S_refl(l)); a fitted coefficient then has variance noise_level^2 P K / n_samples.
     noise_level: float = 0.02
-    # Calibrated mode: compare the observed and light SH coefficients degree by degree through their
-    # cross spectrum (True), or their amplitudes sqrt(S(l)) as if in phase (False, the paper's
-    # power-spectrum view). Measured (benchmarks/results/entropy_variants.json): coefficients rank
-    # base-colour errors a little better, amplitudes agree far better with the path-traced brute force.
-    phase_aware: bool = False
     # Calibrated mode: the lobe a hypothesis (alpha, k) is. "gaussian": the paper's
     # exp(-(alpha l)^2), albedo 1 (k absorbs Fresnel and masking); "ggx": the GGX lobe's response
     # to each degree (estimate.ggx_lobe_gains) times its albedo at the texel's mean view angle

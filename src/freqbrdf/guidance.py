@@ -16,7 +16,7 @@ at the new view's cos theta_o; A = 1 otherwise) and D_psi the Lambertian radianc
 rest of the texel's fitted DC under psi, D = max(0, (c_obs,00 - k A(alpha, mean cos) c_light,00) /
 c_one,00) (0 for a texel with no sample yet). The observed fit is updated with that sample, its
 spectrum scored by `uncertainty.entropy_from_spectra` (with the texel's sample count and mean view
-cosine and, in phase-aware mode, the cross spectrum, as `uncertainty.entropy_map` scores a fit),
+cosine, as `uncertainty.entropy_map` scores a fit),
 and the candidate's expected entropy at the texel is sum_psi P(psi) H(psi), P the texel's current
 posterior (of its minimum-entropy channel; the hypothesis is applied to all three channels, whose
 minimum entropy is the map, as in `uncertainty`). The candidate's score is the mean over texels
@@ -326,12 +326,8 @@ def expected_entropy(
         base_spectrum[pair] + 2.0 * delta[..., None] * base_update[pair]
         + np.square(delta)[..., None] * update_power[pair, None, :]
     )
-    light_cross = None
-    if config.uncertainty.phase_aware:  # X(l) of c + delta u with the updated light: linear in delta
-        light_cross = (cross_spectrum(observed_base, light_coeffs)[pair]
-                       + delta[..., None] * cross_spectrum(update[:, None, :], light_coeffs)[pair])
     entropy = entropy_from_spectra(
-        light_spectrum[pair], np.maximum(observed_spectrum, 0.0), cross_spectrum=light_cross,
+        light_spectrum[pair], np.maximum(observed_spectrum, 0.0),
         n_samples=state.n_samples[rows][pair] + 1, view_cos=new_cosine[pair], sigma=sigma, config=settings,
         return_likelihood=False,
     ).entropy.astype(np.float64)
@@ -588,7 +584,6 @@ def _state_uncertainty(state: FitState, coeffs: np.ndarray, sigma: float, config
     observed, light = coeffs[:, OBSERVED], coeffs[:, LIGHT]
     return entropy_from_spectra(
         sh.power_spectrum(light), sh.power_spectrum(observed),
-        cross_spectrum=cross_spectrum(observed, light) if config.uncertainty.phase_aware else None,
         n_samples=state.n_samples, view_cos=mean_view_cosine(state.weight_sum, state.cosine_sum), sigma=sigma,
         fit_status=status, config=config.uncertainty,
     )

@@ -25,13 +25,6 @@ dark texel (S_out(0) ~ 0) gets a flat likelihood, i.e. it is called uncertain.
   A its albedo at the texel's mean view cosine, `hypothesis_albedo`). The specular DC
   k A sqrt(S_refl(0)) may not exceed the observed DC: a rough lobe puts nearly all its energy in
   l = 0, which the degrees l >= 1 alone cannot rule out on a dark texel.
-- ``phase_aware`` compares the coefficients themselves, o_lm = k K m_lm for l >= 1 (m the
-  mirrored light's coefficients): the misfit sum_l S_out - 2 k K X(l) + k^2 K^2 S_refl needs the
-  cross spectrum X(l) = sum_m o_lm m_lm (`cross_spectrum`) where amplitudes take the in-phase
-  bound sqrt(S_out S_refl). It catches observations whose energy lies in other directions than
-  the reflected light's, but a real lobe is not a zonal filter around the mirror direction
-  (off-specular peak, Fresnel, masking), so it also punishes correct hypotheses. Measured in
-  benchmarks/results/entropy_variants.json; off by default.
 - Residuals are measured against the LIGHT's RMS amplitude sqrt(P), P = mean over RGB of
   sum_{l=0..l*} S_refl(l): scaling every image and the environment by kappa scales all
   coefficients by kappa and leaves the map unchanged, and a dark texel under bright, sharp light
@@ -209,8 +202,6 @@ def entropy_map(
     return entropy_from_spectra(
         observations.mirrored_spectrum,
         observations.observed_spectrum,
-        cross_spectrum=(cross_spectrum(observations.observed_coeffs, observations.mirrored_coeffs)
-                        if config.phase_aware else None),
         n_samples=observations.n_samples,
         view_cos=view_cosine(observations) if config.lobe == "ggx" else None,  # only the GGX lobe reads it
         sigma=observations.sigma,
@@ -411,7 +402,6 @@ def entropy_from_spectra(
     light_spectrum: np.ndarray,
     observed_spectrum: np.ndarray,
     *,
-    cross_spectrum: np.ndarray | None = None,
     n_samples: np.ndarray | None = None,
     view_cos: np.ndarray | None = None,
     sigma: float = 0.0,
@@ -422,10 +412,8 @@ def entropy_from_spectra(
 ) -> Uncertainty:
     """Uncertainty from power spectra: light_spectrum, observed_spectrum (N, 3, l*+1).
 
-    cross_spectrum (N, 3, l*+1): sum_m of observed x light coefficients per degree (calibrated
-    mode; `cross_spectrum` computes it). None assumes the two are aligned in every degree, i.e.
-    sqrt(S_out S_refl), an optimistic bound that ignores where on the sphere the energy lies.
-    n_samples (N,): samples (views with positive weight) per texel (calibrated mode: the fitted coefficients' noise
+    Calibrated mode compares amplitudes as if the observed and the light's coefficients were
+    aligned in every degree (sqrt(S_out S_refl)). n_samples (N,): samples (views with positive weight) per texel (calibrated mode: the fitted coefficients' noise
     variance is noise_level^2 P K / n_samples for K coefficients) and FLAG_FEW_SAMPLES; None: K
     samples assumed, no FLAG_FEW_SAMPLES. view_cos (N,): the texel's mean cos theta_o
     (`view_cosine`), at which calibrated mode with lobe "ggx" scales each hypothesis by its lobe's
@@ -464,10 +452,6 @@ def entropy_from_spectra(
         samples_per_coeff = (np.ones(n_texels) if n_samples is None
                              else np.maximum(np.asarray(n_samples, dtype=np.float64), 1.0) / n_degrees**2)
         scale = (samples_per_coeff / (2.0 * config.noise_level**2))[:, None]  # the same for every channel
-    use_cross = cross_spectrum is not None and not paper
-    if use_cross and cross_spectrum.shape != light_spectrum.shape:
-        raise ValueError(f"cross spectrum shape {cross_spectrum.shape} differs from {light_spectrum.shape}")
-
     # Amplitudes of degrees 1..l* against two parameters (alpha, k): l* - 2 residual degrees of freedom.
     residual_dof = float(max(lmax - 2, 1)) if (not paper and config.residual_noise) else 0.0
     resolution = grid.resolution
@@ -479,11 +463,10 @@ def entropy_from_spectra(
     with_albedo = view_cos is not None and config.lobe == "ggx" and not paper
     _grid_entropy_kernel(
         _kernel_input(light_spectrum), _kernel_input(observed_spectrum),
-        _kernel_input(cross_spectrum) if use_cross else np.zeros((0, 3, n_degrees)),
         np.ascontiguousarray(scale, dtype=np.float64), row_filter,
         np.ascontiguousarray(view_cos, dtype=np.float64) if with_albedo else np.zeros(0),
         albedo_table(grid) if with_albedo else np.zeros((0, 0)), grid.alpha,
-        not paper, use_cross, not paper, not paper, residual_dof, return_likelihood, numba.get_num_threads(),
+        not paper, not paper, not paper, residual_dof, return_likelihood, numba.get_num_threads(),
         entropy, channel, best_alpha, best_ks, likelihood,
     )
 
@@ -863,14 +846,13 @@ def _moment_entropy_texel(t, moments, weight, mirrored, n_samples, alphas, specu
 
 @numba.njit(parallel=True, cache=True)
 def _grid_entropy_kernel(
-    light, observed, cross, scale, row_filter, view_cos, albedo_table, alphas, amplitude, use_cross, per_light_power,
+    light, observed, scale, row_filter, view_cos, albedo_table, alphas, amplitude, per_light_power,
     merge_zero, residual_dof, want_likelihood, n_threads,
     entropy, channel, best_alpha, best_ks, likelihood,
 ):
     """Fused grid misfit, likelihood and entropy per texel; the minimum-entropy channel wins.
 
-    light, observed (N, 3, l*+1) power spectra; cross (N, 3, l*+1) their cross spectrum, read when
-    use_cross (amplitude mode: a_l b_l is then X(l), else sqrt(S_refl S_out)); scale (N, 3), or
+    light, observed (N, 3, l*+1) power spectra; scale (N, 3), or
     (N, 1) for all channels alike, turns a misfit difference into temperatures, divided by the
     texel's light power P = mean over channels of sum_l S_refl(l) when per_light_power (no light:
     temperature 0, no information); row_filter (R, l*+1) the per-degree factor of alpha_i (kernel
@@ -913,15 +895,15 @@ def _grid_entropy_kernel(
     for worker in numba.prange(n_workers):
         # np.int64: the loop index is unsigned in numba's parallel code and signed when typed: one
         # signature, not two (each compiles the whole kernel).
-        _grid_entropy_worker(np.int64(worker), n_workers, light, observed, cross, scale, row_filter, view_cos,
-                             albedo_table, alphas, amplitude, use_cross, per_light_power, merge_zero, residual_dof,
+        _grid_entropy_worker(np.int64(worker), n_workers, light, observed, scale, row_filter, view_cos,
+                             albedo_table, alphas, amplitude, per_light_power, merge_zero, residual_dof,
                              want_likelihood, entropy, channel, best_alpha, best_ks, likelihood)
 
 
 @numba.njit(cache=True, error_model="numpy", fastmath={"contract", "reassoc", "nsz", "arcp"})
 def _grid_entropy_worker(
-    worker, n_workers, light, observed, cross, scale, row_filter, view_cos, albedo_table, alphas, amplitude,
-    use_cross, per_light_power, merge_zero, residual_dof, want_likelihood, entropy, channel, best_alpha, best_ks,
+    worker, n_workers, light, observed, scale, row_filter, view_cos, albedo_table, alphas, amplitude,
+    per_light_power, merge_zero, residual_dof, want_likelihood, entropy, channel, best_alpha, best_ks,
     likelihood,
 ):
     """`_grid_entropy_kernel`'s work for the blocks of texels worker, worker + n_workers, ...: a
@@ -946,7 +928,6 @@ def _grid_entropy_worker(
     # The block's inputs, read once per texel in memory order: [channel, degree, lane].
     light_lanes = np.zeros((n_channels, n_degrees, _LANES))
     observed_lanes = np.zeros((n_channels, n_degrees, _LANES))
-    cross_lanes = np.zeros((n_channels if use_cross else 0, n_degrees, _LANES))
     light_sq = np.empty((n_degrees, _LANES))  # a_l^2
     light_observed = np.empty((n_degrees, _LANES))  # a_l b_l
     constant = np.empty(_LANES)  # C = sum_{l >= 1} b_l^2
@@ -977,7 +958,6 @@ def _grid_entropy_worker(
         if n_lanes < _LANES:  # padding lanes hold zeros and are computed like the others
             light_lanes[:] = 0.0
             observed_lanes[:] = 0.0
-            cross_lanes[:] = 0.0
         for k in range(n_lanes):
             for c in range(n_channels):
                 for l in range(n_degrees):
@@ -991,11 +971,6 @@ def _grid_entropy_worker(
                 for i in range(resolution):
                     scale_lanes[i, k] = (albedo_table[i, node] * (1.0 - fraction)
                                          + albedo_table[i, node + 1] * fraction)
-        if use_cross:
-            for k in range(n_lanes):
-                for c in range(n_channels):
-                    for l in range(n_degrees):
-                        cross_lanes[c, l, k] = cross[start + k, c, l]
         choice[0] = 2.0
         if per_light_power:
             light_power[:] = 0.0
@@ -1026,9 +1001,6 @@ def _grid_entropy_worker(
                         light_sq[l, k] = light_value * light_value
                         light_observed[l, k] = light_value * observed_value
                         constant[k] += observed_value * observed_value
-                if use_cross:  # padding lanes hold 0
-                    for k in range(_LANES):
-                        light_observed[l, k] = cross_lanes[c, l, k]
             # 2. Rows. The k = 0 column (misfit C in any row) and earlier rows win ties.
             for k in range(_LANES):
                 lowest[0, k] = constant[k]
@@ -1047,9 +1019,6 @@ def _grid_entropy_worker(
                     a = quad[k] * row_gain * row_gain
                     x = linear[k] * row_gain
                     specular_dc = light_dc[k] * row_gain
-                    if use_cross:  # |X| <= sqrt(A C) (Cauchy-Schwarz) unless the inputs disagree
-                        bound = math.sqrt(a * constant[k])
-                        x = _smaller(_larger(x, -bound), bound)
                     # Continuous minimiser of C - 2 X t + A t^2 + max(t a_0 - b_0, 0)^2: X / A, or
                     # (X + a_0 b_0) / (A + a_0^2) where X / A would exceed the DC bound b_0 / a_0.
                     numerator = x
