@@ -50,8 +50,8 @@ SCENES = {
     "bunny": SynthSettings(mesh="bunny", envmap="forest", materials="bands", test_envmaps=("studio", "sunset")),
     "plane": SynthSettings(mesh="plane", envmap="city", materials="bands", test_envmaps=("forest", "lobby")),
 }
-METHODS = ("global", "global_without_vote", "global_fast", "global_environment_light", "global_fitted_light", "paper_angular", "paper_spectrum",
-           "mitsuba")
+METHODS = ("global", "global_without_vote", "global_fast", "global_environment_light", "global_fitted_light",
+           "paper_angular", "paper_spectrum", "mitsuba")
 FULL_RENDER = {"resolution": 256, "spp": 64, "test_views": 8}
 QUICK_RENDER = {"resolution": 128, "spp": 16, "test_views": 4}
 QUICK_ARGS = {"views": 24, "texture_res": 128, "relight_spp": 8}

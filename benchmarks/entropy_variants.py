@@ -16,8 +16,6 @@ metallic errors, and on the sphere by its mean per region. Variants:
   samples (n_samples not passed: K samples assumed), amplitudes in phase;
 - calibrated (the default): amplitudes in phase, coefficient noise noise_level^2 P K / n, the
   paper's Gaussian lobe exp(-(alpha l)^2);
-- calibrated_ggx_lobe: as the default, with GGX lobes (their per-degree gains and their albedo at
-  the texel's mean view angle; UncertaintyConfig.lobe "ggx");
 - angular: the same grid scored in the sample domain with the estimator's own model
   (UncertaintyConfig(mode="angular"), `uncertainty.entropy_angular`);
 - each calibrated and angular variant also with noise_level 0.05 (default 0.02). Seconds per
@@ -50,7 +48,7 @@ from freqbrdf.estimate import estimate
 from freqbrdf.materials import resize
 from freqbrdf.observations import Observations, observe
 from freqbrdf.synth import synthesize
-from freqbrdf.uncertainty import entropy_from_spectra, entropy_map, roughness_std, view_cosine
+from freqbrdf.uncertainty import entropy_from_spectra, entropy_map, roughness_std
 
 SPREAD_VARIANTS = {  # name: (roughness_window, loss_curvature, split_half)
     "roughness_std window 3": (3, False, False),
@@ -88,12 +86,11 @@ def variant_entropy(observations: Observations, name: str, noise_level: float) -
     if name == "paper":
         config = UncertaintyConfig(mode="paper")
     else:
-        config = UncertaintyConfig(noise_level=noise_level,
-                                   lobe="ggx" if name == "calibrated_ggx_lobe" else "gaussian")
+        config = UncertaintyConfig(noise_level=noise_level)
     n_samples = None if name == "calibrated_fixed_noise" else observations.n_samples
     return entropy_from_spectra(
         observations.mirrored_spectrum, observations.observed_spectrum,
-        n_samples=n_samples, view_cos=view_cosine(observations), sigma=observations.sigma,
+        n_samples=n_samples, sigma=observations.sigma,
         alpha_bound=observations.alpha_bound,
         fit_status=observations.fit_status, config=config, return_likelihood=False,
     ).entropy
@@ -134,7 +131,7 @@ def scene_scores(name: str, path) -> dict:
         return scores
 
     variants = {}
-    for variant in ("paper", "calibrated_fixed_noise", "calibrated", "calibrated_ggx_lobe", "angular"):
+    for variant in ("paper", "calibrated_fixed_noise", "calibrated", "angular"):
         for noise_level in ((None,) if variant == "paper" else (0.02, 0.05)):
             start = time.perf_counter()
             entropy = variant_entropy(observations, variant, noise_level)

@@ -21,12 +21,12 @@ minimum over RGB. This "sample" brute force asks whether the spectra lose what t
 The "spectral" brute force asks only whether our model of a hypothesis's spectrum is right: the
 path-traced radiance of each hypothesis is fitted to SH at the texel's samples exactly as the
 observed radiance is (its directions, weights, degree and regulariser), and the amplitude spectra
-of those fits are scored exactly as our calibrated mode scores its analytic k A F(alpha, l)
+of those fits are scored exactly as our calibrated mode scores its analytic k F(alpha, l)
 sqrt(S_refl(l)) (`spectral_entropy`, a direct evaluation; scoring the analytic amplitudes with it
 reproduces our fast entropy: "scoring_check_max_abs_difference").
 
-Reported: Spearman rank correlation of each brute force with ours (calibrated default, with
-GGX lobes instead of the paper's Gaussian one, and paper mode on the 8 x 8 grid; the
+Reported: Spearman rank correlation of each brute force with ours (calibrated default and paper
+mode on the 8 x 8 grid; the
 angular mode on its own grid, the estimator's 9 roughness nodes, as `fit` computes it from its
 search); each entropy's rank correlation with the
 default fit's roughness error on the same texels; mean entropy per region of entropy_scenes.py;
@@ -60,7 +60,7 @@ from freqbrdf.config import Config, UncertaintyConfig
 from freqbrdf.pipeline import fit
 from freqbrdf.render import build_scene, mitsuba
 from freqbrdf.texels import rasterise
-from freqbrdf.uncertainty import entropy_map, hypothesis_albedo, hypothesis_filter, hypothesis_grid, view_cosine
+from freqbrdf.uncertainty import entropy_map, hypothesis_filter, hypothesis_grid
 
 SUBSET = 400  # texels scored by brute force (200: the agreement's 95 % interval was +-0.05 wide)
 MIN_VIEWS = 8  # texels with fewer samples are not candidates (the brute-force misfit needs some)
@@ -151,15 +151,12 @@ def hypothesis_amplitudes(observations, chosen, texel_of, view_of, radiance, fit
     return np.sqrt(np.maximum(spectrum, 0.0)).reshape(n_chosen, resolution, resolution, 3, -1)
 
 
-def analytic_amplitudes(observations, chosen, grid, settings: UncertaintyConfig) -> np.ndarray:
-    """(M, R, R, 3, l*+1) our calibrated mode's model amplitudes k A_i F_il sqrt(S_refl(l)): F the
-    hypothesis filter and A the lobe's albedo (1 for the "gaussian" lobe)."""
-    lobe_filter = hypothesis_filter(grid, observations.lmax, observations.sigma, settings.lobe)  # (R, l*+1)
-    albedo = (hypothesis_albedo(grid, view_cosine(observations)[chosen]) if settings.lobe == "ggx"
-              else np.ones((len(chosen), grid.resolution)))  # (M, R)
+def analytic_amplitudes(observations, chosen, grid) -> np.ndarray:
+    """(M, R, R, 3, l*+1) our calibrated mode's model amplitudes k F_il sqrt(S_refl(l)): F the
+    hypothesis filter."""
+    lobe_filter = hypothesis_filter(grid, observations.lmax, observations.sigma)  # (R, l*+1)
     light = np.sqrt(observations.mirrored_spectrum[chosen].astype(np.float64))  # (M, 3, l*+1)
-    return (grid.specular[None, None, :, None, None] * albedo[:, :, None, None, None]
-            * lobe_filter[None, :, None, None, :] * light[:, None, None, :, :])
+    return grid.specular[None, None, :, None, None] * lobe_filter[None, :, None, None, :] * light[:, None, None, :, :]
 
 
 def spectral_entropy(observations, chosen, model_amplitude, settings: UncertaintyConfig) -> np.ndarray:
@@ -242,8 +239,6 @@ def main(sky: str) -> None:
     ours = entropy_map(observations, config.uncertainty, return_likelihood=False)
     ours_s = time.perf_counter() - start
     paper = entropy_map(observations, UncertaintyConfig(mode="paper"), return_likelihood=False)
-    ggx_config = UncertaintyConfig(lobe="ggx")
-    ggx = entropy_map(observations, ggx_config, return_likelihood=False)
     # The angular mode as `fit` computes it (its grid the estimator's 9 roughness nodes, scored during
     # the search), and on its own.
     angular_config = UncertaintyConfig(mode="angular")
@@ -290,14 +285,12 @@ def main(sky: str) -> None:
                                                                      radiance, config.fit),
                          config.uncertainty) for radiance in radiances)
     # Our fast entropies, recomputed by the direct scoring from their analytic amplitudes: the check.
-    scoring_error = {name: float(np.abs(spectral_entropy(observations, chosen, analytic_amplitudes(
-        observations, chosen, grid, settings), settings) - entropy.entropy[chosen]).max())
-        for name, settings, entropy in (("default", config.uncertainty, ours), ("ggx_lobe", ggx_config, ggx))}
+    scoring_error = {"default": float(np.abs(spectral_entropy(observations, chosen, analytic_amplitudes(
+        observations, chosen, grid), config.uncertainty) - ours.entropy[chosen]).max())}
     roughness_std = np.nan_to_num(result.uncertainty.roughness_std[chosen], nan=1.0)
     ranks_error = {name: round(float(stats.spearmanr(values, error[chosen], nan_policy="omit").statistic), 4)
                    for name, values in (("brute_force_pooled", pooled), ("spectral_brute_force_pooled", spectral_pooled),
                                         ("ours_calibrated", ours.entropy[chosen]),
-                                        ("ours_calibrated_ggx_lobe", ggx.entropy[chosen]),
                                         ("ours_angular", angular.entropy[chosen]),
                                         ("ours_paper_mode", paper.entropy[chosen]),
                                         ("roughness_std", roughness_std))}
@@ -314,7 +307,6 @@ def main(sky: str) -> None:
             by_region[region] = {"texels": int(mask.sum()), "brute_force": round(float(brute[mask].mean()), 4),
                                  "angular_brute_force": round(float(angular_brute[mask].mean()), 4),
                                  "ours_calibrated": round(float(ours.entropy[chosen][mask].mean()), 4),
-                                 "ours_calibrated_ggx_lobe": round(float(ggx.entropy[chosen][mask].mean()), 4),
                                  "ours_angular": round(float(angular.entropy[chosen][mask].mean()), 4),
                                  "ours_paper_mode": round(float(paper.entropy[chosen][mask].mean()), 4),
                                  "spectral_brute_force": round(float(spectral_pooled[mask].mean()), 4)}
@@ -329,8 +321,7 @@ def main(sky: str) -> None:
         "grid_res": grid.resolution,
         "agreement_with_pooled_brute_force": {
             name: agreement(pooled, entropy.entropy[chosen])
-            for name, entropy in (("ours_calibrated", ours), ("ours_calibrated_ggx_lobe", ggx),
-                                  ("ours_paper_mode", paper))},
+            for name, entropy in (("ours_calibrated", ours), ("ours_paper_mode", paper))},
         "angular_mode": {
             "grid_res": angular_grid.resolution,
             "agreement_with_pooled_brute_force": {
@@ -349,7 +340,6 @@ def main(sky: str) -> None:
         "brute_force_self_agreement": agreement(brute, brute_other_seed),
         "spectral_brute_force": {
             "agreement_with_ours_calibrated": agreement(spectral_pooled, ours.entropy[chosen]),
-            "agreement_with_ours_calibrated_ggx_lobe": agreement(spectral_pooled, ggx.entropy[chosen]),
             "agreement_with_ours_paper_mode": agreement(spectral_pooled, paper.entropy[chosen]),
             "agreement_with_ours_calibrated_per_seed": [
                 agreement(values, ours.entropy[chosen]) for values in (spectral, spectral_other_seed)],

@@ -46,8 +46,8 @@ def synthetic_observations(
 
     ``model`` "angular": brdf.predict_angular (METHOD.md §3.6, G1-shadowed light when
     ``shadowing``); "split_sum": our default, m (b A S_A + B S_B) + (1 - m) E S_E with S_k the
-    filtered unshadowed light read in the mirror direction (`lobe_filtered_light`), E the exact dielectric's albedo (Schlick's
-    0.04 A S_A + B S_B without ``exact_dielectric``), plus Burley's diffuse, written here with numpy
+    filtered unshadowed light read in the mirror direction (`lobe_filtered_light`), E the exact
+    dielectric's albedo (Schlick's 0.04 A S_A + B S_B without ``exact_dielectric``), plus Burley's diffuse, written here with numpy
     from `split_sum_terms` and `burley_diffuse_factor`. With ``environment_light`` each S_k is
     blended towards `environment_filtered_light` of a world-frame environment (random frames) over
     ``environment_blend``, and Burley's factor is `environment_burley_factor` under it. With ``prefiltered`` the lobes read `prefiltered_light` of a rotated
@@ -846,7 +846,6 @@ def test_config_presets_and_validation(unshadowed):
 
     for make, message in ((lambda: UncertaintyConfig(mode="angualr"), "UncertaintyConfig.mode must be one of "
                                                                       "'calibrated', 'paper', 'angular'; got 'angualr'"),
-                          (lambda: UncertaintyConfig(lobe="phong"), "UncertaintyConfig.lobe"),
                           (lambda: EstimateConfig(method="adam"), "EstimateConfig.method"),
                           (lambda: FitConfig(regulariser="l2"), "FitConfig.regulariser"),
                           (lambda: dataclasses.replace(Config().estimate, diffuse_model="oren"), "diffuse_model"),

@@ -3,7 +3,7 @@ texels, flags, and the fast kernel against a direct O(R^2 l*) evaluation of the 
 
 Spectra are built from the model itself, one SH coefficient per degree: the light's a_l =
 sqrt(S_refl(l)) from a chosen light spectrum, the observation's b_l = k_s G_l(alpha) a_l (plus
-noise; G the lobe's filter, `lobe_filter`: the default's exp(-alpha^2 l^2), or the GGX gains),
+noise; G the lobe's filter, `lobe_filter`: exp(-alpha^2 l^2)),
 b_0 = specular plus diffuse; S_out = b^2.
 These are unit tests of the mathematics; no rendering.
 """
@@ -21,7 +21,6 @@ from hypothesis import strategies as st
 from freqbrdf import sh
 from freqbrdf import uncertainty as unc
 from freqbrdf.config import EstimateConfig, UncertaintyConfig
-from freqbrdf.estimate import ggx_lobe_gains, split_sum_terms
 from freqbrdf.observations import Observations
 
 LMAX = 5
@@ -32,23 +31,19 @@ CALIBRATED = UncertaintyConfig()
 PAPER = UncertaintyConfig(mode="paper")
 
 
-def lobe_filter(alpha, lobe="gaussian", sigma=0.0):
+def lobe_filter(alpha, sigma=0.0):
     """Per-degree amplitude filter of a lobe of GGX alpha (scalar, or (..., 1) -> (..., l*+1)),
-    divided by the band-limit blur exp(-(sigma l)^2): the GGX gains or the paper's Gaussian."""
+    divided by the band-limit blur exp(-(sigma l)^2): the paper's Gaussian."""
     alpha = np.asarray(alpha, float)
-    if lobe == "gaussian":
-        return np.exp(-(alpha**2 - sigma**2) * DEGREES**2)
-    roughness = np.sqrt(alpha[..., 0] if alpha.ndim else alpha)
-    gains = np.array([ggx_lobe_gains(float(r), LMAX) for r in np.ravel(roughness)])
-    return gains.reshape(np.shape(roughness) + (LMAX + 1,)) * np.exp(sigma**2 * DEGREES**2)
+    return np.exp(-(alpha**2 - sigma**2) * DEGREES**2)
 
 
-def model_spectra(light, alpha, specular, *, diffuse=0.3, noise=0.0, n=1, seed=0, lobe="gaussian"):
+def model_spectra(light, alpha, specular, *, diffuse=0.3, noise=0.0, n=1, seed=0):
     """light, observed (n, 3, l*+1): S_out = k^2 G(alpha)^2 S_refl (`lobe_filter`), noise on
     amplitudes (std ``noise`` x the light's RMS amplitude), DC = (k sqrt(S_refl(0)) + diffuse)^2."""
     rng = np.random.default_rng(seed)
     light = np.broadcast_to(np.asarray(light, float), (n, 3, LMAX + 1)).copy()
-    amplitude = specular * lobe_filter(alpha, lobe) * np.sqrt(light)
+    amplitude = specular * lobe_filter(alpha) * np.sqrt(light)
     amplitude = amplitude + noise * np.sqrt(light.sum(-1, keepdims=True)) * rng.standard_normal(light.shape)
     amplitude[..., 0] = np.broadcast_to(specular, light.shape)[..., 0] * np.sqrt(light[..., 0]) + diffuse
     return light, np.square(amplitude)
@@ -59,9 +54,8 @@ def entropy(light, observed, **kwargs):
     return unc.entropy_from_spectra(light, observed, **kwargs)
 
 
-def naive_grid(light, observed, sigma, config, n_samples=None, albedo=None):
-    """Direct evaluation: per texel and channel the full (R, R) grid summed over l, exact exp;
-    albedo (N, R) scales each row's lobe (calibrated mode; None: 1).
+def naive_grid(light, observed, sigma, config, n_samples=None):
+    """Direct evaluation: per texel and channel the full (R, R) grid summed over l, exact exp.
 
     Returns entropy (N, 3) per channel, likelihood (N, 3, R, R) and misfit (N, 3, R, R).
     """
@@ -84,14 +78,11 @@ def naive_grid(light, observed, sigma, config, n_samples=None, albedo=None):
                 exponent = (misfit - misfit.min()) / config.temperature
                 prior = np.ones((resolution, resolution))
             else:
-                row_albedo = np.ones(resolution) if albedo is None else albedo[texel]
-                kernel = np.array([lobe_filter(a, config.lobe, sigma) for a in grid.alpha])[:, None, 1:]
-                kernel = kernel * row_albedo[:, None, None]
+                kernel = np.array([lobe_filter(a, sigma) for a in grid.alpha])[:, None, 1:]
                 predicted = specular * kernel * np.sqrt(s_refl[1:])  # amplitudes in phase
                 misfit = np.sum((predicted - np.sqrt(s_out[1:])) ** 2, axis=-1)
                 # The specular DC may not exceed the observed DC.
-                dc_excess = np.maximum(row_albedo[:, None] * grid.specular[None, :] * math.sqrt(s_refl[0])
-                                       - math.sqrt(s_out[0]), 0.0) ** 2
+                dc_excess = np.maximum(grid.specular[None, :] * math.sqrt(s_refl[0]) - math.sqrt(s_out[0]), 0.0) ** 2
                 misfit = misfit + dc_excess
                 samples_per_coeff = 1.0 if n_samples is None else max(n_samples[texel], 1) / (LMAX + 1) ** 2
                 noise = 2 * config.noise_level**2 * light_power / samples_per_coeff
@@ -156,24 +147,6 @@ def test_weak_specular_relative_to_noise_is_uncertain():
     weak = entropy(*model_spectra(SHARP_LIGHT, alpha, 0.15, noise=0.05), config=config)
     assert weak.entropy[0] > 0.5
     assert weak.entropy[0] > strong.entropy[0] + 0.25
-
-
-def test_ggx_lobe_recovers_ggx_data_and_its_albedo():
-    alpha, specular = (4 / 7) ** 2, 6 / 7
-    ggx = UncertaintyConfig(lobe="ggx")
-    light, observed = model_spectra(SHARP_LIGHT, alpha, specular, noise=0.002, lobe="ggx")
-    as_ggx = entropy(light, observed, config=ggx)
-    as_gaussian = entropy(light, observed, config=CALIBRATED)
-    assert as_ggx.best_alpha[0] == pytest.approx(alpha) and as_ggx.best_ks[0] == pytest.approx(specular)
-    assert as_ggx.entropy[0] < as_gaussian.entropy[0] - 0.2  # the wrong lobe explains the data less well
-    # Seen at view cosine 0.3 the lobe reflects k A(0.3) (split-sum albedo, 0.75 here): with the
-    # texel's view cosine the entropy finds k itself, without it the darker k A.
-    albedo = split_sum_terms(0.3, math.sqrt(alpha))[0]
-    light, observed = model_spectra(SHARP_LIGHT, alpha, specular * albedo, noise=0.002, lobe="ggx")
-    seen = entropy(light, observed, view_cos=np.array([0.3]), config=ggx)
-    unseen = entropy(light, observed, config=ggx)
-    assert seen.best_ks[0] == pytest.approx(specular) and seen.best_alpha[0] == pytest.approx(alpha)
-    assert unseen.best_ks[0] == pytest.approx(5 / 7)  # the grid value nearest k A = 0.65
 
 
 # --------------------------------------------------------------------------------------------
@@ -252,30 +225,20 @@ def test_band_limit_compensation_is_applied_in_calibrated_mode():
     sigma=st.sampled_from([0.0, 0.1, 0.25]),
     residual_noise=st.booleans(),
     with_counts=st.booleans(),
-    lobe=st.sampled_from(["ggx", "gaussian"]),
-    with_albedo=st.booleans(),
 )
-def test_fast_kernel_equals_direct_evaluation(seed, grid_res, mode, sigma, residual_noise, with_counts, lobe,
-                                              with_albedo):
+def test_fast_kernel_equals_direct_evaluation(seed, grid_res, mode, sigma, residual_noise, with_counts):
     rng = np.random.default_rng(seed)
     n_texels = 7
     light = rng.uniform(0.0, 1.0, (n_texels, 3, LMAX + 1)) * np.exp(-rng.uniform(0, 1) * DEGREES)
     observed = light * rng.uniform(0.0, 1.0, (n_texels, 3, 1)) * np.exp(-rng.uniform(0, 2) * DEGREES)
     observed += rng.uniform(0.0, 0.05, observed.shape)
     config = UncertaintyConfig(mode=mode, grid_res=grid_res, noise_level=rng.uniform(0.01, 0.2),
-                               temperature=10 ** rng.uniform(-4, -1), residual_noise=residual_noise, lobe=lobe)
+                               temperature=10 ** rng.uniform(-4, -1), residual_noise=residual_noise)
     n_samples = rng.integers(0, 100, n_texels) if with_counts else None
-    # The texels' mean view cosines: with the "ggx" lobe, each row's lobe is scaled by its albedo there.
-    view_cos = rng.uniform(0.0, 1.0, n_texels) if with_albedo else None
-    fast = entropy(light, observed, n_samples=n_samples, view_cos=view_cos, sigma=sigma, config=config)
+    fast = entropy(light, observed, n_samples=n_samples, sigma=sigma, config=config)
     calibrated = mode == "calibrated"
-    albedo = None
-    if calibrated and with_albedo and lobe == "ggx":
-        albedo = split_sum_terms(view_cos[:, None], np.sqrt(fast.grid.alpha)[None, :])[0]
-        assert np.all((albedo > 0.0) & (albedo < 1.0))
     per_channel, likelihood, misfit = naive_grid(light, observed, sigma if calibrated else 0.0, config,
-                                                 n_samples if calibrated else None,
-                                                 albedo)
+                                                 n_samples if calibrated else None)
 
     texels = np.arange(n_texels)
     chosen = fast.channel.astype(int)
@@ -346,8 +309,7 @@ def test_entropy_map_from_observations_and_texture():
     light[1] = LOW_LIGHT
     observations = _observations_from_spectra(light, observed, np.array([0, 5, 15]), texture_res=4)
     result = unc.entropy_map(observations)
-    direct = entropy(light, observed, n_samples=observations.n_samples,
-                     view_cos=unc.view_cosine(observations))
+    direct = entropy(light, observed, n_samples=observations.n_samples)
     np.testing.assert_allclose(result.entropy, direct.entropy, atol=1e-5)  # float32 coefficients
     texture = result.to_texture(observations, "entropy", fill=-1.0)
     assert texture.shape == (4, 4)

@@ -209,8 +209,7 @@ def observe(
 
 def _config(preset: str, texture_res: int | None = None, lmax: int | None = None, *,
             estimator: str | None = None, model: str | None = None,
-            environment_occlusion: bool | None = None, entropy: str | None = None,
-            entropy_lobe: str | None = None):
+            environment_occlusion: bool | None = None, entropy: str | None = None):
     """The preset's Config with the options the user gave (None: keep the preset's value)."""
     import dataclasses
 
@@ -227,8 +226,7 @@ def _config(preset: str, texture_res: int | None = None, lmax: int | None = None
     )
     estimate_changes = _choices(config.estimate, {"method": ("estimator", estimator),
                                                   "forward_model": ("model", model)})
-    uncertainty_changes = _choices(config.uncertainty, {"mode": ("entropy mode", entropy),
-                                                        "lobe": ("entropy lobe", entropy_lobe)})
+    uncertainty_changes = _choices(config.uncertainty, {"mode": ("entropy mode", entropy)})
     return config.replace(texels=texels, fit=fit_settings, observe=observe_settings,
                           estimate=dataclasses.replace(config.estimate, **estimate_changes),
                           uncertainty=dataclasses.replace(config.uncertainty, **uncertainty_changes))
@@ -262,10 +260,6 @@ def _estimation_res(value: str, texture_res: int):
 ENTROPY_HELP = ("Entropy mode: calibrated (spectra, milliseconds), paper (the published recipe) or angular "
                 "(the estimator's model on the samples; agrees with a path tracer; seconds on its own, about 3 % "
                 "more time inside fit). Default: the preset's.")
-ENTROPY_LOBE_HELP = ("What a hypothesis is in the calibrated entropy: gaussian (the paper's exp(-(alpha l)^2), the "
-                     "default) or ggx (the GGX lobe with its albedo at the texel's view angle: agrees 2-2.6x better "
-                     "with a path tracer, but gives a higher entropy, which the flags' and sharing's thresholds were "
-                     "not tuned for).")
 
 
 def _print_json(document: dict) -> None:
@@ -290,7 +284,6 @@ def fit(
                                "robust pass, a coarser roughness grid: smoother maps, less time); or paper (the "
                                "prototype's hyper-parameters)."),
     entropy: str = typer.Option(None, help=ENTROPY_HELP),
-    entropy_lobe: str = typer.Option(None, help=ENTROPY_LOBE_HELP),
     share: bool = typer.Option(False, "--share", help="Pull uncertain texels towards affine confident anchors."),
     neighbour_vote: bool = typer.Option(
         True, "--neighbour-vote/--no-neighbour-vote", help="Let a texel whose data fit two roughness values "
@@ -316,8 +309,7 @@ def fit(
     from freqbrdf.capture import load
     from freqbrdf.progress import Reporter
 
-    config = _config(preset, texture_res, lmax, estimator=estimator, model=model, entropy=entropy,
-                     entropy_lobe=entropy_lobe)
+    config = _config(preset, texture_res, lmax, estimator=estimator, model=model, entropy=entropy)
     if share:
         config = config.replace(share=dataclasses.replace(config.share, enabled=True))
     if split_half:
@@ -365,7 +357,6 @@ def uncertainty(
     ),
     preset: str = typer.Option("default", help="default (calibrated entropy), fast (as default here) or paper."),
     entropy: str = typer.Option(None, help=ENTROPY_HELP),
-    entropy_lobe: str = typer.Option(None, help=ENTROPY_LOBE_HELP),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars or messages."),
     json_output: bool = typer.Option(False, "--json", help="Print the summary as JSON to stdout."),
 ) -> None:
@@ -379,7 +370,7 @@ def uncertainty(
     from freqbrdf.progress import Reporter
     from freqbrdf.uncertainty import entropy_map, summary as uncertainty_summary
 
-    config = _config(preset, texture_res, lmax, entropy=entropy, entropy_lobe=entropy_lobe)
+    config = _config(preset, texture_res, lmax, entropy=entropy)
     loaded = load(capture)
     pipeline.check_output_folder(out, {"the capture": loaded.root.resolve()})
     start = time.perf_counter()

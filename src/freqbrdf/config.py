@@ -106,7 +106,7 @@ class UncertaintyConfig:
     # 5.95 -> 6.14 s). It agrees with the path-traced brute force over the same grid
     # (benchmarks/pathtraced_entropy.py, 400 texels, 9 x 9 grid: Spearman 0.81 [0.76, 0.86] against
     # the pooled rendering of two seeds that agree with each other at 0.89) where the spectra do not
-    # (8 x 8 grid: calibrated 0.19, with lobe "ggx" 0.38, paper 0.17). Capture guidance (which
+    # (8 x 8 grid: calibrated 0.19, paper 0.17). Capture guidance (which
     # predicts spectra) needs "calibrated" or "paper".
     mode: Literal["calibrated", "paper", "angular"] = "calibrated"
     # R: R x R hypotheses (alpha_i = (i/(R-1))^2, k_j = j/(R-1)). None: the paper's 8 in the
@@ -118,21 +118,6 @@ class UncertaintyConfig:
     # Calibrated mode: noise std of one sample's radiance, relative to the light's RMS amplitude
     # sqrt(sum_l S_refl(l)); a fitted coefficient then has variance noise_level^2 P K / n_samples.
     noise_level: float = 0.02
-    # Calibrated mode: the lobe a hypothesis (alpha, k) is. "gaussian": the paper's
-    # exp(-(alpha l)^2), albedo 1 (k absorbs Fresnel and masking); "ggx": the GGX lobe's response
-    # to each degree (estimate.ggx_lobe_gains) times its albedo at the texel's mean view angle
-    # (split-sum, masking and Fresnel; uncertainty.hypothesis_albedo). "ggx" is the physics: with
-    # path-traced spectra of the same hypotheses scored as ours (benchmarks/pathtraced_entropy.py,
-    # 400 texels; they agree with themselves at 0.98) it ranks texels alike at Spearman 0.45
-    # against 0.17 for "gaussian", and the sample-domain brute force at 0.38 against 0.19. But it
-    # ranks the estimate's roughness errors a little worse (benchmarks/entropy_variants.py: 0.25
-    # against 0.28 on the bunny, 0.29 against 0.31 on the sphere, 0.02 against 0.09 on
-    # bunny_sunset, 0.17 against 0.12 on sphere_city, 0.13 both on sphere_studio) and raises the
-    # entropy (mean 0.45-0.53 against 0.38-0.45 there; 0.58-0.68 on 20-view fits), for which the
-    # applications' thresholds (ambiguous_entropy, ShareConfig) were not tuned: with it, sharing
-    # found no anchor on two of applications.py's four scenes and the flags masked 13-38 % of
-    # their texels instead of 2-4 %. So "gaussian" stays the default.
-    lobe: Literal["gaussian", "ggx"] = "gaussian"
     # Calibrated mode: add the best hypothesis's misfit per residual degree of freedom to the noise
     # variance (see freqbrdf.uncertainty); off reproduces a fixed noise_level.
     residual_noise: bool = True

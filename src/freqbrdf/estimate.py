@@ -289,8 +289,8 @@ def angular_loss(
             _diffuse_scale(observations)[rows], base_color[rows], metallic[rows],
             np.asarray(params.roughness, dtype=np.float64)[rows], observations.sigma, settings.fresnel,
             settings.masking, _uses_split_sum(settings), _uses_exact_dielectric(settings), _uses_burley(settings),
-            split_sum_table(), environment_response_table(), _burley_response(settings), azimuthal, blend, tangent[rows],
-            normal[rows], prefiltered, n_full, world_to_local, map_height, map_width, loss[rows],
+            split_sum_table(), environment_response_table(), _burley_response(settings), azimuthal, blend,
+            tangent[rows], normal[rows], prefiltered, n_full, world_to_local, map_height, map_width, loss[rows],
         )
     return np.where(observations.n_samples > 0, loss, np.nan)
 
@@ -1131,14 +1131,16 @@ def _squared_residual_kernel(
     split_sum, exact_dielectric, burley, table, response, burley_response, azimuthal, environment_blend, tangent,
     normal, prefiltered, n_full, world_to_local, map_height, map_width, out,
 ):
-    """out[t] = sum_v,c w^2 (L - f)^2 / sum_v w^2 (0 without samples); directions (n, V, 3) local view
-    directions. proj (n, 3, l*+1, V): `_mirror_projections`. The specular is m (b X + Y) + (1 - m) Z with X = A S_A, Y = B S_B (S_k: the light
-    filtered for term k, `lobe_filtered_light`) and Z = E S_E with ``exact_dielectric``, else
-    Schlick's 0.04 X + Y. With azimuthal (n, V, 3, P > 0) (`environment_azimuthal`) each S_k is
-    blended towards the environment light (`environment_filtered_light`; response
-    `environment_response_table`), and with burley_response (4, cos nodes, P > 0) Burley's diffuse is
-    averaged over its light (`environment_burley_factor`). With prefiltered maps (H W, nodes, 3) the lobes read
-    `prefiltered_light` (texel frames tangent and normal (n, 3)) instead of proj."""
+    """out[t] = sum_v,c w^2 (L - f)^2 / sum_v w^2 (0 without samples); directions (n, V, 3) local
+    view directions. proj (n, 3, l*+1, V): `_mirror_projections`. The specular is
+    m (b X + Y) + (1 - m) Z with X = A S_A, Y = B S_B (S_k: the light filtered for term k,
+    `lobe_filtered_light`) and Z = E S_E with ``exact_dielectric``, else Schlick's 0.04 X + Y.
+    With azimuthal (n, V, 3, P > 0)
+    (`environment_azimuthal`) each S_k is blended towards the environment light
+    (`environment_filtered_light`; response `environment_response_table`), and with burley_response
+    (4, cos nodes, P > 0) Burley's diffuse is averaged over its light (`environment_burley_factor`).
+    With prefiltered maps (H W, nodes, 3) the lobes read `prefiltered_light` (texel frames tangent
+    and normal (n, 3)) instead of proj."""
     n_texels, n_views = weight.shape
     n_degrees = proj.shape[2]
     n_terms = len(LOBE_TERMS)
@@ -2063,7 +2065,8 @@ def _global_search_kernel(
     With prefiltered (H W, nodes, 3) maps (`prefiltered_environment` of an H x W map whose
     emitter frame is world_to_local (3, 3) from the world), smooth lobes read them at the world
     mirror directions instead of the fitted light. Else, per texel the light is expanded by
-    degree at its samples (P_c,l(w_v), `_mirror_projections`; fused here to keep it in cache). Then the roughness is searched (if ``search``).
+    degree at its samples (P_c,l(w_v), `_mirror_projections`; fused here to keep it in cache). Then
+    the roughness is searched (if ``search``).
     With hypothesis_roughness (R,): `hypothesis_moments` of each texel into hypothesis_moments
     (n, R, 3, 8), those of node_rows (roughness_grid,) (`_node_rows`; (0,): none) recorded by the
     search's first scan, the others probed before it. With candidate (n, 2) (roughness, metallic) instead of a
