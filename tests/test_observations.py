@@ -15,7 +15,6 @@ samples and Mitsuba's pixels is Monte Carlo noise and the pixel footprint.
 """
 
 import json
-import math
 import sys
 from dataclasses import replace
 from unittest import mock
@@ -29,7 +28,7 @@ from freqbrdf.assets import envmap_path
 from freqbrdf.camera import Occluder
 from freqbrdf.capture import load
 from freqbrdf.cli import main
-from freqbrdf.config import Config, FitConfig, ObserveConfig, TexelConfig
+from freqbrdf.config import Config, FitConfig, TexelConfig
 from freqbrdf.envmap import Envmap, load_envmap, lookup
 from freqbrdf.errors import InputError
 from freqbrdf.images import write_exr
@@ -38,8 +37,6 @@ from freqbrdf.mesh import Mesh
 from freqbrdf.observations import (
     Observations,
     _sample_bilinear,
-    blocked_irradiance,
-    cosine_directions,
     observe,
     texel_irradiance,
 )
@@ -371,62 +368,6 @@ def test_observe_command_writes_observations_and_maps(checker_bunny, tmp_path, m
     assert exit_info.value.code == 2
     error = capsys.readouterr().err
     assert "nowhere" in error and len(error.strip().splitlines()) == 1
-
-
-# --- environment occlusion --------------------------------------------------------------------------
-
-
-def test_cosine_directions_are_cosine_distributed():
-    directions = cosine_directions(256)
-    np.testing.assert_allclose(np.linalg.norm(directions, axis=1), 1.0, atol=1e-12)
-    assert (directions[:, 2] > 0).all()
-    # For density cos(theta) / pi: E[cos] = 2/3, E[cos^2] = 1/2, and no preferred azimuth.
-    assert abs(directions[:, 2].mean() - 2.0 / 3.0) < 2e-3
-    assert abs((directions[:, 2] ** 2).mean() - 0.5) < 2e-3
-    np.testing.assert_allclose(directions[:, :2].mean(axis=0), 0.0, atol=0.02)
-
-
-def test_blocked_irradiance_of_a_square_roof_matches_its_form_factor():
-    """Points under a square (half side a, height h, centred) with uniform radiance 1 around
-    lose pi F of their irradiance, F the point-to-parallel-square form factor
-    F = (2/pi) X/sqrt(1+X^2) atan(X/sqrt(1+X^2)), X = a/h. The estimate per texel is a 64-ray
-    sum; the mean over 2000 texels (each turned differently) must match within 1 %."""
-    half_side, height = 1.0, 1.0
-    corners = np.array([[-1, -1, height], [1, -1, height], [1, 1, height], [-1, 1, height]], float)
-    corners[:, :2] *= half_side
-    roof = Mesh(vertices=corners, faces=np.array([[0, 2, 1], [0, 3, 2]]),
-                normals=np.tile([0.0, 0.0, -1.0], (4, 1)), uv=np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float))
-    n_texels = 2000
-    origins = np.zeros((n_texels, 3), np.float32)
-    frame = np.broadcast_to(np.eye(3), (n_texels, 3, 3))  # t = x, b = y, n = z
-    uniform = Envmap(np.ones((16, 32, 3), np.float32))
-    blocked = blocked_irradiance(Occluder(roof), uniform, origins, frame, 64, seed=0)
-    x = half_side / height
-    form_factor = 2.0 / np.pi * x / math.sqrt(1 + x * x) * math.atan(x / math.sqrt(1 + x * x)) * 2.0
-    np.testing.assert_allclose(blocked.mean(axis=0), np.pi * form_factor, rtol=0.01)
-    # Each texel's estimate counts whole rays: a multiple of pi / 64.
-    np.testing.assert_allclose(blocked[:, 0] / (np.pi / 64), np.round(blocked[:, 0] / (np.pi / 64)), atol=1e-4)
-
-
-@pytest.mark.slow
-def test_environment_occlusion_changes_nothing_on_a_sphere_and_only_darkens_the_bunny(
-    lambertian_sphere, checker_bunny
-):
-    occluding = Config(texels=TexelConfig(texture_res=TEXTURE_RES), observe=ObserveConfig(environment_occlusion=True))
-    capture, plain = lambertian_sphere
-    traced = observe(capture, occluding)
-    assert traced.environment_occlusion and not plain.environment_occlusion
-    np.testing.assert_array_equal(traced.mirrored, plain.mirrored)  # convex: nothing blocks
-    np.testing.assert_allclose(traced.irradiance, plain.irradiance, rtol=1e-3)
-
-    capture, plain, _ = checker_bunny
-    traced = observe(capture, occluding)
-    sampled = plain.weight > 0
-    zeroed = sampled & (traced.mirrored == 0).all(axis=2) & (plain.mirrored > 0).any(axis=2)
-    assert 0.01 < zeroed.sum() / sampled.sum() < 0.5
-    np.testing.assert_array_equal(traced.mirrored[sampled & ~zeroed], plain.mirrored[sampled & ~zeroed])
-    assert (traced.irradiance <= plain.irradiance + 1e-6).all()
-    assert np.mean(traced.irradiance.sum(axis=1) < 0.97 * plain.irradiance.sum(axis=1)) > 0.1
 
 
 @pytest.mark.skipif(__import__("platform").machine() != "x86_64", reason="reads glibc's x86-64 fenv_t layout")

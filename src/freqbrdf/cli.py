@@ -163,9 +163,6 @@ def observe(
     ),
     texture_res: int = typer.Option(512, min=1, help="Texture resolution T (maps are T x T)."),
     lmax: int = typer.Option(5, min=0, help="Degree l* of the per-texel SH fits."),
-    environment_occlusion: bool = typer.Option(
-        False, help="Trace the object's occlusion of its own environment (beyond the paper)."
-    ),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
 ) -> None:
     """Per-texel observations and SH spectra: observations.npz, coverage and visibility maps."""
@@ -179,7 +176,7 @@ def observe(
     from freqbrdf.observations import observe as observe_capture, write_maps
     from freqbrdf.progress import Reporter
 
-    config = _config("default", texture_res, lmax, environment_occlusion=environment_occlusion)
+    config = _config("default", texture_res, lmax)
     observations = observe_capture(load(capture), config, Reporter(enabled=not quiet))
     _results_from_cache(quiet)
     folder = Path(out)
@@ -192,7 +189,6 @@ def observe(
         "views": observations.n_views,
         "texels_with_samples": int((observations.n_samples > 0).sum()),
         "median_samples_per_texel": float(np.median(observations.n_samples)),
-        "environment_occlusion": observations.environment_occlusion,
         "config": config.to_dict(),
         "timings_s": {stage: round(seconds, 4) for stage, seconds in observations.timings.items()},
     }
@@ -209,7 +205,7 @@ def observe(
 
 def _config(preset: str, texture_res: int | None = None, lmax: int | None = None, *,
             estimator: str | None = None, model: str | None = None,
-            environment_occlusion: bool | None = None, entropy: str | None = None):
+            entropy: str | None = None):
     """The preset's Config with the options the user gave (None: keep the preset's value)."""
     import dataclasses
 
@@ -220,14 +216,10 @@ def _config(preset: str, texture_res: int | None = None, lmax: int | None = None
     config = named_preset(preset)
     texels = dataclasses.replace(config.texels, **({} if texture_res is None else {"texture_res": texture_res}))
     fit_settings = dataclasses.replace(config.fit, **({} if lmax is None else {"lmax": lmax}))
-    observe_settings = dataclasses.replace(
-        config.observe,
-        **({} if environment_occlusion is None else {"environment_occlusion": environment_occlusion}),
-    )
     estimate_changes = _choices(config.estimate, {"method": ("estimator", estimator),
                                                   "forward_model": ("model", model)})
     uncertainty_changes = _choices(config.uncertainty, {"mode": ("entropy mode", entropy)})
-    return config.replace(texels=texels, fit=fit_settings, observe=observe_settings,
+    return config.replace(texels=texels, fit=fit_settings,
                           estimate=dataclasses.replace(config.estimate, **estimate_changes),
                           uncertainty=dataclasses.replace(config.uncertainty, **uncertainty_changes))
 

@@ -60,18 +60,6 @@ class TexelConfig:
 
 
 @dataclass(frozen=True)
-class ObserveConfig:
-    """Per-texel samples from the photographs (METHOD.md §3.2)."""
-
-    # Beyond the paper: the object's own occlusion of the environment. A mirror direction that
-    # hits the object gets radiance 0 (interreflection ignored), and the irradiance loses the
-    # light of blocked directions, estimated with `occlusion_rays` cosine-weighted rays per texel.
-    # Off until it is shown to help (benchmarks/bench_observe.py measures it).
-    environment_occlusion: bool = False
-    occlusion_rays: int = 64
-
-
-@dataclass(frozen=True)
 class FitConfig:
     """The weighted, degree-regularised SH least squares (appendix eqs. 19-20, App. B)."""
 
@@ -297,7 +285,6 @@ class ShareConfig:
 @dataclass(frozen=True)
 class Config:
     texels: TexelConfig = field(default_factory=TexelConfig)
-    observe: ObserveConfig = field(default_factory=ObserveConfig)
     fit: FitConfig = field(default_factory=FitConfig)
     uncertainty: UncertaintyConfig = field(default_factory=UncertaintyConfig)
     estimate: EstimateConfig = field(default_factory=EstimateConfig)

@@ -360,9 +360,6 @@ def candidate_samples(
     sigma = observations.sigma
     lit = envmaps.lowpass_envmap(capture.envmap, sigma) if sigma > 0 else capture.envmap
     light = envmaps.lookup(lit, mirror).astype(np.float64)
-    if observations.environment_occlusion:
-        blocked = occluder.hits(ray_origin[texel_of_ray], mirror)
-        light[blocked] = 0.0
     basis = sh.eval_sh(local, lmax)
     bounds = np.cumsum([0] + [len(rows) for rows, _ in seen])  # the rays come view by view
     return [
