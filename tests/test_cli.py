@@ -60,20 +60,18 @@ def test_fit_and_evaluate_commands(run_cli, tiny_capture, tmp_path, monkeypatch,
     assert (evaluation / "sparsification.png").is_file() and len(list((evaluation / "relight").glob("*.png"))) == 2
 
     shared_dir = tmp_path / "shared"
-    assert run_cli("fit", tiny_capture, "--out", shared_dir, "--texture-res", 32, "--share", "--anisotropic-lobes",
-                   "--footprint-blur", "--no-neighbour-vote", "--split-half", "--estimation-res", 16, "--quiet") == 0
+    assert run_cli("fit", tiny_capture, "--out", shared_dir, "--texture-res", 32, "--share",
+                   "--no-neighbour-vote", "--split-half", "--estimation-res", 16, "--quiet") == 0
     assert capsys.readouterr().out == ""
     shared_summary = json.loads((shared_dir / "summary.json").read_text())
     assert shared_summary["settings"]["share"]["enabled"] and "share" in shared_summary["timings"]
     shared_settings, default_settings = shared_summary["settings"]["estimate"], summary["settings"]["estimate"]
-    assert shared_settings["anisotropic_lobes"] and shared_settings["footprint_blur"]
     assert not shared_settings["neighbour_vote"]
     assert shared_summary["settings"]["uncertainty"]["split_half"]
     assert shared_summary["estimation_res"] == 16 and summary["estimation_res"] == 32  # "pixel" keeps T here
     assert shared_summary["coverage"]["texture_res"] == 32
     assert not summary["settings"]["uncertainty"]["split_half"]
     # The default fit's:
-    assert not default_settings["anisotropic_lobes"] and not default_settings["footprint_blur"]
     assert default_settings["neighbour_vote"]
 
     paper_dir = tmp_path / "paper"
@@ -108,17 +106,8 @@ def test_uncertainty_command(run_cli, tiny_capture, tmp_path, monkeypatch, capsy
     other = tmp_path / "other"
     assert run_cli("uncertainty", tiny_capture, "--out", other, "--entropy", "sharpest") == 2
     assert "unknown entropy mode" in capsys.readouterr().err and not other.exists()
-    # The GGX lobe: recorded in the summary, and a different map; a lobe that does not exist.
-    assert summary["uncertainty"]["lobe"] == "gaussian" and summary["uncertainty"]["grid_res"] == 8
-    # The angular mode's grid and lobes: by default the estimator's (9 roughness nodes, isotropic).
-    assert angular["uncertainty"]["lobe"] == "isotropic" and angular["uncertainty"]["grid_res"] == 9
-    assert run_cli("uncertainty", tiny_capture, "--out", out, "--texture-res", 32, "--entropy-lobe", "ggx",
-                   "--json") == 0
-    ggx = json.loads(capsys.readouterr().out)
-    assert ggx["uncertainty"]["lobe"] == "ggx" and ggx["settings"]["uncertainty"]["lobe"] == "ggx"
-    assert ggx["uncertainty"]["entropy_mean"] != summary["uncertainty"]["entropy_mean"]
-    assert run_cli("uncertainty", tiny_capture, "--out", other, "--entropy-lobe", "phong") == 2
-    assert "unknown entropy lobe" in capsys.readouterr().err and not other.exists()
+    # The grids: 8 x 8 in the spectral modes, the estimator's 9 roughness nodes in the angular mode.
+    assert summary["uncertainty"]["grid_res"] == 8 and angular["uncertainty"]["grid_res"] == 9
     # The system refusing the write: one line naming the path, exit 1, the previous output kept.
     files_before = sorted(p.name for p in out.iterdir())
 

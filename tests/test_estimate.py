@@ -11,32 +11,13 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from freqbrdf.config import Config, EstimateConfig, FitConfig
-from freqbrdf.estimate import (
-    LOBE_TERMS,
-    angular_loss,
-    burley_diffuse_factor,
-    dielectric_fresnel,
-    environment_burley_factor,
-    environment_filtered_light,
-    environment_response,
-    environment_response_table,
-    environment_weight,
-    estimate,
-    fit_lobe_tilt,
-    ggx_lobe_gains,
-    integrate_split_sum_table,
-    lobe_filtered_light,
-    lobe_sh_response,
-    lobe_spread,
-    lobe_tilt_nodes,
-    lobe_tilt_table,
-    lobe_width_table,
-    prefilter_nodes,
-    prefiltered_environment,
-    prefiltered_light,
-    split_sum_table,
-    split_sum_terms,
-)
+from freqbrdf.estimate import (LOBE_TERMS, angular_loss, burley_diffuse_factor, dielectric_fresnel,
+                               environment_burley_factor, environment_filtered_light, environment_response,
+                               environment_response_table,
+                               environment_weight, estimate, ggx_lobe_gains,
+                               integrate_split_sum_table, lobe_filtered_light, lobe_sh_response, prefilter_nodes,
+                               prefiltered_environment, prefiltered_light, split_sum_table, split_sum_terms,
+                               table_nodes)
 from freqbrdf.model import brdf
 from freqbrdf.observe.observations import Observations
 from freqbrdf.sphere import envmap as envmaps
@@ -56,27 +37,22 @@ def synthetic_observations(
     shadowing: bool = True,
     unobserved: np.ndarray | None = None,
     fit: FitConfig = FitConfig(),
-    lobe_tilt: bool = False,
     exact_dielectric: bool = True,
     environment_light: bool = False,
     prefiltered: bool = False,
     environment_blend: tuple[float, float] = EstimateConfig().environment_blend,
-    anisotropic: bool = EstimateConfig().anisotropic_lobes,
-    footprint: bool = False,
 ) -> Observations:
     """Observations of texels with known parameters, rendered by one of the global estimator's models.
 
     ``model`` "angular": brdf.predict_angular (METHOD.md §3.6, G1-shadowed light when
     ``shadowing``); "split_sum": our default, m (b A S_A + B S_B) + (1 - m) E S_E with S_k the
-    filtered unshadowed light read in the mirror direction, or with ``lobe_tilt`` at the direction
-    tilted for lobe term k (`lobe_filtered_light`), E the exact dielectric's albedo (Schlick's
-    0.04 A S_A + B S_B without ``exact_dielectric``), plus Burley's diffuse, written here with numpy
+    filtered unshadowed light read in the mirror direction (`lobe_filtered_light`), E the exact
+    dielectric's albedo (Schlick's 0.04 A S_A + B S_B without ``exact_dielectric``), plus Burley's diffuse, written here with numpy
     from `split_sum_terms` and `burley_diffuse_factor`. With ``environment_light`` each S_k is
     blended towards `environment_filtered_light` of a world-frame environment (random frames) over
     ``environment_blend``, and Burley's factor is `environment_burley_factor` under it. With ``prefiltered`` the lobes read `prefiltered_light` of a rotated
-    32 x 64 map (degrees up to 12; as ``anisotropic`` lobes) instead of the fitted light, the environment light gains the
-    map's degrees above 5 (prefiltered), and the observations carry the map (with ``footprint``, a
-    random `Observations.footprint` of 0-0.06 rad per sample blurs those lobes); the environment is
+    32 x 64 map (degrees up to 12) instead of the fitted light, the environment light gains the
+    map's degrees above 5 (prefiltered), and the observations carry the map; the environment is
     then that map's SH. Without either, the observations carry no environment
     (tangent None), as hand-made ones.
 
@@ -108,7 +84,6 @@ def synthetic_observations(
     environment = rng.normal(0.0, 0.3, (sh.num_coeffs(LMAX), 3))  # world-frame SH, a bright DC
     environment[0] = 3.0
     environment_map = None
-    sample_footprint = rng.uniform(0.0, 0.06, (n_texels, n_views)) if footprint else None
     if prefiltered:
         detail = rng.normal(0.0, 0.4, (sh.num_coeffs(12), 3)) / (1.0 + sh.sh_degrees(12)[:, None]) ** 0.5
         detail[0] = 3.0
@@ -129,17 +104,15 @@ def synthetic_observations(
         if prefiltered:
             settings = EstimateConfig(environment_light=environment_light, environment_blend=environment_blend)
             maps = prefiltered_environment(environment_map, prefilter_nodes(settings))
-            own_light = prefiltered_light(directions, tangent, normal, maps, environment_map.rotation, truth.roughness,
-                                          anisotropic, sample_footprint)
+            own_light = prefiltered_light(directions, tangent, normal, maps, environment_map.rotation, truth.roughness)
             # The environment light holds degrees <= 5; the prefiltered maps add the ones above.
             high = prefiltered_environment(environment_map, prefilter_nodes(EstimateConfig(environment_light=False)),
                                            skip_degrees=LMAX + 1)
-            high_light = prefiltered_light(directions, tangent, normal, high, environment_map.rotation, truth.roughness,
-                                           footprint=sample_footprint)
+            high_light = prefiltered_light(directions, tangent, normal, high, environment_map.rotation, truth.roughness)
 
         def light(term):
             fitted = own_light if prefiltered else lobe_filtered_light(
-                directions, weight, light_fit.coeffs[:, :3], LMAX, sigma, truth.roughness, lobe_tilt, term)
+                directions, weight, light_fit.coeffs[:, :3], LMAX, sigma, truth.roughness)
             if not environment_light:
                 return fitted
             return (1.0 - share) * fitted + share * (environment_filtered_light(
@@ -188,7 +161,6 @@ def synthetic_observations(
         environment_coeffs=environment.astype(f32) if environment_light or prefiltered else None,
         environment_radiance=environment_map.radiance if prefiltered else None,
         environment_rotation=environment_map.rotation if prefiltered else None,
-        footprint=None if sample_footprint is None else np.where(visible, sample_footprint, 0.0).astype(f32),
     )
 
 
@@ -302,15 +274,6 @@ def test_brent_matches_scipy_fminbound(seeded):
     assert evaluations <= calls - (2 if seeded else 0)
 
 
-def test_global_recovers_parameters_exactly_with_the_tilted_lobe_lookup(truth):
-    observations = synthetic_observations(truth, seed=17, model="split_sum", lobe_tilt=True)
-    result = estimate(observations, Config(estimate=EstimateConfig(lobe_tilt=True, prefiltered_light=False)))
-    _assert_recovered(result, truth, atol=1e-4)
-    assert np.all(result.loss < 1e-10)
-    # The mirror lookup (the default) does not explain these data.
-    assert np.median(estimate(observations, Config()).loss) > 1e4 * np.median(result.loss)
-
-
 def test_global_recovers_parameters_exactly_with_the_environment_light(truth):
     # Rough lobes read the world environment through the lobe's SH response, blended in over
     # roughness 0.3-0.6; the truth's roughness spans 0.2-1, so all three regimes occur.
@@ -350,29 +313,6 @@ def test_global_recovers_parameters_exactly_with_the_prefiltered_light(truth):
         result = estimate(data, Config(estimate=settings))
         _assert_recovered(result, truth, atol=1e-4)
         assert np.all(result.loss < 1e-10)
-    # Anisotropic lobes: recovered exactly by that model, not by the default's isotropic ones.
-    anisotropic_data = synthetic_observations(truth, seed=23, model="split_sum", environment_light=True,
-                                              prefiltered=True, anisotropic=True)
-    anisotropic = estimate(anisotropic_data, Config(estimate=EstimateConfig(anisotropic_lobes=True)))
-    _assert_recovered(anisotropic, truth, atol=1e-4)
-    assert np.all(anisotropic.loss < 1e-10)
-    np.testing.assert_allclose(anisotropic.loss, angular_loss(anisotropic_data, anisotropic.principled(),
-                                                              Config(estimate=EstimateConfig(anisotropic_lobes=True))),
-                               atol=1e-12)
-    assert np.median(estimate(anisotropic_data, Config()).loss[smooth]) > 1e4 * np.median(anisotropic.loss[smooth])
-    # Each sample's lobe blurred by the normals across its footprint: recovered exactly with
-    # footprint_blur, not without it; with anisotropic lobes as well.
-    for lobes in (False, True):
-        blurred = synthetic_observations(truth, seed=31, model="split_sum", environment_light=True, prefiltered=True,
-                                         anisotropic=lobes, footprint=True)
-        settings = EstimateConfig(anisotropic_lobes=lobes, footprint_blur=True)
-        result = estimate(blurred, Config(estimate=settings))
-        _assert_recovered(result, truth, atol=1e-4)
-        assert np.all(result.loss < 1e-10)
-        np.testing.assert_allclose(angular_loss(blurred, result.principled(), Config(estimate=settings)), result.loss,
-                                   atol=1e-12)
-        unblurred = estimate(blurred, Config(estimate=dataclasses.replace(settings, footprint_blur=False)))
-        assert np.median(unblurred.loss[smooth]) > 1e4 * np.median(result.loss[smooth])
 
 
 def test_ggx_lobe_gains_match_the_lobe_response_at_normal_incidence():
@@ -486,24 +426,6 @@ def test_split_sum_table_is_mitsubas_principled_bsdf():
             assert np.mean(np.array(weight.x)) == pytest.approx(expected, abs=6e-3)
 
 
-def test_shipped_lobe_tilt_table_matches_a_fresh_fit():
-    tables = lobe_tilt_table()
-    cos_nodes, roughness_nodes = lobe_tilt_nodes()
-    assert tables.shape == (len(LOBE_TERMS), len(cos_nodes), len(roughness_nodes))
-    for term, table in zip(LOBE_TERMS, tables):
-        for i, j in [(4, 26), (16, 13), (28, 20), (10, 32)]:
-            assert fit_lobe_tilt(cos_nodes[i], roughness_nodes[j], term) == pytest.approx(table[i, j], abs=1e-3)
-        # A mirror is read in the mirror direction; a rough lobe leans towards the normal, the more
-        # so the rougher it is (up to cos theta_o 0.9: near normal incidence all tilts look alike).
-        assert np.all(table[:, 0] > 0.98)
-        assert np.all(np.diff(table[4:30, 8:], axis=1) <= 1e-3)
-    # Fresnel weights the grazing half vectors up: E's lobe leans less than A's, and Schlick's F_c
-    # part hardly at all away from grazing views.
-    scale, bias, dielectric = tables
-    assert np.all(scale[:30, -1] < 0.01) and np.all(dielectric[4:30, 24:] > scale[4:30, 24:] + 0.05)
-    assert np.all(bias[12:30] > 0.95)
-
-
 def test_the_prefiltered_map_of_a_mirror_is_the_map_itself():
     # A small bright light on a dim sky: filtered in SH up to the map's limit, a mirror's map would
     # ring (Gibbs) across the sky; it is the map itself, and the other lobes are filtered.
@@ -525,25 +447,9 @@ def test_the_prefiltered_map_of_a_mirror_is_the_map_itself():
     np.testing.assert_allclose(high[0], radiance - low, atol=1e-3)
 
 
-def test_shipped_lobe_width_table_matches_a_fresh_computation():
-    along, across = lobe_width_table()
-    cos_nodes, roughness_nodes = lobe_tilt_nodes()
-    assert along.shape == across.shape == (len(cos_nodes), len(roughness_nodes))
-    for i, j in [(4, 5), (16, 9), (28, 14), (10, 20)]:
-        normal_incidence = lobe_spread(1.0, roughness_nodes[j])[1]
-        fresh = np.array(lobe_spread(cos_nodes[i], roughness_nodes[j])) / normal_incidence
-        np.testing.assert_allclose(fresh, [along[i, j], across[i, j]], atol=2e-4)
-    # Isotropic at normal incidence; a narrow lobe keeps its width in the plane of incidence and
-    # narrows to cos theta_o across it (the half vector's spread projected); a rough one less so.
-    np.testing.assert_allclose([along[-1], across[-1]], 1.0, atol=1e-6)
-    np.testing.assert_allclose(along[8:, 1], 1.0, atol=0.03)
-    np.testing.assert_allclose(across[8:, 1], cos_nodes[8:], atol=0.03)
-    assert np.all(across[8:30, 20] > cos_nodes[8:30] + 0.05)
-
-
 def test_shipped_environment_response_table_matches_a_fresh_computation():
     tables = environment_response_table()
-    cos_nodes = lobe_tilt_nodes()[0]
+    cos_nodes = table_nodes()[0]
     roughness_nodes = np.linspace(0.0, 1.0, tables.shape[1])
     pairs = [(l, m) for l in range(LMAX + 1) for m in range(l + 1)]
     assert tables.shape == (len(LOBE_TERMS), 17, len(cos_nodes), len(pairs))
@@ -589,10 +495,10 @@ def test_environment_light_is_the_lobe_integral_of_any_environment():
         assert error.mean() < 0.005 and error.max() < 0.02
 
 
-def test_tilted_lookup_predicts_a_rough_lobe_under_a_sky():
+def test_environment_light_predicts_a_rough_lobe_under_a_sky():
     # A rough metal under a sky brighter overhead (L = 1 + 2 z^2 + z, z up), viewed at grazing
-    # angles: the split-sum prediction with the tilted lookup against the lobe integrated by Monte
-    # Carlo. The mirror-direction lookup sees the dim horizon.
+    # angles: the split-sum prediction with the environment light against the lobe integrated by
+    # Monte Carlo. The mirror-direction lookup of the fitted light sees the dim horizon.
     rng = np.random.default_rng(21)
     n_views, roughness, alpha = 48, 0.8, 0.64
     cos_theta = rng.uniform(0.05, 0.5, n_views)
@@ -610,8 +516,6 @@ def test_tilted_lookup_predicts_a_rough_lobe_under_a_sky():
     grid /= np.linalg.norm(grid, axis=1, keepdims=True)
     coeffs, *_ = np.linalg.lstsq(sh.eval_sh(grid, LMAX), sky(grid[:, 2]), rcond=None)
     light = np.repeat(coeffs[None, None, :], 3, axis=1)
-    tilted_scale, tilted_bias = (lobe_filtered_light(directions, weight, light, LMAX, 0.0, np.array([roughness]),
-                                                     term=term)[0, :, 0] for term in ("scale", "bias"))
     mirror = np.exp(-(alpha * np.arange(LMAX + 1)) ** 2) @ np.stack(
         [sh.eval_sh(directions[0], LMAX)[:, sh.sh_degrees(LMAX) == l] @ coeffs[sh.sh_degrees(LMAX) == l]
          for l in range(LMAX + 1)])
@@ -628,17 +532,17 @@ def test_tilted_lookup_predicts_a_rough_lobe_under_a_sky():
         lobe = np.where((light_z > 0) & (view_dot_half > 0), brdf.smith_g1_ggx(np.maximum(light_z, 1e-9), alpha)
                         * brdf.smith_g1_ggx(cos_theta[v], alpha) * view_dot_half / (cos_theta[v] * cos_half), 0.0)
         truth[v] = np.mean(lobe * sky(light_z))  # R0 = 1: the lobe integral of the light
-    tilted_error = np.abs((scale * tilted_scale + bias * tilted_bias) / truth - 1.0)
     mirror_error = np.abs((scale + bias) * mirror / truth - 1.0)
-    assert np.mean(tilted_error) < 0.05 and np.mean(tilted_error) < 0.3 * np.mean(mirror_error)
+    np.testing.assert_allclose(mirror, lobe_filtered_light(directions, weight, light, LMAX, 0.0,
+                                                           np.array([roughness]))[0, :, 0], rtol=1e-4)
     # The environment light reads the sky's own SH (here in a texel frame turned about the normal,
-    # which a zonal sky does not notice) with the lobe's per-degree gains: closer still.
+    # which a zonal sky does not notice) with the lobe's per-degree gains.
     normal, tangent = np.array([[0.0, 0.0, 1.0]]), np.array([[0.6, 0.8, 0.0]])
     environment_scale, environment_bias = (
         environment_filtered_light(directions, weight, tangent, normal, light[0].T, np.array([roughness]), term)[0, :, 0]
         for term in ("scale", "bias"))
     environment_error = np.abs((scale * environment_scale + bias * environment_bias) / truth - 1.0)
-    assert np.mean(environment_error) < 0.02 and np.mean(environment_error) < 0.5 * np.mean(tilted_error)
+    assert np.mean(environment_error) < 0.02 and np.mean(environment_error) < 0.15 * np.mean(mirror_error)
 
 
 def test_environment_burley_factor_is_mitsubas_diffuse_under_that_light():
@@ -942,7 +846,6 @@ def test_config_presets_and_validation(unshadowed):
 
     for make, message in ((lambda: UncertaintyConfig(mode="angualr"), "UncertaintyConfig.mode must be one of "
                                                                       "'calibrated', 'paper', 'angular'; got 'angualr'"),
-                          (lambda: UncertaintyConfig(lobe="phong"), "UncertaintyConfig.lobe"),
                           (lambda: EstimateConfig(method="adam"), "EstimateConfig.method"),
                           (lambda: FitConfig(regulariser="l2"), "FitConfig.regulariser"),
                           (lambda: dataclasses.replace(Config().estimate, diffuse_model="oren"), "diffuse_model"),

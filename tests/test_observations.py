@@ -15,7 +15,6 @@ samples and Mitsuba's pixels is Monte Carlo noise and the pixel footprint.
 """
 
 import json
-import math
 import sys
 from dataclasses import replace
 from unittest import mock
@@ -28,33 +27,20 @@ from freqbrdf.assets import envmap_path
 from freqbrdf.capture.layouts import load
 from freqbrdf.capture.mesh import Mesh
 from freqbrdf.cli import main
-from freqbrdf.config import (
-    Config,
-    EstimateConfig,
-    FitConfig,
-    ObserveConfig,
-    TexelConfig,
-)
+from freqbrdf.config import Config, FitConfig, TexelConfig
+from freqbrdf.sphere.envmap import Envmap, load_envmap, lookup
 from freqbrdf.errors import InputError
-from freqbrdf.estimate import (
-    prefilter_nodes,
-    prefiltered_environment,
-    prefiltered_light,
-)
 from freqbrdf.images import write_exr
 from freqbrdf.model.materials import MaterialMaps, save_material_maps
 from freqbrdf.observe.observations import (
     Observations,
     _sample_bilinear,
-    blocked_irradiance,
-    cosine_directions,
     observe,
     texel_irradiance,
 )
 from freqbrdf.render import scenes as render
 from freqbrdf.render.occluder import Occluder
 from freqbrdf.sphere import harmonics as sh
-from freqbrdf.sphere.envmap import Envmap, load_envmap, lookup
 from freqbrdf.synthetic.synth import SynthSettings, synthesize
 from freqbrdf.texels import rasterise
 
@@ -204,56 +190,6 @@ def test_observed_radiance_is_the_pixel_the_texel_projects_to(mirror_sphere):
         near_centre_errors.append(difference / image[rows, cols])
     near_centre_errors = np.concatenate(near_centre_errors)
     assert len(near_centre_errors) > 200 and np.median(near_centre_errors) < 0.015  # measured: 0.9 %
-
-
-def test_footprint_is_the_normal_spread_over_half_a_pixel_on_a_sphere(mirror_sphere):
-    """On a sphere of radius R the normal turns by the distance moved / R. Half a pixel (RMS, the
-    default footprint_pixels) at distance d is 0.5 d / f across the line of sight and 1 / cos theta
-    times that along the view's azimuth on the surface, so the RMS angle per axis is
-    0.5 d / (f R) sqrt((1 + 1 / cos^2) / 2)."""
-    capture, observations = mirror_sphere
-    texels = rasterise(capture.mesh, TEXTURE_RES)
-    radius = np.linalg.norm(texels.position, axis=1).mean()
-    for view, frame in enumerate(capture.frames):
-        camera = frame.camera
-        sampled = observations.weight[:, view] > 0
-        distance = np.linalg.norm(texels.position[sampled] - camera.camera_to_world[:3, 3], axis=1)
-        cos_theta = observations.view_direction[sampled, view, 2].astype(np.float64)
-        expected = (ObserveConfig().footprint_pixels * distance / (math.sqrt(camera.fx * camera.fy) * radius)
-                    * np.sqrt(0.5 * (1.0 + 1.0 / cos_theta**2)))
-        np.testing.assert_allclose(observations.footprint[sampled, view], expected, rtol=0.01)
-        assert np.all(observations.footprint[~sampled, view] == 0.0)
-
-
-@pytest.mark.slow
-def test_footprint_blur_explains_a_mirror_sphere_under_the_full_map(tmp_path):
-    """Mitsuba's mirror sphere under the full (unsmoothed) forest map, 128 x 128 pixels: a pixel
-    averages the map over the spread of normals in its footprint. The smooth lobe's light read
-    through that blur (estimate.prefiltered_light with the footprint) halves the error of the
-    point lookup (measured at 16 spp: median relative error 0.21 -> 0.11, relative RMS 0.60 ->
-    0.22; at 64 spp 0.21 -> 0.10 and 0.60 -> 0.21, and a footprint of 0.35 or 0.7 px instead of
-    0.5 does worse by RMS: 0.22 and 0.24)."""
-    materials = constant_materials(tmp_path / "materials", 1.0, 0.0, 1.0)
-    capture = render_capture(tmp_path / "capture", sphere_settings(materials, 6, 128, 16))
-    observations = observe(capture, Config(texels=TexelConfig(texture_res=TEXTURE_RES),
-                                           fit=FitConfig(band_limit=False)))
-    environment = observations.environment()
-    maps = prefiltered_environment(environment, prefilter_nodes(EstimateConfig(environment_light=False)))
-    mirror = np.zeros(observations.n_texels)
-    arguments = (observations.view_direction, observations.tangent, observations.normal, maps,
-                 environment.rotation, mirror)
-    sampled = observations.weight > 0.2
-    observed = observations.observed[sampled]
-
-    def errors(predicted):
-        predicted = predicted[sampled]
-        relative = np.abs(predicted - observed).sum(axis=-1) / observed.sum(axis=-1)
-        return np.median(relative), np.sqrt(((predicted - observed) ** 2).sum() / (observed**2).sum())
-
-    point_median, point_rms = errors(prefiltered_light(*arguments))
-    blurred_median, blurred_rms = errors(prefiltered_light(*arguments, footprint=observations.footprint))
-    assert point_median > 0.15 and point_rms > 0.45
-    assert blurred_median < 0.6 * point_median and blurred_rms < 0.45 * point_rms
 
 
 @pytest.mark.slow
@@ -433,62 +369,6 @@ def test_observe_command_writes_observations_and_maps(checker_bunny, tmp_path, m
     assert exit_info.value.code == 2
     error = capsys.readouterr().err
     assert "nowhere" in error and len(error.strip().splitlines()) == 1
-
-
-# --- environment occlusion --------------------------------------------------------------------------
-
-
-def test_cosine_directions_are_cosine_distributed():
-    directions = cosine_directions(256)
-    np.testing.assert_allclose(np.linalg.norm(directions, axis=1), 1.0, atol=1e-12)
-    assert (directions[:, 2] > 0).all()
-    # For density cos(theta) / pi: E[cos] = 2/3, E[cos^2] = 1/2, and no preferred azimuth.
-    assert abs(directions[:, 2].mean() - 2.0 / 3.0) < 2e-3
-    assert abs((directions[:, 2] ** 2).mean() - 0.5) < 2e-3
-    np.testing.assert_allclose(directions[:, :2].mean(axis=0), 0.0, atol=0.02)
-
-
-def test_blocked_irradiance_of_a_square_roof_matches_its_form_factor():
-    """Points under a square (half side a, height h, centred) with uniform radiance 1 around
-    lose pi F of their irradiance, F the point-to-parallel-square form factor
-    F = (2/pi) X/sqrt(1+X^2) atan(X/sqrt(1+X^2)), X = a/h. The estimate per texel is a 64-ray
-    sum; the mean over 2000 texels (each turned differently) must match within 1 %."""
-    half_side, height = 1.0, 1.0
-    corners = np.array([[-1, -1, height], [1, -1, height], [1, 1, height], [-1, 1, height]], float)
-    corners[:, :2] *= half_side
-    roof = Mesh(vertices=corners, faces=np.array([[0, 2, 1], [0, 3, 2]]),
-                normals=np.tile([0.0, 0.0, -1.0], (4, 1)), uv=np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float))
-    n_texels = 2000
-    origins = np.zeros((n_texels, 3), np.float32)
-    frame = np.broadcast_to(np.eye(3), (n_texels, 3, 3))  # t = x, b = y, n = z
-    uniform = Envmap(np.ones((16, 32, 3), np.float32))
-    blocked = blocked_irradiance(Occluder(roof), uniform, origins, frame, 64, seed=0)
-    x = half_side / height
-    form_factor = 2.0 / np.pi * x / math.sqrt(1 + x * x) * math.atan(x / math.sqrt(1 + x * x)) * 2.0
-    np.testing.assert_allclose(blocked.mean(axis=0), np.pi * form_factor, rtol=0.01)
-    # Each texel's estimate counts whole rays: a multiple of pi / 64.
-    np.testing.assert_allclose(blocked[:, 0] / (np.pi / 64), np.round(blocked[:, 0] / (np.pi / 64)), atol=1e-4)
-
-
-@pytest.mark.slow
-def test_environment_occlusion_changes_nothing_on_a_sphere_and_only_darkens_the_bunny(
-    lambertian_sphere, checker_bunny
-):
-    occluding = Config(texels=TexelConfig(texture_res=TEXTURE_RES), observe=ObserveConfig(environment_occlusion=True))
-    capture, plain = lambertian_sphere
-    traced = observe(capture, occluding)
-    assert traced.environment_occlusion and not plain.environment_occlusion
-    np.testing.assert_array_equal(traced.mirrored, plain.mirrored)  # convex: nothing blocks
-    np.testing.assert_allclose(traced.irradiance, plain.irradiance, rtol=1e-3)
-
-    capture, plain, _ = checker_bunny
-    traced = observe(capture, occluding)
-    sampled = plain.weight > 0
-    zeroed = sampled & (traced.mirrored == 0).all(axis=2) & (plain.mirrored > 0).any(axis=2)
-    assert 0.01 < zeroed.sum() / sampled.sum() < 0.5
-    np.testing.assert_array_equal(traced.mirrored[sampled & ~zeroed], plain.mirrored[sampled & ~zeroed])
-    assert (traced.irradiance <= plain.irradiance + 1e-6).all()
-    assert np.mean(traced.irradiance.sum(axis=1) < 0.97 * plain.irradiance.sum(axis=1)) > 0.1
 
 
 @pytest.mark.skipif(__import__("platform").machine() != "x86_64", reason="reads glibc's x86-64 fenv_t layout")

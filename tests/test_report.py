@@ -67,7 +67,7 @@ def test_report_has_every_section_and_its_files(fit_folder):
     assert f"Spearman &rho; {metrics['uncertainty']['roughness_std']['roughness']['spearman']:.2f}" in text
     models = (page.parent / "models.js").read_text()
     assert models.count("data:model/gltf-binary;base64,") == 2  # material and entropy overlay
-    assert "(calibrated mode, gaussian lobes, 8 x 8 hypotheses)" in text  # what the entropy scored
+    assert "(calibrated mode, 8 x 8 hypotheses)" in text  # what the entropy scored
     assert "It says how ambiguous the light makes the material" in text  # and what that means
 
 

@@ -117,17 +117,6 @@ def test_uv_sphere_samples_lie_on_the_sphere_with_radial_normals():
     np.testing.assert_allclose(centre_sampled.texel_area.sum(), 0.5 * twice_area.sum(), rtol=1e-3)
 
 
-def test_normal_derivative_is_the_shape_operator_of_the_sphere_and_zero_on_a_plane():
-    # On a sphere of radius 1 the normal turns by as much as the point moves along the surface:
-    # dn/dp t = t for every tangent t (the faceted mesh's smooth normals to 0.3 %).
-    texels = tx.rasterise(uv_sphere_mesh(n_longitude=64, n_latitude=32), 64)
-    for tangent in (texels.tangent, texels.bitangent):
-        turned = np.einsum("nij,nj->ni", texels.normal_derivative, tangent)
-        np.testing.assert_allclose(turned, tangent, atol=3e-3)
-    flat = tx.rasterise(plane_mesh(), 16)
-    np.testing.assert_array_equal(flat.normal_derivative, 0.0)
-
-
 def test_world_to_local_maps_the_frame_to_the_axes():
     texels = tx.rasterise(uv_sphere_mesh(16, 8), 16)
     local = tx.world_to_local(texels, np.stack([texels.tangent, texels.bitangent, texels.normal], axis=1))

@@ -3,8 +3,8 @@ texels, flags, and the fast kernel against a direct O(R^2 l*) evaluation of the 
 
 Spectra are built from the model itself, one SH coefficient per degree: the light's a_l =
 sqrt(S_refl(l)) from a chosen light spectrum, the observation's b_l = k_s G_l(alpha) a_l (plus
-noise; G the lobe's filter, `lobe_filter`: the default's exp(-alpha^2 l^2), or the GGX gains),
-b_0 = specular plus diffuse; S_out = b^2 and the cross spectrum X = a b (signed).
+noise; G the lobe's filter, `lobe_filter`: exp(-alpha^2 l^2)),
+b_0 = specular plus diffuse; S_out = b^2.
 These are unit tests of the mathematics; no rendering.
 """
 
@@ -20,7 +20,6 @@ from hypothesis import strategies as st
 
 from freqbrdf import uncertainty as unc
 from freqbrdf.config import EstimateConfig, UncertaintyConfig
-from freqbrdf.estimate import ggx_lobe_gains, split_sum_terms
 from freqbrdf.observe.observations import Observations
 from freqbrdf.sphere import harmonics as sh
 
@@ -32,36 +31,31 @@ CALIBRATED = UncertaintyConfig()
 PAPER = UncertaintyConfig(mode="paper")
 
 
-def lobe_filter(alpha, lobe="gaussian", sigma=0.0):
+def lobe_filter(alpha, sigma=0.0):
     """Per-degree amplitude filter of a lobe of GGX alpha (scalar, or (..., 1) -> (..., l*+1)),
-    divided by the band-limit blur exp(-(sigma l)^2): the GGX gains or the paper's Gaussian."""
+    divided by the band-limit blur exp(-(sigma l)^2): the paper's Gaussian."""
     alpha = np.asarray(alpha, float)
-    if lobe == "gaussian":
-        return np.exp(-(alpha**2 - sigma**2) * DEGREES**2)
-    roughness = np.sqrt(alpha[..., 0] if alpha.ndim else alpha)
-    gains = np.array([ggx_lobe_gains(float(r), LMAX) for r in np.ravel(roughness)])
-    return gains.reshape(np.shape(roughness) + (LMAX + 1,)) * np.exp(sigma**2 * DEGREES**2)
+    return np.exp(-(alpha**2 - sigma**2) * DEGREES**2)
 
 
-def model_spectra(light, alpha, specular, *, diffuse=0.3, noise=0.0, n=1, seed=0, lobe="gaussian"):
-    """light, observed, cross (n, 3, l*+1): S_out = k^2 G(alpha)^2 S_refl (`lobe_filter`), noise on
+def model_spectra(light, alpha, specular, *, diffuse=0.3, noise=0.0, n=1, seed=0):
+    """light, observed (n, 3, l*+1): S_out = k^2 G(alpha)^2 S_refl (`lobe_filter`), noise on
     amplitudes (std ``noise`` x the light's RMS amplitude), DC = (k sqrt(S_refl(0)) + diffuse)^2."""
     rng = np.random.default_rng(seed)
     light = np.broadcast_to(np.asarray(light, float), (n, 3, LMAX + 1)).copy()
-    amplitude = specular * lobe_filter(alpha, lobe) * np.sqrt(light)
+    amplitude = specular * lobe_filter(alpha) * np.sqrt(light)
     amplitude = amplitude + noise * np.sqrt(light.sum(-1, keepdims=True)) * rng.standard_normal(light.shape)
     amplitude[..., 0] = np.broadcast_to(specular, light.shape)[..., 0] * np.sqrt(light[..., 0]) + diffuse
-    return light, np.square(amplitude), np.sqrt(light) * amplitude
+    return light, np.square(amplitude)
 
 
-def entropy(light, observed, cross=None, **kwargs):
-    """`entropy_from_spectra` with the cross spectrum (calibrated mode reads it, paper mode not)."""
-    return unc.entropy_from_spectra(light, observed, cross_spectrum=cross, **kwargs)
+def entropy(light, observed, **kwargs):
+    """`entropy_from_spectra`."""
+    return unc.entropy_from_spectra(light, observed, **kwargs)
 
 
-def naive_grid(light, observed, sigma, config, cross=None, n_samples=None, albedo=None):
-    """Direct evaluation: per texel and channel the full (R, R) grid summed over l, exact exp;
-    albedo (N, R) scales each row's lobe (calibrated mode; None: 1).
+def naive_grid(light, observed, sigma, config, n_samples=None):
+    """Direct evaluation: per texel and channel the full (R, R) grid summed over l, exact exp.
 
     Returns entropy (N, 3) per channel, likelihood (N, 3, R, R) and misfit (N, 3, R, R).
     """
@@ -84,18 +78,11 @@ def naive_grid(light, observed, sigma, config, cross=None, n_samples=None, albed
                 exponent = (misfit - misfit.min()) / config.temperature
                 prior = np.ones((resolution, resolution))
             else:
-                row_albedo = np.ones(resolution) if albedo is None else albedo[texel]
-                kernel = np.array([lobe_filter(a, config.lobe, sigma) for a in grid.alpha])[:, None, 1:]
-                kernel = kernel * row_albedo[:, None, None]
-                if cross is None:  # amplitudes in phase
-                    predicted = specular * kernel * np.sqrt(s_refl[1:])
-                    misfit = np.sum((predicted - np.sqrt(s_out[1:])) ** 2, axis=-1)
-                else:  # |k K m - o|^2 summed over l >= 1 from the spectra and the cross spectrum
-                    misfit = np.sum(specular**2 * kernel**2 * s_refl[1:] - 2 * specular * kernel * cross[texel, c, 1:]
-                                    + s_out[1:], axis=-1)
+                kernel = np.array([lobe_filter(a, sigma) for a in grid.alpha])[:, None, 1:]
+                predicted = specular * kernel * np.sqrt(s_refl[1:])  # amplitudes in phase
+                misfit = np.sum((predicted - np.sqrt(s_out[1:])) ** 2, axis=-1)
                 # The specular DC may not exceed the observed DC.
-                dc_excess = np.maximum(row_albedo[:, None] * grid.specular[None, :] * math.sqrt(s_refl[0])
-                                       - math.sqrt(s_out[0]), 0.0) ** 2
+                dc_excess = np.maximum(grid.specular[None, :] * math.sqrt(s_refl[0]) - math.sqrt(s_out[0]), 0.0) ** 2
                 misfit = misfit + dc_excess
                 samples_per_coeff = 1.0 if n_samples is None else max(n_samples[texel], 1) / (LMAX + 1) ** 2
                 noise = 2 * config.noise_level**2 * light_power / samples_per_coeff
@@ -125,8 +112,8 @@ def naive_grid(light, observed, sigma, config, cross=None, n_samples=None, albed
 
 def test_sharp_light_is_certain_and_recovers_the_material():
     alpha, specular = (4 / 7) ** 2, 6 / 7  # on the R = 8 grid
-    light, observed, cross = model_spectra(SHARP_LIGHT, alpha, specular, noise=0.002)
-    result = entropy(light, observed, cross, config=CALIBRATED)
+    light, observed = model_spectra(SHARP_LIGHT, alpha, specular, noise=0.002)
+    result = entropy(light, observed, config=CALIBRATED)
     assert result.entropy[0] < 0.15
     assert result.best_alpha[0] == pytest.approx(alpha)
     assert result.best_ks[0] == pytest.approx(specular)
@@ -162,39 +149,21 @@ def test_weak_specular_relative_to_noise_is_uncertain():
     assert weak.entropy[0] > strong.entropy[0] + 0.25
 
 
-def test_ggx_lobe_recovers_ggx_data_and_its_albedo():
-    alpha, specular = (4 / 7) ** 2, 6 / 7
-    ggx = UncertaintyConfig(lobe="ggx")
-    light, observed, cross = model_spectra(SHARP_LIGHT, alpha, specular, noise=0.002, lobe="ggx")
-    as_ggx = entropy(light, observed, cross, config=ggx)
-    as_gaussian = entropy(light, observed, cross, config=CALIBRATED)
-    assert as_ggx.best_alpha[0] == pytest.approx(alpha) and as_ggx.best_ks[0] == pytest.approx(specular)
-    assert as_ggx.entropy[0] < as_gaussian.entropy[0] - 0.2  # the wrong lobe explains the data less well
-    # Seen at view cosine 0.3 the lobe reflects k A(0.3) (split-sum albedo, 0.75 here): with the
-    # texel's view cosine the entropy finds k itself, without it the darker k A.
-    albedo = split_sum_terms(0.3, math.sqrt(alpha))[0]
-    light, observed, cross = model_spectra(SHARP_LIGHT, alpha, specular * albedo, noise=0.002, lobe="ggx")
-    seen = entropy(light, observed, cross, view_cos=np.array([0.3]), config=ggx)
-    unseen = entropy(light, observed, cross, config=ggx)
-    assert seen.best_ks[0] == pytest.approx(specular) and seen.best_alpha[0] == pytest.approx(alpha)
-    assert unseen.best_ks[0] == pytest.approx(5 / 7)  # the grid value nearest k A = 0.65
-
-
 # --------------------------------------------------------------------------------------------
 # What the calibrated mode fixes
 
 
 def test_exposure_invariance_holds_in_calibrated_mode_and_fails_in_paper_mode():
     rng = np.random.default_rng(3)
-    light, observed, cross = model_spectra(
+    light, observed = model_spectra(
         SHARP_LIGHT * np.exp(-0.3 * DEGREES), rng.uniform(0, 1, (40, 1, 1)) ** 2, rng.uniform(0, 1, (40, 3, 1)),
         noise=0.01, n=40,
     )
-    reference = entropy(light, observed, cross, config=CALIBRATED)
+    reference = entropy(light, observed, config=CALIBRATED)
     paper_reference = entropy(light, observed, config=PAPER)
     for kappa in (1e-3, 1e-1, 10.0, 1e3):
         # images and environment scaled by kappa: every spectrum by kappa^2
-        scaled = entropy(light * kappa**2, observed * kappa**2, cross * kappa**2, config=CALIBRATED)
+        scaled = entropy(light * kappa**2, observed * kappa**2, config=CALIBRATED)
         np.testing.assert_allclose(scaled.entropy, reference.entropy, atol=1e-5)
         np.testing.assert_allclose(scaled.likelihood, reference.likelihood, atol=1e-5)
         np.testing.assert_array_equal(scaled.channel, reference.channel)
@@ -203,8 +172,8 @@ def test_exposure_invariance_holds_in_calibrated_mode_and_fails_in_paper_mode():
 
 
 def test_dark_texel_under_sharp_light_is_certain_in_calibrated_mode_only():
-    light, observed, cross = model_spectra(SHARP_LIGHT, 0.3, 0.0, diffuse=0.0, noise=0.002)
-    calibrated = entropy(light, observed, cross, config=CALIBRATED)
+    light, observed = model_spectra(SHARP_LIGHT, 0.3, 0.0, diffuse=0.0, noise=0.002)
+    calibrated = entropy(light, observed, config=CALIBRATED)
     assert calibrated.entropy[0] < 0.1
     assert calibrated.best_ks[0] == 0.0 and np.isnan(calibrated.best_alpha[0])  # no lobe, no roughness
     paper = entropy(light, observed, config=PAPER)
@@ -217,39 +186,18 @@ def test_a_texel_no_hypothesis_explains_is_not_called_certain():
     # noise (the default) the texel is uncertain.
     light = np.tile(SHARP_LIGHT, (1, 3, 1))
     observed = np.tile(0.05 * (1.0 + DEGREES) ** 2, (1, 3, 1))
-    cross = np.sqrt(light * observed)  # in phase: the best case for any hypothesis
-    fixed = entropy(light, observed, cross, config=UncertaintyConfig(residual_noise=False))
-    residual = entropy(light, observed, cross, config=CALIBRATED)
+    fixed = entropy(light, observed, config=UncertaintyConfig(residual_noise=False))
+    residual = entropy(light, observed, config=CALIBRATED)
     assert fixed.entropy[0] < 0.25
     assert residual.entropy[0] > fixed.entropy[0] + 0.3
 
 
 def test_fewer_samples_mean_more_uncertainty():
     # The same fitted spectra from 8 or 200 samples: each coefficient is noisier with fewer.
-    light, observed, cross = model_spectra(SHARP_LIGHT, (3 / 7) ** 2, 3 / 7, noise=0.01)
-    few = entropy(light, observed, cross, n_samples=np.array([8]), config=CALIBRATED)
-    many = entropy(light, observed, cross, n_samples=np.array([200]), config=CALIBRATED)
+    light, observed = model_spectra(SHARP_LIGHT, (3 / 7) ** 2, 3 / 7, noise=0.01)
+    few = entropy(light, observed, n_samples=np.array([8]), config=CALIBRATED)
+    many = entropy(light, observed, n_samples=np.array([200]), config=CALIBRATED)
     assert few.entropy[0] > many.entropy[0] + 0.1
-
-
-def test_phase_aware_mode_sees_energy_out_of_phase_with_the_light():
-    # Observed power matching a hypothesis, but in coefficients orthogonal to the light's: the
-    # amplitude comparison takes it for that hypothesis, the coefficient comparison does not.
-    light, observed, _ = model_spectra(SHARP_LIGHT, (3 / 7) ** 2, 6 / 7, noise=0.0)
-    aligned = np.sqrt(light * observed)
-    orthogonal = np.zeros_like(aligned)
-    orthogonal[..., 0] = aligned[..., 0]
-    config = UncertaintyConfig(phase_aware=True)
-    in_phase = entropy(light, observed, aligned, config=config)
-    out_of_phase = entropy(light, observed, orthogonal, config=config)
-    amplitudes = entropy(light, observed, None, config=config)
-    assert in_phase.best_ks[0] == pytest.approx(6 / 7) and amplitudes.best_ks[0] == pytest.approx(6 / 7)
-    assert out_of_phase.best_ks[0] == 0.0  # no lobe explains energy where the light has none
-    # entropy_map passes the cross spectrum only in phase-aware mode.
-    observations = _observations_from_spectra(light, observed, np.array([0]), texture_res=2)
-    np.testing.assert_allclose(unc.entropy_map(observations, config).entropy,
-                               entropy(light, observed, aligned, n_samples=observations.n_samples,
-                                       view_cos=unc.view_cosine(observations), config=config).entropy, atol=1e-5)
 
 
 def test_band_limit_compensation_is_applied_in_calibrated_mode():
@@ -258,9 +206,9 @@ def test_band_limit_compensation_is_applied_in_calibrated_mode():
     blurred = SHARP_LIGHT * np.exp(-2 * sigma**2 * DEGREES**2)
     light = model_spectra(blurred, alpha, specular)[0]
     amplitude = np.sqrt(model_spectra(SHARP_LIGHT, alpha, specular)[1])  # the sharp truth was observed
-    observed, cross = np.square(amplitude), np.sqrt(light) * amplitude
-    compensated = entropy(light, observed, cross, sigma=sigma, config=CALIBRATED)
-    uncompensated = entropy(light, observed, cross, sigma=0.0, config=CALIBRATED)
+    observed = np.square(amplitude)
+    compensated = entropy(light, observed, sigma=sigma, config=CALIBRATED)
+    uncompensated = entropy(light, observed, sigma=0.0, config=CALIBRATED)
     assert compensated.best_alpha[0] == pytest.approx(alpha)
     assert uncompensated.best_alpha[0] < alpha
 
@@ -276,33 +224,21 @@ def test_band_limit_compensation_is_applied_in_calibrated_mode():
     mode=st.sampled_from(["calibrated", "paper"]),
     sigma=st.sampled_from([0.0, 0.1, 0.25]),
     residual_noise=st.booleans(),
-    with_cross=st.booleans(),
-    lobe=st.sampled_from(["ggx", "gaussian"]),
-    with_albedo=st.booleans(),
+    with_counts=st.booleans(),
 )
-def test_fast_kernel_equals_direct_evaluation(seed, grid_res, mode, sigma, residual_noise, with_cross, lobe,
-                                              with_albedo):
+def test_fast_kernel_equals_direct_evaluation(seed, grid_res, mode, sigma, residual_noise, with_counts):
     rng = np.random.default_rng(seed)
     n_texels = 7
     light = rng.uniform(0.0, 1.0, (n_texels, 3, LMAX + 1)) * np.exp(-rng.uniform(0, 1) * DEGREES)
     observed = light * rng.uniform(0.0, 1.0, (n_texels, 3, 1)) * np.exp(-rng.uniform(0, 2) * DEGREES)
     observed += rng.uniform(0.0, 0.05, observed.shape)
     config = UncertaintyConfig(mode=mode, grid_res=grid_res, noise_level=rng.uniform(0.01, 0.2),
-                               temperature=10 ** rng.uniform(-4, -1), residual_noise=residual_noise, lobe=lobe)
-    # A cross spectrum anywhere between anti-aligned and aligned (Cauchy-Schwarz), and sample counts.
-    cross = np.sqrt(light * observed) * rng.uniform(-1.0, 1.0, light.shape) if with_cross else None
-    n_samples = rng.integers(0, 100, n_texels) if with_cross else None
-    # The texels' mean view cosines: with the "ggx" lobe, each row's lobe is scaled by its albedo there.
-    view_cos = rng.uniform(0.0, 1.0, n_texels) if with_albedo else None
-    fast = entropy(light, observed, cross, n_samples=n_samples, view_cos=view_cos, sigma=sigma, config=config)
+                               temperature=10 ** rng.uniform(-4, -1), residual_noise=residual_noise)
+    n_samples = rng.integers(0, 100, n_texels) if with_counts else None
+    fast = entropy(light, observed, n_samples=n_samples, sigma=sigma, config=config)
     calibrated = mode == "calibrated"
-    albedo = None
-    if calibrated and with_albedo and lobe == "ggx":
-        albedo = split_sum_terms(view_cos[:, None], np.sqrt(fast.grid.alpha)[None, :])[0]
-        assert np.all((albedo > 0.0) & (albedo < 1.0))
     per_channel, likelihood, misfit = naive_grid(light, observed, sigma if calibrated else 0.0, config,
-                                                 cross if calibrated else None, n_samples if calibrated else None,
-                                                 albedo)
+                                                 n_samples if calibrated else None)
 
     texels = np.arange(n_texels)
     chosen = fast.channel.astype(int)
@@ -325,14 +261,14 @@ def test_fast_kernel_equals_direct_evaluation(seed, grid_res, mode, sigma, resid
 
 
 def test_flags_mark_unobserved_few_samples_below_bound_and_ambiguous():
-    light, observed, cross = model_spectra(SHARP_LIGHT, (2 / 7) ** 2, 6 / 7, noise=0.002, n=5)
+    light, observed = model_spectra(SHARP_LIGHT, (2 / 7) ** 2, 6 / 7, noise=0.002, n=5)
     light[3], observed[3] = 0.0, 0.0  # nothing observed
     light[4, :, 1:] = 0.0  # no light above l = 0: nothing to tell hypotheses apart
     observed[4, :, 1:] = 0.0
     alpha_bound = np.array([0.1, 0.01, 0.01, 0.01, 0.01], np.float32)  # texel 0: (2/7)^2 = 0.08 < 0.1
     fit_status = np.array([sh.FIT_OK, sh.FIT_UNDERDETERMINED, sh.FIT_OK, sh.FIT_EMPTY, sh.FIT_OK], np.uint8)
     n_samples = np.array([64, 8, 64, 0, 64])  # texel 1: fewer than a quarter of the 36 coefficients
-    result = entropy(light, observed, cross, n_samples=n_samples, alpha_bound=alpha_bound, fit_status=fit_status)
+    result = entropy(light, observed, n_samples=n_samples, alpha_bound=alpha_bound, fit_status=fit_status)
     expected = [unc.FLAG_BELOW_BOUND, unc.FLAG_FEW_SAMPLES, 0, unc.FLAG_UNOBSERVED, unc.FLAG_AMBIGUOUS]
     np.testing.assert_array_equal(result.flags, expected)
     assert result.entropy[3] == 1.0 and result.channel[3] == -1 and np.isnan(result.best_ks[3])
@@ -368,13 +304,12 @@ def _observations_from_spectra(light, observed, texel_index, texture_res):
 
 
 def test_entropy_map_from_observations_and_texture():
-    light, observed, cross = model_spectra(SHARP_LIGHT, (4 / 7) ** 2, 6 / 7, noise=0.002, n=3)
+    light, observed = model_spectra(SHARP_LIGHT, (4 / 7) ** 2, 6 / 7, noise=0.002, n=3)
     observed[1] = model_spectra(LOW_LIGHT, (4 / 7) ** 2, 6 / 7)[1][0]
     light[1] = LOW_LIGHT
     observations = _observations_from_spectra(light, observed, np.array([0, 5, 15]), texture_res=4)
     result = unc.entropy_map(observations)
-    direct = entropy(light, observed, np.sqrt(light * observed), n_samples=observations.n_samples,
-                     view_cos=unc.view_cosine(observations))
+    direct = entropy(light, observed, n_samples=observations.n_samples)
     np.testing.assert_allclose(result.entropy, direct.entropy, atol=1e-5)  # float32 coefficients
     texture = result.to_texture(observations, "entropy", fill=-1.0)
     assert texture.shape == (4, 4)
@@ -385,18 +320,18 @@ def test_entropy_map_from_observations_and_texture():
 
 def test_likelihood_is_optional_and_results_are_deterministic():
     rng = np.random.default_rng(11)
-    light, observed, cross = model_spectra(SHARP_LIGHT, rng.uniform(0, 1, (3000, 1, 1)) ** 2,
+    light, observed = model_spectra(SHARP_LIGHT, rng.uniform(0, 1, (3000, 1, 1)) ** 2,
                                     rng.uniform(0, 1, (3000, 3, 1)), noise=0.02, n=3000)
     config = UncertaintyConfig(grid_res=16)
-    first = entropy(light, observed, cross, config=config)
-    without = entropy(light, observed, cross, config=config, return_likelihood=False)
+    first = entropy(light, observed, config=config)
+    without = entropy(light, observed, config=config, return_likelihood=False)
     assert without.likelihood is None
     np.testing.assert_array_equal(first.entropy, without.entropy)
     np.testing.assert_array_equal(first.best_ks, without.best_ks)
     threads = numba.get_num_threads()
     try:
         numba.set_num_threads(1)
-        single = entropy(light, observed, cross, config=config)
+        single = entropy(light, observed, config=config)
     finally:
         numba.set_num_threads(threads)
     for name in ("entropy", "flags", "likelihood", "best_alpha", "best_ks", "channel"):
@@ -437,7 +372,7 @@ def test_neighbour_term_is_the_scatter_of_the_estimates_in_the_window():
     rng = np.random.default_rng(3)
     texture_res, window = 7, 3
     texel_index = np.array([i for i in range(texture_res**2) if i not in (23, 40)])  # two holes in the atlas
-    light, observed, _ = model_spectra(SHARP_LIGHT, 0.1, 0.5, n=len(texel_index))
+    light, observed = model_spectra(SHARP_LIGHT, 0.1, 0.5, n=len(texel_index))
     observations = _observations_from_spectra(light, observed, texel_index, texture_res)
     roughness = rng.uniform(0.0, 1.0, len(texel_index))
     estimated = np.ones(len(texel_index), bool)
@@ -612,7 +547,7 @@ def _direct_angular_entropy(observations, grid, noise_level):
             roughness = math.sqrt(alpha)
             scale, bias, _ = split_sum_terms(directions[0, seen, 2], roughness)
             light = lobe_filtered_light(directions, observations.weight[t:t + 1], observations.mirrored_coeffs[t:t + 1],
-                                        observations.lmax, observations.sigma, np.array([roughness]), False)[0, seen]
+                                        observations.lmax, observations.sigma, np.array([roughness]))[0, seen]
             for j, specular in enumerate(grid.specular):
                 if specular > 0:  # k = 0: no lobe
                     radiance[i, j] = (specular * scale + bias)[:, None] * light
@@ -673,9 +608,7 @@ def test_the_estimators_search_scores_the_angular_hypotheses_as_the_angular_mode
     plain = estimate(observations, config)
     for name in ("base_color", "roughness", "metallic", "loss"):
         np.testing.assert_array_equal(getattr(recorded, name), getattr(plain, name))
-    # Other lobes than the estimator's, or the prototype's estimator, are scored in a pass of their own.
-    assert not unc.AngularEntropy.recorded_by_search(
-        Config(uncertainty=UncertaintyConfig(mode="angular", anisotropic_lobes=True)))
+    # The prototype's estimator does not search: its hypotheses are scored in a pass of their own.
     assert not unc.AngularEntropy.recorded_by_search(
         Config(uncertainty=UncertaintyConfig(mode="angular"), estimate=EstimateConfig(method="paper")))
     assert not unc.AngularEntropy.recorded_by_search(Config())
@@ -719,18 +652,6 @@ def test_angular_mode_equals_a_direct_evaluation_and_is_exposure_invariant():
         observations, observed=observations.observed * kappa, mirrored=observations.mirrored * kappa,
         mirrored_coeffs=observations.mirrored_coeffs * kappa, irradiance=observations.irradiance * kappa)
     np.testing.assert_allclose(unc.entropy_map(brighter, config).entropy, result.entropy, atol=1e-5)
-    # With a map, the hypotheses' lobes are UncertaintyConfig's if it names them, else the estimator's.
-    mapped = _mapped_observations(truth, rng)
-    forced = dataclasses.replace(config, anisotropic_lobes=True)
-    anisotropic = unc.entropy_map(mapped, forced)
-    isotropic = unc.entropy_map(mapped, config)  # the default estimator's lobes
-    assert np.abs(anisotropic.entropy - isotropic.entropy).max() > 1e-3
-    np.testing.assert_array_equal(
-        unc.entropy_map(mapped, forced, estimate_config=EstimateConfig(anisotropic_lobes=False)).entropy,
-        anisotropic.entropy)
-    np.testing.assert_array_equal(
-        unc.entropy_map(mapped, config, estimate_config=EstimateConfig(anisotropic_lobes=True)).entropy,
-        anisotropic.entropy)
     # Spectra alone cannot be scored in this mode.
     with pytest.raises(ValueError, match="angular"):
         unc.entropy_from_spectra(observations.mirrored_spectrum, observations.observed_spectrum, config=config)

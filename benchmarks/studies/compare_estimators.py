@@ -1,7 +1,6 @@
-"""The comparison of issue #5: our `global` estimator (also its fast preset, with anisotropic
-lobes, with the footprint blur, without its neighbour vote, without its environment light, and
-with its optional lobe tilt), the paper's recipe (angular and spectrum forward models) and
-Mitsuba 3 inverse rendering, on Mitsuba-rendered captures.
+"""The comparison of issue #5: our `global` estimator (also its fast preset, without its neighbour
+vote and without its environment light), the paper's recipe (angular and spectrum forward models)
+and Mitsuba 3 inverse rendering, on Mitsuba-rendered captures.
 
     python benchmarks/studies/compare_estimators.py [--scenes bunny,plane] [--texture-res 512]
         [--views 64] [--relight-spp 32] [--skip mitsuba,paper_spectrum] [--quick]
@@ -48,9 +47,8 @@ from _common import RESULTS_DIR as RESULTS
 from _common import control_seconds, machine
 from scenes import FULL_RENDER, QUICK_RENDER, compare_capture, compare_settings
 
-METHODS = ("global", "global_without_vote", "global_fast", "global_anisotropic", "global_footprint",
-           "global_environment_light", "global_fitted_light", "global_lobe_tilt", "paper_angular", "paper_spectrum",
-           "mitsuba")
+METHODS = ("global", "global_without_vote", "global_fast", "global_environment_light", "global_fitted_light",
+           "paper_angular", "paper_spectrum", "mitsuba")
 QUICK_ARGS = {"views": 24, "texture_res": 128, "relight_spp": 8}
 
 
@@ -58,9 +56,7 @@ def method_config(method: str, texture_res: int) -> Config:
     """Our default Config for `global`; `global_environment_light` without the prefiltered light
     (smooth lobes read the per-texel fit of the mirrored light, the default before commit 8e664ea);
     `global_fitted_light` without the environment light either (every lobe reads that fit, the
-    default before commit 235c542); `global_lobe_tilt`: the default before commit 8e664ea with
-    EstimateConfig.lobe_tilt; `global_anisotropic`: the default with EstimateConfig.anisotropic_lobes;
-    `global_footprint`: the default with EstimateConfig.footprint_blur; `global_without_vote`:
+    default before commit 235c542); `global_without_vote`:
     without EstimateConfig.neighbour_vote; `global_fast`: the fast preset; the paper preset (its
     lambda, Adam, TV) for `paper_*`."""
     texels = TexelConfig(texture_res=texture_res)
@@ -69,9 +65,8 @@ def method_config(method: str, texture_res: int) -> Config:
         return fast.replace(texels=dataclasses.replace(fast.texels, texture_res=texture_res))
     if method.startswith("global"):
         return Config(texels=texels, estimate=EstimateConfig(
-            lobe_tilt=method == "global_lobe_tilt", environment_light=method != "global_fitted_light",
-            prefiltered_light=method in ("global", "global_anisotropic", "global_footprint", "global_without_vote"),
-            anisotropic_lobes=method == "global_anisotropic", footprint_blur=method == "global_footprint",
+            environment_light=method != "global_fitted_light",
+            prefiltered_light=method in ("global", "global_without_vote"),
             neighbour_vote=method != "global_without_vote"))
     model = method.split("_", 1)[1]
     config = preset("paper")

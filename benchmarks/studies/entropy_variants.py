@@ -16,9 +16,6 @@ metallic errors, and on the sphere by its mean per region. Variants:
   samples (n_samples not passed: K samples assumed), amplitudes in phase;
 - calibrated (the default): amplitudes in phase, coefficient noise noise_level^2 P K / n, the
   paper's Gaussian lobe exp(-(alpha l)^2);
-- calibrated_ggx_lobe: as the default, with GGX lobes (their per-degree gains and their albedo at
-  the texel's mean view angle; UncertaintyConfig.lobe "ggx");
-- phase_aware: as the default, but coefficients compared through the cross spectrum;
 - angular: the same grid scored in the sample domain with the estimator's own model
   (UncertaintyConfig(mode="angular"), `uncertainty.entropy_angular`);
 - each calibrated and angular variant also with noise_level 0.05 (default 0.02). Seconds per
@@ -51,13 +48,7 @@ from freqbrdf.model.materials import resize
 from freqbrdf.observe.observations import Observations, observe
 from freqbrdf.outputs import sparsification
 from freqbrdf.sphere import harmonics as sh
-from freqbrdf.uncertainty import (
-    cross_spectrum,
-    entropy_from_spectra,
-    entropy_map,
-    roughness_std,
-    view_cosine,
-)
+from freqbrdf.uncertainty import entropy_from_spectra, entropy_map, roughness_std
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/: _common and scenes
 from _common import machine, save_results
@@ -91,14 +82,11 @@ def variant_entropy(observations: Observations, name: str, noise_level: float) -
     if name == "paper":
         config = UncertaintyConfig(mode="paper")
     else:
-        config = UncertaintyConfig(noise_level=noise_level, phase_aware=name == "phase_aware",
-                                   lobe="ggx" if name == "calibrated_ggx_lobe" else "gaussian")
-    cross = (cross_spectrum(observations.observed_coeffs, observations.mirrored_coeffs)
-             if config.phase_aware else None)
+        config = UncertaintyConfig(noise_level=noise_level)
     n_samples = None if name == "calibrated_fixed_noise" else observations.n_samples
     return entropy_from_spectra(
-        observations.mirrored_spectrum, observations.observed_spectrum, cross_spectrum=cross,
-        n_samples=n_samples, view_cos=view_cosine(observations), sigma=observations.sigma,
+        observations.mirrored_spectrum, observations.observed_spectrum,
+        n_samples=n_samples, sigma=observations.sigma,
         alpha_bound=observations.alpha_bound,
         fit_status=observations.fit_status, config=config, return_likelihood=False,
     ).entropy
@@ -135,8 +123,7 @@ def scene_scores(name: str, path) -> dict:
         return scores
 
     variants = {}
-    for variant in ("paper", "calibrated_fixed_noise", "calibrated", "calibrated_ggx_lobe", "phase_aware",
-                    "angular"):
+    for variant in ("paper", "calibrated_fixed_noise", "calibrated", "angular"):
         for noise_level in ((None,) if variant == "paper" else (0.02, 0.05)):
             start = time.perf_counter()
             entropy = variant_entropy(observations, variant, noise_level)

@@ -11,14 +11,12 @@ the default EstimateConfig, written with the estimator's numpy references: split
 (`estimate.environment_filtered_light`) plus the map's degrees above 5. Reported per roughness:
 the relative RMS error of the model against one rendering, the rendering's own Monte Carlo noise
 (half the RMS difference of the two seeds' radiance, relative, per rendering), the ratio of the
-summed radiance, and the error per band of view cosine at k = 1; the same at k = 1 with
-anisotropic lobes (EstimateConfig.anisotropic_lobes, the angular entropy's default). Saves
+summed radiance, and the error per band of view cosine at k = 1. Saves
 benchmarks/results/model_fidelity.json.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import sys
 from pathlib import Path
@@ -55,7 +53,7 @@ def model_terms(observations, roughness: float, settings: EstimateConfig) -> tup
     per_texel = np.full(observations.n_texels, roughness)
     share = float(est.environment_weight(np.array(roughness), settings.environment_blend))
     own = est.prefiltered_light(directions, tangent, normal, est.prefiltered_environment(
-        envmap, est.prefilter_nodes(settings)), rotation, per_texel, settings.anisotropic_lobes) if share < 1.0 else 0.0
+        envmap, est.prefilter_nodes(settings)), rotation, per_texel) if share < 1.0 else 0.0
     high = est.prefiltered_light(directions, tangent, normal, est.prefiltered_environment(
         envmap, est.prefilter_nodes(EstimateConfig(environment_light=False)),
         skip_degrees=min(observations.lmax, 5) + 1),  # the environment light holds degrees <= min(l*, 5)
@@ -97,18 +95,12 @@ def main() -> None:
             errors.append(relative_rms(specular * scale_terms + bias_terms, rendered[i, j]))
             noise.append(relative_rms(other[i, j], rendered[i, j]) / math.sqrt(2.0))  # var(a - b) = 2 var
         model = scale_terms + bias_terms  # k = 1
-        anisotropic = sum(term[sampled] for term in model_terms(
-            subset, roughness, dataclasses.replace(config.estimate, anisotropic_lobes=True)))
         rows[f"{roughness:.3f}"] = {
             "relative_rms_error_by_k": [round(e, 4) for e in errors],
             "monte_carlo_noise_by_k": [round(e, 4) for e in noise],
             "summed_radiance_ratio_k1": round(float(model.sum() / rendered[i, -1].sum()), 4),
             "relative_rms_error_k1_by_view_cosine": {
                 f"{low:g}-{min(high, 1.0):g}": round(relative_rms(model[band], rendered[i, -1][band]), 4)
-                for low, high in COSINE_BANDS if (band := (cosine >= low) & (cosine < high)).any()},
-            "anisotropic_lobes_relative_rms_error_k1": round(relative_rms(anisotropic, rendered[i, -1]), 4),
-            "anisotropic_lobes_relative_rms_error_k1_by_view_cosine": {
-                f"{low:g}-{min(high, 1.0):g}": round(relative_rms(anisotropic[band], rendered[i, -1][band]), 4)
                 for low, high in COSINE_BANDS if (band := (cosine >= low) & (cosine < high)).any()},
         }
         print(f"r = {roughness:.3f}: {rows[f'{roughness:.3f}']}", flush=True)

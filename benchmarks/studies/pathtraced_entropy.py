@@ -23,14 +23,14 @@ minimum over RGB. This "sample" brute force asks whether the spectra lose what t
 The "spectral" brute force asks only whether our model of a hypothesis's spectrum is right: the
 path-traced radiance of each hypothesis is fitted to SH at the texel's samples exactly as the
 observed radiance is (its directions, weights, degree and regulariser), and the amplitude spectra
-of those fits are scored exactly as our calibrated mode scores its analytic k A F(alpha, l)
+of those fits are scored exactly as our calibrated mode scores its analytic k F(alpha, l)
 sqrt(S_refl(l)) (`spectral_entropy`, a direct evaluation; scoring the analytic amplitudes with it
 reproduces our fast entropy: "scoring_check_max_abs_difference").
 
-Reported: Spearman rank correlation of each brute force with ours (calibrated default, with
-GGX lobes instead of the paper's Gaussian one, phase-aware and paper modes on the 8 x 8 grid; the
+Reported: Spearman rank correlation of each brute force with ours (calibrated default and paper
+mode on the 8 x 8 grid; the
 angular mode on its own grid, the estimator's 9 roughness nodes, as `fit` computes it from its
-search and with anisotropic lobes); each entropy's rank correlation with the
+search); each entropy's rank correlation with the
 default fit's roughness error on the same texels; mean entropy per region (scenes.entropy_regions);
 the difference of the mean entropy between the badly and the sharply lit regions, with a 95 %
 bootstrap interval (is the badly lit region more uncertain?); timings, with those of the fit with
@@ -62,13 +62,7 @@ from freqbrdf.pipeline import fit
 from freqbrdf.render.scenes import build_scene, mitsuba
 from freqbrdf.sphere import harmonics as sh
 from freqbrdf.texels import rasterise
-from freqbrdf.uncertainty import (
-    entropy_map,
-    hypothesis_albedo,
-    hypothesis_filter,
-    hypothesis_grid,
-    view_cosine,
-)
+from freqbrdf.uncertainty import entropy_map, hypothesis_filter, hypothesis_grid
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/: _common and scenes
 from entropy_scenes import results_name, roughness_error, sky_argument
@@ -165,15 +159,12 @@ def hypothesis_amplitudes(observations, chosen, texel_of, view_of, radiance, fit
     return np.sqrt(np.maximum(spectrum, 0.0)).reshape(n_chosen, resolution, resolution, 3, -1)
 
 
-def analytic_amplitudes(observations, chosen, grid, settings: UncertaintyConfig) -> np.ndarray:
-    """(M, R, R, 3, l*+1) our calibrated mode's model amplitudes k A_i F_il sqrt(S_refl(l)): F the
-    hypothesis filter and A the lobe's albedo (1 for the "gaussian" lobe)."""
-    lobe_filter = hypothesis_filter(grid, observations.lmax, observations.sigma, settings.lobe)  # (R, l*+1)
-    albedo = (hypothesis_albedo(grid, view_cosine(observations)[chosen]) if settings.lobe == "ggx"
-              else np.ones((len(chosen), grid.resolution)))  # (M, R)
+def analytic_amplitudes(observations, chosen, grid) -> np.ndarray:
+    """(M, R, R, 3, l*+1) our calibrated mode's model amplitudes k F_il sqrt(S_refl(l)): F the
+    hypothesis filter."""
+    lobe_filter = hypothesis_filter(grid, observations.lmax, observations.sigma)  # (R, l*+1)
     light = np.sqrt(observations.mirrored_spectrum[chosen].astype(np.float64))  # (M, 3, l*+1)
-    return (grid.specular[None, None, :, None, None] * albedo[:, :, None, None, None]
-            * lobe_filter[None, :, None, None, :] * light[:, None, None, :, :])
+    return grid.specular[None, None, :, None, None] * lobe_filter[None, :, None, None, :] * light[:, None, None, :, :]
 
 
 def spectral_entropy(observations, chosen, model_amplitude, settings: UncertaintyConfig) -> np.ndarray:
@@ -256,11 +247,8 @@ def main(sky: str) -> None:
     ours = entropy_map(observations, config.uncertainty, return_likelihood=False)
     ours_s = time.perf_counter() - start
     paper = entropy_map(observations, UncertaintyConfig(mode="paper"), return_likelihood=False)
-    ggx_config = UncertaintyConfig(lobe="ggx")
-    ggx = entropy_map(observations, ggx_config, return_likelihood=False)
-    phase_aware = entropy_map(observations, UncertaintyConfig(phase_aware=True), return_likelihood=False)
-    # The angular mode as `fit` computes it (its grid the estimator's 9 roughness nodes, its lobes
-    # the estimator's, scored during the search), and on its own.
+    # The angular mode as `fit` computes it (its grid the estimator's 9 roughness nodes, scored during
+    # the search), and on its own.
     angular_config = UncertaintyConfig(mode="angular")
     angular_fit = fit(capture, config.replace(uncertainty=angular_config))
     angular = angular_fit.uncertainty
@@ -268,8 +256,6 @@ def main(sky: str) -> None:
     start = time.perf_counter()
     angular_alone = entropy_map(observations, angular_config, return_likelihood=False)
     angular_s = time.perf_counter() - start
-    anisotropic = entropy_map(observations, UncertaintyConfig(mode="angular", anisotropic_lobes=True),
-                              return_likelihood=False)
     chosen = choose_texels(ours.entropy, observations.n_samples)
 
     # One ray per (chosen texel, view with a sample), towards that view's camera.
@@ -307,14 +293,12 @@ def main(sky: str) -> None:
                                                                      radiance, config.fit),
                          config.uncertainty) for radiance in radiances)
     # Our fast entropies, recomputed by the direct scoring from their analytic amplitudes: the check.
-    scoring_error = {name: float(np.abs(spectral_entropy(observations, chosen, analytic_amplitudes(
-        observations, chosen, grid, settings), settings) - entropy.entropy[chosen]).max())
-        for name, settings, entropy in (("default", config.uncertainty, ours), ("ggx_lobe", ggx_config, ggx))}
+    scoring_error = {"default": float(np.abs(spectral_entropy(observations, chosen, analytic_amplitudes(
+        observations, chosen, grid), config.uncertainty) - ours.entropy[chosen]).max())}
     roughness_std = np.nan_to_num(result.uncertainty.roughness_std[chosen], nan=1.0)
     ranks_error = {name: round(float(stats.spearmanr(values, error[chosen], nan_policy="omit").statistic), 4)
                    for name, values in (("brute_force_pooled", pooled), ("spectral_brute_force_pooled", spectral_pooled),
                                         ("ours_calibrated", ours.entropy[chosen]),
-                                        ("ours_calibrated_ggx_lobe", ggx.entropy[chosen]),
                                         ("ours_angular", angular.entropy[chosen]),
                                         ("ours_paper_mode", paper.entropy[chosen]),
                                         ("roughness_std", roughness_std))}
@@ -331,7 +315,6 @@ def main(sky: str) -> None:
             by_region[region] = {"texels": int(mask.sum()), "brute_force": round(float(brute[mask].mean()), 4),
                                  "angular_brute_force": round(float(angular_brute[mask].mean()), 4),
                                  "ours_calibrated": round(float(ours.entropy[chosen][mask].mean()), 4),
-                                 "ours_calibrated_ggx_lobe": round(float(ggx.entropy[chosen][mask].mean()), 4),
                                  "ours_angular": round(float(angular.entropy[chosen][mask].mean()), 4),
                                  "ours_paper_mode": round(float(paper.entropy[chosen][mask].mean()), 4),
                                  "spectral_brute_force": round(float(spectral_pooled[mask].mean()), 4)}
@@ -346,14 +329,12 @@ def main(sky: str) -> None:
         "grid_res": grid.resolution,
         "agreement_with_pooled_brute_force": {
             name: agreement(pooled, entropy.entropy[chosen])
-            for name, entropy in (("ours_calibrated", ours), ("ours_calibrated_ggx_lobe", ggx),
-                                  ("ours_paper_mode", paper), ("ours_phase_aware", phase_aware))},
+            for name, entropy in (("ours_calibrated", ours), ("ours_paper_mode", paper))},
         "angular_mode": {
             "grid_res": angular_grid.resolution,
             "agreement_with_pooled_brute_force": {
                 name: agreement(angular_pooled, entropy.entropy[chosen])
-                for name, entropy in (("ours_angular_in_fit", angular), ("ours_angular_anisotropic_lobes", anisotropic),
-                                      ("ours_calibrated", ours))},
+                for name, entropy in (("ours_angular_in_fit", angular), ("ours_calibrated", ours))},
             "agreement_with_each_seed": [agreement(values, angular.entropy[chosen])
                                          for values in (angular_brute, angular_brute_other_seed)],
             "brute_force_self_agreement": agreement(angular_brute, angular_brute_other_seed),
@@ -362,14 +343,11 @@ def main(sky: str) -> None:
         },
         "spearman_rho_vs_ours_calibrated": round(float(stats.spearmanr(brute, ours.entropy[chosen]).statistic), 4),
         "spearman_rho_vs_ours_paper_mode": round(float(stats.spearmanr(brute, paper.entropy[chosen]).statistic), 4),
-        "spearman_rho_vs_ours_phase_aware": round(
-            float(stats.spearmanr(brute, phase_aware.entropy[chosen]).statistic), 4),
         "spearman_rho_vs_ours_calibrated_other_seed": round(
             float(stats.spearmanr(brute_other_seed, ours.entropy[chosen]).statistic), 4),
         "brute_force_self_agreement": agreement(brute, brute_other_seed),
         "spectral_brute_force": {
             "agreement_with_ours_calibrated": agreement(spectral_pooled, ours.entropy[chosen]),
-            "agreement_with_ours_calibrated_ggx_lobe": agreement(spectral_pooled, ggx.entropy[chosen]),
             "agreement_with_ours_paper_mode": agreement(spectral_pooled, paper.entropy[chosen]),
             "agreement_with_ours_calibrated_per_seed": [
                 agreement(values, ours.entropy[chosen]) for values in (spectral, spectral_other_seed)],

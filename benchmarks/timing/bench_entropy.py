@@ -6,12 +6,9 @@ Inputs are synthetic spectra of the model itself: a natural-looking light spectr
 S_refl(l) ~ (1 + l)^-2 with per-texel log-normal jitter, random materials (roughness and k_s
 uniform in [0, 1], per-channel k_s) seen at a view cosine uniform in [0.2, 1], GGX lobes (their
 per-degree gains and albedo), a diffuse DC term, and amplitude noise of 1 % of the light's RMS
-amplitude, one coefficient per degree (so the cross spectrum is the signed product of the
-amplitudes); 64 samples per texel. Calibrated mode runs as `entropy_map` calls it by default,
-once more with ``phase_aware`` (the cross spectrum) and once with the GGX lobe
-(`UncertaintyConfig.lobe`, which reads the texels' view cosines: what its per-texel albedo
-costs). Each mode at R = 8 and R = 32, with and without returning the (N, R, R) likelihood. Then
-the angular mode from its hypotheses' moments (`entropy_from_moments`, 9 x 9, synthetic moments of
+amplitude, one coefficient per degree; 64 samples per texel. Calibrated mode runs as
+`entropy_map` calls it by default. Each mode at R = 8 and R = 32, with and without returning the
+(N, R, R) likelihood. Then the angular mode from its hypotheses' moments (`entropy_from_moments`, 9 x 9, synthetic moments of
 64 samples per texel: `synthetic_moments`), with and without the likelihood.
 
 Prints the figures and saves them to benchmarks/results/bench_entropy.json. The first call loads
@@ -46,8 +43,7 @@ ANGULAR_VIEWS = 64
 
 
 def synthetic_spectra(n_texels: int, seed: int = 0) -> tuple[np.ndarray, ...]:
-    """light, observed power spectra and their cross spectrum (N, 3, l*+1) float32 (the model
-    plus noise), and the view cosines (N,)."""
+    """light, observed power spectra (N, 3, l*+1) float32 (the model plus noise)."""
     rng = np.random.default_rng(seed)
     degrees = np.arange(LMAX + 1)
     light = (1.0 + degrees) ** -2.0 * rng.lognormal(0.0, 0.3, (n_texels, 3, LMAX + 1))
@@ -62,9 +58,7 @@ def synthetic_spectra(n_texels: int, seed: int = 0) -> tuple[np.ndarray, ...]:
     rms = np.sqrt(light.sum(axis=2, keepdims=True))
     amplitude += NOISE * rms * rng.standard_normal(amplitude.shape)
     amplitude[..., 0] = kernel[:, None, 0] * specular * np.sqrt(light[..., 0]) + rng.uniform(0.0, 0.5, (n_texels, 3))
-    cross = np.sqrt(light) * amplitude
-    return (light.astype(np.float32), np.square(amplitude).astype(np.float32), cross.astype(np.float32),
-            view_cos.astype(np.float32))
+    return light.astype(np.float32), np.square(amplitude).astype(np.float32)
 
 
 def synthetic_moments(n_texels: int, resolution: int, seed: int = 1) -> tuple[np.ndarray, ...]:
@@ -130,25 +124,22 @@ def timed(run, entry: dict) -> dict:
 
 def main() -> None:
     n_texels = TEXTURE_RES * TEXTURE_RES
-    light, observed, cross, view_cos = synthetic_spectra(n_texels)
+    light, observed = synthetic_spectra(n_texels)
     n_samples = np.full(n_texels, 64, np.int32)
     facts = machine()
     exp_ns_at_start = numpy_exp_ns()
     threads = numba.get_num_threads()
     runs = []
-    for mode, phase_aware, lobe in (("calibrated", False, "gaussian"), ("calibrated", True, "gaussian"),
-                                    ("calibrated", False, "ggx"), ("paper", False, "gaussian")):
+    for mode in ("calibrated", "paper"):
         for grid_res in (8, 32):
-            config = UncertaintyConfig(mode=mode, grid_res=grid_res, phase_aware=phase_aware, lobe=lobe)
+            config = UncertaintyConfig(mode=mode, grid_res=grid_res)
             for with_likelihood in (False, True):
 
                 def run():
-                    return entropy_from_spectra(light, observed, cross_spectrum=cross if phase_aware else None,
-                                                n_samples=n_samples, view_cos=view_cos, config=config,
+                    return entropy_from_spectra(light, observed, n_samples=n_samples, config=config,
                                                 return_likelihood=with_likelihood)
 
-                runs.append(timed(run, {"mode": mode, "phase_aware": phase_aware, "lobe": lobe,
-                                        "grid_res": grid_res, "likelihood": with_likelihood}))
+                runs.append(timed(run, {"mode": mode, "grid_res": grid_res, "likelihood": with_likelihood}))
 
     # The angular mode, scored from its hypotheses' moments (inside `fit`, the estimator's search
     # collects them while it searches; on its own they take seconds, see UncertaintyConfig.mode).

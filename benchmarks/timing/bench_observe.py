@@ -1,19 +1,14 @@
-"""Time the observation stage on the bunny (T = 512, 64 views at 256 x 256) and measure whether
-tracing the environment's self-occlusion (ObserveConfig.environment_occlusion) helps.
+"""Time the observation stage on the bunny (T = 512, 64 views at 256 x 256).
 
     python benchmarks/timing/bench_observe.py [--scene plane|bunny]
 
-The captures (scenes.observe_timing_capture, scenes.occlusion_capture) are rendered once with
-freqbrdf.synthetic.synth into benchmarks/.cache/ and reused. Timing: per stage, for the first call
-in the process (cold: numba kernels loaded from their cache, Mitsuba's ray-test kernel compiled)
-and for a second call (warm); wall and CPU seconds, peak resident memory (ru_maxrss) and the load
-average, since the machine may be shared.
-
-Occlusion: a white (and a 50 % grey) Lambertian bunny, rendered by Mitsuba's path tracer (a plain
-``diffuse`` BSDF swapped in for synth's principled one). Per texel the mean observed radiance is
-compared with albedo x E / pi, with E unoccluded (the paper) and with occlusion traced, over all
-observed texels and over the concave ones (where occlusion removes over 10 % of E).
-Prints the figures and saves them to benchmarks/results/bench_observe.json.
+The capture (scenes.observe_timing_capture) is rendered once with freqbrdf.synthetic.synth into
+benchmarks/.cache/ and reused. Timing: per stage, for the first call in the process (cold: numba
+kernels loaded from their cache, Mitsuba's ray-test kernel compiled) and for a second call (warm);
+wall and CPU seconds, peak resident memory (ru_maxrss) and the load average, since the machine may
+be shared. Prints the figures and saves them to benchmarks/results/bench_observe.json. (The file's
+``environment_occlusion_accuracy`` and ``warm_with_environment_occlusion`` entries measured the
+retired ObserveConfig.environment_occlusion; docs/measurements.md, "Retired options", keeps them.)
 
 ``--scene`` times only the observation of studies/compare_estimators.py's capture of that scene
 (scenes.compare_capture: 64 views at 256 x 256, T = 512; the plane is its largest case) and stores
@@ -31,21 +26,16 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
 from freqbrdf.capture.layouts import load
-from freqbrdf.config import Config, ObserveConfig, TexelConfig
+from freqbrdf.config import Config
 from freqbrdf.fileio import atomic_path
 from freqbrdf.observe.observations import observe
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/: _common and scenes
 from _common import RESULTS_DIR
-from scenes import COMPARE_SCENES, OBSERVE_TIMING_SCENE, compare_capture, observe_timing_capture, occlusion_capture
+from scenes import COMPARE_SCENES, OBSERVE_TIMING_SCENE, compare_capture, observe_timing_capture
 
 RESULTS = RESULTS_DIR / "bench_observe.json"
-OCCLUSION_TEXTURE_RES = 128
-ALBEDOS = (1.0, 0.5)
-CONCAVE_BLOCKED_FRACTION = 0.1
 
 
 def peak_rss_mib() -> float:
@@ -70,33 +60,8 @@ def timing() -> dict:
     config = Config()
     cold = timed_run(capture, config)
     warm = timed_run(capture, config)
-    occlusion = timed_run(capture, config.replace(observe=ObserveConfig(environment_occlusion=True)))
     return {"texture_res": config.texels.texture_res, "views": len(capture.frames),
-            "image_size": OBSERVE_TIMING_SCENE.resolution, "cold": cold, "warm": warm,
-            "warm_with_environment_occlusion": occlusion}
-
-
-def occlusion_accuracy(albedo: float) -> dict:
-    capture = load(occlusion_capture(albedo))
-    config = Config(texels=TexelConfig(texture_res=OCCLUSION_TEXTURE_RES))
-    plain = observe(capture, config)
-    traced = observe(capture, config.replace(observe=ObserveConfig(environment_occlusion=True)))
-    # Texels seen 3+ times; fully enclosed ones (no light left once occlusion is traced) are out.
-    observed = (plain.n_samples >= 3) & (traced.irradiance.min(axis=1) > 0)
-    sampled = (plain.weight > 0)[..., None]
-    mean_radiance = (plain.observed * sampled).sum(axis=1)[observed] / plain.n_samples[observed, None]
-    blocked_fraction = 1.0 - traced.irradiance.sum(axis=1) / plain.irradiance.sum(axis=1)
-    concave = blocked_fraction[observed] > CONCAVE_BLOCKED_FRACTION
-    result = {"albedo": albedo, "observed_texels": int(observed.sum()), "concave_texels": int(concave.sum())}
-    for name, irradiance in (("unoccluded", plain.irradiance), ("occlusion_traced", traced.irradiance)):
-        relative = mean_radiance / (albedo * irradiance[observed] / np.pi) - 1.0  # (n, 3)
-        error = np.abs(relative).mean(axis=1)
-        result[name] = {
-            "median_abs_rel_error_all": round(float(np.median(error)), 4),
-            "median_abs_rel_error_concave": round(float(np.median(error[concave])), 4),
-            "median_signed_rel_error_concave": round(float(np.median(relative[concave].mean(axis=1))), 4),
-        }
-    return result
+            "image_size": OBSERVE_TIMING_SCENE.resolution, "cold": cold, "warm": warm}
 
 
 def scene_timing(scene: str) -> dict:
@@ -128,7 +93,6 @@ def main() -> None:
         "timing": timing(),
     }
     result["peak_rss_mib"] = round(peak_rss_mib(), 1)
-    result["environment_occlusion_accuracy"] = [occlusion_accuracy(albedo) for albedo in ALBEDOS]
     result["load_average_after"] = [round(load, 2) for load in os.getloadavg()]
     # The per-scene timings (--scene) are kept.
     result.update({key: value for key, value in previous.items() if key.startswith("timing_")})

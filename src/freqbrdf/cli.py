@@ -169,9 +169,6 @@ def observe(
     ),
     texture_res: int = typer.Option(512, min=1, help="Texture resolution T (maps are T x T)."),
     lmax: int = typer.Option(5, min=0, help="Degree l* of the per-texel SH fits."),
-    environment_occlusion: bool = typer.Option(
-        False, help="Trace the object's occlusion of its own environment (beyond the paper)."
-    ),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
 ) -> None:
     """Per-texel observations and SH spectra: observations.npz, coverage and visibility maps."""
@@ -186,7 +183,7 @@ def observe(
     from freqbrdf.observe.observations import write_maps
     from freqbrdf.progress import Reporter
 
-    config = _config("default", texture_res, lmax, environment_occlusion=environment_occlusion)
+    config = _config("default", texture_res, lmax)
     observations = observe_capture(load(capture), config, Reporter(enabled=not quiet))
     _results_from_cache(quiet)
     folder = Path(out)
@@ -199,7 +196,6 @@ def observe(
         "views": observations.n_views,
         "texels_with_samples": int((observations.n_samples > 0).sum()),
         "median_samples_per_texel": float(np.median(observations.n_samples)),
-        "environment_occlusion": observations.environment_occlusion,
         "config": config.to_dict(),
         "timings_s": {stage: round(seconds, 4) for stage, seconds in observations.timings.items()},
     }
@@ -216,8 +212,7 @@ def observe(
 
 def _config(preset: str, texture_res: int | None = None, lmax: int | None = None, *,
             estimator: str | None = None, model: str | None = None,
-            environment_occlusion: bool | None = None, entropy: str | None = None,
-            entropy_lobe: str | None = None):
+            entropy: str | None = None):
     """The preset's Config with the options the user gave (None: keep the preset's value)."""
     import dataclasses
 
@@ -229,15 +224,10 @@ def _config(preset: str, texture_res: int | None = None, lmax: int | None = None
     config = named_preset(preset)
     texels = dataclasses.replace(config.texels, **({} if texture_res is None else {"texture_res": texture_res}))
     fit_settings = dataclasses.replace(config.fit, **({} if lmax is None else {"lmax": lmax}))
-    observe_settings = dataclasses.replace(
-        config.observe,
-        **({} if environment_occlusion is None else {"environment_occlusion": environment_occlusion}),
-    )
     estimate_changes = _choices(config.estimate, {"method": ("estimator", estimator),
                                                   "forward_model": ("model", model)})
-    uncertainty_changes = _choices(config.uncertainty, {"mode": ("entropy mode", entropy),
-                                                        "lobe": ("entropy lobe", entropy_lobe)})
-    return config.replace(texels=texels, fit=fit_settings, observe=observe_settings,
+    uncertainty_changes = _choices(config.uncertainty, {"mode": ("entropy mode", entropy)})
+    return config.replace(texels=texels, fit=fit_settings,
                           estimate=dataclasses.replace(config.estimate, **estimate_changes),
                           uncertainty=dataclasses.replace(config.uncertainty, **uncertainty_changes))
 
@@ -270,10 +260,6 @@ def _estimation_res(value: str, texture_res: int):
 ENTROPY_HELP = ("Entropy mode: calibrated (spectra, milliseconds), paper (the published recipe) or angular "
                 "(the estimator's model on the samples; agrees with a path tracer; seconds on its own, about 3 % "
                 "more time inside fit). Default: the preset's.")
-ENTROPY_LOBE_HELP = ("What a hypothesis is in the calibrated entropy: gaussian (the paper's exp(-(alpha l)^2), the "
-                     "default) or ggx (the GGX lobe with its albedo at the texel's view angle: agrees 2-2.6x better "
-                     "with a path tracer, but gives a higher entropy, which the flags' and sharing's thresholds were "
-                     "not tuned for).")
 
 
 def _print_json(document: dict) -> None:
@@ -298,18 +284,10 @@ def fit(
                                "robust pass, a coarser roughness grid: smoother maps, less time); or paper (the "
                                "prototype's hyper-parameters)."),
     entropy: str = typer.Option(None, help=ENTROPY_HELP),
-    entropy_lobe: str = typer.Option(None, help=ENTROPY_LOBE_HELP),
     share: bool = typer.Option(False, "--share", help="Pull uncertain texels towards affine confident anchors."),
-    anisotropic_lobes: bool = typer.Option(
-        False, "--anisotropic-lobes", help="Read a smooth lobe's light as the anisotropic lobe it is at oblique "
-        "views: closer to a path tracer, 1.6-1.8x the estimation time; more accurate on the measured plane, "
-        "not on the bunnies."),
     neighbour_vote: bool = typer.Option(
         True, "--neighbour-vote/--no-neighbour-vote", help="Let a texel whose data fit two roughness values "
         "about equally take the one nearer its neighbours' (a likelihood-ratio test keeps what the data decide)."),
-    footprint_blur: bool = typer.Option(
-        False, "--footprint-blur", help="Blur each sample's smooth lobe by the normals its pixel spans (more "
-        "faithful on curved surfaces, but less accurate roughness on the measured scenes)."),
     estimation_res: str = typer.Option(
         None, help="Texture resolution to observe and estimate on before the maps are sampled up to T: pixel "
         "(the coarsest whose texels are no wider than a pixel of the closest view), coarse (the finest whose "
@@ -332,8 +310,7 @@ def fit(
     from freqbrdf.outputs.fit_folder import check_output_folder
     from freqbrdf.progress import Reporter
 
-    config = _config(preset, texture_res, lmax, estimator=estimator, model=model, entropy=entropy,
-                     entropy_lobe=entropy_lobe)
+    config = _config(preset, texture_res, lmax, estimator=estimator, model=model, entropy=entropy)
     if share:
         config = config.replace(share=dataclasses.replace(config.share, enabled=True))
     if split_half:
@@ -341,11 +318,9 @@ def fit(
     if estimation_res is not None:
         config = config.replace(texels=dataclasses.replace(config.texels, estimation_res=_estimation_res(
             estimation_res, config.texels.texture_res)))
-    # The flags only add to what the preset sets.
+    # The flag only takes away from what the preset sets.
     config = config.replace(estimate=dataclasses.replace(
-        config.estimate, anisotropic_lobes=config.estimate.anisotropic_lobes or anisotropic_lobes,
-        footprint_blur=config.estimate.footprint_blur or footprint_blur,
-        neighbour_vote=config.estimate.neighbour_vote and neighbour_vote))
+        config.estimate, neighbour_vote=config.estimate.neighbour_vote and neighbour_vote))
     reporter = Reporter(enabled=not (quiet or json_output))
     loaded = load(capture)
     check_output_folder(out, {"the capture": loaded.root.resolve()})  # before minutes of work
@@ -383,7 +358,6 @@ def uncertainty(
     ),
     preset: str = typer.Option("default", help="default (calibrated entropy), fast (as default here) or paper."),
     entropy: str = typer.Option(None, help=ENTROPY_HELP),
-    entropy_lobe: str = typer.Option(None, help=ENTROPY_LOBE_HELP),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars or messages."),
     json_output: bool = typer.Option(False, "--json", help="Print the summary as JSON to stdout."),
 ) -> None:
@@ -400,7 +374,7 @@ def uncertainty(
     from freqbrdf.uncertainty import entropy_map
     from freqbrdf.uncertainty import summary as uncertainty_summary
 
-    config = _config(preset, texture_res, lmax, entropy=entropy, entropy_lobe=entropy_lobe)
+    config = _config(preset, texture_res, lmax, entropy=entropy)
     loaded = load(capture)
     check_output_folder(out, {"the capture": loaded.root.resolve()})
     start = time.perf_counter()

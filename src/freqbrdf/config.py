@@ -60,22 +60,6 @@ class TexelConfig:
 
 
 @dataclass(frozen=True)
-class ObserveConfig:
-    """Per-texel samples from the photographs (METHOD.md §3.2)."""
-
-    # Beyond the paper: the object's own occlusion of the environment. A mirror direction that
-    # hits the object gets radiance 0 (interreflection ignored), and the irradiance loses the
-    # light of blocked directions, estimated with `occlusion_rays` cosine-weighted rays per texel.
-    # Off until it is shown to help (benchmarks/bench_observe.py measures it).
-    environment_occlusion: bool = False
-    occlusion_rays: int = 64
-    # RMS radius (per axis, pixels) of the image footprint a sample averages: a pixel's box (1/12
-    # px^2) and the bilinear lookup between pixels (1/6 on average). A curved surface turns its
-    # normal across that footprint, which blurs smooth reflections (`Observations.footprint`).
-    footprint_pixels: float = 0.5
-
-
-@dataclass(frozen=True)
 class FitConfig:
     """The weighted, degree-regularised SH least squares (appendix eqs. 19-20, App. B)."""
 
@@ -110,7 +94,7 @@ class UncertaintyConfig:
     # 5.95 -> 6.14 s). It agrees with the path-traced brute force over the same grid
     # (benchmarks/pathtraced_entropy.py, 400 texels, 9 x 9 grid: Spearman 0.81 [0.76, 0.86] against
     # the pooled rendering of two seeds that agree with each other at 0.89) where the spectra do not
-    # (8 x 8 grid: calibrated 0.19, with lobe "ggx" 0.38, paper 0.17). Capture guidance (which
+    # (8 x 8 grid: calibrated 0.19, paper 0.17). Capture guidance (which
     # predicts spectra) needs "calibrated" or "paper".
     mode: Literal["calibrated", "paper", "angular"] = "calibrated"
     # R: R x R hypotheses (alpha_i = (i/(R-1))^2, k_j = j/(R-1)). None: the paper's 8 in the
@@ -122,26 +106,6 @@ class UncertaintyConfig:
     # Calibrated mode: noise std of one sample's radiance, relative to the light's RMS amplitude
     # sqrt(sum_l S_refl(l)); a fitted coefficient then has variance noise_level^2 P K / n_samples.
     noise_level: float = 0.02
-    # Calibrated mode: compare the observed and light SH coefficients degree by degree through their
-    # cross spectrum (True), or their amplitudes sqrt(S(l)) as if in phase (False, the paper's
-    # power-spectrum view). Measured (benchmarks/results/entropy_variants.json): coefficients rank
-    # base-colour errors a little better, amplitudes agree far better with the path-traced brute force.
-    phase_aware: bool = False
-    # Calibrated mode: the lobe a hypothesis (alpha, k) is. "gaussian": the paper's
-    # exp(-(alpha l)^2), albedo 1 (k absorbs Fresnel and masking); "ggx": the GGX lobe's response
-    # to each degree (estimate.ggx_lobe_gains) times its albedo at the texel's mean view angle
-    # (split-sum, masking and Fresnel; uncertainty.hypothesis_albedo). "ggx" is the physics: with
-    # path-traced spectra of the same hypotheses scored as ours (benchmarks/pathtraced_entropy.py,
-    # 400 texels; they agree with themselves at 0.98) it ranks texels alike at Spearman 0.45
-    # against 0.17 for "gaussian", and the sample-domain brute force at 0.38 against 0.19. But it
-    # ranks the estimate's roughness errors a little worse (benchmarks/entropy_variants.py: 0.25
-    # against 0.28 on the bunny, 0.29 against 0.31 on the sphere, 0.02 against 0.09 on
-    # bunny_sunset, 0.17 against 0.12 on sphere_city, 0.13 both on sphere_studio) and raises the
-    # entropy (mean 0.45-0.53 against 0.38-0.45 there; 0.58-0.68 on 20-view fits), for which the
-    # applications' thresholds (ambiguous_entropy, ShareConfig) were not tuned: with it, sharing
-    # found no anchor on two of applications.py's four scenes and the flags masked 13-38 % of
-    # their texels instead of 2-4 %. So "gaussian" stays the default.
-    lobe: Literal["gaussian", "ggx"] = "gaussian"
     # Calibrated mode: add the best hypothesis's misfit per residual degree of freedom to the noise
     # variance (see freqbrdf.uncertainty); off reproduces a fixed noise_level.
     residual_noise: bool = True
@@ -188,13 +152,6 @@ class UncertaintyConfig:
     # roughness_window is wider): the window average spreads their scatter to the rest, at about a
     # quarter of the cost (1: every texel; uncertainty._split_half_variance has the figures).
     split_half_stride: int = 2
-    # Angular mode: score the hypotheses with anisotropic lobes (EstimateConfig.anisotropic_lobes:
-    # True), isotropic ones (False) or the estimator's own (None, the default; isotropic unless
-    # fit --anisotropic-lobes), which lets `pipeline.fit` take them from its search. Measured on the
-    # 8 x 8 grid (benchmarks/pathtraced_entropy.py, 400 texels, against the pooled rendering):
-    # Spearman 0.80 [0.74, 0.85] isotropic, 0.83 [0.78, 0.87] anisotropic, for 1.9x the time
-    # (3.9 -> 7.4 s on their own).
-    anisotropic_lobes: bool | None = None
 
     def __post_init__(self):
         _check_choices(self)
@@ -229,14 +186,6 @@ class EstimateConfig:
     # global: "burley" is Mitsuba's principled diffuse (view-dependent, with retro-reflection on
     # rough texels) averaged over uniform light; "lambert": METHOD.md's d E / pi. "paper": lambert.
     diffuse_model: Literal["burley", "lambert"] = "burley"
-    # global, split_sum: read the light of a rough lobe at the view direction tilted towards the
-    # normal (estimate.lobe_tilt_table, one tilt per lobe term) instead of the mirror direction.
-    # Measured with the other defaults (64 views, T = 512): plane base colour 20.11 -> 22.90 dB,
-    # roughness MAE 0.113 -> 0.078, metallic 0.172 -> 0.116; bunny 17.17 -> 17.18 dB, metallic
-    # 0.230 -> 0.209; but the demo capture (coffee) 19.20 -> 17.48 dB, and observe + estimate
-    # costs 1.5-2.6x. Off until it wins everywhere; with the environment light (below) it no longer
-    # helps (bunny 18.40 vs 18.42 dB, plane 23.94 vs 24.24).
-    lobe_tilt: bool = False
     # global, split_sum: the dielectric part's Fresnel. "exact": the unpolarised Fresnel equations
     # at eta 1.5, as Mitsuba's principled BSDF reflects (its metallic part is Schlick's);
     # "schlick": R0 = 0.04 (1 - m) + m b in Schlick's approximation, 10-27 % below at view
@@ -272,29 +221,6 @@ class EstimateConfig:
     # capture 19.92 -> 20.25 dB, relighting 23.02 -> 24.06. The model's mean loss drops 45-72 %
     # (benchmarks/results/prefiltered_light.json).
     prefiltered_light: bool = True
-    # With prefiltered_light: read a smooth lobe's light as the anisotropic lobe it is at oblique
-    # views (narrower across the plane of incidence; three taps along it, estimate._TAP_OFFSETS)
-    # instead of an isotropic lobe at the mirror direction. Closer to the path tracer (relative
-    # RMS error of a metal's radiance against Mitsuba, benchmarks/model_fidelity.py: r = 0.14
-    # 16 -> 9 %, r = 0.29 30 -> 21 %, r = 0.43 24 -> 21 %), and the angular entropy's default
-    # (UncertaintyConfig.anisotropic_lobes). Off here: at T = 512 (compare_estimators.md) it moves
-    # roughness MAE 0.058 -> 0.049 and relighting PSNR-H +0.10 dB on the plane, but the bunny's
-    # relighting -0.21 dB (roughness 0.126 -> 0.125), and the demo capture's roughness MAE 0.129 ->
-    # 0.133 (T = 256), for 1.3-1.4x the observe + estimate time (three lookups per sample and
-    # roughness node instead of one).
-    anisotropic_lobes: bool = False
-    # With prefiltered_light: blur each sample's smooth lobe by how far the surface's normal turns
-    # across its image footprint (`Observations.footprint`; estimate._FOOTPRINT_GAIN). A pixel on a
-    # curved surface averages the reflections of a spread of normals: on the 64-view bunny
-    # (T = 256) the smooth texels' roughness bias grows with the footprint (true r < 0.15: +0.04
-    # for the third of texels with the smallest, +0.21 for the largest). With the blur the model
-    # explains the truth there 4x better (squared residual at the true parameters 0.118 -> 0.030)
-    # and that bias falls +0.111 -> +0.049, but roughness below the blur's width can no longer be
-    # told apart and some texels escape to rough lobes: roughness MAE bunny 0.124 -> 0.129,
-    # entropy_scenes.py's sphere 0.114 -> 0.125 (where the footprints are 3x smaller and the
-    # residual at the truth grows); with the neighbour vote too (T = 256: bunny 0.121 -> 0.127, demo
-    # capture 0.123 -> 0.133). Off by default.
-    footprint_blur: bool = False
     # global: after the search, each texel whose estimate lies more than a grid cell from the median
     # roughness of its neighbours (5 x 5 texels) takes a local minimum within a cell of that median,
     # and one more than a metallic grid cell from their median metallic takes that metallic, unless
@@ -359,7 +285,6 @@ class ShareConfig:
 @dataclass(frozen=True)
 class Config:
     texels: TexelConfig = field(default_factory=TexelConfig)
-    observe: ObserveConfig = field(default_factory=ObserveConfig)
     fit: FitConfig = field(default_factory=FitConfig)
     uncertainty: UncertaintyConfig = field(default_factory=UncertaintyConfig)
     estimate: EstimateConfig = field(default_factory=EstimateConfig)

@@ -72,9 +72,6 @@ class Texels:
         The rest of the local frame: tangent x bitangent = normal.
     texel_area : (N,) float64
         World-space area one texel covers on its face.
-    normal_derivative : (N, 3, 3) float64
-        d normal / d position: how the shading normal turns per unit of world displacement along
-        the texel's face (zero along the face normal); see `normal_derivative`.
     snapped : (N,) bool
         True where the centre missed every triangle (conservative coverage).
     overlap_texels : int
@@ -93,7 +90,6 @@ class Texels:
     tangent: np.ndarray
     bitangent: np.ndarray
     texel_area: np.ndarray
-    normal_derivative: np.ndarray
     snapped: np.ndarray
     overlap_texels: int
     degenerate_uv_faces: int
@@ -162,7 +158,6 @@ def rasterise(mesh: Mesh, texture_res: int = 512, conservative: bool = True) -> 
     # Opposed vertex normals can cancel; the face's own normal is then the only sensible choice.
     normal = unit_or_fallback(shading, unit_or_fallback(geometric[face_id], np.array([0.0, 0.0, 1.0])))
     tangent, bitangent = orthonormal_basis(normal)
-    derivative = normal_derivative(corners, np.asarray(mesh.normals, np.float64)[mesh.faces], face_id, shading, normal)
 
     # The UV -> world map is affine per face, so every texel of a face covers the same world area.
     twice_world_area = np.linalg.norm(geometric, axis=-1)
@@ -178,55 +173,10 @@ def rasterise(mesh: Mesh, texture_res: int = 512, conservative: bool = True) -> 
         tangent=tangent,
         bitangent=bitangent,
         texel_area=world_area_per_uv_area[face_id],
-        normal_derivative=derivative,
         snapped=snap_distance.ravel()[texel_index] > 0.0,
         overlap_texels=int(np.count_nonzero(centre_hits >= 2)),
         degenerate_uv_faces=int(np.count_nonzero(~has_uv_area)),
     )
-
-
-def normal_derivative(corners: np.ndarray, corner_normals: np.ndarray, face_id: np.ndarray, shading: np.ndarray,
-                      normal: np.ndarray) -> np.ndarray:
-    """Differentiate the normalised interpolated shading normal n = s / |s| by position.
-
-    On a face s is affine in the position, ds = D (E^T E)^-1 E^T dp with E, D the face's edge
-    vectors and normal differences (the least-norm map, zero along the face normal), and
-    dn = (I - n n^T) ds / |s|.
-
-    Parameters
-    ----------
-    corners : (n_faces, 3, 3) float64
-        World positions of each face's corners.
-    corner_normals : (n_faces, 3, 3) float64
-        Shading normals at each face's corners.
-    face_id : (N,) int64
-        Each texel's face.
-    shading : (N, 3) float64
-        Each texel's unnormalised interpolated shading normal s.
-    normal : (N, 3) float64
-        Each texel's unit normal n.
-
-    Returns
-    -------
-    (N, 3, 3) float64
-        d n / d p at each texel; zero on faces without area and where s vanished (the face
-        normal stood in).
-    """
-    edges = np.stack([corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]], axis=-1)  # (F, 3, 2)
-    normal_steps = np.stack([corner_normals[:, 1] - corner_normals[:, 0],
-                             corner_normals[:, 2] - corner_normals[:, 0]], axis=-1)
-    gram = np.swapaxes(edges, 1, 2) @ edges  # (F, 2, 2)
-    determinant = gram[:, 0, 0] * gram[:, 1, 1] - gram[:, 0, 1] * gram[:, 1, 0]
-    usable = determinant > 1e-12 * np.maximum(gram[:, 0, 0] * gram[:, 1, 1], 1e-300)
-    adjugate = np.stack([np.stack([gram[:, 1, 1], -gram[:, 0, 1]], -1),
-                         np.stack([-gram[:, 1, 0], gram[:, 0, 0]], -1)], -2)
-    inverse = adjugate / np.where(usable, determinant, 1.0)[:, None, None]
-    face_derivative = normal_steps @ inverse @ np.swapaxes(edges, 1, 2)  # (F, 3, 3)
-    face_derivative[~usable] = 0.0
-    length = np.linalg.norm(shading, axis=-1)
-    projector = np.eye(3) - normal[:, :, None] * normal[:, None, :]
-    scale = np.where(length > 1e-12, 1.0 / np.maximum(length, 1e-12), 0.0)
-    return projector @ face_derivative[face_id] * scale[:, None, None]
 
 
 def orthonormal_basis(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

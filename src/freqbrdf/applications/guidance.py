@@ -7,16 +7,15 @@ Mitsuba shadow rays as `freqbrdf.observe.observations`), and the (band-limited) 
 direction. So for every
 specular hypothesis psi = (alpha, k) of the uncertainty grid the new sample can be simulated,
 
-    f_psi = k A(alpha, w_o) sum_l K(alpha, l) P_l(w_o) + D_psi,
+    f_psi = k sum_l K(alpha, l) P_l(w_o) + D_psi,
 
 with P_l the degree-l part of the light's SH fit (updated with the candidate's mirror sample) at
-the new direction, K and A the lobe the entropy uses (`uncertainty.hypothesis_filter`, band-limit
-compensated in calibrated mode, and with the "ggx" lobe its albedo `uncertainty.hypothesis_albedo`
-at the new view's cos theta_o; A = 1 otherwise) and D_psi the Lambertian radiance that explains the
-rest of the texel's fitted DC under psi, D = max(0, (c_obs,00 - k A(alpha, mean cos) c_light,00) /
-c_one,00) (0 for a texel with no sample yet). The observed fit is updated with that sample, its
-spectrum scored by `uncertainty.entropy_from_spectra` (with the texel's sample count and mean view
-cosine and, in phase-aware mode, the cross spectrum, as `uncertainty.entropy_map` scores a fit),
+the new direction, K the lobe the entropy uses (`uncertainty.hypothesis_filter`, band-limit
+compensated in calibrated mode) and D_psi the Lambertian radiance that explains the rest of the
+texel's fitted DC under psi, D = max(0, (c_obs,00 - k c_light,00) / c_one,00) (0 for a texel with
+no sample yet). The observed fit is updated with that sample, its spectrum scored by
+`uncertainty.entropy_from_spectra` (with the texel's sample count, as `uncertainty.entropy_map`
+scores a fit),
 and the candidate's expected entropy at the texel is sum_psi P(psi) H(psi), P the texel's current
 posterior (of its minimum-entropy channel; the hypothesis is applied to all three channels, whose
 minimum entropy is the map, as in `uncertainty`). The candidate's score is the mean over texels
@@ -76,14 +75,7 @@ from freqbrdf.sphere import envmap as envmaps
 from freqbrdf.sphere import harmonics as sh
 from freqbrdf.texels import Texels, rasterise
 from freqbrdf.uncertainty import (
-    Uncertainty,
-    cross_spectrum,
-    entropy_from_spectra,
-    hypothesis_albedo,
-    hypothesis_filter,
-    hypothesis_grid,
-    mean_view_cosine,
-    view_cosine_sums,
+    Uncertainty, cross_spectrum, entropy_from_spectra, hypothesis_filter, hypothesis_grid,
 )
 
 MAX_TEXELS = 1024  # texels scored per candidate (a seeded random subset of the atlas)
@@ -135,10 +127,6 @@ class FitState:
     rhs: np.ndarray  # (n, K, 7) float64 sum_i w_i^2 y_i f_i: light RGB, observed RGB, constant 1
     weight_sq: np.ndarray  # (n,) float64 sum_i w_i^2
     n_samples: np.ndarray  # (n,) int64
-    # (n,) float64 sum_i w_i and sum_i w_i cos(theta_o,i): the mean view cosine at which the entropy
-    # weighs each hypothesis's lobe by its albedo (`uncertainty.view_cosine_sums`).
-    weight_sum: np.ndarray
-    cosine_sum: np.ndarray
     basis: np.ndarray  # (n, K, K) B = R^-1/2 Q: (G + s R)^-1 = B diag(1 / (mu + s)) B^T
     eigenvalues: np.ndarray  # (n, K) mu >= 0
     projected_rhs: np.ndarray  # (n, K, 7) B^T b
@@ -234,10 +222,8 @@ def initial_state(observations: Observations, config: Config = Config()) -> FitS
     gram = np.einsum("tvk,tvj->tkj", weighted, basis)
     rhs = np.einsum("tvk,tvr->tkr", weighted, values)
     n_coeffs = sh.num_coeffs(lmax)
-    weight_sum, cosine_sum = view_cosine_sums(observations)
     state = FitState(
         gram, rhs, weight_sq.sum(axis=1), (observations.weight > 0).sum(axis=1).astype(np.int64),
-        weight_sum=weight_sum, cosine_sum=cosine_sum,
         basis=np.zeros_like(gram), eigenvalues=np.zeros((len(gram), n_coeffs)), projected_rhs=np.zeros_like(rhs),
         regulariser=sh.regulariser_weights(lmax, config.fit.regulariser),
     )
@@ -265,8 +251,6 @@ def add_samples(state: FitState, samples: CandidateSamples, observed: np.ndarray
     state.rhs[rows] += weighted[:, :, None] * values[:, None, :]
     state.weight_sq[rows] += weight_sq
     state.n_samples[rows] += 1
-    state.weight_sum[rows] += samples.weight
-    state.cosine_sum[rows] += weight_sq  # the weight is the view's cos(theta_o)
     _diagonalise(state, rows)
 
 
@@ -310,25 +294,19 @@ def expected_entropy(
     grid = hypothesis_grid(settings.resolution())
     grid_res, ks = grid.resolution, grid.specular
     calibrated = settings.mode == "calibrated"
-    # The entropy's own lobe: filter per degree and, for the "ggx" lobe, albedo at the view angle.
-    kernel = (hypothesis_filter(grid, lmax, sigma, settings.lobe) if calibrated
+    # The entropy's own lobe: filter per degree.
+    kernel = (hypothesis_filter(grid, lmax, sigma) if calibrated
               else brdf.brdf_kernel(grid.alpha, lmax))  # (R, L)
-    with_albedo = calibrated and settings.lobe == "ggx"
-    texel_cosine = mean_view_cosine(state.weight_sum[rows], state.cosine_sum[rows])  # (m,) before the sample
-    new_cosine = mean_view_cosine(state.weight_sum[rows] + samples.weight, state.cosine_sum[rows] + weight_sq)
-    sample_albedo = hypothesis_albedo(grid, samples.weight) if with_albedo else np.ones((len(rows), grid_res))
-    texel_albedo = hypothesis_albedo(grid, texel_cosine) if with_albedo else np.ones((len(rows), grid_res))
     light_by_degree = cross_spectrum(light_coeffs, samples.basis[:, None, :])  # (m, 3, L): the light at the sample
-    filtered = np.einsum("il,tcl->tic", kernel, light_by_degree) * sample_albedo[..., None]  # (m, R, 3)
+    filtered = np.einsum("il,tcl->tic", kernel, light_by_degree)  # (m, R, 3)
     current = coeffs[rows]  # (m, 7, K) before the sample
     with np.errstate(divide="ignore", invalid="ignore"):
-        specular_dc = (texel_albedo[:, :, None, None] * ks[None, None, :, None]
-                       * current[:, None, None, LIGHT, 0])  # (m, R_alpha, R_k, 3)
+        specular_dc = ks[None, :, None] * current[:, None, LIGHT, 0]  # (m, R_k, 3)
         diffuse = np.where(
-            current[:, ONE, 0, None, None, None] > 0,
-            (current[:, None, None, OBSERVED, 0] - specular_dc) / current[:, ONE, 0, None, None, None],
+            current[:, ONE, 0, None, None] > 0,
+            (current[:, None, OBSERVED, 0] - specular_dc) / current[:, ONE, 0, None, None],
             0.0,
-        )  # (m, R_alpha, R_k, 3)
+        )  # (m, R_k, 3): the same for every alpha
     diffuse = np.maximum(diffuse, 0.0)
     # Cells: (alpha_i, k_j) for j >= 1, and the one k = 0 material (all alphas alike).
     cell_alpha = np.concatenate([np.zeros(1, np.int64), np.repeat(np.arange(grid_res), grid_res - 1)])
@@ -339,19 +317,15 @@ def expected_entropy(
     )  # (m, cells)
     pair, cell = np.nonzero(cell_probability >= MIN_CELL_PROBABILITY)
     radiance = (ks[cell_k[cell], None] * filtered[pair, cell_alpha[cell]]
-                + diffuse[pair, cell_alpha[cell], cell_k[cell]])  # (P, 3)
+                + diffuse[pair, cell_k[cell]])  # (P, 3)
     delta = radiance - predicted[pair, OBSERVED]  # (P, 3)
     observed_spectrum = (  # of c + delta u, degree by degree
         base_spectrum[pair] + 2.0 * delta[..., None] * base_update[pair]
         + np.square(delta)[..., None] * update_power[pair, None, :]
     )
-    light_cross = None
-    if config.uncertainty.phase_aware:  # X(l) of c + delta u with the updated light: linear in delta
-        light_cross = (cross_spectrum(observed_base, light_coeffs)[pair]
-                       + delta[..., None] * cross_spectrum(update[:, None, :], light_coeffs)[pair])
     entropy = entropy_from_spectra(
-        light_spectrum[pair], np.maximum(observed_spectrum, 0.0), cross_spectrum=light_cross,
-        n_samples=state.n_samples[rows][pair] + 1, view_cos=new_cosine[pair], sigma=sigma, config=settings,
+        light_spectrum[pair], np.maximum(observed_spectrum, 0.0),
+        n_samples=state.n_samples[rows][pair] + 1, sigma=sigma, config=settings,
         return_likelihood=False,
     ).entropy.astype(np.float64)
     weights = cell_probability[pair, cell]
@@ -399,9 +373,6 @@ def candidate_samples(
     sigma = observations.sigma
     lit = envmaps.lowpass_envmap(capture.envmap, sigma) if sigma > 0 else capture.envmap
     light = envmaps.lookup(lit, mirror).astype(np.float64)
-    if observations.environment_occlusion:
-        blocked = occluder.hits(ray_origin[texel_of_ray], mirror)
-        light[blocked] = 0.0
     basis = sh.eval_sh(local, lmax)
     bounds = np.cumsum([0] + [len(rows) for rows, _ in seen])  # the rays come view by view
     return [
@@ -606,9 +577,7 @@ def _state_uncertainty(state: FitState, coeffs: np.ndarray, sigma: float, config
     observed, light = coeffs[:, OBSERVED], coeffs[:, LIGHT]
     return entropy_from_spectra(
         sh.power_spectrum(light), sh.power_spectrum(observed),
-        cross_spectrum=cross_spectrum(observed, light) if config.uncertainty.phase_aware else None,
-        n_samples=state.n_samples, view_cos=mean_view_cosine(state.weight_sum, state.cosine_sum), sigma=sigma,
-        fit_status=status, config=config.uncertainty,
+        n_samples=state.n_samples, sigma=sigma, fit_status=status, config=config.uncertainty,
     )
 
 

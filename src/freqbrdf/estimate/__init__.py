@@ -27,17 +27,6 @@ and diffuse factor D come in two versions (``EstimateConfig.specular_model``, ``
   pass for dark dielectrics, Lambert makes rough dielectrics look too smooth). With the
   environment light (below), D is Burley's factor averaged over the environment's own light
   instead (per channel, `environment_burley_factor`, ``EstimateConfig.burley_environment``).
-- with ``EstimateConfig.lobe_tilt`` the light of a rough lobe is read off the mirror direction,
-  tilted towards the normal as the lobe leans (`lobe_tilt_table`): S_alpha,c at
-  w' = normalize((1 - s) n + s w), with s per term of the lobe (A, B, E: each has its own Fresnel
-  weighting and so its own lean). The mirror lookup predicts rough metals 0.67 of their
-  path-traced specular on the plane, so they are fitted as half dielectric. With the other
-  defaults (exact dielectric, one robust pass) the tilt takes base-colour PSNR 17.17 -> 17.18 dB
-  (bunny) and 20.11 -> 22.90 dB (plane), roughness MAE to 0.151 and 0.078, metallic MAE to 0.209
-  and 0.116, but the demo capture's 19.20 -> 17.48 dB (its rough dielectrics drift towards metal),
-  at 1.5-2.6x the observe + estimate time: off by default. (Measured before the environment
-  light below, which makes it redundant: with both, bunny 18.40 dB and plane 23.94 dB, against
-  18.42 and 24.24 with the environment light alone.)
 - the environment light (``EstimateConfig.environment_light``, default on): the per-texel fit of
   the ~40-64 mirrored samples (l* = 5) extrapolates where a wide lobe reads it, and the Gaussian
   kernel exp(-alpha^2 l^2) is far from the GGX lobe's true per-degree response. On rough
@@ -77,9 +66,7 @@ and diffuse factor D come in two versions (``EstimateConfig.specular_model``, ``
   gains the map's degrees above 5 this way (maps filtered by the same gains with degrees <= 5
   removed, at roughness nodes 1/16 apart up to 1): in the blend, a lobe of roughness 0.45 still
   responds 0.17 to degree 6. Measured: see `EstimateConfig.prefiltered_light`. The mirror's node
-  (roughness 0) is the map itself: cut at the band limit it rang around bright lights. With
-  ``EstimateConfig.anisotropic_lobes`` (default off; `_TAP_OFFSETS`) a node's light is read as the
-  lobe it is at oblique views, narrower across the plane of incidence (`lobe_width_table`).
+  (roughness 0) is the map itself: cut at the band limit it rang around bright lights.
 
 - ``global`` (ours) minimises the weighted squared residual sum_v w_v^2 (L(w_v) - f_v)^2. Write
   L = m (b X + Y) + (1 - m) Z + (1 - m) b e D with X = A S_A, Y = B S_B, Z = E S_E (S_k the light
@@ -90,7 +77,7 @@ and diffuse factor D come in two versions (``EstimateConfig.specular_model``, ``
   safeguarded Newton on the exact derivatives of the profiled loss) at each node, and the best
   cell is refined by Brent, started from the parabola through the best node and its neighbours:
   the global optimum in (b, m, r) up to the grid resolution, with no step size and no local
-  minima to fall into. Per texel the light is expanded by degree once per tilt level and everything that
+  minima to fall into. Per texel the light is expanded by degree once and everything that
   does not depend on the roughness (table positions, Burley's polynomial in r, the diffuse
   moments) is prepared before the search, so a roughness probe costs ~20 multiply-adds per sample. Then
   ``EstimateConfig.robust_passes`` (default 1) passes of iteratively re-weighted least squares move
@@ -115,8 +102,6 @@ and diffuse factor D come in two versions (``EstimateConfig.specular_model``, ``
   reject it: a likelihood-ratio test at 95 % (the profiled least-squares loss may rise by chi^2_1
   3.84 noise variances, the residual over 3n - 5 degrees of freedom), so exact data never move.
   Measured: see `EstimateConfig.neighbour_vote`.
-- with ``EstimateConfig.footprint_blur`` (off) each sample's smooth lobe is read blurred by the
-  spread of normals across its pixel footprint (`Observations.footprint`, `_FOOTPRINT_GAIN`).
 - ``paper`` reproduces the authors' prototype with METHOD.md's model: Adam (torch's defaults, lr
   0.02, 100 iterations) on the L1 loss of the cos-weighted residuals averaged over the whole T x T
   texture, parameters clamped to [0, 1] after every step, texture-space total variation on the
@@ -287,10 +272,9 @@ def angular_loss(
     loss = np.empty(observations.n_texels)
     base_color = np.asarray(params.base_color, dtype=np.float64)
     metallic = np.asarray(params.metallic, dtype=np.float64)
-    levels = _tilt_levels(settings)
-    (tangent, normal, environment, blend, prefiltered, n_full, anisotropic, world_to_local, map_height,
+    (tangent, normal, environment, blend, prefiltered, n_full, world_to_local, map_height,
      map_width) = _environment_inputs(observations, settings)
-    for rows in texel_blocks(observations.n_texels, _PROJECTION_BLOCK // levels):
+    for rows in texel_blocks(observations.n_texels, _PROJECTION_BLOCK):
         if len(environment):
             azimuthal = np.ascontiguousarray(environment_azimuthal(
                 observations.view_direction[rows], observations.weight[rows], tangent[rows], normal[rows],
@@ -298,18 +282,17 @@ def angular_loss(
         else:
             azimuthal = np.zeros((rows.stop - rows.start, observations.n_views, 3, 0))
         # The prefiltered light replaces the fitted one: its expansion would be read by nothing.
-        fitted = (np.zeros((rows.stop - rows.start, 1, 3, 1, observations.n_views), np.float32) if n_full else
-                  _tilted_projections(observations.view_direction[rows], observations.weight[rows], light[rows],
-                                      observations.lmax, levels))
+        fitted = (np.zeros((rows.stop - rows.start, 3, 1, observations.n_views), np.float32) if n_full else
+                  _mirror_projections(observations.view_direction[rows], observations.weight[rows], light[rows],
+                                      observations.lmax))
         _squared_residual_kernel(
             fitted,
             observations.view_direction[rows], observations.weight[rows], observations.observed[rows],
             _diffuse_scale(observations)[rows], base_color[rows], metallic[rows],
             np.asarray(params.roughness, dtype=np.float64)[rows], observations.sigma, settings.fresnel,
             settings.masking, _uses_split_sum(settings), _uses_exact_dielectric(settings), _uses_burley(settings),
-            _model_tables(), environment_response_table(), _burley_response(settings), azimuthal, blend, tangent[rows],
-            normal[rows], prefiltered, n_full, anisotropic, world_to_local, map_height, map_width,
-            _footprint_input(observations, settings)[rows], loss[rows],
+            split_sum_table(), environment_response_table(), _burley_response(settings), azimuthal, blend,
+            tangent[rows], normal[rows], prefiltered, n_full, world_to_local, map_height, map_width, loss[rows],
         )
     return np.where(observations.n_samples > 0, loss, np.nan)
 
@@ -367,20 +350,13 @@ def _run_search_kernel(observations: Observations, settings: EstimateConfig, lig
         observations.view_direction, observations.weight, observations.observed,
         np.ascontiguousarray(light, dtype=np.float32), _diffuse_scale(observations), observations.sigma,
         settings.fresnel, settings.masking, _uses_split_sum(settings), _uses_exact_dielectric(settings),
-        _uses_burley(settings), _model_tables(), _model_rows(), _tilt_levels(settings), settings.roughness_grid,
+        _uses_burley(settings), split_sum_table(), _split_sum_rows(), settings.roughness_grid,
         settings.metallic_grid, settings.robust_passes, observations.lmax, *sh._legendre_tables(observations.lmax),
         tangent, normal, environment, blend, environment_response_table(),
         *_environment_quadrature(max(math.isqrt(len(environment)) - 1, 0)), _burley_response(settings),
-        *prefiltered, _footprint_input(observations, settings), hypothesis_roughness, hypothesis_moments, node_rows,
+        *prefiltered, hypothesis_roughness, hypothesis_moments, node_rows,
         search, candidate, params, loss, curvature,
     )
-
-
-def _footprint_input(observations: Observations, settings: EstimateConfig) -> np.ndarray:
-    """(N, V) `Observations.footprint` where the estimator blurs by it, else (N, 0)."""
-    if settings.footprint_blur and observations.footprint is not None:
-        return observations.footprint
-    return np.zeros((observations.n_texels, 0), np.float32)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -401,8 +377,6 @@ def _validate(settings: EstimateConfig) -> None:
         raise ValueError(f"unknown dielectric_fresnel {settings.dielectric_fresnel!r}; choose 'exact' or 'schlick'")
     if settings.robust_passes < 0:
         raise ValueError("robust_passes must be >= 0")
-    if settings.lobe_tilt and settings.prefiltered_light:
-        raise ValueError("lobe_tilt tilts the fitted light, which prefiltered_light replaces; turn one of them off")
     if not 0.0 <= settings.environment_blend[0] < settings.environment_blend[1]:
         raise ValueError(f"environment_blend must be (start, end) with 0 <= start < end, got "
                          f"{settings.environment_blend}")
@@ -429,7 +403,6 @@ _TABLE_COS_NODES = 33
 _TABLE_ROUGHNESS_NODES = 33
 _TABLE_THETA_STRATA = 64
 _TABLE_PHI_STRATA = 32
-_SPREAD_STRATA = 256  # strata per axis of `lobe_spread`
 
 
 @functools.cache
@@ -479,56 +452,6 @@ def integrate_split_sum_table() -> np.ndarray:
     return np.stack([np.mean(integrand * weight, axis=(2, 3)) for weight in weights])
 
 
-@functools.cache
-def lobe_width_table() -> np.ndarray:
-    """(2, cos nodes, roughness nodes) float64: `lobe_spread` in the plane of incidence and across
-    it, each relative to the spread at normal incidence (same roughness); nodes as
-    `split_sum_table`'s, shipped in data/lobe_width.csv (the two tables stacked by rows;
-    scripts/make_lobe_width_table.py). A narrow lobe keeps its width in the plane and shrinks to
-    cos theta_o across it; towards grazing views the horizon cuts it and both ratios grow. Used by
-    the anisotropic lobes (`_TAP_OFFSETS`)."""
-    table = np.loadtxt(_WIDTH_TABLE_PATH, delimiter=",", ndmin=2)
-    shape = (2 * _TABLE_COS_NODES, _TABLE_ROUGHNESS_NODES)
-    if table.shape != shape or not np.all((table > 0.0) & (table < 4.0)):
-        raise InputError(_WIDTH_TABLE_PATH, f"expected a {shape[0]} x {shape[1]} table of spread ratios in (0, 4), "
-                                            f"got shape {table.shape}; regenerate it with "
-                                            "scripts/make_lobe_width_table.py")
-    return table.reshape(2, _TABLE_COS_NODES, _TABLE_ROUGHNESS_NODES)
-
-
-def lobe_spread(cos_theta: float, roughness: float, strata: int = _SPREAD_STRATA) -> tuple[float, float]:
-    """(along, across): the RMS of the GGX lobe's light directions about their mean, along the
-    plane of incidence and across it, seen from view = (sin, 0, cos theta_o). The light is drawn
-    from the distribution of visible normals (Heitz 2018), stratified (strata x strata), weighted
-    by G2 / G1(view): the lobe's f cos_i without Fresnel. GGX's heavy tails count: a map
-    prefiltered by a GGX lobe has them too. Deterministic."""
-    cos_theta = min(max(float(cos_theta), 1e-4), 1.0)
-    alpha = float(brdf.alpha_from_roughness(np.array(roughness)))
-    view = np.array([math.sqrt(1.0 - cos_theta**2), 0.0, cos_theta])
-    stretched = np.array([alpha * view[0], 0.0, view[2]])
-    stretched /= np.linalg.norm(stretched)
-    first = np.array([0.0, 1.0, 0.0]) if stretched[0] > 0.0 else np.array([1.0, 0.0, 0.0])
-    second = np.cross(stretched, first)
-    u = (np.arange(strata) + 0.5) / strata
-    radius, phi = np.sqrt(u)[:, None], 2.0 * np.pi * u[None, :]
-    t1 = (radius * np.cos(phi)).ravel()
-    t2 = (radius * np.sin(phi)).ravel()
-    blend = 0.5 * (1.0 + stretched[2])
-    t2 = (1.0 - blend) * np.sqrt(np.maximum(1.0 - t1**2, 0.0)) + blend * t2
-    normal = (t1[:, None] * first + t2[:, None] * second
-              + np.sqrt(np.maximum(1.0 - t1**2 - t2**2, 0.0))[:, None] * stretched)
-    half = np.stack([alpha * normal[:, 0], alpha * normal[:, 1], np.maximum(normal[:, 2], 1e-9)], axis=-1)
-    half /= np.linalg.norm(half, axis=1, keepdims=True)
-    light = 2.0 * (half @ view)[:, None] * half - view
-    above = light[:, 2] > 0.0
-    weight = np.where(above, brdf.smith_g1_ggx(np.maximum(light[:, 2], 1e-12), alpha), 0.0)
-    weight /= weight.sum()
-    mean = weight @ light
-    mean /= np.linalg.norm(mean)
-    in_plane = np.array([mean[2], 0.0, -mean[0]])
-    return (float(np.sqrt(weight @ (light @ in_plane) ** 2)), float(np.sqrt(weight @ light[:, 1] ** 2)))
-
-
 def dielectric_eta() -> float:
     """The relative index of refraction whose normal reflectance is brdf.DIELECTRIC_F0 (1.5)."""
     root = math.sqrt(brdf.DIELECTRIC_F0)
@@ -546,14 +469,6 @@ def dielectric_fresnel(cos_theta: np.ndarray) -> np.ndarray:
     return 0.5 * perpendicular**2 * (1.0 + ratio**2)
 
 
-def lobe_widths(cos_theta: np.ndarray, roughness: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(along, across) of `lobe_width_table`, bilinear, for broadcastable cos_theta and roughness in [0, 1]."""
-    cos_theta, roughness = np.broadcast_arrays(np.asarray(cos_theta, np.float64), np.asarray(roughness, np.float64))
-    ratios = np.empty((2, cos_theta.size))
-    _table_terms_kernel(cos_theta.ravel(), roughness.ravel(), lobe_width_table(), ratios)
-    return ratios[0].reshape(cos_theta.shape), ratios[1].reshape(cos_theta.shape)
-
-
 def split_sum_terms(cos_theta: np.ndarray, roughness: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(A, B, E) of `split_sum_table`, bilinear, for broadcastable cos_theta and roughness in [0, 1]."""
     cos_theta, roughness = np.broadcast_arrays(np.asarray(cos_theta, np.float64), np.asarray(roughness, np.float64))
@@ -562,76 +477,23 @@ def split_sum_terms(cos_theta: np.ndarray, roughness: np.ndarray) -> tuple[np.nd
     return tuple(term.reshape(cos_theta.shape) for term in terms)
 
 
-# With lobe_tilt, the light of a rough lobe is looked up off the mirror direction, at the view
-# direction tilted towards the normal: w' = normalize((1 - s) n + s w) (s = 1 the mirror, 0 the normal), with s per
-# (cos theta_o, roughness) from a shipped table (`lobe_tilt_table`). The search expands the light by
-# degree at the tilt levels s = j / (levels - 1) and interpolates linearly in s.
-_TILT_LEVELS = 9
 _SPLIT_SUM_TABLE_PATH = Path(__file__).resolve().parents[1] / "model" / "data" / "split_sum.csv"
-_TILT_TABLE_PATH = Path(__file__).resolve().parents[1] / "model" / "data" / "lobe_tilt.csv"
-_WIDTH_TABLE_PATH = Path(__file__).resolve().parents[1] / "model" / "data" / "lobe_width.csv"
-_TILT_FIT_LMAX = 5  # the default l*: the degrees whose responses the tilt is fitted to
-_TILT_CANDIDATES = 401  # tilts tried per node: s on a 0.0025 grid
-_TILT_THETA_STRATA = 64  # strata of the half vector's polar and azimuthal angle each
+_ENVIRONMENT_LMAX = 5  # the default l*: the degrees of the environment light (`environment_response_table`)
+_RESPONSE_STRATA = 64  # strata of the half vector's polar and azimuthal angle each (`lobe_sh_response`)
 
 
 # The terms of the split-sum specular, each with its own Fresnel weight over the lobe and so its
-# own tilt: A (1 - F_c), B (F_c, Schlick's weight) and E (the exact dielectric Fresnel).
+# own response to the light: A (1 - F_c), B (F_c, Schlick's weight) and E (the exact dielectric Fresnel).
 LOBE_TERMS = ("scale", "bias", "dielectric")
 
 
-@functools.cache
-def lobe_tilt_table() -> np.ndarray:
-    """(3, cos nodes, roughness nodes) float64: per `LOBE_TERMS` term, the tilt s in [0, 1] of
-    its split-sum light lookup.
-
-    The cos-weighted GGX lobe of a rough surface leans from the mirror direction towards the
-    normal, so the mirror-direction lookup sees too much of the horizon: on the plane capture it
-    predicted 0.45 of the path-traced specular of rough metals (r >= 0.65) at grazing views and
-    0.90 near the normal; the tilted lookup 0.93-0.98. Fresnel weights the lobe's grazing half
-    vectors up, which lean the other way: Schlick's F_c term and the dielectric's Fresnel tilt far
-    less than A's (at cos theta_o 0.4, r 0.8: s = 0.36 for A, 0.63 for E, 1.0 for B). Nodes as
-    `split_sum_table`'s; the values are `fit_lobe_tilt`'s, shipped in data/lobe_tilt.csv (the
-    three tables stacked by rows; scripts/make_lobe_tilt_table.py).
-    """
-    table = np.loadtxt(_TILT_TABLE_PATH, delimiter=",", ndmin=2)
-    shape = (len(LOBE_TERMS) * _TABLE_COS_NODES, _TABLE_ROUGHNESS_NODES)
-    if table.shape != shape or not np.all((table >= 0.0) & (table <= 1.0)):
-        raise InputError(_TILT_TABLE_PATH, f"expected a {shape[0]} x {shape[1]} table of tilts in [0, 1] (one "
-                                           f"{_TABLE_COS_NODES}-row block per lobe term), got shape {table.shape}; "
-                                           "regenerate it with scripts/make_lobe_tilt_table.py")
-    return table.reshape(len(LOBE_TERMS), _TABLE_COS_NODES, _TABLE_ROUGHNESS_NODES)
-
-
-def lobe_tilt_nodes() -> tuple[np.ndarray, np.ndarray]:
-    """The (cos theta_o, roughness) nodes of `lobe_tilt_table` (and of `split_sum_table`)."""
+def table_nodes() -> tuple[np.ndarray, np.ndarray]:
+    """The (cos theta_o, roughness) nodes of `split_sum_table`."""
     return np.linspace(0.0, 1.0, _TABLE_COS_NODES), np.linspace(0.0, 1.0, _TABLE_ROUGHNESS_NODES)
 
 
-def fit_lobe_tilt(cos_theta: float, roughness: float, term: str = "scale", lmax: int = _TILT_FIT_LMAX) -> float:
-    """The tilt s whose split-sum lookup best reproduces the GGX lobe's response to each real SH
-    of degree 1..l* (degree 0 does not depend on s), in the least-squares sense over the 3 + ... +
-    (2 l* + 1) harmonics, the best of s on a grid.
-
-    The lobe (masking-shadowing included, weighted by the ``term``'s Fresnel factor, see
-    `LOBE_TERMS`) is integrated by stratified sampling of GGX half vectors, as `split_sum_table`;
-    its response to a light that is Y_lm in the mirrored parameterisation is
-    int Y_lm(mirror(w_i)) f cos_i dw_i, the model's is its albedo times exp(-alpha^2 l^2) Y_lm(w'(s)).
-    Deterministic. At normal incidence every s gives the normal.
-    """
-    albedo, responses, view = lobe_sh_response(cos_theta, roughness, term, lmax)
-    alpha = float(brdf.alpha_from_roughness(np.array(roughness)))
-    degree = sh.sh_degrees(lmax)
-    tilts = np.linspace(0.0, 1.0, _TILT_CANDIDATES)
-    looked_up = tilts[:, None] * view + (1.0 - tilts)[:, None] * np.array([0.0, 0.0, 1.0])
-    looked_up /= np.linalg.norm(looked_up, axis=1, keepdims=True)
-    model = albedo * np.exp(-alpha**2 * degree**2) * sh.eval_sh(looked_up, lmax)
-    misfit = np.sum(((model - responses) ** 2)[:, degree >= 1], axis=1)
-    return float(tilts[np.argmin(misfit)])
-
-
-def lobe_sh_response(cos_theta: float, roughness: float, term: str = "scale", lmax: int = _TILT_FIT_LMAX,
-                     strata: int = _TILT_THETA_STRATA) -> tuple[float, np.ndarray, np.ndarray]:
+def lobe_sh_response(cos_theta: float, roughness: float, term: str = "scale", lmax: int = _ENVIRONMENT_LMAX,
+                     strata: int = _RESPONSE_STRATA) -> tuple[float, np.ndarray, np.ndarray]:
     """(albedo, responses (K,), view (3,)): the GGX lobe seen from view = (sin, 0, cos theta_o),
     masking-shadowing included and weighted by the ``term``'s Fresnel factor (`LOBE_TERMS`), its
     albedo int f cos_i dw_i and its response int Y_lm(mirror(w_i)) f cos_i dw_i to each real SH
@@ -664,7 +526,7 @@ def lobe_sh_response(cos_theta: float, roughness: float, term: str = "scale", lm
 
 
 # With the environment light (`EstimateConfig.environment_light`), a rough lobe reads the
-# environment's own SH (degrees up to `_TILT_FIT_LMAX`, unoccluded) through the lobe's exact response
+# environment's own SH (degrees up to `_ENVIRONMENT_LMAX`, unoccluded) through the lobe's exact response
 # to each harmonic: per (cos theta_o, roughness) node and lobe term, the response to Y_lm (m >= 0) in
 # a frame whose x axis is the mirrored view's azimuth (`environment_response_table`). Per texel the
 # environment is turned into the texel's frame once, per sample into its view's azimuth.
@@ -682,7 +544,7 @@ def environment_pairs(lmax: int) -> int:
 
 
 def environment_response(cos_theta: float, roughness: float, term: str = "scale",
-                         lmax: int = _TILT_FIT_LMAX) -> np.ndarray:
+                         lmax: int = _ENVIRONMENT_LMAX) -> np.ndarray:
     """((lmax + 1)(lmax + 2) / 2,) the ``term``'s lobe response to each real SH Y_lm with m >= 0
     (order: l, then m), relative to its albedo, for the view (sin, 0, cos theta_o), in the mirrored
     parameterisation (`lobe_sh_response`). The lobe is symmetric about its plane of incidence, so
@@ -707,7 +569,7 @@ def environment_response_table() -> np.ndarray:
     columns: the harmonics; scripts/make_environment_response_table.py).
     """
     table = np.loadtxt(_ENVIRONMENT_TABLE_PATH, delimiter=",", ndmin=2)
-    pairs = environment_pairs(_TILT_FIT_LMAX)
+    pairs = environment_pairs(_ENVIRONMENT_LMAX)
     shape = (len(LOBE_TERMS) * _ENVIRONMENT_NODES * _TABLE_COS_NODES, pairs)
     if table.shape != shape or not np.all(np.isfinite(table)):
         raise InputError(_ENVIRONMENT_TABLE_PATH, f"expected a {shape[0]} x {shape[1]} table of finite responses, "
@@ -754,7 +616,7 @@ def environment_azimuthal(directions: np.ndarray, weight: np.ndarray, tangent: n
     normal by the azimuth beta of the mirrored view direction (-x, -y), c_lm cos(m beta) +
     c_l,-m sin(m beta); P = `environment_pairs`. 0 where weight is 0."""
     directions = np.asarray(directions, np.float64)
-    degrees = min(sh.lmax_of(environment_coeffs.shape[0]), _TILT_FIT_LMAX)
+    degrees = min(sh.lmax_of(environment_coeffs.shape[0]), _ENVIRONMENT_LMAX)
     local = local_environment(environment_coeffs, tangent, normal, degrees)  # (n, K, 3)
     beta = np.arctan2(-directions[..., 1], -directions[..., 0])[..., None]  # (n, V, 1)
     out = np.empty(directions.shape[:2] + (3, environment_pairs(degrees)))
@@ -817,23 +679,6 @@ PREFILTER_STEP = 1.0 / 16.0
 # of the prefiltered stack (11 maps of 512 x 1024 x 3 float32: 69 MB) and its transforms.
 PREFILTER_MAX_HEIGHT = 512
 _GAIN_STRATA = 8192  # half-vector strata of `ggx_lobe_gains`
-# Anisotropic lobes (`EstimateConfig.anisotropic_lobes`): seen at theta from the normal, a GGX lobe
-# keeps about its width in the plane of incidence and narrows across it (`lobe_width_table`: spreads
-# w_along, w_across relative to normal incidence). Its light is read as three taps along the plane
-# of incidence at Gauss-Hermite offsets of s = alpha sqrt(w_along^2 - w_across^2) (so that the
-# in-plane variance is the lobe's), each on the isotropic map of roughness r sqrt(w_across) (a
-# map's width goes as alpha = r^2). Measured against the path tracer: benchmarks/model_fidelity.py.
-_TAP_OFFSETS = (-math.sqrt(3.0), 0.0, math.sqrt(3.0))
-_TAP_WEIGHTS = (1.0 / 6.0, 2.0 / 3.0, 1.0 / 6.0)
-# A GGX lobe of width alpha seen through normals spread by sigma (radians, per axis; the sample's
-# footprint, `Observations.footprint`) reads about like one of alpha^2 + _FOOTPRINT_GAIN sigma^2:
-# least squares on `ggx_lobe_gains` (weights 1 / (l + 1), degrees <= 400) of the GGX gains times
-# the Gaussian's exp(-l (l + 1) (2 sigma)^2 / 2) gave 1.3-1.9 for sigma / alpha in 0.25-4 and alpha
-# in 0.002-0.03 (relative misfit 0.2-6.5 %).
-_FOOTPRINT_GAIN = 1.6
-# The taps are read at texel coordinates linear in their angle from the mirror direction, from the
-# coordinates of a direction turned this far (radians) towards the normal: no trigonometry per tap.
-_TAP_STEP = 1e-3
 
 
 @functools.cache
@@ -890,14 +735,11 @@ def prefiltered_environment(envmap, n_nodes: int, skip_degrees: int = 0) -> np.n
 
 
 def prefiltered_light(directions: np.ndarray, tangent: np.ndarray, normal: np.ndarray, prefiltered: np.ndarray,
-                      rotation: np.ndarray, roughness: np.ndarray, anisotropic: bool = False,
-                      footprint: np.ndarray | None = None) -> np.ndarray:
+                      rotation: np.ndarray, roughness: np.ndarray) -> np.ndarray:
     """(n, V, 3) the prefiltered light a lobe of roughness (n,) reads: directions (n, V, 3) local view
     directions, tangent and normal (n, 3) world frame of each texel, prefiltered (nodes, H, W, 3)
     `prefiltered_environment` of a map with emitter-to-world ``rotation`` (3, 3), looked up at the
-    world mirror directions (``anisotropic``: as the anisotropic lobe, `_TAP_OFFSETS`) and linear in
-    roughness between its nodes (as the search reads it), each sample's lobe blurred by its
-    ``footprint`` (n, V) (`Observations.footprint`, `_FOOTPRINT_GAIN`) if given."""
+    world mirror directions and linear in roughness between its nodes (as the search reads it)."""
     directions = np.asarray(directions, np.float64)
     tangent, normal = np.asarray(tangent, np.float64), np.asarray(normal, np.float64)
     bitangent = np.cross(normal, tangent)
@@ -928,40 +770,9 @@ def prefiltered_light(directions: np.ndarray, tangent: np.ndarray, normal: np.nd
         return (1.0 - fy) * top + fy * bottom
 
     x, y = texel_coordinates(world)  # of the mirror direction
-    if anisotropic:
-        # Their change per radian turned towards the normal in the plane of incidence (as
-        # `_mirror_stencil`).
-        sin_theta = np.sqrt(1.0 - mirror[..., 2] ** 2)
-        across = np.where(sin_theta > 1e-9, np.sin(_TAP_STEP) / np.maximum(sin_theta, 1e-9), 0.0)[..., None]
-        turned = np.cos(_TAP_STEP) * world + across * (normal[:, None] - mirror[..., 2:] * world)
-        turned_x, turned_y = texel_coordinates(turned)
-        step_x = turned_x - x
-        step_x = np.where(step_x > 0.5 * width, step_x - width, np.where(step_x < -0.5 * width, step_x + width, step_x))
-        step_x, step_y = step_x / _TAP_STEP, (turned_y - y) / _TAP_STEP
-
-    def node_light(node: np.ndarray) -> np.ndarray:  # (n, V, 3) the light of each sample's node (n, V)
-        if not anisotropic:
-            return bilinear(node, x, y)
-        node_roughness = node * PREFILTER_STEP
-        along, across = lobe_widths(cos_theta, node_roughness)
-        across = np.minimum(across, 1.0)
-        spread = node_roughness**2 * np.sqrt(np.maximum(along**2 - across**2, 0.0))
-        read = np.vectorize(lambda r: _prefilter_node(r, n_nodes), otypes=[np.int64, np.float64])
-        read_node, read_frac = read(node_roughness * np.sqrt(across))
-        light = np.zeros(world.shape)
-        for offset, tap_weight in zip(_TAP_OFFSETS, _TAP_WEIGHTS):
-            tap_x, tap_y = x + offset * spread * step_x, y + offset * spread * step_y
-            lower = bilinear(read_node, tap_x, tap_y)
-            upper = bilinear(read_node + 1, tap_x, tap_y)
-            light += tap_weight * (lower + read_frac[..., None] * (upper - lower))
-        return light
-
     roughness = np.broadcast_to(np.asarray(roughness, np.float64)[:, None], cos_theta.shape)
-    if footprint is not None:
-        blur = _FOOTPRINT_GAIN * np.asarray(footprint, np.float64) ** 2
-        roughness = np.where(blur > 0.0, (roughness**4 + blur) ** 0.25, roughness)
     node, frac = np.vectorize(lambda r: _prefilter_node(r, n_nodes), otypes=[np.int64, np.float64])(roughness)
-    lower, upper = node_light(node), node_light(node + 1)
+    lower, upper = bilinear(node, x, y), bilinear(node + 1, x, y)
     return lower + frac[..., None] * (upper - lower)
 
 
@@ -982,14 +793,10 @@ def _cross(a, b, out):
 
 
 @_borrowing_jit
-def _mirror_stencil(xyz, n, tangent, normal, bitangent, world_to_local, height, width, corner, stencil_frac, frames):
+def _mirror_stencil(xyz, n, tangent, normal, bitangent, world_to_local, height, width, corner, stencil_frac):
     """`envmap.lookup`'s bilinear stencil at the world mirror direction of each local view direction
     xyz[:, s], s < n: corner (4, n) flat pixel indices row * width + col of (row, col), (row, col + 1),
-    (row + 1, col), (row + 1, col + 1); stencil_frac (2, n) the column and row fractions. With
-    frames (5, n) (else (0, n)), per sample for the anisotropic lobes' taps
-    (`_prefiltered_node_light`): the mirror direction's texel coordinates x, y
-    (`envmap.map_coordinates`), their change per radian of turning it towards the normal in the
-    plane of incidence, and cos theta."""
+    (row + 1, col), (row + 1, col + 1); stencil_frac (2, n) the column and row fractions."""
     for s in range(n):
         mirror_x, mirror_y, mirror_z = -xyz[0, s], -xyz[1, s], xyz[2, s]
         world_x = mirror_x * tangent[0] + mirror_y * bitangent[0] + mirror_z * normal[0]
@@ -1000,24 +807,6 @@ def _mirror_stencil(xyz, n, tangent, normal, bitangent, world_to_local, height, 
         corner[0, s], corner[1, s] = row0 * width + col0, row0 * width + col1
         corner[2, s], corner[3, s] = (row0 + 1) * width + col0, (row0 + 1) * width + col1
         stencil_frac[0, s], stencil_frac[1, s] = fx, fy
-        if frames.shape[0] > 0:
-            # Turned by _TAP_STEP towards the normal n: (n - cos m) / sin is in the plane of n and
-            # the mirror direction m. The taps are read linearly in texel coordinates from here.
-            sin_theta = math.sqrt(max(1.0 - mirror_z * mirror_z, 0.0))
-            inverse = 1.0 / sin_theta if sin_theta > 1e-9 else 0.0
-            along, across = math.cos(_TAP_STEP), math.sin(_TAP_STEP) * inverse
-            turned_x, turned_y = envmaps.map_coordinates(
-                world_to_local, along * world_x + across * (normal[0] - mirror_z * world_x),
-                along * world_y + across * (normal[1] - mirror_z * world_y),
-                along * world_z + across * (normal[2] - mirror_z * world_z), height, width)
-            step_x = turned_x - x
-            if step_x > 0.5 * width:  # across the map's seam
-                step_x -= width
-            elif step_x < -0.5 * width:
-                step_x += width
-            frames[0, s], frames[1, s] = x, y
-            frames[2, s], frames[3, s] = step_x / _TAP_STEP, (turned_y - y) / _TAP_STEP
-            frames[4, s] = mirror_z
 
 
 @numba.njit(inline="always", fastmath=True)
@@ -1030,114 +819,47 @@ def _bilinear(prefiltered, node, c, top_left, top_right, bottom_left, bottom_rig
 
 
 @_borrowing_jit
-def _prefiltered_node_light(prefiltered, node, n, corner, stencil_frac, n_full, frames, width, table, out):
+def _prefiltered_node_light(prefiltered, node, n, corner, stencil_frac, out):
     """out[c, s] = the light of node ``node`` of prefiltered (H W, nodes, 3) for sample s < n:
-    bilinear at the mirror stencil; for nodes below n_full with frames (`_mirror_stencil`),
-    the anisotropic lobe (`_TAP_OFFSETS`; its spreads from `_model_tables` table). (Pixel-major:
-    a texel's lookups at several nodes share cache lines.)"""
-    if frames.shape[0] == 0 or node >= n_full:
-        for s in range(n):
-            for c in range(3):
-                out[c, s] = _bilinear(prefiltered, node, c, corner[0, s], corner[1, s], corner[2, s], corner[3, s],
-                                      stencil_frac[0, s], stencil_frac[1, s])
-        return
-    height = prefiltered.shape[0] // width
-    roughness = node * PREFILTER_STEP
-    alpha = roughness * roughness
+    bilinear at the mirror stencil (`_mirror_stencil`). (Pixel-major: a texel's lookups at several
+    nodes share cache lines.)"""
     for s in range(n):
         for c in range(3):
-            out[c, s] = 0.0
-        cos_theta = min(max(frames[4, s], 0.0), 1.0)
-        along = _table_lookup(table, _WIDTH_PLANE, cos_theta, roughness)
-        across = min(_table_lookup(table, _WIDTH_PLANE + 1, cos_theta, roughness), 1.0)
-        spread = alpha * math.sqrt(max(along * along - across * across, 0.0))
-        # Each tap as wide as the lobe across the plane: a map's width goes as alpha = r^2.
-        read_node, read_frac = _prefilter_node(roughness * math.sqrt(across), n_full)
-        n_taps = 3 if spread > 1e-9 else 1
-        for k in range(n_taps):
-            angle = _TAP_OFFSETS[k] * spread if n_taps > 1 else 0.0
-            tap_weight = _TAP_WEIGHTS[k] if n_taps > 1 else 1.0
-            row0, col0, col1, fx, fy = envmaps.stencil_at(frames[0, s] + angle * frames[2, s],
-                                                          frames[1, s] + angle * frames[3, s], height, width)
-            top, bottom = row0 * width, (row0 + 1) * width
-            for side in range(2 if read_frac > 0.0 else 1):
-                share = tap_weight * (read_frac if side else 1.0 - read_frac)
-                for c in range(3):
-                    out[c, s] += share * _bilinear(prefiltered, read_node + side, c, top + col0, top + col1,
-                                                   bottom + col0, bottom + col1, fx, fy)
+            out[c, s] = _bilinear(prefiltered, node, c, corner[0, s], corner[1, s], corner[2, s], corner[3, s],
+                                  stencil_frac[0, s], stencil_frac[1, s])
 
 
-def lobe_tilt(cos_theta: np.ndarray, roughness: np.ndarray, term: str = "scale") -> np.ndarray:
-    """`lobe_tilt_table` of one `LOBE_TERMS` term, bilinear, for broadcastable cos_theta and
-    roughness in [0, 1]."""
-    cos_theta, roughness = np.broadcast_arrays(np.asarray(cos_theta, np.float64), np.asarray(roughness, np.float64))
-    index = LOBE_TERMS.index(term)
-    out = np.empty((1, cos_theta.size))
-    _table_terms_kernel(cos_theta.ravel(), roughness.ravel(), lobe_tilt_table()[index:index + 1], out)
-    return out[0].reshape(cos_theta.shape)
-
-
-# The planes of `_model_tables`, as the kernels index them: the tilt of term k is _TILT_PLANE + k.
-_SCALE_PLANE, _BIAS_PLANE, _DIELECTRIC_PLANE, _TILT_PLANE, _WIDTH_PLANE = 0, 1, 2, 3, 6
+# The planes of `split_sum_table`, as the kernels index them: the term k of `LOBE_TERMS` is plane k.
+_SCALE_PLANE, _BIAS_PLANE, _DIELECTRIC_PLANE = 0, 1, 2
 
 
 @functools.cache
-def _model_tables() -> np.ndarray:
-    """(8, cos nodes, roughness nodes): A, B and E of `split_sum_table`, their tilts
-    (`lobe_tilt_table`), then the lobe's relative spreads (`lobe_width_table`)."""
-    return np.concatenate([split_sum_table(), lobe_tilt_table(), lobe_width_table()])
-
-
-@functools.cache
-def _model_rows() -> np.ndarray:
-    """(8, roughness nodes, cos nodes) `_model_tables` with the roughness first: each probe of the
+def _split_sum_rows() -> np.ndarray:
+    """(3, roughness nodes, cos nodes) `split_sum_table` with the roughness first: each probe of the
     search interpolates all its cos theta_o nodes at one roughness, contiguous this way (22 against
     75 ns strided, measured)."""
-    return np.ascontiguousarray(_model_tables().transpose(0, 2, 1))
-
-
-def _tilt_levels(settings: EstimateConfig) -> int:
-    """Tilt levels the search expands the light at: one (the mirror lookup) without lobe_tilt."""
-    return _TILT_LEVELS if (_uses_split_sum(settings) and settings.lobe_tilt) else 1
+    return np.ascontiguousarray(split_sum_table().transpose(0, 2, 1))
 
 
 def lobe_filtered_light(directions: np.ndarray, weight: np.ndarray, light_coeffs: np.ndarray, lmax: int,
-                        sigma: float, roughness: np.ndarray, tilted: bool = True, term: str = "scale") -> np.ndarray:
-    """(n, V, 3) the light as the split-sum model filters it for one term of a lobe of roughness (n,).
+                        sigma: float, roughness: np.ndarray) -> np.ndarray:
+    """(n, V, 3) the fitted light as the split-sum model filters it for a lobe of roughness (n,).
 
     directions (n, V, 3) local view directions, weight (n, V), light_coeffs (n, 3, K): the SH fit
-    of the mirrored light, low-passed by the BRDF kernel and read at the directions tilted for
-    the `LOBE_TERMS` ``term`` (`lobe_tilt_table`), linear in s between the search's tilt levels;
-    0 where weight is 0.
-    Not ``tilted``: read in the mirror direction (`EstimateConfig.lobe_tilt` off).
+    of the mirrored light, low-passed by the BRDF kernel and read in the mirror direction; 0
+    where weight is 0.
     """
     alpha = brdf.alpha_from_roughness(np.asarray(roughness, np.float64))
     kernel = brdf.brdf_kernel(alpha, lmax, sigma)  # (n, l*+1)
-    if not tilted:
-        mirror = _tilted_projections(directions, weight, light_coeffs, lmax, 1)[:, 0]  # (n, 3, l*+1, V)
-        return np.einsum("nl,nclv->nvc", kernel, mirror)
-    levels = _tilted_projections(directions, weight, light_coeffs, lmax, _TILT_LEVELS)
-    position = lobe_tilt(directions[..., 2], np.asarray(roughness, np.float64)[:, None], term) * (_TILT_LEVELS - 1)
-    level = np.minimum(position.astype(np.int64), _TILT_LEVELS - 2)  # (n, V)
-    frac = position - level
-    lower = np.take_along_axis(levels, level[:, None, None, None, :], axis=1)[:, 0]  # (n, 3, l*+1, V)
-    upper = np.take_along_axis(levels, level[:, None, None, None, :] + 1, axis=1)[:, 0]
-    interpolated = lower + frac[:, None, None, :] * (upper - lower)
-    return np.einsum("nl,nclv->nvc", kernel, interpolated)
+    return np.einsum("nl,nclv->nvc", kernel, _mirror_projections(directions, weight, light_coeffs, lmax))
 
 
-def _tilted_projections(directions, weight, coeffs, lmax, levels) -> np.ndarray:
-    """(n, levels, 3, l*+1, V) `_degree_projections` at the view directions tilted towards the
-    normal by s = j / (levels - 1); one level: the view directions themselves."""
+def _mirror_projections(directions, weight, coeffs, lmax) -> np.ndarray:
+    """(n, 3, l*+1, V) `_degree_projections` at the view directions, normalised in float64 as the
+    search kernel normalises them."""
     directions = np.asarray(directions, dtype=np.float64)
-    out = []
-    for j in range(levels):
-        tilt = j / (levels - 1) if levels > 1 else 1.0
-        tilted = directions * tilt
-        tilted[..., 2] += 1.0 - tilt
-        tilted /= np.maximum(np.linalg.norm(tilted, axis=-1, keepdims=True), 1e-12)  # unsampled: (0, 0, 0)
-        out.append(_degree_projections(tilted, weight, coeffs, lmax))
-    return np.stack(out, axis=1)
+    unit = directions / np.maximum(np.linalg.norm(directions, axis=-1, keepdims=True), 1e-12)  # unsampled: (0, 0, 0)
+    return _degree_projections(unit, weight, coeffs, lmax)
 
 
 def burley_diffuse_factor(cos_theta, roughness):
@@ -1267,13 +989,13 @@ def _uses_prefiltered_light(observations: Observations, settings: EstimateConfig
 
 def _environment_inputs(observations: Observations, settings: EstimateConfig) -> tuple:
     """(tangent (N, 3), normal (N, 3), environment (K, 3) float64, blend, prefiltered (H W, nodes, 3)
-    float32, n_full, anisotropic, world_to_local (3, 3), H, W) for the kernels: the environment's SH up to degree
+    float32, n_full, world_to_local (3, 3), H, W) for the kernels: the environment's SH up to degree
     min(l*, 5) (K = 0 without the environment light), no nodes without the prefiltered light. The
     prefiltered nodes are `prefilter_nodes` full maps, then (with the environment light) the
     degrees above the environment light's at all `_HIGH_NODES` roughness nodes: what the
     environment light adds."""
     tangent = np.zeros((observations.n_texels, 3), np.float32) if observations.tangent is None else observations.tangent
-    environment_degrees = min(observations.lmax, _TILT_FIT_LMAX)
+    environment_degrees = min(observations.lmax, _ENVIRONMENT_LMAX)
     if _uses_environment_light(observations, settings):
         environment = (np.ascontiguousarray(observations.environment_coeffs[:sh.num_coeffs(environment_degrees)],
                                             dtype=np.float64), tuple(float(b) for b in settings.environment_blend))
@@ -1283,10 +1005,10 @@ def _environment_inputs(observations: Observations, settings: EstimateConfig) ->
         n_full = prefilter_nodes(settings)
         high_degrees = environment_degrees + 1 if len(environment[0]) else None
         stack, height, width = _prefiltered_stack(observations, n_full, high_degrees)
-        prefiltered = (stack, n_full, settings.anisotropic_lobes,
-                       np.ascontiguousarray(observations.environment_rotation.T, dtype=np.float64), height, width)
+        prefiltered = (stack, n_full, np.ascontiguousarray(observations.environment_rotation.T, dtype=np.float64),
+                       height, width)
     else:
-        prefiltered = (np.zeros((1, 0, 3), np.float32), 0, False, np.eye(3), 2, 2)
+        prefiltered = (np.zeros((1, 0, 3), np.float32), 0, np.eye(3), 2, 2)
     return (tangent, observations.normal, *environment, *prefiltered)
 
 
@@ -1409,28 +1131,25 @@ def _fill_kernel(alpha, sigma, kernel, kernel_derivative):
 def _squared_residual_kernel(
     proj, directions, weight, observed, diffuse_scale, base_color, metallic, roughness, sigma, fresnel, masking,
     split_sum, exact_dielectric, burley, table, response, burley_response, azimuthal, environment_blend, tangent,
-    normal, prefiltered, n_full, anisotropic, world_to_local, map_height, map_width, footprint, out,
+    normal, prefiltered, n_full, world_to_local, map_height, map_width, out,
 ):
-    """out[t] = sum_v,c w^2 (L - f)^2 / sum_v w^2 (0 without samples); directions (n, V, 3) local view
-    directions. proj (n, levels, 3, l*+1, V):
-    `_tilted_projections`, interpolated at each sample's tilt per lobe term when there are several
-    levels. The specular is m (b X + Y) + (1 - m) Z with X = A S_A, Y = B S_B (S_k: the light
-    filtered for term k, `lobe_filtered_light`) and Z = E S_E with ``exact_dielectric``, else
-    Schlick's 0.04 X + Y. With azimuthal (n, V, 3, P > 0) (`environment_azimuthal`) each S_k is
-    blended towards the environment light (`environment_filtered_light`; response
-    `environment_response_table`), and with burley_response (4, cos nodes, P > 0) Burley's diffuse is
-    averaged over its light (`environment_burley_factor`). With prefiltered maps (H W, nodes, 3) the lobes read
-    `prefiltered_light` (texel frames tangent and normal (n, 3); blurred by footprint (n, V), or (n, 0):
-    none) instead of proj."""
+    """out[t] = sum_v,c w^2 (L - f)^2 / sum_v w^2 (0 without samples); directions (n, V, 3) local
+    view directions. proj (n, 3, l*+1, V): `_mirror_projections`. The specular is
+    m (b X + Y) + (1 - m) Z with X = A S_A, Y = B S_B (S_k: the light filtered for term k,
+    `lobe_filtered_light`) and Z = E S_E with ``exact_dielectric``, else Schlick's 0.04 X + Y.
+    With azimuthal (n, V, 3, P > 0)
+    (`environment_azimuthal`) each S_k is blended towards the environment light
+    (`environment_filtered_light`; response `environment_response_table`), and with burley_response
+    (4, cos nodes, P > 0) Burley's diffuse is averaged over its light (`environment_burley_factor`).
+    With prefiltered maps (H W, nodes, 3) the lobes read `prefiltered_light` (texel frames tangent
+    and normal (n, 3)) instead of proj."""
     n_texels, n_views = weight.shape
-    n_levels, n_degrees = proj.shape[1], proj.shape[3]
+    n_degrees = proj.shape[2]
     n_terms = len(LOBE_TERMS)
     for t in numba.prange(n_texels):
         alpha = max(roughness[t] * roughness[t], _ALPHA_MIN)
         kernel = np.empty(n_degrees)
         _fill_kernel(alpha, sigma, kernel, np.empty(n_degrees))
-        level = np.zeros(n_terms, dtype=np.int64)
-        frac = np.zeros(n_terms)
         filtered = np.empty(n_terms)
         share = _environment_share(roughness[t], environment_blend) if azimuthal.shape[3] > 0 else 0.0
         # The environment light at the roughness nodes on either side, per term, channel and view.
@@ -1461,15 +1180,10 @@ def _squared_residual_kernel(
         use_high = n_high > 0 and share > 0.0
         nodes = np.empty((prefiltered.shape[1], 3, n_views))
         cached = np.zeros(prefiltered.shape[1], dtype=np.bool_)
-        sample_node = np.zeros((2, n_views), dtype=np.int64)  # the full and the high nodes
-        sample_frac = np.zeros((2, n_views))
-        blur = np.zeros(n_views)
-        if footprint.shape[1] > 0:
-            for v in range(n_views):
-                blur[v] = _FOOTPRINT_GAIN * np.float64(footprint[t, v]) ** 2
+        lower_map = upper_map = lower_high = upper_high = 0  # the full and the high nodes
+        map_frac = high_frac = 0.0
         corner = np.zeros((4, n_views), dtype=np.int64)
         stencil_frac = np.zeros((2, n_views))
-        frames = np.zeros((5 if anisotropic else 0, n_views))
         if use_prefiltered or use_high:
             xyz = np.empty((3, n_views))
             for v in range(n_views):
@@ -1478,16 +1192,16 @@ def _squared_residual_kernel(
             bitangent = np.empty(3)
             _cross(normal[t], tangent[t], bitangent)
             _mirror_stencil(xyz, n_views, tangent[t], normal[t], bitangent, world_to_local, map_height, map_width,
-                            corner, stencil_frac, frames)
+                            corner, stencil_frac)
         if use_prefiltered:
-            _prefiltered_sample_nodes(roughness[t], blur, 0, n_full, n_views, prefiltered, corner, stencil_frac,
-                                      n_full, frames, map_width, table, nodes, cached, sample_node[0], sample_frac[0])
+            lower_map, upper_map, map_frac = _prefiltered_nodes_at(roughness[t], 0, n_full, n_views, prefiltered,
+                                                                   corner, stencil_frac, nodes, cached)
         if use_high:
-            _prefiltered_sample_nodes(roughness[t], blur, n_full, n_high, n_views, prefiltered, corner, stencil_frac,
-                                      n_full, frames, map_width, table, nodes, cached, sample_node[1], sample_frac[1])
-        # Without tilt levels or environment light every term reads the same light; Schlick's
-        # dielectric needs no light of its own.
-        distinct = n_levels > 1 or share > 0.0
+            lower_high, upper_high, high_frac = _prefiltered_nodes_at(roughness[t], n_full, n_high, n_views,
+                                                                      prefiltered, corner, stencil_frac, nodes, cached)
+        # Without the environment light every term reads the same light; Schlick's dielectric needs
+        # no light of its own.
+        distinct = share > 0.0
         distinct_terms = (n_terms if exact_dielectric else n_terms - 1) if distinct else 1
         total = 0.0
         weight_sq = 0.0
@@ -1497,26 +1211,19 @@ def _squared_residual_kernel(
                 cos_v = np.float64(directions[t, v, 2])
                 scale, bias = _specular_albedo(cos_v, roughness[t], alpha, fresnel, masking, split_sum, table)
                 dielectric = _table_lookup(table, _DIELECTRIC_PLANE, cos_v, roughness[t]) if exact_dielectric else 0.0
-                if n_levels > 1:
-                    for term in range(n_terms):
-                        position = _table_lookup(table, _TILT_PLANE + term, cos_v, roughness[t]) * (n_levels - 1)
-                        level[term] = min(int(position), n_levels - 2)
-                        frac[term] = position - level[term]
                 for c in range(3):
                     for term in range(distinct_terms):
                         filtered[term] = 0.0
                         if use_prefiltered:
-                            filtered[term] = _prefiltered_at(nodes, c, v, sample_node[0], sample_frac[0])
+                            filtered[term] = _prefiltered_between(nodes, c, v, lower_map, upper_map, map_frac)
                         else:
                             for degree in range(n_degrees):
-                                lower = proj[t, level[term], c, degree, v]
-                                upper = proj[t, level[term] + 1, c, degree, v] if n_levels > 1 else lower
-                                filtered[term] += kernel[degree] * (lower + frac[term] * (upper - lower))
+                                filtered[term] += kernel[degree] * proj[t, c, degree, v]
                         if share > 0.0:
                             lower = environment_light[0, term, c, v]
                             light = lower + node_frac * (environment_light[1, term, c, v] - lower)
                             if use_high:
-                                light += _prefiltered_at(nodes, c, v, sample_node[1], sample_frac[1])
+                                light += _prefiltered_between(nodes, c, v, lower_high, upper_high, high_frac)
                             filtered[term] = (1.0 - share) * filtered[term] + share * light
                     for term in range(distinct_terms, n_terms):
                         filtered[term] = filtered[0]
@@ -1940,54 +1647,26 @@ def _azimuthal_coefficients(xyz, n, local, out):
 
 
 @_borrowing_jit
-def _prefiltered_nodes_at(roughness, first, count, n, prefiltered, corner, stencil_frac, n_full, frames,
-                          width, table, nodes, cached):
-    """`_prefiltered_sample_nodes` for samples without blur, all reading the same nodes: (lower,
-    upper, fraction); on a node both are that node and the fraction is 0. (Kept apart: the
-    per-sample nodes cost ~12 % of the estimate's time on the plane, T = 512.)"""
+def _prefiltered_nodes_at(roughness, first, count, n, prefiltered, corner, stencil_frac, nodes, cached):
+    """Where the light of a lobe of ``roughness`` lies among the prefiltered nodes first..first +
+    count - 1 (roughness 0..1 by PREFILTER_STEP), for samples s < n: (lower, upper, fraction),
+    indices into nodes; on a node both are that node and the fraction is 0. The nodes read are
+    looked up once per texel into nodes (cached)."""
     node, frac = _prefilter_node(roughness, count)
     lower = first + (node if frac < 1.0 else node + 1)
     upper = first + (node + 1 if frac > 0.0 else node)
     for needed in range(lower, upper + 1):
         if not cached[needed]:
-            _prefiltered_node_light(prefiltered, needed, n, corner, stencil_frac, n_full, frames, width, table,
-                                    nodes[needed])
+            _prefiltered_node_light(prefiltered, needed, n, corner, stencil_frac, nodes[needed])
             cached[needed] = True
     return lower, upper, (frac if upper != lower else 0.0)
 
 
-@_borrowing_jit
-def _prefiltered_sample_nodes(roughness, blur, first, count, n, prefiltered, corner, stencil_frac, n_full, frames,
-                              width, table, nodes, cached, sample_node, sample_frac):
-    """Per sample s < n, where the light of a lobe of ``roughness`` lies among the prefiltered nodes
-    first..first + count - 1 (roughness 0..1 by PREFILTER_STEP): the lobe blurred by the sample's
-    footprint, blur[s] (`_FOOTPRINT_GAIN`; alpha^2 units), reads at roughness (alpha^2 + blur)^(1/4).
-    sample_node[s] is the node below (index into nodes), sample_frac[s] the fraction towards the
-    next (0 on a node). The nodes read are looked up once per texel into nodes (cached)."""
-    # Unclamped alpha (not _ALPHA_MIN): the read roughness must tend to the lobe's as blur -> 0.
-    alpha = roughness * roughness
-    lowest, highest = count, -1
-    for s in range(n):
-        read = math.sqrt(math.sqrt(alpha * alpha + blur[s])) if blur[s] > 0.0 else roughness
-        node, frac = _prefilter_node(read, count)
-        if frac >= 1.0:
-            node, frac = node + 1, 0.0
-        sample_node[s], sample_frac[s] = first + node, frac
-        lowest = min(lowest, node)
-        highest = max(highest, node + 1 if frac > 0.0 else node)
-    for needed in range(first + lowest, first + highest + 1):
-        if not cached[needed]:
-            _prefiltered_node_light(prefiltered, needed, n, corner, stencil_frac, n_full, frames, width, table,
-                                    nodes[needed])
-            cached[needed] = True
-
-
 @numba.njit(inline="always")
-def _prefiltered_at(nodes, c, s, sample_node, sample_frac):
-    """Channel c of the light `_prefiltered_sample_nodes` placed for sample s."""
-    lower = nodes[sample_node[s], c, s]
-    frac = sample_frac[s]
-    return lower + frac * (nodes[sample_node[s] + 1, c, s] - lower) if frac > 0.0 else lower
+def _prefiltered_between(nodes, c, s, lower, upper, frac):
+    """Channel c of sample s's light between the nodes `_prefiltered_nodes_at` returned."""
+    value = nodes[lower, c, s]
+    return value + frac * (nodes[upper, c, s] - value) if frac > 0.0 else value
 
 
 @_borrowing_jit
@@ -2001,32 +1680,28 @@ def _environment_share(roughness, blend):
 def _roughness_objective(roughness, args):
     """Profiled loss at this roughness: min over base colour and metallic (written to state).
 
-    Per sample, only the specular albedo (A, B, E), the lobe terms' tilts and the diffuse factor D
-    depend on the roughness besides the kernel; their roughness-free parts were prepared per texel
+    Per sample, only the specular albedo (A, B, E) and the diffuse factor D depend on the roughness
+    besides the kernel; their roughness-free parts were prepared per texel
     (`_global_search_kernel`).
     """
     (n, cos_theta, omega, proj, values, sigma, fresnel, masking, split_sum, exact_dielectric, burley, table,
-     table_row, table_frac, tilt_level, tilt_frac, burley_terms, diffuse_moments, column, kernel, kernel_derivative,
-     albedo, diffuse_factor, level_filtered, filtered, moments, quadratics, squared_values, diffuse_scale,
+     table_row, table_frac, burley_terms, diffuse_moments, column, kernel, kernel_derivative,
+     albedo, diffuse_factor, own_filtered, filtered, moments, quadratics, squared_values, diffuse_scale,
      state, metallic_grid, azimuthal, environment_blend, environment_nodes, environment_cached, response,
      prefiltered, n_full, corner, stencil_frac, prefiltered_nodes, prefiltered_cached,
-     high_filtered, frames, map_width, blur, blurred, sample_node, sample_frac, table_rows) = args
-    n_levels = proj.shape[0]
+     high_filtered, table_rows) = args
     # Without the environment (environment light off) the lobes read their own light alone.
     share = _environment_share(roughness, environment_blend) if azimuthal.shape[2] > 0 else 0.0
     # Terms with a light of their own: A and B, and E with the exact dielectric (else Z = 0.04 X + Y).
     n_terms = 3 if exact_dielectric else 2
     alpha = max(roughness * roughness, _ALPHA_MIN)
-    if split_sum:  # the table's column at this roughness, linear in it (from its rows, `_model_rows`)
+    if split_sum:  # the table's column at this roughness, linear in it (from its rows, `_split_sum_rows`)
         y = min(max(roughness, 0.0), 1.0) * (table_rows.shape[1] - 1)
         j = min(int(y), table_rows.shape[1] - 2)
         fy = y - j
-        for side in range(table_rows.shape[0]):
-            term = side - _TILT_PLANE if side >= _TILT_PLANE else side
-            if term >= n_terms or (side >= _TILT_PLANE and n_levels == 1):
-                continue
+        for term in range(n_terms):
             for i in range(table_rows.shape[2]):
-                column[side, i] = table_rows[side, j, i] * (1.0 - fy) + table_rows[side, j + 1, i] * fy
+                column[term, i] = table_rows[term, j, i] * (1.0 - fy) + table_rows[term, j + 1, i] * fy
         if share > 0.0:
             # The environment light at its roughness nodes on either side, each computed once per
             # texel (the search visits few, most of them many times); on a node (the grid's nodes
@@ -2043,11 +1718,6 @@ def _roughness_objective(roughness, args):
             row, fx = table_row[s], table_frac[s]
             for term in range(n_terms):
                 albedo[term, s] = column[term, row] + fx * (column[term, row + 1] - column[term, row])
-                if n_levels > 1:  # the light's tilt level for this sample's lobe term
-                    side = _TILT_PLANE + term
-                    position = (column[side, row] + fx * (column[side, row + 1] - column[side, row])) * (n_levels - 1)
-                    tilt_level[term, s] = min(int(position), n_levels - 2)
-                    tilt_frac[term, s] = position - tilt_level[term, s]
     else:
         for s in range(n):
             albedo[0, s], albedo[1, s] = _specular_albedo(cos_theta[s], roughness, alpha, fresnel, masking, False,
@@ -2062,83 +1732,50 @@ def _roughness_objective(roughness, args):
         for s in range(n):
             diffuse_factor[c, s] = burley_terms[c, 0, s] + roughness * (burley_terms[c, 1, s]
                                                                         + roughness * burley_terms[c, 2, s])
-    # Filter the light at the tilt levels this probe reads (contiguous, vectorised loops), then
-    # interpolate each sample and term between its two levels. A lobe that reads the environment
-    # light alone (share 1) needs none of it.
+    # The lobe's own light (contiguous, vectorised loops): the fitted light filtered by the kernel,
+    # or the prefiltered light. A lobe that reads the environment light alone (share 1) needs none.
     own_light = share < 1.0
-    first_level, last_level = (0, 0) if own_light else (0, -1)  # (0, -1): no level at all
-    # The prefiltered light replaces the fitted one (one level): its nodes around this roughness,
-    # each looked up once per texel.
+    # The prefiltered light replaces the fitted one: its nodes around this roughness, each looked
+    # up once per texel.
     use_prefiltered = own_light and n_full > 0
-    # (Without a footprint blur every sample reads the same nodes.)
+    use_fitted = own_light and n_full == 0
     lower_map = upper_map = lower_high = upper_high = 0
     map_frac = high_frac = 0.0
     if use_prefiltered:
-        first_level, last_level = 0, -1
-        if blurred:
-            _prefiltered_sample_nodes(roughness, blur, 0, n_full, n, prefiltered, corner, stencil_frac, n_full,
-                                      frames, map_width, table, prefiltered_nodes, prefiltered_cached,
-                                      sample_node[0], sample_frac[0])
-        else:
-            lower_map, upper_map, map_frac = _prefiltered_nodes_at(roughness, 0, n_full, n, prefiltered, corner,
-                                                                   stencil_frac, n_full, frames, map_width, table,
-                                                                   prefiltered_nodes, prefiltered_cached)
+        lower_map, upper_map, map_frac = _prefiltered_nodes_at(roughness, 0, n_full, n, prefiltered, corner,
+                                                               stencil_frac, prefiltered_nodes, prefiltered_cached)
     # The degrees the environment light leaves out, from the prefiltered maps' last nodes.
     n_high = prefiltered.shape[1] - n_full
     use_high = share > 0.0 and n_high > 0
     if use_high:
-        if blurred:
-            _prefiltered_sample_nodes(roughness, blur, n_full, n_high, n, prefiltered, corner, stencil_frac, n_full,
-                                      frames, map_width, table, prefiltered_nodes, prefiltered_cached,
-                                      sample_node[1], sample_frac[1])
-        else:
-            lower_high, upper_high, high_frac = _prefiltered_nodes_at(roughness, n_full, n_high, n, prefiltered,
-                                                                      corner, stencil_frac, n_full, frames, map_width,
-                                                                      table, prefiltered_nodes, prefiltered_cached)
-    if n_levels > 1 and own_light:
-        first_level, last_level = n_levels, 0
-        for term in range(n_terms):
-            for s in range(n):
-                first_level = min(first_level, tilt_level[term, s])
-                last_level = max(last_level, tilt_level[term, s] + 1)
-    if last_level >= first_level:
+        lower_high, upper_high, high_frac = _prefiltered_nodes_at(roughness, n_full, n_high, n, prefiltered,
+                                                                  corner, stencil_frac, prefiltered_nodes,
+                                                                  prefiltered_cached)
+    if use_fitted:
         _fill_kernel(alpha, sigma, kernel, kernel_derivative)
     # Below, whole indices rather than row views (see `_metallic_quadratics`).
     for c in range(3):
-        if use_prefiltered and blurred:
-            for s in range(n):
-                level_filtered[0, s] = _prefiltered_at(prefiltered_nodes, c, s, sample_node[0], sample_frac[0])
-        elif use_prefiltered:
+        if use_prefiltered:
             for s in range(n):
                 lower = prefiltered_nodes[lower_map, c, s]
-                level_filtered[0, s] = lower + map_frac * (prefiltered_nodes[upper_map, c, s] - lower)
-        if use_high and blurred:
-            for s in range(n):
-                high_filtered[s] = _prefiltered_at(prefiltered_nodes, c, s, sample_node[1], sample_frac[1])
-        elif use_high:
+                own_filtered[s] = lower + map_frac * (prefiltered_nodes[upper_map, c, s] - lower)
+        if use_high:
             for s in range(n):
                 lower = prefiltered_nodes[lower_high, c, s]
                 high_filtered[s] = lower + high_frac * (prefiltered_nodes[upper_high, c, s] - lower)
-        for level in range(first_level, last_level + 1):
+        if use_fitted:
             k0 = kernel[0]
             for s in range(n):
-                level_filtered[level, s] = k0 * proj[level, c, 0, s]
+                own_filtered[s] = k0 * proj[c, 0, s]
             for degree in range(1, kernel.shape[0]):
                 k = kernel[degree]
                 for s in range(n):
-                    level_filtered[level, s] += k * proj[level, c, degree, s]
+                    own_filtered[s] += k * proj[c, degree, s]
         model = filtered
         for term in range(n_terms):
-            if not own_light:
-                pass
-            elif n_levels == 1:
+            if own_light:
                 for s in range(n):
-                    model[c, term, s] = albedo[term, s] * level_filtered[0, s]
-            else:
-                for s in range(n):
-                    lower = level_filtered[tilt_level[term, s], s]
-                    upper = level_filtered[tilt_level[term, s] + 1, s]
-                    model[c, term, s] = albedo[term, s] * (lower + tilt_frac[term, s] * (upper - lower))
+                    model[c, term, s] = albedo[term, s] * own_filtered[s]
             if share > 0.0:
                 frac = node_frac if upper_node != lower_node else 0.0
                 keep = 1.0 - share
@@ -2349,7 +1986,7 @@ def _brent_run(args, state, best_state, roughness_brent, best_r, best_f, search)
 def _record_hypothesis(args, sample_weight, out):
     """out (3, 8): per channel `_specular_moments` of the metal terms the last `_roughness_objective`
     probe left in args (in the order `_roughness_objective` unpacks them), sample weights (n,)."""
-    n, values, filtered = args[0], args[4], args[24]
+    n, values, filtered = args[0], args[4], args[22]
     for c in range(3):
         _specular_moments(n, sample_weight, values[c], filtered[c, 0], filtered[c, 1], out[c])
 
@@ -2411,9 +2048,9 @@ def _loss_curvature(best_r, centre_f, args):
 @numba.njit(parallel=True, fastmath=True, cache=True)
 def _global_search_kernel(
     directions, weight, observed, light, diffuse_scale, sigma, fresnel, masking, split_sum, exact_dielectric, burley,
-    table, table_rows, tilt_levels, roughness_grid, metallic_grid, robust_passes, lmax, diag, rec_a, rec_b,
+    table, table_rows, roughness_grid, metallic_grid, robust_passes, lmax, diag, rec_a, rec_b,
     tangent, normal, environment, environment_blend, response, quadrature, quadrature_projection, burley_response,
-    prefiltered, n_full, anisotropic, world_to_local, map_height, map_width, footprint, hypothesis_roughness,
+    prefiltered, n_full, world_to_local, map_height, map_width, hypothesis_roughness,
     hypothesis_moments, node_rows, search, candidate,
     params, loss, curvature,
 ):
@@ -2429,10 +2066,9 @@ def _global_search_kernel(
     that light (`environment_burley_factor`) instead of uniform light.
     With prefiltered (H W, nodes, 3) maps (`prefiltered_environment` of an H x W map whose
     emitter frame is world_to_local (3, 3) from the world), smooth lobes read them at the world
-    mirror directions instead of the fitted light, each sample's blurred by its footprint (n, V)
-    (`Observations.footprint`; (n, 0): none). Else, per texel the light is expanded by
-    degree at its samples once per tilt level (P_c,l(w'_v), `_tilted_projections`; one level:
-    w' = w; fused here to keep it in cache). Then the roughness is searched (if ``search``).
+    mirror directions instead of the fitted light. Else, per texel the light is expanded by
+    degree at its samples (P_c,l(w_v), `_mirror_projections`; fused here to keep it in cache). Then
+    the roughness is searched (if ``search``).
     With hypothesis_roughness (R,): `hypothesis_moments` of each texel into hypothesis_moments
     (n, R, 3, 8), those of node_rows (roughness_grid,) (`_node_rows`; (0,): none) recorded by the
     search's first scan, the others probed before it. With candidate (n, 2) (roughness, metallic) instead of a
@@ -2450,11 +2086,11 @@ def _global_search_kernel(
         # signature, not two (each compiles the whole search).
         chunk = (np.int64(item) * stride) % n_chunks
         _global_search_chunk(chunk, directions, weight, observed, light, diffuse_scale, sigma, fresnel,
-                             masking, split_sum, exact_dielectric, burley, table, table_rows, tilt_levels,
+                             masking, split_sum, exact_dielectric, burley, table, table_rows,
                              roughness_grid, metallic_grid, robust_passes, lmax, diag, rec_a, rec_b, tangent, normal,
                              environment, environment_blend, response, quadrature, quadrature_projection,
-                             burley_response, prefiltered, n_full, anisotropic, world_to_local, map_height, map_width,
-                             footprint, hypothesis_roughness, hypothesis_moments, node_rows, search, candidate,
+                             burley_response, prefiltered, n_full, world_to_local, map_height, map_width,
+                             hypothesis_roughness, hypothesis_moments, node_rows, search, candidate,
                              params, loss, curvature)
 
 
@@ -2471,10 +2107,10 @@ def scattering_stride(n_items):
 @numba.njit(fastmath=True, cache=True)
 def _global_search_chunk(
     chunk, directions, weight, observed, light, diffuse_scale, sigma, fresnel, masking, split_sum,
-    exact_dielectric, burley, table, table_rows, tilt_levels, roughness_grid, metallic_grid, robust_passes, lmax,
+    exact_dielectric, burley, table, table_rows, roughness_grid, metallic_grid, robust_passes, lmax,
     diag, rec_a, rec_b, tangent, normal, environment, environment_blend, response, quadrature,
-    quadrature_projection, burley_response, prefiltered, n_full, anisotropic, world_to_local, map_height,
-    map_width, footprint, hypothesis_roughness, hypothesis_moments, node_rows, search, candidate, params, loss,
+    quadrature_projection, burley_response, prefiltered, n_full, world_to_local, map_height,
+    map_width, hypothesis_roughness, hypothesis_moments, node_rows, search, candidate, params, loss,
     curvature,
 ):
     """`_global_search_kernel`'s work for the texels of one chunk: a function of its own, so that
@@ -2485,23 +2121,21 @@ def _global_search_chunk(
     n_coeffs = n_degrees * n_degrees
     # The texel's samples with w > 0, packed and with the views innermost (vectorised loops).
     xyz = np.empty((3, n_views))
-    tilted = np.empty((3, n_views))
+    unit = np.empty((3, n_views))
     basis = np.empty((n_coeffs, n_views))
     sh_scratch = np.empty((5, n_views))
     packed_cos = np.empty(n_views)
     omega = np.empty(n_views)  # w^2
-    packed_proj = np.empty((tilt_levels, 3, n_degrees, n_views))
+    packed_proj = np.empty((3, n_degrees, n_views))
     values = np.empty((3, n_views))
     table_row = np.empty(n_views, dtype=np.int64)
     table_frac = np.empty(n_views)
-    tilt_level = np.empty((3, n_views), dtype=np.int64)  # per lobe term
-    tilt_frac = np.empty((3, n_views))
     burley_terms = np.empty((3, 3, n_views))  # per channel, power of r and sample
     diffuse_moments = np.empty((3, 2, 5))  # per channel: sum w^2 D^2 (quartic in r), sum w^2 f D (quadratic)
     column = np.empty((table.shape[0], table.shape[1]))
     albedo = np.empty((3, n_views))  # A, B, E
     diffuse_factor = np.empty((3, n_views))
-    level_filtered = np.empty((tilt_levels, n_views))
+    own_filtered = np.empty(n_views)  # the lobe's own light of one channel
     filtered = np.empty((3, 3, n_views))  # per channel X, Y, Z
     sample_weight = np.empty(n_views)  # w
     residual = np.empty(n_views)
@@ -2541,16 +2175,11 @@ def _global_search_chunk(
     prefiltered_cached = np.zeros(n_prefiltered, dtype=np.bool_)
     corner = np.empty((4, n_views), dtype=np.int64)
     stencil_frac = np.empty((2, n_views))
-    frames = np.empty((5 if anisotropic else 0, n_views))
     high_filtered = np.empty(n_views)
-    blur = np.zeros(n_views)  # alpha^2 units
-    sample_node = np.empty((2, n_views), dtype=np.int64)  # the full and the high nodes
-    sample_frac = np.empty((2, n_views))
     for t in range(chunk * _SEARCH_CHUNK, min((chunk + 1) * _SEARCH_CHUNK, n_texels)):
         # np.int64, np.bool_ and below: a literal constant where a variable goes (here into args)
         # makes numba compile the callee once more for the literal's type.
         n = np.int64(0)
-        blurred = np.bool_(False)
         for v in range(n_views):
             w = np.float64(weight[t, v])
             if w <= 0.0:
@@ -2562,9 +2191,6 @@ def _global_search_chunk(
             sample_weight[n] = w
             for c in range(3):
                 values[c, n] = observed[t, v, c]
-            if footprint.shape[1] > 0:
-                blur[n] = _FOOTPRINT_GAIN * np.float64(footprint[t, v]) ** 2
-                blurred = blurred or blur[n] > 0.0
             n += 1
         if n < MIN_SAMPLES:
             continue
@@ -2579,25 +2205,21 @@ def _global_search_chunk(
         prefiltered_cached[:] = False
         if n_full > 0:
             _mirror_stencil(xyz, n, tangent[t], normal[t], bitangent, world_to_local, map_height, map_width,
-                            corner, stencil_frac, frames)
-        for level in range(tilt_levels if n_full == 0 else 0):
-            tilt = level / (tilt_levels - 1) if tilt_levels > 1 else 1.0
-            for s in range(n):  # normalize((1 - tilt) n + tilt w)
-                tilted[0, s] = tilt * xyz[0, s]
-                tilted[1, s] = tilt * xyz[1, s]
-                tilted[2, s] = 1.0 - tilt + tilt * xyz[2, s]
-                norm = math.sqrt(tilted[0, s] ** 2 + tilted[1, s] ** 2 + tilted[2, s] ** 2)
+                            corner, stencil_frac)
+        if n_full == 0:  # the fitted light, expanded by degree at the (normalised) view directions
+            for s in range(n):
+                norm = math.sqrt(xyz[0, s] ** 2 + xyz[1, s] ** 2 + xyz[2, s] ** 2)
                 for axis in range(3):
-                    tilted[axis, s] /= norm
-            sh._sh_block(tilted[0], tilted[1], tilted[2], n, lmax, diag, rec_a, rec_b, basis, sh_scratch)
+                    unit[axis, s] = xyz[axis, s] / norm
+            sh._sh_block(unit[0], unit[1], unit[2], n, lmax, diag, rec_a, rec_b, basis, sh_scratch)
             for c in range(3):
                 for degree in range(n_degrees):
                     for s in range(n):
-                        packed_proj[level, c, degree, s] = 0.0
+                        packed_proj[c, degree, s] = 0.0
                     for k in range(degree * degree, (degree + 1) * (degree + 1)):
                         coefficient = np.float64(light[t, c, k])
                         for s in range(n):
-                            packed_proj[level, c, degree, s] += coefficient * basis[k, s]
+                            packed_proj[c, degree, s] += coefficient * basis[k, s]
         environment_cached[:] = False
         if environment.shape[0] > 0:
             _local_environment(environment, tangent[t], normal[t], bitangent, quadrature, quadrature_projection,
@@ -2615,12 +2237,11 @@ def _global_search_chunk(
         for c in range(3):
             scale[c] = diffuse_scale[t, c]
         args = (n, packed_cos, omega, packed_proj, values, sigma, fresnel, masking, split_sum, exact_dielectric,
-                burley, table, table_row, table_frac, tilt_level, tilt_frac, burley_terms, diffuse_moments, column,
-                kernel, kernel_derivative, albedo, diffuse_factor, level_filtered, filtered, moments, quadratics,
+                burley, table, table_row, table_frac, burley_terms, diffuse_moments, column,
+                kernel, kernel_derivative, albedo, diffuse_factor, own_filtered, filtered, moments, quadratics,
                 squared_values, scale, state, metallic_grid, azimuthal, environment_blend, environment_nodes,
                 environment_cached, response, prefiltered, n_full, corner, stencil_frac,
-                prefiltered_nodes, prefiltered_cached, high_filtered, frames, map_width, blur, blurred,
-                sample_node, sample_frac, table_rows)
+                prefiltered_nodes, prefiltered_cached, high_filtered, table_rows)
         for i in range(hypothesis_roughness.shape[0]):
             if not scanned[i]:
                 _roughness_objective(hypothesis_roughness[i], args)

@@ -19,9 +19,6 @@ with exp(-(sigma l)^2), sigma = 1/floor(sqrt(N)) for N views, before it is looke
 kernel divides that blur back out (``brdf.brdf_kernel``).
 
 Irradiance (METHOD.md §3.5) comes from the environment's SH with the clamped-cosine kernel.
-Optionally (``ObserveConfig.environment_occlusion``, beyond the paper) the object's occlusion of
-its own environment is traced: blocked mirror directions see radiance 0, and the irradiance loses
-the light of the blocked part of the hemisphere.
 """
 
 from __future__ import annotations
@@ -71,11 +68,11 @@ MIRRORED = slice(3, 6)
 CONSTANT = 6
 N_SIGNALS = 7
 
-STAGES = ("raster", "projection", "visibility", "images", "irradiance", "occlusion", "fits")
+STAGES = ("raster", "projection", "visibility", "images", "irradiance", "fits")
 # The array fields of Observations that are not per texel.
 _SHARED_ARRAYS = ("environment_coeffs", "environment_radiance", "environment_rotation")
 # Per texel and view (N, V, ...).
-_SAMPLE_ARRAYS = ("view_direction", "observed", "mirrored", "weight", "visible", "footprint")
+_SAMPLE_ARRAYS = ("view_direction", "observed", "mirrored", "weight", "visible")
 
 
 @dataclass(eq=False)
@@ -102,12 +99,6 @@ class Observations:
     # (N,) int32 views whose image holds the texel, facing the camera: the samples there would be
     # before the occlusion and mask tests (n_samples / n_facing is the visible fraction).
     n_facing: np.ndarray
-    environment_occlusion: bool = False  # mirrored and irradiance account for self-occlusion
-    # (N, V) float32 RMS angle (radians, per axis) by which the shading normal turns across each
-    # sample's footprint on the surface (`ObserveConfig.footprint_pixels` pixels, stretched by
-    # 1 / cos theta along the view), 0 where there is no sample: a smooth lobe seen through it
-    # is blurred (`EstimateConfig.footprint_blur`). None where unknown (hand-made observations).
-    footprint: np.ndarray | None = None
     # (N, 3) float32 world tangent of the local frame (bitangent = normal x tangent), and (K, 3)
     # float32 the environment's SH in the world frame, unfiltered: what the estimator's environment
     # light reads (`EstimateConfig.environment_light`). None where unknown (hand-made observations).
@@ -229,7 +220,6 @@ class Observations:
         values["texture_res"] = int(values["texture_res"])
         values["lmax"] = int(values["lmax"])
         values["sigma"] = float(values["sigma"])
-        values["environment_occlusion"] = bool(values["environment_occlusion"])
         return cls(**values, timings=timings)
 
 
@@ -257,7 +247,6 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
     _initialise_signals(signals, CONSTANT)
     view_direction = np.zeros((n_texels, n_views, 3), dtype=np.float32)
     weight = np.zeros((n_texels, n_views), dtype=np.float32)
-    footprint = np.zeros((n_texels, n_views), dtype=np.float32)
     visible = np.zeros((n_texels, n_views), dtype=bool)
     n_facing = np.zeros(n_texels, dtype=np.int32)
 
@@ -294,10 +283,8 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
             timings["visibility"] += time.perf_counter() - tick
 
             tick = time.perf_counter()
-            footprint_angle = config.observe.footprint_pixels / np.sqrt(intrinsics[:, 0] * intrinsics[:, 1])
-            _record_kernel(seen, images, masks, pixels, cos_theta, position, frame, centres,
-                           texels.normal_derivative, footprint_angle, batch.start, signals, view_direction, weight,
-                           footprint, visible)
+            _record_kernel(seen, images, masks, pixels, cos_theta, position, frame, centres, batch.start, signals,
+                           view_direction, weight, visible)
             timings["projection"] += time.perf_counter() - tick
             advance(len(batch))
 
@@ -317,18 +304,6 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
     tick = time.perf_counter()
     irradiance = texel_irradiance(capture.envmap, normal)
     timings["irradiance"] = time.perf_counter() - tick
-
-    if config.observe.environment_occlusion:
-        tick = time.perf_counter()
-        with reporter.stage("environment occlusion", 2) as advance:
-            _occlude_mirror_directions(occluder, ray_origin, frame, view_direction, weight, signals)
-            advance(1)
-            irradiance -= blocked_irradiance(
-                occluder, capture.envmap, ray_origin, frame, config.observe.occlusion_rays, config.seed
-            )
-            np.maximum(irradiance, 0.0, out=irradiance)
-            advance(1)
-        timings["occlusion"] = time.perf_counter() - tick
 
     tick = time.perf_counter()
     with reporter.stage("fitting SH spectra", 1) as advance:
@@ -361,8 +336,6 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
         n_samples=n_samples,
         alpha_bound=alpha_bound,
         n_facing=n_facing,
-        environment_occlusion=config.observe.environment_occlusion,
-        footprint=footprint,
         tangent=texels.tangent.astype(np.float32),
         environment_coeffs=envmaps.envmap_sh(capture.envmap, config.fit.lmax).astype(np.float32),
         environment_radiance=capture.envmap.radiance,
@@ -372,7 +345,7 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
 
 
 # ---------------------------------------------------------------------------------------------
-# Irradiance and environment occlusion
+# Irradiance
 
 
 def texel_irradiance(envmap: envmaps.Envmap, normals: np.ndarray) -> np.ndarray:
@@ -388,71 +361,6 @@ def texel_irradiance(envmap: envmaps.Envmap, normals: np.ndarray) -> np.ndarray:
     irradiance_coeffs = envmaps.envmap_sh(envmap, lmax) * kernel[:, None]  # (K, 3), world frame
     irradiance_map = envmaps.envmap_from_sh(irradiance_coeffs, max(IRRADIANCE_MAP_HEIGHT, lmax + 2))
     return envmaps.lookup(irradiance_map, normals)
-
-
-def cosine_directions(n_rays: int) -> np.ndarray:
-    """(n_rays, 3) cosine-distributed local directions (z up), evenly spread.
-
-    A Fibonacci spiral in the unit disc (equal-area rings: radius sqrt((k + 1/2)/n), azimuth by
-    the golden angle) lifted to the hemisphere (Malley's method): each direction stands for an
-    equal share of the cosine-weighted hemisphere.
-    """
-    index = np.arange(n_rays) + 0.5
-    radius = np.sqrt(index / n_rays)
-    azimuth = math.pi * (3.0 - math.sqrt(5.0)) * np.arange(n_rays)
-    return np.stack(
-        [radius * np.cos(azimuth), radius * np.sin(azimuth), np.sqrt(1.0 - radius**2)], axis=1
-    )
-
-
-def blocked_irradiance(occluder: Occluder, envmap: envmaps.Envmap, ray_origin: np.ndarray, frame: np.ndarray,
-                       n_rays: int, seed: int) -> np.ndarray:
-    """(N, 3) float32: the part of each texel's irradiance that the object itself blocks.
-
-    E = pi mean_k L(w_k) for cosine-distributed w_k, so the blocked part is pi / n_rays times the
-    radiance of the directions whose ray hits the object. Subtracting it from the exact
-    unoccluded irradiance (a control variate) leaves no Monte Carlo noise where nothing is
-    blocked. Each texel turns the fixed `cosine_directions` set by its own random angle about
-    its normal (seeded), which trades structured error between neighbours for noise.
-    """
-    if n_rays < 1:
-        raise ValueError(f"occlusion_rays must be positive, got {n_rays}")
-    n_texels = len(ray_origin)
-    local = cosine_directions(n_rays)  # (M, 3)
-    spin = np.random.default_rng(seed).uniform(0.0, 2.0 * math.pi, n_texels)  # (N,)
-    blocked = np.zeros((n_texels, 3))
-    texels_per_batch = max(1, RAYS_PER_BATCH // n_rays)
-    for first in range(0, n_texels, texels_per_batch):
-        texels = slice(first, min(first + texels_per_batch, n_texels))
-        cos_spin, sin_spin = np.cos(spin[texels])[:, None], np.sin(spin[texels])[:, None]
-        along_tangent = local[None, :, 0] * cos_spin - local[None, :, 1] * sin_spin  # (n, M)
-        along_bitangent = local[None, :, 0] * sin_spin + local[None, :, 1] * cos_spin
-        basis = frame[texels]  # (n, 3, 3) rows t, b, n
-        directions = (
-            along_tangent[..., None] * basis[:, None, 0]
-            + along_bitangent[..., None] * basis[:, None, 1]
-            + local[None, :, 2, None] * basis[:, None, 2]
-        ).reshape(-1, 3)  # (n M, 3)
-        origins = np.repeat(ray_origin[texels].T, n_rays, axis=1)  # (3, n M)
-        hit = occluder.hits_rows(origins, np.ascontiguousarray(directions.T, np.float32))
-        rays = np.flatnonzero(hit)
-        radiance = envmaps.lookup(envmap, directions[rays])  # (hits, 3)
-        owner = rays // n_rays  # texel within the batch
-        for channel in range(3):
-            blocked[texels, channel] = np.bincount(
-                owner, weights=radiance[:, channel], minlength=texels.stop - texels.start
-            )
-    return (blocked * (math.pi / n_rays)).astype(np.float32)
-
-
-def _occlude_mirror_directions(occluder: Occluder, ray_origin, frame, view_direction, weight, signals) -> None:
-    """Zero the mirrored radiance of samples whose mirror direction runs into the object."""
-    sampled = weight > 0
-    offsets = _sample_offsets(sampled)
-    mirror = _mirror_directions(frame, view_direction, sampled, offsets)
-    texel, view = np.nonzero(sampled)  # the packing order: row-major
-    blocked = occluder.hits_rows(np.ascontiguousarray(ray_origin[texel].T), np.ascontiguousarray(mirror.T, np.float32))
-    signals[texel[blocked], view[blocked], MIRRORED] = 0.0
 
 
 # ---------------------------------------------------------------------------------------------
@@ -625,16 +533,14 @@ def _project_kernel(position, normal, camera_to_world, intrinsics, width, height
 
 
 @numba.njit(parallel=True, cache=True)
-def _record_kernel(seen, images, masks, pixels, cos_theta, position, frame, centres, normal_derivative,
-                   footprint_angle, first_view, signals, view_direction, weight, footprint, visible):
+def _record_kernel(seen, images, masks, pixels, cos_theta, position, frame, centres, first_view, signals,
+                   view_direction, weight, visible):
     """Record the samples of a batch of B views, texel by texel (contiguous writes).
 
     seen (N, B): facing and unoccluded; images (B, H, W, 3), masks (B, H, W, 1) in [0, 1], both
     sampled bilinearly; a sample counts where the mask is 1 at all four neighbours. For counted
-    samples writes the observed radiance, local view direction, weight, footprint and visibility
-    into columns first_view + b of the (N, V, ...) outputs. The footprint (`Observations.footprint`)
-    comes from normal_derivative (N, 3, 3) (`Texels.normal_derivative`) and footprint_angle (B,),
-    the footprint's RMS radius as an angle seen from the camera (radians).
+    samples writes the observed radiance, local view direction, weight and visibility into columns
+    first_view + b of the (N, V, ...) outputs.
     """
     height, width = images.shape[1], images.shape[2]
     for t in numba.prange(seen.shape[0]):
@@ -657,30 +563,7 @@ def _record_kernel(seen, images, masks, pixels, cos_theta, position, frame, cent
             for axis in range(3):
                 view_direction[t, view, axis] = frame[t, axis, 0] * dx + frame[t, axis, 1] * dy + frame[t, axis, 2] * dz
             weight[t, view] = cos_theta[t, b]
-            footprint[t, view] = _footprint(normal_derivative[t], frame[t], view_direction[t, view],
-                                            footprint_angle[b] / inverse_distance)
             visible[t, view] = True
-
-
-@numba.njit(inline="always")
-def _footprint(normal_derivative, frame, local_view, radius):
-    """RMS angle (per axis) of the normal over a footprint of RMS radius ``radius`` (world units)
-    across the line of sight, seen along local_view (3,) in the texel's frame (3, 3) (rows t, b, n):
-    on the surface it is radius / cos theta along the view's azimuth and radius across it."""
-    sin_theta = math.sqrt(local_view[0] * local_view[0] + local_view[1] * local_view[1])
-    cos_azimuth, sin_azimuth = 1.0, 0.0  # any azimuth at normal incidence
-    if sin_theta > 1e-9:
-        cos_azimuth, sin_azimuth = local_view[0] / sin_theta, local_view[1] / sin_theta
-    total = 0.0
-    for along in (True, False):  # the footprint's two axes, in world coordinates via the frame
-        u, v = (cos_azimuth, sin_azimuth) if along else (-sin_azimuth, cos_azimuth)
-        stretch = radius / max(local_view[2], 1e-6) if along else radius
-        for row in range(3):
-            turn = 0.0
-            for column in range(3):
-                turn += normal_derivative[row, column] * (u * frame[0, column] + v * frame[1, column])
-            total += (turn * stretch) ** 2
-    return math.sqrt(0.5 * total)
 
 
 @numba.njit(inline="always")

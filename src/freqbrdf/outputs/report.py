@@ -170,13 +170,8 @@ _ENTROPY_MEANING = {
 
 
 def _entropy_kind(stats: dict) -> str:
-    """Describe what the entropy scored, from summary.json's uncertainty section.
-
-    Its mode, its hypotheses' lobe (where the mode has one to choose) and grid.
-    """
+    """Describe what the entropy scored, from summary.json's uncertainty section: its mode and grid."""
     parts = [f"{stats.get('mode', '?')} mode"]
-    if stats.get("lobe"):
-        parts.append(f"{stats['lobe']} lobes")
     if stats.get("grid_res"):
         parts.append(f"{stats['grid_res']} x {stats['grid_res']} hypotheses")
     return ", ".join(parts)

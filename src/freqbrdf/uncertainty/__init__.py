@@ -19,19 +19,11 @@ dark texel (S_out(0) ~ 0) gets a flat likelihood, i.e. it is called uncertain.
 - Residuals are taken on amplitudes sqrt(S(l)), not on powers. Noise on a fitted coefficient is
   additive, so on an amplitude it is roughly constant, whereas on a power it shrinks to second
   order near zero: power residuals make a black texel unable to rule out a specular lobe that
-  reflects 14 % of the light. The model is sqrt(S_psi(l)) = k A F(alpha, l) sqrt(S_refl(l)),
-  F = `hypothesis_filter` divided by the band-limit blur (``lobe`` "gaussian", the default: the
-  paper's K_sigma = ``brdf.brdf_kernel(alpha, l*, sigma)``, A = 1; "ggx": the GGX lobe's gains and
-  A its albedo at the texel's mean view cosine, `hypothesis_albedo`). The specular DC
-  k A sqrt(S_refl(0)) may not exceed the observed DC: a rough lobe puts nearly all its energy in
+  reflects 14 % of the light. The model is sqrt(S_psi(l)) = k F(alpha, l) sqrt(S_refl(l)),
+  F = `hypothesis_filter`, the paper's K_sigma = ``brdf.brdf_kernel(alpha, l*, sigma)`` divided
+  by the band-limit blur. The specular DC
+  k sqrt(S_refl(0)) may not exceed the observed DC: a rough lobe puts nearly all its energy in
   l = 0, which the degrees l >= 1 alone cannot rule out on a dark texel.
-- ``phase_aware`` compares the coefficients themselves, o_lm = k K m_lm for l >= 1 (m the
-  mirrored light's coefficients): the misfit sum_l S_out - 2 k K X(l) + k^2 K^2 S_refl needs the
-  cross spectrum X(l) = sum_m o_lm m_lm (`cross_spectrum`) where amplitudes take the in-phase
-  bound sqrt(S_out S_refl). It catches observations whose energy lies in other directions than
-  the reflected light's, but a real lobe is not a zonal filter around the mirror direction
-  (off-specular peak, Fresnel, masking), so it also punishes correct hypotheses. Measured in
-  benchmarks/results/entropy_variants.json; off by default.
 - Residuals are measured against the LIGHT's RMS amplitude sqrt(P), P = mean over RGB of
   sum_{l=0..l*} S_refl(l): scaling every image and the environment by kappa scales all
   coefficients by kappa and leaves the map unchanged, and a dark texel under bright, sharp light
@@ -57,17 +49,16 @@ polynomial exp; measured figures in benchmarks/results/bench_entropy.json.
 
 ``angular`` scores a grid of hypotheses in the sample domain instead of on spectra, with the
 `global` estimator's own forward model (`entropy_angular`; by default on the estimator's roughness
-nodes, 9 x 9, and with its lobes, as UncertaintyConfig.grid_res and anisotropic_lobes say): per
-hypothesis, the radiance a metal of base colour k and roughness sqrt(alpha) reflects at each
-observed view (split-sum albedo, the prefiltered and environment light), the best constant diffuse
-part, and the misfit of the samples; the noise model of the calibrated mode in radiance units. It
-is what benchmarks/pathtraced_entropy.py computes with a path tracer, and agrees with it: Spearman
-0.81 [0.76, 0.86] (95 % bootstrap interval, 400 texels, 9 x 9) against the pooled rendering of two
-seeds, which agree with each other at 0.89; with anisotropic lobes 0.83; on the 8 x 8 grid the
-calibrated mode 0.19 (its "ggx" lobe 0.38), the paper's recipe 0.17. It costs R probes of the
-estimator's search per texel: on its own seconds, not milliseconds (2.0 s for the 256k texels
-there); inside `pipeline.fit` the search makes those probes anyway (`AngularEntropy`), and the fit
-takes about 3 % longer.
+nodes, 9 x 9, as UncertaintyConfig.grid_res says): per hypothesis, the radiance a metal of base
+colour k and roughness sqrt(alpha) reflects at each observed view (split-sum albedo, the prefiltered
+and environment light), the best constant diffuse part, and the misfit of the samples; the noise
+model of the calibrated mode in radiance units. It is what benchmarks/pathtraced_entropy.py computes
+with a path tracer, and agrees with it: Spearman 0.81 [0.76, 0.86] (95 % bootstrap interval, 400
+texels, 9 x 9) against the pooled rendering of two seeds, which agree with each other at 0.89; on
+the 8 x 8 grid the calibrated mode 0.19 (with GGX lobes, a retired option, 0.38), the paper's recipe
+0.17. It costs R probes of the estimator's search per texel: on its own seconds, not milliseconds
+(2.0 s for the 256k texels there); inside `pipeline.fit` the search makes those probes anyway
+(`AngularEntropy`), and the fit takes about 3 % longer.
 Both the brute force and this mode find the smooth-gradient ("badly lit") region of
 entropy_scenes.py about as certain as the sharply lit one (brute force 0.15 and 0.17, this mode
 0.16 and 0.18): the view dependence of Fresnel and masking, which a spectrum of the mirrored light
@@ -76,20 +67,20 @@ leaves out, pins the roughness down there; the paper's recipe calls it uncertain
 
 Why the spectra disagree with the path tracer, measured by benchmarks/pathtraced_entropy.py's
 "spectral" brute force (the path-traced radiance of each hypothesis fitted to SH at the texel's
-samples and scored exactly as the calibrated mode scores its model; scoring the model's own
-spectra that way reproduces this module's entropy to 1e-6): it agrees with itself at 0.98 and
-with the calibrated mode at 0.17 only, so the model of a hypothesis's spectrum is what is wrong,
-not the scoring. The GGX lobe's gains and albedo ("ggx") take it to 0.45; the rest is what one
-zonal filter per texel cannot hold (the albedo's and the lobe's change across the texel's views,
-the sparse samples' aliasing), and to 0.68 without the residual term in the noise. Neither
-brute force ranks the estimate's roughness errors (0.11 and 0.18 on those texels; the roughness
-std 0.40): agreeing with the path tracer and ranking the errors are different goals.
+samples and scored exactly as the calibrated mode scores its model; scoring the model's own spectra
+that way reproduces this module's entropy to 1e-6): it agrees with itself at 0.98 and with the
+calibrated mode at 0.17 only, so the model of a hypothesis's spectrum is what is wrong, not the
+scoring. The GGX lobe's gains and albedo (a retired option) took it to 0.45; the rest is what one
+zonal filter per texel cannot hold (the albedo's and the lobe's change across the texel's views, the
+sparse samples' aliasing), and to 0.68 without the residual term in the noise. Neither brute force
+ranks the estimate's roughness errors (0.11 and 0.18 on those texels; the roughness std 0.40):
+agreeing with the path tracer and ranking the errors are different goals.
 
 Flags (bit field, uint8 per texel) say why a texel should not be trusted; see FLAG_*.
 
 The entropy scores the hypotheses against the spectra, not the estimate, and ranks the `global`
 estimate's per-texel roughness errors poorly (Spearman 0.28 on the Mitsuba bunny, 0.31 on the
-sphere of entropy_scenes.py; the "ggx" lobe 0.25 and 0.29; the angular mode 0.28 and 0.21).
+sphere of entropy_scenes.py; GGX lobes 0.25 and 0.29; the angular mode 0.28 and 0.21).
 `roughness_std` is the posterior spread of the estimate itself (UncertaintyConfig.roughness_window,
 loss_curvature): 0.56 and 0.48, measured in benchmarks/entropy_variants.py (session-10 estimator,
 with the neighbour vote); with the scatter between the even and the odd views' estimates too
@@ -100,7 +91,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numba
@@ -109,21 +100,8 @@ from scipy import ndimage
 
 from freqbrdf.config import Config, EstimateConfig, UncertaintyConfig
 from freqbrdf.estimate import (
-    CURVATURE_STEP,
-    FITTED_PARAMETERS,
-    HYPOTHESIS_BLOCK,
-    HypothesisRecorder,
-    angular_loss,
-    ggx_lobe_gains,
-    hypothesis_moments,
-    model_light,
-    scattering_stride,
-    split_sum_table,
-    split_sum_terms,
-    texel_blocks,
-)
-from freqbrdf.estimate import (
-    estimate as estimate_materials,
+    CURVATURE_STEP, FITTED_PARAMETERS, HYPOTHESIS_BLOCK, HypothesisRecorder, angular_loss,
+    estimate as estimate_materials, hypothesis_moments, model_light, scattering_stride, texel_blocks,
 )
 from freqbrdf.model import brdf
 from freqbrdf.sphere import harmonics as sh
@@ -195,9 +173,6 @@ class Uncertainty:
     # (N,) float32 posterior std of the estimated roughness (`roughness_std`); NaN where not
     # estimated; None when not computed (it needs the estimate).
     roughness_std: np.ndarray | None = None
-    # The hypotheses' lobe: calibrated mode's UncertaintyConfig.lobe ("gaussian", "ggx"), angular
-    # mode's "isotropic" or "anisotropic" (as `entropy_angular` scored them); None otherwise.
-    lobe: str | None = None
 
     def to_texture(self, observations: Observations, quantity: str = "entropy", fill: float = 0.0) -> np.ndarray:
         """Scatter one per-texel field (e.g. "entropy", "flags", "best_alpha") into a (T, T, ...) texture."""
@@ -222,10 +197,7 @@ def entropy_map(
     return entropy_from_spectra(
         observations.mirrored_spectrum,
         observations.observed_spectrum,
-        cross_spectrum=(cross_spectrum(observations.observed_coeffs, observations.mirrored_coeffs)
-                        if config.phase_aware else None),
         n_samples=observations.n_samples,
-        view_cos=view_cosine(observations) if config.lobe == "ggx" else None,  # only the GGX lobe reads it
         sigma=observations.sigma,
         alpha_bound=observations.alpha_bound,
         fit_status=observations.fit_status,
@@ -371,62 +343,18 @@ def cross_spectrum(observed_coeffs: np.ndarray, light_coeffs: np.ndarray) -> np.
     return np.add.reduceat(product, np.arange(lmax + 1) ** 2, axis=-1)
 
 
-def hypothesis_filter(grid: HypothesisGrid, lmax: int, sigma: float, lobe: str) -> np.ndarray:
-    """(R, l*+1) calibrated mode's per-degree amplitude filter of each alpha row, divided by the
-    band-limit blur exp(-(sigma l)^2) the mirrored light went through: "gaussian", the paper's
-    exp(-(alpha l)^2) (``brdf.brdf_kernel``); "ggx", the GGX lobe's own response to each degree
-    (``estimate.ggx_lobe_gains``, the gains the estimator's prefiltered light uses), whose tails
-    are heavier."""
-    if lobe == "gaussian":
-        return brdf.brdf_kernel(grid.alpha, lmax, sigma)
-    if lobe != "ggx":
-        raise ValueError(f"unknown lobe {lobe!r}; choose 'ggx' or 'gaussian'")
-    gains = np.stack([ggx_lobe_gains(math.sqrt(alpha), lmax) for alpha in grid.alpha])
-    return gains * np.exp(sigma**2 * np.square(np.arange(lmax + 1)))
-
-
-def hypothesis_albedo(grid: HypothesisGrid, view_cos: np.ndarray) -> np.ndarray:
-    """(N, R) the share of the light a GGX lobe of each row's alpha reflects per unit of base
-    colour, seen at cos theta_o = view_cos (N,): the split-sum scale A (``estimate.split_sum_terms``;
-    masking-shadowing and Schlick's Fresnel), below 1 where the mirror model says 1. The entropy
-    kernel reads it from `albedo_table`, which gives the same values."""
-    scale, _, _ = split_sum_terms(np.asarray(view_cos, dtype=np.float64)[:, None], np.sqrt(grid.alpha)[None, :])
-    return scale
-
-
-def albedo_table(grid: HypothesisGrid) -> np.ndarray:
-    """(R, M) `hypothesis_albedo` at the split-sum table's M view-cosine nodes (uniform in [0, 1]):
-    linear between them it is that table's bilinear lookup, so the kernel interpolates R values
-    per texel instead of looking up N x R (14 ms at T = 512, R = 8; 90 ms at R = 32)."""
-    nodes = np.linspace(0.0, 1.0, split_sum_table().shape[1])
-    return np.ascontiguousarray(hypothesis_albedo(grid, nodes).T)
-
-
-def view_cosine_sums(observations: Observations) -> tuple[np.ndarray, np.ndarray]:
-    """(N,) float64 sum_v w_v and sum_v w_v cos theta_o,v over each texel's samples (a capture
-    guidance state keeps and grows them)."""
-    weight_sum = observations.weight.sum(axis=1, dtype=np.float64)
-    cosine_sum = np.einsum("nv,nv->n", observations.weight, observations.view_direction[..., 2], dtype=np.float64)
-    return weight_sum, cosine_sum
-
-
-def mean_view_cosine(weight_sum: np.ndarray, cosine_sum: np.ndarray) -> np.ndarray:
-    """(N,) cosine_sum / weight_sum (`view_cosine_sums`); 1 where a texel has no sample."""
-    return np.where(weight_sum > 0, cosine_sum / np.where(weight_sum > 0, weight_sum, 1.0), 1.0)
-
-
-def view_cosine(observations: Observations) -> np.ndarray:
-    """(N,) the weighted mean cos theta_o of each texel's samples (1 where it has none)."""
-    return mean_view_cosine(*view_cosine_sums(observations))
+def hypothesis_filter(grid: HypothesisGrid, lmax: int, sigma: float) -> np.ndarray:
+    """(R, l*+1) calibrated mode's per-degree amplitude filter of each alpha row: the paper's
+    exp(-(alpha l)^2) divided by the band-limit blur exp(-(sigma l)^2) the mirrored light went
+    through (``brdf.brdf_kernel``)."""
+    return brdf.brdf_kernel(grid.alpha, lmax, sigma)
 
 
 def entropy_from_spectra(
     light_spectrum: np.ndarray,
     observed_spectrum: np.ndarray,
     *,
-    cross_spectrum: np.ndarray | None = None,
     n_samples: np.ndarray | None = None,
-    view_cos: np.ndarray | None = None,
     sigma: float = 0.0,
     alpha_bound: np.ndarray | None = None,
     fit_status: np.ndarray | None = None,
@@ -435,14 +363,10 @@ def entropy_from_spectra(
 ) -> Uncertainty:
     """Uncertainty from power spectra: light_spectrum, observed_spectrum (N, 3, l*+1).
 
-    cross_spectrum (N, 3, l*+1): sum_m of observed x light coefficients per degree (calibrated
-    mode; `cross_spectrum` computes it). None assumes the two are aligned in every degree, i.e.
-    sqrt(S_out S_refl), an optimistic bound that ignores where on the sphere the energy lies.
-    n_samples (N,): samples (views with positive weight) per texel (calibrated mode: the fitted coefficients' noise
-    variance is noise_level^2 P K / n_samples for K coefficients) and FLAG_FEW_SAMPLES; None: K
-    samples assumed, no FLAG_FEW_SAMPLES. view_cos (N,): the texel's mean cos theta_o
-    (`view_cosine`), at which calibrated mode with lobe "ggx" scales each hypothesis by its lobe's
-    albedo (`hypothesis_albedo`); None: albedo 1.
+    Calibrated mode compares amplitudes as if the observed and the light's coefficients were
+    aligned in every degree (sqrt(S_out S_refl)). n_samples (N,): samples (views with positive
+    weight) per texel (calibrated mode: the fitted coefficients' noise variance is noise_level^2 P K / n_samples for K coefficients) and FLAG_FEW_SAMPLES; None: K
+    samples assumed, no FLAG_FEW_SAMPLES.
 
     light_spectrum is the spectrum of the texel's mirrored (band-limited) environment fit,
     observed_spectrum that of its observed radiance; sigma the band-limit width (compensated in
@@ -470,17 +394,13 @@ def entropy_from_spectra(
         scale = np.square(observed_spectrum[..., 0].astype(np.float64)) / (lmax * config.temperature)
     else:
         # Amplitude residuals against the light's RMS amplitude (module docstring).
-        row_filter = hypothesis_filter(grid, lmax, sigma, config.lobe)
+        row_filter = hypothesis_filter(grid, lmax, sigma)
         # Least squares: each of the K fitted coefficients has about K / n_samples times a sample's
         # variance. The kernel divides by the light power P (summing (N, 3, 6) in numpy took longer
         # than the kernel's own moments).
         samples_per_coeff = (np.ones(n_texels) if n_samples is None
                              else np.maximum(np.asarray(n_samples, dtype=np.float64), 1.0) / n_degrees**2)
         scale = (samples_per_coeff / (2.0 * config.noise_level**2))[:, None]  # the same for every channel
-    use_cross = cross_spectrum is not None and not paper
-    if use_cross and cross_spectrum.shape != light_spectrum.shape:
-        raise ValueError(f"cross spectrum shape {cross_spectrum.shape} differs from {light_spectrum.shape}")
-
     # Amplitudes of degrees 1..l* against two parameters (alpha, k): l* - 2 residual degrees of freedom.
     residual_dof = float(max(lmax - 2, 1)) if (not paper and config.residual_noise) else 0.0
     resolution = grid.resolution
@@ -489,14 +409,10 @@ def entropy_from_spectra(
     best_alpha = np.empty(n_texels, dtype=np.float32)
     best_ks = np.empty(n_texels, dtype=np.float32)
     likelihood = np.empty((n_texels if return_likelihood else 0, resolution, resolution), dtype=np.float32)
-    with_albedo = view_cos is not None and config.lobe == "ggx" and not paper
     _grid_entropy_kernel(
         _kernel_input(light_spectrum), _kernel_input(observed_spectrum),
-        _kernel_input(cross_spectrum) if use_cross else np.zeros((0, 3, n_degrees)),
-        np.ascontiguousarray(scale, dtype=np.float64), row_filter,
-        np.ascontiguousarray(view_cos, dtype=np.float64) if with_albedo else np.zeros(0),
-        albedo_table(grid) if with_albedo else np.zeros((0, 0)), grid.alpha,
-        not paper, use_cross, not paper, not paper, residual_dof, return_likelihood, numba.get_num_threads(),
+        np.ascontiguousarray(scale, dtype=np.float64), row_filter, grid.alpha,
+        not paper, not paper, not paper, residual_dof, return_likelihood, numba.get_num_threads(),
         entropy, channel, best_alpha, best_ks, likelihood,
     )
 
@@ -529,17 +445,14 @@ def _finish(unobserved, entropy, channel, best_alpha, best_ks, likelihood, n_sam
     flags[(entropy > config.ambiguous_entropy) & ~unobserved] |= FLAG_AMBIGUOUS
 
     return Uncertainty(entropy=entropy, flags=flags, likelihood=likelihood, best_alpha=best_alpha, best_ks=best_ks,
-                       channel=channel, mode=config.mode, grid=grid,
-                       lobe=config.lobe if config.mode == "calibrated" else None)
+                       channel=channel, mode=config.mode, grid=grid)
 
 
 def entropy_angular(observations: Observations, config: Config = Config(),
                     return_likelihood: bool = True) -> Uncertainty:
     """The same hypothesis grid scored in the sample domain with the `global` estimator's own model
-    (``config.uncertainty.mode`` "angular"; lobes anisotropic or not as
-    ``config.uncertainty.anisotropic_lobes``, by default the estimator's), as
-    benchmarks/pathtraced_entropy.py scores it with a path tracer. Per texel, channel and
-    hypothesis (alpha_i, k_j), a metal of base colour k_j and roughness sqrt(alpha_i) reflects
+    (``config.uncertainty.mode`` "angular"), as benchmarks/pathtraced_entropy.py scores it with a
+    path tracer. Per texel, channel and hypothesis (alpha_i, k_j), a metal of base colour k_j and roughness sqrt(alpha_i) reflects
     s_v = k_j X_v + Y_v (`estimate.hypothesis_moments`; k = 0: no lobe, s = 0, not a black metal's
     grazing Fresnel); with the best view-independent (diffuse) part d = max(0, mean_w(f - s)) the
     misfit is e = mean_w (f - d - s)^2 (w the sample weights). Noise variance: (noise_level x the
@@ -587,12 +500,11 @@ class AngularEntropy:
     """`entropy_angular` fed with its hypotheses' moments block by block: by `entropy_angular`, or
     by the `global` estimator's search while it estimates (`estimate.estimate`'s ``hypotheses``,
     `recorder`), whose first scan probes the roughness nodes anyway. With the default grid (the
-    estimator's nodes) and lobes (the estimator's) that costs the search no probe of its own."""
+    estimator's nodes) that costs the search no probe of its own."""
 
     def __init__(self, observations: Observations, config: Config = Config(), return_likelihood: bool = True):
         settings = config.uncertainty
-        lobes = config.estimate.anisotropic_lobes if settings.anisotropic_lobes is None else settings.anisotropic_lobes
-        self.config = replace(config, estimate=replace(config.estimate, anisotropic_lobes=lobes))
+        self.config = config
         self.grid = hypothesis_grid(settings.resolution(config.estimate.roughness_grid))
         self.roughness = np.sqrt(self.grid.alpha)  # (R,)
         self.observations = observations
@@ -607,10 +519,8 @@ class AngularEntropy:
     @staticmethod
     def recorded_by_search(config: Config) -> bool:
         """Whether the estimator of ``config`` can record this mode's hypotheses as it searches: the
-        global estimator, scoring them with its own lobes."""
-        settings = config.uncertainty
-        return (settings.mode == "angular" and config.estimate.method == "global"
-                and settings.anisotropic_lobes in (None, config.estimate.anisotropic_lobes))
+        global estimator."""
+        return config.uncertainty.mode == "angular" and config.estimate.method == "global"
 
     def recorder(self) -> HypothesisRecorder:
         return HypothesisRecorder(self.roughness, self.consume)
@@ -629,11 +539,9 @@ class AngularEntropy:
     def result(self) -> Uncertainty:
         """The Uncertainty, once every texel has been consumed."""
         observations = self.observations
-        result = _finish(observations.n_samples == 0, self.entropy, self.channel, self.best_alpha, self.best_ks,
-                         self.likelihood, observations.n_samples, sh.num_coeffs(observations.lmax),
-                         observations.alpha_bound, self.grid, self.config.uncertainty)
-        result.lobe = "anisotropic" if self.config.estimate.anisotropic_lobes else "isotropic"
-        return result
+        return _finish(observations.n_samples == 0, self.entropy, self.channel, self.best_alpha, self.best_ks,
+                       self.likelihood, observations.n_samples, sh.num_coeffs(observations.lmax),
+                       observations.alpha_bound, self.grid, self.config.uncertainty)
 
 
 def summary(uncertainty: Uncertainty) -> dict:
@@ -652,7 +560,6 @@ def summary(uncertainty: Uncertainty) -> dict:
                   "roughness_std_median": float(np.median(estimated)) if len(estimated) else float("nan")}
     return {
         "mode": uncertainty.mode,
-        "lobe": uncertainty.lobe,
         "grid_res": uncertainty.grid.resolution,
         "texels": n_texels,
         "observed_texels": int(observed.sum()),
@@ -881,22 +788,18 @@ def _moment_entropy_texel(t, moments, weight, mirrored, n_samples, alphas, specu
 
 @numba.njit(parallel=True, cache=True)
 def _grid_entropy_kernel(
-    light, observed, cross, scale, row_filter, view_cos, albedo_table, alphas, amplitude, use_cross, per_light_power,
+    light, observed, scale, row_filter, alphas, amplitude, per_light_power,
     merge_zero, residual_dof, want_likelihood, n_threads,
     entropy, channel, best_alpha, best_ks, likelihood,
 ):
     """Fused grid misfit, likelihood and entropy per texel; the minimum-entropy channel wins.
 
-    light, observed (N, 3, l*+1) power spectra; cross (N, 3, l*+1) their cross spectrum, read when
-    use_cross (amplitude mode: a_l b_l is then X(l), else sqrt(S_refl S_out)); scale (N, 3), or
+    light, observed (N, 3, l*+1) power spectra; scale (N, 3), or
     (N, 1) for all channels alike, turns a misfit difference into temperatures, divided by the
     texel's light power P = mean over channels of sum_l S_refl(l) when per_light_power (no light:
     temperature 0, no information); row_filter (R, l*+1) the per-degree factor of alpha_i (kernel
-    for amplitudes, kernel^2 for powers); view_cos (N,) and albedo_table (R, M): each row's
-    amplitudes, DC included, are scaled by its lobe's albedo at the texel's view cosine, linear
-    between M nodes uniform in [0, 1] (amplitude mode only; (0,) and (0, 0) for none); alphas (R,)
-    the rows' alpha. amplitude: compare sqrt(S), grid values t_j = k_j, and bound the specular DC
-    (k times the row's albedo) by the observed one; otherwise powers and
+    for amplitudes, kernel^2 for powers); alphas (R,) the rows' alpha. amplitude: compare sqrt(S),
+    grid values t_j = k_j, and bound the specular DC by the observed one; otherwise powers and
     t_j = k_j^2. merge_zero: the k = 0 column is one hypothesis; residual_dof > 0: the noise
     variance 1 / (2 scale) grows by the best cell's misfit / residual_dof (0: off); n_threads:
     numba's thread count (read outside, which keeps the kernel cacheable). Outputs per texel:
@@ -931,15 +834,15 @@ def _grid_entropy_kernel(
     for worker in numba.prange(n_workers):
         # np.int64: the loop index is unsigned in numba's parallel code and signed when typed: one
         # signature, not two (each compiles the whole kernel).
-        _grid_entropy_worker(np.int64(worker), n_workers, light, observed, cross, scale, row_filter, view_cos,
-                             albedo_table, alphas, amplitude, use_cross, per_light_power, merge_zero, residual_dof,
+        _grid_entropy_worker(np.int64(worker), n_workers, light, observed, scale, row_filter,
+                             alphas, amplitude, per_light_power, merge_zero, residual_dof,
                              want_likelihood, entropy, channel, best_alpha, best_ks, likelihood)
 
 
 @numba.njit(cache=True, error_model="numpy", fastmath={"contract", "reassoc", "nsz", "arcp"})
 def _grid_entropy_worker(
-    worker, n_workers, light, observed, cross, scale, row_filter, view_cos, albedo_table, alphas, amplitude,
-    use_cross, per_light_power, merge_zero, residual_dof, want_likelihood, entropy, channel, best_alpha, best_ks,
+    worker, n_workers, light, observed, scale, row_filter, alphas, amplitude,
+    per_light_power, merge_zero, residual_dof, want_likelihood, entropy, channel, best_alpha, best_ks,
     likelihood,
 ):
     """`_grid_entropy_kernel`'s work for the blocks of texels worker, worker + n_workers, ...: a
@@ -964,7 +867,6 @@ def _grid_entropy_worker(
     # The block's inputs, read once per texel in memory order: [channel, degree, lane].
     light_lanes = np.zeros((n_channels, n_degrees, _LANES))
     observed_lanes = np.zeros((n_channels, n_degrees, _LANES))
-    cross_lanes = np.zeros((n_channels if use_cross else 0, n_degrees, _LANES))
     light_sq = np.empty((n_degrees, _LANES))  # a_l^2
     light_observed = np.empty((n_degrees, _LANES))  # a_l b_l
     constant = np.empty(_LANES)  # C = sum_{l >= 1} b_l^2
@@ -976,9 +878,6 @@ def _grid_entropy_worker(
     lowest = np.empty((3, _LANES))  # the least misfit, its row and column
     sums = np.empty((2, _LANES))  # Z, sum w d
     rows = np.empty((resolution, 5, _LANES))  # per row: A, X, t_b, misfit at t_b, the specular DC at t = 1
-    use_row_scale = view_cos.shape[0] > 0
-    last_node = albedo_table.shape[1] - 1
-    scale_lanes = np.ones((resolution, _LANES))  # the block's row_scale: [row, lane]
     # t_b, A / T, 2 (A t_b - X) / T, D_i - DC excess at t_b, and the row's specular DC and the
     # observed DC, both times sqrt(1 / T) (0 outside amplitude mode: no DC bound)
     cell = np.zeros((6, _LANES), np.float32)
@@ -995,25 +894,11 @@ def _grid_entropy_worker(
         if n_lanes < _LANES:  # padding lanes hold zeros and are computed like the others
             light_lanes[:] = 0.0
             observed_lanes[:] = 0.0
-            cross_lanes[:] = 0.0
         for k in range(n_lanes):
             for c in range(n_channels):
                 for l in range(n_degrees):
                     light_lanes[c, l, k] = light[start + k, c, l]
                     observed_lanes[c, l, k] = observed[start + k, c, l]
-        if use_row_scale:  # the table's linear interpolation at the view cosine
-            for k in range(n_lanes):
-                position = _smaller(_larger(view_cos[start + k], 0.0), 1.0) * last_node
-                node = np.int64(_smaller(math.floor(position), last_node - 1))
-                fraction = position - node
-                for i in range(resolution):
-                    scale_lanes[i, k] = (albedo_table[i, node] * (1.0 - fraction)
-                                         + albedo_table[i, node + 1] * fraction)
-        if use_cross:
-            for k in range(n_lanes):
-                for c in range(n_channels):
-                    for l in range(n_degrees):
-                        cross_lanes[c, l, k] = cross[start + k, c, l]
         choice[0] = 2.0
         if per_light_power:
             light_power[:] = 0.0
@@ -1044,9 +929,6 @@ def _grid_entropy_worker(
                         light_sq[l, k] = light_value * light_value
                         light_observed[l, k] = light_value * observed_value
                         constant[k] += observed_value * observed_value
-                if use_cross:  # padding lanes hold 0
-                    for k in range(_LANES):
-                        light_observed[l, k] = cross_lanes[c, l, k]
             # 2. Rows. The k = 0 column (misfit C in any row) and earlier rows win ties.
             for k in range(_LANES):
                 lowest[0, k] = constant[k]
@@ -1061,13 +943,9 @@ def _grid_entropy_worker(
                         quad[k] += filter_sq[i, l] * light_sq[l, k]
                         linear[k] += row_filter[i, l] * light_observed[l, k]
                 for k in range(_LANES):
-                    row_gain = scale_lanes[i, k]
-                    a = quad[k] * row_gain * row_gain
-                    x = linear[k] * row_gain
-                    specular_dc = light_dc[k] * row_gain
-                    if use_cross:  # |X| <= sqrt(A C) (Cauchy-Schwarz) unless the inputs disagree
-                        bound = math.sqrt(a * constant[k])
-                        x = _smaller(_larger(x, -bound), bound)
+                    a = quad[k]
+                    x = linear[k]
+                    specular_dc = light_dc[k]
                     # Continuous minimiser of C - 2 X t + A t^2 + max(t a_0 - b_0, 0)^2: X / A, or
                     # (X + a_0 b_0) / (A + a_0^2) where X / A would exceed the DC bound b_0 / a_0.
                     numerator = x
