@@ -850,7 +850,6 @@ def run(manifest: str | Path, out: str | Path, *, workers: int | None = None, th
     batch = _Batch(manifest, out, entries, reporter)
     with _locked(out):
         batch.plan(force)
-        batch.write()
         to_run = [entry for entry in entries if batch.rows[entry.name]["status"] == "pending"]
         if to_run:
             batch.dispatch(to_run, workers, threads, address, hooks)
@@ -1032,6 +1031,9 @@ class _Batch:
             self.engine = {"ray": ray.__version__, "address": address or ("this machine" if owns else "existing"),
                            "nodes": sum(1 for node in ray.nodes() if node.get("Alive")),
                            "workers": workers, "threads_per_capture": threads, "max_retries": MAX_RETRIES}
+            env = {"NUMBA_NUM_THREADS": str(threads), "OMP_NUM_THREADS": str(threads)}
+            _check_workers(ray, {"num_cpus": threads, "runtime_env": {"env_vars": env}})
+            self.write()  # every capture pending
             task = ray.remote(max_retries=MAX_RETRIES, retry_exceptions=False)(_process_capture)
             self._loop(ray, task, to_run, workers, threads, _largest_node(ray.nodes(), "memory"), hooks, in_flight)
         except KeyboardInterrupt:
@@ -1060,7 +1062,7 @@ class _Batch:
     def _loop(self, ray, task, to_run: list[ManifestEntry], workers: int, threads: int, memory_cap: float,
               hooks: dict, in_flight: dict) -> None:
         queue = list(reversed(to_run))
-        env = {"NUMBA_NUM_THREADS": str(threads), "OMP_NUM_THREADS": str(threads)}
+        env = {"NUMBA_NUM_THREADS": str(threads), "OMP_NUM_THREADS": str(threads)}  # as _check_workers'
         while queue or in_flight:
             while queue and len(in_flight) < workers:
                 entry = queue.pop()
@@ -1083,9 +1085,10 @@ class _Batch:
             return {"status": "interrupted", "error": "cancelled"}
         except ray.exceptions.OutOfMemoryError:
             error = f"out of memory: Ray's memory monitor stopped every attempt ({MAX_RETRIES + 1})"
+        except ray.exceptions.RayTaskError as err:  # Ray could not run the task (not the capture's failure)
+            error = f"Ray could not run it: {_last_line(err.cause if err.cause is not None else err)}"
         except ray.exceptions.RayError as err:
-            first = (str(err).strip().splitlines() or [type(err).__name__])[0]
-            error = f"its worker died on every attempt ({MAX_RETRIES + 1}): {type(err).__name__}: {first}"
+            error = f"its worker died on every attempt ({MAX_RETRIES + 1}): {type(err).__name__}: {_last_line(err)}"
         return {"status": "failed", "error": error, "seconds": time.perf_counter() - submitted,
                 "attempts": _attempts(self._attempts_path(entry.name))}
 
@@ -1123,6 +1126,36 @@ class _Batch:
                 ray.cancel(ref, force=True)
 
 
+def _last_line(error: BaseException) -> str:
+    """Take the last line of an error's text, without terminal colours (Ray's tracebacks end with the cause)."""
+    text = re.sub(r"\x1b\[[0-9;]*m", "", str(error)).strip()
+    return (text.splitlines() or [type(error).__name__])[-1].strip()
+
+
+def _worker_facts() -> dict:
+    """Tell what a Ray worker runs: its freqbrdf version and host (`_check_workers`)."""
+    return {"freqbrdf": __version__, "host": socket.gethostname()}
+
+
+def _check_workers(ray, options: dict) -> None:
+    """Run one small task as the captures will run, before any capture is sent.
+
+    InputError where a worker cannot run this freqbrdf (not installed there, another version).
+    """
+    try:
+        facts = ray.get(ray.remote(_worker_facts).options(max_retries=0, **options).remote(), timeout=300)
+    except ray.exceptions.GetTimeoutError:
+        raise InputError(None, "no Ray worker started within 300 s: does the cluster have a node with "
+                               f"{options['num_cpus']} free CPUs?") from None
+    except ray.exceptions.RayError as err:
+        cause = err.cause if isinstance(err, ray.exceptions.RayTaskError) and err.cause is not None else err
+        raise InputError(None, f"Ray's workers cannot run freqbrdf.batch ({_last_line(cause)}); install freqbrdf "
+                               f"{__version__} on every node") from None
+    if facts["freqbrdf"] != __version__:
+        raise InputError(None, f"Ray's worker on {facts['host']} has freqbrdf {facts['freqbrdf']}, this batch "
+                               f"{__version__}: install the same version on every node")
+
+
 def _largest_node(nodes: list[dict], resource: str) -> float:
     return max((node.get("Resources", {}).get(resource, 0.0) for node in nodes if node.get("Alive")), default=0.0)
 
@@ -1139,14 +1172,26 @@ def _start_local_ray(cpus: int) -> None:
 
 
 def _join_cluster(address: str) -> None:
+    """Connect to the Ray cluster at ``address``; InputError at once where nothing answers there.
+
+    Ray itself would try again for minutes; an address with a port (``HOST:PORT`` or
+    ``ray://HOST:PORT``) is tried first with a plain connection, for a few seconds.
+    """
     import logging
 
     import ray
 
+    match = re.fullmatch(r"(?:ray://)?\[?([^\]/]+?)\]?:(\d+)", address.strip())
+    if match:
+        try:
+            socket.create_connection((match.group(1), int(match.group(2))), timeout=5).close()
+        except OSError as err:
+            raise InputError(None, f"no Ray cluster answers at {address} ({err.strerror or err}); start one with "
+                                   "`ray start --head`, or leave out --address to run on this machine") from None
     try:
         ray.init(address=address, log_to_driver=False, logging_level=logging.ERROR)
     except ConnectionError as err:
-        raise InputError(None, f"no Ray cluster at {address!r}: {err}".splitlines()[0]) from None
+        raise InputError(None, f"no Ray cluster at {address!r}: {str(err).splitlines()[0]}") from None
 
 
 # ---------------------------------------------------------------------------------------------
