@@ -826,8 +826,9 @@ def run(manifest: str | Path, out: str | Path, *, workers: int | None = None, th
     -------
     dict
         The content of batch.json: ``captures`` (one dict per capture: name, capture, status
-        among `STATUSES`, seconds, attempts, error, metrics, paths, settings), ``counts`` per
-        status, ``engine`` (Ray's version, workers, threads), times and the freqbrdf version.
+        among `STATUSES`, seconds (in its worker), wall_seconds (from its submission to Ray until
+        its answer), attempts, error, metrics, paths, settings), ``counts`` per status,
+        ``engine`` (Ray's version, workers, threads), times and the freqbrdf version.
     """
     manifest, out = Path(manifest), Path(out)
     entries = read_manifest(manifest, defaults)
@@ -1075,7 +1076,7 @@ class _Batch:
             ready, _ = ray.wait(list(in_flight), num_returns=1, timeout=0.25)
             for ref in ready:
                 entry, submitted = in_flight.pop(ref)
-                self._finished(entry, self._result(ray, ref, entry, submitted))
+                self._finished(entry, self._result(ray, ref, entry, submitted), submitted)
             self.display.update(self._running(in_flight))
 
     def _result(self, ray, ref, entry: ManifestEntry, submitted: float) -> dict:
@@ -1092,9 +1093,10 @@ class _Batch:
         return {"status": "failed", "error": error, "seconds": time.perf_counter() - submitted,
                 "attempts": _attempts(self._attempts_path(entry.name))}
 
-    def _finished(self, entry: ManifestEntry, result: dict) -> None:
+    def _finished(self, entry: ManifestEntry, result: dict, submitted: float) -> None:
         row = self.rows[entry.name]
         row.update({key: value for key, value in result.items() if key != "input_hash"})
+        row["wall_seconds"] = time.perf_counter() - submitted  # from its submission to Ray until its answer
         if row["status"] == "done":
             self._paths(entry.name)
         self.write()
@@ -1120,7 +1122,7 @@ class _Batch:
                 entry, submitted = in_flight.pop(ref)
                 result = self._result(ray, ref, entry, submitted)
                 if result["status"] in ("done", "failed"):
-                    self._finished(entry, result)
+                    self._finished(entry, result, submitted)
         for ref in in_flight:
             with contextlib.suppress(Exception):
                 ray.cancel(ref, force=True)
