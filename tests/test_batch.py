@@ -309,3 +309,34 @@ def test_cluster_by_address(captures, tmp_path):
                            str(tmp_path / "out2"), "--address", f"127.0.0.1:{port}"], capture_output=True,
                           text=True, timeout=60)
     assert done.returncode == 2 and done.stderr.startswith(f"error: no Ray cluster answers at 127.0.0.1:{port}")
+
+
+@pytest.mark.slow
+def test_fresh_process_makes_the_same_outputs_as_fit(captures, tmp_path):
+    """A worker whose numba compiled kernels makes its captures in a fresh process (the path after
+    an install): same files as `pipeline.fit` + `write_fit` here, bit for bit, and up to date after."""
+    import numpy as np
+
+    from freqbrdf import __version__, pipeline
+    from freqbrdf.capture.layouts import load
+    from freqbrdf.images import read_image
+
+    settings = {"texture_res": 16, "evaluate": False, "report": False}
+    out = tmp_path / "out"
+    spec = {"name": "a", "capture": str((captures / "bunny").resolve()), "folder": str(out / "a"),
+            "work": str(out / batch.WORK_FOLDER / "work" / "a"), "settings": settings,
+            "settings_hash": batch.settings_hash(settings), "version": __version__, "hooks": {},
+            "attempt": 1, "started_at": time.time()}
+    row = batch._in_fresh_process(spec)
+    assert row["status"] == "done" and row["fresh_process"], row
+    config = batch.capture_config(settings)
+    direct = pipeline.write_fit(tmp_path / "direct", pipeline.fit(load(captures / "bunny"), config), config)
+    for name in ("base_color.exr", "roughness.exr", "metallic.exr", "entropy.exr", "roughness_std.exr"):
+        assert np.array_equal(read_image(out / "a" / name), read_image(direct / name)), name
+    for name in ("spectra.npz", "uncertainty.npz"):
+        with np.load(out / "a" / name) as made, np.load(direct / name) as expected:
+            assert made.files == expected.files
+            for key in made.files:
+                assert np.array_equal(made[key], expected[key], equal_nan=made[key].dtype.kind == "f"), key
+    entry = batch.ManifestEntry("a", (captures / "bunny").resolve(), settings, "test")
+    assert batch._up_to_date(entry, out) is not None

@@ -1022,7 +1022,8 @@ class _Batch:
                 stopped["signal"] = number
                 raise KeyboardInterrupt
 
-            signal.signal(signal.SIGTERM, terminate)
+            if threading.current_thread() is threading.main_thread():  # signals reach the main thread only
+                signal.signal(signal.SIGTERM, terminate)
             cpus = int(ray.cluster_resources().get("CPU", 1))
             if threads is None:
                 threads = min(FIT_THREADS, int(_largest_node(ray.nodes(), "CPU")) or 1) if workers is None \
@@ -1046,7 +1047,8 @@ class _Batch:
             self.finish()
             raise BatchInterrupted(self.summary(), stopped["signal"]) from None
         finally:
-            signal.signal(signal.SIGTERM, previous)
+            if threading.current_thread() is threading.main_thread():
+                signal.signal(signal.SIGTERM, previous)
             if owns and ray.is_initialized():
                 ray.shutdown()
 
