@@ -170,6 +170,7 @@ def test_batch_resumes_and_redoes_only_what_changed(cluster, captures, tmp_path)
     assert not (out / "broken").exists()
     for name in ("a", "b"):
         assert found[name]["status"] == "done" and found[name]["attempts"] == 1 and found[name]["seconds"] > 0
+        assert found[name]["worker"]["threads"] == 1  # numba's threads: the task's one CPU
         assert load_fit(out / name).maps.resolution == 32
     # a: evaluated (texture scores: the capture has ground truth) and reported; b: neither.
     assert found["a"]["metrics"]["base_color_psnr"] > 0 and found["a"]["metrics"]["psnr_hdr"] > 0
@@ -301,7 +302,7 @@ def test_cluster_by_address(captures, tmp_path):
         assert load_fit(tmp_path / "out" / "a").maps.resolution == 16
     finally:
         with contextlib.suppress(ProcessLookupError):
-            os.killpg(head.pid, signal.SIGKILL)  # the head's processes: its session
+            os.killpg(head.pid, signal.SIGKILL)  # the head's processes: its process group
         shutil.rmtree(temp, ignore_errors=True)
 
     # Nothing answers there any more: one line, exit code 2, at once.

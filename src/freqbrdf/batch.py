@@ -564,6 +564,8 @@ def _process_capture(spec: dict) -> dict:
         row.update(status="failed", error=f"out of memory ({err or 'MemoryError'}); a smaller texture_res needs less")
     except Exception as err:  # noqa: BLE001 - any other failure is this capture's, not the batch's
         row.update(status="failed", error=f"{type(err).__name__}: {err}".splitlines()[0])
+    if "numba" in sys.modules:  # the threads its fits ran with (NUMBA_NUM_THREADS, set per task)
+        row["worker"]["threads"] = sys.modules["numba"].config.NUMBA_NUM_THREADS
     row["seconds"] = time.perf_counter() - start
     return row
 
