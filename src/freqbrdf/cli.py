@@ -570,6 +570,58 @@ def next_views(
         ))
 
 
+@app.command()
+def batch(
+    manifest: str = typer.Argument(..., help="CSV or JSON Lines file (a capture a line: name, capture, settings) "
+                                   "or a folder of captures."),
+    out: str = typer.Option(..., "--out", help="Output folder: <name>/ per capture, batch.json, index.html.",
+                            callback=_output_folder),
+    workers: int = typer.Option(None, "--workers", min=1, help="Captures at once (default: as many as this "
+                                "machine's cores give --threads each and its memory holds; on a cluster, its CPUs)."),
+    threads: int = typer.Option(None, "--threads", min=1, help="CPUs (numba threads) per capture (default 2, or "
+                                "the cores shared among --workers)."),
+    address: str = typer.Option(None, "--address", help="Join this Ray cluster (auto, HOST:6379, ray://HOST:10001) "
+                                "instead of starting Ray here; its nodes need the captures and --out at the same paths."),
+    force: bool = typer.Option(False, "--force", help="Redo captures whose outputs are up to date."),
+    preset: str = typer.Option(None, help="Preset of captures whose line sets none (default, fast, paper)."),
+    texture_res: int = typer.Option(None, min=1, help="T of captures whose line sets none (default 512)."),
+    lmax: int = typer.Option(None, min=1, help="l* of captures whose line sets none (default 5)."),
+    evaluate: bool = typer.Option(None, "--evaluate/--no-evaluate", help="Score captures whose line does not say "
+                                  "(default: those with ground truth or test views)."),
+    report: bool = typer.Option(None, "--report/--no-report", help="Write each capture's report (default: yes)."),
+    spp: int = typer.Option(None, min=1, help="Samples per pixel of the evaluation's relit renders (default 64)."),
+    quiet: bool = typer.Option(False, "--quiet", help="No progress bar or messages."),
+    json_output: bool = typer.Option(False, "--json", help="Print batch.json to stdout at the end."),
+) -> None:
+    """Fit many captures on Ray, resumably: OUT/<name>/, batch.json, index.html. Exit 1 if a capture failed, 130 on Ctrl-C."""
+    import json
+    from pathlib import Path
+
+    from freqbrdf.batch import BATCH_FILE, BatchInterrupted
+    from freqbrdf.batch import run as run_batch
+    from freqbrdf.progress import Reporter
+
+    given = {"preset": preset, "texture_res": texture_res, "lmax": lmax, "evaluate": evaluate, "report": report,
+             "spp": spp}
+    try:
+        summary = run_batch(manifest, out, workers=workers, threads=threads, address=address, force=force,
+                            defaults={key: value for key, value in given.items() if value is not None},
+                            reporter=Reporter(enabled=not (quiet or json_output)))
+    except BatchInterrupted as interrupted:
+        if json_output:
+            _print_json(interrupted.summary)
+        elif not quiet:
+            err_console.print(f"interrupted: completed captures kept; run again to go on "
+                              f"({escape(str(Path(out) / BATCH_FILE))})", highlight=False, soft_wrap=True)
+        raise typer.Exit(128 + interrupted.signal_number) from None
+    except KeyboardInterrupt:  # before any capture started
+        raise typer.Exit(130) from None
+    if json_output:
+        typer.echo(json.dumps(summary, indent=2, default=str))
+    if summary["counts"].get("failed"):
+        raise typer.Exit(1)
+
+
 def main() -> None:
     try:
         app()
