@@ -1,1 +1,38 @@
-"""observe."""
+"""The observation stage: per-texel samples of a capture and their SH spectra (METHOD.md §3.2-3.5).
+
+From the texels and the posed photographs to, per texel and view, the view direction in the
+texel's frame, the observed radiance, the band-limited environment in the mirror direction and
+the weight; then the irradiance and one regularised SH fit per texel (METHOD.md §2, §3.2-3.5).
+Mitsuba traces the shadow rays, through `freqbrdf.render.occluder.Occluder`, and is imported
+only when an occluder is made: importing this package does not import it.
+
+Modules
+-------
+observations
+    `Observations` (its samples, spectra, saving and loading), the stage `observe`,
+    `texel_irradiance`, `texel_alpha_bound` and the coverage and visibility maps (`write_maps`).
+visibility
+    `camera_samples`: which surface points a camera without an image would sample.
+"""
+
+from freqbrdf.observe.observations import (
+    RAY_OFFSET_OBJECT,
+    RAY_OFFSET_TEXELS,
+    Observations,
+    observe,
+    texel_alpha_bound,
+    texel_irradiance,
+    write_maps,
+)
+from freqbrdf.observe.visibility import camera_samples
+
+__all__ = [
+    "RAY_OFFSET_OBJECT",
+    "RAY_OFFSET_TEXELS",
+    "Observations",
+    "camera_samples",
+    "observe",
+    "texel_alpha_bound",
+    "texel_irradiance",
+    "write_maps",
+]

@@ -1,6 +1,6 @@
-"""Observations: from a capture to per-texel samples and their SH spectra.
+"""Observations: from a capture to per-texel samples and their SH spectra (METHOD.md §3.2-3.5).
 
-For every texel and view we record, in the mirror parameterisation of METHOD.md §2:
+For every texel and view, `observe` records in the mirror parameterisation of METHOD.md §2:
 
 - the view direction w_o in the texel's local frame (t, b, n),
 - the observed radiance (the image, bilinearly sampled where the texel projects),
@@ -8,17 +8,18 @@ For every texel and view we record, in the mirror parameterisation of METHOD.md 
 - the weight w = max(0, cos theta_o) x visible x inside the image and its mask.
 
 Dark texels are observations like any other: only the weight decides what counts as a sample,
-and the weight depends on geometry alone, never on the radiance.
-Visibility is a shadow ray from the texel (offset along its normal by a scale-aware epsilon) to
-the camera centre, traced by Mitsuba; the rays of several views go in one batch.
+and the weight depends on geometry alone, never on the radiance. Visibility (§3.2) is a shadow
+ray from the texel (offset along its normal by a scale-aware epsilon) to the camera centre,
+traced by `freqbrdf.render.occluder.Occluder`; the rays of several views go in one batch.
 
-Then, per texel, one weighted regularised SH fit (``sh.fit_sh``) of seven signals on the same
-samples: observed RGB, mirrored environment RGB and the constant 1 (whose fit carries the diffuse
-term through the fit, METHOD.md §3.6). Band limit (METHOD.md §3.4): the environment is low-passed
-with exp(-(sigma l)^2), sigma = 1/floor(sqrt(N)) for N views, before it is looked up, and the BRDF
-kernel divides that blur back out (``brdf.brdf_kernel``).
+Then, per texel, one weighted regularised SH fit (§3.3, `freqbrdf.sphere.harmonics.fit_sh`) of
+seven signals on the same samples: observed RGB, mirrored environment RGB and the constant 1
+(whose fit carries the diffuse term through the fit, §3.6). Band limit (§3.4): the environment is
+low-passed with exp(-(sigma l)^2), sigma = 1/floor(sqrt(V)) for V views, before it is looked up,
+and the BRDF kernel divides that blur back out (`freqbrdf.model.brdf.brdf_kernel`). Irradiance
+(§3.5) comes from the environment's SH with the clamped-cosine kernel (`texel_irradiance`).
 
-Irradiance (METHOD.md §3.5) comes from the environment's SH with the clamped-cosine kernel.
+`write_maps` draws an `Observations`' coverage and visibility in texture space, for people.
 """
 
 from __future__ import annotations
@@ -58,8 +59,8 @@ IMAGE_BYTES_PER_BATCH = 512 << 20
 # Samples whose mirrored environment is looked up together (24 bytes of direction, 12 of radiance each).
 MIRROR_SAMPLES_PER_BATCH = 1 << 21
 # Irradiance is smooth (its SH decay like l^-5/2), so it is synthesised once on a lat-long grid
-# of this height and interpolated bilinearly at the normals: that adds under 0.03 % to the SH
-# truncation error, against ~0.5 s and 0.5 GB for evaluating 441 SH per texel directly.
+# of this height and interpolated bilinearly at the normals, rather than evaluating every SH at
+# every texel (docs/measurements.md has the error and the cost of both).
 IRRADIANCE_MAP_HEIGHT = 256
 
 # Channel layout of the fitted signals.
@@ -77,60 +78,118 @@ _SAMPLE_ARRAYS = ("view_direction", "observed", "mirrored", "weight", "visible")
 
 @dataclass(eq=False)
 class Observations:
-    """Per-texel samples and spectra of a capture. N texels (valid ones only), V views."""
+    """Per-texel samples and spectra of a capture: N texels (valid ones only), V views.
 
-    texture_res: int  # T
-    texel_index: np.ndarray  # (N,) int64 flat row-major index into the T x T texture
-    normal: np.ndarray  # (N, 3) float32 world shading normal
-    view_direction: np.ndarray  # (N, V, 3) float32 w_o in the local frame (t, b, n)
-    observed: np.ndarray  # (N, V, 3) float32 observed radiance
-    mirrored: np.ndarray  # (N, V, 3) float32 environment radiance in the mirror direction
-    weight: np.ndarray  # (N, V) float32 max(0, cos theta_o) x visible (0: no sample)
-    visible: np.ndarray  # (N, V) bool: in front of and unoccluded from the camera, inside its image
-    irradiance: np.ndarray  # (N, 3) float32 E = integral of L max(0, n.w) dw
-    lmax: int  # l*
-    sigma: float  # band-limit width applied to the environment (0: none)
-    observed_coeffs: np.ndarray  # (N, 3, K) float32 SH fit of the observed radiance
-    mirrored_coeffs: np.ndarray  # (N, 3, K) float32 SH fit of the mirrored environment
-    constant_coeffs: np.ndarray  # (N, K) float32 SH fit of the constant 1 (the diffuse response)
-    fit_status: np.ndarray  # (N,) uint8 sh.FIT_OK / FIT_UNDERDETERMINED / FIT_EMPTY
-    n_samples: np.ndarray  # (N,) int32 views with positive weight
-    alpha_bound: np.ndarray  # (N,) float32 alpha' of appendix eq. 12 for this texel's samples
-    # (N,) int32 views whose image holds the texel, facing the camera: the samples there would be
-    # before the occlusion and mask tests (n_samples / n_facing is the visible fraction).
+    Written by `observe`; per-texel arrays are rows of the texels' order, per-sample arrays are
+    (N, V, ...) with weight 0 where a texel has no sample in a view.
+
+    Attributes
+    ----------
+    texture_res : int
+        T, the texture side.
+    texel_index : (N,) int64
+        Flat row-major index of each texel into the T x T texture.
+    normal : (N, 3) float32
+        World shading normal.
+    view_direction : (N, V, 3) float32
+        w_o in the texel's local frame (t, b, n).
+    observed : (N, V, 3) float32
+        Observed radiance.
+    mirrored : (N, V, 3) float32
+        Environment radiance in the mirror direction (band-limited by ``sigma``).
+    weight : (N, V) float32
+        max(0, cos theta_o) x visible; 0: no sample.
+    visible : (N, V) bool
+        In front of and unoccluded from the camera, inside its image and its mask.
+    irradiance : (N, 3) float32
+        E = integral of L(w) max(0, n.w) dw (METHOD.md §3.5).
+    lmax : int
+        l*, the degree of the SH fits.
+    sigma : float
+        Band-limit width applied to the environment (METHOD.md §3.4); 0: none.
+    observed_coeffs : (N, 3, K) float32
+        SH fit of the observed radiance.
+    mirrored_coeffs : (N, 3, K) float32
+        SH fit of the mirrored environment.
+    constant_coeffs : (N, K) float32
+        SH fit of the constant 1 on the same samples (the diffuse response, METHOD.md §3.6).
+    fit_status : (N,) uint8
+        ``FIT_OK``, ``FIT_UNDERDETERMINED`` or ``FIT_EMPTY`` of `freqbrdf.sphere.harmonics`.
+    n_samples : (N,) int32
+        Views with positive weight.
+    alpha_bound : (N,) float32
+        alpha' of appendix eq. 12 for the texel's samples (`texel_alpha_bound`).
+    n_facing : (N,) int32
+        Views whose image holds the texel, facing the camera: the samples there would be before
+        the occlusion and mask tests (n_samples / n_facing is the visible fraction).
+    tangent : (N, 3) float32 or None
+        World tangent of the local frame (bitangent = normal x tangent); None where unknown
+        (hand-made observations).
+    environment_coeffs : (K, 3) float32 or None
+        The environment's SH in the world frame, unfiltered: what the estimator's environment
+        light reads (``EstimateConfig.environment_light``). None where unknown.
+    environment_radiance : (H, W, 3) float32 or None
+        The environment map itself (`freqbrdf.sphere.envmap.Envmap.radiance`, unfiltered): what
+        smooth lobes read, prefiltered (``EstimateConfig.prefiltered_light``). None where unknown.
+    environment_rotation : (3, 3) float64 or None
+        The environment map's emitter-to-world rotation. None where unknown.
+    timings : dict
+        Seconds per stage of `observe` (``STAGES`` and ``"total"``).
+    """
+
+    texture_res: int
+    texel_index: np.ndarray
+    normal: np.ndarray
+    view_direction: np.ndarray
+    observed: np.ndarray
+    mirrored: np.ndarray
+    weight: np.ndarray
+    visible: np.ndarray
+    irradiance: np.ndarray
+    lmax: int
+    sigma: float
+    observed_coeffs: np.ndarray
+    mirrored_coeffs: np.ndarray
+    constant_coeffs: np.ndarray
+    fit_status: np.ndarray
+    n_samples: np.ndarray
+    alpha_bound: np.ndarray
     n_facing: np.ndarray
-    # (N, 3) float32 world tangent of the local frame (bitangent = normal x tangent), and (K, 3)
-    # float32 the environment's SH in the world frame, unfiltered: what the estimator's environment
-    # light reads (`EstimateConfig.environment_light`). None where unknown (hand-made observations).
     tangent: np.ndarray | None = None
     environment_coeffs: np.ndarray | None = None
-    # (H, W, 3) float32 the environment map itself (`envmap.Envmap.radiance`, unfiltered) and (3, 3)
-    # float64 its emitter-to-world rotation: what smooth lobes read, prefiltered
-    # (`EstimateConfig.prefiltered_light`). None where unknown.
     environment_radiance: np.ndarray | None = None
     environment_rotation: np.ndarray | None = None
-    timings: dict = field(default_factory=dict)  # seconds per stage
+    timings: dict = field(default_factory=dict)
 
     @property
     def n_texels(self) -> int:
+        """N, the number of texels."""
         return len(self.texel_index)
 
     @property
     def n_views(self) -> int:
+        """V, the number of views."""
         return self.weight.shape[1]
 
     @property
     def observed_spectrum(self) -> np.ndarray:
-        """(N, 3, l*+1) power spectrum of the observed radiance."""
+        """(N, 3, L) power spectrum of the observed radiance (METHOD.md §2), in its coefficients' float type."""
         return sh.power_spectrum(self.observed_coeffs)
 
     @property
     def mirrored_spectrum(self) -> np.ndarray:
-        """(N, 3, l*+1) power spectrum of the mirrored environment."""
+        """(N, 3, L) power spectrum of the mirrored environment (METHOD.md §2), in its coefficients' float type."""
         return sh.power_spectrum(self.mirrored_coeffs)
 
     def environment(self) -> envmaps.Envmap | None:
-        """The environment map of the capture (unfiltered), or None where unknown."""
+        """Return the environment map of the capture, unfiltered.
+
+        Returns
+        -------
+        Envmap or None
+            The map with its emitter-to-world rotation (no translation); None where the
+            map or its rotation is unknown.
+        """
         if self.environment_radiance is None or self.environment_rotation is None:
             return None
         to_world = np.eye(4)
@@ -138,18 +197,44 @@ class Observations:
         return envmaps.Envmap(self.environment_radiance, to_world)
 
     def select(self, rows) -> Observations:
-        """The Observations of the texels ``rows`` (indices, a slice or a boolean mask over the N
-        texels): every per-texel array indexed, the environment (SH, map, rotation) and the scalars
-        kept."""
+        """Return the Observations of some of the texels.
+
+        Every per-texel and per-sample array is indexed; the environment (SH, map, rotation) and
+        the scalars are kept.
+
+        Parameters
+        ----------
+        rows : (n,) int array, slice or (N,) bool
+            The texels to keep: indices, a slice or a boolean mask over the N texels.
+
+        Returns
+        -------
+        Observations
+            The n texels selected, all V views.
+        """
         changes = {item.name: getattr(self, item.name)[rows] for item in fields(self)
                    if isinstance(getattr(self, item.name), np.ndarray) and item.name not in _SHARED_ARRAYS}
         return replace(self, **changes)
 
     def texel_fields(self, rows) -> Observations:
-        """Like `select`, without the samples: the per-view arrays are kept with no view (V = 0),
-        everything per texel (spectra, counts, normals) is indexed. For outputs on other texels
-        than the ones observed (`pipeline.to_texels`), where copying every sample would cost more
-        than the estimate (0.74 GB and 2.4 s for 64 views at T = 512)."""
+        """Return the per-texel fields of some of the texels, without their samples.
+
+        Like `select`, but the per-sample arrays (view direction, observed, mirrored, weight,
+        visible) are kept with no view (V = 0); everything per texel (spectra, counts, normals)
+        is indexed. For outputs on other texels than the ones observed
+        (`freqbrdf.pipeline.to_texels`), where copying every sample would cost more than the
+        estimate.
+
+        Parameters
+        ----------
+        rows : (n,) int array, slice or (N,) bool
+            The texels to keep: indices, a slice or a boolean mask over the N texels.
+
+        Returns
+        -------
+        Observations
+            The n texels selected, with V = 0.
+        """
         changes = {}
         for item in fields(self):
             value = getattr(self, item.name)
@@ -158,12 +243,32 @@ class Observations:
         return replace(self, **changes)
 
     def with_views(self, keep: np.ndarray, config: Config = Config()) -> Observations:
-        """The Observations as if only the views ``keep`` ((V,) bool) had been captured: the other
-        views' samples dropped (weight 0, not visible), then the SH spectra, fit status, sample
-        counts and alpha' refitted from the samples left, to degree l* = ``self.lmax`` with
-        ``config.fit``'s regulariser and alpha' threshold, as `observe` fits them. What describes
-        the light rather than the samples is kept: the band limit sigma (set by the whole
-        capture's view count), the irradiance, the environment and n_facing."""
+        """Return the Observations as if only some of the views had been captured.
+
+        The other views' samples are dropped (weight 0, not visible), then the SH spectra, fit
+        status, sample counts and alpha' are refitted from the samples left, to degree
+        l* = ``self.lmax`` with ``config.fit``'s regulariser and alpha' threshold, as `observe`
+        fits them. What describes the light rather than the samples is kept: the band limit sigma
+        (set by the whole capture's view count), the irradiance, the environment and n_facing.
+
+        Parameters
+        ----------
+        keep : (V,) bool
+            The views to keep.
+        config : Config
+            Its ``fit`` settings (regulariser, penalty, attenuation threshold) are used.
+
+        Returns
+        -------
+        Observations
+            All N texels and V views, with the samples of the dropped views zeroed and empty
+            ``timings``.
+
+        Raises
+        ------
+        ValueError
+            If ``keep`` is not of shape (V,).
+        """
         keep = np.asarray(keep, dtype=bool)
         if keep.shape != (self.n_views,):
             raise ValueError(f"keep must be ({self.n_views},) bool, got shape {keep.shape}")
@@ -184,20 +289,47 @@ class Observations:
         )
 
     def mask(self) -> np.ndarray:
-        """(T, T) bool: texels of the mesh (observed or not)."""
+        """Return the texels of the mesh in texture space.
+
+        Returns
+        -------
+        (T, T) bool
+            True at the N texels (observed or not).
+        """
         mask = np.zeros(self.texture_res * self.texture_res, dtype=bool)
         mask[self.texel_index] = True
         return mask.reshape(self.texture_res, self.texture_res)
 
     def to_texture(self, values: np.ndarray, fill: float = 0.0) -> np.ndarray:
-        """Scatter per-texel values (N, ...) into a (T, T, ...) texture."""
+        """Scatter per-texel values into a texture.
+
+        Parameters
+        ----------
+        values : (N, ...) array_like
+            One value (of any trailing shape) per texel.
+        fill : float
+            The value of the texture outside the N texels.
+
+        Returns
+        -------
+        (T, T, ...) array
+            The texture, of ``values``' dtype.
+        """
         values = np.asarray(values)
         texture = np.full((self.texture_res * self.texture_res, *values.shape[1:]), fill, values.dtype)
         texture[self.texel_index] = values
         return texture.reshape(self.texture_res, self.texture_res, *values.shape[1:])
 
     def save(self, path: str | Path) -> None:
-        """Write everything to one ``.npz`` (atomically)."""
+        """Write everything to one ``.npz`` file, atomically.
+
+        Fields that are None are left out; `load` reads them back as None.
+
+        Parameters
+        ----------
+        path : str or Path
+            The file to write (replaced if it exists).
+        """
         arrays = {f.name: getattr(self, f.name) for f in fields(self)
                   if f.name != "timings" and getattr(self, f.name) is not None}
         arrays["timings_json"] = np.array(json.dumps(self.timings))
@@ -207,6 +339,23 @@ class Observations:
 
     @classmethod
     def load(cls, path: str | Path) -> Observations:
+        """Read an Observations written by `save`.
+
+        Parameters
+        ----------
+        path : str or Path
+            The ``.npz`` file.
+
+        Returns
+        -------
+        Observations
+            What was saved; optional fields missing from the file are None.
+
+        Raises
+        ------
+        InputError
+            If the file does not exist or is not a freqbrdf observations file.
+        """
         path = Path(path)
         if not path.is_file():
             raise InputError(path, "observations file does not exist")
@@ -229,7 +378,35 @@ class Observations:
 
 def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT,
             texels: Texels | None = None) -> Observations:
-    """Observations of every texel of ``capture`` in every view, and their SH spectra."""
+    """Observe every texel of a capture in every view and fit the SH spectra of its samples.
+
+    The stage of METHOD.md §3.2-3.5 (module docstring): projection, visibility, bilinear image
+    samples, the band-limited environment in the mirror directions, the irradiance and one
+    regularised SH fit per texel of the observed radiance, the mirrored environment and the
+    constant 1.
+
+    Parameters
+    ----------
+    capture : Capture
+        The posed images, their masks, the mesh and the environment map.
+    config : Config
+        ``config.texels.texture_res`` sets T when ``texels`` is None; ``config.fit`` the degree
+        l*, the regulariser, the band limit and alpha's attenuation threshold.
+    reporter : Reporter
+        Progress of the views and of the fits.
+    texels : Texels or None
+        The texels to observe (e.g. a subset); None rasterises the capture's mesh at T.
+
+    Returns
+    -------
+    Observations
+        N texels (those of ``texels``), V = the capture's frames, with ``timings`` per stage.
+
+    Raises
+    ------
+    InputError
+        If the capture has no frames.
+    """
     timings = dict.fromkeys(STAGES, 0.0)
     start = time.perf_counter()
     if texels is None:
@@ -289,8 +466,8 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
             advance(len(batch))
 
     # The environment in the mirror direction of every sample: lookups of the packed samples, a
-    # batch of texels at a time (all at once, a 262k-texel plane's directions and radiance took
-    # 0.5 GB and the fit's peak memory was 0.25 GB higher; fresh memory is slow to map).
+    # batch of texels at a time, which bounds the memory of the directions and radiance (fresh
+    # memory is slow to map).
     tick = time.perf_counter()
     texels_per_batch = max(1, MIRROR_SAMPLES_PER_BATCH // n_views)
     for first in range(0, n_texels, texels_per_batch):
@@ -349,11 +526,24 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
 
 
 def texel_irradiance(envmap: envmaps.Envmap, normals: np.ndarray) -> np.ndarray:
-    """E(n) = integral of L(w) max(0, n.w) dw at world ``normals`` (N, 3) -> (N, 3) float32.
+    """Compute the irradiance E(n) = integral of L(w) max(0, n.w) dw at world normals.
 
-    The clamped-cosine kernel applied to the map's SH (``envmap.irradiance``'s method, up to
-    ``envmap.IRRADIANCE_LMAX`` or what the map resolves), synthesised on a lat-long grid and read
-    bilinearly (see IRRADIANCE_MAP_HEIGHT).
+    The clamped-cosine kernel applied to the map's SH (`freqbrdf.sphere.envmap.irradiance`'s
+    method, up to ``IRRADIANCE_LMAX`` of `freqbrdf.sphere.envmap` or what the map resolves),
+    synthesised on a lat-long grid of ``IRRADIANCE_MAP_HEIGHT`` rows and read bilinearly
+    (METHOD.md §3.5).
+
+    Parameters
+    ----------
+    envmap : Envmap
+        The environment, unfiltered.
+    normals : (N, 3) array_like
+        Unit world normals.
+
+    Returns
+    -------
+    (N, 3) float32
+        Irradiance per normal and channel.
     """
     height, width = envmap.radiance.shape[:2]
     lmax = min(envmaps.IRRADIANCE_LMAX, height - 2, (width - 1) // 2)
@@ -368,10 +558,25 @@ def texel_irradiance(envmap: envmaps.Envmap, normals: np.ndarray) -> np.ndarray:
 
 
 def texel_alpha_bound(n_samples: np.ndarray, lmax: int, attenuation: float) -> np.ndarray:
-    """(N,) alpha' (appendix eq. 12) per texel: inf where fewer than 2 samples.
+    """Return the roughness bound alpha' (appendix eq. 12, METHOD.md §3.4) of each texel.
 
-    The usable degree is the smaller of what the texel's n samples resolve (l < sqrt(n),
-    ``brdf.resolvable_degree``) and the fit's l*: spectra carry no information above l*.
+    alpha' = sqrt(-ln t) / l, with l the usable degree: the smaller of what the texel's n
+    samples resolve (l < sqrt(n), `freqbrdf.model.brdf.resolvable_degree`) and the fit's l*
+    (spectra carry no information above l*).
+
+    Parameters
+    ----------
+    n_samples : (N,) int
+        Samples per texel.
+    lmax : int
+        l*, the degree of the fits.
+    attenuation : float
+        t in (0, 1), the acceptable attenuation (``FitConfig.attenuation_threshold``).
+
+    Returns
+    -------
+    (N,) float32
+        alpha' per texel; inf where fewer than 2 samples (no degree resolved).
     """
     n_samples = np.asarray(n_samples, dtype=np.int64)
     root = np.floor(np.sqrt(n_samples)).astype(np.int64)
@@ -388,8 +593,11 @@ def _extent(vertices: np.ndarray) -> float:
 
 
 def _sample_offsets(selected: np.ndarray) -> np.ndarray:
-    """(N + 1,) int64: where each texel's selected entries of ``selected`` (N, B) bool start when
-    they are packed row-major (texel by texel, views in order), and their total at the end."""
+    """Return where each texel's selected entries start when they are packed.
+
+    selected (N, B) bool; packed row-major (texel by texel, views in order). Returns (N + 1,)
+    int64 offsets, their total at the end.
+    """
     offsets = np.zeros(len(selected) + 1, dtype=np.int64)
     np.cumsum(np.count_nonzero(selected, axis=1), out=offsets[1:])
     return offsets
@@ -426,7 +634,7 @@ def _shadow_rays(ray_origin, centres, seen, offsets):
 
 @numba.njit(parallel=True, cache=True)
 def _clear_occluded(seen, offsets, hit):
-    """seen (N, B) becomes False where the packed ray of that entry (`_sample_offsets`) hit."""
+    """Set seen (N, B) to False where the packed ray of that entry (`_sample_offsets`) hit."""
     for t in numba.prange(seen.shape[0]):
         k = offsets[t]
         for b in range(seen.shape[1]):
@@ -438,9 +646,12 @@ def _clear_occluded(seen, offsets, hit):
 
 @numba.njit(parallel=True, cache=True)
 def _mirror_directions(frame, view_direction, sampled, offsets):
-    """(M, 3) world mirror directions r = 2 (n.v) n - v of the samples selected by sampled (N, V),
-    packed at offsets (`_sample_offsets`); frame (N, 3, 3) rows t, b, n; view_direction (N, V, 3)
-    local. In the local frame the mirror of (x, y, z) about n = z is (-x, -y, z)."""
+    """Return the (M, 3) world mirror directions r = 2 (n.v) n - v of the selected samples.
+
+    sampled (N, V) bool selects them, packed at offsets (`_sample_offsets`); frame (N, 3, 3)
+    rows t, b, n; view_direction (N, V, 3) local. In the local frame the mirror of (x, y, z)
+    about n = z is (-x, -y, z).
+    """
     mirror = np.empty((offsets[-1], 3))
     for t in numba.prange(sampled.shape[0]):
         k = offsets[t]
@@ -457,9 +668,11 @@ def _mirror_directions(frame, view_direction, sampled, offsets):
 
 @numba.njit(parallel=True, cache=True)
 def _initialise_signals(signals, constant):
-    """signals (N, V, C) = 0, channel ``constant`` = 1: in parallel and in one contiguous pass,
-    which also maps the fresh memory (a 262k-texel plane's 0.47 GB: 1.1 s with np.zeros and a
-    strided assignment, 0.56 s here)."""
+    """Set signals (N, V, C) to 0 and channel ``constant`` to 1.
+
+    In parallel and in one contiguous pass, which also maps the fresh memory (faster than
+    np.zeros and a strided assignment; docs/measurements.md).
+    """
     for t in numba.prange(signals.shape[0]):
         for v in range(signals.shape[1]):
             for k in range(signals.shape[2]):
@@ -469,7 +682,7 @@ def _initialise_signals(signals, constant):
 
 @numba.njit(parallel=True, cache=True)
 def _unpack_samples(sampled, offsets, packed, signals, first_channel):
-    """signals[t, v, first_channel:first_channel + C] = the packed row of each selected sample."""
+    """Write the packed row of each selected sample to signals[t, v, first_channel:first_channel + C]."""
     for t in numba.prange(sampled.shape[0]):
         k = offsets[t]
         for v in range(sampled.shape[1]):
@@ -480,8 +693,11 @@ def _unpack_samples(sampled, offsets, packed, signals, first_channel):
 
 
 def _view_batches(capture: Capture, n_texels: int) -> list[range]:
-    """Consecutive views processed together: same image size (their images are stacked), at
-    most VIEWS_PER_BATCH, about RAYS_PER_BATCH shadow rays and IMAGE_BYTES_PER_BATCH of images."""
+    """Split the views into consecutive batches processed together.
+
+    A batch has one image size (its images are stacked), at most VIEWS_PER_BATCH views, about
+    RAYS_PER_BATCH shadow rays and IMAGE_BYTES_PER_BATCH of images.
+    """
     cameras = [frame.camera for frame in capture.frames]
     batches, first = [], 0
     for view, camera in enumerate(cameras):
@@ -568,9 +784,11 @@ def _record_kernel(seen, images, masks, pixels, cos_theta, position, frame, cent
 
 @numba.njit(inline="always")
 def _bilinear_stencil(x, y, height, width):
-    """Neighbours and fractions for bilinear interpolation at pixel coordinates (x, y) whose
-    pixel centres lie at (j + 0.5, i + 0.5); the border is clamped (the edge pixel's value holds
-    up to half a pixel beyond its centre)."""
+    """Return the neighbours and fractions for bilinear interpolation at pixel coordinates (x, y).
+
+    Pixel centres lie at (j + 0.5, i + 0.5); the border is clamped (the edge pixel's value holds
+    up to half a pixel beyond its centre).
+    """
     x = min(max(x - 0.5, 0.0), width - 1.0)
     y = min(max(y - 0.5, 0.0), height - 1.0)
     col = min(int(x), width - 2) if width > 1 else 0
@@ -600,13 +818,27 @@ def _sample_bilinear(image, pixels, out):  # image (H, W, C); pixels (M, 2) x, y
 
 
 def write_maps(observations: Observations, folder: str | Path) -> list[Path]:
-    """PNG maps of an Observations in texture space, with colour-bar legends; returns the paths.
+    """Write PNG maps of an Observations in texture space, with colour-bar legends.
 
     - ``coverage.png``: views with a sample per texel (0 .. V);
     - ``visibility.png``: the fraction of the views that face a texel (it lies in their image,
       front side towards them) in which it is sampled, i.e. neither hidden by the object itself
       nor on the mask's edge; texels facing no view are left out.
+
     Texels outside the mesh's charts are grey.
+
+    Parameters
+    ----------
+    observations : Observations
+        What to draw.
+    folder : str or Path
+        Where ``coverage.png`` and ``visibility.png`` are written (atomically; the folder is
+        created if needed).
+
+    Returns
+    -------
+    list of Path
+        The two PNG files written.
     """
     folder = Path(folder)
     n_facing = observations.n_facing
@@ -625,8 +857,8 @@ def write_maps(observations: Observations, folder: str | Path) -> list[Path]:
 
 
 def _write_colour_mapped(path: Path, texture: np.ndarray, label: str, value_range, colour_map: str) -> None:
-    """A (T, T) texture (NaN: no value, grey) as a PNG figure with a labelled colour bar."""
-    from matplotlib.figure import Figure  # here: importing matplotlib takes ~0.5 s
+    """Write a (T, T) texture (NaN: no value, grey) as a PNG figure with a labelled colour bar."""
+    from matplotlib.figure import Figure  # here: importing matplotlib is slow
 
     # Large enough that the texture is drawn at (at least) one screen pixel per texel.
     inches = max(4.0, texture.shape[0] / 70.0)

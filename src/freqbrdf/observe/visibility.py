@@ -1,4 +1,11 @@
-"""Which surface points a camera samples, before any photograph is taken (METHOD.md §3.2)."""
+"""Which surface points a camera samples, before any photograph is taken (METHOD.md §3.2).
+
+The same tests as `freqbrdf.observe.observations.observe` (in front of the camera, inside its
+image, facing it, and an unoccluded shadow ray to its centre), for cameras that have no image
+yet: capture guidance (`freqbrdf.applications.guidance`, METHOD.md §4) scores candidate views
+with them. There is no object mask, so silhouette points may count where a photograph's mask
+would drop them.
+"""
 
 from __future__ import annotations
 
@@ -9,14 +16,31 @@ from freqbrdf.render.occluder import Occluder
 
 def camera_samples(cameras, points: np.ndarray, normals: np.ndarray, ray_origins: np.ndarray,
                    occluder: Occluder) -> list[tuple[np.ndarray, np.ndarray]]:
-    """For each camera, the surface points it would sample and their cos(theta_o); no image needed.
+    """Find the surface points each camera would sample, and their cos(theta_o); no image needed.
 
-    points, normals (N, 3) world; ray_origins (N, 3): the points offset off the surface, where the
-    shadow rays start. A point is sampled when it lies in front of the camera and inside its
-    image, faces it (cos theta_o > 0 between its normal and the direction to the centre) and the
-    segment from its ray origin to the camera centre misses ``occluder`` (as
-    `freqbrdf.observe.observations.observe` decides visibility). Returns per camera (rows (n,) int64,
-    cos_theta (n,) float64), rows ascending.
+    A point is sampled when it lies in front of the camera and inside its image, faces it
+    (cos theta_o > 0 between its normal and the direction to the centre) and the segment from its
+    ray origin to the camera centre misses ``occluder`` (as `freqbrdf.observe.observations.observe`
+    decides visibility). The shadow rays of all cameras are traced in one batch.
+
+    Parameters
+    ----------
+    cameras : sequence of Camera
+        V cameras (OpenGL convention, `freqbrdf.capture.camera.Camera`).
+    points : (M, 3) array_like
+        World positions of the surface points.
+    normals : (M, 3) array_like
+        Their unit world normals.
+    ray_origins : (M, 3) array_like
+        The points offset off the surface, where the shadow rays start.
+    occluder : Occluder
+        The object, for the shadow rays.
+
+    Returns
+    -------
+    list of (rows, cos_theta)
+        Per camera, rows (n,) int64 of the points it samples, ascending, and their
+        cos_theta (n,) float64.
     """
     points = np.asarray(points, np.float64)
     normals = np.asarray(normals, np.float64)
