@@ -148,7 +148,6 @@ SETTINGS = {
     "estimator": (_choice(choices(EstimateConfig)["method"]), None),
     "model": (_choice(choices(EstimateConfig)["forward_model"]), None),
     "entropy": (_choice(choices(UncertaintyConfig)["mode"]), None),
-    "entropy_lobe": (_choice(choices(UncertaintyConfig)["lobe"]), None),
     "estimation_res": (_estimation_res, None),
     "share": (_boolean, False),
     "split_half": (_boolean, False),
@@ -218,8 +217,6 @@ def capture_config(settings: dict) -> Config:
     uncertainty = config.uncertainty
     if settings.get("entropy") is not None:
         uncertainty = dataclasses.replace(uncertainty, mode=settings["entropy"])
-    if settings.get("entropy_lobe") is not None:
-        uncertainty = dataclasses.replace(uncertainty, lobe=settings["entropy_lobe"])
     if settings.get("split_half"):
         uncertainty = dataclasses.replace(uncertainty, split_half=True)
     share = dataclasses.replace(config.share, enabled=True) if settings.get("share") else config.share
