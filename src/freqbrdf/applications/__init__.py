@@ -1,1 +1,107 @@
-"""applications."""
+"""Applications of the uncertainty: guidance, sharing and inpainting (METHOD.md §4).
+
+Each reads a fit's observations, estimate and uncertainty and gives something a user acts on:
+where to photograph next, an estimate whose uncertain texels borrow from confident look-alikes,
+and material maps whose uncertain regions are filled.
+
+Modules
+-------
+guidance
+    Capture guidance: the next views by expected entropy (`select_views`), candidate views and
+    the ``next_views`` folder.
+share
+    Sharing across the surface: anchors, affinities and the pull of uncertain texels towards
+    them (`share_details`; its `freqbrdf.applications.share.share` is not re-exported: the name
+    is the module's).
+inpaint
+    Inpainting a fit's maps where the fit cannot vouch for them, chart by chart, with a
+    biharmonic or a diffusion backend.
+"""
+
+from freqbrdf.applications.guidance import (
+    MAX_TEXELS,
+    MIN_CELL_PROBABILITY,
+    NEXT_VIEWS_FILE,
+    PICTURE_FILE,
+    SPREAD,
+    SUMMARY_FILE,
+    CandidateSamples,
+    FitState,
+    Pick,
+    add_samples,
+    candidate_samples,
+    expected_entropy,
+    farthest_point_views,
+    initial_state,
+    load_candidates,
+    plot_views,
+    sample_candidates,
+    select_views,
+    state_coeffs,
+    view_directions,
+    write_next_views,
+)
+from freqbrdf.applications.inpaint import (
+    MAP_NAMES,
+    MASK_PNG,
+    Fill,
+    Inpainted,
+    InpaintSettings,
+    biharmonic_fill,
+    chart_labels,
+    diffusion_fill,
+    inpaint_maps,
+    inpaint_mask,
+    load_diffusion_fill,
+)
+from freqbrdf.applications.share import (
+    PROBABILITY_FLOOR,
+    PULL_FRACTIONS,
+    Sharing,
+    anchor_affinity,
+    find_anchors,
+    share_details,
+    texel_coordinates,
+)
+
+__all__ = [
+    "MAP_NAMES",
+    "MASK_PNG",
+    "MAX_TEXELS",
+    "MIN_CELL_PROBABILITY",
+    "NEXT_VIEWS_FILE",
+    "PICTURE_FILE",
+    "PROBABILITY_FLOOR",
+    "PULL_FRACTIONS",
+    "SPREAD",
+    "SUMMARY_FILE",
+    "CandidateSamples",
+    "Fill",
+    "FitState",
+    "InpaintSettings",
+    "Inpainted",
+    "Pick",
+    "Sharing",
+    "add_samples",
+    "anchor_affinity",
+    "biharmonic_fill",
+    "candidate_samples",
+    "chart_labels",
+    "diffusion_fill",
+    "expected_entropy",
+    "farthest_point_views",
+    "find_anchors",
+    "initial_state",
+    "inpaint_maps",
+    "inpaint_mask",
+    "load_candidates",
+    "load_diffusion_fill",
+    "plot_views",
+    "sample_candidates",
+    "select_views",
+    "share_details",
+    "state_coeffs",
+    "texel_coordinates",
+    "view_directions",
+    "write_next_views",
+]

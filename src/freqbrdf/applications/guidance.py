@@ -1,46 +1,31 @@
-"""Capture guidance: where to take the next photographs (METHOD.md §4, issue #8).
+"""Capture guidance: where to take the next photographs (METHOD.md §4).
 
-Greedy next-best-view by expected entropy. What a candidate camera would add to a texel is known
-before any photograph is taken, except the radiance itself: its view direction in the texel's
-frame, its weight cos(theta_o) x visible (`observe.visibility.camera_samples`: the same projection and
-Mitsuba shadow rays as `freqbrdf.observe.observations`), and the (band-limited) environment in the mirror
-direction. So for every
-specular hypothesis psi = (alpha, k) of the uncertainty grid the new sample can be simulated,
+Greedy next-best-view by expected entropy (`select_views`). What a candidate camera would add to
+a texel is known before any photograph is taken, except the radiance itself: its view direction
+in the texel's frame, its weight cos(theta_o) x visible (`freqbrdf.observe.camera_samples`, the
+tests of `freqbrdf.observe.observe`) and the band-limited environment in the mirror direction
+(`candidate_samples`). So for every specular hypothesis psi = (alpha, k) of the uncertainty grid
+the new sample can be simulated (`expected_entropy`),
 
     f_psi = k sum_l K(alpha, l) P_l(w_o) + D_psi,
 
-with P_l the degree-l part of the light's SH fit (updated with the candidate's mirror sample) at
-the new direction, K the lobe the entropy uses (`uncertainty.hypothesis_filter`, band-limit
-compensated in calibrated mode) and D_psi the Lambertian radiance that explains the rest of the
-texel's fitted DC under psi, D = max(0, (c_obs,00 - k c_light,00) / c_one,00) (0 for a texel with
-no sample yet). The observed fit is updated with that sample, its spectrum scored by
-`uncertainty.entropy_from_spectra` (with the texel's sample count, as `uncertainty.entropy_map`
-scores a fit),
-and the candidate's expected entropy at the texel is sum_psi P(psi) H(psi), P the texel's current
-posterior (of its minimum-entropy channel; the hypothesis is applied to all three channels, whose
-minimum entropy is the map, as in `uncertainty`). The candidate's score is the mean over texels
-(texels it does not see keep their entropy, texels nobody has seen count with entropy 1); the
-lowest wins. Only the candidates farthest from the views taken or picked so far compete
-(``spread``, SPREAD): the pure criterion clusters views.
+with P_l the degree-l part of the light's SH fit at the new direction, K the lobe the entropy
+uses and D_psi the Lambertian radiance that explains the rest of the texel's fitted DC under psi.
+The candidate's expected entropy at a texel is sum_psi P(psi) H(psi), P the texel's current
+posterior and H the entropy of its fit with f_psi added; its score is the mean over the scored
+texels (those it does not see keep their entropy), and the lowest wins. Only the candidates
+farthest from the views taken or picked so far compete (``spread``, `SPREAD`): the pure
+criterion clusters views.
 
-Incremental. Per texel we keep the normal equations of the fit, G = sum w^2 y y^T, the right-hand
-sides b = sum w^2 y f (light RGB, observed RGB, the constant 1) and sum w^2, which sets the
-penalty lambda_eff = lambda sum w^2 (``FitConfig.scale_lambda_with_weight``). Adding a sample is a
-rank-one update of G and b. With the generalised eigenbasis of (G, R), R = diag(e^l),
-G = R^1/2 Q diag(mu) Q^T R^1/2, the regularised inverse for any penalty s is
-(G + s R)^-1 = B diag(1 / (mu + s)) B^T, B = R^-1/2 Q; scoring a candidate is then Sherman-Morrison
-on top of that, O(K^2) per texel (exact, the penalty's growth with the new weight included), and
-committing a pick re-diagonalises only the texels it sees. The result equals a fit from scratch
-on the enlarged sample set (tests/test_guidance.py).
+The fits are updated exactly and incrementally (`FitState`: rank-one updates of each texel's
+normal equations in a generalised eigenbasis). A pick is committed without a photograph: its
+sample enters the fit with the posterior-mean radiance, so the next pick already knows what this
+one will most likely reveal. The band limit sigma stays that of the capture's own views. The
+texels scored are a seeded random subset of the atlas (``max_texels``); hypotheses less likely
+than `MIN_CELL_PROBABILITY` are left out of the expectation.
 
-A pick is committed without a photograph: its sample enters the fit with the posterior-mean
-radiance sum_psi P(psi) f_psi (the expected observation), so the next pick already knows what this
-one will most likely reveal. The band limit sigma stays that of the capture's own views.
-
-Speed: the texels scored are a seeded random subset of the atlas (``max_texels``, default 1024;
-all candidates are scored on the same texels, so their ranking is much less noisy than the mean
-itself) and hypotheses whose posterior falls below ``MIN_CELL_PROBABILITY`` are dropped from the
-expectation (the rest renormalised).
+`sample_candidates`, `load_candidates` and `farthest_point_views` make candidate views;
+`write_next_views` writes the ranked cameras, a picture of them and a summary.
 """
 
 from __future__ import annotations
@@ -75,18 +60,22 @@ from freqbrdf.sphere import envmap as envmaps
 from freqbrdf.sphere import harmonics as sh
 from freqbrdf.texels import Texels, rasterise
 from freqbrdf.uncertainty import (
-    Uncertainty, cross_spectrum, entropy_from_spectra, hypothesis_filter, hypothesis_grid,
+    Uncertainty,
+    cross_spectrum,
+    entropy_from_spectra,
+    hypothesis_filter,
+    hypothesis_grid,
 )
 
 MAX_TEXELS = 1024  # texels scored per candidate (a seeded random subset of the atlas)
 # Each pick is chosen among the (1 - SPREAD) of the remaining candidates farthest (in angle, seen
 # from the object) from every view taken or picked so far (0: all candidates compete). Pure
-# expected entropy clusters views; with 0.5, over 4 Mitsuba scenes x 3 budgets
-# (benchmarks/results/applications_guidance.json), metallic MAE fell by 0.010 (10 of 12 cells)
-# and base colour MAE by 0.002 (8 of 12), roughness unchanged, and picks take half the scoring.
+# expected entropy clusters views; benchmarks/results/applications_guidance.json compares 0.5
+# with 0 (docs/measurements.md).
 SPREAD = 0.5
 # Hypotheses less likely than this are left out of a texel's expectation (the rest renormalised):
-# a uniform posterior keeps all of its 57 materials (1/57 each), a confident one a handful.
+# a uniform posterior keeps all of its R (R - 1) + 1 materials (57 on the default grid, R = 8), a
+# confident one a handful.
 MIN_CELL_PROBABILITY = 1e-3
 
 # Right-hand sides of the per-texel normal equations.
@@ -98,39 +87,99 @@ N_RHS = 7
 
 @dataclass(frozen=True)
 class Pick:
-    """One chosen view, in the order chosen."""
+    """One chosen view, in the order chosen.
 
-    rank: int  # 0 = take this photograph first
-    candidate: int  # index into the candidate list
+    Attributes
+    ----------
+    rank : int
+        0 = take this photograph first.
+    candidate : int
+        Index into the candidate list.
+    camera : Camera
+        The candidate camera.
+    entropy_before : float
+        Mean entropy of the scored texels before this pick.
+    expected_entropy : float
+        Their mean expected entropy once this view is added.
+    texels_seen : int
+        Scored texels the view samples.
+    seconds : float
+        Time spent scoring every remaining candidate and committing this one.
+    """
+
+    rank: int
+    candidate: int
     camera: Camera
-    entropy_before: float  # mean entropy of the scored texels before this pick
-    expected_entropy: float  # their mean expected entropy once this view is added
-    texels_seen: int  # scored texels the view samples
-    seconds: float  # scoring every remaining candidate and committing this one
+    entropy_before: float
+    expected_entropy: float
+    texels_seen: int
+    seconds: float
 
 
 @dataclass(frozen=True)
 class CandidateSamples:
-    """What one candidate camera would add to the scored texels (n of them see it)."""
+    """What one candidate camera would add to the scored texels, n of which it sees.
 
-    texel: np.ndarray  # (n,) int64 rows of the scored texels
-    weight: np.ndarray  # (n,) float64 cos(theta_o)
-    basis: np.ndarray  # (n, K) float64 SH at the view direction in the texel's frame
-    light: np.ndarray  # (n, 3) float64 band-limited environment in the mirror direction
+    Attributes
+    ----------
+    texel : (n,) int64
+        Rows of the scored texels.
+    weight : (n,) float64
+        cos(theta_o) of each sample.
+    basis : (n, K) float64
+        The SH at the view direction in the texel's frame.
+    light : (n, 3) float64
+        The band-limited environment in the mirror direction.
+    """
+
+    texel: np.ndarray
+    weight: np.ndarray
+    basis: np.ndarray
+    light: np.ndarray
 
 
 @dataclass(eq=False)
 class FitState:
-    """Per-texel normal equations of the SH fits and their eigenbasis (n texels, K coefficients)."""
+    """Per-texel normal equations of the SH fits and their eigenbasis (n texels, K coefficients).
 
-    gram: np.ndarray  # (n, K, K) float64 sum_i w_i^2 y_i y_i^T (unregularised)
-    rhs: np.ndarray  # (n, K, 7) float64 sum_i w_i^2 y_i f_i: light RGB, observed RGB, constant 1
-    weight_sq: np.ndarray  # (n,) float64 sum_i w_i^2
-    n_samples: np.ndarray  # (n,) int64
-    basis: np.ndarray  # (n, K, K) B = R^-1/2 Q: (G + s R)^-1 = B diag(1 / (mu + s)) B^T
-    eigenvalues: np.ndarray  # (n, K) mu >= 0
-    projected_rhs: np.ndarray  # (n, K, 7) B^T b
-    regulariser: np.ndarray  # (K,) R's diagonal, reg(l) of `sh.regulariser_weights`
+    Per texel: G = sum w^2 y y^T, the right-hand sides b = sum w^2 y f (light RGB, observed RGB,
+    the constant 1) and sum w^2, which sets the penalty lambda_eff = lambda sum w^2
+    (``FitConfig.scale_lambda_with_weight``). Adding a sample is a rank-one update of G and b.
+    With the generalised eigenbasis of (G, R), R = diag(reg(l)),
+    G = R^1/2 Q diag(mu) Q^T R^1/2, the regularised inverse for any penalty s is
+    (G + s R)^-1 = B diag(1 / (mu + s)) B^T, B = R^-1/2 Q. Scoring a candidate is then
+    Sherman-Morrison on top of that, O(K^2) per texel and exact (the penalty's growth with the
+    new weight included); committing a pick re-diagonalises only the texels it sees. The fits
+    equal fits from scratch on the enlarged sample set (tests/test_guidance.py).
+
+    Attributes
+    ----------
+    gram : (n, K, K) float64
+        G = sum_i w_i^2 y_i y_i^T (unregularised).
+    rhs : (n, K, 7) float64
+        b = sum_i w_i^2 y_i f_i: light RGB, observed RGB, constant 1.
+    weight_sq : (n,) float64
+        sum_i w_i^2.
+    n_samples : (n,) int64
+        Samples with positive weight.
+    basis : (n, K, K) float64
+        B = R^-1/2 Q.
+    eigenvalues : (n, K) float64
+        mu >= 0.
+    projected_rhs : (n, K, 7) float64
+        B^T b.
+    regulariser : (K,) float64
+        R's diagonal, reg(l) of `freqbrdf.sphere.harmonics.regulariser_weights`.
+    """
+
+    gram: np.ndarray
+    rhs: np.ndarray
+    weight_sq: np.ndarray
+    n_samples: np.ndarray
+    basis: np.ndarray
+    eigenvalues: np.ndarray
+    projected_rhs: np.ndarray
+    regulariser: np.ndarray
 
 
 # --------------------------------------------------------------------------------------------
@@ -148,12 +197,43 @@ def select_views(
     spread: float = SPREAD,
     reporter: Reporter = SILENT,
 ) -> list[Pick]:
-    """Choose ``budget`` of ``candidates`` greedily by expected entropy (module docstring).
+    """Choose some of the candidate views greedily by expected entropy (module docstring).
 
-    ``observations`` of the whole capture (e.g. a fit's) are reused when given; otherwise only the
-    scored texels are observed. The texel subset and every tie are deterministic in config.seed.
-    ``spread`` in [0, 1): each pick competes only among the (1 - spread) of the remaining
-    candidates farthest from the views taken or picked so far (see SPREAD).
+    The texel subset and every tie are deterministic in ``config.seed``; ties go to the earliest
+    candidate.
+
+    Parameters
+    ----------
+    capture : Capture
+        The views taken so far, the mesh and the environment map.
+    candidates : sequence of Camera
+        The cameras to choose from (`sample_candidates`, `load_candidates`).
+    budget : int
+        How many to choose, 1 .. len(candidates).
+    config : Config
+        Texture resolution T, the SH fit (it must be regularised) and the uncertainty (mode
+        ``"calibrated"`` or ``"paper"``).
+    observations : Observations or None
+        Observations of the whole capture at T (e.g. a fit's), reused when given; None observes
+        only the scored texels.
+    max_texels : int
+        Texels scored per candidate (a seeded random subset of the atlas), >= 1.
+    spread : float
+        In [0, 1): each pick competes only among the (1 - spread) of the remaining candidates
+        farthest from the views taken or picked so far (`SPREAD`).
+    reporter : Reporter
+        Progress of the picks.
+
+    Returns
+    -------
+    list of Pick
+        ``budget`` picks, in the order chosen.
+
+    Raises
+    ------
+    ValueError
+        If ``budget`` or ``spread`` is out of range, ``max_texels`` < 1, ``observations`` are of
+        other texels, the SH fit is unregularised or the uncertainty mode is ``"angular"``.
     """
     _check_fit_settings(config)
     if budget < 1:
@@ -211,7 +291,20 @@ def select_views(
 
 
 def initial_state(observations: Observations, config: Config = Config()) -> FitState:
-    """The normal equations of an Observations' fits (all its texels); config.fit their penalty."""
+    """Build the normal equations of an Observations' fits and their eigenbasis.
+
+    Parameters
+    ----------
+    observations : Observations
+        Its n texels' samples (mirrored environment, observed radiance, weights).
+    config : Config
+        ``config.fit.regulariser`` sets R (the penalty itself is applied in `state_coeffs`).
+
+    Returns
+    -------
+    FitState
+        The n texels' state, diagonalised.
+    """
     lmax = observations.lmax
     weight_sq = np.square(observations.weight.astype(np.float64))  # (n, V)
     basis = sh.eval_sh(observations.view_direction.astype(np.float64), lmax)  # (n, V, K)
@@ -232,7 +325,21 @@ def initial_state(observations: Observations, config: Config = Config()) -> FitS
 
 
 def state_coeffs(state: FitState, config: Config) -> np.ndarray:
-    """(n, 7, K) regularised SH coefficients of the state (zeros for texels without a sample)."""
+    """Solve the state's regularised fits.
+
+    Parameters
+    ----------
+    state : FitState
+        The n texels' normal equations.
+    config : Config
+        ``config.fit``'s penalty lambda and its scaling with the total weight.
+
+    Returns
+    -------
+    (n, 7, K) float64
+        SH coefficients of the light RGB, observed RGB and the constant 1 (zeros for texels
+        without a sample).
+    """
     penalty = _penalty(state.weight_sq, config)  # (n,)
     inverse = _inverse(state.eigenvalues + penalty[:, None])  # (n, K)
     return np.swapaxes(state.basis @ (state.projected_rhs * inverse[..., None]), 1, 2)
@@ -241,7 +348,14 @@ def state_coeffs(state: FitState, config: Config) -> np.ndarray:
 def add_samples(state: FitState, samples: CandidateSamples, observed: np.ndarray) -> None:
     """Commit a view: rank-one updates of the seen texels' normal equations, then re-diagonalise.
 
-    observed (n, 3): the radiance the view is taken to show at each texel it sees.
+    Parameters
+    ----------
+    state : FitState
+        Updated in place.
+    samples : CandidateSamples
+        The view's samples at the m texels it sees.
+    observed : (m, 3) float64
+        The radiance the view is taken to show at each of them.
     """
     rows = samples.texel
     weight_sq = np.square(samples.weight)  # (n,)
@@ -262,10 +376,41 @@ def expected_entropy(
     sigma: float,
     config: Config,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Expected entropy of the texels a candidate sees, and their expected radiance in it.
+    """Score a candidate: the expected entropy of the texels it sees, and their expected radiance.
 
-    coeffs (n, 7, K) from `state_coeffs`; likelihood (n, R, R) the current posteriors. Returns
-    ((m,), (m, 3)) for the m texels of ``samples``.
+    For each hypothesis psi = (alpha, k) of the uncertainty grid the new sample is simulated,
+    f_psi = k sum_l K(alpha, l) P_l(w_o) + D_psi: P_l the degree-l part of the light's SH fit,
+    updated with the candidate's mirror sample, at the new direction; K the lobe the entropy uses
+    (`freqbrdf.uncertainty.hypothesis_filter`, band-limit compensated, in calibrated mode;
+    `freqbrdf.model.brdf.brdf_kernel` in paper mode); D_psi = max(0, (c_obs,00 - k c_light,00)
+    / c_one,00) the Lambertian radiance that explains the rest of the fitted DC (0 for a texel
+    with no sample yet). The observed fit updated with f_psi (Sherman-Morrison, `FitState`) is
+    scored by `freqbrdf.uncertainty.entropy_from_spectra` with the texel's sample count + 1; the
+    expectation is over the texel's current posterior P (the hypothesis is applied to all three
+    channels, whose minimum entropy is the texel's, as in `freqbrdf.uncertainty`), leaving out
+    hypotheses below `MIN_CELL_PROBABILITY` and renormalising.
+
+    Parameters
+    ----------
+    state : FitState
+        The n texels' fits before the sample.
+    coeffs : (n, 7, K) float64
+        Their coefficients (`state_coeffs`).
+    likelihood : (n, R, R)
+        Their current posteriors over (alpha, k).
+    samples : CandidateSamples
+        The candidate's samples at m of the n texels.
+    sigma : float
+        The capture's band limit.
+    config : Config
+        The fit's penalty and the uncertainty settings.
+
+    Returns
+    -------
+    expected : (m,) float64
+        Expected entropy of each texel the candidate sees.
+    radiance : (m, 3) float64
+        Posterior-mean radiance of its sample there (what `add_samples` commits).
     """
     rows = samples.texel
     lmax = sh.lmax_of(samples.basis.shape[1])
@@ -348,11 +493,30 @@ def candidate_samples(
     observations: Observations,
     lmax: int,
 ) -> list[CandidateSamples]:
-    """The samples each camera would add to ``texels`` (those of ``observations``), no images needed.
+    """Find the samples each camera would add to the texels; no images needed.
 
-    Visibility as in `observations.observe`: in front, facing, inside the image, and an unoccluded
-    shadow ray (Mitsuba) from the offset texel to the camera centre. There is no object mask yet,
-    so silhouette texels may count where a photograph's mask would drop them.
+    Visibility as in `freqbrdf.observe.observe` (`freqbrdf.observe.camera_samples`): in front,
+    facing, inside the image, and an unoccluded shadow ray (Mitsuba) from the offset texel to the
+    camera centre. There is no object mask yet, so silhouette texels may count where a
+    photograph's mask would drop them.
+
+    Parameters
+    ----------
+    capture : Capture
+        Its mesh (for the shadow rays) and environment map.
+    texels : Texels
+        The n scored texels, those of ``observations``.
+    cameras : sequence of Camera
+        The candidates.
+    observations : Observations
+        Its band limit sigma is applied to the environment.
+    lmax : int
+        Degree of the SH basis at the view directions.
+
+    Returns
+    -------
+    list of CandidateSamples
+        One per camera, in order.
     """
     position = np.asarray(texels.position, dtype=np.float64)
     normal = np.asarray(texels.normal, dtype=np.float64)
@@ -382,11 +546,29 @@ def candidate_samples(
 
 
 def sample_candidates(capture: Capture, count: int, hemisphere: bool = False) -> list[Camera]:
-    """``count`` cameras evenly spread (Fibonacci) on a sphere around the object, looking at it.
+    """Spread candidate cameras evenly (Fibonacci) on a sphere around the object, looking at it.
 
     They share the intrinsics of the capture's first frame and sit at the median distance of the
-    capture's cameras from the centre of the object's bounding sphere; ``hemisphere`` keeps them
-    above it (+y, the world's up).
+    capture's cameras from the centre of the object's bounding sphere.
+
+    Parameters
+    ----------
+    capture : Capture
+        Its mesh and cameras set the centre, the distance and the intrinsics.
+    count : int
+        How many cameras, >= 1.
+    hemisphere : bool
+        Keep them above the centre (+y, the world's up).
+
+    Returns
+    -------
+    list of Camera
+        ``count`` cameras.
+
+    Raises
+    ------
+    ValueError
+        If ``count`` < 1.
     """
     if count < 1:
         raise ValueError(f"count must be at least 1, got {count}")
@@ -403,20 +585,50 @@ def sample_candidates(capture: Capture, count: int, hemisphere: bool = False) ->
 
 
 def load_candidates(path: str | Path, capture: Capture) -> list[Camera]:
-    """Cameras of a transforms file in the capture format; images need not exist yet.
+    """Read candidate cameras from a transforms file in the capture format; images need not exist.
 
     Frames without ``w`` and ``h`` (in the frame or at the top level) get the image size of the
     capture's first frame.
+
+    Parameters
+    ----------
+    path : str or Path
+        The transforms file.
+    capture : Capture
+        Its first frame gives the default image size.
+
+    Returns
+    -------
+    list of Camera
+        The file's cameras, in its order.
     """
     template = capture.frames[0].camera
     return read_cameras(path, (template.height, template.width))
 
 
 def farthest_point_views(directions: np.ndarray, count: int, chosen: Sequence[int] = ()) -> list[int]:
-    """Indices of ``count`` more views, each the farthest (in angle) from those chosen so far.
+    """Choose more views, each the farthest (in angle) from those chosen so far.
 
-    directions (N, 3): unit directions from the object to the cameras. With nothing chosen the
-    first pick is view 0. Deterministic; returns only the new indices.
+    With nothing chosen the first pick is view 0. Deterministic.
+
+    Parameters
+    ----------
+    directions : (V, 3) array_like
+        Unit directions from the object to the cameras (`view_directions`).
+    count : int
+        How many more views.
+    chosen : sequence of int
+        Indices already chosen.
+
+    Returns
+    -------
+    list of int
+        The ``count`` new indices only, in the order chosen.
+
+    Raises
+    ------
+    ValueError
+        If fewer than ``count`` views are left.
     """
     directions = np.asarray(directions, dtype=np.float64)
     chosen = list(chosen)
@@ -436,7 +648,20 @@ def farthest_point_views(directions: np.ndarray, count: int, chosen: Sequence[in
 
 
 def view_directions(capture: Capture, cameras: Sequence[Camera]) -> np.ndarray:
-    """(N, 3) unit directions from the object's bounding-sphere centre to the camera centres."""
+    """Return the unit directions from the object's bounding-sphere centre to the camera centres.
+
+    Parameters
+    ----------
+    capture : Capture
+        Its mesh sets the centre.
+    cameras : sequence of Camera
+        V cameras.
+
+    Returns
+    -------
+    (V, 3) float64
+        One unit direction per camera.
+    """
     centre, _ = bounding_sphere(capture.mesh.vertices)
     offsets = np.stack([camera.center for camera in cameras]) - centre
     return offsets / np.linalg.norm(offsets, axis=1, keepdims=True)
@@ -452,11 +677,32 @@ SUMMARY_FILE = "guidance.json"
 
 def write_next_views(out_dir: str | Path, capture: Capture, picks: Sequence[Pick], summary: dict,
                      candidates: Sequence[Camera] = ()) -> Path:
-    """Write the folder (atomically, replaced as a whole): the ranked cameras, a picture, a summary.
+    """Write the ranked cameras, a picture of them and a summary to a folder.
 
-    ``next_views.json`` is a transforms file of the capture format naming the capture's mesh and
+    The folder is written atomically and replaced as a whole. ``next_views.json``
+    (`NEXT_VIEWS_FILE`) is a transforms file of the capture format naming the capture's mesh and
     light: once the photographs are saved as its ``images/next_<rank>.exr`` it loads with
     `freqbrdf.capture.layouts.load` (alone, or merged into the capture's own transforms).
+    ``next_views.png`` (`PICTURE_FILE`) is `plot_views`' picture, ``guidance.json``
+    (`SUMMARY_FILE`) the summary.
+
+    Parameters
+    ----------
+    out_dir : str or Path
+        The folder.
+    capture : Capture
+        Its mesh, environment map (with its scale) and cameras.
+    picks : sequence of Pick
+        The chosen views (`select_views`).
+    summary : dict
+        Written as ``guidance.json``.
+    candidates : sequence of Camera
+        Drawn as dots in the picture, if given.
+
+    Returns
+    -------
+    Path
+        ``out_dir``.
     """
     from freqbrdf.capture.layouts import Frame, write_transforms
     from freqbrdf.fileio import atomic_directory, write_json
@@ -477,10 +723,24 @@ def write_next_views(out_dir: str | Path, capture: Capture, picks: Sequence[Pick
 
 
 def plot_views(path: str | Path, capture: Capture, picks: Sequence[Pick], candidates: Sequence[Camera] = ()) -> None:
-    """A 3D picture: the mesh, the capture's cameras (grey frusta), the candidates (dots) and the
-    picks (coloured frusta numbered by rank). World +y is drawn up."""
+    """Draw a 3D picture of the views: the mesh, the capture's cameras, the candidates and the picks.
+
+    The capture's cameras are grey frusta, the candidates dots, the picks coloured frusta
+    numbered by rank. World +y is drawn up.
+
+    Parameters
+    ----------
+    path : str or Path
+        The PNG file to write (atomically).
+    capture : Capture
+        Its mesh and cameras.
+    picks : sequence of Pick
+        The chosen views.
+    candidates : sequence of Camera
+        Drawn as dots, if given.
+    """
     from matplotlib import colormaps
-    from matplotlib.figure import Figure  # here: importing matplotlib takes ~0.5 s
+    from matplotlib.figure import Figure  # here: importing matplotlib is slow
 
     from freqbrdf.fileio import atomic_path
 
@@ -521,7 +781,7 @@ def plot_views(path: str | Path, capture: Capture, picks: Sequence[Pick], candid
 
 
 def _draw_frustum(axes, drawn, camera: Camera, depth: float, colour, label: str | None, width: float) -> None:
-    """The camera's pyramid to ``depth`` along its axis, its image corners as the base."""
+    """Draw the camera's pyramid to ``depth`` along its axis, its image corners as the base."""
     corners_px = np.array([[0, 0], [camera.width, 0], [camera.width, camera.height], [0, camera.height]], float)
     local = np.stack([(corners_px[:, 0] - camera.cx) / camera.fx, -(corners_px[:, 1] - camera.cy) / camera.fy,
                       -np.ones(4)], axis=1) * depth  # OpenGL camera looks down -z
@@ -538,7 +798,11 @@ def _draw_frustum(axes, drawn, camera: Camera, depth: float, colour, label: str 
 
 
 def _check_fit_settings(config: Config) -> None:
-    """The eigenbasis needs a positive penalty on every coefficient; candidates are scored on spectra."""
+    """Refuse settings guidance cannot score.
+
+    The eigenbasis needs a positive penalty on every coefficient; candidates are scored on
+    spectra.
+    """
     if config.fit.regulariser == "none" or config.fit.reg_lambda <= 0:
         raise ValueError("capture guidance needs a regularised SH fit (reg_lambda > 0, a regulariser)")
     if config.uncertainty.mode == "angular":
@@ -570,7 +834,7 @@ def _diagonalise(state: FitState, rows: np.ndarray) -> None:
 
 
 def _state_uncertainty(state: FitState, coeffs: np.ndarray, sigma: float, config: Config) -> Uncertainty:
-    """The uncertainty (with likelihoods) of the state's fits, as `uncertainty.entropy_map` gives it."""
+    """Return the uncertainty (with likelihoods) of the state's fits, as `uncertainty.entropy_map` gives it."""
     n_coeffs = len(state.regulariser)
     status = np.where(state.n_samples == 0, sh.FIT_EMPTY,
                       np.where(state.n_samples < n_coeffs, sh.FIT_UNDERDETERMINED, sh.FIT_OK)).astype(np.uint8)
@@ -591,7 +855,7 @@ def _texel_subset(n_texels: int, max_texels: int, seed: int) -> np.ndarray:
 
 
 def _subset_texels(texels: Texels, rows: np.ndarray) -> Texels:
-    """The texels of ``rows`` only (the mask keeps just them)."""
+    """Return the texels of ``rows`` only (the mask keeps just them)."""
     mask = np.zeros(texels.texture_res * texels.texture_res, dtype=bool)
     mask[texels.texel_index[rows]] = True
     names = ("texel_index", "face_id", "barycentric", "position", "normal", "tangent", "bitangent", "texel_area",

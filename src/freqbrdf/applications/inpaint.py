@@ -1,31 +1,31 @@
 """Inpainting uncertain regions of a fit's material maps (METHOD.md §4, `freqbrdf inpaint`).
 
-**Mask.** Texels of the mesh's atlas that the fit cannot vouch for: by default those flagged
-UNOBSERVED (no sample) or AMBIGUOUS (entropy above the fit's ``uncertainty.ambiguous_entropy``,
-0.7 by default); with ``threshold`` H, UNOBSERVED or entropy >= H. Two flags are deliberately
-left out: FEW_SAMPLES (fewer samples than a quarter of the SH coefficients) already raises the
-entropy, which counts the samples, and BELOW_BOUND marks shiny texels whose specular lobe is
-sharper than the views resolve: their estimate is "very smooth", which a fill from rougher
-neighbours would only make worse.
+**Mask** (`inpaint_mask`). Texels of the mesh's atlas that the fit cannot vouch for: by default
+those flagged UNOBSERVED (no sample) or AMBIGUOUS (entropy above the fit's
+``uncertainty.ambiguous_entropy``); with ``threshold`` H, UNOBSERVED or entropy >= H. Two flags
+are deliberately left out: FEW_SAMPLES (fewer samples than a quarter of the SH coefficients)
+already raises the entropy, which counts the samples, and BELOW_BOUND marks shiny texels whose
+specular lobe is sharper than the views resolve: their estimate is "very smooth", which a fill
+from rougher neighbours would only make worse.
 
-**Charts.** The atlas is split into connected components (8-connected texels of the mesh); each
-is filled from its own confident texels only. Per chart, its bounding box is prepared so that
-nothing from elsewhere can leak in: every texel that is not a confident texel of the chart
-(other charts, empty atlas space, the holes) first takes the value of the nearest confident
-texel of the chart; the backend then fills the chart's holes from that picture. A chart without
-a single confident texel keeps its values (counted as ``unfilled_texels``). After filling, the
-seam padding around the atlas is regrown from the new values (``texels.fill_texture``).
+**Charts** (`inpaint_maps`). The atlas is split into connected components (8-connected texels of
+the mesh); each is filled from its own confident texels only. Per chart, every texel of its
+bounding box that is not a confident texel of the chart (other charts, empty atlas space, the
+holes) first takes the value of the nearest confident texel of the chart, so nothing from
+elsewhere can leak in; the backend then fills the chart's holes from that picture. A chart
+without a single confident texel keeps its values (counted as ``unfilled_texels``). After
+filling, the seam padding around the atlas is regrown from the new values
+(``texels.fill_texture``).
 
 **Backends.**
 
-- ``biharmonic`` (default): scikit-image's ``restoration.inpaint_biharmonic``, a smooth
-  (biharmonic) continuation of the surrounding values into each hole; no learned prior.
-- ``diffusion``: a diffusers inpainting pipeline loaded from a local folder (``--model PATH``,
-  as written by ``save_pretrained``: e.g. a Stable Diffusion inpainting checkpoint). It needs the
-  optional extra ``pip install 'freqbrdf[diffusion]'`` (torch, diffusers, transformers) and the
-  model's files on disk; nothing is downloaded. Each map goes through it as an 8-bit picture
-  (base colour sRGB-encoded, roughness and metallic as grey), per chart, resized to ``size``
-  pixels square; only the hole texels are taken back.
+- ``biharmonic`` (default, `biharmonic_fill`): scikit-image's ``restoration.inpaint_biharmonic``,
+  a smooth continuation of the surrounding values into each hole; no learned prior.
+- ``diffusion`` (`load_diffusion_fill`): a diffusers inpainting pipeline in a local folder
+  (``--model PATH``, as written by ``save_pretrained``), with the optional extra
+  ``pip install 'freqbrdf[diffusion]'``; nothing is downloaded. Each map goes through it as an
+  8-bit picture (base colour sRGB-encoded, roughness and metallic as grey), per chart, resized to
+  ``size`` pixels square; only the hole texels are taken back.
 """
 
 from __future__ import annotations
@@ -54,28 +54,87 @@ Fill = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 @dataclass(frozen=True)
 class InpaintSettings:
-    threshold: float | None = None  # entropy at or above which observed texels are masked; None: the flags
-    maps: tuple[str, ...] = MAP_NAMES  # which material maps are filled
+    """What to inpaint and how (`freqbrdf inpaint`'s options).
+
+    Attributes
+    ----------
+    threshold : float or None
+        Entropy at or above which observed texels are masked; None: the UNOBSERVED and
+        AMBIGUOUS flags (module docstring).
+    maps : tuple of str
+        Which material maps are filled, among `MAP_NAMES`.
+    backend : {"biharmonic", "diffusion"}
+        The fill (module docstring).
+    model : str or None
+        diffusion: folder of a diffusers inpainting pipeline.
+    prompt : str
+        diffusion: the text prompt.
+    steps : int
+        diffusion: denoising steps.
+    size : int
+        diffusion: pictures are resized to ``size`` x ``size`` pixels.
+    seed : int
+        diffusion: noise seed.
+    """
+
+    threshold: float | None = None
+    maps: tuple[str, ...] = MAP_NAMES
     backend: Literal["biharmonic", "diffusion"] = "biharmonic"
-    model: str | None = None  # diffusion: folder of a diffusers inpainting pipeline
+    model: str | None = None
     prompt: str = "seamless physically based material texture, uniform lighting"
-    steps: int = 25  # diffusion: denoising steps
-    size: int = 512  # diffusion: pictures are resized to size x size
-    seed: int = 0  # diffusion: noise seed
+    steps: int = 25
+    size: int = 512
+    seed: int = 0
 
 
 @dataclass(eq=False)
 class Inpainted:
-    maps: MaterialMaps  # (T, T, ·) filled, seam padding regrown
-    mask: np.ndarray  # (T, T) bool: the texels that were to be filled
-    atlas: np.ndarray  # (T, T) bool: the mesh's texels
-    charts: int  # connected components of the atlas
-    unfilled_texels: int  # masked texels in charts without a confident texel (left as they were)
+    """The result of `inpaint_maps`.
+
+    Attributes
+    ----------
+    maps : MaterialMaps
+        The (T, T, ...) maps, filled, seam padding regrown.
+    mask : (T, T) bool
+        The texels that were to be filled.
+    atlas : (T, T) bool
+        The mesh's texels.
+    charts : int
+        Connected components of the atlas.
+    unfilled_texels : int
+        Masked texels in charts without a confident texel (left as they were).
+    """
+
+    maps: MaterialMaps
+    mask: np.ndarray
+    atlas: np.ndarray
+    charts: int
+    unfilled_texels: int
 
 
 def inpaint_mask(atlas: np.ndarray, texel_index: np.ndarray, flags: np.ndarray, entropy: np.ndarray,
                  threshold: float | None) -> np.ndarray:
-    """(T, T) bool mask of the texels to fill (module docstring); per-texel flags and entropy (N,)."""
+    """Mask the texels to fill (module docstring).
+
+    Parameters
+    ----------
+    atlas : (T, T) bool
+        The mesh's texels.
+    texel_index : (N,) int
+        Flat row-major indices of the fit's texels into the T x T texture.
+    flags : (N,) int
+        The uncertainty's flags per texel (``FLAG_*`` of `freqbrdf.uncertainty`).
+    entropy : (N,) float
+        Normalised entropy per texel.
+    threshold : float or None
+        Entropy at or above which observed texels are masked; None: the UNOBSERVED and
+        AMBIGUOUS flags.
+
+    Returns
+    -------
+    (T, T) bool
+        The texels to fill, within the atlas.
+    """
     if threshold is None:
         masked = (flags & (FLAG_UNOBSERVED | FLAG_AMBIGUOUS)) != 0
     else:
@@ -86,14 +145,54 @@ def inpaint_mask(atlas: np.ndarray, texel_index: np.ndarray, flags: np.ndarray, 
 
 
 def chart_labels(atlas: np.ndarray) -> tuple[np.ndarray, int]:
-    """(T, T) int32 chart number per texel (0 off the atlas) and the number of charts (8-connected)."""
+    """Label the charts of an atlas: its 8-connected components.
+
+    Parameters
+    ----------
+    atlas : (T, T) bool
+        The mesh's texels.
+
+    Returns
+    -------
+    labels : (T, T) int32
+        Chart number per texel, 1 .. count; 0 off the atlas.
+    count : int
+        The number of charts.
+    """
     labels, count = ndimage.label(atlas, structure=np.ones((3, 3), bool))
     return labels.astype(np.int32), int(count)
 
 
 def inpaint_maps(maps: MaterialMaps, atlas: np.ndarray, mask: np.ndarray, fill: Fill,
                  names: tuple[str, ...] = MAP_NAMES, dilation_px: int = 8) -> Inpainted:
-    """Fill the ``mask`` (T, T) texels of the maps ``names`` chart by chart with ``fill``."""
+    """Fill the masked texels of some material maps chart by chart (module docstring).
+
+    Parameters
+    ----------
+    maps : MaterialMaps
+        The (T, T, ...) maps.
+    atlas : (T, T) bool
+        The mesh's texels.
+    mask : (T, T) bool
+        The texels to fill (`inpaint_mask`); texels off the atlas are ignored.
+    fill : Fill
+        The backend: (h, w, C) picture and (h, w) bool holes -> (h, w, C) filled picture.
+    names : tuple of str
+        The maps to fill, among `MAP_NAMES`; the others keep their values.
+    dilation_px : int
+        Rings of seam padding regrown around the atlas.
+
+    Returns
+    -------
+    Inpainted
+        The maps (float32; filled values clipped to [0, 1]; off the atlas the seam padding
+        regrown, `freqbrdf.texels.fill_texture`), the mask and the chart counts.
+
+    Raises
+    ------
+    ValueError
+        If ``names`` is empty or names a map not in `MAP_NAMES`.
+    """
     unknown = sorted(set(names) - set(MAP_NAMES))
     if unknown or not names:
         raise ValueError(f"maps to inpaint must be among {', '.join(MAP_NAMES)}; got {', '.join(names) or 'none'}")
@@ -128,20 +227,48 @@ def inpaint_maps(maps: MaterialMaps, atlas: np.ndarray, mask: np.ndarray, fill: 
 
 
 def biharmonic_fill(picture: np.ndarray, holes: np.ndarray) -> np.ndarray:
-    """scikit-image's biharmonic inpainting of ``holes`` (h, w) in ``picture`` (h, w, C)."""
+    """Fill holes with scikit-image's biharmonic inpainting (a `Fill`).
+
+    Parameters
+    ----------
+    picture : (h, w, C) array_like
+        The chart's picture.
+    holes : (h, w) bool
+        The texels to fill.
+
+    Returns
+    -------
+    (h, w, C) float64
+        The picture with its holes filled.
+    """
     from skimage.restoration import (
-        inpaint_biharmonic,  # its import costs ~0.5 s: only when used
+        inpaint_biharmonic,  # its import is slow: only when used
     )
 
     return inpaint_biharmonic(picture.astype(np.float64), holes, channel_axis=-1)
 
 
 def diffusion_fill(pipeline, settings: InpaintSettings, generator=None) -> Fill:
-    """A `Fill` running a diffusers inpainting ``pipeline`` on each map of a chart (module docstring).
+    """Make a `Fill` that runs a diffusers inpainting pipeline on each map of a chart.
 
-    ``pipeline(prompt=, image=, mask_image=, height=, width=, num_inference_steps=, generator=)``
-    must return an object whose ``images[0]`` is a PIL image (diffusers' inpainting pipelines do).
-    Pictures are (h, w, 3) linear base colour (sent sRGB-encoded) or (h, w, 1) grey maps.
+    Pictures are (h, w, 3) linear base colour (sent sRGB-encoded) or (h, w, 1) grey maps, sent
+    as 8-bit RGB pictures resized to ``settings.size`` pixels square, and resized back.
+
+    Parameters
+    ----------
+    pipeline : callable
+        ``pipeline(prompt=, image=, mask_image=, height=, width=, num_inference_steps=,
+        generator=)`` must return an object whose ``images[0]`` is a PIL image (diffusers'
+        inpainting pipelines do).
+    settings : InpaintSettings
+        ``prompt``, ``steps`` and ``size``.
+    generator : optional
+        Passed to the pipeline (e.g. a seeded ``torch.Generator``).
+
+    Returns
+    -------
+    Fill
+        (h, w, C) picture and (h, w) holes -> (h, w, C) float64 picture.
     """
     from PIL import Image
 
@@ -164,7 +291,28 @@ def diffusion_fill(pipeline, settings: InpaintSettings, generator=None) -> Fill:
 
 
 def load_diffusion_fill(settings: InpaintSettings) -> Fill:
-    """`diffusion_fill` with the pipeline in ``settings.model`` (local files only, CPU or CUDA)."""
+    """Load the diffusers pipeline in ``settings.model`` and make its `diffusion_fill`.
+
+    Local files only (a folder written by ``save_pretrained``, e.g. a Stable Diffusion
+    inpainting checkpoint); it runs on CUDA when torch sees a GPU, else on the CPU, seeded with
+    ``settings.seed``.
+
+    Parameters
+    ----------
+    settings : InpaintSettings
+        ``model`` and the diffusion settings.
+
+    Returns
+    -------
+    Fill
+        The pipeline's fill.
+
+    Raises
+    ------
+    InputError
+        If torch or diffusers is missing (the extra ``freqbrdf[diffusion]``), or ``model`` is not
+        a diffusers pipeline folder.
+    """
     try:
         import torch
         from diffusers import AutoPipelineForInpainting

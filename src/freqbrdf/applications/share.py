@@ -1,6 +1,7 @@
 """Sharing across the surface: uncertain texels borrow from confident look-alikes (METHOD.md §4).
 
-The paper's recipe, made memory-bounded and safe for the texels the data does pin down:
+The paper's recipe, with bounded memory and safe for the texels the data does pin down
+(`share`, `share_details`; ``ShareConfig`` holds the settings named below):
 
 1. **Anchors.** Certainty is 1 - H (normalised entropy). The texture is split into
    ``anchor_cells`` x ``anchor_cells`` cells; the most certain observed texel of each cell is an
@@ -18,9 +19,8 @@ The paper's recipe, made memory-bounded and safe for the texels the data does pi
    KL(P_x || P_a) would call a broad (uncertain) posterior far from every sharp anchor, even one
    that sits on the anchor's hypothesis. Affinity w = exp(-D^2 / (2 s^2)), s = ``affinity_width``
    x the mean D over all (texel, anchor) pairs (the paper's 0.4 x mean KL). Probabilities are
-   floored at e^-CUTOFF, the resolution of ``uncertainty``'s likelihoods.
-   Memory: the prototype compared every texel with every anchor at once (T^2 K 192 floats, 4 GB
-   at 512^2); here texels go in chunks of ``chunk_texels``, each holding (chunk, k, R^2) floats.
+   floored at e^-CUTOFF, the resolution of ``uncertainty``'s likelihoods. Texels go in chunks
+   of ``chunk_texels``, each holding (chunk, k, R^2) floats, whatever the number of anchors.
 3. **Pull.** The target of x is the affinity-weighted mean of its anchors' parameters. x moves
    as close to it as its own data allows: among the candidates (whole parameter vector or
    roughness alone, moved 1/4, 1/2, 3/4 or all of the way to the target), x takes the one
@@ -54,18 +54,43 @@ PROBABILITY_FLOOR = float(np.exp(-CUTOFF))  # likelihood cells below this are in
 
 @dataclass(eq=False)
 class Sharing:
-    """The result of `share_details`; A anchors, P pulled (uncertain, estimated) texels, k neighbours."""
+    """The result of `share_details`: A anchors, P pulled (uncertain, estimated) texels, k neighbours.
 
-    estimate: MaterialEstimate  # the shared estimate (N texels)
-    anchor_rows: np.ndarray  # (A,) int64 rows (into the N texels) of the anchors
-    pulled_rows: np.ndarray  # (P,) int64 rows of the uncertain texels that were considered
-    nearest_anchors: np.ndarray  # (P, k) int64 indices into anchor_rows
-    affinity: np.ndarray  # (P, k) float32 affinity of each pulled texel to its anchors
-    moved: np.ndarray  # (P,) bool: the texel's parameters changed
+    Attributes
+    ----------
+    estimate : MaterialEstimate
+        The shared estimate (N texels).
+    anchor_rows : (A,) int64
+        Rows (into the N texels) of the anchors.
+    pulled_rows : (P,) int64
+        Rows of the uncertain texels that were considered.
+    nearest_anchors : (P, k) int64
+        Indices into ``anchor_rows`` of each pulled texel's nearest anchors.
+    affinity : (P, k) float32
+        Affinity of each pulled texel to those anchors.
+    moved : (P,) bool
+        Whether the texel's parameters changed.
+    seconds : float
+        Time spent sharing.
+    """
+
+    estimate: MaterialEstimate
+    anchor_rows: np.ndarray
+    pulled_rows: np.ndarray
+    nearest_anchors: np.ndarray
+    affinity: np.ndarray
+    moved: np.ndarray
     seconds: float
 
     def summary(self) -> dict:
-        """Counts, mean summed affinity and seconds, for ``summary.json``."""
+        """Summarise the sharing for ``summary.json``.
+
+        Returns
+        -------
+        dict
+            ``anchors``, ``uncertain_texels``, ``moved_texels`` (counts), ``mean_affinity_sum``
+            (None without pulled texels) and ``seconds``.
+        """
         n_pulled = len(self.pulled_rows)
         return {
             "anchors": len(self.anchor_rows),
@@ -78,13 +103,59 @@ class Sharing:
 
 def share(observations: Observations, estimate: MaterialEstimate, uncertainty: Uncertainty,
           config: Config = Config()) -> MaterialEstimate:
-    """The estimate with uncertain texels pulled towards their affine anchors (module docstring)."""
+    """Pull the uncertain texels of an estimate towards their affine anchors (module docstring).
+
+    Parameters
+    ----------
+    observations : Observations
+        The N texels' samples (for the data loss).
+    estimate : MaterialEstimate
+        The estimate of the same N texels.
+    uncertainty : Uncertainty
+        Their uncertainty, with the likelihood grids (``return_likelihood=True``).
+    config : Config
+        ``config.share`` the sharing settings; the estimator's settings set the data loss.
+
+    Returns
+    -------
+    MaterialEstimate
+        The shared estimate: method ``"<method>+share"``, a ``"share"`` timing.
+
+    Raises
+    ------
+    ValueError
+        If the likelihoods are missing, the three inputs describe different texels or
+        ``config.share`` is out of range.
+    """
     return share_details(observations, estimate, uncertainty, config).estimate
 
 
 def share_details(observations: Observations, estimate: MaterialEstimate, uncertainty: Uncertainty,
                   config: Config = Config()) -> Sharing:
-    """`share` with its anchors, affinities and which texels moved."""
+    """Share as `share` does, and return the anchors, affinities and which texels moved.
+
+    Parameters
+    ----------
+    observations : Observations
+        The N texels' samples (for the data loss).
+    estimate : MaterialEstimate
+        The estimate of the same N texels.
+    uncertainty : Uncertainty
+        Their uncertainty, with the likelihood grids (``return_likelihood=True``).
+    config : Config
+        ``config.share`` the sharing settings; the estimator's settings set the data loss.
+
+    Returns
+    -------
+    Sharing
+        The shared estimate and how it came about.
+
+    Raises
+    ------
+    ValueError
+        If the likelihoods are missing, the three inputs describe different texels or
+        ``config.share`` is out of range.
+    """
     settings = config.share
     _validate(settings)
     if uncertainty.likelihood is None:
@@ -129,17 +200,48 @@ def share_details(observations: Observations, estimate: MaterialEstimate, uncert
 
 
 def texel_coordinates(texture_res: int, texel_index: np.ndarray) -> np.ndarray:
-    """(N, 2) float64 (row, column) of each texel in the T x T texture."""
+    """Return the (row, column) of each texel in the texture.
+
+    Parameters
+    ----------
+    texture_res : int
+        T, the texture side.
+    texel_index : (N,) int
+        Flat row-major indices into the T x T texture.
+
+    Returns
+    -------
+    (N, 2) float64
+        Row and column per texel.
+    """
     rows, columns = np.divmod(np.asarray(texel_index, np.int64), texture_res)
     return np.stack([rows, columns], axis=1).astype(np.float64)
 
 
 def find_anchors(texture_res: int, coordinates: np.ndarray, uncertainty: Uncertainty, estimated: np.ndarray,
                  settings: ShareConfig) -> np.ndarray:
-    """(A,) rows of the anchors: per texture cell, its most certain eligible texel (if certain enough).
+    """Find the anchors: per texture cell, its most certain eligible texel (module docstring, step 1).
 
-    coordinates (N, 2) texel (row, column); estimated (N,) bool. Eligible: estimated, observed,
-    not below the sampling bound, certainty 1 - H >= ``anchor_certainty``. Ties go to the lowest row.
+    Eligible: estimated, observed, not below the sampling bound, certainty
+    1 - H >= ``anchor_certainty``. Ties go to the lowest row.
+
+    Parameters
+    ----------
+    texture_res : int
+        T, the texture side.
+    coordinates : (N, 2) float64
+        Texel (row, column) (`texel_coordinates`).
+    uncertainty : Uncertainty
+        The texels' entropy and flags.
+    estimated : (N,) bool
+        Texels the estimate holds.
+    settings : ShareConfig
+        ``anchor_cells`` and ``anchor_certainty``.
+
+    Returns
+    -------
+    (A,) int64
+        Rows of the anchors, ascending.
     """
     certainty = 1.0 - uncertainty.entropy.astype(np.float64)
     eligible = (estimated & ((uncertainty.flags & (FLAG_UNOBSERVED | FLAG_BELOW_BOUND)) == 0)
@@ -159,11 +261,29 @@ def find_anchors(texture_res: int, coordinates: np.ndarray, uncertainty: Uncerta
 
 def anchor_affinity(coordinates: np.ndarray, likelihood: np.ndarray, anchor_rows: np.ndarray,
                     pulled_rows: np.ndarray, settings: ShareConfig) -> tuple[np.ndarray, np.ndarray]:
-    """The k nearest anchors of each pulled texel and their affinities (module docstring, step 2).
+    """Find the k nearest anchors of each pulled texel and their affinities (module docstring, step 2).
 
-    coordinates (N, 2); likelihood (N, R, R) grids summing to 1; anchor_rows (A,), pulled_rows (P,).
-    Returns nearest (P, k) int64 indices into anchor_rows and affinity (P, k) float32 in (0, 1].
     Peak memory beyond the outputs is O(chunk_texels k R^2), whatever N and A.
+
+    Parameters
+    ----------
+    coordinates : (N, 2) float64
+        Texel (row, column) (`texel_coordinates`).
+    likelihood : (N, R, R)
+        Likelihood grids, each summing to 1.
+    anchor_rows : (A,) int64
+        Rows of the anchors.
+    pulled_rows : (P,) int64
+        Rows of the texels to pull.
+    settings : ShareConfig
+        ``neighbours`` (k, at most A), ``affinity_width`` and ``chunk_texels``.
+
+    Returns
+    -------
+    nearest : (P, k) int64
+        Indices into ``anchor_rows``.
+    affinity : (P, k) float32
+        Affinities in (0, 1].
     """
     n_neighbours = min(settings.neighbours, len(anchor_rows))
     tree = cKDTree(coordinates[anchor_rows])
@@ -193,6 +313,7 @@ def anchor_affinity(coordinates: np.ndarray, likelihood: np.ndarray, anchor_rows
 
 
 def _validate(settings: ShareConfig) -> None:
+    """Refuse out-of-range sharing settings."""
     if settings.neighbours < 1 or settings.anchor_cells < 1 or settings.chunk_texels < 1:
         raise ValueError("share: neighbours, anchor_cells and chunk_texels must be >= 1")
     if settings.affinity_width <= 0 or settings.loss_tolerance < 0 or settings.min_affinity < 0:
