@@ -1,4 +1,4 @@
-"""Distant environment lighting in Mitsuba 3's ``envmap`` emitter convention, and its SH.
+"""Distant environment lighting in Mitsuba 3's ``envmap`` emitter convention, and its SH (METHOD.md §2).
 
 Mitsuba 3.9 convention (read in src/emitters/envmap.cpp and verified against the emitter's
 ``eval`` in tests/test_envmap.py). In the emitter's local frame a direction d, the direction
@@ -30,8 +30,8 @@ from freqbrdf.errors import InputError
 from freqbrdf.sphere import harmonics as sh
 
 # Degree for irradiance from SH: the clamped-cosine kernel's even coefficients decay like
-# l^(-5/2), so truncating at 20 leaves well under 1 % error for captured HDR maps (the test with
-# a bright, sharp-edged source measures the residual).
+# l^(-5/2), so truncating at 20 leaves a small error (the test with a bright, sharp-edged source
+# measures the residual; docs/measurements.md).
 IRRADIANCE_LMAX = 20
 
 # Columns are the axes of the SH frame E (polar axis z_E = local +y) in emitter-local coordinates:
@@ -42,8 +42,24 @@ _EMITTER_FROM_SH_FRAME = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [-1.0, 0.0
 
 @dataclass
 class Envmap:
-    radiance: np.ndarray  # (H, W, 3) float32 linear radiance, row 0 at the top (north pole, +y)
-    to_world: np.ndarray = field(default_factory=lambda: np.eye(4))  # (4, 4) emitter-to-world
+    """A distant environment map in Mitsuba 3's ``envmap`` convention (module docstring).
+
+    Attributes
+    ----------
+    radiance : (H, W, 3) float32
+        Linear radiance, row 0 at the top (the north pole, local +y); made C-contiguous.
+    to_world : (4, 4) float64
+        Emitter-to-world transform; its linear part must be a rotation.
+
+    Raises
+    ------
+    ValueError
+        If ``radiance`` is not (H, W, 3) with H, W >= 2, or ``to_world`` is not (4, 4) with a
+        rotation as its linear part.
+    """
+
+    radiance: np.ndarray
+    to_world: np.ndarray = field(default_factory=lambda: np.eye(4))
 
     def __post_init__(self):
         self.radiance = np.ascontiguousarray(self.radiance, dtype=np.float32)
@@ -69,6 +85,23 @@ def load_envmap(path: str | Path, to_world: np.ndarray | None = None) -> Envmap:
 
     Negative values, which lossy HDR encodings produce near black, are clamped to zero;
     non-finite pixels are an InputError.
+
+    Parameters
+    ----------
+    path : str or Path
+        The image file.
+    to_world : (4, 4) array_like or None
+        Emitter-to-world transform; None: the identity.
+
+    Returns
+    -------
+    Envmap
+        The (H, 2H, 3) map.
+
+    Raises
+    ------
+    InputError
+        If the map is not 2:1 or has non-finite pixels (or cannot be read).
     """
     from freqbrdf.images import read_image
 
@@ -87,9 +120,25 @@ def load_envmap(path: str | Path, to_world: np.ndarray | None = None) -> Envmap:
 
 @numba.njit(fastmath=False, cache=True)
 def map_coordinates(world_to_local, dx, dy, dz, height, width):
-    """(x, y): where `lookup` reads the world direction (dx, dy, dz) in an H x W map whose emitter
-    frame is world_to_local (3, 3) from the world, in texels: column centres at x = j (x in
-    [-0.5, W - 0.5)), rows at y = i."""
+    """Return where `lookup` reads a world direction in an H x W map, in texels.
+
+    Column centres lie at x = j (x in [-0.5, W - 0.5)), rows at y = i. Compiled with numba (it
+    is called from kernels).
+
+    Parameters
+    ----------
+    world_to_local : (3, 3) float64
+        The map's emitter frame from the world (the transpose of its rotation).
+    dx, dy, dz : float
+        The unit world direction light arrives from.
+    height, width : int
+        H and W.
+
+    Returns
+    -------
+    x, y : float
+        Texel coordinates.
+    """
     lx = world_to_local[0, 0] * dx + world_to_local[0, 1] * dy + world_to_local[0, 2] * dz
     ly = world_to_local[1, 0] * dx + world_to_local[1, 1] * dy + world_to_local[1, 2] * dz
     lz = world_to_local[2, 0] * dx + world_to_local[2, 1] * dy + world_to_local[2, 2] * dz
@@ -101,8 +150,24 @@ def map_coordinates(world_to_local, dx, dy, dz, height, width):
 
 @numba.njit(fastmath=False, cache=True)
 def stencil_at(x, y, height, width):
-    """`lookup_stencil` at texel coordinates (x, y) (`map_coordinates`; x periodic, y clamped to
-    the poles' rows)."""
+    """Return the bilinear stencil of `lookup_stencil` at texel coordinates.
+
+    x is periodic, y clamped to the poles' rows. Compiled with numba.
+
+    Parameters
+    ----------
+    x, y : float
+        Texel coordinates (`map_coordinates`).
+    height, width : int
+        H and W.
+
+    Returns
+    -------
+    row, col, next_col : int
+        The top-left tap and the next column (wrapped); the other two taps are at row + 1.
+    column_fraction, row_fraction : float
+        The bilinear weights of the next column and of the next row.
+    """
     col = math.floor(x)
     col0 = int(col) % width
     y = min(max(y, 0.0), height - 1.0)
@@ -112,9 +177,26 @@ def stencil_at(x, y, height, width):
 
 @numba.njit(fastmath=False, cache=True)
 def lookup_stencil(world_to_local, dx, dy, dz, height, width):
-    """The bilinear stencil of `lookup` for the world direction (dx, dy, dz) in an H x W map whose
-    emitter frame is world_to_local (3, 3) from the world: (row, col, next col, column fraction,
-    row fraction); the other two taps are at row + 1."""
+    """Return the bilinear stencil of `lookup` for a world direction in an H x W map.
+
+    Compiled with numba.
+
+    Parameters
+    ----------
+    world_to_local : (3, 3) float64
+        The map's emitter frame from the world (the transpose of its rotation).
+    dx, dy, dz : float
+        The unit world direction light arrives from.
+    height, width : int
+        H and W.
+
+    Returns
+    -------
+    row, col, next_col : int
+        The top-left tap and the next column (wrapped); the other two taps are at row + 1.
+    column_fraction, row_fraction : float
+        The bilinear weights of the next column and of the next row.
+    """
     x, y = map_coordinates(world_to_local, dx, dy, dz, height, width)
     return stencil_at(x, y, height, width)
 
@@ -132,10 +214,27 @@ def _lookup_kernel(radiance, world_to_local, directions, out):
 
 
 def lookup(envmap: Envmap, directions_world: np.ndarray) -> np.ndarray:
-    """Radiance arriving FROM unit world directions (..., 3) -> (..., 3) float32.
+    """Look up the radiance arriving FROM unit world directions.
 
     Exactly what Mitsuba's envmap emitter ``eval`` returns for a ray travelling along
     -direction (bilinear, same sample positions), up to float32 rounding.
+
+    Parameters
+    ----------
+    envmap : Envmap
+        The map.
+    directions_world : (..., 3) array_like
+        Unit world directions.
+
+    Returns
+    -------
+    (..., 3) float32
+        Radiance per direction.
+
+    Raises
+    ------
+    ValueError
+        If the trailing axis is not 3.
     """
     directions_world = np.asarray(directions_world)
     if directions_world.shape[-1] != 3:
@@ -147,8 +246,22 @@ def lookup(envmap: Envmap, directions_world: np.ndarray) -> np.ndarray:
 
 
 def local_directions(polar: np.ndarray, azimuth: np.ndarray) -> np.ndarray:
-    """(P, A, 3) emitter-local directions at Mitsuba's polar angles (P,) from +y and azimuths (A,)
-    from -z towards +x (texel centres: polar pi i / (H - 1), azimuth 2 pi (j + 0.5) / W)."""
+    """Return the emitter-local directions at Mitsuba's polar angles and azimuths.
+
+    The map's texel centres lie at polar pi i / (H - 1), azimuth 2 pi (j + 0.5) / W.
+
+    Parameters
+    ----------
+    polar : (P,) array_like
+        Polar angles from local +y.
+    azimuth : (A,) array_like
+        Azimuths from -z towards +x.
+
+    Returns
+    -------
+    (P, A, 3) float64
+        Unit directions, one per (polar, azimuth) pair.
+    """
     return np.stack(
         np.broadcast_arrays(
             np.sin(polar)[:, None] * np.sin(azimuth)[None, :],
@@ -160,10 +273,24 @@ def local_directions(polar: np.ndarray, azimuth: np.ndarray) -> np.ndarray:
 
 
 def downsample(radiance: np.ndarray, height: int) -> np.ndarray:
-    """(height, 2 height, 3) float32: the lat-long map (H, W, 3) (Mitsuba's layout) averaged over
-    each texel of the coarser grid in pixel space, so that a light smaller than a texel keeps its
-    power and nothing rings around it (as an SH resampling would): k x k bilinear lookups per
-    texel, k = ceil(H / height) + 1, weighted by sin(theta). ``height`` >= H returns a copy."""
+    """Average a lat-long map down to a coarser one in pixel space.
+
+    Each texel of the coarser grid averages k x k bilinear lookups (k = ceil(H / height) + 1),
+    weighted by sin(theta), so that a light smaller than a texel keeps its power and nothing
+    rings around it (as an SH resampling would).
+
+    Parameters
+    ----------
+    radiance : (H, W, 3) array_like
+        The map, in Mitsuba's layout.
+    height : int
+        The coarser map's height.
+
+    Returns
+    -------
+    (height, 2 height, 3) float32
+        The coarser map; a float32 copy of ``radiance`` when ``height`` >= H.
+    """
     if height >= radiance.shape[0]:
         return np.array(radiance, np.float32)
     width = 2 * height
@@ -230,6 +357,25 @@ def _check_resolution(height: int, width: int, lmax: int) -> None:
 def envmap_sh(envmap: Envmap, lmax: int) -> np.ndarray:
     """SH coefficients (K, 3) float64 of the map in the WORLD frame (`freqbrdf.sphere.harmonics` basis).
 
+    Parameters
+    ----------
+    envmap : Envmap
+        The (H, W, 3) map.
+    lmax : int
+        The highest degree.
+
+    Returns
+    -------
+    (K, 3) float64
+        World-frame coefficients per channel.
+
+    Raises
+    ------
+    ValueError
+        If the map does not resolve degree ``lmax``.
+
+    Notes
+    -----
     The map is read as samples on a Clenshaw-Curtis grid (Mitsuba's rows sit on theta =
     pi i / (H - 1)) and transformed exactly for its band limit with ducc0, then rotated from
     the emitter's SH frame into the world frame. Needs lmax <= H - 2 and 2 lmax + 1 <= W.
@@ -241,10 +387,30 @@ def envmap_sh(envmap: Envmap, lmax: int) -> np.ndarray:
 def envmap_from_sh(
     coeffs: np.ndarray, height: int, width: int | None = None, to_world: np.ndarray | None = None
 ) -> Envmap:
-    """Inverse of `envmap_sh`: world-frame coefficients (K, 3) -> an Envmap (height, width).
+    """Synthesise an Envmap from world-frame SH coefficients: the inverse of `envmap_sh`.
 
     The pixels are the band-limited function's exact values at Mitsuba's sample positions.
-    width defaults to 2 height.
+
+    Parameters
+    ----------
+    coeffs : (K, 3) array_like
+        World-frame coefficients per channel.
+    height : int
+        H.
+    width : int or None
+        W; None: 2 H.
+    to_world : (4, 4) array_like or None
+        The new map's emitter-to-world transform; None: the identity.
+
+    Returns
+    -------
+    Envmap
+        The (H, W, 3) map.
+
+    Raises
+    ------
+    ValueError
+        If an H x W map does not resolve the coefficients' degree.
     """
     coeffs = np.asarray(coeffs, dtype=np.float64)
     lmax = sh.lmax_of(coeffs.shape[0])
@@ -294,10 +460,22 @@ def _synthesis(coeffs_sh_frame: np.ndarray, height: int, width: int) -> np.ndarr
 
 
 def lowpass_envmap(envmap: Envmap, sigma: float) -> Envmap:
-    """The map filtered by exp(-(sigma l)^2) in SH (the band limit of METHOD.md §3.4).
+    """Low-pass a map by exp(-(sigma l)^2) in SH (the band limit of METHOD.md §3.4).
 
     Degrees are kept up to where the filter falls below 1e-6 (l = 3.7 / sigma), or the map's
-    own limit if lower. sigma = 0 returns an unfiltered copy.
+    own limit if lower.
+
+    Parameters
+    ----------
+    envmap : Envmap
+        The (H, W, 3) map.
+    sigma : float
+        The filter's width; <= 0 returns an unfiltered copy.
+
+    Returns
+    -------
+    Envmap
+        The filtered (H, W, 3) map, same to_world.
     """
     if sigma <= 0:
         return Envmap(envmap.radiance.copy(), envmap.to_world.copy())
@@ -307,16 +485,54 @@ def lowpass_envmap(envmap: Envmap, sigma: float) -> Envmap:
 
 
 def zonal_filter(envmap: Envmap, gains: np.ndarray) -> Envmap:
-    """The map with its degree-l SH components scaled by gains[l] (lmax + 1,), degrees above
-    dropped: the convolution with a kernel rotationally symmetric about each direction.
-    Needs len(gains) - 1 <= the map's own limit (`_check_resolution`)."""
+    """Filter a map by gains per SH degree, degrees above dropped.
+
+    The convolution with a kernel rotationally symmetric about each direction.
+
+    Parameters
+    ----------
+    envmap : Envmap
+        The (H, W, 3) map.
+    gains : (L,) array_like
+        gains[l] scales the degree-l components; L - 1 must not exceed the map's own limit
+        (lmax <= H - 2 and 2 lmax + 1 <= W).
+
+    Returns
+    -------
+    Envmap
+        The filtered (H, W, 3) map, same to_world.
+
+    Raises
+    ------
+    ValueError
+        If the map does not resolve degree L - 1.
+    """
     return Envmap(zonal_filters(envmap, np.asarray(gains)[None])[0], envmap.to_world.copy())
 
 
 def zonal_filters(envmap: Envmap, gains: np.ndarray, height: int | None = None) -> np.ndarray:
-    """(M, H, W, 3) float32: the map's radiance `zonal_filter`-ed by each row of gains (M, lmax + 1),
-    with one analysis for all M; resampled to height x 2 height pixels (same convention) when
-    ``height`` is given (needs lmax <= height - 2)."""
+    """Filter a map by several sets of gains per SH degree, with one analysis for all.
+
+    Parameters
+    ----------
+    envmap : Envmap
+        The (H, W, 3) map.
+    gains : (M, L) array_like
+        One `zonal_filter` per row.
+    height : int or None
+        Resample to height x 2 height pixels (same convention; needs L - 1 <= height - 2);
+        None: the map's own H x W.
+
+    Returns
+    -------
+    (M, H, W, 3) float32
+        The filtered maps' radiance (H, W those of ``height`` when given).
+
+    Raises
+    ------
+    ValueError
+        If the map or the output size does not resolve degree L - 1.
+    """
     gains = np.asarray(gains, dtype=np.float64)
     height, width = envmap.radiance.shape[:2] if height is None else (height, 2 * height)
     lmax = gains.shape[1] - 1
@@ -328,10 +544,20 @@ def zonal_filters(envmap: Envmap, gains: np.ndarray, height: int | None = None) 
 
 
 def clamped_cosine_coeffs(lmax: int) -> np.ndarray:
-    """Funk-Hecke eigenvalues a_l (lmax + 1,) of the kernel max(0, cos): E_lm = a_l L_lm.
+    """Return the Funk-Hecke eigenvalues a_l of the kernel max(0, cos): E_lm = a_l L_lm.
 
     a_l = 2 pi int_0^1 t P_l(t) dt: a_0 = pi, a_1 = 2 pi / 3, 0 for odd l > 1, and for even l
     a_l = 2 pi (-1)^(l/2 - 1) / ((l + 2)(l - 1)) * binom(l, l/2) / 2^l.
+
+    Parameters
+    ----------
+    lmax : int
+        The highest degree.
+
+    Returns
+    -------
+    (L,) float64
+        a_0 .. a_lmax.
     """
     kernel = np.zeros(lmax + 1)
     kernel[0] = math.pi
@@ -346,10 +572,22 @@ def clamped_cosine_coeffs(lmax: int) -> np.ndarray:
 
 
 def irradiance(env_coeffs: np.ndarray, normals: np.ndarray) -> np.ndarray:
-    """E(n) = int L(w) max(0, n.w) dw from world-frame SH coefficients: (K, 3), (N, 3) -> (N, 3).
+    """Compute the irradiance E(n) = int L(w) max(0, n.w) dw from world-frame SH (METHOD.md §3.5).
 
     Exact for the band-limited part of L; the truncation error is that of the omitted degrees
-    (use lmax >= IRRADIANCE_LMAX). Output is float32 for float32 normals, else float64.
+    (use lmax >= IRRADIANCE_LMAX).
+
+    Parameters
+    ----------
+    env_coeffs : (K, 3) array_like
+        The environment's world-frame coefficients per channel.
+    normals : (N, 3) array_like
+        Unit world normals.
+
+    Returns
+    -------
+    (N, 3) float32 or float64
+        Irradiance per normal and channel; float32 for float32 normals, else float64.
     """
     env_coeffs = np.asarray(env_coeffs)
     lmax = sh.lmax_of(env_coeffs.shape[0])
