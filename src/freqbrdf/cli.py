@@ -1,4 +1,11 @@
-"""The ``freqbrdf`` command line. Bad input is one clear line and exit code 2."""
+"""The ``freqbrdf`` command line: one command per stage of the pipeline, and ``batch`` for many captures.
+
+Each command reads a capture or a fit folder, builds its `freqbrdf.config.Config` from a preset and
+the options given, and writes one output folder, whole or not at all. Bad input is one clear line
+and exit code 2; a write the system refuses, or running out of memory, one line and exit code 1.
+The options' help texts say what each does and when to choose it; docs/measurements.md has the
+figures behind the defaults.
+"""
 
 from __future__ import annotations
 
@@ -26,9 +33,9 @@ _state = {"debug": False}
 # Set in the process that re-runs a command, so that it is re-run once at most; set it yourself to
 # keep a first run's results.
 RERUN_VARIABLE = "FREQBRDF_RERUN"
-# At exit, the interpreter's last garbage collection walks every object numba and Mitsuba made:
-# 0.4-0.9 s after a fit on the 2-core machine, for memory the process hands back anyway. Exit
-# callbacks run before that collection, and frozen objects are not walked.
+# At exit, the interpreter's last garbage collection walks every object numba and Mitsuba made, for
+# memory the process hands back anyway (its cost: docs/measurements.md#speed). Exit callbacks run
+# before that collection, and frozen objects are not walked.
 atexit.register(gc.freeze)
 
 
@@ -48,9 +55,11 @@ def _output_folder(value: str | None) -> str | None:
 
 
 def _results_from_cache(quiet: bool) -> None:
-    """Run this command again in a fresh process if numba compiled kernels in this one: compiled
-    code differs in the last bits from the cached code every later run loads (see freqbrdf.jit),
-    so a first run after an install would not reproduce. Call before writing anything."""
+    """Run this command again in a fresh process if numba compiled kernels in this one.
+
+    Compiled code differs in the last bits from the cached code every later run loads (see
+    freqbrdf.jit), so a first run after an install would not reproduce. Call before writing anything.
+    """
     from freqbrdf.jit import compiled_here
 
     compiled = compiled_here()
@@ -171,7 +180,10 @@ def observe(
     lmax: int = typer.Option(5, min=0, help="Degree l* of the per-texel SH fits."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
 ) -> None:
-    """Per-texel observations and SH spectra: observations.npz, coverage and visibility maps."""
+    """Observe a capture: per-texel samples and SH spectra (observations.npz), coverage and visibility maps.
+
+    For inspecting what the views give each texel; `fit` observes by itself. Every texel of T is observed.
+    """
     import json
     from pathlib import Path
 
@@ -213,7 +225,7 @@ def observe(
 def _config(preset: str, texture_res: int | None = None, lmax: int | None = None, *,
             estimator: str | None = None, model: str | None = None,
             entropy: str | None = None):
-    """The preset's Config with the options the user gave (None: keep the preset's value)."""
+    """Build the preset's Config with the options the user gave (None: keep the preset's value)."""
     import dataclasses
 
     from freqbrdf.config import PRESETS
@@ -233,8 +245,11 @@ def _config(preset: str, texture_res: int | None = None, lmax: int | None = None
 
 
 def _choices(settings, options: dict[str, tuple[str, str | None]]) -> dict:
-    """The changes to ``settings`` that the options given make ({field: (option's name, value, None
-    if not given)}), each value checked against the field's choices in `freqbrdf.config`."""
+    """Return the changes to ``settings`` that the given options make, each checked against the field's choices.
+
+    ``options`` maps a field to (the option's name, its value or None if not given); the choices are
+    `freqbrdf.config.choices`'.
+    """
     from freqbrdf.config import choices
 
     allowed = choices(type(settings))
@@ -248,7 +263,7 @@ def _choices(settings, options: dict[str, tuple[str, str | None]]) -> dict:
 
 
 def _estimation_res(value: str, texture_res: int):
-    """--estimation-res as TexelConfig.estimation_res: "pixel", "coarse", "full" or a number from 1 to T."""
+    """Parse --estimation-res as TexelConfig.estimation_res: "pixel", "coarse", "full" or a number from 1 to T."""
     if value in ("pixel", "coarse", "full"):
         return value
     if not value.isdigit() or not 1 <= int(value) <= texture_res:
@@ -257,9 +272,10 @@ def _estimation_res(value: str, texture_res: int):
     return int(value)
 
 
-ENTROPY_HELP = ("Entropy mode: calibrated (spectra, milliseconds), paper (the published recipe) or angular "
-                "(the estimator's model on the samples; agrees with a path tracer; seconds on its own, about 3 % "
-                "more time inside fit). Default: the preset's.")
+ENTROPY_HELP = ("Entropy mode: calibrated (from the spectra, fast; what next-views predicts and what sharing and "
+                "inpainting are tuned on), paper (the published recipe, to compare with it) or angular (the "
+                "estimator's model on the samples: agrees with a path tracer; little extra time inside fit). "
+                "Default: the preset's. Figures: docs/measurements.md#the-entropy.")
 
 
 def _print_json(document: dict) -> None:
@@ -278,25 +294,28 @@ def fit(
     lmax: int = typer.Option(
         None, min=1, help="Degree l* of the per-texel SH fits (default 5; the entropy needs >= 1).",
     ),
-    estimator: str = typer.Option(None, help="global (ours, default) or paper (the prototype's Adam)."),
-    model: str = typer.Option(None, help="Forward model of `paper`: angular, sh_coeffs or spectrum."),
+    estimator: str = typer.Option(None, help="global (ours, default) or paper (the prototype's Adam, to compare "
+                                  "with the paper)."),
+    model: str = typer.Option(None, help="Forward model of `paper`: angular (the most accurate), sh_coeffs or "
+                              "spectrum."),
     preset: str = typer.Option("default", help="default; fast (estimated on texels at least a pixel wide, no "
                                "robust pass, a coarser roughness grid: smoother maps, less time); or paper (the "
                                "prototype's hyper-parameters)."),
     entropy: str = typer.Option(None, help=ENTROPY_HELP),
-    share: bool = typer.Option(False, "--share", help="Pull uncertain texels towards affine confident anchors."),
+    share: bool = typer.Option(False, "--share", help="Pull uncertain texels towards affine confident anchors "
+                               "(METHOD.md §4; it helps the texels it touches a little)."),
     neighbour_vote: bool = typer.Option(
         True, "--neighbour-vote/--no-neighbour-vote", help="Let a texel whose data fit two roughness values "
         "about equally take the one nearer its neighbours' (a likelihood-ratio test keeps what the data decide)."),
     estimation_res: str = typer.Option(
         None, help="Texture resolution to observe and estimate on before the maps are sampled up to T: pixel "
         "(the coarsest whose texels are no wider than a pixel of the closest view), coarse (the finest whose "
-        "texels are at least a pixel wide), full (T) or a number. Default: the preset's (pixel; fast: coarse; "
-        "paper: full)."),
+        "texels are at least a pixel wide), full (T, METHOD.md's per-texel recipe) or a number. Default: the "
+        "preset's (pixel; fast: coarse; paper: full)."),
     split_half: bool = typer.Option(
         False, "--split-half", help="Add to roughness_std the scatter between two more estimates, from the even "
-        "and from the odd views alone: ranks the roughness errors better, but costs 0.3-0.4x the time of "
-        "observing and estimating again."),
+        "and from the odd views alone: it ranks the roughness errors better, for a large share of the fit's "
+        "time again (docs/measurements.md#the-roughness-std)."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars or messages."),
     json_output: bool = typer.Option(False, "--json", help="Print summary.json to stdout."),
 ) -> None:
@@ -361,7 +380,7 @@ def uncertainty(
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars or messages."),
     json_output: bool = typer.Option(False, "--json", help="Print the summary as JSON to stdout."),
 ) -> None:
-    """The entropy map alone, no material estimate (so no roughness std): entropy.exr/.png, flags, summary."""
+    """Compute the entropy map without a material estimate (so no roughness std): entropy, flags, summary."""
     import time
 
     from freqbrdf import pipeline
@@ -432,7 +451,7 @@ def evaluate(
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars or messages."),
     json_output: bool = typer.Option(False, "--json", help="Print metrics.json to stdout."),
 ) -> None:
-    """Texture metrics vs ground truth, Stanford-ORB relighting scores, and AUSE/AURG of the entropy."""
+    """Score a fit: texture metrics vs ground truth, Stanford-ORB relighting scores, AUSE/AURG of the uncertainty."""
     from freqbrdf.capture.layouts import load
     from freqbrdf.outputs.evaluate import evaluate_fit
     from freqbrdf.outputs.fit_folder import load_fit
@@ -623,6 +642,10 @@ def batch(
 
 
 def main() -> None:
+    """Run the command line: bad input is one line and exit code 2, a refused write or no memory exit code 1.
+
+    ``--debug`` shows the traceback instead.
+    """
     try:
         app()
     except InputError as err:
