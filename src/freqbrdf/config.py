@@ -131,8 +131,9 @@ class UncertaintyConfig:
 
     # --- the entropy, every mode ---
     mode: Literal["calibrated", "paper", "angular"] = "calibrated"
-    """"calibrated" (spectra, exposure invariant, milliseconds; guidance predicts it, the applications are tuned on it),
-    "paper" (METHOD.md §3.8) or "angular" (agrees with a path tracer). docs/measurements.md#the-entropy"""
+    """The entropy: "calibrated" (spectra, exposure invariant, milliseconds; guidance predicts it, the applications are
+    tuned on it), "paper" (METHOD.md §3.8) or "angular" (agrees with a path tracer).
+    docs/measurements.md#the-entropy"""
     grid_res: int | None = None
     """R. None: the paper's 8 in the spectral modes; in angular mode the estimator's roughness nodes
     (`EstimateConfig.roughness_grid`), which its search probes anyway: then the entropy costs `pipeline.fit` little."""
@@ -213,19 +214,20 @@ class EstimateConfig:
 
     # --- the estimator ---
     method: Literal["global", "paper"] = "global"
-    """"global" (exhaustive search: ahead of the prototype and of Mitsuba's inverse renderer on every score measured)
-    or "paper" (the prototype's Adam, for comparison). docs/measurements.md#materials-at-a-glance"""
+    """The estimator: "global" (exhaustive search: ahead of the prototype and of Mitsuba's inverse renderer on every
+    score measured) or "paper" (the prototype's Adam, for comparison). docs/measurements.md#materials-at-a-glance"""
     forward_model: Literal["angular", "sh_coeffs", "spectrum"] = "angular"
     """The paper estimator's forward model (METHOD.md §3.6), angular being the most accurate; global is angular only.
     docs/measurements.md#the-paper-estimator"""
 
     # --- global estimator: the reflection model ---
     specular_model: Literal["split_sum", "g1"] = "split_sum"
-    """"split_sum": R0 A + B, the GGX lobe's directional albedo (Mitsuba's model); "g1": METHOD.md §3.6's F G1, which
-    overestimates rough lobes (paper: always "g1"). docs/measurements.md#the-reflection-model"""
-    diffuse_model: Literal["burley", "lambert"] = "burley"
-    """"burley": the view-dependent principled diffuse Mitsuba renders; "lambert": METHOD.md's d E / pi (paper: always).
+    """The specular's view dependence: "split_sum" (R0 A + B, the GGX lobe's directional albedo: Mitsuba's model) or
+    "g1" (METHOD.md §3.6's F G1, too bright on rough lobes; paper: always). See
     docs/measurements.md#the-reflection-model"""
+    diffuse_model: Literal["burley", "lambert"] = "burley"
+    """The diffuse: "burley" (the view-dependent principled diffuse Mitsuba renders) or "lambert" (METHOD.md's d E / pi;
+    paper: always). docs/measurements.md#the-reflection-model"""
     dielectric_fresnel: Literal["exact", "schlick"] = "exact"
     """With split_sum, the dielectric part's Fresnel: "exact" (eta 1.5, as Mitsuba's principled BSDF) or "schlick"
     (too low at oblique views). docs/measurements.md#the-reflection-model"""
