@@ -533,7 +533,8 @@ def _direct_angular_entropy(observations, grid, noise_level):
     """The angular mode written out with numpy, per texel and channel, as the path-traced brute
     force (benchmarks/pathtraced_entropy.py) scores its renderings: the hypotheses' radiance from the
     estimator's default model with the fitted light (hand-made observations carry no map)."""
-    from freqbrdf.estimate import lobe_filtered_light, split_sum_terms
+    from freqbrdf.model.light import lobe_filtered_light
+    from freqbrdf.model.tables import split_sum_terms
 
     out = np.empty(observations.n_texels)
     resolution = grid.resolution

@@ -7,8 +7,8 @@ interreflection), for the texels pathtraced_entropy.py scores, a metal of base c
 roughness r (the hypothesis grid's) is rendered with Mitsuba's path tracer along every observed
 view (pathtraced_entropy.hypothesis_radiance, two seeds) and predicted by the `global` model of
 the default EstimateConfig, written with the estimator's numpy references: split-sum albedo
-(A, B), the prefiltered map (`estimate.prefiltered_light`) blended into the environment light
-(`estimate.environment_filtered_light`) plus the map's degrees above 5. Reported per roughness:
+(A, B), the prefiltered map (`model.light.prefiltered_light`) blended into the environment light
+(`model.light.environment_filtered_light`) plus the map's degrees above 5. Reported per roughness:
 the relative RMS error of the model against one rendering, the rendering's own Monte Carlo noise
 (half the RMS difference of the two seeds' radiance, relative, per rendering), the ratio of the
 summed radiance, and the error per band of view cosine at k = 1. Saves
@@ -26,6 +26,13 @@ import numpy as np
 from freqbrdf import estimate as est
 from freqbrdf.capture.layouts import load
 from freqbrdf.config import Config, EstimateConfig
+from freqbrdf.model.light import (
+    environment_filtered_light,
+    environment_weight,
+    prefiltered_environment,
+    prefiltered_light,
+)
+from freqbrdf.model.tables import split_sum_terms
 from freqbrdf.observe.observations import observe
 from freqbrdf.texels import rasterise
 from freqbrdf.uncertainty import entropy_map, hypothesis_grid
@@ -51,17 +58,17 @@ def model_terms(observations, roughness: float, settings: EstimateConfig) -> tup
     environment = observations.environment_coeffs.astype(np.float64)
     envmap, rotation = observations.environment(), observations.environment_rotation
     per_texel = np.full(observations.n_texels, roughness)
-    share = float(est.environment_weight(np.array(roughness), settings.environment_blend))
-    own = est.prefiltered_light(directions, tangent, normal, est.prefiltered_environment(
+    share = float(environment_weight(np.array(roughness), settings.environment_blend))
+    own = prefiltered_light(directions, tangent, normal, prefiltered_environment(
         envmap, est.prefilter_nodes(settings)), rotation, per_texel) if share < 1.0 else 0.0
-    high = est.prefiltered_light(directions, tangent, normal, est.prefiltered_environment(
+    high = prefiltered_light(directions, tangent, normal, prefiltered_environment(
         envmap, est.prefilter_nodes(EstimateConfig(environment_light=False)),
         skip_degrees=min(observations.lmax, 5) + 1),  # the environment light holds degrees <= min(l*, 5)
         rotation, per_texel)
-    scale, bias, _ = est.split_sum_terms(directions[..., 2], roughness)
+    scale, bias, _ = split_sum_terms(directions[..., 2], roughness)
     terms = []
     for albedo, term in ((scale, "scale"), (bias, "bias")):
-        environment_light = (est.environment_filtered_light(directions, weight, tangent, normal, environment,
+        environment_light = (environment_filtered_light(directions, weight, tangent, normal, environment,
                                                             per_texel, term) if share > 0.0 else 0.0)
         terms.append(albedo[..., None] * ((1.0 - share) * own + share * (environment_light + high)))
     return terms[0], terms[1]

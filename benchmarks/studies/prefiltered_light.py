@@ -10,12 +10,12 @@ least-squares search (41 roughness nodes, the metallic profiled by `estimate._pr
 no Brent, no robust pass), so that only the smooth lobes' light differs:
 
 - ``fitted``: the estimator's light (the fitted light, blended over roughness 0.3-0.6 into its
-  environment light, `estimate.environment_filtered_light`);
+  environment light, `model.light.environment_filtered_light`);
 - ``prefiltered``: below the blend, the environment map low-passed by the paper's kernel
   exp(-(alpha l)^2) (alpha = r^2, every degree the map holds; `envmap.lowpass_envmap`), looked up
   at each sample's world mirror direction, at roughness nodes 1/16 apart and linear between them;
 - ``prefiltered_ggx``: the same with the GGX lobe's own per-degree gains at normal incidence
-  (`estimate.ggx_lobe_gains`: heavier tails than the Gaussian), to see how much of what is left is
+  (`model.tables.ggx_lobe_gains`: heavier tails than the Gaussian), to see how much of what is left is
   the Gaussian's shape. This one became the estimator's default in commit 8e664ea
   (`EstimateConfig.prefiltered_light`, built into the search kernel).
 
@@ -37,7 +37,14 @@ import numpy as np
 from freqbrdf import estimate as est
 from freqbrdf.capture.layouts import load
 from freqbrdf.config import Config, EstimateConfig, TexelConfig
+from freqbrdf.model.light import (
+    environment_azimuthal,
+    environment_filtered_light,
+    environment_weight,
+    lobe_filtered_light,
+)
 from freqbrdf.model.materials import resize
+from freqbrdf.model.tables import LOBE_TERMS, burley_diffuse_factor, ggx_lobe_gains, split_sum_terms
 from freqbrdf.observe.observations import observe
 from freqbrdf.outputs import export, metrics
 from freqbrdf.sphere import envmap as envmaps
@@ -111,28 +118,28 @@ def run_scene(name: str, texture_res: int) -> dict:
     prefiltered = {
         "prefiltered": np.stack([envmaps.lookup(envmaps.lowpass_envmap(capture.envmap, r * r), world) for r in nodes]),
         "prefiltered_ggx": np.stack([envmaps.lookup(envmaps.zonal_filter(capture.envmap,
-                                                                         est.ggx_lobe_gains(r, map_lmax)), world)
+                                                                         ggx_lobe_gains(r, map_lmax)), world)
                                      for r in nodes]),
     }
-    azimuthal = est.environment_azimuthal(directions, weight, tangent, normal, environment)
+    azimuthal = environment_azimuthal(directions, weight, tangent, normal, environment)
     models = ("fitted", "prefiltered", "prefiltered_ggx")
     best_loss = {model: np.full(n_texels, np.inf) for model in models}
     best = {model: np.zeros((n_texels, 5)) for model in models}
     start = time.perf_counter()
     for roughness in ROUGHNESS_SEARCH:
-        scale, bias, dielectric = est.split_sum_terms(cos_theta, roughness)
-        share = float(est.environment_weight(np.array(roughness), blend))
+        scale, bias, dielectric = split_sum_terms(cos_theta, roughness)
+        share = float(environment_weight(np.array(roughness), blend))
         per_texel = np.full(n_texels, roughness)
         environment_lights = [
-            est.environment_filtered_light(directions, weight, tangent, normal, environment, per_texel, term,
-                                           azimuthal) if share > 0.0 else 0.0 for term in est.LOBE_TERMS]
+            environment_filtered_light(directions, weight, tangent, normal, environment, per_texel, term,
+                                           azimuthal) if share > 0.0 else 0.0 for term in LOBE_TERMS]
         for model in models:
             lights = []
-            for term, environment_light in zip(est.LOBE_TERMS, environment_lights):
+            for term, environment_light in zip(LOBE_TERMS, environment_lights):
                 if share >= 1.0:
                     own = 0.0
                 elif model == "fitted":
-                    own = est.lobe_filtered_light(directions, weight, observations.mirrored_coeffs, observations.lmax,
+                    own = lobe_filtered_light(directions, weight, observations.mirrored_coeffs, observations.lmax,
                                                   observations.sigma, per_texel, False, term)
                 else:
                     node = min(int(roughness / PREFILTER_STEP), len(nodes) - 2)
@@ -141,7 +148,7 @@ def run_scene(name: str, texture_res: int) -> dict:
                 lights.append((1.0 - share) * own + share * environment_light)
             x, y, z = (albedo[..., None] * light for albedo, light in zip((scale, bias, dielectric), lights))
             state, loss = np.zeros((n_texels, 4)), np.zeros(n_texels)
-            profile_texels(x, y, z, est.burley_diffuse_factor(cos_theta, roughness), values, omega, diffuse_scale,
+            profile_texels(x, y, z, burley_diffuse_factor(cos_theta, roughness), values, omega, diffuse_scale,
                            state, loss)
             better = loss < best_loss[model]
             best_loss[model][better] = loss[better]

@@ -28,7 +28,7 @@ import numba
 import numpy as np
 
 from freqbrdf.config import UncertaintyConfig
-from freqbrdf.estimate import ggx_lobe_gains, split_sum_terms
+from freqbrdf.model.tables import ggx_lobe_gains, split_sum_terms
 from freqbrdf.uncertainty import entropy_from_moments, entropy_from_spectra
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/: _common and scenes

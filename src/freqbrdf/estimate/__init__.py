@@ -127,24 +127,59 @@ on the 64-view bunny, 0.34 on the demo capture and 0.07 on the plane, where 0.8 
 
 from __future__ import annotations
 
-import functools
 import hashlib
 import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numba
 import numpy as np
 
 from freqbrdf import texels
 from freqbrdf.config import Config, EstimateConfig, FitConfig
-from freqbrdf.errors import InputError
 from freqbrdf.model import brdf
+from freqbrdf.model._kernels import (
+    azimuthal_coefficients,
+    borrowing_jit,
+    cross,
+    environment_burley_terms,
+    environment_node,
+    environment_node_lights,
+    environment_share,
+    fill_kernel,
+    g1_and_derivative,
+    mirror_stencil,
+    n_sh_degrees,
+    prefiltered_between,
+    prefiltered_nodes_at,
+    specular_albedo,
+    texel_environment,
+    uniform_burley_terms,
+)
+from freqbrdf.model.brdf import ALPHA_MIN, DIELECTRIC_F0
+from freqbrdf.model.light import (
+    degree_projections,
+    environment_azimuthal,
+    environment_quadrature,
+    mirror_projections,
+    prefiltered_environment,
+)
+from freqbrdf.model.tables import (
+    DIELECTRIC_PLANE,
+    ENVIRONMENT_LMAX,
+    ENVIRONMENT_NODES,
+    LOBE_TERMS,
+    PREFILTER_STEP,
+    TABLE_COS_NODES,
+    burley_response_table,
+    environment_response_table,
+    split_sum_rows,
+    split_sum_table,
+    table_lookup,
+)
 from freqbrdf.observe.observations import Observations
 from freqbrdf.progress import SILENT, Reporter
-from freqbrdf.sphere import envmap as envmaps
 from freqbrdf.sphere import harmonics as sh
 
 # A robust pass scans the roughness nodes within this many cells of the previous optimum.
@@ -159,11 +194,6 @@ _VOTE_CHI2 = 3.84
 _VOTE_MARGIN = 0.01
 # Texels per parallel work item of the search: amortises the scratch buffers.
 _SEARCH_CHUNK = 64
-# The search's inner functions run ~30 times per texel and take ~40 arrays each. Compiled with
-# numba's runtime on, each call counted a reference to every array it took (an atomic add on entry
-# and exit, ~1 us per probe, as long as the probe's arithmetic at 40 samples). They allocate
-# nothing and their callers hold the arrays, so they are compiled without it.
-_borrowing_jit = numba.njit(fastmath=True, cache=True, _nrt=False)
 # Texels per block when expanding the light by degree: bounds the (block, V, K) SH basis.
 _PROJECTION_BLOCK = 8192
 # Texels per block of hypothesis moments: bounds the (block, R, 3, 8) float64 moments to 28 MB at
@@ -179,8 +209,6 @@ _BRENT_MAX_EVALS = 60
 CURVATURE_STEP = 0.05
 # torch.optim.Adam's defaults, which the prototype used.
 _ADAM_BETA1, _ADAM_BETA2, _ADAM_EPS = 0.9, 0.999, 1e-8
-_DIELECTRIC_F0 = brdf.DIELECTRIC_F0  # module constants, bound here for the numba kernels
-_ALPHA_MIN = brdf.ALPHA_MIN
 # The 8-neighbourhood of the prototype's 3 x 3 total-variation stencil (the centre adds zero).
 _NEIGHBOUR_OFFSETS = tuple((dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1) if (dr, dc) != (0, 0))
 
@@ -283,7 +311,7 @@ def angular_loss(
             azimuthal = np.zeros((rows.stop - rows.start, observations.n_views, 3, 0))
         # The prefiltered light replaces the fitted one: its expansion would be read by nothing.
         fitted = (np.zeros((rows.stop - rows.start, 3, 1, observations.n_views), np.float32) if n_full else
-                  _mirror_projections(observations.view_direction[rows], observations.weight[rows], light[rows],
+                  mirror_projections(observations.view_direction[rows], observations.weight[rows], light[rows],
                                       observations.lmax))
         _squared_residual_kernel(
             fitted,
@@ -350,10 +378,10 @@ def _run_search_kernel(observations: Observations, settings: EstimateConfig, lig
         observations.view_direction, observations.weight, observations.observed,
         np.ascontiguousarray(light, dtype=np.float32), _diffuse_scale(observations), observations.sigma,
         settings.fresnel, settings.masking, _uses_split_sum(settings), _uses_exact_dielectric(settings),
-        _uses_burley(settings), split_sum_table(), _split_sum_rows(), settings.roughness_grid,
+        _uses_burley(settings), split_sum_table(), split_sum_rows(), settings.roughness_grid,
         settings.metallic_grid, settings.robust_passes, observations.lmax, *sh._legendre_tables(observations.lmax),
         tangent, normal, environment, blend, environment_response_table(),
-        *_environment_quadrature(max(math.isqrt(len(environment)) - 1, 0)), _burley_response(settings),
+        *environment_quadrature(max(math.isqrt(len(environment)) - 1, 0)), _burley_response(settings),
         *prefiltered, hypothesis_roughness, hypothesis_moments, node_rows,
         search, candidate, params, loss, curvature,
     )
@@ -396,310 +424,10 @@ def _diffuse_scale(observations: Observations) -> np.ndarray:
     return observations.irradiance.astype(np.float64) / np.pi
 
 
-# The split-sum table: nodes uniform in cos(theta_o) and in roughness, and the stratified
-# quadrature over GGX-distributed half vectors that fills it (accurate to ~1e-3 except at the
-# grazing, near-mirror corner, where cos-weighted samples count little).
-_TABLE_COS_NODES = 33
-_TABLE_ROUGHNESS_NODES = 33
-_TABLE_THETA_STRATA = 64
-_TABLE_PHI_STRATA = 32
-
-
-@functools.cache
-def split_sum_table() -> np.ndarray:
-    """(3, cos nodes, roughness nodes) float64: `integrate_split_sum_table`, shipped in
-    data/split_sum.csv (the three tables stacked by rows, every digit kept;
-    scripts/make_split_sum_table.py): integrating it took 0.1-0.4 s of every process's first fit."""
-    table = np.loadtxt(_SPLIT_SUM_TABLE_PATH, delimiter=",", ndmin=2)
-    shape = (3 * _TABLE_COS_NODES, _TABLE_ROUGHNESS_NODES)
-    if table.shape != shape or not np.all((table >= 0.0) & (table <= 1.01)):
-        raise InputError(_SPLIT_SUM_TABLE_PATH, f"expected a {shape[0]} x {shape[1]} table of albedos in [0, 1], "
-                                                f"got shape {table.shape}; regenerate it with "
-                                                "scripts/make_split_sum_table.py")
-    return table.reshape(3, _TABLE_COS_NODES, _TABLE_ROUGHNESS_NODES)
-
-
-def integrate_split_sum_table() -> np.ndarray:
-    """(3, cos nodes, roughness nodes) float64: A, B and E of the GGX lobe's directional albedo.
-
-    For view cosine mu_o and roughness r (alpha = r^2), with Schlick weight F_c = (1 - o.h)^5,
-        A = int f/F (1 - F_c) cos_i dw_i,   B = int f/F F_c cos_i dw_i,   f = F D G1(i) G1(o) / (4 mu_i mu_o),
-    so a lobe of normal reflectance R0 with Schlick's Fresnel (the metallic part of Mitsuba's
-    ``principled``) under uniform unit light returns R0 A + B, and
-        E = int f/F F_eta(o.h) cos_i dw_i
-    with the exact dielectric Fresnel F_eta of eta = `dielectric_eta` (its dielectric part). E is
-    10-27 % above Schlick's 0.04 A + B at view cosines 0.3-0.8. Importance sampling the half
-    vector by D (pdf D cos_h, dw_i = 4 (o.h) dw_h) leaves the integrand
-    G1(i) G1(o) (o.h) / (mu_o cos_h); light reflected below the horizon is lost.
-    """
-    cos_view = np.maximum(np.linspace(0.0, 1.0, _TABLE_COS_NODES), 1e-4)[:, None, None, None]
-    alpha = brdf.alpha_from_roughness(np.linspace(0.0, 1.0, _TABLE_ROUGHNESS_NODES))[None, :, None, None]
-    u = (np.arange(_TABLE_THETA_STRATA) + 0.5) / _TABLE_THETA_STRATA  # GGX: tan^2 theta_h = alpha^2 u / (1 - u)
-    phi = (np.arange(_TABLE_PHI_STRATA) + 0.5) / _TABLE_PHI_STRATA * np.pi  # symmetric about the view plane
-    cos_half = 1.0 / np.sqrt(1.0 + alpha**2 * (u / (1.0 - u))[:, None])
-    half_x = np.sqrt(1.0 - cos_half**2) * np.cos(phi)
-    view_dot_half = np.sqrt(1.0 - cos_view**2) * half_x + cos_view * cos_half
-    cos_light = 2.0 * view_dot_half * cos_half - cos_view
-    integrand = np.where(
-        cos_light > 0.0,
-        brdf.smith_g1_ggx(cos_light, alpha) * brdf.smith_g1_ggx(cos_view, alpha) * np.maximum(view_dot_half, 0.0)
-        / (cos_view * cos_half),
-        0.0,
-    )
-    cos_incidence = np.clip(view_dot_half, 0.0, 1.0)
-    schlick = (1.0 - cos_incidence) ** 5
-    weights = (1.0 - schlick, schlick, dielectric_fresnel(cos_incidence))
-    return np.stack([np.mean(integrand * weight, axis=(2, 3)) for weight in weights])
-
-
-def dielectric_eta() -> float:
-    """The relative index of refraction whose normal reflectance is brdf.DIELECTRIC_F0 (1.5)."""
-    root = math.sqrt(brdf.DIELECTRIC_F0)
-    return (1.0 + root) / (1.0 - root)
-
-
-def dielectric_fresnel(cos_theta: np.ndarray) -> np.ndarray:
-    """The exact unpolarised Fresnel reflectance of a dielectric of eta `dielectric_eta`, light
-    arriving from outside at cos_theta in [0, 1] to the (micro)surface normal."""
-    cos_theta = np.asarray(cos_theta, dtype=np.float64)
-    eta = dielectric_eta()
-    g = np.sqrt(eta * eta - 1.0 + cos_theta * cos_theta)
-    perpendicular = (g - cos_theta) / (g + cos_theta)
-    ratio = (cos_theta * (g + cos_theta) - 1.0) / np.maximum(cos_theta * (g - cos_theta) + 1.0, 1e-300)
-    return 0.5 * perpendicular**2 * (1.0 + ratio**2)
-
-
-def split_sum_terms(cos_theta: np.ndarray, roughness: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(A, B, E) of `split_sum_table`, bilinear, for broadcastable cos_theta and roughness in [0, 1]."""
-    cos_theta, roughness = np.broadcast_arrays(np.asarray(cos_theta, np.float64), np.asarray(roughness, np.float64))
-    terms = np.empty((3, cos_theta.size))
-    _table_terms_kernel(cos_theta.ravel(), roughness.ravel(), split_sum_table(), terms)
-    return tuple(term.reshape(cos_theta.shape) for term in terms)
-
-
-_SPLIT_SUM_TABLE_PATH = Path(__file__).resolve().parents[1] / "model" / "data" / "split_sum.csv"
-_ENVIRONMENT_LMAX = 5  # the default l*: the degrees of the environment light (`environment_response_table`)
-_RESPONSE_STRATA = 64  # strata of the half vector's polar and azimuthal angle each (`lobe_sh_response`)
-
-
-# The terms of the split-sum specular, each with its own Fresnel weight over the lobe and so its
-# own response to the light: A (1 - F_c), B (F_c, Schlick's weight) and E (the exact dielectric Fresnel).
-LOBE_TERMS = ("scale", "bias", "dielectric")
-
-
-def table_nodes() -> tuple[np.ndarray, np.ndarray]:
-    """The (cos theta_o, roughness) nodes of `split_sum_table`."""
-    return np.linspace(0.0, 1.0, _TABLE_COS_NODES), np.linspace(0.0, 1.0, _TABLE_ROUGHNESS_NODES)
-
-
-def lobe_sh_response(cos_theta: float, roughness: float, term: str = "scale", lmax: int = _ENVIRONMENT_LMAX,
-                     strata: int = _RESPONSE_STRATA) -> tuple[float, np.ndarray, np.ndarray]:
-    """(albedo, responses (K,), view (3,)): the GGX lobe seen from view = (sin, 0, cos theta_o),
-    masking-shadowing included and weighted by the ``term``'s Fresnel factor (`LOBE_TERMS`), its
-    albedo int f cos_i dw_i and its response int Y_lm(mirror(w_i)) f cos_i dw_i to each real SH
-    in the mirrored parameterisation; stratified over GGX half vectors (strata x strata) as
-    `split_sum_table`. Deterministic."""
-    if term not in LOBE_TERMS:
-        raise ValueError(f"unknown lobe term {term!r}; choose one of {LOBE_TERMS}")
-    cos_theta = max(float(cos_theta), 1e-4)
-    alpha = float(brdf.alpha_from_roughness(np.array(roughness)))
-    u = (np.arange(strata) + 0.5) / strata
-    phi = (np.arange(strata) + 0.5) / strata * 2.0 * np.pi
-    cos_half = np.repeat(1.0 / np.sqrt(1.0 + alpha**2 * u / (1.0 - u)), strata)
-    sin_half = np.sqrt(1.0 - cos_half**2)
-    half = np.stack([sin_half * np.tile(np.cos(phi), strata), sin_half * np.tile(np.sin(phi), strata), cos_half],
-                    axis=-1)
-    view = np.array([math.sqrt(1.0 - cos_theta**2), 0.0, cos_theta])
-    view_dot_half = half @ view
-    light = 2.0 * view_dot_half[:, None] * half - view
-    cos_incidence = np.clip(view_dot_half, 0.0, 1.0)
-    fresnel = {"scale": 1.0 - (1.0 - cos_incidence) ** 5, "bias": (1.0 - cos_incidence) ** 5,
-               "dielectric": dielectric_fresnel(cos_incidence)}[term]
-    lobe = np.where(
-        (light[:, 2] > 0.0) & (view_dot_half > 0.0),
-        brdf.smith_g1_ggx(np.maximum(light[:, 2], 1e-12), alpha) * brdf.smith_g1_ggx(cos_theta, alpha)
-        * np.maximum(view_dot_half, 0.0) / (cos_theta * cos_half) * fresnel,
-        0.0,
-    )
-    responses = np.mean(lobe[:, None] * sh.eval_sh(light * np.array([-1.0, -1.0, 1.0]), lmax), axis=0)
-    return float(np.mean(lobe)), responses, view
-
-
-# With the environment light (`EstimateConfig.environment_light`), a rough lobe reads the
-# environment's own SH (degrees up to `_ENVIRONMENT_LMAX`, unoccluded) through the lobe's exact response
-# to each harmonic: per (cos theta_o, roughness) node and lobe term, the response to Y_lm (m >= 0) in
-# a frame whose x axis is the mirrored view's azimuth (`environment_response_table`). Per texel the
-# environment is turned into the texel's frame once, per sample into its view's azimuth.
-_ENVIRONMENT_TABLE_PATH = Path(__file__).resolve().parents[1] / "model" / "data" / "environment_response.csv"
-# The environment light is tabulated at every _ENVIRONMENT_NODE_STEP-th roughness node of the
-# split-sum table and interpolated linearly in roughness between them: each is computed once per
-# texel and search.
-_ENVIRONMENT_NODE_STEP = 2
-_ENVIRONMENT_NODES = (_TABLE_ROUGHNESS_NODES - 1) // _ENVIRONMENT_NODE_STEP + 1
-
-
-def environment_pairs(lmax: int) -> int:
-    """How many (l, m >= 0) harmonics up to degree lmax: their order is l, then m."""
-    return (lmax + 1) * (lmax + 2) // 2
-
-
-def environment_response(cos_theta: float, roughness: float, term: str = "scale",
-                         lmax: int = _ENVIRONMENT_LMAX) -> np.ndarray:
-    """((lmax + 1)(lmax + 2) / 2,) the ``term``'s lobe response to each real SH Y_lm with m >= 0
-    (order: l, then m), relative to its albedo, for the view (sin, 0, cos theta_o), in the mirrored
-    parameterisation (`lobe_sh_response`). The lobe is symmetric about its plane of incidence, so
-    its response to the harmonics with m < 0 (sin m phi) is zero; a light L = sum c_lm Y_lm in the
-    frame turned so that the mirrored view lies at azimuth 0 reflects sum c_lm R_lm times the albedo."""
-    albedo, responses, _ = lobe_sh_response(cos_theta, roughness, term, lmax)
-    pairs = [degree * degree + degree + order for degree in range(lmax + 1) for order in range(degree + 1)]
-    # A lobe of no albedo (Schlick's F_c at normal incidence on a mirror) reflects nothing anyway.
-    return responses[pairs] / albedo if albedo > 0.0 else np.zeros(len(pairs))
-
-
-@functools.cache
-def environment_response_table() -> np.ndarray:
-    """(3, roughness nodes, cos nodes, 21) float64: per `LOBE_TERMS` term, `environment_response`
-    (l* = 5) at every `_ENVIRONMENT_NODE_STEP`-th roughness node and every cos theta_o node of
-    `split_sum_table`.
-
-    It replaces a zonal approximation (one tilted lookup direction and a gain per degree, fitted to
-    these responses), which at grazing views under the demo's forest map predicted a rough
-    dielectric's specular (r = 0.86) 0.79 of Mitsuba's (this table: 1.00, benchmarks/model_fidelity.py).
-    Shipped in data/environment_response.csv (rows: term, then roughness node, then cos theta_o;
-    columns: the harmonics; scripts/make_environment_response_table.py).
-    """
-    table = np.loadtxt(_ENVIRONMENT_TABLE_PATH, delimiter=",", ndmin=2)
-    pairs = environment_pairs(_ENVIRONMENT_LMAX)
-    shape = (len(LOBE_TERMS) * _ENVIRONMENT_NODES * _TABLE_COS_NODES, pairs)
-    if table.shape != shape or not np.all(np.isfinite(table)):
-        raise InputError(_ENVIRONMENT_TABLE_PATH, f"expected a {shape[0]} x {shape[1]} table of finite responses, "
-                                                  f"got shape {table.shape}; regenerate it with "
-                                                  "scripts/make_environment_response_table.py")
-    return np.ascontiguousarray(table.reshape(len(LOBE_TERMS), _ENVIRONMENT_NODES, _TABLE_COS_NODES, pairs))
-
-
-def environment_filtered_light(directions: np.ndarray, weight: np.ndarray, tangent: np.ndarray, normal: np.ndarray,
-                               environment_coeffs: np.ndarray, roughness: np.ndarray, term: str = "scale",
-                               azimuthal: np.ndarray | None = None) -> np.ndarray:
-    """(n, V, 3) the environment light as the ``term`` of a lobe of roughness (n,) reads it.
-
-    directions (n, V, 3) local view directions, weight (n, V), tangent and normal (n, 3) world
-    frame of each texel, environment_coeffs (K, 3) the world-frame SH of the environment (degrees
-    up to min(l*, 5) are read): sum over l, m >= 0 of the lobe's responses
-    (`environment_response_table`, linear in cos theta_o) times the environment's coefficients in
-    each sample's mirrored view frame (`environment_azimuthal`), at the table's roughness nodes on
-    either side of the roughness and interpolated linearly between them (as the split-sum albedo
-    is), as the search does. Written with numpy, independently of the kernels. 0 where weight is
-    0. ``azimuthal``: `environment_azimuthal` of these samples, to reuse across calls.
-    """
-    directions = np.asarray(directions, np.float64)
-    if azimuthal is None:
-        azimuthal = environment_azimuthal(directions, weight, tangent, normal, environment_coeffs)
-    table = environment_response_table()[LOBE_TERMS.index(term), :, :, :azimuthal.shape[-1]]  # (nodes, cos, P)
-    x = np.clip(directions[..., 2], 0.0, 1.0) * (_TABLE_COS_NODES - 1)
-    row = np.minimum(x.astype(np.int64), _TABLE_COS_NODES - 2)
-    fx = x[..., None] - row[..., None]
-    node, fy = (np.array(part) for part in zip(*[_environment_node(r) for r in np.asarray(roughness, np.float64)]))
-
-    def at_node(nodes):  # (n,) roughness node of each texel -> (n, V, 3)
-        response = table[nodes[:, None], row] * (1.0 - fx) + table[nodes[:, None], row + 1] * fx  # (n, V, P)
-        return np.einsum("nvp,nvcp->nvc", response, azimuthal)
-
-    fy = fy[:, None, None]
-    return (1.0 - fy) * at_node(node) + fy * at_node(node + 1)
-
-
-def environment_azimuthal(directions: np.ndarray, weight: np.ndarray, tangent: np.ndarray, normal: np.ndarray,
-                          environment_coeffs: np.ndarray) -> np.ndarray:
-    """(n, V, 3, P) the environment's SH coefficients of degree l <= min(l*, 5) and order m >= 0 in
-    each sample's mirrored view frame: the texel's frame (`local_environment`) turned about the
-    normal by the azimuth beta of the mirrored view direction (-x, -y), c_lm cos(m beta) +
-    c_l,-m sin(m beta); P = `environment_pairs`. 0 where weight is 0."""
-    directions = np.asarray(directions, np.float64)
-    degrees = min(sh.lmax_of(environment_coeffs.shape[0]), _ENVIRONMENT_LMAX)
-    local = local_environment(environment_coeffs, tangent, normal, degrees)  # (n, K, 3)
-    beta = np.arctan2(-directions[..., 1], -directions[..., 0])[..., None]  # (n, V, 1)
-    out = np.empty(directions.shape[:2] + (3, environment_pairs(degrees)))
-    pair = 0
-    for degree in range(degrees + 1):
-        for order in range(degree + 1):
-            centre = degree * degree + degree
-            out[..., pair] = local[:, None, centre]
-            if order > 0:
-                out[..., pair] = (local[:, None, centre + order] * np.cos(order * beta)
-                                  + local[:, None, centre - order] * np.sin(order * beta))
-            pair += 1
-    return np.where(np.asarray(weight)[:, :, None, None] > 0.0, out, 0.0)
-
-
-def local_environment(environment_coeffs: np.ndarray, tangent: np.ndarray, normal: np.ndarray,
-                      lmax: int) -> np.ndarray:
-    """(n, (lmax + 1)^2, 3) the world-frame SH environment_coeffs (K, 3) up to degree lmax in each
-    texel's frame (x tangent, y normal x tangent, z normal; tangent and normal (n, 3)): projected
-    with a quadrature exact for products of two such harmonics, so exact to rounding."""
-    directions, weights = sh.sphere_quadrature(2 * lmax)
-    tangent, normal = np.asarray(tangent, np.float64), np.asarray(normal, np.float64)
-    frames = np.stack([tangent, np.cross(normal, tangent), normal], axis=1)  # (n, 3, 3) rows
-    world = np.einsum("qi,nij->nqj", directions, frames)
-    values = sh.eval_sh(world, lmax) @ np.asarray(environment_coeffs, np.float64)[: sh.num_coeffs(lmax)]
-    return np.einsum("qk,q,nqc->nkc", sh.eval_sh(directions, lmax), weights, values)
-
-
-@functools.cache
-def _environment_quadrature(lmax: int) -> tuple[np.ndarray, np.ndarray]:
-    """(directions (Q, 3), projection (K, Q)) of `local_environment`'s quadrature for the kernels:
-    local coefficients = projection @ (the environment at the directions turned to the world)."""
-    directions, weights = sh.sphere_quadrature(2 * lmax)
-    return np.ascontiguousarray(directions), np.ascontiguousarray((sh.eval_sh(directions, lmax) * weights[:, None]).T)
-
-
-@_borrowing_jit
-def _environment_node(roughness):
-    """The environment light's roughness node below ``roughness`` (clipped to [0, 1]) and the
-    fraction towards the next one (its nodes: every _ENVIRONMENT_NODE_STEP-th of the table's)."""
-    n_nodes = (_TABLE_ROUGHNESS_NODES - 1) // _ENVIRONMENT_NODE_STEP + 1
-    y = min(max(roughness, 0.0), 1.0) * (n_nodes - 1)
-    node = min(int(y), n_nodes - 2)
-    return node, y - node
-
-
-def environment_weight(roughness: np.ndarray, blend: tuple[float, float]) -> np.ndarray:
-    """The environment light's share of the light a lobe of this roughness reads: 0 up to
-    blend[0], 1 from blend[1], smoothstep between (`EstimateConfig.environment_blend`)."""
-    roughness = np.asarray(roughness, np.float64)
-    return np.array([_environment_share(r, blend) for r in roughness.ravel()]).reshape(roughness.shape)
-
-
 # With the prefiltered light (`EstimateConfig.prefiltered_light`) a smooth lobe reads the environment
 # map itself, filtered by the GGX lobe's per-degree response at normal incidence (`ggx_lobe_gains`) at
 # roughness nodes PREFILTER_STEP apart, looked up bilinearly at each sample's world mirror direction
 # (as `envmap.lookup`) and interpolated linearly in roughness between the nodes.
-PREFILTER_STEP = 1.0 / 16.0
-# Larger maps are resampled to this height (degrees up to 510, ~0.35 degrees): bounds the memory
-# of the prefiltered stack (11 maps of 512 x 1024 x 3 float32: 69 MB) and its transforms.
-PREFILTER_MAX_HEIGHT = 512
-_GAIN_STRATA = 8192  # half-vector strata of `ggx_lobe_gains`
-
-
-@functools.cache
-def ggx_lobe_gains(roughness: float, lmax: int) -> np.ndarray:
-    """(lmax + 1,) the GGX lobe's response to the degree-l part of the light at normal incidence,
-    relative to its albedo: half vectors drawn by D(h) cos theta_h (stratified in the inverse CDF),
-    light from 2 theta_h off the mirror direction (the normal), gain_l = the mean of
-    P_l(cos 2 theta_h) over the light above the horizon. Masking-shadowing and Fresnel are left
-    out. Where the Gaussian kernel exp(-(alpha l)^2) falls off fast, these have heavier tails
-    (roughness 0.25: degree 5 0.75, degree 60 0.0019, against 0.91 and 8e-7)."""
-    alpha = max(roughness * roughness, _ALPHA_MIN)
-    u = (np.arange(_GAIN_STRATA) + 0.5) / _GAIN_STRATA
-    cos_half_squared = 1.0 / (1.0 + alpha * alpha * u / (1.0 - u))
-    cos_light = 2.0 * cos_half_squared - 1.0
-    cos_light = cos_light[cos_light > 0.0]
-    gains = np.empty(lmax + 1)
-    previous, current = np.zeros_like(cos_light), np.ones_like(cos_light)
-    for degree in range(lmax + 1):  # Legendre's three-term recurrence
-        gains[degree] = current.mean()
-        previous, current = current, ((2 * degree + 1) * cos_light * current - degree * previous) / (degree + 1)
-    return gains
 
 
 def prefilter_nodes(settings: EstimateConfig) -> int:
@@ -709,258 +437,12 @@ def prefilter_nodes(settings: EstimateConfig) -> int:
     return min(math.ceil(end / PREFILTER_STEP - 1e-9), round(1.0 / PREFILTER_STEP)) + 1
 
 
-def prefiltered_environment(envmap, n_nodes: int, skip_degrees: int = 0) -> np.ndarray:
-    """(n_nodes, H, W, 3) float32 the map (an `envmap.Envmap`) filtered by `ggx_lobe_gains` at
-    roughness j PREFILTER_STEP, every degree the map holds (at most PREFILTER_MAX_HEIGHT rows)
-    from ``skip_degrees`` on (the environment light holds the degrees below). Node 0, a mirror,
-    is the map itself (averaged in pixel space to the stack's size, `envmap.downsample`): cut at
-    the map's band limit it would ring around bright lights (Gibbs; it read 8 % too bright beside
-    entropy_scenes.py's 40x lights). The next nodes' lobes are filtered in SH as the rest: read
-    raw as well, roughness between them would mix a sharp map into a blurred one (on the plane,
-    T = 256, without the robust pass: roughness MAE 0.057 -> 0.064 with a 5-node grid)."""
-    height, width = envmap.radiance.shape[:2]
-    out_height = min(height, PREFILTER_MAX_HEIGHT, (width + 1) // 2)
-    lmax = min(height - 2, (width - 1) // 2, out_height - 2)
-    gains = np.stack([ggx_lobe_gains(node * PREFILTER_STEP, lmax) for node in range(n_nodes)])
-    gains[:, :skip_degrees] = 0.0
-    resample = out_height if out_height != height else None
-    maps = np.empty((n_nodes, out_height, 2 * out_height, 3), np.float32)
-    if n_nodes > 1:
-        maps[1:] = envmaps.zonal_filters(envmap, gains[1:], resample)
-    maps[0] = envmaps.downsample(envmap.radiance, out_height)
-    if skip_degrees > 0:  # less the degrees below skip_degrees: smooth, so exact in SH
-        low_pass = (np.arange(lmax + 1) < skip_degrees).astype(np.float64)[None]
-        maps[0] -= envmaps.zonal_filters(envmap, low_pass, resample)[0]
-    return maps
-
-
-def prefiltered_light(directions: np.ndarray, tangent: np.ndarray, normal: np.ndarray, prefiltered: np.ndarray,
-                      rotation: np.ndarray, roughness: np.ndarray) -> np.ndarray:
-    """(n, V, 3) the prefiltered light a lobe of roughness (n,) reads: directions (n, V, 3) local view
-    directions, tangent and normal (n, 3) world frame of each texel, prefiltered (nodes, H, W, 3)
-    `prefiltered_environment` of a map with emitter-to-world ``rotation`` (3, 3), looked up at the
-    world mirror directions and linear in roughness between its nodes (as the search reads it)."""
-    directions = np.asarray(directions, np.float64)
-    tangent, normal = np.asarray(tangent, np.float64), np.asarray(normal, np.float64)
-    bitangent = np.cross(normal, tangent)
-    mirror = directions * np.array([-1.0, -1.0, 1.0])
-    world = (mirror[..., :1] * tangent[:, None] + mirror[..., 1:2] * bitangent[:, None]
-             + mirror[..., 2:] * normal[:, None])
-    cos_theta = np.clip(mirror[..., 2], 0.0, 1.0)
-    n_nodes, height, width = prefiltered.shape[:3]
-
-    def texel_coordinates(where: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # as envmap.map_coordinates
-        local = where @ np.asarray(rotation, np.float64)
-        u = np.arctan2(local[..., 0], -local[..., 2]) / (2.0 * np.pi)
-        return (u - np.floor(u)) * width - 0.5, np.arccos(np.clip(local[..., 1], -1.0, 1.0)) / np.pi * (height - 1)
-
-    def bilinear(nodes: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:  # as envmap.stencil_at
-        column = np.floor(x)
-        col0 = column.astype(np.int64) % width
-        col1, fx = (col0 + 1) % width, (x - column)[..., None]
-        y = np.clip(y, 0.0, height - 1.0)
-        row0 = np.minimum(y.astype(np.int64), height - 2)
-        fy = (y - row0)[..., None]
-
-        def texel(row, col):
-            return prefiltered[nodes, row, col].astype(np.float64)
-
-        top = (1.0 - fx) * texel(row0, col0) + fx * texel(row0, col1)
-        bottom = (1.0 - fx) * texel(row0 + 1, col0) + fx * texel(row0 + 1, col1)
-        return (1.0 - fy) * top + fy * bottom
-
-    x, y = texel_coordinates(world)  # of the mirror direction
-    roughness = np.broadcast_to(np.asarray(roughness, np.float64)[:, None], cos_theta.shape)
-    node, frac = np.vectorize(lambda r: _prefilter_node(r, n_nodes), otypes=[np.int64, np.float64])(roughness)
-    lower, upper = bilinear(node, x, y), bilinear(node + 1, x, y)
-    return lower + frac[..., None] * (upper - lower)
-
-
-@_borrowing_jit
-def _prefilter_node(roughness, n_nodes):
-    """The prefiltered map's node below ``roughness`` (clipped to the nodes) and the fraction
-    towards the next one."""
-    y = min(max(roughness, 0.0) / PREFILTER_STEP, n_nodes - 1.0)
-    node = min(int(y), n_nodes - 2)
-    return node, y - node
-
-
-@_borrowing_jit
-def _cross(a, b, out):
-    out[0] = a[1] * b[2] - a[2] * b[1]
-    out[1] = a[2] * b[0] - a[0] * b[2]
-    out[2] = a[0] * b[1] - a[1] * b[0]
-
-
-@_borrowing_jit
-def _mirror_stencil(xyz, n, tangent, normal, bitangent, world_to_local, height, width, corner, stencil_frac):
-    """`envmap.lookup`'s bilinear stencil at the world mirror direction of each local view direction
-    xyz[:, s], s < n: corner (4, n) flat pixel indices row * width + col of (row, col), (row, col + 1),
-    (row + 1, col), (row + 1, col + 1); stencil_frac (2, n) the column and row fractions."""
-    for s in range(n):
-        mirror_x, mirror_y, mirror_z = -xyz[0, s], -xyz[1, s], xyz[2, s]
-        world_x = mirror_x * tangent[0] + mirror_y * bitangent[0] + mirror_z * normal[0]
-        world_y = mirror_x * tangent[1] + mirror_y * bitangent[1] + mirror_z * normal[1]
-        world_z = mirror_x * tangent[2] + mirror_y * bitangent[2] + mirror_z * normal[2]
-        x, y = envmaps.map_coordinates(world_to_local, world_x, world_y, world_z, height, width)
-        row0, col0, col1, fx, fy = envmaps.stencil_at(x, y, height, width)
-        corner[0, s], corner[1, s] = row0 * width + col0, row0 * width + col1
-        corner[2, s], corner[3, s] = (row0 + 1) * width + col0, (row0 + 1) * width + col1
-        stencil_frac[0, s], stencil_frac[1, s] = fx, fy
-
-
-@numba.njit(inline="always", fastmath=True)
-def _bilinear(prefiltered, node, c, top_left, top_right, bottom_left, bottom_right, fx, fy):
-    """Channel c of the map of node ``node`` of prefiltered (H W, nodes, 3), bilinear between four
-    flat pixel indices."""
-    top = (1.0 - fx) * prefiltered[top_left, node, c] + fx * prefiltered[top_right, node, c]
-    bottom = (1.0 - fx) * prefiltered[bottom_left, node, c] + fx * prefiltered[bottom_right, node, c]
-    return (1.0 - fy) * top + fy * bottom
-
-
-@_borrowing_jit
-def _prefiltered_node_light(prefiltered, node, n, corner, stencil_frac, out):
-    """out[c, s] = the light of node ``node`` of prefiltered (H W, nodes, 3) for sample s < n:
-    bilinear at the mirror stencil (`_mirror_stencil`). (Pixel-major: a texel's lookups at several
-    nodes share cache lines.)"""
-    for s in range(n):
-        for c in range(3):
-            out[c, s] = _bilinear(prefiltered, node, c, corner[0, s], corner[1, s], corner[2, s], corner[3, s],
-                                  stencil_frac[0, s], stencil_frac[1, s])
-
-
-# The planes of `split_sum_table`, as the kernels index them: the term k of `LOBE_TERMS` is plane k.
-_SCALE_PLANE, _BIAS_PLANE, _DIELECTRIC_PLANE = 0, 1, 2
-
-
-@functools.cache
-def _split_sum_rows() -> np.ndarray:
-    """(3, roughness nodes, cos nodes) `split_sum_table` with the roughness first: each probe of the
-    search interpolates all its cos theta_o nodes at one roughness, contiguous this way (22 against
-    75 ns strided, measured)."""
-    return np.ascontiguousarray(split_sum_table().transpose(0, 2, 1))
-
-
-def lobe_filtered_light(directions: np.ndarray, weight: np.ndarray, light_coeffs: np.ndarray, lmax: int,
-                        sigma: float, roughness: np.ndarray) -> np.ndarray:
-    """(n, V, 3) the fitted light as the split-sum model filters it for a lobe of roughness (n,).
-
-    directions (n, V, 3) local view directions, weight (n, V), light_coeffs (n, 3, K): the SH fit
-    of the mirrored light, low-passed by the BRDF kernel and read in the mirror direction; 0
-    where weight is 0.
-    """
-    alpha = brdf.alpha_from_roughness(np.asarray(roughness, np.float64))
-    kernel = brdf.brdf_kernel(alpha, lmax, sigma)  # (n, l*+1)
-    return np.einsum("nl,nclv->nvc", kernel, _mirror_projections(directions, weight, light_coeffs, lmax))
-
-
-def _mirror_projections(directions, weight, coeffs, lmax) -> np.ndarray:
-    """(n, 3, l*+1, V) `_degree_projections` at the view directions, normalised in float64 as the
-    search kernel normalises them."""
-    directions = np.asarray(directions, dtype=np.float64)
-    unit = directions / np.maximum(np.linalg.norm(directions, axis=-1, keepdims=True), 1e-12)  # unsampled: (0, 0, 0)
-    return _degree_projections(unit, weight, coeffs, lmax)
-
-
-def burley_diffuse_factor(cos_theta, roughness):
-    """Mitsuba's principled diffuse relative to Lambert's, averaged over uniform incoming light.
-
-    Mitsuba's ``principled`` BSDF (Burley's diffuse) scales base_color / pi by
-        (1 - F_o / 2)(1 - F_i / 2) + R (F_o + F_i + F_o F_i (R - 1)),   R = 2 r cos^2 theta_d,
-    F = (1 - cos)^5 of the view (o) and light (i): darker at grazing views, brighter at grazing
-    views of rough surfaces (retro-reflection). With 2 cos^2 theta_d = 1 + w_i.w_o the averages over
-    cosine-distributed w_i are polynomials in mu_o = cos theta_o: <F_i> = 1/21,
-    <R> = r (1 + 2 mu_o / 3), <R F_i> = r (1/21 + mu_o / 84),
-    <R^2 F_i> = r^2 (1/21 + mu_o / 42 + 11 (1 - mu_o^2) / 504 + mu_o^2 / 252). Plain arithmetic, so
-    it serves numpy arrays and, compiled, the numba kernels.
-    """
-    schlick_view = (1.0 - cos_theta) ** 5
-    retro = roughness * (1.0 + 2.0 * cos_theta / 3.0)
-    retro_fresnel = roughness * (1.0 / 21.0 + cos_theta / 84.0)
-    retro_squared_fresnel = roughness * roughness * (
-        1.0 / 21.0 + cos_theta / 42.0 + 11.0 * (1.0 - cos_theta * cos_theta) / 504.0 + cos_theta * cos_theta / 252.0)
-    return ((1.0 - 0.5 * schlick_view) * (1.0 - 0.5 / 21.0) + schlick_view * retro + retro_fresnel
-            + schlick_view * (retro_squared_fresnel - retro_fresnel))
-
-
-# Burley's diffuse under the environment's own light: the quadrature of `burley_response_table`.
-_BURLEY_COS_STRATA = 48  # Gauss-Legendre nodes in cos theta_i
-_BURLEY_PHI_STRATA = 64
-# Burley's diffuse reads the light's degrees <= 3 (10 harmonics): against degrees <= 5 its factor
-# moves by at most 0.25 % (0.1 % on average) under a random degree-5 light, at half the cost.
-_BURLEY_LMAX = 3
-# A channel's Lambert response below this fraction of its light's DC (a dark or wildly ringing
-# low-order light) falls back to the uniform-light Burley factor.
-_MIN_LAMBERT = 1e-3
-
-
-@functools.cache
-def burley_response_table(lmax: int = _BURLEY_LMAX) -> np.ndarray:
-    """(4, cos nodes, P) float64, P = `environment_pairs`(lmax): Mitsuba's principled diffuse per unit
-    base colour, (1 / pi) int f_j(w_i, w_o) cos theta_i Y_lm(-x_i, -y_i, z_i) dw_i for the view
-    w_o = (sin, 0, cos theta_o) at the cos nodes of `split_sum_table`, per power j of the roughness:
-    Burley's f = f_0 + r f_1 + r^2 f_2 with f_0 = (1 - F_o / 2)(1 - F_i / 2), f_1 = (1 + w_i.w_o)
-    (F_o + F_i - F_o F_i), f_2 = (1 + w_i.w_o)^2 F_o F_i (F = (1 - cos)^5, 2 cos^2 theta_d = 1 +
-    w_i.w_o); the last row is Lambert's f = 1. The harmonics are those of `environment_azimuthal`
-    (the mirrored view frame), so sum_p coefficients_p row_p is the diffuse radiance under that
-    light. Gauss-Legendre in cos theta_i times uniform azimuths; deterministic, ~0.1 s."""
-    cos_light, weights = np.polynomial.legendre.leggauss(_BURLEY_COS_STRATA)
-    cos_light, weights = 0.5 * (cos_light + 1.0), 0.5 * weights
-    phi = 2.0 * np.pi * (np.arange(_BURLEY_PHI_STRATA) + 0.5) / _BURLEY_PHI_STRATA
-    sin_light = np.sqrt(1.0 - cos_light**2)
-    light = np.stack([np.outer(sin_light, np.cos(phi)), np.outer(sin_light, np.sin(phi)),
-                      np.repeat(cos_light[:, None], len(phi), axis=1)], axis=-1).reshape(-1, 3)
-    measure = np.repeat(weights * cos_light, len(phi)) * (2.0 * np.pi / len(phi)) / np.pi  # cos_i dw_i / pi
-    pairs = [degree * degree + degree + order for degree in range(lmax + 1) for order in range(degree + 1)]
-    basis = sh.eval_sh(light * np.array([-1.0, -1.0, 1.0]), lmax)[:, pairs]  # (Q, P)
-    schlick_light = (1.0 - light[:, 2]) ** 5
-    cos_view = np.linspace(0.0, 1.0, _TABLE_COS_NODES)
-    out = np.empty((4, len(cos_view), len(pairs)))
-    for i, mu in enumerate(cos_view):
-        schlick_view = (1.0 - mu) ** 5
-        retro = 1.0 + light @ np.array([math.sqrt(1.0 - mu * mu), 0.0, mu])
-        parts = ((1.0 - 0.5 * schlick_view) * (1.0 - 0.5 * schlick_light),
-                 retro * (schlick_view + schlick_light - schlick_view * schlick_light),
-                 retro**2 * schlick_view * schlick_light, np.ones_like(schlick_light))
-        for j, part in enumerate(parts):
-            out[j, i] = (part * measure) @ basis
-    return out
-
-
-def environment_burley_factor(directions: np.ndarray, weight: np.ndarray, tangent: np.ndarray, normal: np.ndarray,
-                              environment_coeffs: np.ndarray, roughness: np.ndarray,
-                              azimuthal: np.ndarray | None = None) -> np.ndarray:
-    """(n, V, 3) Burley's diffuse relative to Lambert's under the environment's own light (degrees
-    <= min(l*, 3); `burley_response_table`, linear in cos theta_o) per channel, for roughness (n,):
-    what `burley_diffuse_factor` gives under uniform light. Where a channel's Lambert response is
-    not positive (a map with no light there) the uniform-light factor. Written with numpy,
-    independently of the kernels; 0 where weight is 0."""
-    directions = np.asarray(directions, np.float64)
-    if azimuthal is None:
-        azimuthal = environment_azimuthal(directions, weight, tangent, normal, environment_coeffs)
-    table = burley_response_table()
-    pairs = min(table.shape[-1], azimuthal.shape[-1])
-    table, azimuthal = table[..., :pairs], azimuthal[..., :pairs]
-    x = np.clip(directions[..., 2], 0.0, 1.0) * (_TABLE_COS_NODES - 1)
-    row = np.minimum(x.astype(np.int64), _TABLE_COS_NODES - 2)
-    fx = (x - row)[..., None]
-    response = table[:, row] * (1.0 - fx) + table[:, row + 1] * fx  # (4, n, V, P)
-    parts = np.einsum("jnvp,nvcp->jnvc", response, azimuthal)
-    roughness = np.asarray(roughness, np.float64)[:, None, None]
-    lambert = parts[3]
-    burley = parts[0] + roughness * (parts[1] + roughness * parts[2])
-    uniform = burley_diffuse_factor(directions[..., 2], roughness[..., 0])[..., None]
-    factor = np.where(lambert > _MIN_LAMBERT * np.abs(azimuthal[..., 0]), burley / np.where(lambert > 0.0, lambert,
-                                                                                               1.0), uniform)
-    return np.where(np.asarray(weight)[:, :, None] > 0.0, factor, 0.0)
-
-
 def _burley_response(settings: EstimateConfig) -> np.ndarray:
     """`burley_response_table` for the kernels when Burley's diffuse reads the environment's light
     (with the environment light), else an empty one (uniform light)."""
     if _uses_burley(settings) and settings.environment_light and settings.burley_environment:
         return burley_response_table()
-    return np.zeros((4, _TABLE_COS_NODES, 0))
+    return np.zeros((4, TABLE_COS_NODES, 0))
 
 
 def _uses_burley(settings: EstimateConfig) -> bool:
@@ -995,7 +477,7 @@ def _environment_inputs(observations: Observations, settings: EstimateConfig) ->
     degrees above the environment light's at all `_HIGH_NODES` roughness nodes: what the
     environment light adds."""
     tangent = np.zeros((observations.n_texels, 3), np.float32) if observations.tangent is None else observations.tangent
-    environment_degrees = min(observations.lmax, _ENVIRONMENT_LMAX)
+    environment_degrees = min(observations.lmax, ENVIRONMENT_LMAX)
     if _uses_environment_light(observations, settings):
         environment = (np.ascontiguousarray(observations.environment_coeffs[:sh.num_coeffs(environment_degrees)],
                                             dtype=np.float64), tuple(float(b) for b in settings.environment_blend))
@@ -1046,87 +528,6 @@ def _shadowed_light_coeffs(observations: Observations, alpha: np.ndarray, fit: F
     ).coeffs
 
 
-def _degree_projections(directions: np.ndarray, weight: np.ndarray, coeffs: np.ndarray, lmax: int) -> np.ndarray:
-    """P_c,l(w_v) = sum_m c_c,lm Y_lm(w_v): directions (n, V, 3), weight (n, V), coeffs (n, 3, K)
-    -> (n, 3, l*+1, V); 0 at samples of weight 0, which no estimator reads (a third of the work)."""
-    basis = sh.eval_sh(np.ascontiguousarray(directions, dtype=np.float32), lmax)  # (n, V, K)
-    out = np.empty((directions.shape[0], 3, lmax + 1, directions.shape[1]), dtype=np.float32)
-    _project_degrees_kernel(basis, weight, np.ascontiguousarray(coeffs, dtype=np.float32), out)
-    return out
-
-
-@numba.njit(parallel=True, fastmath=True, cache=True)
-def _project_degrees_kernel(basis, weight, coeffs, out):  # (n, V, K), (n, V), (n, 3, K) -> out (n, 3, l*+1, V)
-    n_texels, n_views, _ = basis.shape
-    n_degrees = out.shape[2]
-    for t in numba.prange(n_texels):
-        for v in range(n_views):
-            sampled = weight[t, v] > 0.0
-            for c in range(3):
-                for degree in range(n_degrees):
-                    acc = np.float32(0.0)
-                    if sampled:
-                        for k in range(degree * degree, (degree + 1) * (degree + 1)):
-                            acc += basis[t, v, k] * coeffs[t, c, k]
-                    out[t, c, degree, v] = acc
-
-
-@numba.njit(fastmath=True, cache=True)
-def _g1_and_derivative(cos_theta, alpha):
-    """brdf.smith_g1_ggx for one sample (cos_theta > 0), and its derivative in alpha."""
-    sin2 = 1.0 - cos_theta * cos_theta
-    root = math.sqrt(cos_theta * cos_theta + alpha * alpha * sin2)
-    denominator = cos_theta + root
-    g1 = 2.0 * cos_theta / denominator
-    return g1, -g1 / denominator * alpha * sin2 / root
-
-
-@numba.njit(fastmath=True, cache=True)
-def _table_lookup(table, index, cos_theta, roughness):
-    """table[index] (.., cos nodes, roughness nodes) bilinear at (cos_theta, roughness) in [0, 1]."""
-    x = min(max(cos_theta, 0.0), 1.0) * (table.shape[1] - 1)
-    y = min(max(roughness, 0.0), 1.0) * (table.shape[2] - 1)
-    i = min(int(x), table.shape[1] - 2)
-    j = min(int(y), table.shape[2] - 2)
-    fx, fy = x - i, y - j
-    return ((table[index, i, j] * (1.0 - fx) + table[index, i + 1, j] * fx) * (1.0 - fy)
-            + (table[index, i, j + 1] * (1.0 - fx) + table[index, i + 1, j + 1] * fx) * fy)
-
-
-@numba.njit(parallel=True, cache=True)
-def _table_terms_kernel(cos_theta, roughness, table, out):  # (n,), (n,) -> out (planes, n)
-    for k in numba.prange(cos_theta.shape[0]):
-        for plane in range(table.shape[0]):
-            out[plane, k] = _table_lookup(table, plane, cos_theta[k], roughness[k])
-
-
-@numba.njit(fastmath=True, cache=True)
-def _specular_albedo(cos_theta, roughness, alpha, fresnel, masking, split_sum, table):
-    """(A, B) with the specular radiance (R0 A + B) times the filtered light, for one sample.
-
-    split_sum: `split_sum_terms`. Otherwise METHOD.md's angular model, F G1 = R0 G1 (1 - F_c) +
-    G1 F_c with F_c = (1 - cos)^5. Without Fresnel, A + B and 0.
-    """
-    if split_sum:
-        scale = _table_lookup(table, _SCALE_PLANE, cos_theta, roughness)
-        bias = _table_lookup(table, _BIAS_PLANE, cos_theta, roughness)
-    else:
-        g1 = _g1_and_derivative(cos_theta, alpha)[0] if masking else 1.0
-        schlick = (1.0 - cos_theta) ** 5
-        scale, bias = g1 * (1.0 - schlick), g1 * schlick
-    if not fresnel:
-        return scale + bias, 0.0
-    return scale, bias
-
-
-@_borrowing_jit
-def _fill_kernel(alpha, sigma, kernel, kernel_derivative):
-    """brdf.brdf_kernel for one texel, and its derivative in alpha: -2 alpha l^2 k(l)."""
-    for degree in range(kernel.shape[0]):
-        kernel[degree] = math.exp(-(alpha * alpha - sigma * sigma) * degree * degree)
-        kernel_derivative[degree] = -2.0 * alpha * degree * degree * kernel[degree]
-
-
 @numba.njit(parallel=True, fastmath=True, cache=True)
 def _squared_residual_kernel(
     proj, directions, weight, observed, diffuse_scale, base_color, metallic, roughness, sigma, fresnel, masking,
@@ -1134,7 +535,7 @@ def _squared_residual_kernel(
     normal, prefiltered, n_full, world_to_local, map_height, map_width, out,
 ):
     """out[t] = sum_v,c w^2 (L - f)^2 / sum_v w^2 (0 without samples); directions (n, V, 3) local
-    view directions. proj (n, 3, l*+1, V): `_mirror_projections`. The specular is
+    view directions. proj (n, 3, l*+1, V): `mirror_projections`. The specular is
     m (b X + Y) + (1 - m) Z with X = A S_A, Y = B S_B (S_k: the light filtered for term k,
     `lobe_filtered_light`) and Z = E S_E with ``exact_dielectric``, else Schlick's 0.04 X + Y.
     With azimuthal (n, V, 3, P > 0)
@@ -1147,18 +548,18 @@ def _squared_residual_kernel(
     n_degrees = proj.shape[2]
     n_terms = len(LOBE_TERMS)
     for t in numba.prange(n_texels):
-        alpha = max(roughness[t] * roughness[t], _ALPHA_MIN)
+        alpha = max(roughness[t] * roughness[t], ALPHA_MIN)
         kernel = np.empty(n_degrees)
-        _fill_kernel(alpha, sigma, kernel, np.empty(n_degrees))
+        fill_kernel(alpha, sigma, kernel, np.empty(n_degrees))
         filtered = np.empty(n_terms)
-        share = _environment_share(roughness[t], environment_blend) if azimuthal.shape[3] > 0 else 0.0
+        share = environment_share(roughness[t], environment_blend) if azimuthal.shape[3] > 0 else 0.0
         # The environment light at the roughness nodes on either side, per term, channel and view.
         environment_light = np.zeros((2, 3, 3, n_views))  # all three terms, used or not
         # Burley's factor c0 + r c1 + r^2 c2 per channel and view: under uniform light, or the
         # environment's.
         burley_terms = np.empty((3, 3, n_views))
         for v in range(n_views):
-            _uniform_burley_terms(np.float64(directions[t, v, 2]), burley, burley_terms[:, :, v])
+            uniform_burley_terms(np.float64(directions[t, v, 2]), burley, burley_terms[:, :, v])
         environment_burley = burley and burley_response.shape[2] > 0 and azimuthal.shape[3] > 0
         table_row = np.empty(n_views, dtype=np.int64)
         table_frac = np.empty(n_views)
@@ -1168,11 +569,11 @@ def _squared_residual_kernel(
                 table_row[v] = min(int(x), table.shape[1] - 2)
                 table_frac[v] = x - table_row[v]
         if environment_burley:
-            _environment_burley_terms(n_views, table_row, table_frac, azimuthal[t], burley_response, burley_terms)
+            environment_burley_terms(n_views, table_row, table_frac, azimuthal[t], burley_response, burley_terms)
         if share > 0.0:
-            node, node_frac = _environment_node(roughness[t])
+            node, node_frac = environment_node(roughness[t])
             for side in range(2):
-                _environment_node_lights(response, node + side, n_views, table_row, table_frac, azimuthal[t],
+                environment_node_lights(response, node + side, n_views, table_row, table_frac, azimuthal[t],
                                          environment_light[side])
         # The prefiltered light at its nodes on either side, per channel and view.
         use_prefiltered = n_full > 0 and share < 1.0
@@ -1190,14 +591,14 @@ def _squared_residual_kernel(
                 for axis in range(3):
                     xyz[axis, v] = directions[t, v, axis]
             bitangent = np.empty(3)
-            _cross(normal[t], tangent[t], bitangent)
-            _mirror_stencil(xyz, n_views, tangent[t], normal[t], bitangent, world_to_local, map_height, map_width,
+            cross(normal[t], tangent[t], bitangent)
+            mirror_stencil(xyz, n_views, tangent[t], normal[t], bitangent, world_to_local, map_height, map_width,
                             corner, stencil_frac)
         if use_prefiltered:
-            lower_map, upper_map, map_frac = _prefiltered_nodes_at(roughness[t], 0, n_full, n_views, prefiltered,
+            lower_map, upper_map, map_frac = prefiltered_nodes_at(roughness[t], 0, n_full, n_views, prefiltered,
                                                                    corner, stencil_frac, nodes, cached)
         if use_high:
-            lower_high, upper_high, high_frac = _prefiltered_nodes_at(roughness[t], n_full, n_high, n_views,
+            lower_high, upper_high, high_frac = prefiltered_nodes_at(roughness[t], n_full, n_high, n_views,
                                                                       prefiltered, corner, stencil_frac, nodes, cached)
         # Without the environment light every term reads the same light; Schlick's dielectric needs
         # no light of its own.
@@ -1209,13 +610,13 @@ def _squared_residual_kernel(
             w = np.float64(weight[t, v])
             if w > 0.0:
                 cos_v = np.float64(directions[t, v, 2])
-                scale, bias = _specular_albedo(cos_v, roughness[t], alpha, fresnel, masking, split_sum, table)
-                dielectric = _table_lookup(table, _DIELECTRIC_PLANE, cos_v, roughness[t]) if exact_dielectric else 0.0
+                scale, bias = specular_albedo(cos_v, roughness[t], alpha, fresnel, masking, split_sum, table)
+                dielectric = table_lookup(table, DIELECTRIC_PLANE, cos_v, roughness[t]) if exact_dielectric else 0.0
                 for c in range(3):
                     for term in range(distinct_terms):
                         filtered[term] = 0.0
                         if use_prefiltered:
-                            filtered[term] = _prefiltered_between(nodes, c, v, lower_map, upper_map, map_frac)
+                            filtered[term] = prefiltered_between(nodes, c, v, lower_map, upper_map, map_frac)
                         else:
                             for degree in range(n_degrees):
                                 filtered[term] += kernel[degree] * proj[t, c, degree, v]
@@ -1223,12 +624,12 @@ def _squared_residual_kernel(
                             lower = environment_light[0, term, c, v]
                             light = lower + node_frac * (environment_light[1, term, c, v] - lower)
                             if use_high:
-                                light += _prefiltered_between(nodes, c, v, lower_high, upper_high, high_frac)
+                                light += prefiltered_between(nodes, c, v, lower_high, upper_high, high_frac)
                             filtered[term] = (1.0 - share) * filtered[term] + share * light
                     for term in range(distinct_terms, n_terms):
                         filtered[term] = filtered[0]
                     x, y = scale * filtered[0], bias * filtered[1]
-                    z = dielectric * filtered[2] if exact_dielectric else _DIELECTRIC_F0 * x + y
+                    z = dielectric * filtered[2] if exact_dielectric else DIELECTRIC_F0 * x + y
                     m, b = metallic[t], base_color[t, c]
                     terms = burley_terms[c, :, v]
                     diffuse_factor = terms[0] + roughness[t] * (terms[1] + roughness[t] * terms[2])
@@ -1346,7 +747,7 @@ _GOLDEN = 0.5 * (3.0 - math.sqrt(5.0))
 _SQRT_EPS = math.sqrt(2.2e-16)
 
 
-@_borrowing_jit
+@borrowing_jit
 def _brent_start(state, lower, upper, xtol):
     """Begin minimising on [lower, upper] to absolute tolerance xtol; returns the first point to
     evaluate."""
@@ -1357,7 +758,7 @@ def _brent_start(state, lower, upper, xtol):
     return state[_PROBE]
 
 
-@_borrowing_jit
+@borrowing_jit
 def _brent_seed(state, lower, upper, xtol, x, fx, w, fw, v, fv):
     """Begin minimising on [lower, upper] from three evaluated points: x the best, w the second
     best, v the third (a bracketing grid's node and its neighbours), so that the first step is
@@ -1373,7 +774,7 @@ def _brent_seed(state, lower, upper, xtol, x, fx, w, fw, v, fv):
     return _brent_propose(state)
 
 
-@_borrowing_jit
+@borrowing_jit
 def _brent_next(state, f_probe):
     """Take f at the last point; returns True with the next point in state[_PROBE], or False when
     done, the best point being state[_X] with value state[_FX]."""
@@ -1404,7 +805,7 @@ def _brent_next(state, f_probe):
     return _brent_propose(state)
 
 
-@_borrowing_jit
+@borrowing_jit
 def _brent_propose(state):
     """The next point to evaluate into state[_PROBE] (True), or False when converged."""
     a, b = state[_LO], state[_HI]
@@ -1444,7 +845,7 @@ _NEWTON_MTOL = 1e-10
 _NEWTON_MAX_STEPS = 40
 
 
-@_borrowing_jit
+@borrowing_jit
 def _metallic_quadratics(moments, squared_values, diffuse_scale, quadratics):
     """The loss per channel as q2 b^2 + 2 q1 b + q0 with q2, q1, q0 quadratics in the metallic m:
     quadratics (3, 3, 3) [channel, (q2, q1, q0), coefficient of (1, m, m^2)].
@@ -1472,7 +873,7 @@ def _metallic_quadratics(moments, squared_values, diffuse_scale, quadratics):
         q[c, 2, 2] = s_yy - 2.0 * s_yz + s_zz
 
 
-@_borrowing_jit
+@borrowing_jit
 def _metallic_terms(metallic, quadratics, state):
     """Loss at the best base colour for this metallic (summed over channels) and its first two
     derivatives in the metallic; writes that base colour and the metallic into state[:4].
@@ -1508,7 +909,7 @@ def _metallic_terms(metallic, quadratics, state):
     return total, gradient, curvature
 
 
-@_borrowing_jit
+@borrowing_jit
 def _profile_metallic(quadratics, state, metallic_grid):
     """min over (b, m) of the loss for fixed `_metallic_quadratics`: metallic grid, then safeguarded
     Newton on the derivative in the best cell (bisection where Newton would leave the bracket).
@@ -1552,131 +953,7 @@ def _profile_metallic(quadratics, state, metallic_grid):
     return best_f if last_m == best_m else _metallic_terms(best_m, quadratics, state)[0]
 
 
-@_borrowing_jit
-def _environment_node_lights(response, node, n, table_row, table_frac, azimuthal, out):
-    """out[k, c, s] = the environment light of the three lobe terms k at samples s < n for roughness
-    node ``node`` of response (`environment_response_table`), linear in cos theta_o (table_row,
-    table_frac: each sample's cos node and fraction): the responses times the environment's
-    coefficients in the sample's mirrored view frame, azimuthal (>= n, 3, P)
-    (`environment_azimuthal`). The search evaluates it at the two nodes around a roughness and
-    interpolates."""
-    n_pairs = azimuthal.shape[2]
-    # The three terms at once: they share each coefficient's load and the nine sums stay in
-    # registers (1.6x faster than one term at a time through an interpolated row).
-    for s in range(n):
-        row, fx = table_row[s], table_frac[s]
-        a0 = a1 = a2 = b0 = b1 = b2 = c0 = c1 = c2 = 0.0
-        for pair in range(n_pairs):
-            below = response[0, node, row, pair]
-            scale = below + fx * (response[0, node, row + 1, pair] - below)
-            below = response[1, node, row, pair]
-            bias = below + fx * (response[1, node, row + 1, pair] - below)
-            below = response[2, node, row, pair]
-            dielectric = below + fx * (response[2, node, row + 1, pair] - below)
-            red, green, blue = azimuthal[s, 0, pair], azimuthal[s, 1, pair], azimuthal[s, 2, pair]
-            a0 += scale * red
-            a1 += scale * green
-            a2 += scale * blue
-            b0 += bias * red
-            b1 += bias * green
-            b2 += bias * blue
-            c0 += dielectric * red
-            c1 += dielectric * green
-            c2 += dielectric * blue
-        out[0, 0, s], out[0, 1, s], out[0, 2, s] = a0, a1, a2
-        out[1, 0, s], out[1, 1, s], out[1, 2, s] = b0, b1, b2
-        out[2, 0, s], out[2, 1, s], out[2, 2, s] = c0, c1, c2
-
-
-@numba.njit(cache=True)
-def _n_degrees(n_coeffs):
-    """l* + 1 of (l* + 1)^2 SH coefficients (numba has no math.isqrt)."""
-    return int(math.sqrt(n_coeffs) + 0.5)
-
-
-@_borrowing_jit
-def _local_environment(environment, tangent, normal, bitangent, quadrature, projection, diag, rec_a, rec_b, world,
-                       basis, sh_scratch, values, out):
-    """out (K, 3) = `local_environment` of environment (K, 3) in the frame (tangent, bitangent,
-    normal), with `_environment_quadrature`'s directions (Q, 3) and projection (K, Q); scratch
-    world (3, Q), basis (K, Q), sh_scratch (5, Q), values (3, Q)."""
-    n_points = quadrature.shape[0]
-    for q in range(n_points):
-        for axis in range(3):
-            world[axis, q] = (quadrature[q, 0] * tangent[axis] + quadrature[q, 1] * bitangent[axis]
-                              + quadrature[q, 2] * normal[axis])
-    sh._sh_block(world[0], world[1], world[2], n_points, _n_degrees(environment.shape[0]) - 1, diag, rec_a, rec_b,
-                 basis, sh_scratch)
-    # Loops innermost over the quadrature points, contiguous in basis, values and projection.
-    values[:] = 0.0
-    for k in range(environment.shape[0]):
-        for c in range(3):
-            coefficient = environment[k, c]
-            for q in range(n_points):
-                values[c, q] += coefficient * basis[k, q]
-    for k in range(environment.shape[0]):
-        for c in range(3):
-            total = 0.0
-            for q in range(n_points):
-                total += projection[k, q] * values[c, q]
-            out[k, c] = total
-
-
-@_borrowing_jit
-def _azimuthal_coefficients(xyz, n, local, out):
-    """out (>= n, 3, P) = `environment_azimuthal` of local view directions xyz (3, >= n) from the
-    texel-frame coefficients local (K, 3)."""
-    n_degrees = _n_degrees(local.shape[0])
-    for s in range(n):
-        mirrored_x, mirrored_y = -xyz[0, s], -xyz[1, s]
-        radius = math.sqrt(mirrored_x * mirrored_x + mirrored_y * mirrored_y)
-        # At normal incidence the lobe is symmetric (every m > 0 response is 0): any azimuth does.
-        cos_beta, sin_beta = (mirrored_x / radius, mirrored_y / radius) if radius > 1e-12 else (1.0, 0.0)
-        cos_m, sin_m = 1.0, 0.0
-        for order in range(n_degrees):
-            if order > 0:
-                cos_m, sin_m = cos_m * cos_beta - sin_m * sin_beta, sin_m * cos_beta + cos_m * sin_beta
-            for degree in range(order, n_degrees):
-                pair = degree * (degree + 1) // 2 + order
-                centre = degree * degree + degree
-                for c in range(3):
-                    if order == 0:
-                        out[s, c, pair] = local[centre, c]
-                    else:
-                        out[s, c, pair] = local[centre + order, c] * cos_m + local[centre - order, c] * sin_m
-
-
-@_borrowing_jit
-def _prefiltered_nodes_at(roughness, first, count, n, prefiltered, corner, stencil_frac, nodes, cached):
-    """Where the light of a lobe of ``roughness`` lies among the prefiltered nodes first..first +
-    count - 1 (roughness 0..1 by PREFILTER_STEP), for samples s < n: (lower, upper, fraction),
-    indices into nodes; on a node both are that node and the fraction is 0. The nodes read are
-    looked up once per texel into nodes (cached)."""
-    node, frac = _prefilter_node(roughness, count)
-    lower = first + (node if frac < 1.0 else node + 1)
-    upper = first + (node + 1 if frac > 0.0 else node)
-    for needed in range(lower, upper + 1):
-        if not cached[needed]:
-            _prefiltered_node_light(prefiltered, needed, n, corner, stencil_frac, nodes[needed])
-            cached[needed] = True
-    return lower, upper, (frac if upper != lower else 0.0)
-
-
-@numba.njit(inline="always")
-def _prefiltered_between(nodes, c, s, lower, upper, frac):
-    """Channel c of sample s's light between the nodes `_prefiltered_nodes_at` returned."""
-    value = nodes[lower, c, s]
-    return value + frac * (nodes[upper, c, s] - value) if frac > 0.0 else value
-
-
-@_borrowing_jit
-def _environment_share(roughness, blend):
-    """`environment_weight` for one roughness; blend (start, end)."""
-    ramp = min(max((roughness - blend[0]) / max(blend[1] - blend[0], 1e-12), 0.0), 1.0)
-    return ramp * ramp * (3.0 - 2.0 * ramp)
-
-
-@_borrowing_jit
+@borrowing_jit
 def _roughness_objective(roughness, args):
     """Profiled loss at this roughness: min over base colour and metallic (written to state).
 
@@ -1691,11 +968,11 @@ def _roughness_objective(roughness, args):
      prefiltered, n_full, corner, stencil_frac, prefiltered_nodes, prefiltered_cached,
      high_filtered, table_rows) = args
     # Without the environment (environment light off) the lobes read their own light alone.
-    share = _environment_share(roughness, environment_blend) if azimuthal.shape[2] > 0 else 0.0
+    share = environment_share(roughness, environment_blend) if azimuthal.shape[2] > 0 else 0.0
     # Terms with a light of their own: A and B, and E with the exact dielectric (else Z = 0.04 X + Y).
     n_terms = 3 if exact_dielectric else 2
-    alpha = max(roughness * roughness, _ALPHA_MIN)
-    if split_sum:  # the table's column at this roughness, linear in it (from its rows, `_split_sum_rows`)
+    alpha = max(roughness * roughness, ALPHA_MIN)
+    if split_sum:  # the table's column at this roughness, linear in it (from its rows, `split_sum_rows`)
         y = min(max(roughness, 0.0), 1.0) * (table_rows.shape[1] - 1)
         j = min(int(y), table_rows.shape[1] - 2)
         fy = y - j
@@ -1706,12 +983,12 @@ def _roughness_objective(roughness, args):
             # The environment light at its roughness nodes on either side, each computed once per
             # texel (the search visits few, most of them many times); on a node (the grid's nodes
             # are nodes of the table) the other one is not needed.
-            node, node_frac = _environment_node(roughness)
+            node, node_frac = environment_node(roughness)
             lower_node = node if node_frac < 1.0 else node + 1
             upper_node = node + 1 if node_frac > 0.0 else node
             for needed in range(lower_node, upper_node + 1):
                 if not environment_cached[needed]:
-                    _environment_node_lights(response, needed, n, table_row, table_frac, azimuthal,
+                    environment_node_lights(response, needed, n, table_row, table_frac, azimuthal,
                                              environment_nodes[needed])
                     environment_cached[needed] = True
         for s in range(n):
@@ -1720,14 +997,14 @@ def _roughness_objective(roughness, args):
                 albedo[term, s] = column[term, row] + fx * (column[term, row + 1] - column[term, row])
     else:
         for s in range(n):
-            albedo[0, s], albedo[1, s] = _specular_albedo(cos_theta[s], roughness, alpha, fresnel, masking, False,
+            albedo[0, s], albedo[1, s] = specular_albedo(cos_theta[s], roughness, alpha, fresnel, masking, False,
                                                           table)
     if split_sum and not fresnel:
         for s in range(n):
             albedo[0, s] += albedo[1, s]
             albedo[1, s] = 0.0
-    # Burley's factor is c0 + r c1 + r^2 c2 per channel and sample (`_burley_terms`,
-    # `_environment_burley_terms`); Lambert's is 1.
+    # Burley's factor is c0 + r c1 + r^2 c2 per channel and sample (`burley_polynomial`,
+    # `environment_burley_terms`); Lambert's is 1.
     for c in range(3):
         for s in range(n):
             diffuse_factor[c, s] = burley_terms[c, 0, s] + roughness * (burley_terms[c, 1, s]
@@ -1742,17 +1019,17 @@ def _roughness_objective(roughness, args):
     lower_map = upper_map = lower_high = upper_high = 0
     map_frac = high_frac = 0.0
     if use_prefiltered:
-        lower_map, upper_map, map_frac = _prefiltered_nodes_at(roughness, 0, n_full, n, prefiltered, corner,
+        lower_map, upper_map, map_frac = prefiltered_nodes_at(roughness, 0, n_full, n, prefiltered, corner,
                                                                stencil_frac, prefiltered_nodes, prefiltered_cached)
     # The degrees the environment light leaves out, from the prefiltered maps' last nodes.
     n_high = prefiltered.shape[1] - n_full
     use_high = share > 0.0 and n_high > 0
     if use_high:
-        lower_high, upper_high, high_frac = _prefiltered_nodes_at(roughness, n_full, n_high, n, prefiltered,
+        lower_high, upper_high, high_frac = prefiltered_nodes_at(roughness, n_full, n_high, n, prefiltered,
                                                                   corner, stencil_frac, prefiltered_nodes,
                                                                   prefiltered_cached)
     if use_fitted:
-        _fill_kernel(alpha, sigma, kernel, kernel_derivative)
+        fill_kernel(alpha, sigma, kernel, kernel_derivative)
     # Below, whole indices rather than row views (see `_metallic_quadratics`).
     for c in range(3):
         if use_prefiltered:
@@ -1788,7 +1065,7 @@ def _roughness_objective(roughness, args):
                     model[c, term, s] = keep * model[c, term, s] + share * light if own_light else light
         if not exact_dielectric:
             for s in range(n):
-                model[c, 2, s] = _DIELECTRIC_F0 * model[c, 0, s] + model[c, 1, s]
+                model[c, 2, s] = DIELECTRIC_F0 * model[c, 0, s] + model[c, 1, s]
         s_xd = s_yd = s_zd = s_xx = s_xy = s_xz = s_xf = s_yy = s_yz = s_yf = s_zz = s_zf = 0.0
         for s in range(n):
             x, y, z = model[c, 0, s], model[c, 1, s], model[c, 2, s]  # X = A S_A, Y = B S_B, Z = E S_E
@@ -1820,31 +1097,7 @@ def _roughness_objective(roughness, args):
     return _profile_metallic(quadratics, state, metallic_grid)
 
 
-@_borrowing_jit
-def _burley_terms(cos_theta, out):
-    """(c0, c1, c2) with `burley_diffuse_factor`(cos_theta, r) = c0 + r c1 + r^2 c2, into out[:, 0..2]."""
-    schlick_view = (1.0 - cos_theta) ** 5
-    retro_fresnel = 1.0 / 21.0 + cos_theta / 84.0
-    out[0] = (1.0 - 0.5 * schlick_view) * (1.0 - 0.5 / 21.0)
-    out[1] = schlick_view * (1.0 + 2.0 * cos_theta / 3.0) + retro_fresnel - schlick_view * retro_fresnel
-    out[2] = schlick_view * (1.0 / 21.0 + cos_theta / 42.0 + 11.0 * (1.0 - cos_theta * cos_theta) / 504.0
-                             + cos_theta * cos_theta / 252.0)
-
-
-@_borrowing_jit
-def _uniform_burley_terms(cos_theta, burley, out):
-    """out (3, 3): every channel's (c0, c1, c2) of Burley's uniform-light factor (`_burley_terms`),
-    or Lambert's (1, 0, 0) without ``burley``."""
-    if burley:
-        _burley_terms(cos_theta, out[0])
-    else:
-        out[0, 0], out[0, 1], out[0, 2] = 1.0, 0.0, 0.0
-    for c in range(1, 3):
-        for power in range(3):
-            out[c, power] = out[0, power]
-
-
-@_borrowing_jit
+@borrowing_jit
 def _weighted_sums(n, omega, values, burley_terms, diffuse_moments, squared_values):
     """The roughness-free weighted sums of a texel's samples for `_roughness_objective`, per channel
     c: sum w^2 D_c^2 as a quartic in r (diffuse_moments[c, 0]) and sum w^2 f_c D_c as a quadratic
@@ -1873,49 +1126,7 @@ def _weighted_sums(n, omega, values, burley_terms, diffuse_moments, squared_valu
     return total_weight
 
 
-@_borrowing_jit
-def _environment_burley_terms(n, table_row, table_frac, azimuthal, burley_response, out):
-    """out (3, 3, >= n): per channel, Burley's factor c0 + r c1 + r^2 c2 under the environment's own
-    light (`environment_burley_factor`) from burley_response (4, cos nodes, >= P)
-    (`burley_response_table`) and the samples' azimuthal (>= n, 3, P) coefficients; channels whose
-    Lambert response is not above `_MIN_LAMBERT` x their DC keep what out holds."""
-    n_pairs = min(azimuthal.shape[2], burley_response.shape[2])
-    for s in range(n):
-        row, fx = table_row[s], table_frac[s]
-        # All rows and channels in one pass over the harmonics, the twelve sums in registers (as
-        # `_environment_node_lights`).
-        f0r = f0g = f0b = f1r = f1g = f1b = f2r = f2g = f2b = lr = lg = lb = 0.0
-        for pair in range(n_pairs):
-            red, green, blue = azimuthal[s, 0, pair], azimuthal[s, 1, pair], azimuthal[s, 2, pair]
-            below = burley_response[0, row, pair]
-            power0 = below + fx * (burley_response[0, row + 1, pair] - below)
-            below = burley_response[1, row, pair]
-            power1 = below + fx * (burley_response[1, row + 1, pair] - below)
-            below = burley_response[2, row, pair]
-            power2 = below + fx * (burley_response[2, row + 1, pair] - below)
-            below = burley_response[3, row, pair]
-            lambert = below + fx * (burley_response[3, row + 1, pair] - below)
-            f0r += power0 * red
-            f0g += power0 * green
-            f0b += power0 * blue
-            f1r += power1 * red
-            f1g += power1 * green
-            f1b += power1 * blue
-            f2r += power2 * red
-            f2g += power2 * green
-            f2b += power2 * blue
-            lr += lambert * red
-            lg += lambert * green
-            lb += lambert * blue
-        for c, (power0, power1, power2, lambert) in enumerate(((f0r, f1r, f2r, lr), (f0g, f1g, f2g, lg),
-                                                               (f0b, f1b, f2b, lb))):
-            if lambert > _MIN_LAMBERT * abs(azimuthal[s, c, 0]):
-                out[c, 0, s] = power0 / lambert
-                out[c, 1, s] = power1 / lambert
-                out[c, 2, s] = power2 / lambert
-
-
-@_borrowing_jit
+@borrowing_jit
 def _keep_state(state, best_state):
     """best_state[:] = state, element by element (a slice assignment may allocate, and these
     functions run without numba's runtime)."""
@@ -1923,7 +1134,7 @@ def _keep_state(state, best_state):
         best_state[i] = state[i]
 
 
-@_borrowing_jit
+@borrowing_jit
 def _search_roughness(args, state, roughness_grid, best_state, roughness_brent, node_loss, first_node, last_node,
                       xtol, node_rows, node_moments, sample_weight):
     """Scan the roughness grid's nodes first_node..last_node, then Brent (to xtol) in the best cell
@@ -1969,7 +1180,7 @@ def _search_roughness(args, state, roughness_grid, best_state, roughness_brent, 
     return _brent_run(args, state, best_state, roughness_brent, best_r, best_f, search)
 
 
-@_borrowing_jit
+@borrowing_jit
 def _brent_run(args, state, best_state, roughness_brent, best_r, best_f, search):
     """Brent's search as started in roughness_brent (if ``search``) on the profiled loss: returns the
     best (roughness, loss) of it and of (best_r, best_f), its base colour and metallic in best_state."""
@@ -1982,7 +1193,7 @@ def _brent_run(args, state, best_state, roughness_brent, best_r, best_f, search)
     return best_r, best_f
 
 
-@_borrowing_jit
+@borrowing_jit
 def _record_hypothesis(args, sample_weight, out):
     """out (3, 8): per channel `_specular_moments` of the metal terms the last `_roughness_objective`
     probe left in args (in the order `_roughness_objective` unpacks them), sample weights (n,)."""
@@ -1991,7 +1202,7 @@ def _record_hypothesis(args, sample_weight, out):
         _specular_moments(n, sample_weight, values[c], filtered[c, 0], filtered[c, 1], out[c])
 
 
-@_borrowing_jit
+@borrowing_jit
 def _specular_moments(n, sample_weight, values, scale_terms, bias_terms, out):
     """out = [sum w, sum w u, sum w X, sum w u^2, sum w u X, sum w X^2, sum w f, sum w f^2] over
     samples s < n, with w the sample weight, f the observed radiance, u = f - Y and X, Y a metal's
@@ -2012,7 +1223,7 @@ def _specular_moments(n, sample_weight, values, scale_terms, bias_terms, out):
         out[7] += w * f * f
 
 
-@_borrowing_jit
+@borrowing_jit
 def _residual_magnitudes(n, values, filtered, diffuse_factor, diffuse_scale, params, out):
     """out[s] = |L(w_s) - f_s| over the channels for params [b_rgb, m], with the per-channel model
     terms `_roughness_objective` left in filtered (3, 3, n) and diffuse_factor at their roughness."""
@@ -2028,7 +1239,7 @@ def _residual_magnitudes(n, values, filtered, diffuse_factor, diffuse_scale, par
         out[s] = math.sqrt(total)
 
 
-@_borrowing_jit
+@borrowing_jit
 def _loss_curvature(best_r, centre_f, args):
     """The profiled loss's second divided difference in roughness through its value centre_f at
     best_r and two probes CURVATURE_STEP apart on the side within [0, 1]."""
@@ -2060,14 +1271,14 @@ def _global_search_kernel(
     the incoming light's SH fit; diffuse_scale (n, 3) E / pi; (lmax, diag, rec_a, rec_b) as
     `sh._sh_block` takes them. With a world-frame SH environment (K > 0, 3) the environment light
     (texel frames tangent and normal (n, 3); `environment_filtered_light` with response
-    `environment_response_table` and `_environment_quadrature`'s quadrature (Q, 3) and
+    `environment_response_table` and `environment_quadrature`'s quadrature (Q, 3) and
     quadrature_projection (K, Q)) is blended in over environment_blend (start, end), and with
     burley_response (4, cos nodes, P > 0) (`burley_response_table`) Burley's diffuse is averaged over
     that light (`environment_burley_factor`) instead of uniform light.
     With prefiltered (H W, nodes, 3) maps (`prefiltered_environment` of an H x W map whose
     emitter frame is world_to_local (3, 3) from the world), smooth lobes read them at the world
     mirror directions instead of the fitted light. Else, per texel the light is expanded by
-    degree at its samples (P_c,l(w_v), `_mirror_projections`; fused here to keep it in cache). Then
+    degree at its samples (P_c,l(w_v), `mirror_projections`; fused here to keep it in cache). Then
     the roughness is searched (if ``search``).
     With hypothesis_roughness (R,): `hypothesis_moments` of each texel into hypothesis_moments
     (n, R, 3, 8), those of node_rows (roughness_grid,) (`_node_rows`; (0,): none) recorded by the
@@ -2163,11 +1374,11 @@ def _global_search_chunk(
     quadrature_basis = np.empty((environment.shape[0], n_points))
     quadrature_scratch = np.empty((5, n_points))
     quadrature_values = np.empty((3, n_points))
-    n_environment_degrees = _n_degrees(environment.shape[0])
+    n_environment_degrees = n_sh_degrees(environment.shape[0])
     azimuthal = np.zeros((n_views, 3, n_environment_degrees * (n_environment_degrees + 1) // 2))
     # The environment light per roughness node, lobe term, channel and sample.
-    environment_nodes = np.empty((_ENVIRONMENT_NODES, 3, 3, n_views))
-    environment_cached = np.zeros(_ENVIRONMENT_NODES, dtype=np.bool_)
+    environment_nodes = np.empty((ENVIRONMENT_NODES, 3, 3, n_views))
+    environment_cached = np.zeros(ENVIRONMENT_NODES, dtype=np.bool_)
     bitangent = np.empty(3)
     # The prefiltered light per map node, channel and sample, and each sample's lookup stencil.
     n_prefiltered = prefiltered.shape[1]
@@ -2201,10 +1412,10 @@ def _global_search_chunk(
         far_metallic = voting and abs(candidate[t, 1] - params[t, 4]) * (metallic_grid - 1) > 1.0
         if voting and not ((far_roughness or far_metallic) and 3 * n > FITTED_PARAMETERS):
             continue
-        _cross(normal[t], tangent[t], bitangent)
+        cross(normal[t], tangent[t], bitangent)
         prefiltered_cached[:] = False
         if n_full > 0:
-            _mirror_stencil(xyz, n, tangent[t], normal[t], bitangent, world_to_local, map_height, map_width,
+            mirror_stencil(xyz, n, tangent[t], normal[t], bitangent, world_to_local, map_height, map_width,
                             corner, stencil_frac)
         if n_full == 0:  # the fitted light, expanded by degree at the (normalised) view directions
             for s in range(n):
@@ -2222,17 +1433,17 @@ def _global_search_chunk(
                             packed_proj[c, degree, s] += coefficient * basis[k, s]
         environment_cached[:] = False
         if environment.shape[0] > 0:
-            _local_environment(environment, tangent[t], normal[t], bitangent, quadrature, quadrature_projection,
+            texel_environment(environment, tangent[t], normal[t], bitangent, quadrature, quadrature_projection,
                                diag, rec_a, rec_b, quadrature_world, quadrature_basis, quadrature_scratch,
                                quadrature_values, local_environment)
-            _azimuthal_coefficients(xyz, n, local_environment, azimuthal)
+            azimuthal_coefficients(xyz, n, local_environment, azimuthal)
         for s in range(n):
             x = min(max(packed_cos[s], 0.0), 1.0) * (table.shape[1] - 1)
             table_row[s] = min(int(x), table.shape[1] - 2)
             table_frac[s] = x - table_row[s]
-            _uniform_burley_terms(packed_cos[s], burley, burley_terms[:, :, s])
+            uniform_burley_terms(packed_cos[s], burley, burley_terms[:, :, s])
         if burley and burley_response.shape[2] > 0 and environment.shape[0] > 0:
-            _environment_burley_terms(n, table_row, table_frac, azimuthal, burley_response, burley_terms)
+            environment_burley_terms(n, table_row, table_frac, azimuthal, burley_response, burley_terms)
         total_weight = _weighted_sums(n, omega, values, burley_terms, diffuse_moments, squared_values)
         for c in range(3):
             scale[c] = diffuse_scale[t, c]
@@ -2360,7 +1571,7 @@ def _estimate_paper(observations: Observations, config: Config, reporter: Report
     proj = None
     tick = time.perf_counter()
     if settings.forward_model == "angular":
-        proj = _degree_projections(observations.view_direction, observations.weight, light, observations.lmax)
+        proj = degree_projections(observations.view_direction, observations.weight, light, observations.lmax)
     timings["light"] += time.perf_counter() - tick
 
     with reporter.stage("estimating (paper)", settings.iterations) as advance:
@@ -2396,7 +1607,7 @@ def _refresh(observations, config, params, light, target, proj):
     if settings.shadowing:
         light = _shadowed_light_coeffs(observations, alpha, config.fit)
         if settings.forward_model == "angular":
-            proj = _degree_projections(observations.view_direction, observations.weight, light, observations.lmax)
+            proj = degree_projections(observations.view_direction, observations.weight, light, observations.lmax)
     if settings.masking and settings.forward_model != "angular":
         g1 = brdf.smith_g1_ggx(observations.view_direction[..., 2], alpha[:, None])  # (N, V)
         unmasked = observations.observed / np.maximum(g1, np.finfo(np.float32).tiny)[..., None]
@@ -2480,13 +1691,13 @@ def _angular_l1_gradient_kernel(
     for t in numba.prange(n_texels):
         kernel = np.empty(n_degrees)
         kernel_derivative = np.empty(n_degrees)
-        _fill_kernel(alpha[t], sigma, kernel, kernel_derivative)
+        fill_kernel(alpha[t], sigma, kernel, kernel_derivative)
         for v in range(n_views):
             w = np.float64(weight[t, v])
             if w <= 0.0:
                 continue
             cos_v = np.float64(cos_theta[t, v])
-            g1, g1_derivative = _g1_and_derivative(cos_v, alpha[t]) if masking else (1.0, 0.0)
+            g1, g1_derivative = g1_and_derivative(cos_v, alpha[t]) if masking else (1.0, 0.0)
             schlick = (1.0 - cos_v) ** 5 if fresnel else 0.0
             for c in range(3):
                 filtered = 0.0

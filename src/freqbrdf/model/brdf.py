@@ -193,6 +193,24 @@ def schlick_fresnel(cos_theta: np.ndarray, r0: np.ndarray) -> np.ndarray:
     return r0 + (1.0 - r0) * (1.0 - np.clip(cos_theta, 0.0, 1.0)) ** 5
 
 
+def dielectric_eta() -> float:
+    """The relative index of refraction whose normal reflectance is DIELECTRIC_F0 (1.5)."""
+    root = math.sqrt(DIELECTRIC_F0)
+    return (1.0 + root) / (1.0 - root)
+
+
+def dielectric_fresnel(cos_theta: np.ndarray) -> np.ndarray:
+    """The exact unpolarised Fresnel reflectance of a dielectric of eta `dielectric_eta`, light
+    arriving from outside at cos_theta in [0, 1] to the (micro)surface normal."""
+    cos_theta = np.asarray(cos_theta, dtype=np.float64)
+    eta = dielectric_eta()
+    g = np.sqrt(eta * eta - 1.0 + cos_theta * cos_theta)
+    perpendicular = (g - cos_theta) / (g + cos_theta)
+    ratio = (cos_theta * (g + cos_theta) - 1.0) / np.maximum(cos_theta * (g - cos_theta) + 1.0, 1e-300)
+    return 0.5 * perpendicular**2 * (1.0 + ratio**2)
+
+
+
 def smith_g1_ggx(cos_theta: np.ndarray, alpha: np.ndarray) -> np.ndarray:
     """Exact Smith G1 of the GGX (Trowbridge-Reitz) distribution; broadcasts cos_theta with alpha.
 
