@@ -22,16 +22,18 @@ over [0, pi], computed in one of two ways:
   fine enough for the product's degree. The weighted samples are then truncated in Fourier to
   degree lmax and folded onto lmax + 2 rings, where sums against lambda_lm are still exact.
 
-For a map that is not band-limited the two rules alias the degrees above lmax differently; they
-are the rules of the "CC" geometry of ducc0's analysis, which this module replaced, so the
-coefficients agree with ducc0's to rounding (tests/test_sht.py, docs/measurements.md).
+For a map that is not band-limited the two rules alias the degrees above lmax differently. They
+are the rules of the "CC" geometry of ducc0's analysis, which this module replaced; the second
+differs from ducc0's only where ducc0's own fine grid is too coarse for the product's degree, so
+that its quadrature aliases as well (tests/test_sht.py, docs/measurements.md).
 
 `synthesis` evaluates a band-limited function at a grid's samples exactly.
 
 The associated Legendre functions come from the normalised three-term recurrence in l for each
-m. Their starting values lambda_mm = O(sin^m theta) are flushed to zero below 1e-280 (they would
-turn subnormal, which is slow); the functions they start then stay below 1e-200 for every degree
-this package asks for, far under float64 rounding of the O(1) values that matter.
+m. Near the poles their starting values lambda_mm = O(sin^m theta) underflow at high orders while
+the functions they start can grow back to O(1) at high degrees: below 2^-600 they are carried as
+a mantissa and a power of 2^600 until they grow into the range of doubles, and values below
+2^-600 (about 1e-181) are written as zero.
 
 Everything is float64 and runs in a fixed order: the same input gives the same output bit for bit.
 """
@@ -47,7 +49,9 @@ import scipy.fft
 
 from freqbrdf import sh
 
-_FLUSH = 1e-280  # lambda_mm below this is set to zero (see the module docstring)
+# lambda_mm below 1 / _SCALE is carried as a mantissa and a power of _SCALE (module docstring)
+_SCALE = 2.0**600
+_INV_SCALE = 2.0**-600
 
 
 def check_resolution(height: int, width: int, lmax: int) -> None:
@@ -98,22 +102,26 @@ _BLOCK = 8  # rings per block of the Legendre kernels
 
 
 @numba.njit(fastmath=False, cache=True)
-def _order_start(m, sin_theta, out):
-    """out[i] = lambda_mm(theta_i) = sqrt(2 - delta_m0) N_mm P_m^m(cos theta_i), flushed to zero
-    below _FLUSH (see the module docstring)."""
+def _order_start(m, sin_theta, value, exponent):
+    """lambda_mm(theta_i) = sqrt(2 - delta_m0) N_mm P_m^m(cos theta_i) = value[i] _SCALE^exponent[i],
+    exponent[i] <= 0, with value[i] in [1 / _SCALE, 1) wherever exponent[i] < 0."""
     factor = 1.0 / math.sqrt(4.0 * math.pi)
     if m > 0:
         factor *= math.sqrt(2.0)
     for k in range(1, m + 1):
         factor *= math.sqrt((2.0 * k + 1.0) / (2.0 * k))
     for i in range(sin_theta.shape[0]):
-        value = factor
-        for _ in range(m):
-            value *= sin_theta[i]
-            if value < _FLUSH:
-                value = 0.0
-                break
-        out[i] = value
+        current, power = factor, 0
+        if m > 0 and sin_theta[i] == 0.0:
+            current = 0.0  # on the poles
+        else:
+            for _ in range(m):
+                current *= sin_theta[i]
+                if current < _INV_SCALE:
+                    current *= _SCALE
+                    power -= 1
+        value[i] = current
+        exponent[i] = power
 
 
 @numba.njit(fastmath=False, cache=True)
@@ -131,20 +139,48 @@ def _recurrence(m, lmax):
 
 
 @numba.njit(fastmath=False, cache=True)
-def _legendre_block(factors, cos_theta, start, first, count, out):
-    """out[k, r] = lambda_{m+k, m}(theta_{first + r}) for k = 0..lmax - m, r < count, from
-    start[i] = lambda_mm(theta_i), by the normalised three-term recurrence in the degree with the
-    order's `_recurrence` factors."""
+def _legendre_block(factors, cos_theta, value, exponent, first, count, out):
+    """out[k, r] = lambda_{m+k, m}(theta_{first + r}) for k = 0..lmax - m, r < count, from the
+    `_order_start` of the order, by the normalised three-term recurrence in the degree with the
+    order's `_recurrence` factors.
+
+    Rings whose lambda_mm is below 1 / _SCALE (near the poles, at high orders) run the recurrence
+    on the mantissa and raise its power of _SCALE whenever it passes 1, until the functions grow
+    into the range of doubles; until then they are written as 0 (they are below 2^-600)."""
     n_degrees = factors.shape[1]
     for r in range(count):
-        out[0, r] = start[first + r]
+        out[0, r] = value[first + r] if exponent[first + r] == 0 else 0.0
     if n_degrees > 1:
         for r in range(count):
-            out[1, r] = factors[0, 1] * cos_theta[first + r] * start[first + r]
+            out[1, r] = factors[0, 1] * cos_theta[first + r] * out[0, r]
     for k in range(2, n_degrees):
         a, b = factors[0, k], factors[1, k]
         for r in range(count):
             out[k, r] = a * (cos_theta[first + r] * out[k - 1, r] - b * out[k - 2, r])
+    for r in range(count):
+        power = exponent[first + r]
+        if power == 0:
+            continue
+        x = cos_theta[first + r]
+        previous, current = 0.0, value[first + r]
+        for k in range(1, n_degrees):
+            previous, current = current, factors[0, k] * (x * current - factors[1, k] * previous)
+            if power < 0 and abs(current) > 1.0:
+                previous *= _INV_SCALE
+                current *= _INV_SCALE
+                power += 1
+            out[k, r] = current if power == 0 else 0.0
+
+
+def _legendre_values(m: int, lmax: int, theta: np.ndarray) -> np.ndarray:
+    """(lmax - m + 1, n) lambda_lm(theta) for l = m..lmax at colatitudes theta (n,) in [0, pi / 2]
+    (as the kernels compute them; for the tests)."""
+    theta = np.asarray(theta, dtype=np.float64)
+    value, exponent = np.empty(theta.shape), np.empty(theta.shape, np.int64)
+    _order_start(m, np.sin(theta), value, exponent)
+    out = np.empty((lmax - m + 1, theta.size))
+    _legendre_block(_recurrence(m, lmax), np.cos(theta), value, exponent, 0, theta.size, out)
+    return out
 
 
 @numba.njit(parallel=True, fastmath=False, cache=True)
@@ -155,9 +191,10 @@ def _project_kernel(lmax, cos_theta, sin_theta, even, odd, offsets, out):
     for m in numba.prange(lmax + 1):
         count = lmax - m + 1
         start = np.empty(n_north)
-        _order_start(m, sin_theta, start)
+        exponent = np.empty(n_north, np.int64)
+        _order_start(m, sin_theta, start, exponent)
         values = np.empty((count, n_north))
-        _legendre_block(_recurrence(m, lmax), cos_theta, start, 0, n_north, values)
+        _legendre_block(_recurrence(m, lmax), cos_theta, start, exponent, 0, n_north, values)
         for k in range(count):
             source = even if k % 2 == 0 else odd
             for c in range(n_columns):
@@ -189,7 +226,8 @@ def _evaluate_kernel(lmax, cos_theta, sin_theta, packed, offsets, scale, out):
     for m in numba.prange(lmax + 1):
         count = lmax - m + 1
         start = np.empty(n_north)
-        _order_start(m, sin_theta, start)
+        exponent = np.empty(n_north, np.int64)
+        _order_start(m, sin_theta, start, exponent)
         factors = _recurrence(m, lmax)
         values = np.empty((count, _BLOCK))
         even = np.empty((_BLOCK, n_columns))
@@ -197,7 +235,7 @@ def _evaluate_kernel(lmax, cos_theta, sin_theta, packed, offsets, scale, out):
         row = offsets[m]
         for first in range(0, n_north, _BLOCK):
             rings = min(_BLOCK, n_north - first)
-            _legendre_block(factors, cos_theta, start, first, rings, values)
+            _legendre_block(factors, cos_theta, start, exponent, first, rings, values)
             even[:] = 0.0
             odd[:] = 0.0
             k = 0
@@ -248,6 +286,13 @@ def _ring_spectra(maps: np.ndarray, lmax: int, phi0: float) -> np.ndarray:
     return spectra * ((2.0 * np.pi / width) * np.exp(-1j * orders * phi0))
 
 
+def _fine_circle_points(height: int, lmax: int) -> int:
+    """Points around the meridian circle on which `_interpolation_rule` integrates: the
+    interpolant has degree <= H - 1, its product with lambda_lm degree <= H - 1 + lmax, and the
+    Clenshaw-Curtis rule on the circle's n / 2 + 1 rings is exact up to degree n / 2."""
+    return 2 * scipy.fft.next_fast_len(height - 1 + lmax)
+
+
 @functools.lru_cache(maxsize=16)
 def _interpolation_rule(height: int, lmax: int) -> np.ndarray:
     """(2, lmax + 2, H) read-only: for orders m of each parity (even, odd), the matrix A with
@@ -256,9 +301,7 @@ def _interpolation_rule(height: int, lmax: int) -> np.ndarray:
     theta_n = pi n / (lmax + 1) (the second rule of the module docstring). The steps are linear
     and depend on m only through its parity, so they run once per grid on unit vectors."""
     n_circle = 2 * height - 2
-    # The interpolant (degree <= H - 1) on a circle of n_fine points: the Clenshaw-Curtis rule on
-    # its n_fine / 2 + 1 rings is exact for the product with lambda_lm, of degree <= H - 1 + lmax.
-    n_fine = 2 * scipy.fft.next_fast_len(height - 1 + lmax)
+    n_fine = _fine_circle_points(height, lmax)
     half = clenshaw_curtis_weights(n_fine // 2 + 1)
     circle_weights = np.concatenate([half[:1], 0.5 * half[1:-1], half[-1:], 0.5 * half[-2:0:-1]])
     n_coarse = 2 * lmax + 2
