@@ -40,6 +40,7 @@ Everything is float64 and runs in a fixed order: the same input gives the same o
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import math
 
@@ -52,6 +53,26 @@ from freqbrdf import sh
 # lambda_mm below 1 / _SCALE is carried as a mantissa and a power of _SCALE (module docstring)
 _SCALE = 2.0**600
 _INV_SCALE = 2.0**-600
+
+
+# Multiply-adds of a Legendre kernel below which it runs on one thread: waking numba's other
+# threads costs more than they save on small transforms (docs/measurements.md).
+_PARALLEL_WORK = 2e8
+
+
+@contextlib.contextmanager
+def _threads_for(work: float):
+    """Within the block, numba's parallel kernels use one thread if ``work`` is below
+    _PARALLEL_WORK (each order's sums stay in the same order: the results are the same)."""
+    if work >= _PARALLEL_WORK or numba.get_num_threads() == 1:
+        yield
+        return
+    previous = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        yield
+    finally:
+        numba.set_num_threads(previous)
 
 
 def check_resolution(height: int, width: int, lmax: int) -> None:
@@ -358,7 +379,8 @@ def _project(ring_values: np.ndarray, lmax: int) -> np.ndarray:
     offsets, cosine_index, sine_index = _packing(lmax)
     cos_theta, sin_theta = _northern_nodes(n_rings)
     packed = np.empty((cosine_index.size, 2 * n_maps))
-    _project_kernel(lmax, cos_theta, *_order_starts(lmax, sin_theta), even, odd, offsets, packed)
+    with _threads_for(packed.size * cos_theta.size):
+        _project_kernel(lmax, cos_theta, *_order_starts(lmax, sin_theta), even, odd, offsets, packed)
     coeffs = np.empty((n_maps, sh.num_coeffs(lmax)))
     coeffs[:, sine_index] = packed[:, n_maps:].T  # m = 0 rows write c_l0 here, overwritten next
     coeffs[:, cosine_index] = packed[:, :n_maps].T
@@ -405,5 +427,6 @@ def synthesis(coeffs: np.ndarray, height: int, width: int, phi0: float = 0.0) ->
     # (the fastest block size measured; docs/measurements.md).
     block = int(np.clip(8192 // (2 * n_maps) // 8 * 8, 8, max(8, cos_theta.size)))
     starts, exponents = _order_starts(lmax, sin_theta)
-    _evaluate_kernel(lmax, cos_theta, starts, exponents, packed, offsets, scale, block, spectra)
+    with _threads_for(packed.size * cos_theta.size):
+        _evaluate_kernel(lmax, cos_theta, starts, exponents, packed, offsets, scale, block, spectra)
     return scipy.fft.irfft(spectra, n=width, axis=-1)
