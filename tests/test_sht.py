@@ -178,7 +178,7 @@ def ducc0_analysis(radiance: np.ndarray, lmax: int) -> np.ndarray:
     return np.stack(out)
 
 
-def ducc0_synthesis(coeffs_sh_frame: np.ndarray, height: int, width: int) -> np.ndarray:
+def ducc0_synthesis(coeffs_sh_frame: np.ndarray, height: int, width: int, out: np.ndarray | None = None) -> np.ndarray:
     """`envmap._synthesis` with ducc0: (..., 3, K) -> (..., H, W, 3) float32."""
     import ducc0
 
@@ -187,7 +187,7 @@ def ducc0_synthesis(coeffs_sh_frame: np.ndarray, height: int, width: int) -> np.
     orders, index = _ducc0_index(lmax)
     sign = np.where(np.abs(orders) % 2 == 1, -1.0, 1.0) / math.sqrt(2.0)
     flat = coeffs_sh_frame.reshape(-1, 3, coeffs_sh_frame.shape[-1])
-    out = np.empty((len(flat), height, width, 3), np.float32)
+    given, out = out, np.empty((len(flat), height, width, 3), np.float32)
     for n, channels in enumerate(flat):
         for c, coeffs in enumerate(channels):
             alm = np.zeros((lmax + 1) * (lmax + 2) // 2, np.complex128)
@@ -197,7 +197,11 @@ def ducc0_synthesis(coeffs_sh_frame: np.ndarray, height: int, width: int) -> np.
             out[n, :, :, c] = ducc0.sht.experimental.synthesis_2d(
                 alm=alm[None], spin=0, lmax=lmax, geometry="CC", ntheta=height, nphi=width, phi0=math.pi / width,
             )[0][:, ::-1]
-    return out.reshape(coeffs_sh_frame.shape[:-2] + (height, width, 3))
+    maps = out.reshape(coeffs_sh_frame.shape[:-2] + (height, width, 3))
+    if given is None:
+        return maps
+    given[...] = maps
+    return given
 
 
 def ducc0_fine_points(height: int, lmax: int) -> int:

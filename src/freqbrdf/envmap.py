@@ -235,16 +235,20 @@ def _analysis(radiance: np.ndarray, lmax: int) -> np.ndarray:
     return sht.analysis(sh_frame_maps, lmax, phi0=math.pi / width)
 
 
-def _synthesis(coeffs_sh_frame: np.ndarray, height: int, width: int) -> np.ndarray:
-    """Inverse of `_analysis`: (..., 3, K) SH-frame coefficients -> (..., H, W, 3) float32 maps."""
+def _synthesis(coeffs_sh_frame: np.ndarray, height: int, width: int, out: np.ndarray | None = None) -> np.ndarray:
+    """Inverse of `_analysis`: (..., 3, K) SH-frame coefficients -> (..., H, W, 3) float32 maps,
+    written to ``out`` if given."""
     coeffs_sh_frame = np.asarray(coeffs_sh_frame, dtype=np.float64)
     lmax = sh.lmax_of(coeffs_sh_frame.shape[-1])
     _check_resolution(height, width, lmax)
     leading = coeffs_sh_frame.shape[:-2]
     sh_frame_maps = sht.synthesis(coeffs_sh_frame.reshape(-1, coeffs_sh_frame.shape[-1]), height, width,
                                   phi0=math.pi / width)  # (n 3, H, W)
-    radiance = sh_frame_maps.reshape(leading + (3, height, width))[..., ::-1]
-    return np.ascontiguousarray(np.moveaxis(radiance, -3, -1), dtype=np.float32)
+    radiance = np.moveaxis(sh_frame_maps.reshape(leading + (3, height, width))[..., ::-1], -3, -1)
+    if out is None:
+        return np.ascontiguousarray(radiance, dtype=np.float32)
+    out[...] = radiance
+    return out
 
 
 def lowpass_envmap(envmap: Envmap, sigma: float) -> Envmap:
@@ -283,7 +287,7 @@ def zonal_filters(envmap: Envmap, gains: np.ndarray, height: int | None = None) 
     chunk = max(1, _SYNTHESIS_SAMPLES // (3 * height * width))
     out = np.empty((len(gains), height, width, 3), np.float32)
     for first in range(0, len(gains), chunk):
-        out[first: first + chunk] = _synthesis(filtered[first: first + chunk], height, width)
+        _synthesis(filtered[first: first + chunk], height, width, out=out[first: first + chunk])
     return out
 
 

@@ -204,78 +204,107 @@ def _legendre_values(m: int, lmax: int, theta: np.ndarray) -> np.ndarray:
 _LANES = 8  # partial sums of the projection, added in a fixed order at the end
 
 
+@numba.njit(fastmath=False, cache=True)
+def _paired_order(pair, side, lmax):
+    """The parallel kernels run over pairs of orders (pair, lmax - pair), whose degree counts add
+    to lmax + 2, so that equal chunks of pairs are equal work: the order of this pair and side,
+    or -1 for the middle order's second side."""
+    first, last = np.int64(pair), np.int64(lmax) - np.int64(pair)  # (prange's index may be unsigned)
+    if side == 0:
+        return first
+    return -1 if last == first else last
+
+
+@numba.njit(fastmath=False, cache=True)
+def _project_order(m, lmax, cos_theta, start, exponent, even, odd, row, out):
+    """out[row + k, c] = sum over the northern rings i of lambda_{m+k,m}(theta_i) times even[c, i]
+    (k even) or odd[c, i] (k odd), k = 0..lmax - m. Each sum runs in _LANES interleaved partial
+    sums (vectorised), then adds them pairwise."""
+    n_columns, n_north = even.shape
+    n_full = n_north - n_north % _LANES
+    count = lmax - m + 1
+    values = np.empty((count, n_north))
+    _legendre_block(_recurrence(m, lmax), cos_theta, start, exponent, 0, n_north, values)
+    lanes = np.empty(_LANES)
+    for k in range(count):
+        source = even if k % 2 == 0 else odd
+        for c in range(n_columns):
+            lanes[:] = 0.0
+            for i in range(0, n_full, _LANES):
+                for j in range(_LANES):
+                    lanes[j] += values[k, i + j] * source[c, i + j]
+            for i in range(n_full, n_north):
+                lanes[i - n_full] += values[k, i] * source[c, i]
+            out[row + k, c] = ((lanes[0] + lanes[1]) + (lanes[2] + lanes[3])) + (
+                (lanes[4] + lanes[5]) + (lanes[6] + lanes[7]))
+
+
 @numba.njit(parallel=True, fastmath=False, cache=True)
 def _project_kernel(lmax, cos_theta, starts, exponents, even, odd, offsets, out):
-    """out[offsets[m] + k, c] = sum over the northern rings i of lambda_{m+k,m}(theta_i) times
-    even[m, c, i] (k even) or odd[m, c, i] (k odd); out (sum of orders' degree counts, C).
-    Each sum runs in _LANES interleaved partial sums (vectorised), then adds them pairwise."""
-    n_columns, n_north = even.shape[1], even.shape[2]
-    n_full = n_north - n_north % _LANES
-    for m in numba.prange(lmax + 1):
-        count = lmax - m + 1
-        start, exponent = starts[m], exponents[m]
-        values = np.empty((count, n_north))
-        _legendre_block(_recurrence(m, lmax), cos_theta, start, exponent, 0, n_north, values)
-        lanes = np.empty(_LANES)
-        for k in range(count):
-            source = even if k % 2 == 0 else odd
+    """`_project_order` for every order m: even[m], odd[m] (M, C, northern rings), out (sum of
+    the orders' degree counts, C) in `_packing`'s rows."""
+    for pair in numba.prange((lmax + 2) // 2):
+        for side in range(2):
+            m = _paired_order(pair, side, lmax)
+            if m >= 0:
+                _project_order(m, lmax, cos_theta, starts[m], exponents[m], even[m], odd[m], offsets[m], out)
+
+
+@numba.njit(fastmath=False, cache=True)
+def _evaluate_order(m, lmax, cos_theta, start, exponent, packed, row, scale, block, out):
+    """The order-m azimuthal spectra of band-limited functions at the rings of a P-ring grid
+    (northern rings computed, southern ones by parity): for map b and ring i,
+    out[b, i, m] = scale (G_c - i G_s), G_c/s = sum over l of lambda_lm(theta_i) times
+    packed[row + l - m, b] (cosine parts, columns 0..B-1) or [..., B + b] (sine parts). The
+    northern rings go in blocks of ``block``, the sums' inner loops over a block's rings
+    (vectorised)."""
+    n_north, n_columns = cos_theta.shape[0], packed.shape[1]
+    n_maps, n_rings = out.shape[0], out.shape[1]
+    n_pairs = n_rings // 2
+    count = lmax - m + 1
+    factors = _recurrence(m, lmax)
+    values = np.empty((count, block))
+    even = np.empty((n_columns, block))  # sums over the degrees l with l - m even
+    odd = np.empty((n_columns, block))
+    for first in range(0, n_north, block):
+        rings = min(block, n_north - first)
+        _legendre_block(factors, cos_theta, start, exponent, first, rings, values)
+        even[:] = 0.0
+        odd[:] = 0.0
+        k = 0
+        while k + 2 <= count:
             for c in range(n_columns):
-                lanes[:] = 0.0
-                for i in range(0, n_full, _LANES):
-                    for j in range(_LANES):
-                        lanes[j] += values[k, i + j] * source[m, c, i + j]
-                for i in range(n_full, n_north):
-                    lanes[i - n_full] += values[k, i] * source[m, c, i]
-                out[offsets[m] + k, c] = ((lanes[0] + lanes[1]) + (lanes[2] + lanes[3])) + (
-                    (lanes[4] + lanes[5]) + (lanes[6] + lanes[7]))
+                p0, p1 = packed[row + k, c], packed[row + k + 1, c]
+                for r in range(rings):
+                    even[c, r] += p0 * values[k, r]
+                    odd[c, r] += p1 * values[k + 1, r]
+            k += 2
+        if k < count:
+            for c in range(n_columns):
+                p0 = packed[row + k, c]
+                for r in range(rings):
+                    even[c, r] += p0 * values[k, r]
+        for r in range(rings):
+            ring = first + r
+            for b in range(n_maps):
+                out[b, ring, m] = scale * complex(even[b, r] + odd[b, r], -(even[n_maps + b, r] + odd[n_maps + b, r]))
+            if ring < n_pairs:
+                for b in range(n_maps):
+                    out[b, n_rings - 1 - ring, m] = scale * complex(
+                        even[b, r] - odd[b, r], -(even[n_maps + b, r] - odd[n_maps + b, r]))
 
 
 @numba.njit(parallel=True, fastmath=False, cache=True)
 def _evaluate_kernel(lmax, cos_theta, starts, exponents, packed, offsets, scale, block, out):
-    """The azimuthal spectra of band-limited functions at the rings of a P-ring grid (northern
-    rings computed, southern ones by parity): for map b, ring i and order m,
-    out[b, i, m] = scale[m] (G_c - i G_s), G_c/s = sum over l of lambda_lm(theta_i) times
-    packed[offsets[m] + l - m, b] (cosine parts, columns 0..B-1) or [..., B + b] (sine parts).
-    out (B, P, >= lmax + 1) complex; orders above lmax are left as they are. The northern rings
-    go in blocks of ``block``, the sums' inner loops over a block's rings (vectorised)."""
-    n_north, n_columns = cos_theta.shape[0], packed.shape[1]
-    n_maps, n_rings = out.shape[0], out.shape[1]
-    n_pairs = n_rings // 2
-    for m in numba.prange(lmax + 1):
-        count = lmax - m + 1
-        start, exponent = starts[m], exponents[m]
-        factors = _recurrence(m, lmax)
-        values = np.empty((count, block))
-        even = np.empty((n_columns, block))  # sums over the degrees l with l - m even
-        odd = np.empty((n_columns, block))
-        row = offsets[m]
-        for first in range(0, n_north, block):
-            rings = min(block, n_north - first)
-            _legendre_block(factors, cos_theta, start, exponent, first, rings, values)
-            even[:] = 0.0
-            odd[:] = 0.0
-            k = 0
-            while k + 2 <= count:
-                for c in range(n_columns):
-                    p0, p1 = packed[row + k, c], packed[row + k + 1, c]
-                    for r in range(rings):
-                        even[c, r] += p0 * values[k, r]
-                        odd[c, r] += p1 * values[k + 1, r]
-                k += 2
-            if k < count:
-                for c in range(n_columns):
-                    p0 = packed[row + k, c]
-                    for r in range(rings):
-                        even[c, r] += p0 * values[k, r]
-            for r in range(rings):
-                ring = first + r
-                for b in range(n_maps):
-                    out[b, ring, m] = scale[m] * complex(even[b, r] + odd[b, r],
-                                                         -(even[n_maps + b, r] + odd[n_maps + b, r]))
-                if ring < n_pairs:
-                    for b in range(n_maps):
-                        out[b, n_rings - 1 - ring, m] = scale[m] * complex(
-                            even[b, r] - odd[b, r], -(even[n_maps + b, r] - odd[n_maps + b, r]))
+    """`_evaluate_order` for every order m: packed in `_packing`'s rows (per row the cosine then
+    the sine parts of all B maps), scale (M,), out (B, P, >= lmax + 1) complex; orders above
+    lmax are left as they are."""
+    for pair in numba.prange((lmax + 2) // 2):
+        for side in range(2):
+            m = _paired_order(pair, side, lmax)
+            if m >= 0:
+                _evaluate_order(m, lmax, cos_theta, starts[m], exponents[m], packed, offsets[m], scale[m],
+                                block, out)
 
 
 @functools.lru_cache(maxsize=16)
@@ -379,7 +408,7 @@ def _project(ring_values: np.ndarray, lmax: int) -> np.ndarray:
     offsets, cosine_index, sine_index = _packing(lmax)
     cos_theta, sin_theta = _northern_nodes(n_rings)
     packed = np.empty((cosine_index.size, 2 * n_maps))
-    with _threads_for(packed.size * cos_theta.size):
+    with _threads_for(n_maps * sh.num_coeffs(lmax) * cos_theta.size):
         _project_kernel(lmax, cos_theta, *_order_starts(lmax, sin_theta), even, odd, offsets, packed)
     coeffs = np.empty((n_maps, sh.num_coeffs(lmax)))
     coeffs[:, sine_index] = packed[:, n_maps:].T  # m = 0 rows write c_l0 here, overwritten next
@@ -422,11 +451,12 @@ def synthesis(coeffs: np.ndarray, height: int, width: int, phi0: float = 0.0) ->
     cos_theta, sin_theta = _northern_nodes(height)
     orders = np.arange(lmax + 1)
     scale = np.where(orders == 0, float(width), 0.5 * width) * np.exp(1j * orders * phi0)
-    spectra = np.zeros((n_maps, height, width // 2 + 1), np.complex128)
+    spectra = np.empty((n_maps, height, width // 2 + 1), np.complex128)
+    spectra[..., lmax + 1:] = 0.0
     # Ring blocks whose two (columns x rings) sums take about 128 KiB, within a core's L2 cache
     # (the fastest block size measured; docs/measurements.md).
     block = int(np.clip(8192 // (2 * n_maps) // 8 * 8, 8, max(8, cos_theta.size)))
     starts, exponents = _order_starts(lmax, sin_theta)
-    with _threads_for(packed.size * cos_theta.size):
+    with _threads_for(n_maps * sh.num_coeffs(lmax) * cos_theta.size):
         _evaluate_kernel(lmax, cos_theta, starts, exponents, packed, offsets, scale, block, spectra)
-    return scipy.fft.irfft(spectra, n=width, axis=-1)
+        return scipy.fft.irfft(spectra, n=width, axis=-1, workers=numba.get_num_threads())
