@@ -225,18 +225,23 @@ def _project_order(m, lmax, cos_theta, start, exponent, even, odd, row, out):
     count = lmax - m + 1
     values = np.empty((count, n_north))
     _legendre_block(_recurrence(m, lmax), cos_theta, start, exponent, 0, n_north, values)
-    lanes = np.empty(_LANES)
     for k in range(count):
         source = even if k % 2 == 0 else odd
         for c in range(n_columns):
-            lanes[:] = 0.0
+            s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = 0.0
             for i in range(0, n_full, _LANES):
-                for j in range(_LANES):
-                    lanes[j] += values[k, i + j] * source[c, i + j]
+                s0 += values[k, i] * source[c, i]
+                s1 += values[k, i + 1] * source[c, i + 1]
+                s2 += values[k, i + 2] * source[c, i + 2]
+                s3 += values[k, i + 3] * source[c, i + 3]
+                s4 += values[k, i + 4] * source[c, i + 4]
+                s5 += values[k, i + 5] * source[c, i + 5]
+                s6 += values[k, i + 6] * source[c, i + 6]
+                s7 += values[k, i + 7] * source[c, i + 7]
+            rest = 0.0
             for i in range(n_full, n_north):
-                lanes[i - n_full] += values[k, i] * source[c, i]
-            out[row + k, c] = ((lanes[0] + lanes[1]) + (lanes[2] + lanes[3])) + (
-                (lanes[4] + lanes[5]) + (lanes[6] + lanes[7]))
+                rest += values[k, i] * source[c, i]
+            out[row + k, c] = (((s0 + s1) + (s2 + s3)) + ((s4 + s5) + (s6 + s7))) + rest
 
 
 @numba.njit(parallel=True, fastmath=False, cache=True)
@@ -379,17 +384,32 @@ def _interpolation_rule(height: int, lmax: int) -> np.ndarray:
     return rule
 
 
+@numba.njit(fastmath=False, cache=True)
+def _apply_rule(rule, values, out):
+    """out[b] = rule @ values[b]: rule (N, H), values (B, H, Q), out (B, N, Q), each sum over h in
+    order (numpy's matmul would call a multi-threaded BLAS, which is slow on a busy machine)."""
+    n_maps, height, n_columns = values.shape
+    sums = np.empty(n_columns)
+    for b in range(n_maps):
+        for n in range(rule.shape[0]):
+            sums[:] = 0.0
+            for h in range(height):
+                factor = rule[n, h]
+                for q in range(n_columns):
+                    sums[q] += factor * values[b, h, q]
+            out[b, n, :] = sums
+
+
 def _interpolated_ring_values(spectra: np.ndarray, lmax: int) -> np.ndarray:
     """(B, H, M) ring spectra F -> (B, lmax + 2, M) ring values of `_interpolation_rule`."""
     n_maps, height, n_orders = spectra.shape
     rule = _interpolation_rule(height, lmax)
     out = np.empty((n_maps, lmax + 2, n_orders), np.complex128)
     for parity in (0, 1):
-        columns = spectra[:, :, parity::2].transpose(1, 0, 2).reshape(height, -1)  # (H, B M')
-        count = columns.shape[1]
-        values = rule[parity] @ np.concatenate([columns.real, columns.imag], axis=1)
-        out[:, :, parity::2] = (values[:, :count] + 1j * values[:, count:]).reshape(
-            lmax + 2, n_maps, -1).transpose(1, 0, 2)
+        orders = np.ascontiguousarray(spectra[:, :, parity::2])  # (B, H, M') complex
+        values = np.empty((n_maps, lmax + 2, orders.shape[2]), np.complex128)
+        _apply_rule(rule[parity], orders.view(np.float64), values.view(np.float64))
+        out[:, :, parity::2] = values
     return out
 
 
