@@ -281,13 +281,16 @@ def zonal_filters(envmap: Envmap, gains: np.ndarray, height: int | None = None) 
     # The filter is zonal, so it commutes with rotations: filter in the map's own SH frame and
     # skip the two rotations to and from the world frame (dense and slow at high degree).
     coeffs = _analysis(envmap.radiance, lmax)  # (3, K)
-    filtered = np.multiply(coeffs[None], np.ascontiguousarray(gains[:, sh.sh_degrees(lmax)])[:, None])  # (M, 3, K)
+    gains_by_degree = np.ascontiguousarray(gains[:, sh.sh_degrees(lmax)].T)  # (K, M)
     # Several filters per synthesis (they share its Legendre functions), as many as keep its
     # complex spectra within _SYNTHESIS_SAMPLES.
     chunk = max(1, _SYNTHESIS_SAMPLES // (3 * height * width))
     out = np.empty((len(gains), height, width, 3), np.float32)
     for first in range(0, len(gains), chunk):
-        _synthesis(filtered[first: first + chunk], height, width, out=out[first: first + chunk])
+        # (K, n, 3), by flat index first: the layout the synthesis reads, so it need not transpose
+        part = gains_by_degree[:, first: first + chunk, None] * coeffs.T[:, None, :]
+        count = part.shape[1]
+        _synthesis(part.reshape(len(part), -1).T.reshape(count, 3, -1), height, width, out=out[first: first + count])
     return out
 
 

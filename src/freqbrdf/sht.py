@@ -256,39 +256,45 @@ def _project_kernel(lmax, cos_theta, starts, exponents, even, odd, offsets, out)
 
 
 @numba.njit(fastmath=False, cache=True)
-def _evaluate_order(m, lmax, cos_theta, start, exponent, packed, row, scale, block, out):
+def _evaluate_order(m, lmax, cos_theta, start, exponent, by_degree, scale, block, out):
     """The order-m azimuthal spectra of band-limited functions at the rings of a P-ring grid
     (northern rings computed, southern ones by parity): for map b and ring i,
-    out[b, i, m] = scale (G_c - i G_s), G_c/s = sum over l of lambda_lm(theta_i) times
-    packed[row + l - m, b] (cosine parts, columns 0..B-1) or [..., B + b] (sine parts). The
-    northern rings go in blocks of ``block``, the sums' inner loops over a block's rings
-    (vectorised)."""
-    n_north, n_columns = cos_theta.shape[0], packed.shape[1]
+    out[b, i, m] = scale (G_c - i G_s), G_c = sum over l of lambda_lm(theta_i) by_degree[c_lm, b]
+    and G_s the same with c_l,-m (0 for m = 0); by_degree (K, B) holds the maps' coefficients by
+    flat index. The northern rings go in blocks of ``block``, the sums' inner loops over a
+    block's rings (vectorised)."""
+    n_north = cos_theta.shape[0]
     n_maps, n_rings = out.shape[0], out.shape[1]
     n_pairs = n_rings // 2
     count = lmax - m + 1
+    n_parts = 2 if m > 0 else 1  # cosine and sine parts
     factors = _recurrence(m, lmax)
     values = np.empty((count, block))
-    even = np.empty((n_columns, block))  # sums over the degrees l with l - m even
-    odd = np.empty((n_columns, block))
+    # Sums over the degrees l with l - m even and odd: the cosine parts of all maps, then the sine parts.
+    even = np.zeros((2 * n_maps, block))
+    odd = np.zeros((2 * n_maps, block))
     for first in range(0, n_north, block):
         rings = min(block, n_north - first)
         _legendre_block(factors, cos_theta, start, exponent, first, rings, values)
         even[:] = 0.0
         odd[:] = 0.0
-        k = 0
-        while k + 2 <= count:
-            for c in range(n_columns):
-                p0, p1 = packed[row + k, c], packed[row + k + 1, c]
-                for r in range(rings):
-                    even[c, r] += p0 * values[k, r]
-                    odd[c, r] += p1 * values[k + 1, r]
-            k += 2
-        if k < count:
-            for c in range(n_columns):
-                p0 = packed[row + k, c]
-                for r in range(rings):
-                    even[c, r] += p0 * values[k, r]
+        for k in range(0, count, 2):
+            degree = m + k
+            centre = degree * degree + degree
+            next_centre = centre + 2 * degree + 2  # of degree + 1
+            for part in range(n_parts):
+                order = m if part == 0 else -m
+                for b in range(n_maps):
+                    column = part * n_maps + b
+                    p0 = by_degree[centre + order, b]
+                    if k + 1 < count:
+                        p1 = by_degree[next_centre + order, b]
+                        for r in range(rings):
+                            even[column, r] += p0 * values[k, r]
+                            odd[column, r] += p1 * values[k + 1, r]
+                    else:
+                        for r in range(rings):
+                            even[column, r] += p0 * values[k, r]
         for r in range(rings):
             ring = first + r
             for b in range(n_maps):
@@ -300,16 +306,14 @@ def _evaluate_order(m, lmax, cos_theta, start, exponent, packed, row, scale, blo
 
 
 @numba.njit(parallel=True, fastmath=False, cache=True)
-def _evaluate_kernel(lmax, cos_theta, starts, exponents, packed, offsets, scale, block, out):
-    """`_evaluate_order` for every order m: packed in `_packing`'s rows (per row the cosine then
-    the sine parts of all B maps), scale (M,), out (B, P, >= lmax + 1) complex; orders above
-    lmax are left as they are."""
+def _evaluate_kernel(lmax, cos_theta, starts, exponents, by_degree, scale, block, out):
+    """`_evaluate_order` for every order m: by_degree (K, B), scale (M,), out (B, P, >= lmax + 1)
+    complex; orders above lmax are left as they are."""
     for pair in numba.prange((lmax + 2) // 2):
         for side in range(2):
             m = _paired_order(pair, side, lmax)
             if m >= 0:
-                _evaluate_order(m, lmax, cos_theta, starts[m], exponents[m], packed, offsets[m], scale[m],
-                                block, out)
+                _evaluate_order(m, lmax, cos_theta, starts[m], exponents[m], by_degree, scale[m], block, out)
 
 
 @functools.lru_cache(maxsize=16)
@@ -462,12 +466,7 @@ def synthesis(coeffs: np.ndarray, height: int, width: int, phi0: float = 0.0) ->
     n_maps = coeffs.shape[0]
     lmax = sh.lmax_of(coeffs.shape[1])
     check_resolution(height, width, lmax)
-    offsets, cosine_index, sine_index = _packing(lmax)
-    by_degree = np.ascontiguousarray(coeffs.T)  # (K, B)
-    packed = np.empty((cosine_index.size, 2 * n_maps))  # per row: cosine then sine parts of all maps
-    packed[:, :n_maps] = by_degree[cosine_index]
-    packed[:, n_maps:] = by_degree[sine_index]
-    packed[: lmax + 1, n_maps:] = 0.0  # the rows of m = 0 come first; they have no sine part
+    by_degree = np.ascontiguousarray(coeffs.T)  # (K, B); free if coeffs is the transpose of such an array
     cos_theta, sin_theta = _northern_nodes(height)
     orders = np.arange(lmax + 1)
     scale = np.where(orders == 0, float(width), 0.5 * width) * np.exp(1j * orders * phi0)
@@ -478,5 +477,5 @@ def synthesis(coeffs: np.ndarray, height: int, width: int, phi0: float = 0.0) ->
     block = int(np.clip(8192 // (2 * n_maps) // 8 * 8, 8, max(8, cos_theta.size)))
     starts, exponents = _order_starts(lmax, sin_theta)
     with _threads_for(n_maps * sh.num_coeffs(lmax) * cos_theta.size):
-        _evaluate_kernel(lmax, cos_theta, starts, exponents, packed, offsets, scale, block, spectra)
+        _evaluate_kernel(lmax, cos_theta, starts, exponents, by_degree, scale, block, spectra)
         return scipy.fft.irfft(spectra, n=width, axis=-1, workers=numba.get_num_threads())
