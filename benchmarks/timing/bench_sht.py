@@ -14,6 +14,8 @@ repeat), median wall seconds of:
 - ``lowpass``: `envmap.lowpass_envmap` at sigma = 1 / 8 (64 views; degree 30).
 
 ducc0 runs as freqbrdf called it (one thread); ours with numba's default threads and with one.
+Wall and CPU seconds (all threads), and their ratios ours / ducc0 (medians over the maps of each
+map's ratio).
 Accuracy: max over the maps of max |ours - ducc0| / max |ducc0|, for the coefficients at every
 degree above and at 128 and 200 (between the rules, where ducc0's intermediate grid is coarser
 than its product's degree), and for the filtered maps. Also the first call (numba's cache
@@ -111,16 +113,15 @@ def relative(ours, reference):
 
 
 def interleaved(ours, theirs, repeats=REPEATS):
-    """Median seconds of ours and of theirs, run alternately."""
-    times_ours, times_theirs = [], []
+    """Median wall and CPU seconds (all threads; time.process_time, less sensitive to other load
+    on a shared machine) of ours and of theirs, run alternately: ((wall, cpu), (wall, cpu))."""
+    samples = {"ours": [], "theirs": []}
     for _ in range(repeats):
-        start = time.perf_counter()
-        ours()
-        times_ours.append(time.perf_counter() - start)
-        start = time.perf_counter()
-        theirs()
-        times_theirs.append(time.perf_counter() - start)
-    return statistics.median(times_ours), statistics.median(times_theirs)
+        for name, run in (("ours", ours), ("theirs", theirs)):
+            wall, cpu = time.perf_counter(), time.process_time()
+            run()
+            samples[name].append((time.perf_counter() - wall, time.process_time() - cpu))
+    return tuple(tuple(statistics.median(column) for column in zip(*samples[name])) for name in ("ours", "theirs"))
 
 
 def workloads(envmap):
@@ -177,9 +178,12 @@ def main():
             for name, (ours, theirs) in workloads(envmap).items():
                 per_map.setdefault(name, []).append(interleaved(ours, theirs))
         timings[f"ours_{threads}_threads_vs_ducc0_1_thread"] = {
-            name: {"ours_s": round(statistics.median(t for t, _ in values), 4),
-                   "ducc0_s": round(statistics.median(t for _, t in values), 4),
-                   "ratio_ours_over_ducc0": round(statistics.median(a / b for a, b in values), 2)}
+            name: {"ours_wall_s": round(statistics.median(a[0] for a, _ in values), 4),
+                   "ducc0_wall_s": round(statistics.median(b[0] for _, b in values), 4),
+                   "ratio_wall": round(statistics.median(a[0] / b[0] for a, b in values), 2),
+                   "ours_cpu_s": round(statistics.median(a[1] for a, _ in values), 4),
+                   "ducc0_cpu_s": round(statistics.median(b[1] for _, b in values), 4),
+                   "ratio_cpu": round(statistics.median(a[1] / max(b[1], 1e-9) for a, b in values), 2)}
             for name, values in per_map.items()}
     numba.set_num_threads(default_threads)
     control_after = control_seconds()
@@ -193,7 +197,7 @@ def main():
         "first_call_s": round(first_call, 3),
         "control_s": {"before": round(control_before, 3), "after": round(control_after, 3)},
         "accuracy_max_relative_difference": {name: float(f"{value:.2e}") for name, value in accuracy.items()},
-        "median_seconds_over_maps": timings,
+        "median_over_maps": timings,
     })
 
 
