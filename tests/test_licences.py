@@ -31,7 +31,8 @@ from packaging.utils import canonicalize_name
 # - MPL-2.0 (weak, file-level copyleft), by decision: it would let freqbrdf be used unmodified,
 #   but whoever ships an MPL-covered file must offer that file's source under the MPL, an
 #   obligation beyond keeping notices that users of freqbrdf would inherit unawares. A
-#   dependency under MPL-2.0 needs a decision of its own: an entry in EXPLICIT saying why.
+#   dependency under MPL-2.0 needs a decision of its own: an entry in WEAK_COPYLEFT_ACCEPTED
+#   saying why.
 FAMILIES = {
     "MIT": {
         "spdx": {"MIT", "MIT-0"},
@@ -91,6 +92,11 @@ EXPLICIT = {
     # xatlas library it wraps (https://github.com/jpcy/xatlas/blob/master/LICENSE).
     "xatlas": "MIT",
 }
+
+# Distributions under a weak-copyleft licence (MPL-2.0 only) accepted one by one, each with the
+# reason; none so far.
+WEAK_COPYLEFT = {"MPL-2.0", "Mozilla Public License 2.0 (MPL 2.0)"}
+WEAK_COPYLEFT_ACCEPTED: dict[str, str] = {}
 
 SPDX_IDS = {spdx: family for family, forms in FAMILIES.items() for spdx in forms["spdx"]}
 CLASSIFIER_FAMILIES = {c: family for family, forms in FAMILIES.items() for c in forms["classifiers"]}
@@ -209,10 +215,29 @@ def classify(name: str, expression: str | None, license_field: str | None, class
     return Verdict(True, described)
 
 
+def weak_copyleft_only(fields: tuple[str | None, str | None, list[str]]) -> bool:
+    """Whether every licence the metadata names is MPL-2.0 (as expression, License or classifier)."""
+    expression, license_field, classifiers = fields
+    named = [expression] if expression else [
+        *(c.removeprefix("License :: OSI Approved :: ") for c in classifiers if c.startswith("License ::")),
+        *([license_field.strip()] if license_field and "\n" not in license_field.strip() else [])]
+    return bool(named) and all(name in WEAK_COPYLEFT for name in named)
+
+
+def accepted_verdict(name: str, expression: str | None, license_field: str | None,
+                     classifiers: list[str], accepted: dict[str, str]) -> Verdict:
+    """`classify`, but a distribution under MPL-2.0 only that ``accepted`` names passes, with its reason."""
+    verdict = classify(name, expression, license_field, classifiers)
+    key = canonicalize_name(name)
+    if not verdict.permissive and key in accepted and weak_copyleft_only((expression, license_field, classifiers)):
+        return Verdict(True, f"{verdict.licences} (weak copyleft, accepted: {accepted[key]})")
+    return verdict
+
+
 def distribution_verdict(distribution: metadata.Distribution) -> Verdict:
     fields = distribution.metadata
-    return classify(fields["Name"], fields.get("License-Expression"), fields.get("License"),
-                    fields.get_all("Classifier") or [])
+    return accepted_verdict(fields["Name"], fields.get("License-Expression"), fields.get("License"),
+                            fields.get_all("Classifier") or [], WEAK_COPYLEFT_ACCEPTED)
 
 
 def root_requirements() -> list[str]:
@@ -317,6 +342,17 @@ def test_spdx_expressions_are_read_with_their_operators(expression, permissive):
 ])
 def test_classifiers_and_license_fields_are_read_strictly(license_field, classifiers, permissive):
     assert classify("example", None, license_field, classifiers).permissive is permissive
+
+
+def test_a_weak_copyleft_dependency_passes_only_once_accepted_by_name():
+    mpl = ("MPL-2.0", None, [])
+    assert not accepted_verdict("certifi", *mpl, {}).permissive
+    assert accepted_verdict("certifi", *mpl, {"certifi": "a reason"}).permissive
+    assert accepted_verdict("certifi", None, "MPL-2.0", ["License :: OSI Approved :: Mozilla Public License 2.0 (MPL 2.0)"],
+                            {"certifi": "a reason"}).permissive
+    assert not accepted_verdict("other", *mpl, {"certifi": "a reason"}).permissive
+    assert not accepted_verdict("certifi", "MPL-2.0 AND GPL-3.0-only", None, [], {"certifi": "a reason"}).permissive
+    assert not accepted_verdict("certifi", "GPL-3.0-only", None, [], {"certifi": "a reason"}).permissive
 
 
 def test_explicit_mappings_are_for_metadata_that_cannot_be_read():
