@@ -20,6 +20,8 @@ import pytest
 import ray
 
 from freqbrdf import batch
+from freqbrdf.batch import state, tasks
+from freqbrdf.batch.runner import TEST_HOOKS_VARIABLE
 from freqbrdf.errors import InputError
 from freqbrdf.outputs.fit_folder import load_fit
 from freqbrdf.synthetic.synth import SynthSettings, synthesize
@@ -231,7 +233,7 @@ def test_batch_resumes_and_redoes_only_what_changed(cluster, captures, tmp_path)
 def test_killed_worker_is_retried(cluster, captures, tmp_path, monkeypatch):
     """The first attempt of `a` kills its own worker with SIGKILL mid-fit (fault injection): Ray
     retries it and the batch finishes with complete outputs."""
-    monkeypatch.setenv(batch.TEST_HOOKS_VARIABLE, json.dumps({"kill_first_attempt": ["a"]}))
+    monkeypatch.setenv(TEST_HOOKS_VARIABLE, json.dumps({"kill_first_attempt": ["a"]}))
     manifest = write_csv(tmp_path / "m.csv", ["name,capture,texture_res,evaluate,report",
                                               f"a,{captures / 'bunny'},32,false,false"])
     summary = batch.run(manifest, tmp_path / "out", workers=2)
@@ -250,7 +252,7 @@ def test_ctrl_c_keeps_finished_captures(cluster, captures, tmp_path):
     manifest = write_csv(tmp_path / "m.csv", ["name,capture,texture_res,evaluate,report",
                                               f"a,{captures / 'bunny'},32,false,false",
                                               f"b,{captures / 'sphere'},32,false,false"])
-    env = {**os.environ, batch.TEST_HOOKS_VARIABLE: json.dumps({"sleep_s": {"b": 120}})}
+    env = {**os.environ, TEST_HOOKS_VARIABLE: json.dumps({"sleep_s": {"b": 120}})}
     command = subprocess.Popen([sys.executable, "-m", "freqbrdf.cli", "batch", str(manifest), "--out", str(out),
                                 "--workers", "1", "--quiet"], env=env, start_new_session=True,
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -328,7 +330,7 @@ def test_fresh_process_makes_the_same_outputs_as_fit(captures, tmp_path):
             "work": str(out / batch.WORK_FOLDER / "work" / "a"), "settings": settings,
             "settings_hash": batch.settings_hash(settings), "version": __version__, "hooks": {},
             "attempt": 1, "started_at": time.time()}
-    row = batch._in_fresh_process(spec)
+    row = tasks.in_fresh_process(spec)
     assert row["status"] == "done" and row["fresh_process"], row
     config = batch.capture_config(settings)
     direct = pipeline.write_fit(tmp_path / "direct", pipeline.fit(load(captures / "bunny"), config), config)
@@ -340,4 +342,4 @@ def test_fresh_process_makes_the_same_outputs_as_fit(captures, tmp_path):
             for key in made.files:
                 assert np.array_equal(made[key], expected[key], equal_nan=made[key].dtype.kind == "f"), key
     entry = batch.ManifestEntry("a", (captures / "bunny").resolve(), settings, "test")
-    assert batch._up_to_date(entry, out) is not None
+    assert state.up_to_date(entry, out) is not None

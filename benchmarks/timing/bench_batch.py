@@ -116,9 +116,9 @@ def ray_start_seconds(runs: int = 2) -> list[float]:
 
 def hash_seconds(capture: Path) -> float:
     """Seconds to hash one capture's inputs, as each batch task does (page cache warm)."""
-    code = ("import time; from freqbrdf import batch; from freqbrdf.capture.layouts import load; "
+    code = ("import time; from freqbrdf.batch import state; from freqbrdf.capture.layouts import load; "
             f"capture = load({str(capture)!r}); start = time.perf_counter(); "
-            "batch._input_record(*batch._capture_inputs(capture)); print(time.perf_counter() - start)")
+            "state.input_record(*state.capture_inputs(capture)); print(time.perf_counter() - start)")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     return float(done.stdout.strip().splitlines()[-1])
 
