@@ -265,7 +265,7 @@ def test_brent_matches_scipy_fminbound(seeded):
     # the minimum to its tolerance; seeded with three bracketing nodes, in fewer evaluations.
     from scipy.optimize import fminbound
 
-    from freqbrdf.estimate import _PROBE, _X, _brent_next, _brent_seed, _brent_start
+    from freqbrdf.estimate._profile_kernels import _X, PROBE, brent_next, brent_seed, brent_start
 
     def function(x):
         return (x - 0.3137) ** 2 * (1.0 + 3.0 * x) + 0.1 * (x - 0.3137) ** 3
@@ -276,14 +276,14 @@ def test_brent_matches_scipy_fminbound(seeded):
         nodes = (0.125, 0.3125, 0.5)
         values = [function(x) for x in nodes]
         order = np.argsort(values)
-        searching = _brent_seed(state, lower, upper, xtol, *[v for i in order for v in (nodes[i], values[i])])
+        searching = brent_seed(state, lower, upper, xtol, *[v for i in order for v in (nodes[i], values[i])])
     else:
-        _brent_start(state, lower, upper, xtol)
+        brent_start(state, lower, upper, xtol)
         searching = True
     evaluations = 0
     while searching:
         evaluations += 1
-        searching = _brent_next(state, function(state[_PROBE]))
+        searching = brent_next(state, function(state[PROBE]))
     reference, _, _, calls = fminbound(function, lower, upper, xtol=xtol, full_output=True)
     assert abs(state[_X] - reference) < 2 * xtol
     assert abs(state[_X] - 0.3137) < 2 * xtol
@@ -641,7 +641,7 @@ def test_global_optimum_is_never_worse_than_paper(truth):
 
 
 def test_neighbour_median_leaves_out_the_texel_and_missing_values(unshadowed):
-    from freqbrdf.estimate import neighbour_median
+    from freqbrdf.estimate.search import neighbour_median
 
     res = unshadowed.texture_res  # texels row-major in a res x res texture
     values = np.arange(unshadowed.n_texels, dtype=np.float64)
@@ -672,7 +672,8 @@ def test_neighbour_vote_moves_only_texels_whose_data_allow_it(truth, unshadowed)
     changed = moved | (voted.metallic != own.metallic)
     assert 0 < moved.sum() and changed.sum() < len(changed)
     cell = 1.0 / (NO_SHADOWING.estimate.roughness_grid - 1)
-    from freqbrdf.estimate import FITTED_PARAMETERS, neighbour_median
+    from freqbrdf.estimate import FITTED_PARAMETERS
+    from freqbrdf.estimate.search import neighbour_median
 
     candidate = neighbour_median(noisy, own.roughness)
     assert np.all(np.abs(voted.roughness[moved] - candidate[moved]) < cell)
@@ -775,7 +776,7 @@ def test_estimators_are_deterministic(truth, method):
 
 @pytest.mark.parametrize("forward_model", ["angular", "sh_coeffs", "spectrum"])
 def test_paper_gradients_match_finite_differences(unshadowed, forward_model):
-    from freqbrdf import estimate as estimate_module
+    from freqbrdf.estimate import paper
 
     settings = EstimateConfig(method="paper", forward_model=forward_model, shadowing=False)
     rng = np.random.default_rng(10)
@@ -800,7 +801,7 @@ def test_paper_gradients_match_finite_differences(unshadowed, forward_model):
                                                 sigma=unshadowed.sigma)
         return np.sum(np.abs(predicted - sh.power_spectrum(target)), axis=(1, 2)) / (texture_texels * 3 * (LMAX + 1))
 
-    gradient = estimate_module._data_gradient(unshadowed, settings, params, light, target, proj, texture_texels)
+    gradient = paper._data_gradient(unshadowed, settings, params, light, target, proj, texture_texels)
     step = 1e-6
     for p in range(5):
         shifted_up, shifted_down = params.copy(), params.copy()
@@ -813,12 +814,12 @@ def test_paper_gradients_match_finite_differences(unshadowed, forward_model):
 
 
 def test_total_variation_gradient_matches_finite_differences():
-    from freqbrdf import estimate as estimate_module
+    from freqbrdf.estimate import paper
 
     res = 6
     mask = np.random.default_rng(11).uniform(size=res * res) > 0.3
     texel_index = np.arange(res * res)
-    neighbours = estimate_module._texture_neighbours(res, texel_index, mask)
+    neighbours = paper._texture_neighbours(res, texel_index, mask)
     params = np.random.default_rng(12).uniform(size=(res * res, 5))
 
     def tv(p):  # the prototype's masked 3x3 stencil, written out on the image
@@ -834,7 +835,7 @@ def test_total_variation_gradient_matches_finite_differences():
                             total += np.abs(image[a, b] - image[i, j]).sum()
         return total
 
-    gradient = estimate_module._tv_gradient(params, neighbours, 1.0)
+    gradient = paper._tv_gradient(params, neighbours, 1.0)
     for t in np.flatnonzero(mask)[:5]:
         for p in range(5):
             up, down = params.copy(), params.copy()
@@ -897,7 +898,7 @@ def test_metallic_profile_derivatives_match_finite_differences_and_brute_force()
     # The global search profiles the metallic with Newton on analytic derivatives of the loss at
     # the best (clipped) base colour; check them against finite differences, and the profile's
     # minimum against a dense scan, on moments of random samples.
-    from freqbrdf import estimate as estimate_module
+    from freqbrdf.estimate import _profile_kernels as profile
 
     rng = np.random.default_rng(7)
     n = 40
@@ -909,11 +910,11 @@ def test_metallic_profile_derivatives_match_finite_differences_and_brute_force()
     squared_values = np.sum(omega * f * f, axis=1)
     diffuse_scale = np.array([1.0, 0.8, 1.2])
     quadratics = np.empty((3, 3, 3))
-    estimate_module._metallic_quadratics(moments, squared_values, diffuse_scale, quadratics)
+    profile.metallic_quadratics(moments, squared_values, diffuse_scale, quadratics)
     state = np.empty(4)
 
     def terms(m):
-        return estimate_module._metallic_terms(m, quadratics, state)
+        return profile.metallic_terms(m, quadratics, state)
 
     # The quadratics are the loss sum_v w (b (m X + (1 - m) e D) + m Y + (1 - m) Z - f)^2, directly.
     for m in (0.0, 0.3, 1.0):
@@ -928,7 +929,7 @@ def test_metallic_profile_derivatives_match_finite_differences_and_brute_force()
         above, below = terms(m + step), terms(m - step)
         np.testing.assert_allclose(gradient, (above[0] - below[0]) / (2 * step), rtol=1e-4, atol=1e-8)
         np.testing.assert_allclose(curvature, (above[1] - below[1]) / (2 * step), rtol=1e-4, atol=1e-6)
-    profiled = estimate_module._profile_metallic(quadratics, state, 4)
+    profiled = profile.profile_metallic(quadratics, state, 4)
     scan = min(terms(m)[0] for m in np.linspace(0.0, 1.0, 20001))
     assert profiled <= scan + 1e-12
 
@@ -939,7 +940,7 @@ def test_metallic_profile_leaves_its_winner_in_state(true_metallic):
     # path it takes (a pure dielectric, not the last node evaluated; Newton inside a cell; a pure
     # metal, the last node), state must hold the returned loss's base colour and metallic. Data
     # of metallic beyond [0, 1] put the optimum on the bounds.
-    from freqbrdf import estimate as estimate_module
+    from freqbrdf.estimate import _profile_kernels as profile
 
     rng = np.random.default_rng(11)
     n = 30
@@ -950,13 +951,13 @@ def test_metallic_profile_leaves_its_winner_in_state(true_metallic):
     f = base_color * (m * x + (1 - m) * d) + m * y + (1 - m) * z + rng.normal(0.0, 0.01, (3, n))
     moments = _metallic_moments(omega, x, y, z, d, f)
     quadratics = np.empty((3, 3, 3))
-    estimate_module._metallic_quadratics(moments, np.sum(omega * f * f, axis=1), np.ones(3), quadratics)
+    profile.metallic_quadratics(moments, np.sum(omega * f * f, axis=1), np.ones(3), quadratics)
     state = np.empty(4)
-    profiled = estimate_module._profile_metallic(quadratics, state, 4)
+    profiled = profile.profile_metallic(quadratics, state, 4)
     winner = state.copy()
     assert winner[3] == pytest.approx(min(max(true_metallic, 0.0), 1.0), abs=5e-3)
     check = np.empty(4)
-    assert estimate_module._metallic_terms(winner[3], quadratics, check)[0] == profiled
+    assert profile.metallic_terms(winner[3], quadratics, check)[0] == profiled
     np.testing.assert_array_equal(check, winner)
 
 

@@ -6,8 +6,9 @@ Before commit 8e664ea smooth texels were estimated too rough (on the demo captur
 model's loss at the true parameters above that at the estimate): below r = 0.3 the estimator's
 lobes read the per-texel SH fit (l* = 5) of the mirrored samples, which cannot hold a smooth
 lobe's sharp reflections. This benchmark scores these lights with the same brute-force
-least-squares search (41 roughness nodes, the metallic profiled by `estimate._profile_metallic`,
-no Brent, no robust pass), so that only the smooth lobes' light differs:
+least-squares search (41 roughness nodes, the metallic profiled by
+`estimate._profile_kernels.profile_metallic`, no Brent, no robust pass), so that only the smooth
+lobes' light differs:
 
 - ``fitted``: the estimator's light (the fitted light, blended over roughness 0.3-0.6 into its
   environment light, `model.light.environment_filtered_light`);
@@ -37,6 +38,7 @@ import numpy as np
 from freqbrdf import estimate as est
 from freqbrdf.capture.layouts import load
 from freqbrdf.config import Config, EstimateConfig, TexelConfig
+from freqbrdf.estimate import _profile_kernels as profile
 from freqbrdf.model.light import (
     environment_azimuthal,
     environment_filtered_light,
@@ -78,8 +80,8 @@ def profile_texels(x, y, z, diffuse, values, omega, diffuse_scale, out_state, ou
                 for k in range(14):
                     moments[c, k] += o * terms[k]
                 squared[c] += o * f * f
-        est._metallic_quadratics(moments, squared, diffuse_scale[t], quadratics)
-        out_loss[t] = est._profile_metallic(quadratics, state, 4)
+        profile.metallic_quadratics(moments, squared, diffuse_scale[t], quadratics)
+        out_loss[t] = profile.profile_metallic(quadratics, state, 4)
         out_state[t] = state
 
 

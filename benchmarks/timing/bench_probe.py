@@ -28,9 +28,9 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from freqbrdf import estimate
 from freqbrdf.capture.layouts import load
 from freqbrdf.config import Config, TexelConfig
+from freqbrdf.estimate import search
 from freqbrdf.observe.observations import observe
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/: _common and scenes
@@ -48,7 +48,7 @@ def kernel_seconds(observations, settings, roughness: list[float], repeats: int)
     hypotheses = np.asarray(roughness, np.float64)
     moments = np.zeros((n, len(hypotheses), 3, 8))
     params, loss, curvature = np.zeros((n, 5)), np.zeros(n), np.zeros(n)
-    return median_seconds(lambda: estimate._run_search_kernel(
+    return median_seconds(lambda: search.run_search_kernel(
         observations, settings, observations.mirrored_coeffs, hypotheses, moments, False, params, loss, curvature),
         repeats)
 
