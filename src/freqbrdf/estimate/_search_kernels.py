@@ -7,6 +7,7 @@ neighbour vote and the hypotheses' moments, and the model's squared residual.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -20,6 +21,12 @@ from freqbrdf.estimate._profile_kernels import (
     metallic_terms,
     profile_metallic,
 )
+from freqbrdf.estimate._records import (
+    EnvironmentLight,
+    ModelOptions,
+    ModelTables,
+    PrefilteredLight,
+)
 from freqbrdf.model._kernels import (
     azimuthal_coefficients,
     borrowing_jit,
@@ -31,14 +38,15 @@ from freqbrdf.model._kernels import (
     fill_kernel,
     mirror_stencil,
     n_sh_degrees,
-    prefiltered_between,
     prefiltered_nodes_at,
     specular_albedo,
     texel_environment,
     uniform_burley_terms,
 )
 from freqbrdf.model.brdf import ALPHA_MIN, DIELECTRIC_F0
-from freqbrdf.model.tables import DIELECTRIC_PLANE, ENVIRONMENT_NODES, LOBE_TERMS, table_lookup
+from freqbrdf.model.tables import (
+    ENVIRONMENT_NODES,
+)
 from freqbrdf.sphere import harmonics as sh
 
 # A robust pass scans the roughness nodes within this many cells of the previous optimum.
@@ -62,132 +70,92 @@ _BRENT_COARSE_XTOL = 1e-3
 CURVATURE_STEP = 0.05
 
 
-@numba.njit(parallel=True, fastmath=True, cache=True)
-def squared_residual_kernel(
-    proj, directions, weight, observed, diffuse_scale, base_color, metallic, roughness, sigma, fresnel, masking,
-    split_sum, exact_dielectric, burley, table, response, burley_response, azimuthal, environment_blend, tangent,
-    normal, prefiltered, n_full, world_to_local, map_height, map_width, out,
-):
-    """out[t] = sum_v,c w^2 (L - f)^2 / sum_v w^2 (0 without samples); directions (n, V, 3) local
-    view directions. proj (n, 3, l*+1, V): `mirror_projections`. The specular is
-    m (b X + Y) + (1 - m) Z with X = A S_A, Y = B S_B (S_k: the light filtered for term k,
-    `lobe_filtered_light`) and Z = E S_E with ``exact_dielectric``, else Schlick's 0.04 X + Y.
-    With azimuthal (n, V, 3, P > 0)
-    (`environment_azimuthal`) each S_k is blended towards the environment light
-    (`environment_filtered_light`; response `environment_response_table`), and with burley_response
-    (4, cos nodes, P > 0) Burley's diffuse is averaged over its light (`environment_burley_factor`).
-    With prefiltered maps (H W, nodes, 3) the lobes read `prefiltered_light` (texel frames tangent
-    and normal (n, 3)) instead of proj."""
-    n_texels, n_views = weight.shape
-    n_degrees = proj.shape[2]
-    n_terms = len(LOBE_TERMS)
-    for t in numba.prange(n_texels):
-        alpha = max(roughness[t] * roughness[t], ALPHA_MIN)
-        kernel = np.empty(n_degrees)
-        fill_kernel(alpha, sigma, kernel, np.empty(n_degrees))
-        filtered = np.empty(n_terms)
-        share = environment_share(roughness[t], environment_blend) if azimuthal.shape[3] > 0 else 0.0
-        # The environment light at the roughness nodes on either side, per term, channel and view.
-        environment_light = np.zeros((2, 3, 3, n_views))  # all three terms, used or not
-        # Burley's factor c0 + r c1 + r^2 c2 per channel and view: under uniform light, or the
-        # environment's.
-        burley_terms = np.empty((3, 3, n_views))
-        for v in range(n_views):
-            uniform_burley_terms(np.float64(directions[t, v, 2]), burley, burley_terms[:, :, v])
-        environment_burley = burley and burley_response.shape[2] > 0 and azimuthal.shape[3] > 0
-        table_row = np.empty(n_views, dtype=np.int64)
-        table_frac = np.empty(n_views)
-        if share > 0.0 or environment_burley:
-            for v in range(n_views):
-                x = min(max(np.float64(directions[t, v, 2]), 0.0), 1.0) * (table.shape[1] - 1)
-                table_row[v] = min(int(x), table.shape[1] - 2)
-                table_frac[v] = x - table_row[v]
-        if environment_burley:
-            environment_burley_terms(n_views, table_row, table_frac, azimuthal[t], burley_response, burley_terms)
-        if share > 0.0:
-            node, node_frac = environment_node(roughness[t])
-            for side in range(2):
-                environment_node_lights(response, node + side, n_views, table_row, table_frac, azimuthal[t],
-                                         environment_light[side])
-        # The prefiltered light at its nodes on either side, per channel and view.
-        use_prefiltered = n_full > 0 and share < 1.0
-        n_high = prefiltered.shape[1] - n_full
-        use_high = n_high > 0 and share > 0.0
-        nodes = np.empty((prefiltered.shape[1], 3, n_views))
-        cached = np.zeros(prefiltered.shape[1], dtype=np.bool_)
-        lower_map = upper_map = lower_high = upper_high = 0  # the full and the high nodes
-        map_frac = high_frac = 0.0
-        corner = np.zeros((4, n_views), dtype=np.int64)
-        stencil_frac = np.zeros((2, n_views))
-        if use_prefiltered or use_high:
-            xyz = np.empty((3, n_views))
-            for v in range(n_views):
-                for axis in range(3):
-                    xyz[axis, v] = directions[t, v, axis]
-            bitangent = np.empty(3)
-            cross(normal[t], tangent[t], bitangent)
-            mirror_stencil(xyz, n_views, tangent[t], normal[t], bitangent, world_to_local, map_height, map_width,
-                            corner, stencil_frac)
-        if use_prefiltered:
-            lower_map, upper_map, map_frac = prefiltered_nodes_at(roughness[t], 0, n_full, n_views, prefiltered,
-                                                                   corner, stencil_frac, nodes, cached)
-        if use_high:
-            lower_high, upper_high, high_frac = prefiltered_nodes_at(roughness[t], n_full, n_high, n_views,
-                                                                      prefiltered, corner, stencil_frac, nodes, cached)
-        # Without the environment light every term reads the same light; Schlick's dielectric needs
-        # no light of its own.
-        distinct = share > 0.0
-        distinct_terms = (n_terms if exact_dielectric else n_terms - 1) if distinct else 1
-        total = 0.0
-        weight_sq = 0.0
-        for v in range(n_views):
-            w = np.float64(weight[t, v])
-            if w > 0.0:
-                cos_v = np.float64(directions[t, v, 2])
-                scale, bias = specular_albedo(cos_v, roughness[t], alpha, fresnel, masking, split_sum, table)
-                dielectric = table_lookup(table, DIELECTRIC_PLANE, cos_v, roughness[t]) if exact_dielectric else 0.0
-                for c in range(3):
-                    for term in range(distinct_terms):
-                        filtered[term] = 0.0
-                        if use_prefiltered:
-                            filtered[term] = prefiltered_between(nodes, c, v, lower_map, upper_map, map_frac)
-                        else:
-                            for degree in range(n_degrees):
-                                filtered[term] += kernel[degree] * proj[t, c, degree, v]
-                        if share > 0.0:
-                            lower = environment_light[0, term, c, v]
-                            light = lower + node_frac * (environment_light[1, term, c, v] - lower)
-                            if use_high:
-                                light += prefiltered_between(nodes, c, v, lower_high, upper_high, high_frac)
-                            filtered[term] = (1.0 - share) * filtered[term] + share * light
-                    for term in range(distinct_terms, n_terms):
-                        filtered[term] = filtered[0]
-                    x, y = scale * filtered[0], bias * filtered[1]
-                    z = dielectric * filtered[2] if exact_dielectric else DIELECTRIC_F0 * x + y
-                    m, b = metallic[t], base_color[t, c]
-                    terms = burley_terms[c, :, v]
-                    diffuse_factor = terms[0] + roughness[t] * (terms[1] + roughness[t] * terms[2])
-                    residual = (m * (b * x + y) + (1.0 - m) * z
-                                + (1.0 - m) * b * diffuse_scale[t, c] * diffuse_factor - observed[t, v, c])
-                    total += w * w * residual * residual
-                weight_sq += w * w
-        out[t] = total / weight_sq if weight_sq > 0.0 else 0.0
+class Texel(NamedTuple):
+    """One texel's n samples of weight > 0, packed (views innermost), and what the search prepared."""
+
+    n: int
+    cos_theta: np.ndarray  # (V,) cos theta_o
+    omega: np.ndarray  # (V,) each sample's weight in the loss: w^2, or a robust pass's
+    proj: np.ndarray  # (3, l*+1, V) the fitted light by degree at the samples (`mirror_projections`)
+    values: np.ndarray  # (3, V) the observed radiance
+    table_row: np.ndarray  # (V,) int64 each sample's cos theta_o node of the tables
+    table_frac: np.ndarray  # (V,) and the fraction towards the next node
+    burley_terms: np.ndarray  # (3, 3, V) Burley's factor c0 + r c1 + r^2 c2 per channel
+    diffuse_moments: np.ndarray  # (3, 2, 5) `_weighted_sums`
+    squared_values: np.ndarray  # (3,) sum omega f^2 per channel
+    diffuse_scale: np.ndarray  # (3,) E / pi
+    azimuthal: np.ndarray  # (V, 3, P) the environment in each sample's mirrored view frame
+    corner: np.ndarray  # (4, V) int64 the prefiltered maps' lookup stencil (`mirror_stencil`)
+    stencil_frac: np.ndarray  # (2, V)
+
+
+class Probe(NamedTuple):
+    """What a probe of the profiled loss writes: its model terms, scratch and caches per texel."""
+
+    column: np.ndarray  # (3, cos nodes) the split-sum table at the probe's roughness
+    kernel: np.ndarray  # (l*+1,) the BRDF kernel
+    kernel_derivative: np.ndarray  # (l*+1,)
+    albedo: np.ndarray  # (3, V) A, B, E
+    diffuse_factor: np.ndarray  # (3, V) D per channel
+    own_filtered: np.ndarray  # (V,) the lobe's own light of one channel
+    filtered: np.ndarray  # (3, 3, V) per channel X, Y, Z
+    moments: np.ndarray  # (3, 14) `metallic_quadratics`' weighted sums
+    quadratics: np.ndarray  # (3, 3, 3)
+    state: np.ndarray  # (4,) the probe's base colour and metallic
+    environment_nodes: np.ndarray  # (environment nodes, 3, 3, V) the environment light per node
+    environment_cached: np.ndarray  # (environment nodes,) bool
+    prefiltered_nodes: np.ndarray  # (maps, 3, V) the prefiltered light per map node
+    prefiltered_cached: np.ndarray  # (maps,) bool
+    high_filtered: np.ndarray  # (V,) the degrees above the environment light's, one channel
+
+
+class Objective(NamedTuple):
+    """The profiled loss of one texel as a function of its roughness (`_roughness_objective`)."""
+
+    texel: Texel
+    probe: Probe
+    options: ModelOptions
+    tables: ModelTables
+    environment: EnvironmentLight
+    prefiltered: PrefilteredLight
+    metallic_grid: int
+
+
+class SearchBuffers(NamedTuple):
+    """A chunk's buffers for the roughness search."""
+
+    roughness_grid: int
+    best_state: np.ndarray  # (4,) the best probe's base colour and metallic
+    brent: np.ndarray  # (13,) Brent's state
+    node_loss: np.ndarray  # (roughness_grid,) the loss at the grid's nodes
+    sample_weight: np.ndarray  # (V,) w of each packed sample
 
 
 @borrowing_jit
-def _roughness_objective(roughness, args):
+def _roughness_objective(roughness, objective):
     """Profiled loss at this roughness: min over base colour and metallic (written to state).
 
     Per sample, only the specular albedo (A, B, E) and the diffuse factor D depend on the roughness
     besides the kernel; their roughness-free parts were prepared per texel
     (`global_search_kernel`).
     """
-    (n, cos_theta, omega, proj, values, sigma, fresnel, masking, split_sum, exact_dielectric, burley, table,
-     table_row, table_frac, burley_terms, diffuse_moments, column, kernel, kernel_derivative,
-     albedo, diffuse_factor, own_filtered, filtered, moments, quadratics, squared_values, diffuse_scale,
-     state, metallic_grid, azimuthal, environment_blend, environment_nodes, environment_cached, response,
-     prefiltered, n_full, corner, stencil_frac, prefiltered_nodes, prefiltered_cached,
-     high_filtered, table_rows) = args
+    texel, probe, options, tables = objective.texel, objective.probe, objective.options, objective.tables
+    n, cos_theta, omega, proj, values = texel.n, texel.cos_theta, texel.omega, texel.proj, texel.values
+    table_row, table_frac, burley_terms = texel.table_row, texel.table_frac, texel.burley_terms
+    diffuse_moments, squared_values, diffuse_scale = texel.diffuse_moments, texel.squared_values, texel.diffuse_scale
+    azimuthal, corner, stencil_frac = texel.azimuthal, texel.corner, texel.stencil_frac
+    column, kernel, kernel_derivative, albedo = probe.column, probe.kernel, probe.kernel_derivative, probe.albedo
+    diffuse_factor, own_filtered, filtered = probe.diffuse_factor, probe.own_filtered, probe.filtered
+    moments, quadratics, state = probe.moments, probe.quadratics, probe.state
+    environment_nodes, environment_cached = probe.environment_nodes, probe.environment_cached
+    prefiltered_nodes, prefiltered_cached, high_filtered = (probe.prefiltered_nodes, probe.prefiltered_cached,
+                                                            probe.high_filtered)
+    sigma, fresnel, masking = options.sigma, options.fresnel, options.masking
+    split_sum, exact_dielectric = options.split_sum, options.exact_dielectric
+    table, table_rows, response = tables.split_sum, tables.split_sum_rows, tables.environment_response
+    environment_blend = objective.environment.blend
+    prefiltered, n_full = objective.prefiltered.maps, objective.prefiltered.n_full
+    metallic_grid = objective.metallic_grid
     # Without the environment (environment light off) the lobes read their own light alone.
     share = environment_share(roughness, environment_blend) if azimuthal.shape[2] > 0 else 0.0
     # Terms with a light of their own: A and B, and E with the exact dielectric (else Z = 0.04 X + Y).
@@ -356,22 +324,23 @@ def _keep_state(state, best_state):
 
 
 @borrowing_jit
-def _search_roughness(args, state, roughness_grid, best_state, roughness_brent, node_loss, first_node, last_node,
-                      xtol, node_rows, node_moments, sample_weight):
+def _search_roughness(objective, buffers, first_node, last_node, xtol, node_rows, node_moments):
     """Scan the roughness grid's nodes first_node..last_node, then Brent (to xtol) in the best cell
     unless the loss rises inwards from a boundary node. Brent starts from the parabola through the
     best node and its neighbours when the scan holds them. The best evaluation seen wins: returns
     (roughness, loss), its base colour and metallic in best_state (`_roughness_objective` leaves
-    each probe's in state, the array in args). node_loss (roughness_grid,) scratch. A node whose
+    each probe's in objective.probe.state). A node whose
     node_rows entry (`_node_rows`; (0,): none) is a row i >= 0 records its hypothesis moments into
-    node_moments[i] (R, 3, 8), with the samples' weights sample_weight (n,)."""
+    node_moments[i] (R, 3, 8), with the samples' weights buffers.sample_weight (n,)."""
+    state, roughness_grid, best_state = objective.probe.state, buffers.roughness_grid, buffers.best_state
+    roughness_brent, node_loss, sample_weight = buffers.brent, buffers.node_loss, buffers.sample_weight
     cell = 1.0 / (roughness_grid - 1)
     best_node, best_r, best_f = first_node, 0.0, np.inf
     for i in range(first_node, last_node + 1):
         r = i / (roughness_grid - 1)
-        node_loss[i] = _roughness_objective(r, args)
+        node_loss[i] = _roughness_objective(r, objective)
         if node_rows.shape[0] > 0 and node_rows[i] >= 0:
-            _record_hypothesis(args, sample_weight, node_moments[node_rows[i]])
+            _record_hypothesis(objective, sample_weight, node_moments[node_rows[i]])
         if node_loss[i] < best_f:
             best_node, best_r, best_f = i, r, node_loss[i]
             _keep_state(state, best_state)
@@ -391,22 +360,24 @@ def _search_roughness(args, state, roughness_grid, best_state, roughness_brent, 
         search = not on_boundary
         if on_boundary:
             probe = node_r + (_BRENT_XTOL if node_r == 0.0 else -_BRENT_XTOL)
-            f = _roughness_objective(probe, args)
+            f = _roughness_objective(probe, objective)
             search = f < node_f
             if f < best_f:
                 best_r, best_f = probe, f
                 _keep_state(state, best_state)
         if search:
             brent_start(roughness_brent, max(node_r - cell, 0.0), min(node_r + cell, 1.0), xtol)
-    return _brent_run(args, state, best_state, roughness_brent, best_r, best_f, search)
+    return _brent_run(objective, buffers, best_r, best_f, search)
 
 
 @borrowing_jit
-def _brent_run(args, state, best_state, roughness_brent, best_r, best_f, search):
-    """Brent's search as started in roughness_brent (if ``search``) on the profiled loss: returns the
-    best (roughness, loss) of it and of (best_r, best_f), its base colour and metallic in best_state."""
+def _brent_run(objective, buffers, best_r, best_f, search):
+    """Brent's search as started in buffers.brent (if ``search``) on the profiled loss: returns the
+    best (roughness, loss) of it and of (best_r, best_f), its base colour and metallic in
+    buffers.best_state."""
+    state, best_state, roughness_brent = objective.probe.state, buffers.best_state, buffers.brent
     while search:
-        f = _roughness_objective(roughness_brent[PROBE], args)
+        f = _roughness_objective(roughness_brent[PROBE], objective)
         if f < best_f:
             best_r, best_f = roughness_brent[PROBE], f
             _keep_state(state, best_state)
@@ -415,10 +386,10 @@ def _brent_run(args, state, best_state, roughness_brent, best_r, best_f, search)
 
 
 @borrowing_jit
-def _record_hypothesis(args, sample_weight, out):
+def _record_hypothesis(objective, sample_weight, out):
     """out (3, 8): per channel `_specular_moments` of the metal terms the last `_roughness_objective`
-    probe left in args (in the order `_roughness_objective` unpacks them), sample weights (n,)."""
-    n, values, filtered = args[0], args[4], args[22]
+    probe left in objective.probe.filtered, sample weights (n,)."""
+    n, values, filtered = objective.texel.n, objective.texel.values, objective.probe.filtered
     for c in range(3):
         _specular_moments(n, sample_weight, values[c], filtered[c, 0], filtered[c, 1], out[c])
 
@@ -461,7 +432,7 @@ def _residual_magnitudes(n, values, filtered, diffuse_factor, diffuse_scale, par
 
 
 @borrowing_jit
-def _loss_curvature(best_r, centre_f, args):
+def _loss_curvature(best_r, centre_f, objective):
     """The profiled loss's second divided difference in roughness through its value centre_f at
     best_r and two probes CURVATURE_STEP apart on the side within [0, 1]."""
     first_r = best_r + CURVATURE_STEP if best_r < CURVATURE_STEP else best_r - CURVATURE_STEP
@@ -471,21 +442,15 @@ def _loss_curvature(best_r, centre_f, args):
         second_r = best_r - 2.0 * CURVATURE_STEP
     else:
         second_r = best_r + CURVATURE_STEP
-    first_f = _roughness_objective(first_r, args)
-    second_f = _roughness_objective(second_r, args)
+    first_f = _roughness_objective(first_r, objective)
+    second_f = _roughness_objective(second_r, objective)
     return 2.0 * ((first_f - centre_f) / (first_r - best_r) - (second_f - centre_f) / (second_r - best_r)) / (
         first_r - second_r)
 
 
 @numba.njit(parallel=True, fastmath=True, cache=True)
-def global_search_kernel(
-    directions, weight, observed, light, diffuse_scale, sigma, fresnel, masking, split_sum, exact_dielectric, burley,
-    table, table_rows, roughness_grid, metallic_grid, robust_passes, lmax, diag, rec_a, rec_b,
-    tangent, normal, environment, environment_blend, response, quadrature, quadrature_projection, burley_response,
-    prefiltered, n_full, world_to_local, map_height, map_width, hypothesis_roughness,
-    hypothesis_moments, node_rows, search, candidate,
-    params, loss, curvature,
-):
+def global_search_kernel(samples, light, recurrence, options, tables, environment, prefiltered, settings, hypotheses,
+                         candidate, estimates):
     """Per texel: the (base colour, roughness, metallic) of least weighted squared residual.
 
     directions (n, V, 3) local view directions; weight (n, V); observed (n, V, 3); light (n, 3, K)
@@ -509,7 +474,7 @@ def global_search_kernel(
     roughness (n,) (`MaterialEstimate.roughness_curvature`) for texels with samples; others are
     left untouched.
     """
-    n_chunks = (weight.shape[0] + _SEARCH_CHUNK - 1) // _SEARCH_CHUNK
+    n_chunks = (samples.weight.shape[0] + _SEARCH_CHUNK - 1) // _SEARCH_CHUNK
     # numba hands each thread a contiguous run of items: where the texels the cameras see lie in
     # one half of the texture, the other thread would wait (sphere: search 5.0 -> 3.8 s scattered).
     stride = scattering_stride(n_chunks)
@@ -517,13 +482,8 @@ def global_search_kernel(
         # np.int64: the loop index is unsigned in numba's parallel code and signed when typed: one
         # signature, not two (each compiles the whole search).
         chunk = (np.int64(item) * stride) % n_chunks
-        _global_search_chunk(chunk, directions, weight, observed, light, diffuse_scale, sigma, fresnel,
-                             masking, split_sum, exact_dielectric, burley, table, table_rows,
-                             roughness_grid, metallic_grid, robust_passes, lmax, diag, rec_a, rec_b, tangent, normal,
-                             environment, environment_blend, response, quadrature, quadrature_projection,
-                             burley_response, prefiltered, n_full, world_to_local, map_height, map_width,
-                             hypothesis_roughness, hypothesis_moments, node_rows, search, candidate,
-                             params, loss, curvature)
+        _global_search_chunk(chunk, samples, light, recurrence, options, tables, environment, prefiltered, settings,
+                             hypotheses, candidate, estimates)
 
 
 @numba.njit(cache=True)
@@ -537,17 +497,24 @@ def scattering_stride(n_items):
 
 
 @numba.njit(fastmath=True, cache=True)
-def _global_search_chunk(
-    chunk, directions, weight, observed, light, diffuse_scale, sigma, fresnel, masking, split_sum,
-    exact_dielectric, burley, table, table_rows, roughness_grid, metallic_grid, robust_passes, lmax,
-    diag, rec_a, rec_b, tangent, normal, environment, environment_blend, response, quadrature,
-    quadrature_projection, burley_response, prefiltered, n_full, world_to_local, map_height,
-    map_width, hypothesis_roughness, hypothesis_moments, node_rows, search, candidate, params, loss,
-    curvature,
-):
+def _global_search_chunk(chunk, samples, light, recurrence, options, tables, environment_light, prefiltered_light,
+                         settings, hypotheses, candidate, estimates):
     """`global_search_kernel`'s work for the texels of one chunk: a function of its own, so that
     numba's parallel passes see a small loop (on the whole body they took much of the kernel's
     compile time)."""
+    directions, weight, observed = samples.view_direction, samples.weight, samples.observed
+    diffuse_scale, tangent, normal = samples.diffuse_scale, samples.tangent, samples.normal
+    lmax, diag, rec_a, rec_b = recurrence.lmax, recurrence.diag, recurrence.rec_a, recurrence.rec_b
+    burley = options.burley
+    table, burley_response = tables.split_sum, tables.burley_response
+    environment = environment_light.coeffs
+    quadrature, quadrature_projection = environment_light.quadrature, environment_light.projection
+    prefiltered, n_full = prefiltered_light.maps, prefiltered_light.n_full
+    world_to_local, map_height, map_width = prefiltered_light.world_to_local, prefiltered_light.height, prefiltered_light.width
+    roughness_grid, metallic_grid = settings.roughness_grid, settings.metallic_grid
+    robust_passes, search = settings.robust_passes, settings.search
+    hypothesis_roughness, hypothesis_moments, node_rows = hypotheses.roughness, hypotheses.moments, hypotheses.node_rows
+    params, loss, curvature = estimates.params, estimates.loss, estimates.curvature
     n_texels, n_views = weight.shape
     n_degrees = lmax + 1
     n_coeffs = n_degrees * n_degrees
@@ -608,8 +575,12 @@ def _global_search_chunk(
     corner = np.empty((4, n_views), dtype=np.int64)
     stencil_frac = np.empty((2, n_views))
     high_filtered = np.empty(n_views)
+    probe = Probe(column, kernel, kernel_derivative, albedo, diffuse_factor, own_filtered, filtered, moments,
+                  quadratics, state, environment_nodes, environment_cached, prefiltered_nodes, prefiltered_cached,
+                  high_filtered)
+    buffers = SearchBuffers(roughness_grid, best_state, roughness_brent, node_loss, sample_weight)
     for t in range(chunk * _SEARCH_CHUNK, min((chunk + 1) * _SEARCH_CHUNK, n_texels)):
-        # np.int64, np.bool_ and below: a literal constant where a variable goes (here into args)
+        # np.int64, np.bool_ and below: a literal constant where a variable goes (here into a record)
         # makes numba compile the callee once more for the literal's type.
         n = np.int64(0)
         for v in range(n_views):
@@ -668,16 +639,13 @@ def _global_search_chunk(
         total_weight = _weighted_sums(n, omega, values, burley_terms, diffuse_moments, squared_values)
         for c in range(3):
             scale[c] = diffuse_scale[t, c]
-        args = (n, packed_cos, omega, packed_proj, values, sigma, fresnel, masking, split_sum, exact_dielectric,
-                burley, table, table_row, table_frac, burley_terms, diffuse_moments, column,
-                kernel, kernel_derivative, albedo, diffuse_factor, own_filtered, filtered, moments, quadratics,
-                squared_values, scale, state, metallic_grid, azimuthal, environment_blend, environment_nodes,
-                environment_cached, response, prefiltered, n_full, corner, stencil_frac,
-                prefiltered_nodes, prefiltered_cached, high_filtered, table_rows)
+        texel = Texel(n, packed_cos, omega, packed_proj, values, table_row, table_frac, burley_terms, diffuse_moments,
+                      squared_values, scale, azimuthal, corner, stencil_frac)
+        objective = Objective(texel, probe, options, tables, environment_light, prefiltered_light, metallic_grid)
         for i in range(hypothesis_roughness.shape[0]):
             if not scanned[i]:
-                _roughness_objective(hypothesis_roughness[i], args)
-                _record_hypothesis(args, sample_weight, hypothesis_moments[t, i])
+                _roughness_objective(hypothesis_roughness[i], objective)
+                _record_hypothesis(objective, sample_weight, hypothesis_moments[t, i])
         if voting:
             # The neighbour vote. A likelihood-ratio test bounds what it may cost: the profiled
             # least-squares loss may exceed the estimate's by _VOTE_CHI2 times the noise variance
@@ -686,21 +654,20 @@ def _global_search_chunk(
             # cell from the estimate: another minimum). Then metallic: the candidate's, base
             # colour profiled, at the roughness kept.
             estimate_r = params[t, 3]
-            estimate_f = _roughness_objective(estimate_r, args)
+            estimate_f = _roughness_objective(estimate_r, objective)
             limit = estimate_f + _VOTE_CHI2 * estimate_f / (3 * n - FITTED_PARAMETERS)
             voted_r = estimate_r
             if far_roughness:
                 cell = 1.0 / (roughness_grid - 1)
                 lower, upper = max(candidate[t, 0] - cell, 0.0), min(candidate[t, 0] + cell, 1.0)
                 brent_start(roughness_brent, lower, upper, _BRENT_XTOL)
-                local_r, local_f = _brent_run(args, state, best_state, roughness_brent, 0.0, np.inf,
-                                              np.bool_(True))
+                local_r, local_f = _brent_run(objective, buffers, 0.0, np.inf, np.bool_(True))
                 margin = _VOTE_MARGIN * cell
                 interior = ((local_r - lower > margin or lower == 0.0)
                             and (upper - local_r > margin or upper == 1.0))
                 if interior and abs(local_r - estimate_r) > cell and local_f <= limit:
                     voted_r = local_r
-            profiled_f = _roughness_objective(voted_r, args)  # state: its base colour, metallic
+            profiled_f = _roughness_objective(voted_r, objective)  # state: its base colour, metallic
             voted_f = profiled_f
             metallic_voted = False
             if abs(candidate[t, 1] - state[3]) * (metallic_grid - 1) > 1.0:
@@ -715,22 +682,20 @@ def _global_search_chunk(
             params[t, 0], params[t, 1], params[t, 2] = state[0], state[1], state[2]
             params[t, 3], params[t, 4] = voted_r, state[3]
             loss[t] = max(voted_f, 0.0) / total_weight
-            curvature[t] = _loss_curvature(voted_r, profiled_f, args) / total_weight
+            curvature[t] = _loss_curvature(voted_r, profiled_f, objective) / total_weight
             continue
         if not search:
             continue
         # A robust pass refines the roughness to _BRENT_XTOL: this search need only find its cell.
         first_xtol = _BRENT_COARSE_XTOL if robust_passes > 0 else _BRENT_XTOL
-        best_r, best_f = _search_roughness(args, state, roughness_grid, best_state, roughness_brent, node_loss,
-                                           np.int64(0), roughness_grid - 1, first_xtol, node_rows,
-                                           hypothesis_moments[t] if node_rows.shape[0] > 0 else no_moments,
-                                           sample_weight)
+        best_r, best_f = _search_roughness(objective, buffers, np.int64(0), roughness_grid - 1, first_xtol, node_rows,
+                                           hypothesis_moments[t] if node_rows.shape[0] > 0 else no_moments)
         if robust_passes > 0:
             # Towards the paper's L1 loss sum_v w |r_v| (IRLS): weight each sample by
             # w / max(|r|, delta), delta a tenth of the texel's mean |r| so that near-exact
             # samples do not take over, and search again.
             for _ in range(robust_passes):
-                best_f = _roughness_objective(best_r, args)
+                best_f = _roughness_objective(best_r, objective)
                 best_state[:] = state
                 _residual_magnitudes(n, values, filtered, diffuse_factor, scale, best_state, residual)
                 weighted_residual = weight_sum = 0.0
@@ -745,10 +710,9 @@ def _global_search_chunk(
                 _weighted_sums(n, omega, values, burley_terms, diffuse_moments, squared_values)
                 # Re-weighting moves the optimum locally: scan the nodes within one cell of it.
                 node = int(round(best_r * (roughness_grid - 1)))
-                best_r, best_f = _search_roughness(args, state, roughness_grid, best_state, roughness_brent,
-                                                   node_loss, max(node - _ROBUST_NODES, 0),
+                best_r, best_f = _search_roughness(objective, buffers, max(node - _ROBUST_NODES, 0),
                                                    min(node + _ROBUST_NODES, roughness_grid - 1), _BRENT_XTOL,
-                                                   no_rows, no_moments, sample_weight)
+                                                   no_rows, no_moments)
             for s in range(n):  # back to least squares for the curvature
                 omega[s] = sample_weight[s] * sample_weight[s]
             _weighted_sums(n, omega, values, burley_terms, diffuse_moments, squared_values)
@@ -756,14 +720,14 @@ def _global_search_chunk(
             # pass's best_f is not profiled). The model terms this probe leaves in filtered do
             # not depend on the weights, so they also give the reported loss: the weighted
             # squared residual of the robust estimate (best_state), `MaterialEstimate.loss`.
-            centre_f = _roughness_objective(best_r, args)
+            centre_f = _roughness_objective(best_r, objective)
             _residual_magnitudes(n, values, filtered, diffuse_factor, scale, best_state, residual)
             best_f = 0.0
             for s in range(n):
                 best_f += sample_weight[s] * sample_weight[s] * residual[s] * residual[s]
         else:
             centre_f = best_f
-        curvature[t] = _loss_curvature(best_r, centre_f, args) / total_weight
+        curvature[t] = _loss_curvature(best_r, centre_f, objective) / total_weight
         params[t, 0], params[t, 1], params[t, 2] = best_state[0], best_state[1], best_state[2]
         params[t, 3], params[t, 4] = best_r, best_state[3]
         loss[t] = max(best_f, 0.0) / total_weight
