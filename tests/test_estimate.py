@@ -39,6 +39,7 @@ from freqbrdf.observe.observations import Observations
 from freqbrdf.sphere import envmap as envmaps
 from freqbrdf.sphere import harmonics as sh
 from freqbrdf.texels import orthonormal_basis
+from helpers import observations_from_samples
 
 N_VIEWS = 64
 LMAX = 5
@@ -52,7 +53,6 @@ def synthetic_observations(
     model: str = "angular",
     shadowing: bool = True,
     unobserved: np.ndarray | None = None,
-    fit: FitConfig = FitConfig(),
     exact_dielectric: bool = True,
     environment_light: bool = False,
     prefiltered: bool = False,
@@ -108,7 +108,9 @@ def synthetic_observations(
         environment_map = envmaps.envmap_from_sh(detail, 32, to_world=to_world)
         environment = envmaps.envmap_sh(environment_map, LMAX)
 
-    def fit_signals(values):
+    fit = FitConfig()
+
+    def fit_signals(values):  # as `observations_from_samples` fits them
         return sh.fit_sh(directions, weight, values, LMAX, fit.reg_lambda, fit.regulariser,
                          fit.scale_lambda_with_weight)
 
@@ -151,30 +153,13 @@ def synthetic_observations(
         else:
             incoming = light_fit.coeffs[:, :3]
         observed = brdf.predict_angular(mf, directions, incoming, irradiance, sigma=sigma)
-    observed_fit = fit_signals(observed)
-    texture_res = math.isqrt(n_texels - 1) + 1
-    f32 = np.float32
-    return Observations(
-        texture_res=texture_res,
-        texel_index=np.arange(n_texels, dtype=np.int64),
-        normal=normal.astype(f32),
-        view_direction=directions.astype(f32),
-        observed=observed.astype(f32),
-        mirrored=mirrored.astype(f32),
-        weight=weight.astype(f32),
-        visible=visible,
-        irradiance=irradiance.astype(f32),
-        lmax=LMAX,
-        sigma=sigma,
-        observed_coeffs=observed_fit.coeffs.astype(f32),
-        mirrored_coeffs=light_fit.coeffs[:, :3].astype(f32),
-        constant_coeffs=light_fit.coeffs[:, 3].astype(f32),
-        fit_status=light_fit.status,
-        n_samples=light_fit.n_samples,
+    return observations_from_samples(
+        directions, weight, observed, mirrored, LMAX, irradiance=irradiance, sigma=sigma, reg_lambda=fit.reg_lambda,
+        normal=normal.astype(np.float32),
         n_facing=np.full(n_texels, n_views, dtype=np.int32),  # every view faces the texel
-        alpha_bound=np.full(n_texels, brdf.min_resolvable_alpha(LMAX), f32),
-        tangent=tangent.astype(f32) if environment_light or prefiltered else None,
-        environment_coeffs=environment.astype(f32) if environment_light or prefiltered else None,
+        alpha_bound=np.full(n_texels, brdf.min_resolvable_alpha(LMAX), np.float32),
+        tangent=tangent.astype(np.float32) if environment_light or prefiltered else None,
+        environment_coeffs=environment.astype(np.float32) if environment_light or prefiltered else None,
         environment_radiance=environment_map.radiance if prefiltered else None,
         environment_rotation=environment_map.rotation if prefiltered else None,
     )

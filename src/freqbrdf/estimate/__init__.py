@@ -311,7 +311,7 @@ def _validate(settings: EstimateConfig) -> None:
 
 
 def _material_estimate(observations: Observations, result: EstimatorResult) -> MaterialEstimate:
-    """The `MaterialEstimate` of an estimator's result: NaN where not estimated."""
+    """Make the `MaterialEstimate` of an estimator's result: NaN where not estimated."""
     unknown = ~result.estimated
     params = result.params.copy()
     params[unknown] = np.nan

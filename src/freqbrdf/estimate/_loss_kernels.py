@@ -29,16 +29,19 @@ from freqbrdf.model.tables import DIELECTRIC_PLANE, LOBE_TERMS, table_lookup
 @numba.njit(parallel=True, fastmath=True, cache=True)
 def squared_residual_kernel(proj, samples, base_color, metallic, roughness, options, tables, environment, azimuthal,
                             prefiltered_light, out):
-    """out[t] = sum_v,c w^2 (L - f)^2 / sum_v w^2 (0 without samples); directions (n, V, 3) local
-    view directions. proj (n, 3, l*+1, V): `mirror_projections`. The specular is
-    m (b X + Y) + (1 - m) Z with X = A S_A, Y = B S_B (S_k: the light filtered for term k,
-    `lobe_filtered_light`) and Z = E S_E with ``exact_dielectric``, else Schlick's 0.04 X + Y.
-    With azimuthal (n, V, 3, P > 0)
-    (`environment_azimuthal`) each S_k is blended towards the environment light
-    (`environment_filtered_light`; response `environment_response_table`), and with burley_response
-    (4, cos nodes, P > 0) Burley's diffuse is averaged over its light (`environment_burley_factor`).
-    With prefiltered maps (H W, nodes, 3) the lobes read `prefiltered_light` (texel frames tangent
-    and normal (n, 3)) instead of proj."""
+    """Write each texel's weighted mean squared residual, sum_v,c w^2 (L - f)^2 / sum_v w^2 (numba, parallel).
+
+    proj (n, 3, l*+1, V) is `model.light.mirror_projections` of the fitted light; base_color (n, 3),
+    metallic and roughness (n,) the parameters; out (n,) receives the loss (0 without samples). The
+    specular is m (b X + Y) + (1 - m) Z with X = A S_A, Y = B S_B (S_k: the light filtered for term
+    k, `model.light.lobe_filtered_light`) and Z = E S_E with the exact dielectric, else Schlick's
+    0.04 X + Y. With azimuthal (n, V, 3, P > 0) (`model.light.environment_azimuthal`) each S_k is
+    blended towards the environment light (`model.light.environment_filtered_light`) over
+    environment.blend, and with a Burley response of P > 0 harmonics Burley's diffuse is averaged
+    over that light (`model.light.environment_burley_factor`). With prefiltered maps the lobes read
+    `model.light.prefiltered_light` instead of proj. The records: `Samples`, `ModelOptions`,
+    `ModelTables`, `EnvironmentLight`, `PrefilteredLight` (`freqbrdf.estimate._records`).
+    """
     directions, weight, observed = samples.view_direction, samples.weight, samples.observed
     diffuse_scale, tangent, normal = samples.diffuse_scale, samples.tangent, samples.normal
     sigma, fresnel, masking = options.sigma, options.fresnel, options.masking

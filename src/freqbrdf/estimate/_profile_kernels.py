@@ -25,8 +25,7 @@ _SQRT_EPS = math.sqrt(2.2e-16)
 
 @borrowing_jit
 def brent_start(state, lower, upper, xtol):
-    """Begin minimising on [lower, upper] to absolute tolerance xtol; returns the first point to
-    evaluate."""
+    """Begin minimising on [lower, upper] to absolute tolerance xtol; return the first point to evaluate."""
     state[_LO], state[_HI], state[_XTOL] = lower, upper, xtol
     state[PROBE] = lower + _GOLDEN * (upper - lower)
     state[_STEP] = state[_PREV_STEP] = 0.0
@@ -36,11 +35,13 @@ def brent_start(state, lower, upper, xtol):
 
 @borrowing_jit
 def brent_seed(state, lower, upper, xtol, x, fx, w, fw, v, fv):
-    """Begin minimising on [lower, upper] from three evaluated points: x the best, w the second
-    best, v the third (a bracketing grid's node and its neighbours), so that the first step is
-    the parabola through them rather than golden steps that re-discover them. Returns True with
-    the first point to evaluate in state[PROBE], or False when the bracket is already within
-    tolerance (the best point is state[_X])."""
+    """Begin minimising on [lower, upper] from three evaluated points.
+
+    x the best, w the second best, v the third (a bracketing grid's node and its neighbours), so
+    that the first step is the parabola through them rather than golden steps that re-discover them.
+    Returns True with the first point to evaluate in state[PROBE], or False when the bracket is
+    already within tolerance (the best point is state[_X]).
+    """
     state[_LO], state[_HI], state[_XTOL] = lower, upper, xtol
     state[_X], state[_FX], state[_W], state[_FW], state[_V], state[_FV] = x, fx, w, fw, v, fv
     # As if golden steps of the bracket's size had led here: the parabola may take any step
@@ -52,8 +53,10 @@ def brent_seed(state, lower, upper, xtol, x, fx, w, fw, v, fv):
 
 @borrowing_jit
 def brent_next(state, f_probe):
-    """Take f at the last point; returns True with the next point in state[PROBE], or False when
-    done, the best point being state[_X] with value state[_FX]."""
+    """Take f at the last point; return True with the next point in state[PROBE], or False when done.
+
+    When done, the best point is state[_X] with value state[_FX].
+    """
     a, b, u = state[_LO], state[_HI], state[PROBE]
     if state[_EVALS] == 0.0:
         state[_X] = state[_W] = state[_V] = u
@@ -83,7 +86,7 @@ def brent_next(state, f_probe):
 
 @borrowing_jit
 def _brent_propose(state):
-    """The next point to evaluate into state[PROBE] (True), or False when converged."""
+    """Put the next point to evaluate into state[PROBE] and return True, or return False when converged."""
     a, b = state[_LO], state[_HI]
     x, fx, w, fw, v, fv = state[_X], state[_FX], state[_W], state[_FW], state[_V], state[_FV]
     middle = 0.5 * (a + b)
@@ -123,10 +126,10 @@ _NEWTON_MAX_STEPS = 40
 
 @borrowing_jit
 def metallic_quadratics(moments, squared_values, diffuse_scale, quadratics):
-    """The loss per channel as q2 b^2 + 2 q1 b + q0 with q2, q1, q0 quadratics in the metallic m:
-    quadratics (3, 3, 3) [channel, (q2, q1, q0), coefficient of (1, m, m^2)].
+    """Write the loss per channel as q2 b^2 + 2 q1 b + q0 with q2, q1, q0 quadratics in the metallic m.
 
-    L = b P + Q with P = m X + (1 - m) e D, Q = m Y + (1 - m) Z (X = A S, Y = B S, Z = E S, e = E/pi);
+    quadratics (3, 3, 3) receives [channel, (q2, q1, q0), coefficient of (1, m, m^2)]. L = b P + Q
+    with P = m X + (1 - m) e D, Q = m Y + (1 - m) Z (X = A S, Y = B S, Z = E S, e = E / pi);
     moments (3, 14) per channel: the weighted sums s_xd, s_yd, s_zd, s_xx, s_xy, s_xz, s_xf, s_yy,
     s_yz, s_yf, s_zz, s_zf, s_dd, s_fd (s_ab = sum_v w^2 a b), squared_values (3,) s_ff.
     """
@@ -151,12 +154,12 @@ def metallic_quadratics(moments, squared_values, diffuse_scale, quadratics):
 
 @borrowing_jit
 def metallic_terms(metallic, quadratics, state):
-    """Loss at the best base colour for this metallic (summed over channels) and its first two
-    derivatives in the metallic; writes that base colour and the metallic into state[:4].
+    """Return the loss at the best base colour for a metallic, and its first two derivatives in it.
 
-    Per channel the loss is q2 b^2 + 2 q1 b + q0 (`metallic_quadratics`). At the optimal (or
-    clipped) b the first derivative is the partial one at fixed b (envelope theorem); the second
-    adds the change of the unclipped b with m.
+    Summed over channels; writes that base colour and the metallic into state[:4]. Per channel the
+    loss is q2 b^2 + 2 q1 b + q0 (`metallic_quadratics`). At the optimal (or clipped) b the first
+    derivative is the partial one at fixed b (envelope theorem); the second adds the change of the
+    unclipped b with m.
     """
     m = metallic
     total = gradient = curvature = 0.0
@@ -187,9 +190,11 @@ def metallic_terms(metallic, quadratics, state):
 
 @borrowing_jit
 def profile_metallic(quadratics, state, metallic_grid):
-    """min over (b, m) of the loss for fixed `metallic_quadratics`: metallic grid, then safeguarded
-    Newton on the derivative in the best cell (bisection where Newton would leave the bracket).
-    Leaves the winner's base colour and metallic in state and returns its loss."""
+    """Return min over (b, m) of the loss of fixed `metallic_quadratics`.
+
+    A metallic grid, then safeguarded Newton on the derivative in the best cell (bisection where
+    Newton would leave the bracket). Leaves the winner's base colour and metallic in state.
+    """
     # Each evaluation also writes its base colour into state: the last one evaluated is tracked so
     # that the winner is re-evaluated only when it is not that one.
     best_m, best_f, slope, curvature = 0.0, np.inf, 0.0, 0.0

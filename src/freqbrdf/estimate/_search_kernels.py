@@ -288,10 +288,12 @@ def _roughness_objective(roughness, objective):
 
 @borrowing_jit
 def _weighted_sums(n, omega, values, burley_terms, diffuse_moments, squared_values):
-    """The roughness-free weighted sums of a texel's samples for `_roughness_objective`, per channel
-    c: sum w^2 D_c^2 as a quartic in r (diffuse_moments[c, 0]) and sum w^2 f_c D_c as a quadratic
-    (diffuse_moments[c, 1, :3]) (Burley's D_c = c0 + r c1 + r^2 c2, burley_terms (3, 3, n)), and
-    sum w^2 f_c^2. Returns sum w^2."""
+    """Compute the roughness-free weighted sums of a texel's samples for `_roughness_objective`.
+
+    Per channel c: sum w^2 D_c^2 as a quartic in r (diffuse_moments[c, 0]) and sum w^2 f_c D_c as
+    a quadratic (diffuse_moments[c, 1, :3]) (Burley's D_c = c0 + r c1 + r^2 c2, burley_terms
+    (3, 3, n)), and sum w^2 f_c^2 (squared_values). Returns sum w^2.
+    """
     diffuse_moments[:] = 0.0
     total_weight = 0.0
     for s in range(n):
@@ -317,21 +319,25 @@ def _weighted_sums(n, omega, values, burley_terms, diffuse_moments, squared_valu
 
 @borrowing_jit
 def _keep_state(state, best_state):
-    """best_state[:] = state, element by element (a slice assignment may allocate, and these
-    functions run without numba's runtime)."""
+    """Copy state into best_state element by element.
+
+    A slice assignment may allocate, and these functions run without numba's runtime.
+    """
     for i in range(state.shape[0]):
         best_state[i] = state[i]
 
 
 @borrowing_jit
 def _search_roughness(objective, buffers, first_node, last_node, xtol, node_rows, node_moments):
-    """Scan the roughness grid's nodes first_node..last_node, then Brent (to xtol) in the best cell
-    unless the loss rises inwards from a boundary node. Brent starts from the parabola through the
-    best node and its neighbours when the scan holds them. The best evaluation seen wins: returns
-    (roughness, loss), its base colour and metallic in best_state (`_roughness_objective` leaves
-    each probe's in objective.probe.state). A node whose
-    node_rows entry (`_node_rows`; (0,): none) is a row i >= 0 records its hypothesis moments into
-    node_moments[i] (R, 3, 8), with the samples' weights buffers.sample_weight (n,)."""
+    """Search the roughness: scan the grid's nodes first_node..last_node, then Brent in the best cell.
+
+    Brent (to xtol) runs unless the loss rises inwards from a boundary node, and starts from the
+    parabola through the best node and its neighbours when the scan holds them. The best evaluation
+    seen wins: returns (roughness, loss), its base colour and metallic in buffers.best_state
+    (`_roughness_objective` leaves each probe's in objective.probe.state). A node whose node_rows
+    entry (`_node_rows`; (0,): none) is a row i >= 0 records its hypothesis moments into
+    node_moments[i] (R, 3, 8), with the samples' weights buffers.sample_weight (n,).
+    """
     state, roughness_grid, best_state = objective.probe.state, buffers.roughness_grid, buffers.best_state
     roughness_brent, node_loss, sample_weight = buffers.brent, buffers.node_loss, buffers.sample_weight
     cell = 1.0 / (roughness_grid - 1)
@@ -372,9 +378,11 @@ def _search_roughness(objective, buffers, first_node, last_node, xtol, node_rows
 
 @borrowing_jit
 def _brent_run(objective, buffers, best_r, best_f, search):
-    """Brent's search as started in buffers.brent (if ``search``) on the profiled loss: returns the
-    best (roughness, loss) of it and of (best_r, best_f), its base colour and metallic in
-    buffers.best_state."""
+    """Run Brent's search as started in buffers.brent (if ``search``) on the profiled loss.
+
+    Returns the best (roughness, loss) of it and of (best_r, best_f), its base colour and metallic
+    in buffers.best_state.
+    """
     state, best_state, roughness_brent = objective.probe.state, buffers.best_state, buffers.brent
     while search:
         f = _roughness_objective(roughness_brent[PROBE], objective)
@@ -387,8 +395,10 @@ def _brent_run(objective, buffers, best_r, best_f, search):
 
 @borrowing_jit
 def _record_hypothesis(objective, sample_weight, out):
-    """out (3, 8): per channel `_specular_moments` of the metal terms the last `_roughness_objective`
-    probe left in objective.probe.filtered, sample weights (n,)."""
+    """Write per channel the `_specular_moments` of the last probe's metal terms into out (3, 8).
+
+    The terms are those `_roughness_objective` left in objective.probe.filtered; sample_weight (n,).
+    """
     n, values, filtered = objective.texel.n, objective.texel.values, objective.probe.filtered
     for c in range(3):
         _specular_moments(n, sample_weight, values[c], filtered[c, 0], filtered[c, 1], out[c])
@@ -396,9 +406,11 @@ def _record_hypothesis(objective, sample_weight, out):
 
 @borrowing_jit
 def _specular_moments(n, sample_weight, values, scale_terms, bias_terms, out):
-    """out = [sum w, sum w u, sum w X, sum w u^2, sum w u X, sum w X^2, sum w f, sum w f^2] over
-    samples s < n, with w the sample weight, f the observed radiance, u = f - Y and X, Y a metal's
-    specular terms (scale_terms, bias_terms: specular = k X + Y for base colour k)."""
+    """Write [sum w, sum w u, sum w X, sum w u^2, sum w u X, sum w X^2, sum w f, sum w f^2] into out.
+
+    Over samples s < n, with w the sample weight, f the observed radiance, u = f - Y and X, Y a
+    metal's specular terms (scale_terms, bias_terms: specular = k X + Y for base colour k).
+    """
     out[:] = 0.0
     for s in range(n):
         w = sample_weight[s]
@@ -417,8 +429,11 @@ def _specular_moments(n, sample_weight, values, scale_terms, bias_terms, out):
 
 @borrowing_jit
 def _residual_magnitudes(n, values, filtered, diffuse_factor, diffuse_scale, params, out):
-    """out[s] = |L(w_s) - f_s| over the channels for params [b_rgb, m], with the per-channel model
-    terms `_roughness_objective` left in filtered (3, 3, n) and diffuse_factor at their roughness."""
+    """Write |L(w_s) - f_s| over the channels for params [b_rgb, m] into out[s].
+
+    With the per-channel model terms `_roughness_objective` left in filtered (3, 3, n) and
+    diffuse_factor at their roughness.
+    """
     m = params[3]
     for s in range(n):
         total = 0.0
@@ -433,8 +448,11 @@ def _residual_magnitudes(n, values, filtered, diffuse_factor, diffuse_scale, par
 
 @borrowing_jit
 def _loss_curvature(best_r, centre_f, objective):
-    """The profiled loss's second divided difference in roughness through its value centre_f at
-    best_r and two probes CURVATURE_STEP apart on the side within [0, 1]."""
+    """Return the profiled loss's second divided difference in roughness.
+
+    Through its value centre_f at best_r and two probes `CURVATURE_STEP` apart on the side within
+    [0, 1].
+    """
     first_r = best_r + CURVATURE_STEP if best_r < CURVATURE_STEP else best_r - CURVATURE_STEP
     if best_r < CURVATURE_STEP:
         second_r = best_r + 2.0 * CURVATURE_STEP
@@ -451,32 +469,27 @@ def _loss_curvature(best_r, centre_f, objective):
 @numba.njit(parallel=True, fastmath=True, cache=True)
 def global_search_kernel(samples, light, recurrence, options, tables, environment, prefiltered, settings, hypotheses,
                          candidate, estimates):
-    """Per texel: the (base colour, roughness, metallic) of least weighted squared residual.
+    """Find per texel the (base colour, roughness, metallic) of least weighted squared residual (numba).
 
-    directions (n, V, 3) local view directions; weight (n, V); observed (n, V, 3); light (n, 3, K)
-    the incoming light's SH fit; diffuse_scale (n, 3) E / pi; (lmax, diag, rec_a, rec_b) as
-    `sh._sh_block` takes them. With a world-frame SH environment (K > 0, 3) the environment light
-    (texel frames tangent and normal (n, 3); `environment_filtered_light` with response
-    `environment_response_table` and `environment_quadrature`'s quadrature (Q, 3) and
-    quadrature_projection (K, Q)) is blended in over environment_blend (start, end), and with
-    burley_response (4, cos nodes, P > 0) (`burley_response_table`) Burley's diffuse is averaged over
-    that light (`environment_burley_factor`) instead of uniform light.
-    With prefiltered (H W, nodes, 3) maps (`prefiltered_environment` of an H x W map whose
-    emitter frame is world_to_local (3, 3) from the world), smooth lobes read them at the world
-    mirror directions instead of the fitted light. Else, per texel the light is expanded by
-    degree at its samples (P_c,l(w_v), `mirror_projections`; fused here to keep it in cache). Then
-    the roughness is searched (if ``search``).
-    With hypothesis_roughness (R,): `hypothesis_moments` of each texel into hypothesis_moments
-    (n, R, 3, 8), those of node_rows (roughness_grid,) (`_node_rows`; (0,): none) recorded by the
-    search's first scan, the others probed before it. With candidate (n, 2) (roughness, metallic) instead of a
-    search, the neighbour vote (`EstimateConfig.neighbour_vote`) on the estimate in params. Writes params
-    (n, 5) [b_rgb, r, m], loss (n,) (divided by sum_v w^2) and the profiled loss's curvature in
-    roughness (n,) (`MaterialEstimate.roughness_curvature`) for texels with samples; others are
-    left untouched.
+    samples (`Samples`, n texels): the local view directions, weights, observations, E / pi and
+    frames; light (n, 3, K) float32 the incoming light's SH fit, expanded by degree at the samples
+    with recurrence (`ShRecurrence`) unless prefiltered maps replace it; options and tables
+    (`ModelOptions`, `ModelTables`) the model. With an environment (`EnvironmentLight`, K > 0) the
+    environment light is blended in over its blend, and with a Burley response of P > 0 harmonics
+    Burley's diffuse is averaged over that light. With prefiltered maps (`PrefilteredLight`), smooth
+    lobes read them at the world mirror directions. Then the roughness is searched if
+    settings.search (`SearchSettings`). With hypotheses (`Hypotheses`, R > 0): their moments
+    (`estimate.hypothesis_moments`) into hypotheses.moments, those on the grid's nodes (node_rows)
+    recorded by the search's first scan, the others probed before it. With candidate (n, 2)
+    (roughness, metallic) instead of a search, the neighbour vote (``EstimateConfig.neighbour_vote``)
+    on the estimate in estimates.params. Writes estimates (`Estimates`): params (n, 5) [b_rgb, r, m],
+    loss (n,) (divided by sum_v w^2) and the profiled loss's curvature in roughness (n,)
+    (`MaterialEstimate.roughness_curvature`) for texels with at least `MIN_SAMPLES` samples; others
+    are left untouched.
     """
     n_chunks = (samples.weight.shape[0] + _SEARCH_CHUNK - 1) // _SEARCH_CHUNK
     # numba hands each thread a contiguous run of items: where the texels the cameras see lie in
-    # one half of the texture, the other thread would wait (sphere: search 5.0 -> 3.8 s scattered).
+    # one half of the texture, the other thread would wait: the chunks are taken scattered.
     stride = scattering_stride(n_chunks)
     for item in numba.prange(n_chunks):
         # np.int64: the loop index is unsigned in numba's parallel code and signed when typed: one
@@ -488,8 +501,22 @@ def global_search_kernel(samples, light, recurrence, options, tables, environmen
 
 @numba.njit(cache=True)
 def scattering_stride(n_items):
-    """A stride coprime to n_items near the golden section of it: item i -> (i stride) mod n_items
-    visits every item once and spreads any contiguous run of i over the whole range."""
+    """Return a stride coprime to n_items near the golden section of it (numba).
+
+    Item i -> (i stride) mod n_items visits every item once and spreads any contiguous run of i over
+    the whole range: parallel work items taken in this order give every thread a share of each part
+    of the texture.
+
+    Parameters
+    ----------
+    n_items : int
+        The number of items, at least 1.
+
+    Returns
+    -------
+    int64
+        The stride.
+    """
     stride = max(int(n_items * 0.6180339887), 1)
     while math.gcd(stride, n_items) != 1:
         stride += 1
@@ -499,9 +526,11 @@ def scattering_stride(n_items):
 @numba.njit(fastmath=True, cache=True)
 def _global_search_chunk(chunk, samples, light, recurrence, options, tables, environment_light, prefiltered_light,
                          settings, hypotheses, candidate, estimates):
-    """`global_search_kernel`'s work for the texels of one chunk: a function of its own, so that
-    numba's parallel passes see a small loop (on the whole body they took much of the kernel's
-    compile time)."""
+    """Do `global_search_kernel`'s work for the texels of one chunk.
+
+    A function of its own, so that numba's parallel passes see a small loop (on the whole body they
+    take much of the kernel's compile time).
+    """
     directions, weight, observed = samples.view_direction, samples.weight, samples.observed
     diffuse_scale, tangent, normal = samples.diffuse_scale, samples.tangent, samples.normal
     lmax, diag, rec_a, rec_b = recurrence.lmax, recurrence.diag, recurrence.rec_a, recurrence.rec_b

@@ -1,4 +1,9 @@
-"""The prototype's estimator: Adam on the L1 loss of METHOD.md's model (METHOD.md §3.6).
+"""The ``paper`` estimator: the authors' prototype, Adam on the L1 loss of METHOD.md's model (§3.6).
+
+Any of the three forward models of `freqbrdf.model.brdf` (angular, SH coefficients, power
+spectrum), with analytic gradients; the loss and the total variation are averaged over the
+whole texture, as the prototype's are. METHOD.md's shadowing makes the light's SH fit depend on
+the roughness: it is refreshed every ``EstimateConfig.shadowing_refresh_every`` iterations.
 """
 
 from __future__ import annotations
@@ -30,6 +35,32 @@ _NEIGHBOUR_OFFSETS = tuple((dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1) if
 
 def estimate_paper(observations: Observations, config: Config, reporter: Reporter,
                    hypotheses: HypothesisRecorder | None = None) -> EstimatorResult:
+    """Estimate the Principled parameters per texel as the authors' prototype does.
+
+    Adam (torch's defaults, ``EstimateConfig.learning_rate``, ``iterations``) on the L1 loss of the
+    cos-weighted residuals averaged over the whole T x T texture, parameters clamped to [0, 1] after
+    every step, texture-space total variation on the observed texels (``tv_weight``), with analytic
+    gradients of ``forward_model``. Starts from ``init_base_color``, ``init_roughness``,
+    ``init_metallic``; every ``shadowing_refresh_every`` iterations the light is re-fitted shadowed
+    at the current roughness.
+
+    Parameters
+    ----------
+    observations : Observations
+        The texels' samples (N texels).
+    config : Config
+        ``config.estimate`` the prototype's settings; ``config.fit`` the fit the observations were
+        made with.
+    reporter : Reporter
+        Receives progress.
+    hypotheses : None
+        Not recorded by this estimator (its signature is `freqbrdf.estimate.ESTIMATORS`').
+
+    Returns
+    -------
+    EstimatorResult
+        The estimate of the texels with a sample; its loss is `angular_loss` under the last light.
+    """
     settings = config.estimate
     timings = {"light": 0.0, "iterations": 0.0}
     n_texels = observations.n_texels
@@ -77,8 +108,10 @@ def _principled(params: np.ndarray) -> brdf.PrincipledParams:
 
 
 def _refresh(observations, config, params, light, target, proj):
-    """Re-fit the light shadowed at the current roughness (and, for the spectral models, the
-    observations with the masking divided out), as the prototype does every 50 iterations."""
+    """Re-fit the light shadowed at the current roughness, as the prototype does.
+
+    For the spectral models also the observations with the masking divided out.
+    """
     settings = config.estimate
     alpha = brdf.alpha_from_roughness(params[:, 3])
     if settings.shadowing:
@@ -145,10 +178,11 @@ def _data_gradient(observations, settings, params, light, target, proj, texture_
 
 
 def _chain_to_principled(grad_r0, grad_diffuse, grad_alpha, params) -> np.ndarray:
-    """Gradients in (R0 (N, 3), d (N, 3), alpha (N,)) to (base colour, roughness, metallic) (N, 5).
+    """Chain gradients in (R0 (N, 3), d (N, 3), alpha (N,)) to (base colour, roughness, metallic) (N, 5).
 
     R0 = 0.04 + (b - 0.04) m, d = (1 - m) b, alpha = max(r^2, ALPHA_MIN) (no gradient when clamped,
-    as torch's clamp)."""
+    as torch's clamp).
+    """
     base, roughness, metallic = params[:, :3], params[:, 3], params[:, 4]
     gradient = np.empty_like(params)
     gradient[:, :3] = grad_r0 * metallic[:, None] + grad_diffuse * (1.0 - metallic[:, None])

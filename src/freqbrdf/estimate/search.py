@@ -408,8 +408,10 @@ def shadowed_light_coeffs(observations: Observations, alpha: np.ndarray, fit: Fi
 
 
 def _node_rows(roughness: np.ndarray, roughness_grid: int) -> np.ndarray:
-    """(roughness_grid,) int64: per roughness node of the search, the index into ``roughness`` (R,)
-    of a hypothesis at that node, or -1."""
+    """Return, per roughness node of the search, the index into roughness (R,) of a hypothesis there.
+
+    (roughness_grid,) int64; -1 where none.
+    """
     rows = np.full(roughness_grid, -1, dtype=np.int64)
     nodes = np.rint(roughness * (roughness_grid - 1)).astype(np.int64)
     on_node = (np.abs(nodes / (roughness_grid - 1) - roughness) < 1e-12) & (nodes >= 0) & (nodes < roughness_grid)
@@ -418,20 +420,23 @@ def _node_rows(roughness: np.ndarray, roughness_grid: int) -> np.ndarray:
 
 
 def _samples(observations: Observations, tangent: np.ndarray, rows: slice = slice(None)) -> Samples:
-    """The kernels' `Samples` of these rows of the observations (tangent (N, 3): `_light_inputs`)."""
+    """Return the kernels' `Samples` of these rows of the observations (tangent (N, 3): `_light_inputs`)."""
     return Samples(observations.view_direction[rows], observations.weight[rows], observations.observed[rows],
                    lambert_scale(observations)[rows], tangent[rows], observations.normal[rows])
 
 
 def _model_options(observations: Observations, settings: EstimateConfig) -> ModelOptions:
-    """The kernels' `ModelOptions` for these settings."""
+    """Return the kernels' `ModelOptions` for these settings."""
     return ModelOptions(observations.sigma, settings.fresnel, settings.masking, uses_split_sum(settings),
                         _uses_exact_dielectric(settings), _uses_burley(settings))
 
 
 def _model_tables(settings: EstimateConfig) -> ModelTables:
-    """The kernels' `ModelTables`: Burley's response only when Burley's diffuse reads the
-    environment's light (with the environment light), else an empty one (uniform light)."""
+    """Return the kernels' `ModelTables`.
+
+    Burley's response only when Burley's diffuse reads the environment's light (with the
+    environment light), else an empty one (uniform light).
+    """
     if _uses_burley(settings) and settings.environment_light and settings.burley_environment:
         burley_response = burley_response_table()
     else:
@@ -448,13 +453,13 @@ def _uses_exact_dielectric(settings: EstimateConfig) -> bool:
 
 
 def _uses_environment_light(observations: Observations, settings: EstimateConfig) -> bool:
-    """The environment light needs the split-sum model and observations that carry the environment."""
+    """Tell whether the environment light applies: the split-sum model and an environment."""
     return (uses_split_sum(settings) and settings.environment_light and observations.tangent is not None
             and observations.environment_coeffs is not None)
 
 
 def _uses_prefiltered_light(observations: Observations, settings: EstimateConfig) -> bool:
-    """The prefiltered light needs the split-sum model and observations that carry the map and frames."""
+    """Tell whether the prefiltered light applies: the split-sum model, a map and frames."""
     return (uses_split_sum(settings) and settings.prefiltered_light and observations.tangent is not None
             and observations.environment() is not None)
 
@@ -489,9 +494,12 @@ def _light_inputs(observations: Observations,
 
 
 def _prefiltered_stack(observations: Observations, n_full: int, high_degrees: int | None) -> tuple:
-    """(stack (H W, nodes, 3) float32, H, W) for the kernels: the n_full `prefiltered_environment`
-    maps, then, unless high_degrees is None, the `_HIGH_NODES` maps of the degrees from
-    high_degrees on; pixel-major, so that a texel's lookups at several nodes share cache lines."""
+    """Return (stack (H W, nodes, 3) float32, H, W) of the prefiltered maps for the kernels.
+
+    The n_full `prefiltered_environment` maps, then, unless high_degrees is None, the `_HIGH_NODES`
+    maps of the degrees from high_degrees on; pixel-major, so that a texel's lookups at several
+    nodes share cache lines.
+    """
     radiance = observations.environment_radiance
     key = (hashlib.blake2b(np.ascontiguousarray(radiance).tobytes(), digest_size=16).hexdigest(), radiance.shape,
            observations.environment_rotation.tobytes(), n_full, high_degrees)

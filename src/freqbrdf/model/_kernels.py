@@ -1,8 +1,9 @@
 """numba device functions of the reflection model, shared by the estimators and the light models.
 
-The per-sample pieces of METHOD.md §3.6's model as the search kernels evaluate them: table
-lookups, the BRDF kernel and G1, Burley's factor, the environment light at a roughness node, the
-prefiltered light's lookup stencil and nodes.
+The per-sample pieces of METHOD.md §3.6's model as the search kernels evaluate them: the
+specular albedo, the BRDF kernel and G1, Burley's factor, the environment light at a roughness
+node, the prefiltered light's lookup stencil and nodes. Arrays are written into the ``out``
+arguments; the functions compiled with `borrowing_jit` allocate nothing.
 """
 
 from __future__ import annotations
@@ -24,17 +25,20 @@ from freqbrdf.model.tables import (
 from freqbrdf.sphere import envmap as envmaps
 from freqbrdf.sphere import harmonics as sh
 
-# The search's inner functions run ~30 times per texel and take ~40 arrays each. Compiled with
-# numba's runtime on, each call counted a reference to every array it took (an atomic add on entry
-# and exit, ~1 us per probe, as long as the probe's arithmetic at 40 samples). They allocate
-# nothing and their callers hold the arrays, so they are compiled without it.
+# The search's inner functions run many times per texel and take many arrays each. Compiled with
+# numba's runtime on, each call would count a reference to every array it takes (an atomic add on
+# entry and exit). They allocate nothing and their callers hold the arrays, so they are compiled
+# without it.
 borrowing_jit = numba.njit(fastmath=True, cache=True, _nrt=False)
 
 
 @borrowing_jit
 def environment_node(roughness):
-    """The environment light's roughness node below ``roughness`` (clipped to [0, 1]) and the
-    fraction towards the next one (its nodes: every ENVIRONMENT_NODE_STEP-th of the table's)."""
+    """Return the environment light's roughness node below a roughness, and the fraction beyond it.
+
+    The roughness is clipped to [0, 1]; the nodes are every `ENVIRONMENT_NODE_STEP`-th of the
+    tables'.
+    """
     n_nodes = (TABLE_ROUGHNESS_NODES - 1) // ENVIRONMENT_NODE_STEP + 1
     y = min(max(roughness, 0.0), 1.0) * (n_nodes - 1)
     node = min(int(y), n_nodes - 2)
@@ -43,8 +47,10 @@ def environment_node(roughness):
 
 @borrowing_jit
 def prefilter_node(roughness, n_nodes):
-    """The prefiltered map's node below ``roughness`` (clipped to the nodes) and the fraction
-    towards the next one."""
+    """Return the prefiltered maps' node below a roughness, and the fraction beyond it.
+
+    The nodes lie `PREFILTER_STEP` apart from roughness 0; the roughness is clipped to them.
+    """
     y = min(max(roughness, 0.0) / PREFILTER_STEP, n_nodes - 1.0)
     node = min(int(y), n_nodes - 2)
     return node, y - node
@@ -52,6 +58,7 @@ def prefilter_node(roughness, n_nodes):
 
 @borrowing_jit
 def cross(a, b, out):
+    """Write the cross product a x b of two 3-vectors into out."""
     out[0] = a[1] * b[2] - a[2] * b[1]
     out[1] = a[2] * b[0] - a[0] * b[2]
     out[2] = a[0] * b[1] - a[1] * b[0]
@@ -59,9 +66,12 @@ def cross(a, b, out):
 
 @borrowing_jit
 def mirror_stencil(xyz, n, tangent, normal, bitangent, world_to_local, height, width, corner, stencil_frac):
-    """`envmap.lookup`'s bilinear stencil at the world mirror direction of each local view direction
-    xyz[:, s], s < n: corner (4, n) flat pixel indices row * width + col of (row, col), (row, col + 1),
-    (row + 1, col), (row + 1, col + 1); stencil_frac (2, n) the column and row fractions."""
+    """Compute `envmap.lookup`'s bilinear stencil at each sample's world mirror direction.
+
+    For the local view directions xyz[:, s], s < n, in the frame (tangent, bitangent, normal):
+    corner (4, n) receives the flat pixel indices row * width + col of (row, col), (row, col + 1),
+    (row + 1, col), (row + 1, col + 1), stencil_frac (2, n) the column and row fractions.
+    """
     for s in range(n):
         mirror_x, mirror_y, mirror_z = -xyz[0, s], -xyz[1, s], xyz[2, s]
         world_x = mirror_x * tangent[0] + mirror_y * bitangent[0] + mirror_z * normal[0]
@@ -76,8 +86,7 @@ def mirror_stencil(xyz, n, tangent, normal, bitangent, world_to_local, height, w
 
 @numba.njit(inline="always", fastmath=True)
 def bilinear(prefiltered, node, c, top_left, top_right, bottom_left, bottom_right, fx, fy):
-    """Channel c of the map of node ``node`` of prefiltered (H W, nodes, 3), bilinear between four
-    flat pixel indices."""
+    """Return channel c of node ``node`` of prefiltered (H W, nodes, 3), bilinear between four pixels."""
     top = (1.0 - fx) * prefiltered[top_left, node, c] + fx * prefiltered[top_right, node, c]
     bottom = (1.0 - fx) * prefiltered[bottom_left, node, c] + fx * prefiltered[bottom_right, node, c]
     return (1.0 - fy) * top + fy * bottom
@@ -85,9 +94,11 @@ def bilinear(prefiltered, node, c, top_left, top_right, bottom_left, bottom_righ
 
 @borrowing_jit
 def prefiltered_node_light(prefiltered, node, n, corner, stencil_frac, out):
-    """out[c, s] = the light of node ``node`` of prefiltered (H W, nodes, 3) for sample s < n:
-    bilinear at the mirror stencil (`mirror_stencil`). (Pixel-major: a texel's lookups at several
-    nodes share cache lines.)"""
+    """Look up the light of one prefiltered node at the samples' mirror stencils.
+
+    out[c, s] for samples s < n, bilinear at `mirror_stencil`'s stencil in prefiltered
+    (H W, nodes, 3), pixel-major so that a texel's lookups at several nodes share cache lines.
+    """
     for s in range(n):
         for c in range(3):
             out[c, s] = bilinear(prefiltered, node, c, corner[0, s], corner[1, s], corner[2, s], corner[3, s],
@@ -95,7 +106,12 @@ def prefiltered_node_light(prefiltered, node, n, corner, stencil_frac, out):
 
 
 @numba.njit(parallel=True, fastmath=True, cache=True)
-def project_degrees_kernel(basis, weight, coeffs, out):  # (n, V, K), (n, V), (n, 3, K) -> out (n, 3, l*+1, V)
+def project_degrees_kernel(basis, weight, coeffs, out):
+    """Expand SH coefficients by degree at the samples (numba, parallel over texels).
+
+    basis (n, V, K), weight (n, V), coeffs (n, 3, K); out (n, 3, l*+1, V) receives
+    sum_m c_c,lm Y_lm(w_v), 0 where the weight is 0 (`light.degree_projections`).
+    """
     n_texels, n_views, _ = basis.shape
     n_degrees = out.shape[2]
     for t in numba.prange(n_texels):
@@ -112,7 +128,7 @@ def project_degrees_kernel(basis, weight, coeffs, out):  # (n, V, K), (n, V), (n
 
 @numba.njit(fastmath=True, cache=True)
 def g1_and_derivative(cos_theta, alpha):
-    """brdf.smith_g1_ggx for one sample (cos_theta > 0), and its derivative in alpha."""
+    """Return `brdf.smith_g1_ggx` for one sample (cos_theta > 0) and its derivative in alpha."""
     sin2 = 1.0 - cos_theta * cos_theta
     root = math.sqrt(cos_theta * cos_theta + alpha * alpha * sin2)
     denominator = cos_theta + root
@@ -122,10 +138,11 @@ def g1_and_derivative(cos_theta, alpha):
 
 @numba.njit(fastmath=True, cache=True)
 def specular_albedo(cos_theta, roughness, alpha, fresnel, masking, split_sum, table):
-    """(A, B) with the specular radiance (R0 A + B) times the filtered light, for one sample.
+    """Return (A, B) of one sample: its specular radiance is (R0 A + B) times the filtered light.
 
-    split_sum: `split_sum_terms`. Otherwise METHOD.md's angular model, F G1 = R0 G1 (1 - F_c) +
-    G1 F_c with F_c = (1 - cos)^5. Without Fresnel, A + B and 0.
+    With ``split_sum`` the table's A and B (`tables.split_sum_terms`); otherwise METHOD.md's angular
+    model, F G1 = R0 G1 (1 - F_c) + G1 F_c with F_c = (1 - cos)^5 (G1 = 1 without ``masking``).
+    Without ``fresnel``, A + B and 0.
     """
     if split_sum:
         scale = table_lookup(table, SCALE_PLANE, cos_theta, roughness)
@@ -141,7 +158,7 @@ def specular_albedo(cos_theta, roughness, alpha, fresnel, masking, split_sum, ta
 
 @borrowing_jit
 def fill_kernel(alpha, sigma, kernel, kernel_derivative):
-    """brdf.brdf_kernel for one texel, and its derivative in alpha: -2 alpha l^2 k(l)."""
+    """Fill one texel's BRDF kernel (`brdf.brdf_kernel`) and its derivative in alpha, -2 alpha l^2 k(l)."""
     for degree in range(kernel.shape[0]):
         kernel[degree] = math.exp(-(alpha * alpha - sigma * sigma) * degree * degree)
         kernel_derivative[degree] = -2.0 * alpha * degree * degree * kernel[degree]
@@ -149,15 +166,17 @@ def fill_kernel(alpha, sigma, kernel, kernel_derivative):
 
 @borrowing_jit
 def environment_node_lights(response, node, n, table_row, table_frac, azimuthal, out):
-    """out[k, c, s] = the environment light of the three lobe terms k at samples s < n for roughness
-    node ``node`` of response (`environment_response_table`), linear in cos theta_o (table_row,
-    table_frac: each sample's cos node and fraction): the responses times the environment's
-    coefficients in the sample's mirrored view frame, azimuthal (>= n, 3, P)
-    (`environment_azimuthal`). The search evaluates it at the two nodes around a roughness and
-    interpolates."""
+    """Evaluate the environment light of the three lobe terms at one roughness node.
+
+    out[k, c, s] for samples s < n: the responses of node ``node`` of response
+    (`tables.environment_response_table`), linear in cos theta_o (table_row, table_frac: each
+    sample's cos node and fraction), times the environment's coefficients in the sample's mirrored
+    view frame, azimuthal (>= n, 3, P) (`light.environment_azimuthal`). The search evaluates it at
+    the two nodes around a roughness and interpolates.
+    """
     n_pairs = azimuthal.shape[2]
     # The three terms at once: they share each coefficient's load and the nine sums stay in
-    # registers (1.6x faster than one term at a time through an interpolated row).
+    # registers.
     for s in range(n):
         row, fx = table_row[s], table_frac[s]
         a0 = a1 = a2 = b0 = b1 = b2 = c0 = c1 = c2 = 0.0
@@ -185,16 +204,19 @@ def environment_node_lights(response, node, n, table_row, table_frac, azimuthal,
 
 @numba.njit(cache=True)
 def n_sh_degrees(n_coeffs):
-    """l* + 1 of (l* + 1)^2 SH coefficients (numba has no math.isqrt)."""
+    """Return l* + 1 of (l* + 1)^2 SH coefficients (numba has no math.isqrt)."""
     return int(math.sqrt(n_coeffs) + 0.5)
 
 
 @borrowing_jit
 def texel_environment(environment, tangent, normal, bitangent, quadrature, projection, diag, rec_a, rec_b, world,
                        basis, sh_scratch, values, out):
-    """out (K, 3) = `local_environment` of environment (K, 3) in the frame (tangent, bitangent,
-    normal), with `environment_quadrature`'s directions (Q, 3) and projection (K, Q); scratch
-    world (3, Q), basis (K, Q), sh_scratch (5, Q), values (3, Q)."""
+    """Turn the world-frame environment (K, 3) into a texel's frame (tangent, bitangent, normal).
+
+    As `light.local_environment`, with `light.environment_quadrature`'s directions (Q, 3) and
+    projection (K, Q); (diag, rec_a, rec_b) the SH recurrence of `sphere.harmonics._sh_block`;
+    scratch world (3, Q), basis (K, Q), sh_scratch (5, Q), values (3, Q); out (K, 3).
+    """
     n_points = quadrature.shape[0]
     for q in range(n_points):
         for axis in range(3):
@@ -219,8 +241,11 @@ def texel_environment(environment, tangent, normal, bitangent, quadrature, proje
 
 @borrowing_jit
 def azimuthal_coefficients(xyz, n, local, out):
-    """out (>= n, 3, P) = `environment_azimuthal` of local view directions xyz (3, >= n) from the
-    texel-frame coefficients local (K, 3)."""
+    """Turn a texel's environment into each sample's mirrored view frame.
+
+    out (>= n, 3, P) receives `light.environment_azimuthal` of the local view directions
+    xyz (3, >= n) from the texel-frame coefficients local (K, 3).
+    """
     n_degrees = n_sh_degrees(local.shape[0])
     for s in range(n):
         mirrored_x, mirrored_y = -xyz[0, s], -xyz[1, s]
@@ -243,10 +268,12 @@ def azimuthal_coefficients(xyz, n, local, out):
 
 @borrowing_jit
 def prefiltered_nodes_at(roughness, first, count, n, prefiltered, corner, stencil_frac, nodes, cached):
-    """Where the light of a lobe of ``roughness`` lies among the prefiltered nodes first..first +
-    count - 1 (roughness 0..1 by PREFILTER_STEP), for samples s < n: (lower, upper, fraction),
-    indices into nodes; on a node both are that node and the fraction is 0. The nodes read are
-    looked up once per texel into nodes (cached)."""
+    """Locate a lobe's light among the prefiltered nodes, looking up the nodes it needs.
+
+    Among the nodes first .. first + count - 1 (roughness 0 .. 1 by `PREFILTER_STEP`), for samples
+    s < n: returns (lower, upper, fraction), indices into nodes; on a node both are that node and
+    the fraction is 0. Each node read is looked up once per texel into nodes (cached).
+    """
     node, frac = prefilter_node(roughness, count)
     lower = first + (node if frac < 1.0 else node + 1)
     upper = first + (node + 1 if frac > 0.0 else node)
@@ -259,21 +286,21 @@ def prefiltered_nodes_at(roughness, first, count, n, prefiltered, corner, stenci
 
 @numba.njit(inline="always")
 def prefiltered_between(nodes, c, s, lower, upper, frac):
-    """Channel c of sample s's light between the nodes `prefiltered_nodes_at` returned."""
+    """Return channel c of sample s's light between the nodes `prefiltered_nodes_at` returned."""
     value = nodes[lower, c, s]
     return value + frac * (nodes[upper, c, s] - value) if frac > 0.0 else value
 
 
 @borrowing_jit
 def environment_share(roughness, blend):
-    """`environment_weight` for one roughness; blend (start, end)."""
+    """Return `light.environment_weight` for one roughness; blend (start, end)."""
     ramp = min(max((roughness - blend[0]) / max(blend[1] - blend[0], 1e-12), 0.0), 1.0)
     return ramp * ramp * (3.0 - 2.0 * ramp)
 
 
 @borrowing_jit
 def burley_polynomial(cos_theta, out):
-    """(c0, c1, c2) with `burley_diffuse_factor`(cos_theta, r) = c0 + r c1 + r^2 c2, into out[:, 0..2]."""
+    """Write (c0, c1, c2) with `tables.burley_diffuse_factor` (cos_theta, r) = c0 + r c1 + r^2 c2 into out."""
     schlick_view = (1.0 - cos_theta) ** 5
     retro_fresnel = 1.0 / 21.0 + cos_theta / 84.0
     out[0] = (1.0 - 0.5 * schlick_view) * (1.0 - 0.5 / 21.0)
@@ -284,8 +311,10 @@ def burley_polynomial(cos_theta, out):
 
 @borrowing_jit
 def uniform_burley_terms(cos_theta, burley, out):
-    """out (3, 3): every channel's (c0, c1, c2) of Burley's uniform-light factor (`burley_polynomial`),
-    or Lambert's (1, 0, 0) without ``burley``."""
+    """Write every channel's (c0, c1, c2) of Burley's uniform-light factor into out (3, 3).
+
+    `burley_polynomial`, or Lambert's (1, 0, 0) without ``burley``.
+    """
     if burley:
         burley_polynomial(cos_theta, out[0])
     else:
@@ -297,10 +326,12 @@ def uniform_burley_terms(cos_theta, burley, out):
 
 @borrowing_jit
 def environment_burley_terms(n, table_row, table_frac, azimuthal, burley_response, out):
-    """out (3, 3, >= n): per channel, Burley's factor c0 + r c1 + r^2 c2 under the environment's own
-    light (`environment_burley_factor`) from burley_response (4, cos nodes, >= P)
-    (`burley_response_table`) and the samples' azimuthal (>= n, 3, P) coefficients; channels whose
-    Lambert response is not above `MIN_LAMBERT` x their DC keep what out holds."""
+    """Write Burley's factor under the environment's own light per channel into out (3, 3, >= n).
+
+    c0 + r c1 + r^2 c2 (`light.environment_burley_factor`) from burley_response (4, cos nodes, >= P)
+    (`tables.burley_response_table`) and the samples' azimuthal (>= n, 3, P) coefficients; channels
+    whose Lambert response is not above `MIN_LAMBERT` times their DC keep what out holds.
+    """
     n_pairs = min(azimuthal.shape[2], burley_response.shape[2])
     for s in range(n):
         row, fx = table_row[s], table_frac[s]

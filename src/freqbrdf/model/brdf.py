@@ -32,20 +32,39 @@ DIELECTRIC_F0 = 0.04  # normal-incidence reflectance of the Principled BRDF's di
 
 @dataclass(frozen=True)
 class PrincipledParams:
-    """Principled BRDF parameters per texel, all in [0, 1]."""
+    """Principled BRDF parameters per texel (N texels), all in [0, 1].
 
-    base_color: np.ndarray  # (T, 3) linear RGB
-    roughness: np.ndarray  # (T,)
-    metallic: np.ndarray  # (T,)
+    Attributes
+    ----------
+    base_color : (N, 3) float
+        Linear RGB.
+    roughness : (N,) float
+        alpha = roughness^2.
+    metallic : (N,) float
+    """
+
+    base_color: np.ndarray
+    roughness: np.ndarray
+    metallic: np.ndarray
 
 
 @dataclass(frozen=True)
 class MicrofacetParams:
-    """Torrance-Sparrow parameters (appendix eqs. 7-11): Lambertian + Schlick/GGX specular lobe."""
+    """Torrance-Sparrow parameters (appendix eqs. 7-11): Lambertian + Schlick/GGX specular lobe.
 
-    diffuse_albedo: np.ndarray  # (T, 3) = (1 - metallic) * base_color
-    specular_r0: np.ndarray  # (T, 3) normal-incidence Fresnel reflectance R0
-    alpha: np.ndarray  # (T,) GGX width = roughness^2, >= ALPHA_MIN
+    Attributes
+    ----------
+    diffuse_albedo : (N, 3) float
+        (1 - metallic) base_color.
+    specular_r0 : (N, 3) float
+        The normal-incidence Fresnel reflectance R0.
+    alpha : (N,) float
+        The GGX width roughness^2, at least `ALPHA_MIN`.
+    """
+
+    diffuse_albedo: np.ndarray
+    specular_r0: np.ndarray
+    alpha: np.ndarray
 
 
 # --------------------------------------------------------------------------------------------
@@ -53,12 +72,36 @@ class MicrofacetParams:
 
 
 def alpha_from_roughness(roughness: np.ndarray) -> np.ndarray:
-    """alpha = roughness^2 (appendix eq. 11), clamped to ALPHA_MIN."""
+    """Return the GGX width alpha = roughness^2 (appendix eq. 11), clamped to `ALPHA_MIN`.
+
+    Parameters
+    ----------
+    roughness : array
+        The Principled roughness, any shape.
+
+    Returns
+    -------
+    array
+        alpha, the same shape.
+    """
     return np.maximum(np.square(roughness), ALPHA_MIN)
 
 
 def microfacet_from_principled(params: PrincipledParams) -> MicrofacetParams:
-    """Appendix eqs. 7-11: K_d = (1 - m) b, R0 = 0.04 + (b - 0.04) m per channel, alpha = r^2."""
+    """Convert Principled parameters to microfacet ones (appendix eqs. 7-11).
+
+    K_d = (1 - m) b, R0 = 0.04 + (b - 0.04) m per channel, alpha = r^2.
+
+    Parameters
+    ----------
+    params : PrincipledParams
+        N texels.
+
+    Returns
+    -------
+    MicrofacetParams
+        The same N texels.
+    """
     metallic = params.metallic[:, None]  # (T, 1)
     return MicrofacetParams(
         diffuse_albedo=(1.0 - metallic) * params.base_color,
@@ -70,7 +113,7 @@ def microfacet_from_principled(params: PrincipledParams) -> MicrofacetParams:
 def principled_from_microfacet(
     mf: MicrofacetParams, grid_size: int = 129, refine_iterations: int = 40
 ) -> PrincipledParams:
-    """Invert the Principled mapping: (diffuse albedo, R0) -> (base colour, metallic); r = sqrt(alpha).
+    """Invert the Principled mapping: (diffuse albedo, R0) to (base colour, metallic); r = sqrt(alpha).
 
     Six numbers (d and R0 for three channels) against four unknowns (b, m), so this is a bounded
     least-squares problem in reflectance units:
@@ -90,6 +133,20 @@ def principled_from_microfacet(
     (0.04 (1 - m), 1 - b / 0.04) render identically. Such pairs are genuinely indistinguishable;
     we return the less metallic one (near-black dielectrics are common, metals with R0 < 0.04 are
     not). For any channel above 0.04 the second root leaves [0, 1] and the inverse is unique.
+
+    Parameters
+    ----------
+    mf : MicrofacetParams
+        N texels.
+    grid_size : int, optional
+        Nodes of the metallic grid scanned.
+    refine_iterations : int, optional
+        Golden-section iterations per refined minimum.
+
+    Returns
+    -------
+    PrincipledParams
+        The same N texels, float64.
     """
     diffuse = np.asarray(mf.diffuse_albedo, dtype=np.float64)  # (T, 3)
     r0 = np.asarray(mf.specular_r0, dtype=np.float64)  # (T, 3)
@@ -189,19 +246,50 @@ def _prefer_dielectric(
 
 
 def schlick_fresnel(cos_theta: np.ndarray, r0: np.ndarray) -> np.ndarray:
-    """F = R0 + (1 - R0)(1 - cos theta)^5 (appendix eq. 10); broadcasts cos_theta against r0."""
+    """Return Schlick's Fresnel F = R0 + (1 - R0)(1 - cos theta)^5 (appendix eq. 10).
+
+    Parameters
+    ----------
+    cos_theta : array
+        Cosine of the incidence angle, clipped to [0, 1]; broadcasts against ``r0``.
+    r0 : array
+        The normal-incidence reflectance.
+
+    Returns
+    -------
+    array
+        F, the broadcast shape.
+    """
     return r0 + (1.0 - r0) * (1.0 - np.clip(cos_theta, 0.0, 1.0)) ** 5
 
 
 def dielectric_eta() -> float:
-    """The relative index of refraction whose normal reflectance is DIELECTRIC_F0 (1.5)."""
+    """Return the relative index of refraction whose normal reflectance is `DIELECTRIC_F0` (1.5).
+
+    Returns
+    -------
+    float
+        eta.
+    """
     root = math.sqrt(DIELECTRIC_F0)
     return (1.0 + root) / (1.0 - root)
 
 
 def dielectric_fresnel(cos_theta: np.ndarray) -> np.ndarray:
-    """The exact unpolarised Fresnel reflectance of a dielectric of eta `dielectric_eta`, light
-    arriving from outside at cos_theta in [0, 1] to the (micro)surface normal."""
+    """Return the exact unpolarised Fresnel reflectance of the Principled BRDF's dielectric.
+
+    The dielectric has eta `dielectric_eta`; the light arrives from outside.
+
+    Parameters
+    ----------
+    cos_theta : array
+        Cosine in [0, 1] of the angle to the (micro)surface normal, any shape.
+
+    Returns
+    -------
+    float64 array
+        The reflectance, the same shape.
+    """
     cos_theta = np.asarray(cos_theta, dtype=np.float64)
     eta = dielectric_eta()
     g = np.sqrt(eta * eta - 1.0 + cos_theta * cos_theta)
@@ -210,13 +298,24 @@ def dielectric_fresnel(cos_theta: np.ndarray) -> np.ndarray:
     return 0.5 * perpendicular**2 * (1.0 + ratio**2)
 
 
-
 def smith_g1_ggx(cos_theta: np.ndarray, alpha: np.ndarray) -> np.ndarray:
-    """Exact Smith G1 of the GGX (Trowbridge-Reitz) distribution; broadcasts cos_theta with alpha.
+    """Return the exact Smith G1 of the GGX (Trowbridge-Reitz) distribution.
 
     G1 = 1 / (1 + Lambda), Lambda = (sqrt(1 + alpha^2 tan^2 theta) - 1) / 2, written as
     2 cos / (cos + sqrt(cos^2 + alpha^2 sin^2)) so that grazing angles need no tan (-> 0 at 90°).
     Directions below the horizon are fully masked.
+
+    Parameters
+    ----------
+    cos_theta : array
+        Cosine of the direction's angle to the normal; broadcasts against ``alpha``.
+    alpha : array
+        The GGX width.
+
+    Returns
+    -------
+    array
+        G1 in [0, 1], the broadcast shape.
     """
     cos_theta = np.clip(cos_theta, 0.0, 1.0)
     sin2_theta = 1.0 - cos_theta**2
@@ -225,23 +324,47 @@ def smith_g1_ggx(cos_theta: np.ndarray, alpha: np.ndarray) -> np.ndarray:
 
 
 def shadowed_light(mirrored_radiance: np.ndarray, cos_theta: np.ndarray, alpha: np.ndarray) -> np.ndarray:
-    """Incoming light attenuated by shadowing G1(theta_i) before convolution (appendix eq. 6).
+    """Attenuate the incoming light by the shadowing G1(theta_i) before convolution (appendix eq. 6).
 
     In the mirror parameterisation the light sample paired with view w_o arrives from the mirror
     direction of w_o, so theta_i = theta_o: the shadowing factor is G1 of the view's own cosine.
-    mirrored_radiance (T, V, 3), cos_theta (T, V), alpha (T,) -> (T, V, 3). Fit SH to the result
-    to get `incoming_coeffs` for `predict_angular(..., masking=True)`.
+    Fit SH to the result to get the ``incoming_coeffs`` of `predict_angular` with masking.
+
+    Parameters
+    ----------
+    mirrored_radiance : (N, V, 3) array
+        The light arriving from each view's mirror direction.
+    cos_theta : (N, V) array
+        The views' cosines.
+    alpha : (N,) array
+        The GGX width per texel.
+
+    Returns
+    -------
+    (N, V, 3) array
+        The shadowed light.
     """
     return mirrored_radiance * smith_g1_ggx(cos_theta, alpha[:, None])[..., None]
 
 
 def band_limit_sigma(n_views: int) -> float:
-    """Width of the environment low-pass that suppresses aliasing: sigma = 1 / floor(sqrt(N))."""
+    """Return the width of the environment low-pass that suppresses aliasing: 1 / floor(sqrt(V)).
+
+    Parameters
+    ----------
+    n_views : int
+        V, the number of views.
+
+    Returns
+    -------
+    float
+        sigma.
+    """
     return 1.0 / math.isqrt(n_views)
 
 
 def brdf_kernel(alpha: np.ndarray, lmax: int, sigma: float = 0.0) -> np.ndarray:
-    """BRDF filter per degree, exp(-(alpha^2 - sigma^2) l^2); alpha (T,) -> (T, lmax + 1).
+    """Return the BRDF filter per degree, exp(-(alpha^2 - sigma^2) l^2).
 
     With sigma = 0 this is the Gaussian exp(-(alpha l)^2) of appendix eq. 13. With sigma > 0 the
     environment is assumed low-passed by exp(-(sigma l)^2) before it was sampled (band limit), and
@@ -254,6 +377,20 @@ def brdf_kernel(alpha: np.ndarray, lmax: int, sigma: float = 0.0) -> np.ndarray:
     amplifies the fitted coefficients' noise in high degrees. The kernel is deliberately not
     clamped (that would break the identity above); flag these texels with
     `min_resolvable_alpha` instead of trusting their roughness.
+
+    Parameters
+    ----------
+    alpha : (N,) array
+        The GGX width per texel.
+    lmax : int
+        l*, the highest degree.
+    sigma : float, optional
+        The band limit's width (`band_limit_sigma`); 0: none.
+
+    Returns
+    -------
+    (N, l*+1) array
+        The kernel per texel and degree.
     """
     degrees = np.arange(lmax + 1)
     return np.exp(-(np.square(alpha)[..., None] - sigma**2) * degrees**2)
@@ -269,15 +406,29 @@ def _kernel_per_coeff(alpha: np.ndarray, lmax: int, sigma: float) -> np.ndarray:
 
 
 def constant_fit_coeffs(directions: np.ndarray, weights: np.ndarray, fit: FitConfig) -> np.ndarray:
-    """SH fit of the constant 1 on each texel's samples: directions (T, V, 3), weights (T, V) -> (T, K).
+    """Fit SH to the constant 1 on each texel's samples.
 
     The fit is linear, so a texel's Lambertian radiance d E / pi (constant over w_o) contributes
     exactly d E / pi times these coefficients to its fitted SH. On a well-covered sphere without
     regularisation that is sqrt(4 pi) in l = 0 only; on a sparse, hemispherical, holey sample set
     the degree penalty shrinks the DC term and leaks into l > 0. The prototype's d E / sqrt(pi) in
-    the DC coefficient alone is half the full-sphere value and ignores both effects: on such sample
-    sets the fitted DC is about 1.5-1.7x larger. Cheaper in a pipeline: append a column of ones to
-    the values of the observation fit, which shares its factorisation.
+    the DC coefficient alone is half the full-sphere value and ignores both effects. Cheaper in a
+    pipeline: append a column of ones to the values of the observation fit, which shares its
+    factorisation.
+
+    Parameters
+    ----------
+    directions : (N, V, 3) array
+        The samples' directions.
+    weights : (N, V) array
+        Their weights; 0 where unsampled.
+    fit : FitConfig
+        The SH fit's settings.
+
+    Returns
+    -------
+    (N, K) array
+        The coefficients per texel.
     """
     ones = np.ones(weights.shape + (1,))
     result = sh.fit_sh(
@@ -312,15 +463,34 @@ def predict_angular(
     sigma: float = 0.0,
     basis: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Radiance at the observed view directions: (T, V, 3).
+    """Predict the radiance at the observed view directions with METHOD.md's angular model.
 
     L(w_o) = F(theta_o) G1(theta_o) [sum_lm k_l c^in_lm Y_lm(w_o)] + d E / pi.
 
-    directions (T, V, 3) unit view directions in the texel's local frame (z = normal);
-    incoming_coeffs (T, 3, K) SH fit of the mirrored incoming light on the same samples; for the
-    shadowing-masking extension (appendix eq. 6) fit it to `shadowed_light(...)` and keep
-    masking=True; irradiance (T, 3). fresnel=False uses F = R0, masking=False uses G1 = 1.
-    basis (T, V, K) = sh.eval_sh(directions, lmax) may be passed to reuse it across calls.
+    Parameters
+    ----------
+    mf : MicrofacetParams
+        N texels.
+    directions : (N, V, 3) array
+        Unit view directions in the texel's local frame (z = normal).
+    incoming_coeffs : (N, 3, K) array
+        The SH fit of the mirrored incoming light on the same samples; for the shadowing-masking
+        extension (appendix eq. 6) fit it to `shadowed_light` and keep ``masking``.
+    irradiance : (N, 3) array
+        E per texel.
+    fresnel : bool, optional
+        Schlick's Fresnel, else F = R0.
+    masking : bool, optional
+        G1 of the view, else G1 = 1.
+    sigma : float, optional
+        The band limit's width (`brdf_kernel`).
+    basis : (N, V, K) array, optional
+        ``sh.eval_sh(directions, lmax)``, to reuse it across calls.
+
+    Returns
+    -------
+    (N, V, 3) array
+        The radiance.
     """
     lmax = sh.lmax_of(incoming_coeffs.shape[-1])
     if basis is None:
@@ -343,13 +513,30 @@ def predict_sh_coeffs(
     *,
     sigma: float = 0.0,
 ) -> np.ndarray:
-    """Fitted SH coefficients of the outgoing radiance: (T, 3, K).
+    """Predict the fitted SH coefficients of the outgoing radiance.
 
-    c_lm = R0 k_l c^refl_lm + (d E / pi) u_lm, with reflected_coeffs (T, 3, K) the SH fit of the
-    mirrored light, irradiance (T, 3) and constant_fit u (T, K) from `constant_fit_coeffs` on the
-    same samples. The diffuse part is essentially l = 0, but taken through the fit so that it
-    matches what fitting the observations produces (Fresnel and masking are not modelled here:
-    they are products in the angular domain, not per-coefficient factors).
+    c_lm = R0 k_l c^refl_lm + (d E / pi) u_lm. The diffuse part is essentially l = 0, but taken
+    through the fit so that it matches what fitting the observations produces (Fresnel and
+    masking are not modelled here: they are products in the angular domain, not per-coefficient
+    factors).
+
+    Parameters
+    ----------
+    mf : MicrofacetParams
+        N texels.
+    reflected_coeffs : (N, 3, K) array
+        The SH fit of the mirrored light.
+    irradiance : (N, 3) array
+        E per texel.
+    constant_fit : (N, K) array
+        u, `constant_fit_coeffs` on the same samples.
+    sigma : float, optional
+        The band limit's width (`brdf_kernel`).
+
+    Returns
+    -------
+    (N, 3, K) array
+        The coefficients.
     """
     lmax = sh.lmax_of(reflected_coeffs.shape[-1])
     kernel = _kernel_per_coeff(mf.alpha, lmax, sigma)  # (T, K)
@@ -365,14 +552,31 @@ def predict_power_spectrum(
     *,
     sigma: float = 0.0,
 ) -> np.ndarray:
-    """Power spectrum of the outgoing radiance: (T, 3, lmax + 1).
+    """Predict the power spectrum of the outgoing radiance.
 
-    S(l) = R0^2 k_l^2 S_refl(l) for l >= 1, reflected_spectrum (T, 3, lmax + 1) = power spectrum
-    of the mirrored light's fit. At l = 0 there is one coefficient, so the diffuse and specular
-    parts add as amplitudes, not as powers: S(0) = (R0 k_0 sqrt(S_refl(0)) + (d E / pi) u_00)^2,
-    using that the DC coefficient of a radiance fit is non-negative. constant_fit (T, K) as in
-    `predict_sh_coeffs`; its leakage into l > 0 is neglected here, because it would add cross terms
-    with the light's coefficients, which a power spectrum no longer has.
+    S(l) = R0^2 k_l^2 S_refl(l) for l >= 1. At l = 0 there is one coefficient, so the diffuse and
+    specular parts add as amplitudes, not as powers: S(0) = (R0 k_0 sqrt(S_refl(0)) + (d E / pi)
+    u_00)^2, using that the DC coefficient of a radiance fit is non-negative. The constant fit's
+    leakage into l > 0 is neglected, because it would add cross terms with the light's
+    coefficients, which a power spectrum no longer has.
+
+    Parameters
+    ----------
+    mf : MicrofacetParams
+        N texels.
+    reflected_spectrum : (N, 3, l*+1) array
+        The power spectrum of the mirrored light's fit.
+    irradiance : (N, 3) array
+        E per texel.
+    constant_fit : (N, K) array
+        u, as in `predict_sh_coeffs`.
+    sigma : float, optional
+        The band limit's width (`brdf_kernel`).
+
+    Returns
+    -------
+    (N, 3, l*+1) array
+        The spectrum.
     """
     lmax = reflected_spectrum.shape[-1] - 1
     kernel = brdf_kernel(mf.alpha, lmax, sigma)  # (T, lmax + 1)
@@ -390,7 +594,23 @@ def predict_power_spectrum(
 
 
 def resolvable_degree(n_views: int) -> int:
-    """Highest SH degree N views resolve: the largest integer l* with l* < sqrt(N) (strict)."""
+    """Return the highest SH degree V views resolve: the largest integer l* < sqrt(V).
+
+    Parameters
+    ----------
+    n_views : int
+        V, at least 1.
+
+    Returns
+    -------
+    int
+        l*.
+
+    Raises
+    ------
+    ValueError
+        If ``n_views`` < 1.
+    """
     if n_views < 1:
         raise ValueError(f"n_views must be positive, got {n_views}")
     root = math.isqrt(n_views)
@@ -398,12 +618,29 @@ def resolvable_degree(n_views: int) -> int:
 
 
 def min_resolvable_alpha(lstar: int, attenuation: float = 0.5) -> float:
-    """alpha' = sqrt(-ln t) / l* (appendix eq. 12): the kernel exp(-(alpha l*)^2) equals t there.
+    """Return alpha' = sqrt(-ln t) / l* (appendix eq. 12), where the kernel exp(-(alpha l*)^2) is t.
 
-    Materials with alpha < alpha' keep more than t of their amplitude above l*, where N views
-    alias; their roughness cannot be told apart in (0, alpha'] from spectra.
-    With N = 400 views and t = 0.5: l* = 19 gives 0.0438, l* = 20 = sqrt(N) gives 0.0416. The
-    appendix quotes "alpha' ~ 0.07", which neither reproduces (eq. 12 gives 0.07 only for l* = 12).
+    Materials with alpha < alpha' keep more than t of their amplitude above l*, where the views
+    alias; their roughness cannot be told apart in (0, alpha'] from spectra. With 400 views and
+    t = 0.5: l* = 19 gives 0.0438, l* = 20 gives 0.0416. The appendix quotes "alpha' ~ 0.07",
+    which neither reproduces (eq. 12 gives 0.07 only for l* = 12).
+
+    Parameters
+    ----------
+    lstar : int
+        l*, the highest resolvable degree.
+    attenuation : float, optional
+        t, in (0, 1).
+
+    Returns
+    -------
+    float
+        alpha'.
+
+    Raises
+    ------
+    ValueError
+        If ``attenuation`` is not in (0, 1).
     """
     if not 0.0 < attenuation < 1.0:
         raise ValueError(f"attenuation must lie in (0, 1), got {attenuation}")
@@ -411,14 +648,44 @@ def min_resolvable_alpha(lstar: int, attenuation: float = 0.5) -> float:
 
 
 def min_resolvable_roughness(lstar: int, attenuation: float = 0.5) -> float:
-    """The Principled roughness at the bound: sqrt(alpha')."""
+    """Return the Principled roughness at the bound: sqrt(alpha') (`min_resolvable_alpha`).
+
+    Parameters
+    ----------
+    lstar : int
+        l*, the highest resolvable degree.
+    attenuation : float, optional
+        t, in (0, 1).
+
+    Returns
+    -------
+    float
+        The roughness.
+    """
     return math.sqrt(min_resolvable_alpha(lstar, attenuation))
 
 
 def views_needed(alpha: float, attenuation: float = 0.5) -> int:
-    """Fewest views N whose resolvable degree reaches l* = sqrt(-ln t) / alpha (rounded up).
+    """Return the fewest views whose resolvable degree reaches l* = sqrt(-ln t) / alpha (rounded up).
 
-    N must exceed l*^2 (l* < sqrt(N)), so N = ceil(l*)^2 + 1; this is the appendix's N ~ alpha^-2.
+    V must exceed l*^2 (l* < sqrt(V)), so V = ceil(l*)^2 + 1; this is the appendix's V ~ alpha^-2.
+
+    Parameters
+    ----------
+    alpha : float
+        The GGX width, positive.
+    attenuation : float, optional
+        t, in (0, 1).
+
+    Returns
+    -------
+    int
+        V.
+
+    Raises
+    ------
+    ValueError
+        If ``alpha`` is not positive.
     """
     if alpha <= 0.0:
         raise ValueError(f"alpha must be positive, got {alpha}")

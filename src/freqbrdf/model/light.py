@@ -1,7 +1,21 @@
 """The light a lobe reads: the fitted, the environment and the prefiltered light (METHOD.md §3.6).
 
-numpy versions of what the search kernels evaluate, written independently of them, and the
-prefiltered environment maps the kernels read.
+A lobe of roughness r reads one of three lights, or a blend:
+
+- the fitted light: the per-texel SH fit of the mirrored samples (degrees <= l*), low-passed by
+  the BRDF kernel (`lobe_filtered_light`), as in METHOD.md;
+- the environment light of rough lobes: the environment map's own SH (world frame, degrees
+  <= 5, unoccluded), read through the lobe's exact response to each harmonic
+  (`environment_filtered_light`; `tables.environment_response_table`), plus the map's higher
+  degrees from prefiltered maps; its share rises from 0 to 1 over
+  ``EstimateConfig.environment_blend`` (`environment_weight`);
+- the prefiltered light of smooth lobes: the map itself, filtered by the GGX lobe's per-degree
+  gains at roughness nodes `tables.PREFILTER_STEP` apart (`prefiltered_environment`), looked up
+  at each sample's world mirror direction (`prefiltered_light`). It replaces the fitted light,
+  which cannot hold a smooth lobe's sharp reflections at l* = 5.
+
+Burley's diffuse is averaged over the environment's light too (`environment_burley_factor`).
+These numpy versions are written independently of the search kernels, which evaluate the same.
 """
 
 from __future__ import annotations
@@ -31,16 +45,35 @@ from freqbrdf.sphere import harmonics as sh
 def environment_filtered_light(directions: np.ndarray, weight: np.ndarray, tangent: np.ndarray, normal: np.ndarray,
                                environment_coeffs: np.ndarray, roughness: np.ndarray, term: str = "scale",
                                azimuthal: np.ndarray | None = None) -> np.ndarray:
-    """(n, V, 3) the environment light as the ``term`` of a lobe of roughness (n,) reads it.
+    """Return the environment light as one term of a lobe reads it.
 
-    directions (n, V, 3) local view directions, weight (n, V), tangent and normal (n, 3) world
-    frame of each texel, environment_coeffs (K, 3) the world-frame SH of the environment (degrees
-    up to min(l*, 5) are read): sum over l, m >= 0 of the lobe's responses
-    (`environment_response_table`, linear in cos theta_o) times the environment's coefficients in
-    each sample's mirrored view frame (`environment_azimuthal`), at the table's roughness nodes on
-    either side of the roughness and interpolated linearly between them (as the split-sum albedo
-    is), as the search does. Written with numpy, independently of the kernels. 0 where weight is
-    0. ``azimuthal``: `environment_azimuthal` of these samples, to reuse across calls.
+    The sum over l, m >= 0 of the lobe's responses (`tables.environment_response_table`, linear in
+    cos theta_o) times the environment's coefficients in each sample's mirrored view frame
+    (`environment_azimuthal`), at the table's roughness nodes on either side of the roughness and
+    interpolated linearly between them (as the split-sum albedo is), as the search does. Written
+    with numpy, independently of the kernels.
+
+    Parameters
+    ----------
+    directions : (n, V, 3) array
+        Local view directions (z the normal).
+    weight : (n, V) array
+        The samples' weights; 0 where unsampled.
+    tangent, normal : (n, 3) array
+        The world frame of each texel.
+    environment_coeffs : (K, 3) array
+        The world-frame SH of the environment; degrees up to min(l*, 5) are read.
+    roughness : (n,) array
+        The lobe's roughness per texel.
+    term : str, optional
+        One of `tables.LOBE_TERMS`.
+    azimuthal : (n, V, 3, P) array, optional
+        `environment_azimuthal` of these samples, to reuse across calls.
+
+    Returns
+    -------
+    (n, V, 3) float64
+        The light per sample and channel; 0 where the weight is 0.
     """
     directions = np.asarray(directions, np.float64)
     if azimuthal is None:
@@ -61,10 +94,28 @@ def environment_filtered_light(directions: np.ndarray, weight: np.ndarray, tange
 
 def environment_azimuthal(directions: np.ndarray, weight: np.ndarray, tangent: np.ndarray, normal: np.ndarray,
                           environment_coeffs: np.ndarray) -> np.ndarray:
-    """(n, V, 3, P) the environment's SH coefficients of degree l <= min(l*, 5) and order m >= 0 in
-    each sample's mirrored view frame: the texel's frame (`local_environment`) turned about the
-    normal by the azimuth beta of the mirrored view direction (-x, -y), c_lm cos(m beta) +
-    c_l,-m sin(m beta); P = `environment_pairs`. 0 where weight is 0."""
+    """Turn the environment's SH into each sample's mirrored view frame.
+
+    The texel's frame (`local_environment`) turned about the normal by the azimuth beta of the
+    mirrored view direction (-x, -y): c_lm cos(m beta) + c_l,-m sin(m beta), for degrees
+    l <= min(l*, 5) and orders m >= 0.
+
+    Parameters
+    ----------
+    directions : (n, V, 3) array
+        Local view directions (z the normal).
+    weight : (n, V) array
+        The samples' weights; 0 where unsampled.
+    tangent, normal : (n, 3) array
+        The world frame of each texel.
+    environment_coeffs : (K, 3) array
+        The world-frame SH of the environment.
+
+    Returns
+    -------
+    (n, V, 3, P) float64
+        The coefficients, P = `tables.environment_pairs`; 0 where the weight is 0.
+    """
     directions = np.asarray(directions, np.float64)
     degrees = min(sh.lmax_of(environment_coeffs.shape[0]), ENVIRONMENT_LMAX)
     local = local_environment(environment_coeffs, tangent, normal, degrees)  # (n, K, 3)
@@ -84,9 +135,25 @@ def environment_azimuthal(directions: np.ndarray, weight: np.ndarray, tangent: n
 
 def local_environment(environment_coeffs: np.ndarray, tangent: np.ndarray, normal: np.ndarray,
                       lmax: int) -> np.ndarray:
-    """(n, (lmax + 1)^2, 3) the world-frame SH environment_coeffs (K, 3) up to degree lmax in each
-    texel's frame (x tangent, y normal x tangent, z normal; tangent and normal (n, 3)): projected
-    with a quadrature exact for products of two such harmonics, so exact to rounding."""
+    """Turn world-frame SH coefficients into each texel's frame.
+
+    The frame is x tangent, y normal x tangent, z normal; projected with a quadrature exact for
+    products of two such harmonics, so exact to rounding.
+
+    Parameters
+    ----------
+    environment_coeffs : (K, 3) array
+        The world-frame SH (at least (lmax + 1)^2 coefficients).
+    tangent, normal : (n, 3) array
+        Each texel's frame.
+    lmax : int
+        The highest degree turned.
+
+    Returns
+    -------
+    (n, (lmax + 1)^2, 3) float64
+        The coefficients in each texel's frame.
+    """
     directions, weights = sh.sphere_quadrature(2 * lmax)
     tangent, normal = np.asarray(tangent, np.float64), np.asarray(normal, np.float64)
     frames = np.stack([tangent, np.cross(normal, tangent), normal], axis=1)  # (n, 3, 3) rows
@@ -97,33 +164,76 @@ def local_environment(environment_coeffs: np.ndarray, tangent: np.ndarray, norma
 
 @functools.cache
 def environment_quadrature(lmax: int) -> tuple[np.ndarray, np.ndarray]:
-    """(directions (Q, 3), projection (K, Q)) of `local_environment`'s quadrature for the kernels:
-    local coefficients = projection @ (the environment at the directions turned to the world)."""
+    """Return `local_environment`'s quadrature, for the kernels.
+
+    Local coefficients = projection @ (the environment at the directions turned to the world).
+
+    Parameters
+    ----------
+    lmax : int
+        The highest degree.
+
+    Returns
+    -------
+    directions : (Q, 3) float64
+        The quadrature's directions.
+    projection : ((lmax + 1)^2, Q) float64
+        The SH basis times the weights, transposed.
+    """
     directions, weights = sh.sphere_quadrature(2 * lmax)
     return np.ascontiguousarray(directions), np.ascontiguousarray((sh.eval_sh(directions, lmax) * weights[:, None]).T)
 
 
 def environment_weight(roughness: np.ndarray, blend: tuple[float, float]) -> np.ndarray:
-    """The environment light's share of the light a lobe of this roughness reads: 0 up to
-    blend[0], 1 from blend[1], smoothstep between (`EstimateConfig.environment_blend`)."""
+    """Return the environment light's share of the light a lobe reads.
+
+    0 up to blend[0], 1 from blend[1], smoothstep between (``EstimateConfig.environment_blend``).
+
+    Parameters
+    ----------
+    roughness : array
+        The lobe's roughness, any shape.
+    blend : (float, float)
+        Where the share starts to rise and where it reaches 1.
+
+    Returns
+    -------
+    float64 array
+        The share, the shape of ``roughness``.
+    """
     roughness = np.asarray(roughness, np.float64)
     return np.array([environment_share(r, blend) for r in roughness.ravel()]).reshape(roughness.shape)
 
 
-# Larger maps are resampled to this height (degrees up to 510, ~0.35 degrees): bounds the memory
-# of the prefiltered stack (11 maps of 512 x 1024 x 3 float32: 69 MB) and its transforms.
+# Larger maps are resampled to this height (degrees up to 510): bounds the memory of the
+# prefiltered stack and its transforms.
 PREFILTER_MAX_HEIGHT = 512
 
 
 def prefiltered_environment(envmap, n_nodes: int, skip_degrees: int = 0) -> np.ndarray:
-    """(n_nodes, H, W, 3) float32 the map (an `envmap.Envmap`) filtered by `ggx_lobe_gains` at
-    roughness j PREFILTER_STEP, every degree the map holds (at most PREFILTER_MAX_HEIGHT rows)
-    from ``skip_degrees`` on (the environment light holds the degrees below). Node 0, a mirror,
-    is the map itself (averaged in pixel space to the stack's size, `envmap.downsample`): cut at
-    the map's band limit it would ring around bright lights (Gibbs; it read 8 % too bright beside
-    entropy_scenes.py's 40x lights). The next nodes' lobes are filtered in SH as the rest: read
-    raw as well, roughness between them would mix a sharp map into a blurred one (on the plane,
-    T = 256, without the robust pass: roughness MAE 0.057 -> 0.064 with a 5-node grid)."""
+    """Filter an environment map by the GGX lobe's gains at the prefiltered roughness nodes.
+
+    The map is filtered by `tables.ggx_lobe_gains` at roughness j `tables.PREFILTER_STEP`, every
+    degree the map holds (at most `PREFILTER_MAX_HEIGHT` rows) from ``skip_degrees`` on (the
+    environment light holds the degrees below). Node 0, a mirror, is the map itself (averaged in
+    pixel space to the stack's size, `envmap.downsample`): cut at the map's band limit it would ring
+    around bright lights (Gibbs). The next nodes' lobes are filtered in SH as the rest: read raw as
+    well, roughness between them would mix a sharp map into a blurred one.
+
+    Parameters
+    ----------
+    envmap : Envmap
+        The environment map (`freqbrdf.sphere.envmap.Envmap`).
+    n_nodes : int
+        The number of roughness nodes.
+    skip_degrees : int, optional
+        Leave out the degrees below this.
+
+    Returns
+    -------
+    (n_nodes, H, W, 3) float32
+        The filtered maps, H at most `PREFILTER_MAX_HEIGHT`, W = 2 H.
+    """
     height, width = envmap.radiance.shape[:2]
     out_height = min(height, PREFILTER_MAX_HEIGHT, (width + 1) // 2)
     lmax = min(height - 2, (width - 1) // 2, out_height - 2)
@@ -142,10 +252,29 @@ def prefiltered_environment(envmap, n_nodes: int, skip_degrees: int = 0) -> np.n
 
 def prefiltered_light(directions: np.ndarray, tangent: np.ndarray, normal: np.ndarray, prefiltered: np.ndarray,
                       rotation: np.ndarray, roughness: np.ndarray) -> np.ndarray:
-    """(n, V, 3) the prefiltered light a lobe of roughness (n,) reads: directions (n, V, 3) local view
-    directions, tangent and normal (n, 3) world frame of each texel, prefiltered (nodes, H, W, 3)
-    `prefiltered_environment` of a map with emitter-to-world ``rotation`` (3, 3), looked up at the
-    world mirror directions and linear in roughness between its nodes (as the search reads it)."""
+    """Return the prefiltered light a lobe reads, as the search reads it.
+
+    Looked up bilinearly at the world mirror directions and linear in roughness between the maps'
+    nodes. Written with numpy, independently of the kernels.
+
+    Parameters
+    ----------
+    directions : (n, V, 3) array
+        Local view directions (z the normal).
+    tangent, normal : (n, 3) array
+        The world frame of each texel.
+    prefiltered : (nodes, H, W, 3) array
+        `prefiltered_environment` of the map.
+    rotation : (3, 3) array
+        The map's emitter-to-world rotation.
+    roughness : (n,) array
+        The lobe's roughness per texel.
+
+    Returns
+    -------
+    (n, V, 3) float64
+        The light per sample and channel.
+    """
     directions = np.asarray(directions, np.float64)
     tangent, normal = np.asarray(tangent, np.float64), np.asarray(normal, np.float64)
     bitangent = np.cross(normal, tangent)
@@ -184,11 +313,30 @@ def prefiltered_light(directions: np.ndarray, tangent: np.ndarray, normal: np.nd
 
 def lobe_filtered_light(directions: np.ndarray, weight: np.ndarray, light_coeffs: np.ndarray, lmax: int,
                         sigma: float, roughness: np.ndarray) -> np.ndarray:
-    """(n, V, 3) the fitted light as the split-sum model filters it for a lobe of roughness (n,).
+    """Return the fitted light as the split-sum model filters it for a lobe.
 
-    directions (n, V, 3) local view directions, weight (n, V), light_coeffs (n, 3, K): the SH fit
-    of the mirrored light, low-passed by the BRDF kernel and read in the mirror direction; 0
-    where weight is 0.
+    The SH fit of the mirrored light, low-passed by the BRDF kernel (`brdf.brdf_kernel`) and read
+    in the mirror direction.
+
+    Parameters
+    ----------
+    directions : (n, V, 3) array
+        Local view directions (z the normal).
+    weight : (n, V) array
+        The samples' weights; 0 where unsampled.
+    light_coeffs : (n, 3, K) array
+        The SH fit of the mirrored light.
+    lmax : int
+        l*.
+    sigma : float
+        The band limit's width (`brdf.band_limit_sigma`).
+    roughness : (n,) array
+        The lobe's roughness per texel.
+
+    Returns
+    -------
+    (n, V, 3) float64
+        The light per sample and channel; 0 where the weight is 0.
     """
     alpha = brdf.alpha_from_roughness(np.asarray(roughness, np.float64))
     kernel = brdf.brdf_kernel(alpha, lmax, sigma)  # (n, l*+1)
@@ -196,16 +344,48 @@ def lobe_filtered_light(directions: np.ndarray, weight: np.ndarray, light_coeffs
 
 
 def mirror_projections(directions, weight, coeffs, lmax) -> np.ndarray:
-    """(n, 3, l*+1, V) `degree_projections` at the view directions, normalised in float64 as the
-    search kernel normalises them."""
+    """Expand the light by degree at the view directions, normalised in float64 as the search does.
+
+    Parameters
+    ----------
+    directions : (n, V, 3) array
+        View directions; unsampled ones may be (0, 0, 0).
+    weight : (n, V) array
+        The samples' weights; 0 where unsampled.
+    coeffs : (n, 3, K) array
+        The light's SH fit.
+    lmax : int
+        l*.
+
+    Returns
+    -------
+    (n, 3, l*+1, V) float32
+        `degree_projections` at the unit directions.
+    """
     directions = np.asarray(directions, dtype=np.float64)
     unit = directions / np.maximum(np.linalg.norm(directions, axis=-1, keepdims=True), 1e-12)  # unsampled: (0, 0, 0)
     return degree_projections(unit, weight, coeffs, lmax)
 
 
 def degree_projections(directions: np.ndarray, weight: np.ndarray, coeffs: np.ndarray, lmax: int) -> np.ndarray:
-    """P_c,l(w_v) = sum_m c_c,lm Y_lm(w_v): directions (n, V, 3), weight (n, V), coeffs (n, 3, K)
-    -> (n, 3, l*+1, V); 0 at samples of weight 0, which no estimator reads (a third of the work)."""
+    """Expand SH coefficients by degree at the samples: P_c,l(w_v) = sum_m c_c,lm Y_lm(w_v).
+
+    Parameters
+    ----------
+    directions : (n, V, 3) array
+        Unit directions.
+    weight : (n, V) array
+        The samples' weights; samples of weight 0 are skipped (no estimator reads them).
+    coeffs : (n, 3, K) array
+        The SH coefficients per texel and channel.
+    lmax : int
+        l*.
+
+    Returns
+    -------
+    (n, 3, l*+1, V) float32
+        The projections; 0 where the weight is 0.
+    """
     basis = sh.eval_sh(np.ascontiguousarray(directions, dtype=np.float32), lmax)  # (n, V, K)
     out = np.empty((directions.shape[0], 3, lmax + 1, directions.shape[1]), dtype=np.float32)
     project_degrees_kernel(basis, weight, np.ascontiguousarray(coeffs, dtype=np.float32), out)
@@ -215,11 +395,33 @@ def degree_projections(directions: np.ndarray, weight: np.ndarray, coeffs: np.nd
 def environment_burley_factor(directions: np.ndarray, weight: np.ndarray, tangent: np.ndarray, normal: np.ndarray,
                               environment_coeffs: np.ndarray, roughness: np.ndarray,
                               azimuthal: np.ndarray | None = None) -> np.ndarray:
-    """(n, V, 3) Burley's diffuse relative to Lambert's under the environment's own light (degrees
-    <= min(l*, 3); `burley_response_table`, linear in cos theta_o) per channel, for roughness (n,):
-    what `burley_diffuse_factor` gives under uniform light. Where a channel's Lambert response is
-    not positive (a map with no light there) the uniform-light factor. Written with numpy,
-    independently of the kernels; 0 where weight is 0."""
+    """Return Burley's diffuse relative to Lambert's under the environment's own light.
+
+    Degrees <= min(l*, 3) of the light (`tables.burley_response_table`, linear in cos theta_o), per
+    channel: what `tables.burley_diffuse_factor` gives under uniform light. Where a channel's
+    Lambert response is not positive (a map with no light there), the uniform-light factor. Written
+    with numpy, independently of the kernels.
+
+    Parameters
+    ----------
+    directions : (n, V, 3) array
+        Local view directions (z the normal).
+    weight : (n, V) array
+        The samples' weights; 0 where unsampled.
+    tangent, normal : (n, 3) array
+        The world frame of each texel.
+    environment_coeffs : (K, 3) array
+        The world-frame SH of the environment.
+    roughness : (n,) array
+        The roughness per texel.
+    azimuthal : (n, V, 3, P) array, optional
+        `environment_azimuthal` of these samples, to reuse across calls.
+
+    Returns
+    -------
+    (n, V, 3) float64
+        The factor per sample and channel; 0 where the weight is 0.
+    """
     directions = np.asarray(directions, np.float64)
     if azimuthal is None:
         azimuthal = environment_azimuthal(directions, weight, tangent, normal, environment_coeffs)

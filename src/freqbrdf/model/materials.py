@@ -16,6 +16,7 @@ from skimage.transform import resize as resize_image
 from freqbrdf.errors import InputError
 from freqbrdf.images import read_image, write_exr
 
+#: The file of each map in a texture-set folder.
 MAP_FILES = {
     "base_color": "base_color.exr",
     "roughness": "roughness.exr",
@@ -25,9 +26,26 @@ MAP_FILES = {
 
 @dataclass(frozen=True, eq=False)  # holds arrays: compare fields explicitly
 class MaterialMaps:
-    base_color: np.ndarray  # (T, T, 3) float32, linear, in [0, 1]
-    roughness: np.ndarray  # (T, T) float32, in [0, 1]; alpha = roughness^2
-    metallic: np.ndarray  # (T, T) float32, in [0, 1]
+    """A Principled texture set: base colour, roughness and metallic maps of one resolution.
+
+    Attributes
+    ----------
+    base_color : (T, T, 3) float32
+        Linear RGB in [0, 1].
+    roughness : (T, T) float32
+        In [0, 1]; alpha = roughness^2.
+    metallic : (T, T) float32
+        In [0, 1].
+
+    Raises
+    ------
+    ValueError
+        If the maps' shapes disagree.
+    """
+
+    base_color: np.ndarray
+    roughness: np.ndarray
+    metallic: np.ndarray
 
     def __post_init__(self):
         resolution = self.base_color.shape[0]
@@ -42,11 +60,29 @@ class MaterialMaps:
 
     @property
     def resolution(self) -> int:
+        """T, the maps' side in texels."""
         return self.base_color.shape[0]
 
 
 def load_material_maps(folder: str | Path) -> MaterialMaps:
-    """Read a texture set written by `save_material_maps` (or by hand with the same file names)."""
+    """Read a texture set written by `save_material_maps` (or by hand with the same file names).
+
+    Parameters
+    ----------
+    folder : str or Path
+        The folder holding `MAP_FILES`.
+
+    Returns
+    -------
+    MaterialMaps
+        The maps, float32.
+
+    Raises
+    ------
+    InputError
+        If the folder or a file is missing, a map is not square or not a single channel, values
+        exceed 1, or the maps differ in resolution.
+    """
     folder = Path(folder)
     if not folder.is_dir():
         raise InputError(folder, "material folder does not exist")
@@ -72,7 +108,17 @@ def load_material_maps(folder: str | Path) -> MaterialMaps:
 
 
 def save_material_maps(folder: str | Path, maps: MaterialMaps, half: bool = False) -> None:
-    """Write the three maps as EXR (float32, or float16 with ``half``); each file atomically."""
+    """Write the three maps as EXR files (`MAP_FILES`), each atomically.
+
+    Parameters
+    ----------
+    folder : str or Path
+        The folder to write into.
+    maps : MaterialMaps
+        The maps.
+    half : bool, optional
+        Store float16 instead of float32.
+    """
     folder = Path(folder)
     precision = np.float16 if half else np.float32
     for name, filename in MAP_FILES.items():
@@ -80,9 +126,22 @@ def save_material_maps(folder: str | Path, maps: MaterialMaps, half: bool = Fals
 
 
 def resize(maps: MaterialMaps, resolution: int) -> MaterialMaps:
-    """Resample to ``resolution`` x ``resolution``: bilinear, area-prefiltered when shrinking.
+    """Resample a texture set: bilinear, area-prefiltered when shrinking.
 
     Base colour is resampled in linear space, where averaging is physically meaningful.
+
+    Parameters
+    ----------
+    maps : MaterialMaps
+        The maps (T x T).
+    resolution : int
+        The new side.
+
+    Returns
+    -------
+    MaterialMaps
+        The maps at ``resolution`` x ``resolution``, clipped to [0, 1] (``maps`` itself when the
+        resolution is already that).
     """
     if resolution == maps.resolution:
         return maps
