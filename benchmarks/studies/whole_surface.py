@@ -397,7 +397,11 @@ def markdown(results: dict) -> str:
            "std: Spearman rho with |error| / fraction within 1 std, on seen texels (unseen in brackets).", ""]
     settings = results["settings"]
     out += [f"Capture: {settings['render']}; Mitsuba inverse: {settings['inverse']}; relighting "
-            f"{settings['relight_spp']} spp.", ""]
+            f"{settings['relight_spp']} spp.", "",
+            "Seconds are wall-clock on the 2-core machine, which other jobs may share: compare them with the "
+            "load average and control seconds under each table. Fits: the whole `pipeline.fit` in a process "
+            "whose numba kernels were loaded before (`warm_up`); Mitsuba: its whole loop (image loading and "
+            "kernel compilation included), as measured when its maps were cached.", ""]
     for name, data in results["scenes"].items():
         scene, texels = data["scene"], data["texels"]
         light = scene["envmap"] + (" (rotated)" if scene["rotated_light"] else "")
