@@ -12,9 +12,15 @@ import shutil
 import numpy as np
 import pytest
 
-from helpers import observations_from_samples
 from freqbrdf import pipeline
 from freqbrdf.applications import guidance
+from freqbrdf.applications.candidates import (
+    CandidateSamples,
+    candidate_samples,
+    farthest_point_views,
+    sample_candidates,
+    view_directions,
+)
 from freqbrdf.capture.camera import look_at
 from freqbrdf.capture.camera_layouts import bounding_sphere
 from freqbrdf.capture.layouts import Frame, load, write_transforms
@@ -24,6 +30,7 @@ from freqbrdf.observe.observations import Observations
 from freqbrdf.sphere import harmonics as sh
 from freqbrdf.synthetic.synth import SynthSettings, synthesize
 from freqbrdf.uncertainty import entropy_from_spectra
+from helpers import observations_from_samples
 
 LMAX = 3
 
@@ -41,12 +48,12 @@ def synthetic_observations(rng, n_texels=12, n_views=20, lmax=LMAX, sigma=0.25) 
     return observations_from_samples(directions, weight, observed, mirrored, lmax, sigma=sigma, texture_res=4)
 
 
-def new_view(rng, texels, lmax=LMAX) -> tuple[guidance.CandidateSamples, np.ndarray]:
+def new_view(rng, texels, lmax=LMAX) -> tuple[CandidateSamples, np.ndarray]:
     """A candidate's samples at ``texels``, and their local view directions (n, 3)."""
     directions = rng.normal(size=(len(texels), 3))
     directions[:, 2] = np.abs(directions[:, 2]) + 0.1
     directions /= np.linalg.norm(directions, axis=1, keepdims=True)
-    samples = guidance.CandidateSamples(
+    samples = CandidateSamples(
         texel=np.asarray(texels), weight=directions[:, 2], basis=sh.eval_sh(directions, lmax),
         light=rng.uniform(0.0, 2.0, (len(texels), 3)),
     )
@@ -145,10 +152,10 @@ def test_expected_entropy_of_a_known_material_equals_the_entropy_of_the_refit(mo
 def test_farthest_point_views_spread_and_extend_a_chosen_set():
     directions = np.array([[0, 0, 1], [0, 0.1, 0.995], [0, 0, -1], [1, 0, 0], [-1, 0, 0]], float)
     directions /= np.linalg.norm(directions, axis=1, keepdims=True)
-    assert guidance.farthest_point_views(directions, 3) == [0, 2, 3]
-    assert guidance.farthest_point_views(directions, 2, chosen=[0, 2]) == [3, 4]
+    assert farthest_point_views(directions, 3) == [0, 2, 3]
+    assert farthest_point_views(directions, 2, chosen=[0, 2]) == [3, 4]
     with pytest.raises(ValueError):
-        guidance.farthest_point_views(directions, 4, chosen=[0, 2])
+        farthest_point_views(directions, 4, chosen=[0, 2])
 
 
 def test_regularisation_is_required():
@@ -202,9 +209,9 @@ def test_a_view_of_the_unseen_half_beats_a_duplicate_and_lowers_the_expected_ent
 @pytest.mark.slow
 def test_spread_lets_only_the_candidates_far_from_the_taken_views_compete(sphere_from_above):
     capture = sphere_from_above
-    candidates = guidance.sample_candidates(capture, 8)
-    directions = guidance.view_directions(capture, candidates)
-    taken = guidance.view_directions(capture, [frame.camera for frame in capture.frames])
+    candidates = sample_candidates(capture, 8)
+    directions = view_directions(capture, candidates)
+    taken = view_directions(capture, [frame.camera for frame in capture.frames])
     # Nearly all excluded: each pick is the candidate farthest from every view taken or picked.
     picks = guidance.select_views(capture, candidates, 3, CONFIG, max_texels=200, spread=0.99)
     closeness = (directions @ taken.T).max(axis=1)
@@ -229,7 +236,7 @@ def test_candidate_samples_of_the_capture_cameras_are_the_observed_samples(spher
     observations = observe(capture, CONFIG)
     texels = rasterise(capture.mesh, CONFIG.texels.texture_res)
     cameras = [frame.camera for frame in capture.frames]
-    samples = guidance.candidate_samples(capture, texels, cameras, observations, LMAX)
+    samples = candidate_samples(capture, texels, cameras, observations, LMAX)
     for view, sample in enumerate(samples):
         observed = np.flatnonzero(observations.visible[:, view])
         assert np.isin(observed, sample.texel).all()
@@ -245,7 +252,7 @@ def test_candidate_samples_of_the_capture_cameras_are_the_observed_samples(spher
 @pytest.mark.slow
 def test_sampled_candidates_look_at_the_object_with_the_capture_intrinsics(sphere_from_above):
     capture = sphere_from_above
-    cameras = guidance.sample_candidates(capture, 10, hemisphere=True)
+    cameras = sample_candidates(capture, 10, hemisphere=True)
     centre, _ = bounding_sphere(capture.mesh.vertices)
     template = capture.frames[0].camera
     for camera in cameras:

@@ -28,19 +28,16 @@ from freqbrdf.capture.layouts import load
 from freqbrdf.capture.mesh import Mesh
 from freqbrdf.cli import main
 from freqbrdf.config import Config, FitConfig, TexelConfig
-from freqbrdf.sphere.envmap import Envmap, load_envmap, lookup
 from freqbrdf.errors import InputError
 from freqbrdf.images import write_exr
 from freqbrdf.model.materials import MaterialMaps, save_material_maps
-from freqbrdf.observe.observations import (
-    Observations,
-    _sample_bilinear,
-    observe,
-    texel_irradiance,
-)
+from freqbrdf.observe._kernels import _sample_bilinear
+from freqbrdf.observe.irradiance import texel_irradiance
+from freqbrdf.observe.observations import Observations, observe
 from freqbrdf.render import scenes as render
 from freqbrdf.render.occluder import Occluder
 from freqbrdf.sphere import harmonics as sh
+from freqbrdf.sphere.envmap import Envmap, load_envmap, lookup
 from freqbrdf.synthetic.synth import SynthSettings, synthesize
 from freqbrdf.texels import rasterise
 

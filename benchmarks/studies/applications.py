@@ -60,6 +60,7 @@ import numpy as np
 from scipy import stats
 
 from freqbrdf.applications import guidance
+from freqbrdf.applications.candidates import farthest_point_views, view_directions
 from freqbrdf.applications.inpaint import biharmonic_fill, inpaint_maps, inpaint_mask
 from freqbrdf.applications.share import share_details
 from freqbrdf.capture.layouts import Capture, load
@@ -123,11 +124,11 @@ def guidance_scene(name: str, args) -> dict:
     pool = scene_capture(name, args.pool)
     config = Config(texels=TexelConfig(texture_res=args.texture_res))
     cameras = [frame.camera for frame in pool.frames]
-    directions = guidance.view_directions(pool, cameras)
+    directions = view_directions(pool, cameras)
     # Texels some pool view samples: where every strategy could have looked.
     coverable = observe(pool, config).n_samples > 0
     truth = resize(pool.ground_truth, args.texture_res)
-    initial = guidance.farthest_point_views(directions, INITIAL_VIEWS)
+    initial = farthest_point_views(directions, INITIAL_VIEWS)
 
     def score(views: list[int]) -> tuple[dict, object]:
         result = fit(with_views(pool, views), config)
@@ -168,7 +169,7 @@ def guidance_scene(name: str, args) -> dict:
     views = list(initial)
     curves["farthest_point"] = [start_row]
     while len(views) < FINAL_VIEWS:
-        views += guidance.farthest_point_views(directions, STEP_VIEWS, chosen=views)
+        views += farthest_point_views(directions, STEP_VIEWS, chosen=views)
         curves["farthest_point"].append(score(views)[0])
         print(f"[{name}] farthest-point {len(views)}: {json.dumps(curves['farthest_point'][-1])}", flush=True)
 
@@ -290,8 +291,8 @@ def sparse_fit(name: str, args) -> tuple[FitResult, np.ndarray, Config]:
         pool = scene_capture(name, args.pool)
         config = Config(texels=TexelConfig(texture_res=args.texture_res),
                         uncertainty=UncertaintyConfig(mode=args.entropy))
-        directions = guidance.view_directions(pool, [frame.camera for frame in pool.frames])
-        result = fit(with_views(pool, guidance.farthest_point_views(directions, args.sparse_views)), config)
+        directions = view_directions(pool, [frame.camera for frame in pool.frames])
+        result = fit(with_views(pool, farthest_point_views(directions, args.sparse_views)), config)
         truth = resize(pool.ground_truth, args.texture_res)
         index = result.observations.texel_index
         truth_params = np.column_stack([truth.base_color.reshape(-1, 3)[index], truth.roughness.ravel()[index],

@@ -191,8 +191,8 @@ def observe(
 
     from freqbrdf.capture.layouts import load
     from freqbrdf.fileio import atomic_path
+    from freqbrdf.observe.maps import write_maps
     from freqbrdf.observe.observations import observe as observe_capture
-    from freqbrdf.observe.observations import write_maps
     from freqbrdf.progress import Reporter
 
     config = _config("default", texture_res, lmax)
@@ -544,7 +544,9 @@ def next_views(
     import time
 
     from freqbrdf import pipeline
+    from freqbrdf.applications import candidates as candidate_views
     from freqbrdf.applications import guidance
+    from freqbrdf.applications import next_views as next_views_folder
     from freqbrdf.capture.layouts import load
     from freqbrdf.progress import Reporter
 
@@ -553,10 +555,10 @@ def next_views(
     config = _config("default", texture_res)
     loaded = load(capture)
     if candidates is not None:
-        cameras = guidance.load_candidates(candidates, loaded)
+        cameras = candidate_views.load_candidates(candidates, loaded)
         source = candidates
     else:
-        cameras = guidance.sample_candidates(loaded, sample, hemisphere)
+        cameras = candidate_views.sample_candidates(loaded, sample, hemisphere)
         source = f"{sample} sampled on the {'hemisphere' if hemisphere else 'sphere'}"
     if budget > len(cameras):
         raise InputError(candidates, f"--budget {budget} exceeds the {len(cameras)} candidate cameras ({source})")
@@ -581,7 +583,7 @@ def next_views(
         "settings": config.to_dict(),
         "estimation_res": estimation_res,
     }
-    guidance.write_next_views(out, loaded, picks, summary, cameras)
+    next_views_folder.write_next_views(out, loaded, picks, summary, cameras)
     if not quiet:
         Console().print(escape(
             f"mean entropy {picks[0].entropy_before:.3f} -> {picks[-1].expected_entropy:.3f} (expected) with "

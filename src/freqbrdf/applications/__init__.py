@@ -7,8 +7,14 @@ and material maps whose uncertain regions are filled.
 Modules
 -------
 guidance
-    Capture guidance: the next views by expected entropy (`select_views`), candidate views and
-    the ``next_views`` folder.
+    Capture guidance: the next views by expected entropy (`select_views`) and the incremental
+    fits that score them (`FitState`, `expected_entropy`).
+candidates
+    Candidate views for guidance (`sample_candidates`, `load_candidates`,
+    `farthest_point_views`) and what each would sample (`candidate_samples`).
+next_views
+    The ``next_views`` folder: the ranked cameras, a picture of them and a summary
+    (`write_next_views`).
 share
     Sharing across the surface: anchors, affinities and the pull of uncertain texels towards
     them (`share_details`; its `freqbrdf.applications.share.share` is not re-exported: the name
@@ -18,28 +24,25 @@ inpaint
     biharmonic or a diffusion backend.
 """
 
+from freqbrdf.applications.candidates import (
+    CandidateSamples,
+    candidate_samples,
+    farthest_point_views,
+    load_candidates,
+    sample_candidates,
+    view_directions,
+)
 from freqbrdf.applications.guidance import (
     MAX_TEXELS,
     MIN_CELL_PROBABILITY,
-    NEXT_VIEWS_FILE,
-    PICTURE_FILE,
     SPREAD,
-    SUMMARY_FILE,
-    CandidateSamples,
     FitState,
     Pick,
     add_samples,
-    candidate_samples,
     expected_entropy,
-    farthest_point_views,
     initial_state,
-    load_candidates,
-    plot_views,
-    sample_candidates,
     select_views,
     state_coeffs,
-    view_directions,
-    write_next_views,
 )
 from freqbrdf.applications.inpaint import (
     MAP_NAMES,
@@ -53,6 +56,13 @@ from freqbrdf.applications.inpaint import (
     inpaint_maps,
     inpaint_mask,
     load_diffusion_fill,
+)
+from freqbrdf.applications.next_views import (
+    NEXT_VIEWS_FILE,
+    PICTURE_FILE,
+    SUMMARY_FILE,
+    plot_views,
+    write_next_views,
 )
 from freqbrdf.applications.share import (
     PROBABILITY_FLOOR,

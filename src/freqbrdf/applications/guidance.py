@@ -24,8 +24,8 @@ one will most likely reveal. The band limit sigma stays that of the capture's ow
 texels scored are a seeded random subset of the atlas (``max_texels``); hypotheses less likely
 than `MIN_CELL_PROBABILITY` are left out of the expectation.
 
-`sample_candidates`, `load_candidates` and `farthest_point_views` make candidate views;
-`write_next_views` writes the ranked cameras, a picture of them and a summary.
+The candidate views and what each would sample are made in `freqbrdf.applications.candidates`;
+`freqbrdf.applications.next_views` writes the ranked cameras, a picture of them and a summary.
 """
 
 from __future__ import annotations
@@ -34,29 +34,16 @@ import dataclasses
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
-from freqbrdf.capture.camera import Camera, look_at, read_cameras
-from freqbrdf.capture.camera_layouts import (
-    WORLD_UP,
-    bounding_sphere,
-    fibonacci_directions,
-)
+from freqbrdf.applications.candidates import CandidateSamples, candidate_samples, view_directions
+from freqbrdf.capture.camera import Camera
 from freqbrdf.capture.layouts import Capture
 from freqbrdf.config import Config
 from freqbrdf.model import brdf
-from freqbrdf.observe.observations import (
-    RAY_OFFSET_OBJECT,
-    RAY_OFFSET_TEXELS,
-    Observations,
-    observe,
-)
-from freqbrdf.observe.visibility import camera_samples
+from freqbrdf.observe.observations import Observations, observe
 from freqbrdf.progress import SILENT, Reporter
-from freqbrdf.render.occluder import Occluder
-from freqbrdf.sphere import envmap as envmaps
 from freqbrdf.sphere import harmonics as sh
 from freqbrdf.texels import Texels, rasterise
 from freqbrdf.uncertainty import (
@@ -114,28 +101,6 @@ class Pick:
     expected_entropy: float
     texels_seen: int
     seconds: float
-
-
-@dataclass(frozen=True)
-class CandidateSamples:
-    """What one candidate camera would add to the scored texels, n of which it sees.
-
-    Attributes
-    ----------
-    texel : (n,) int64
-        Rows of the scored texels.
-    weight : (n,) float64
-        cos(theta_o) of each sample.
-    basis : (n, K) float64
-        The SH at the view direction in the texel's frame.
-    light : (n, 3) float64
-        The band-limited environment in the mirror direction.
-    """
-
-    texel: np.ndarray
-    weight: np.ndarray
-    basis: np.ndarray
-    light: np.ndarray
 
 
 @dataclass(eq=False)
@@ -480,317 +445,6 @@ def expected_entropy(
         [np.bincount(pair, weights * radiance[:, c], minlength=len(rows)) for c in range(3)], axis=1
     ) / total[:, None]
     return expected, mean_radiance
-
-
-# --------------------------------------------------------------------------------------------
-# Candidates
-
-
-def candidate_samples(
-    capture: Capture,
-    texels: Texels,
-    cameras: Sequence[Camera],
-    observations: Observations,
-    lmax: int,
-) -> list[CandidateSamples]:
-    """Find the samples each camera would add to the texels; no images needed.
-
-    Visibility as in `freqbrdf.observe.observe` (`freqbrdf.observe.camera_samples`): in front,
-    facing, inside the image, and an unoccluded shadow ray (Mitsuba) from the offset texel to the
-    camera centre. There is no object mask yet, so silhouette texels may count where a
-    photograph's mask would drop them.
-
-    Parameters
-    ----------
-    capture : Capture
-        Its mesh (for the shadow rays) and environment map.
-    texels : Texels
-        The n scored texels, those of ``observations``.
-    cameras : sequence of Camera
-        The candidates.
-    observations : Observations
-        Its band limit sigma is applied to the environment.
-    lmax : int
-        Degree of the SH basis at the view directions.
-
-    Returns
-    -------
-    list of CandidateSamples
-        One per camera, in order.
-    """
-    position = np.asarray(texels.position, dtype=np.float64)
-    normal = np.asarray(texels.normal, dtype=np.float64)
-    frame = np.stack([texels.tangent, texels.bitangent, texels.normal], axis=1)  # (n, 3, 3) rows
-    extent = float(np.linalg.norm(np.ptp(capture.mesh.vertices, axis=0)))  # the object's scale, as observe uses it
-    offset = RAY_OFFSET_TEXELS * texels.texel_size + RAY_OFFSET_OBJECT * extent
-    ray_origin = position + offset[:, None] * normal
-    occluder = Occluder(capture.mesh)
-    seen = camera_samples(cameras, position, normal, ray_origin, occluder)
-    texel_of_ray = np.concatenate([rows for rows, _ in seen]).astype(np.int64)
-    view_of_ray = np.concatenate([np.full(len(rows), view) for view, (rows, _) in enumerate(seen)])
-    centres = np.stack([camera.center for camera in cameras])  # (C, 3)
-
-    to_camera = centres[view_of_ray] - position[texel_of_ray]
-    to_camera /= np.linalg.norm(to_camera, axis=1, keepdims=True)  # (M, 3) world
-    local = np.einsum("mij,mj->mi", frame[texel_of_ray], to_camera)  # (t, b, n) components
-    mirror = 2.0 * local[:, 2:3] * normal[texel_of_ray] - to_camera  # r = 2 (n.v) n - v
-    sigma = observations.sigma
-    lit = envmaps.lowpass_envmap(capture.envmap, sigma) if sigma > 0 else capture.envmap
-    light = envmaps.lookup(lit, mirror).astype(np.float64)
-    basis = sh.eval_sh(local, lmax)
-    bounds = np.cumsum([0] + [len(rows) for rows, _ in seen])  # the rays come view by view
-    return [
-        CandidateSamples(texel_of_ray[take], local[take, 2], basis[take], light[take])
-        for take in (slice(bounds[view], bounds[view + 1]) for view in range(len(cameras)))
-    ]
-
-
-def sample_candidates(capture: Capture, count: int, hemisphere: bool = False) -> list[Camera]:
-    """Spread candidate cameras evenly (Fibonacci) on a sphere around the object, looking at it.
-
-    They share the intrinsics of the capture's first frame and sit at the median distance of the
-    capture's cameras from the centre of the object's bounding sphere.
-
-    Parameters
-    ----------
-    capture : Capture
-        Its mesh and cameras set the centre, the distance and the intrinsics.
-    count : int
-        How many cameras, >= 1.
-    hemisphere : bool
-        Keep them above the centre (+y, the world's up).
-
-    Returns
-    -------
-    list of Camera
-        ``count`` cameras.
-
-    Raises
-    ------
-    ValueError
-        If ``count`` < 1.
-    """
-    if count < 1:
-        raise ValueError(f"count must be at least 1, got {count}")
-    centre, _ = bounding_sphere(capture.mesh.vertices)
-    distance = float(np.median([np.linalg.norm(frame.camera.center - centre) for frame in capture.frames]))
-    template = capture.frames[0].camera
-    cameras = []
-    for direction in fibonacci_directions(count, hemisphere):
-        # Straight above or below the object, world up cannot orient the image; use +z.
-        up = WORLD_UP if abs(direction @ WORLD_UP) < 0.999 else np.array([0.0, 0.0, 1.0])
-        pose = look_at(centre + distance * direction, centre, up)
-        cameras.append(dataclasses.replace(template, camera_to_world=pose))
-    return cameras
-
-
-def load_candidates(path: str | Path, capture: Capture) -> list[Camera]:
-    """Read candidate cameras from a transforms file in the capture format; images need not exist.
-
-    Frames without ``w`` and ``h`` (in the frame or at the top level) get the image size of the
-    capture's first frame.
-
-    Parameters
-    ----------
-    path : str or Path
-        The transforms file.
-    capture : Capture
-        Its first frame gives the default image size.
-
-    Returns
-    -------
-    list of Camera
-        The file's cameras, in its order.
-    """
-    template = capture.frames[0].camera
-    return read_cameras(path, (template.height, template.width))
-
-
-def farthest_point_views(directions: np.ndarray, count: int, chosen: Sequence[int] = ()) -> list[int]:
-    """Choose more views, each the farthest (in angle) from those chosen so far.
-
-    With nothing chosen the first pick is view 0. Deterministic.
-
-    Parameters
-    ----------
-    directions : (V, 3) array_like
-        Unit directions from the object to the cameras (`view_directions`).
-    count : int
-        How many more views.
-    chosen : sequence of int
-        Indices already chosen.
-
-    Returns
-    -------
-    list of int
-        The ``count`` new indices only, in the order chosen.
-
-    Raises
-    ------
-    ValueError
-        If fewer than ``count`` views are left.
-    """
-    directions = np.asarray(directions, dtype=np.float64)
-    chosen = list(chosen)
-    if count > len(directions) - len(chosen):
-        raise ValueError(f"cannot choose {count} more of {len(directions)} views ({len(chosen)} chosen)")
-    closeness = np.full(len(directions), -np.inf)  # max cosine to a chosen view
-    for index in chosen:
-        closeness = np.maximum(closeness, directions @ directions[index])
-    new = []
-    for _ in range(count):
-        available = np.ones(len(directions), bool)
-        available[chosen + new] = False
-        index = 0 if not chosen and not new else int(np.argmin(np.where(available, closeness, np.inf)))
-        new.append(index)
-        closeness = np.maximum(closeness, directions @ directions[index])
-    return new
-
-
-def view_directions(capture: Capture, cameras: Sequence[Camera]) -> np.ndarray:
-    """Return the unit directions from the object's bounding-sphere centre to the camera centres.
-
-    Parameters
-    ----------
-    capture : Capture
-        Its mesh sets the centre.
-    cameras : sequence of Camera
-        V cameras.
-
-    Returns
-    -------
-    (V, 3) float64
-        One unit direction per camera.
-    """
-    centre, _ = bounding_sphere(capture.mesh.vertices)
-    offsets = np.stack([camera.center for camera in cameras]) - centre
-    return offsets / np.linalg.norm(offsets, axis=1, keepdims=True)
-
-
-# --------------------------------------------------------------------------------------------
-# Outputs
-
-NEXT_VIEWS_FILE = "next_views.json"  # the chosen cameras, ranked, as a transforms file
-PICTURE_FILE = "next_views.png"
-SUMMARY_FILE = "guidance.json"
-
-
-def write_next_views(out_dir: str | Path, capture: Capture, picks: Sequence[Pick], summary: dict,
-                     candidates: Sequence[Camera] = ()) -> Path:
-    """Write the ranked cameras, a picture of them and a summary to a folder.
-
-    The folder is written atomically and replaced as a whole. ``next_views.json``
-    (`NEXT_VIEWS_FILE`) is a transforms file of the capture format naming the capture's mesh and
-    light: once the photographs are saved as its ``images/next_<rank>.exr`` it loads with
-    `freqbrdf.capture.layouts.load` (alone, or merged into the capture's own transforms).
-    ``next_views.png`` (`PICTURE_FILE`) is `plot_views`' picture, ``guidance.json``
-    (`SUMMARY_FILE`) the summary.
-
-    Parameters
-    ----------
-    out_dir : str or Path
-        The folder.
-    capture : Capture
-        Its mesh, environment map (with its scale) and cameras.
-    picks : sequence of Pick
-        The chosen views (`select_views`).
-    summary : dict
-        Written as ``guidance.json``.
-    candidates : sequence of Camera
-        Drawn as dots in the picture, if given.
-
-    Returns
-    -------
-    Path
-        ``out_dir``.
-    """
-    from freqbrdf.capture.layouts import Frame, write_transforms
-    from freqbrdf.fileio import atomic_directory, write_json
-    from freqbrdf.sphere.envmap import load_envmap
-
-    # The capture holds its light with envmap_scale applied; recover the scale for the file.
-    stored = load_envmap(capture.envmap_path, capture.envmap.to_world).radiance
-    envmap_scale = float(capture.envmap.radiance.sum() / stored.sum()) if stored.sum() > 0 else 1.0
-    with atomic_directory(out_dir) as folder:
-        frames = [Frame(pick.camera, folder / "images" / f"next_{pick.rank:03d}.exr") for pick in picks]
-        fields = [{"rank": pick.rank, "candidate": pick.candidate,
-                   "expected_mean_entropy": pick.expected_entropy} for pick in picks]
-        write_transforms(folder / NEXT_VIEWS_FILE, frames, mesh=capture.mesh.path, envmap=capture.envmap_path,
-                         envmap_to_world=capture.envmap.to_world, envmap_scale=envmap_scale, frame_fields=fields)
-        plot_views(folder / PICTURE_FILE, capture, picks, candidates)
-        write_json(folder / SUMMARY_FILE, summary)
-    return Path(out_dir)
-
-
-def plot_views(path: str | Path, capture: Capture, picks: Sequence[Pick], candidates: Sequence[Camera] = ()) -> None:
-    """Draw a 3D picture of the views: the mesh, the capture's cameras, the candidates and the picks.
-
-    The capture's cameras are grey frusta, the candidates dots, the picks coloured frusta
-    numbered by rank. World +y is drawn up.
-
-    Parameters
-    ----------
-    path : str or Path
-        The PNG file to write (atomically).
-    capture : Capture
-        Its mesh and cameras.
-    picks : sequence of Pick
-        The chosen views.
-    candidates : sequence of Camera
-        Drawn as dots, if given.
-    """
-    from matplotlib import colormaps
-    from matplotlib.figure import Figure  # here: importing matplotlib is slow
-
-    from freqbrdf.fileio import atomic_path
-
-    def drawn(points):  # world (x, y, z) -> plot (x, -z, y): a rotation that puts +y up
-        points = np.asarray(points)
-        return points[..., 0], -points[..., 2], points[..., 1]
-
-    mesh = capture.mesh
-    centre, radius = bounding_sphere(mesh.vertices)
-    figure = Figure(figsize=(8, 8), dpi=100)
-    axes = figure.add_subplot(projection="3d")
-    faces = mesh.faces
-    if len(faces) > 4000:  # enough for the silhouette; matplotlib sorts every polygon
-        faces = faces[np.random.default_rng(0).choice(len(faces), 4000, replace=False)]
-    x, y, z = drawn(mesh.vertices)
-    axes.plot_trisurf(x, y, z, triangles=faces, color="0.75", edgecolor="none", alpha=0.6)
-    cameras = [frame.camera for frame in capture.frames]
-    if candidates:
-        axes.scatter(*drawn(np.stack([camera.center for camera in candidates])), s=4, color="0.5",
-                     label="candidates")
-    colours = colormaps["plasma"](np.linspace(0.0, 0.85, max(len(picks), 1)))
-    depth = 0.35 * radius
-    for index, camera in enumerate(cameras):
-        _draw_frustum(axes, drawn, camera, depth, "0.4", "capture views" if index == 0 else None, 0.8)
-    for pick, colour in zip(picks, colours):
-        label = f"{pick.rank + 1}: H -> {pick.expected_entropy:.3f}"
-        _draw_frustum(axes, drawn, pick.camera, depth, colour, label, 2.5)
-        axes.text(*drawn(pick.camera.center), str(pick.rank + 1), color=colour, fontsize=11, weight="bold")
-    extent = max(np.linalg.norm(camera.center - centre) for camera in cameras + [p.camera for p in picks])
-    for setter, middle in zip((axes.set_xlim, axes.set_ylim, axes.set_zlim), drawn(centre)):
-        setter(middle - extent, middle + extent)
-    axes.set_box_aspect((1, 1, 1))
-    axes.set_axis_off()
-    axes.legend(loc="upper left", fontsize=8)
-    axes.set_title("next views by expected entropy (1 = first)")
-    with atomic_path(path) as tmp:
-        figure.savefig(tmp, format="png")
-
-
-def _draw_frustum(axes, drawn, camera: Camera, depth: float, colour, label: str | None, width: float) -> None:
-    """Draw the camera's pyramid to ``depth`` along its axis, its image corners as the base."""
-    corners_px = np.array([[0, 0], [camera.width, 0], [camera.width, camera.height], [0, camera.height]], float)
-    local = np.stack([(corners_px[:, 0] - camera.cx) / camera.fx, -(corners_px[:, 1] - camera.cy) / camera.fy,
-                      -np.ones(4)], axis=1) * depth  # OpenGL camera looks down -z
-    corners = local @ camera.camera_to_world[:3, :3].T + camera.center
-    apex = camera.center
-    lines = [np.stack([apex, corner]) for corner in corners] + [np.stack([corners[k], corners[(k + 1) % 4]])
-                                                                  for k in range(4)]
-    for number, line in enumerate(lines):
-        axes.plot(*drawn(line), color=colour, linewidth=width, label=label if number == 0 else None)
 
 
 # --------------------------------------------------------------------------------------------

@@ -9,20 +9,24 @@ only when an occluder is made: importing this package does not import it.
 Modules
 -------
 observations
-    `Observations` (its samples, spectra, saving and loading), the stage `observe`,
-    `texel_irradiance`, `texel_alpha_bound` and the coverage and visibility maps (`write_maps`).
+    `Observations` (its samples, spectra, saving and loading), the stage `observe` and
+    `texel_alpha_bound`.
+irradiance
+    `texel_irradiance`: the irradiance at the normals from the environment's SH.
+maps
+    The coverage and visibility maps of an `Observations` (`write_maps`).
 visibility
     `camera_samples`: which surface points a camera without an image would sample.
 """
 
+from freqbrdf.observe.irradiance import texel_irradiance
+from freqbrdf.observe.maps import write_maps
 from freqbrdf.observe.observations import (
     RAY_OFFSET_OBJECT,
     RAY_OFFSET_TEXELS,
     Observations,
     observe,
     texel_alpha_bound,
-    texel_irradiance,
-    write_maps,
 )
 from freqbrdf.observe.visibility import camera_samples
 

@@ -17,20 +17,19 @@ seven signals on the same samples: observed RGB, mirrored environment RGB and th
 (whose fit carries the diffuse term through the fit, §3.6). Band limit (§3.4): the environment is
 low-passed with exp(-(sigma l)^2), sigma = 1/floor(sqrt(V)) for V views, before it is looked up,
 and the BRDF kernel divides that blur back out (`freqbrdf.model.brdf.brdf_kernel`). Irradiance
-(§3.5) comes from the environment's SH with the clamped-cosine kernel (`texel_irradiance`).
-
-`write_maps` draws an `Observations`' coverage and visibility in texture space, for people.
+(§3.5) comes from the environment's SH with the clamped-cosine kernel
+(`freqbrdf.observe.irradiance.texel_irradiance`). The numba kernels of the stage are in
+`freqbrdf.observe._kernels`; `freqbrdf.observe.maps.write_maps` draws an `Observations`' coverage
+and visibility in texture space, for people.
 """
 
 from __future__ import annotations
 
 import json
-import math
 import time
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
-import numba
 import numpy as np
 
 from freqbrdf.capture.layouts import Capture
@@ -38,6 +37,16 @@ from freqbrdf.config import Config
 from freqbrdf.errors import InputError
 from freqbrdf.fileio import atomic_path
 from freqbrdf.model import brdf
+from freqbrdf.observe._kernels import (
+    _clear_occluded,
+    _initialise_signals,
+    _mirror_directions,
+    _project_kernel,
+    _record_kernel,
+    _shadow_rays,
+    _unpack_samples,
+)
+from freqbrdf.observe.irradiance import texel_irradiance
 from freqbrdf.progress import SILENT, Reporter
 from freqbrdf.render.occluder import RAYS_PER_BATCH, Occluder
 from freqbrdf.sphere import envmap as envmaps
@@ -49,19 +58,12 @@ from freqbrdf.texels import Texels, rasterise
 # triangle, near enough not to step over thin parts.
 RAY_OFFSET_TEXELS = 0.5
 RAY_OFFSET_OBJECT = 1e-5
-# A sample must lie fully inside the mask: its four bilinear neighbours all on the object, so
-# that silhouette pixels blending object and background are not taken for the object.
-MASK_INSIDE = 1.0 - 1e-6
 # Views projected, traced and sampled together (within RAYS_PER_BATCH shadow rays and this many
 # bytes of stacked images and masks), so that each texel writes its samples contiguously.
 VIEWS_PER_BATCH = 16
 IMAGE_BYTES_PER_BATCH = 512 << 20
 # Samples whose mirrored environment is looked up together (24 bytes of direction, 12 of radiance each).
 MIRROR_SAMPLES_PER_BATCH = 1 << 21
-# Irradiance is smooth (its SH decay like l^-5/2), so it is synthesised once on a lat-long grid
-# of this height and interpolated bilinearly at the normals, rather than evaluating every SH at
-# every texel (docs/measurements.md has the error and the cost of both).
-IRRADIANCE_MAP_HEIGHT = 256
 
 # Channel layout of the fitted signals.
 OBSERVED = slice(0, 3)
@@ -522,38 +524,6 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
 
 
 # ---------------------------------------------------------------------------------------------
-# Irradiance
-
-
-def texel_irradiance(envmap: envmaps.Envmap, normals: np.ndarray) -> np.ndarray:
-    """Compute the irradiance E(n) = integral of L(w) max(0, n.w) dw at world normals.
-
-    The clamped-cosine kernel applied to the map's SH (`freqbrdf.sphere.envmap.irradiance`'s
-    method, up to ``IRRADIANCE_LMAX`` of `freqbrdf.sphere.envmap` or what the map resolves),
-    synthesised on a lat-long grid of ``IRRADIANCE_MAP_HEIGHT`` rows and read bilinearly
-    (METHOD.md §3.5).
-
-    Parameters
-    ----------
-    envmap : Envmap
-        The environment, unfiltered.
-    normals : (N, 3) array_like
-        Unit world normals.
-
-    Returns
-    -------
-    (N, 3) float32
-        Irradiance per normal and channel.
-    """
-    height, width = envmap.radiance.shape[:2]
-    lmax = min(envmaps.IRRADIANCE_LMAX, height - 2, (width - 1) // 2)
-    kernel = envmaps.clamped_cosine_coeffs(lmax)[sh.sh_degrees(lmax)]  # (K,)
-    irradiance_coeffs = envmaps.envmap_sh(envmap, lmax) * kernel[:, None]  # (K, 3), world frame
-    irradiance_map = envmaps.envmap_from_sh(irradiance_coeffs, max(IRRADIANCE_MAP_HEIGHT, lmax + 2))
-    return envmaps.lookup(irradiance_map, normals)
-
-
-# ---------------------------------------------------------------------------------------------
 # Helpers
 
 
@@ -603,95 +573,6 @@ def _sample_offsets(selected: np.ndarray) -> np.ndarray:
     return offsets
 
 
-@numba.njit(parallel=True, cache=True)
-def _shadow_rays(ray_origin, centres, seen, offsets):
-    """Segments from texels to camera centres, as `Occluder.hits_rows` takes them.
-
-    ray_origin (N, 3) float32; centres (B, 3); one ray per True of seen (N, B), packed at
-    `_sample_offsets`. Returns origins (3, M), unit directions (3, M) float32 and lengths (M,)
-    float32 that stop just short of the camera (cameras never sit on the surface).
-    """
-    n_rays = offsets[-1]
-    origins = np.empty((3, n_rays), dtype=np.float32)
-    directions = np.empty((3, n_rays), dtype=np.float32)
-    lengths = np.empty(n_rays, dtype=np.float32)
-    for t in numba.prange(seen.shape[0]):
-        k = offsets[t]
-        for b in range(seen.shape[1]):
-            if not seen[t, b]:
-                continue
-            dx = centres[b, 0] - ray_origin[t, 0]
-            dy = centres[b, 1] - ray_origin[t, 1]
-            dz = centres[b, 2] - ray_origin[t, 2]
-            distance = math.sqrt(dx * dx + dy * dy + dz * dz)
-            for axis in range(3):
-                origins[axis, k] = ray_origin[t, axis]
-            directions[0, k], directions[1, k], directions[2, k] = dx / distance, dy / distance, dz / distance
-            lengths[k] = distance * (1.0 - 1e-5)
-            k += 1
-    return origins, directions, lengths
-
-
-@numba.njit(parallel=True, cache=True)
-def _clear_occluded(seen, offsets, hit):
-    """Set seen (N, B) to False where the packed ray of that entry (`_sample_offsets`) hit."""
-    for t in numba.prange(seen.shape[0]):
-        k = offsets[t]
-        for b in range(seen.shape[1]):
-            if seen[t, b]:
-                if hit[k]:
-                    seen[t, b] = False
-                k += 1
-
-
-@numba.njit(parallel=True, cache=True)
-def _mirror_directions(frame, view_direction, sampled, offsets):
-    """Return the (M, 3) world mirror directions r = 2 (n.v) n - v of the selected samples.
-
-    sampled (N, V) bool selects them, packed at offsets (`_sample_offsets`); frame (N, 3, 3)
-    rows t, b, n; view_direction (N, V, 3) local. In the local frame the mirror of (x, y, z)
-    about n = z is (-x, -y, z).
-    """
-    mirror = np.empty((offsets[-1], 3))
-    for t in numba.prange(sampled.shape[0]):
-        k = offsets[t]
-        for v in range(sampled.shape[1]):
-            if not sampled[t, v]:
-                continue
-            x, y, z = -np.float64(view_direction[t, v, 0]), -np.float64(view_direction[t, v, 1]), np.float64(
-                view_direction[t, v, 2])
-            for axis in range(3):
-                mirror[k, axis] = x * frame[t, 0, axis] + y * frame[t, 1, axis] + z * frame[t, 2, axis]
-            k += 1
-    return mirror
-
-
-@numba.njit(parallel=True, cache=True)
-def _initialise_signals(signals, constant):
-    """Set signals (N, V, C) to 0 and channel ``constant`` to 1.
-
-    In parallel and in one contiguous pass, which also maps the fresh memory (faster than
-    np.zeros and a strided assignment; docs/measurements.md).
-    """
-    for t in numba.prange(signals.shape[0]):
-        for v in range(signals.shape[1]):
-            for k in range(signals.shape[2]):
-                signals[t, v, k] = 0.0
-            signals[t, v, constant] = 1.0
-
-
-@numba.njit(parallel=True, cache=True)
-def _unpack_samples(sampled, offsets, packed, signals, first_channel):
-    """Write the packed row of each selected sample to signals[t, v, first_channel:first_channel + C]."""
-    for t in numba.prange(sampled.shape[0]):
-        k = offsets[t]
-        for v in range(sampled.shape[1]):
-            if sampled[t, v]:
-                for c in range(packed.shape[1]):
-                    signals[t, v, first_channel + c] = packed[k, c]
-                k += 1
-
-
 def _view_batches(capture: Capture, n_texels: int) -> list[range]:
     """Split the views into consecutive batches processed together.
 
@@ -709,167 +590,3 @@ def _view_batches(capture: Capture, n_texels: int) -> list[range]:
             first = view
     batches.append(range(first, len(cameras)))
     return batches
-
-
-@numba.njit(parallel=True, cache=True)
-def _project_kernel(position, normal, camera_to_world, intrinsics, width, height,
-                    pixels, cos_theta, facing, n_facing):
-    """Project texels into a batch of B views (OpenGL cameras, see freqbrdf.capture.camera).
-
-    position, normal (N, 3); camera_to_world (B, 4, 4); intrinsics (B, 4) fx, fy, cx, cy; images
-    width x height. Writes pixels (N, B, 2) x, y, cos_theta (N, B) between the normal and the
-    direction to the camera, and facing (N, B): in front of the camera, inside the image and
-    facing it (cos_theta > 0). Pixels are written where facing only. Adds the facing views of
-    each texel to n_facing (N,).
-    """
-    for t in numba.prange(position.shape[0]):
-        for b in range(camera_to_world.shape[0]):
-            rotation = camera_to_world[b, :3, :3]
-            dx = camera_to_world[b, 0, 3] - position[t, 0]
-            dy = camera_to_world[b, 1, 3] - position[t, 1]
-            dz = camera_to_world[b, 2, 3] - position[t, 2]
-            cosine = (normal[t, 0] * dx + normal[t, 1] * dy + normal[t, 2] * dz) / math.sqrt(
-                dx * dx + dy * dy + dz * dz
-            )
-            cos_theta[t, b] = cosine
-            # Camera-space coordinates of the texel: R^T (p - c) = -R^T d; depth along -z.
-            local_x = -(rotation[0, 0] * dx + rotation[1, 0] * dy + rotation[2, 0] * dz)
-            local_y = -(rotation[0, 1] * dx + rotation[1, 1] * dy + rotation[2, 1] * dz)
-            depth = rotation[0, 2] * dx + rotation[1, 2] * dy + rotation[2, 2] * dz
-            facing[t, b] = False
-            if depth <= 0.0 or cosine <= 0.0:
-                continue
-            x = intrinsics[b, 2] + intrinsics[b, 0] * local_x / depth
-            y = intrinsics[b, 3] - intrinsics[b, 1] * local_y / depth  # camera y up, pixel y down
-            if 0.0 <= x <= width and 0.0 <= y <= height:
-                pixels[t, b, 0] = x
-                pixels[t, b, 1] = y
-                facing[t, b] = True
-                n_facing[t] += 1
-
-
-@numba.njit(parallel=True, cache=True)
-def _record_kernel(seen, images, masks, pixels, cos_theta, position, frame, centres, first_view, signals,
-                   view_direction, weight, visible):
-    """Record the samples of a batch of B views, texel by texel (contiguous writes).
-
-    seen (N, B): facing and unoccluded; images (B, H, W, 3), masks (B, H, W, 1) in [0, 1], both
-    sampled bilinearly; a sample counts where the mask is 1 at all four neighbours. For counted
-    samples writes the observed radiance, local view direction, weight and visibility into columns
-    first_view + b of the (N, V, ...) outputs.
-    """
-    height, width = images.shape[1], images.shape[2]
-    for t in numba.prange(seen.shape[0]):
-        for b in range(seen.shape[1]):
-            if not seen[t, b]:
-                continue
-            row, col, row_next, col_next, fx, fy = _bilinear_stencil(pixels[t, b, 0], pixels[t, b, 1], height, width)
-            if _blend(masks[b], row, col, row_next, col_next, fx, fy, 0) < MASK_INSIDE:
-                continue
-            view = first_view + b
-            for c in range(3):
-                signals[t, view, c] = _blend(images[b], row, col, row_next, col_next, fx, fy, c)
-            dx = centres[b, 0] - position[t, 0]
-            dy = centres[b, 1] - position[t, 1]
-            dz = centres[b, 2] - position[t, 2]
-            inverse_distance = 1.0 / math.sqrt(dx * dx + dy * dy + dz * dz)
-            dx *= inverse_distance
-            dy *= inverse_distance
-            dz *= inverse_distance
-            for axis in range(3):
-                view_direction[t, view, axis] = frame[t, axis, 0] * dx + frame[t, axis, 1] * dy + frame[t, axis, 2] * dz
-            weight[t, view] = cos_theta[t, b]
-            visible[t, view] = True
-
-
-@numba.njit(inline="always")
-def _bilinear_stencil(x, y, height, width):
-    """Return the neighbours and fractions for bilinear interpolation at pixel coordinates (x, y).
-
-    Pixel centres lie at (j + 0.5, i + 0.5); the border is clamped (the edge pixel's value holds
-    up to half a pixel beyond its centre).
-    """
-    x = min(max(x - 0.5, 0.0), width - 1.0)
-    y = min(max(y - 0.5, 0.0), height - 1.0)
-    col = min(int(x), width - 2) if width > 1 else 0
-    row = min(int(y), height - 2) if height > 1 else 0
-    return row, col, min(row + 1, height - 1), min(col + 1, width - 1), x - col, y - row
-
-
-@numba.njit(inline="always")
-def _blend(image, row, col, row_next, col_next, fx, fy, c):
-    top = image[row, col, c] * (1.0 - fx) + image[row, col_next, c] * fx
-    bottom = image[row_next, col, c] * (1.0 - fx) + image[row_next, col_next, c] * fx
-    return top * (1.0 - fy) + bottom * fy
-
-
-@numba.njit(parallel=True, cache=True)
-def _sample_bilinear(image, pixels, out):  # image (H, W, C); pixels (M, 2) x, y; out (M, C)
-    """Bilinear samples of ``image`` at pixel coordinates (see `_bilinear_stencil`)."""
-    height, width, channels = image.shape
-    for k in numba.prange(pixels.shape[0]):
-        row, col, row_next, col_next, fx, fy = _bilinear_stencil(pixels[k, 0], pixels[k, 1], height, width)
-        for c in range(channels):
-            out[k, c] = _blend(image, row, col, row_next, col_next, fx, fy, c)
-
-
-# ---------------------------------------------------------------------------------------------
-# Maps for people
-
-
-def write_maps(observations: Observations, folder: str | Path) -> list[Path]:
-    """Write PNG maps of an Observations in texture space, with colour-bar legends.
-
-    - ``coverage.png``: views with a sample per texel (0 .. V);
-    - ``visibility.png``: the fraction of the views that face a texel (it lies in their image,
-      front side towards them) in which it is sampled, i.e. neither hidden by the object itself
-      nor on the mask's edge; texels facing no view are left out.
-
-    Texels outside the mesh's charts are grey.
-
-    Parameters
-    ----------
-    observations : Observations
-        What to draw.
-    folder : str or Path
-        Where ``coverage.png`` and ``visibility.png`` are written (atomically; the folder is
-        created if needed).
-
-    Returns
-    -------
-    list of Path
-        The two PNG files written.
-    """
-    folder = Path(folder)
-    n_facing = observations.n_facing
-    fraction = np.where(n_facing > 0, observations.n_samples / np.maximum(n_facing, 1), np.nan)
-    maps = [
-        ("coverage.png", observations.n_samples.astype(np.float64), "views with a sample",
-         (0, observations.n_views), "viridis"),
-        ("visibility.png", fraction, "sampled / facing views", (0, 1), "magma"),
-    ]
-    paths = []
-    for name, values, label, value_range, colour_map in maps:
-        texture = observations.to_texture(values.astype(np.float64), fill=np.nan)
-        paths.append(folder / name)
-        _write_colour_mapped(paths[-1], texture, label, value_range, colour_map)
-    return paths
-
-
-def _write_colour_mapped(path: Path, texture: np.ndarray, label: str, value_range, colour_map: str) -> None:
-    """Write a (T, T) texture (NaN: no value, grey) as a PNG figure with a labelled colour bar."""
-    from matplotlib.figure import Figure  # here: importing matplotlib is slow
-
-    # Large enough that the texture is drawn at (at least) one screen pixel per texel.
-    inches = max(4.0, texture.shape[0] / 70.0)
-    figure = Figure(figsize=(1.3 * inches, 1.1 * inches), dpi=100)
-    axes = figure.add_subplot()
-    axes.set_facecolor("0.5")
-    shown = axes.imshow(texture, cmap=colour_map, vmin=value_range[0], vmax=value_range[1],
-                        interpolation="nearest")
-    axes.set_xticks([])
-    axes.set_yticks([])
-    axes.set_title(f"{path.stem}: texture space, grey = no value")
-    figure.colorbar(shown, ax=axes, label=label)
-    with atomic_path(path) as tmp:
-        figure.savefig(tmp, format="png")

@@ -1,0 +1,217 @@
+"""The numba kernels of the observation stage (METHOD.md §3.2-3.3).
+
+Private to `freqbrdf.observe.observations`, whose `observe` calls them batch by batch of views:
+
+- `_project_kernel`: each texel's pixel in each view of a batch, its cos(theta_o) and whether it
+  faces the camera inside the image (METHOD.md §3.2);
+- `_shadow_rays` and `_clear_occluded`: the visibility test's segments from the offset texels to
+  the camera centres, packed texel by texel, and the samples their hits remove (METHOD.md §3.2);
+- `_record_kernel`: the observed radiance (bilinear image samples inside the mask), the view
+  direction in the texel's frame, the weight and the visibility of each sample;
+- `_mirror_directions` and `_unpack_samples`: the world mirror directions r = 2 (n.v) n - v of
+  the samples and the band-limited environment looked up there, written beside the radiance
+  (METHOD.md §2, §3.4);
+- `_initialise_signals`: the fitted signals' buffer, with the constant channel at 1 (§3.6);
+- `_sample_bilinear`, `_bilinear_stencil` and `_blend`: bilinear image samples.
+
+Compiled on first use and cached on disk (``cache=True``), so they stay at module level.
+"""
+
+import math
+
+import numba
+import numpy as np
+
+# A sample must lie fully inside the mask: its four bilinear neighbours all on the object, so
+# that silhouette pixels blending object and background are not taken for the object.
+MASK_INSIDE = 1.0 - 1e-6
+
+
+@numba.njit(parallel=True, cache=True)
+def _shadow_rays(ray_origin, centres, seen, offsets):
+    """Segments from texels to camera centres, as `Occluder.hits_rows` takes them.
+
+    ray_origin (N, 3) float32; centres (B, 3); one ray per True of seen (N, B), packed at
+    `_sample_offsets`. Returns origins (3, M), unit directions (3, M) float32 and lengths (M,)
+    float32 that stop just short of the camera (cameras never sit on the surface).
+    """
+    n_rays = offsets[-1]
+    origins = np.empty((3, n_rays), dtype=np.float32)
+    directions = np.empty((3, n_rays), dtype=np.float32)
+    lengths = np.empty(n_rays, dtype=np.float32)
+    for t in numba.prange(seen.shape[0]):
+        k = offsets[t]
+        for b in range(seen.shape[1]):
+            if not seen[t, b]:
+                continue
+            dx = centres[b, 0] - ray_origin[t, 0]
+            dy = centres[b, 1] - ray_origin[t, 1]
+            dz = centres[b, 2] - ray_origin[t, 2]
+            distance = math.sqrt(dx * dx + dy * dy + dz * dz)
+            for axis in range(3):
+                origins[axis, k] = ray_origin[t, axis]
+            directions[0, k], directions[1, k], directions[2, k] = dx / distance, dy / distance, dz / distance
+            lengths[k] = distance * (1.0 - 1e-5)
+            k += 1
+    return origins, directions, lengths
+
+
+@numba.njit(parallel=True, cache=True)
+def _clear_occluded(seen, offsets, hit):
+    """Set seen (N, B) to False where the packed ray of that entry (`_sample_offsets`) hit."""
+    for t in numba.prange(seen.shape[0]):
+        k = offsets[t]
+        for b in range(seen.shape[1]):
+            if seen[t, b]:
+                if hit[k]:
+                    seen[t, b] = False
+                k += 1
+
+
+@numba.njit(parallel=True, cache=True)
+def _mirror_directions(frame, view_direction, sampled, offsets):
+    """Return the (M, 3) world mirror directions r = 2 (n.v) n - v of the selected samples.
+
+    sampled (N, V) bool selects them, packed at offsets (`_sample_offsets`); frame (N, 3, 3)
+    rows t, b, n; view_direction (N, V, 3) local. In the local frame the mirror of (x, y, z)
+    about n = z is (-x, -y, z).
+    """
+    mirror = np.empty((offsets[-1], 3))
+    for t in numba.prange(sampled.shape[0]):
+        k = offsets[t]
+        for v in range(sampled.shape[1]):
+            if not sampled[t, v]:
+                continue
+            x, y, z = -np.float64(view_direction[t, v, 0]), -np.float64(view_direction[t, v, 1]), np.float64(
+                view_direction[t, v, 2])
+            for axis in range(3):
+                mirror[k, axis] = x * frame[t, 0, axis] + y * frame[t, 1, axis] + z * frame[t, 2, axis]
+            k += 1
+    return mirror
+
+
+@numba.njit(parallel=True, cache=True)
+def _initialise_signals(signals, constant):
+    """Set signals (N, V, C) to 0 and channel ``constant`` to 1.
+
+    In parallel and in one contiguous pass, which also maps the fresh memory (faster than
+    np.zeros and a strided assignment; docs/measurements.md).
+    """
+    for t in numba.prange(signals.shape[0]):
+        for v in range(signals.shape[1]):
+            for k in range(signals.shape[2]):
+                signals[t, v, k] = 0.0
+            signals[t, v, constant] = 1.0
+
+
+@numba.njit(parallel=True, cache=True)
+def _unpack_samples(sampled, offsets, packed, signals, first_channel):
+    """Write the packed row of each selected sample to signals[t, v, first_channel:first_channel + C]."""
+    for t in numba.prange(sampled.shape[0]):
+        k = offsets[t]
+        for v in range(sampled.shape[1]):
+            if sampled[t, v]:
+                for c in range(packed.shape[1]):
+                    signals[t, v, first_channel + c] = packed[k, c]
+                k += 1
+
+@numba.njit(parallel=True, cache=True)
+def _project_kernel(position, normal, camera_to_world, intrinsics, width, height,
+                    pixels, cos_theta, facing, n_facing):
+    """Project texels into a batch of B views (OpenGL cameras, see freqbrdf.capture.camera).
+
+    position, normal (N, 3); camera_to_world (B, 4, 4); intrinsics (B, 4) fx, fy, cx, cy; images
+    width x height. Writes pixels (N, B, 2) x, y, cos_theta (N, B) between the normal and the
+    direction to the camera, and facing (N, B): in front of the camera, inside the image and
+    facing it (cos_theta > 0). Pixels are written where facing only. Adds the facing views of
+    each texel to n_facing (N,).
+    """
+    for t in numba.prange(position.shape[0]):
+        for b in range(camera_to_world.shape[0]):
+            rotation = camera_to_world[b, :3, :3]
+            dx = camera_to_world[b, 0, 3] - position[t, 0]
+            dy = camera_to_world[b, 1, 3] - position[t, 1]
+            dz = camera_to_world[b, 2, 3] - position[t, 2]
+            cosine = (normal[t, 0] * dx + normal[t, 1] * dy + normal[t, 2] * dz) / math.sqrt(
+                dx * dx + dy * dy + dz * dz
+            )
+            cos_theta[t, b] = cosine
+            # Camera-space coordinates of the texel: R^T (p - c) = -R^T d; depth along -z.
+            local_x = -(rotation[0, 0] * dx + rotation[1, 0] * dy + rotation[2, 0] * dz)
+            local_y = -(rotation[0, 1] * dx + rotation[1, 1] * dy + rotation[2, 1] * dz)
+            depth = rotation[0, 2] * dx + rotation[1, 2] * dy + rotation[2, 2] * dz
+            facing[t, b] = False
+            if depth <= 0.0 or cosine <= 0.0:
+                continue
+            x = intrinsics[b, 2] + intrinsics[b, 0] * local_x / depth
+            y = intrinsics[b, 3] - intrinsics[b, 1] * local_y / depth  # camera y up, pixel y down
+            if 0.0 <= x <= width and 0.0 <= y <= height:
+                pixels[t, b, 0] = x
+                pixels[t, b, 1] = y
+                facing[t, b] = True
+                n_facing[t] += 1
+
+
+@numba.njit(parallel=True, cache=True)
+def _record_kernel(seen, images, masks, pixels, cos_theta, position, frame, centres, first_view, signals,
+                   view_direction, weight, visible):
+    """Record the samples of a batch of B views, texel by texel (contiguous writes).
+
+    seen (N, B): facing and unoccluded; images (B, H, W, 3), masks (B, H, W, 1) in [0, 1], both
+    sampled bilinearly; a sample counts where the mask is 1 at all four neighbours. For counted
+    samples writes the observed radiance, local view direction, weight and visibility into columns
+    first_view + b of the (N, V, ...) outputs.
+    """
+    height, width = images.shape[1], images.shape[2]
+    for t in numba.prange(seen.shape[0]):
+        for b in range(seen.shape[1]):
+            if not seen[t, b]:
+                continue
+            row, col, row_next, col_next, fx, fy = _bilinear_stencil(pixels[t, b, 0], pixels[t, b, 1], height, width)
+            if _blend(masks[b], row, col, row_next, col_next, fx, fy, 0) < MASK_INSIDE:
+                continue
+            view = first_view + b
+            for c in range(3):
+                signals[t, view, c] = _blend(images[b], row, col, row_next, col_next, fx, fy, c)
+            dx = centres[b, 0] - position[t, 0]
+            dy = centres[b, 1] - position[t, 1]
+            dz = centres[b, 2] - position[t, 2]
+            inverse_distance = 1.0 / math.sqrt(dx * dx + dy * dy + dz * dz)
+            dx *= inverse_distance
+            dy *= inverse_distance
+            dz *= inverse_distance
+            for axis in range(3):
+                view_direction[t, view, axis] = frame[t, axis, 0] * dx + frame[t, axis, 1] * dy + frame[t, axis, 2] * dz
+            weight[t, view] = cos_theta[t, b]
+            visible[t, view] = True
+
+
+@numba.njit(inline="always")
+def _bilinear_stencil(x, y, height, width):
+    """Return the neighbours and fractions for bilinear interpolation at pixel coordinates (x, y).
+
+    Pixel centres lie at (j + 0.5, i + 0.5); the border is clamped (the edge pixel's value holds
+    up to half a pixel beyond its centre).
+    """
+    x = min(max(x - 0.5, 0.0), width - 1.0)
+    y = min(max(y - 0.5, 0.0), height - 1.0)
+    col = min(int(x), width - 2) if width > 1 else 0
+    row = min(int(y), height - 2) if height > 1 else 0
+    return row, col, min(row + 1, height - 1), min(col + 1, width - 1), x - col, y - row
+
+
+@numba.njit(inline="always")
+def _blend(image, row, col, row_next, col_next, fx, fy, c):
+    top = image[row, col, c] * (1.0 - fx) + image[row, col_next, c] * fx
+    bottom = image[row_next, col, c] * (1.0 - fx) + image[row_next, col_next, c] * fx
+    return top * (1.0 - fy) + bottom * fy
+
+
+@numba.njit(parallel=True, cache=True)
+def _sample_bilinear(image, pixels, out):  # image (H, W, C); pixels (M, 2) x, y; out (M, C)
+    """Bilinear samples of ``image`` at pixel coordinates (see `_bilinear_stencil`)."""
+    height, width, channels = image.shape
+    for k in numba.prange(pixels.shape[0]):
+        row, col, row_next, col_next, fx, fy = _bilinear_stencil(pixels[k, 0], pixels[k, 1], height, width)
+        for c in range(channels):
+            out[k, c] = _blend(image, row, col, row_next, col_next, fx, fy, c)
