@@ -21,6 +21,8 @@ setup: sysdeps $(STAMP)
 
 test: setup
 	@bash scripts/ensure_system_deps.sh --test
+	$(VENV)/bin/ruff check src tests benchmarks scripts
+	$(PY) scripts/make_api_reference.py --check
 	$(PY) -m pytest -n 2 -q
 
 demo: setup

@@ -181,7 +181,7 @@ def test_load_fit_names_what_is_missing(tmp_path):
 # --- estimation on coarser texels ------------------------------------------------------------
 
 
-def _unit_square() -> "Mesh":
+def _unit_square():
     from freqbrdf.capture.mesh import Mesh
 
     vertices = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], np.float64)
@@ -214,11 +214,10 @@ def test_to_texels_samples_the_maps_bilinearly_and_takes_the_rest_from_the_paren
     """A coarse 4 x 4 fit with an affine roughness and a missing texel, taken to 8 x 8 texels."""
     from dataclasses import replace as replaced
 
-    from test_uncertainty import LMAX, _estimate_of, _observations_from_spectra
-
     from freqbrdf.sphere import harmonics as sh
     from freqbrdf.texels import rasterise
     from freqbrdf.uncertainty import entropy_map
+    from test_uncertainty import LMAX, _estimate_of, _observations_from_spectra
 
     coarse_index = np.array([i for i in range(16) if i != 5])  # texel (1, 1) not covered
     rows, columns = np.divmod(coarse_index, 4)

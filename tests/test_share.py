@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 from scipy.special import rel_entr
 
-from helpers import observations_from_samples
 from freqbrdf.applications.share import (
     PROBABILITY_FLOOR,
     anchor_affinity,
@@ -30,6 +29,7 @@ from freqbrdf.uncertainty import (
     entropy_map,
     hypothesis_grid,
 )
+from helpers import observations_from_samples
 
 LMAX = 5
 N_VIEWS = 48
