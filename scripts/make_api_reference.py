@@ -30,13 +30,35 @@ def _summary(value) -> str:
     return doc.strip().split("\n\n")[0].replace("\n", " ")
 
 
+_PLAIN_DEFAULTS = (type(None), bool, int, float, str, bytes)
+
+
 def _signature(name: str, value) -> str:
-    if inspect.isclass(value) or inspect.isfunction(value):
-        try:
-            return f"{name}{inspect.signature(value)}"
-        except (TypeError, ValueError):
-            return name
-    return name
+    """Name and parameters; defaults other than plain literals are shown as ``...``.
+
+    Reprs of objects (settings, reporters) are long and may hold addresses, which would make the
+    reference change from run to run.
+    """
+    if not (inspect.isclass(value) or inspect.isfunction(value)):
+        return name
+    try:
+        signature = inspect.signature(value)
+    except (TypeError, ValueError):
+        return name
+    parameters = []
+    for parameter in signature.parameters.values():
+        default = parameter.default
+        if default is not inspect.Parameter.empty and not isinstance(default, _PLAIN_DEFAULTS):
+            parameter = parameter.replace(default=_Elided())
+        parameters.append(parameter.replace(annotation=inspect.Parameter.empty))
+    return f"{name}{signature.replace(parameters=parameters, return_annotation=inspect.Signature.empty)}"
+
+
+class _Elided:
+    """A default shown as ``...``."""
+
+    def __repr__(self) -> str:
+        return "..."
 
 
 def _public_names(module) -> list[str]:
