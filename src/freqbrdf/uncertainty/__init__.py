@@ -89,7 +89,6 @@ with the neighbour vote); with the scatter between the even and the odd views' e
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -100,11 +99,45 @@ from scipy import ndimage
 
 from freqbrdf.config import Config, EstimateConfig, UncertaintyConfig
 from freqbrdf.estimate import (
-    CURVATURE_STEP, FITTED_PARAMETERS, HYPOTHESIS_BLOCK, HypothesisRecorder, angular_loss,
-    estimate as estimate_materials, hypothesis_moments, model_light, scattering_stride, texel_blocks,
+    CURVATURE_STEP,
+    FITTED_PARAMETERS,
+    HYPOTHESIS_BLOCK,
+    HypothesisRecorder,
+    angular_loss,
+    hypothesis_moments,
+    model_light,
+    texel_blocks,
+)
+from freqbrdf.estimate import (
+    estimate as estimate_materials,
 )
 from freqbrdf.model import brdf
 from freqbrdf.sphere import harmonics as sh
+from freqbrdf.uncertainty._kernels import CUTOFF, _grid_entropy_kernel, _moment_entropy_kernel
+
+__all__ = [
+    "FLAG_UNOBSERVED",
+    "FLAG_FEW_SAMPLES",
+    "FEW_SAMPLES_FRACTION",
+    "FLAG_BELOW_BOUND",
+    "FLAG_AMBIGUOUS",
+    "FLAG_NAMES",
+    "CUTOFF",
+    "PRIOR_ROUGHNESS_VARIANCE",
+    "CURVATURE_NOISE_FLOOR",
+    "HypothesisGrid",
+    "hypothesis_grid",
+    "Uncertainty",
+    "entropy_map",
+    "roughness_std",
+    "cross_spectrum",
+    "hypothesis_filter",
+    "entropy_from_spectra",
+    "entropy_angular",
+    "entropy_from_moments",
+    "AngularEntropy",
+    "summary",
+]
 
 if TYPE_CHECKING:
     from freqbrdf.estimate import MaterialEstimate
@@ -125,17 +158,11 @@ FLAG_NAMES = {
     FLAG_AMBIGUOUS: "ambiguous",
 }
 
-# Cells whose misfit exceeds the minimum by more than CUTOFF temperatures are weighted as if at
-# CUTOFF: e^-30 ~ 1e-13 is far below the float32 resolution of the likelihood, and the entropy
-# moves by less than R^2 CUTOFF e^-CUTOFF / log R^2 < 1e-8.
-CUTOFF = 30.0
 # What a texel's roughness variance is without information: roughness uniform on [0, 1].
 PRIOR_ROUGHNESS_VARIANCE = 1.0 / 12.0
 # Noise floor of the loss curvature's noise variance: a sample's noise std relative to the RMS of
 # the texel's observed radiance, so that a texel fitted exactly is not called certain.
 CURVATURE_NOISE_FLOOR = 0.02
-_MOMENT_CHUNK = 64  # texels per parallel work item of the angular entropy: amortises the scratch arrays
-_LANES = 64  # texels side by side in the kernel's SIMD loops (measured 8-15 % faster than 32; 16: 1.6x slower)
 
 
 @dataclass(frozen=True)
@@ -191,7 +218,8 @@ def entropy_map(
     estimate_config: EstimateConfig = EstimateConfig(),
 ) -> Uncertainty:
     """The uncertainty map of a capture's observations (see the module docstring); ``angular`` mode
-    scores the hypotheses with the estimator's model of ``estimate_config`` (`entropy_angular`)."""
+    scores the hypotheses with the estimator's model of ``estimate_config`` (`entropy_angular`).
+    """
     if config.mode == "angular":
         return entropy_angular(observations, Config(uncertainty=config, estimate=estimate_config), return_likelihood)
     return entropy_from_spectra(
@@ -235,7 +263,8 @@ def roughness_std(
 
 def _window_sums(observations: Observations, known: np.ndarray, window: int, *values: np.ndarray):
     """(N,) sums over the ``known`` texels of the window x window square around each texel
-    (texture space): of 1 (how many there are), then of each of ``values`` ((N,) each)."""
+    (texture space): of 1 (how many there are), then of each of ``values`` ((N,) each).
+    """
     flat = observations.texel_index
 
     def window_sum(value):
@@ -247,7 +276,8 @@ def _window_sums(observations: Observations, known: np.ndarray, window: int, *va
 
 def _neighbour_variance(observations: Observations, roughness: np.ndarray, window: int) -> np.ndarray:
     """(N,) variance of the estimated roughness over the estimated texels of the window x window
-    square around each texel (texture space); the prior variance where it holds no other texel."""
+    square around each texel (texture space); the prior variance where it holds no other texel.
+    """
     known = np.isfinite(roughness)
     counts, sums, squares = _window_sums(observations, known, window, roughness, roughness * roughness)
     alone = counts < 1.5  # the texel itself only (the filter's sums are rounded)
@@ -267,7 +297,8 @@ def _split_half_variance(observations: Observations, roughness: np.ndarray, conf
     of every split_half_stride-th row and column are estimated twice more (when the window is wider
     than the stride): stride 2 took 2.7 s instead of 12.2 s on entropy_scenes.py's sphere, for a
     Spearman rho of 0.513 instead of 0.515 (bunny: 1.6 s, 0.570 instead of 7.2 s, 0.572). A window
-    holding none of them (0.01 % of the texels there) gets the prior variance."""
+    holding none of them (0.01 % of the texels there) gets the prior variance.
+    """
     settings = config.uncertainty
     window, stride = settings.roughness_window, settings.split_half_stride
     if stride < 1:
@@ -303,7 +334,8 @@ def _loss_curvature_variance(observations: Observations, estimate: MaterialEstim
     unbiased noise variance: 3n values, five parameters fitted; the prior where 3n <= 5) +
     (CURVATURE_NOISE_FLOOR)^2 x the weighted mean square of the observed radiance. L'' is the
     second divided difference through r and two probes CURVATURE_STEP apart, on the side of r that
-    stays within [0, 1]."""
+    stays within [0, 1].
+    """
     loss_centre = estimate.loss
     if estimate.roughness_curvature is not None:
         curvature = estimate.roughness_curvature  # the global search's profiled curvature, for free
@@ -346,7 +378,8 @@ def cross_spectrum(observed_coeffs: np.ndarray, light_coeffs: np.ndarray) -> np.
 def hypothesis_filter(grid: HypothesisGrid, lmax: int, sigma: float) -> np.ndarray:
     """(R, l*+1) calibrated mode's per-degree amplitude filter of each alpha row: the paper's
     exp(-(alpha l)^2) divided by the band-limit blur exp(-(sigma l)^2) the mirrored light went
-    through (``brdf.brdf_kernel``)."""
+    through (``brdf.brdf_kernel``).
+    """
     return brdf.brdf_kernel(grid.alpha, lmax, sigma)
 
 
@@ -425,7 +458,8 @@ def _finish(unobserved, entropy, channel, best_alpha, best_ks, likelihood, n_sam
             config: UncertaintyConfig) -> Uncertainty:
     """The Uncertainty of a grid evaluation: texels ``unobserved`` (N,) set to the prior, and the flags
     (FLAG_FEW_SAMPLES below FEW_SAMPLES_FRACTION x n_coeffs samples; none for n_samples or
-    alpha_bound None)."""
+    alpha_bound None).
+    """
     entropy[unobserved] = 1.0
     channel[unobserved] = -1
     best_alpha[unobserved] = np.nan
@@ -461,7 +495,8 @@ def entropy_angular(observations: Observations, config: Config = Config(),
     material; normalised entropy, minimum over RGB. Scaling every image and the environment by
     kappa scales e and the variance by kappa^2: the map does not change. Costs R probes of the
     estimator's search per texel (seconds, not milliseconds); `pipeline.fit` takes them from its
-    own search instead (`AngularEntropy`)."""
+    own search instead (`AngularEntropy`).
+    """
     scorer = AngularEntropy(observations, config, return_likelihood)
     for rows in texel_blocks(observations.n_texels, HYPOTHESIS_BLOCK):
         scorer.consume(rows, hypothesis_moments(observations.select(rows), scorer.roughness, scorer.config))
@@ -476,7 +511,8 @@ def entropy_from_moments(
     (`estimate.hypothesis_moments` at roughness i / (R - 1)), with the samples' weights (N, V) and
     mirrored radiance (N, V, 3) (the noise floor's light) and their count n_samples (N,); what
     `entropy_angular` and `AngularEntropy` do block by block. Texels without samples get the prior;
-    no flags but FLAG_AMBIGUOUS (the sampling bound and the SH fit are not known here)."""
+    no flags but FLAG_AMBIGUOUS (the sampling bound and the SH fit are not known here).
+    """
     if config.mode != "angular":
         raise ValueError(f"moments are scored in the angular mode, not {config.mode!r}")
     n_texels, resolution = moments.shape[:2]
@@ -500,7 +536,8 @@ class AngularEntropy:
     """`entropy_angular` fed with its hypotheses' moments block by block: by `entropy_angular`, or
     by the `global` estimator's search while it estimates (`estimate.estimate`'s ``hypotheses``,
     `recorder`), whose first scan probes the roughness nodes anyway. With the default grid (the
-    estimator's nodes) that costs the search no probe of its own."""
+    estimator's nodes) that costs the search no probe of its own.
+    """
 
     def __init__(self, observations: Observations, config: Config = Config(), return_likelihood: bool = True):
         settings = config.uncertainty
@@ -519,7 +556,8 @@ class AngularEntropy:
     @staticmethod
     def recorded_by_search(config: Config) -> bool:
         """Whether the estimator of ``config`` can record this mode's hypotheses as it searches: the
-        global estimator."""
+        global estimator.
+        """
         return config.uncertainty.mode == "angular" and config.estimate.method == "global"
 
     def recorder(self) -> HypothesisRecorder:
@@ -593,469 +631,3 @@ def _prior(grid: HypothesisGrid, merge_zero: bool) -> np.ndarray:
     return prior.astype(np.float32)
 
 
-_EXP_CENTRE = math.exp(-CUTOFF / 64)  # e^-y0 at the centre y0 = CUTOFF / 64 of the reduced argument
-
-
-@numba.njit(inline="always", fastmath={"contract", "reassoc", "nsz", "arcp"})
-def _exp_neg(distance):
-    """exp(-distance) in float32 for 0 <= distance <= CUTOFF, relative error < 1e-5, in float
-    arithmetic only (no libm call, no integer exponent tricks, which numba widens to 64 bits) so
-    that the loops over lanes vectorise.
-
-    exp(-d) = (e^-y)^32, y = d / 32 in [0, 2 y0]: e^-y = e^-y0 e^-(y - y0) by the degree-7 Taylor
-    polynomial of e^-(y - y0) (|y - y0| <= 0.47, truncation 5e-8), then five squarings, each of
-    which doubles the relative error.
-    """
-    y = distance * np.float32(1 / 32) - np.float32(CUTOFF / 64)
-    p = np.float32(1.0) - y * (np.float32(1.0) - y * (np.float32(1 / 2) - y * (np.float32(1 / 6) - y * (
-        np.float32(1 / 24) - y * (np.float32(1 / 120) - y * (np.float32(1 / 720) - y * np.float32(1 / 5040)))))))
-    p = p * np.float32(_EXP_CENTRE)
-    p = p * p
-    p = p * p
-    p = p * p
-    p = p * p
-    return p * p
-
-
-_LN2 = math.log(2.0)
-_SQRT2 = math.sqrt(2.0)
-
-
-@numba.njit(inline="always", fastmath={"contract", "reassoc", "nsz", "arcp"})
-def _log(x):
-    """ln x for 0.7 <= x < 2^32 (the partition function Z lies in [1, number of hypotheses]), error
-    < 1e-12 (measured 7e-13), in float arithmetic only (selects, one division), so that the loop
-    over lanes vectorises; a libm call per lane cost about a tenth of the map (measured at R = 2).
-
-    x = 2^e m by halving steps (16, 8, 4, 2, 1 and one to m <= sqrt 2), then
-    ln m = 2 atanh z, z = (m - 1) / (m + 1), |z| <= 0.172: the series to z^13 leaves < 1.3e-12.
-    """
-    exponent = 0.0
-    big = x >= 65536.0
-    x = x * (1.0 / 65536.0) if big else x
-    exponent += 16.0 if big else 0.0
-    big = x >= 256.0
-    x = x * (1.0 / 256.0) if big else x
-    exponent += 8.0 if big else 0.0
-    big = x >= 16.0
-    x = x * (1.0 / 16.0) if big else x
-    exponent += 4.0 if big else 0.0
-    big = x >= 4.0
-    x = x * 0.25 if big else x
-    exponent += 2.0 if big else 0.0
-    big = x >= 2.0
-    x = x * 0.5 if big else x
-    exponent += 1.0 if big else 0.0
-    big = x > _SQRT2
-    x = x * 0.5 if big else x
-    exponent += 1.0 if big else 0.0
-    z = (x - 1.0) / (x + 1.0)
-    z2 = z * z
-    series = 1.0 + z2 * (1 / 3 + z2 * (1 / 5 + z2 * (1 / 7 + z2 * (1 / 9 + z2 * (1 / 11 + z2 * (1 / 13))))))
-    return 2.0 * z * series + exponent * _LN2
-
-
-@numba.njit(inline="always")
-def _larger(a, b):
-    """max(a, b) as a compare and select; numba's builtin max is a call that blocks vectorisation."""
-    return a if a > b else b
-
-
-@numba.njit(inline="always")
-def _smaller(a, b):
-    """min(a, b) as a compare and select (see _larger)."""
-    return a if a < b else b
-
-
-@numba.njit(parallel=True, cache=True)
-def _moment_entropy_kernel(moments, weight, mirrored, n_samples, alphas, specular, noise_level, want_likelihood,
-                           entropy, channel, best_alpha, best_ks, likelihood):
-    """`entropy_angular`'s grid per texel from `estimate.hypothesis_moments` (n, R, 3, 8) and the
-    texel's samples' weights (n, V) and mirrored radiance (n, V, 3) (the noise floor's light);
-    texels without moments (too few samples) get the prior. Outputs as `_grid_entropy_kernel`'s."""
-    n_chunks = (moments.shape[0] + _MOMENT_CHUNK - 1) // _MOMENT_CHUNK
-    stride = scattering_stride(n_chunks)  # texels without moments cost little: spread them over the threads
-    for item in numba.prange(n_chunks):
-        _moment_entropy_chunk((np.int64(item) * stride) % n_chunks, moments, weight, mirrored, n_samples, alphas,
-                              specular, noise_level, want_likelihood, entropy, channel, best_alpha, best_ks,
-                              likelihood)
-
-
-@numba.njit(cache=True, fastmath={"contract", "reassoc", "nsz", "arcp"})
-def _moment_entropy_chunk(chunk, moments, weight, mirrored, n_samples, alphas, specular, noise_level,
-                          want_likelihood, entropy, channel, best_alpha, best_ks, likelihood):
-    """`_moment_entropy_kernel`'s work for the texels of one chunk. The cells' weights w = exp(-d)
-    (d the misfit above the least in temperatures, at most CUTOFF) in float32 with `_exp_neg`; the
-    entropy without a log per cell: for p = w / Z, -sum p log p = (sum w d) / Z + log Z over the
-    k > 0 cells, and the k = 0 column's merged mass P0 adds -P0 log P0."""
-    resolution = moments.shape[1]
-    misfit = np.empty((resolution, resolution))
-    cell_weight = np.empty((3, resolution, resolution), np.float32)
-    norm = np.empty(3)
-    light_mean_square = np.empty(3)
-    for t in range(chunk * _MOMENT_CHUNK, min((chunk + 1) * _MOMENT_CHUNK, moments.shape[0])):
-        _moment_entropy_texel(t, moments, weight, mirrored, n_samples, alphas, specular, noise_level,
-                              want_likelihood, entropy, channel, best_alpha, best_ks, likelihood, misfit,
-                              cell_weight, norm, light_mean_square)
-
-
-@numba.njit(cache=True, fastmath={"contract", "reassoc", "nsz", "arcp"})
-def _moment_entropy_texel(t, moments, weight, mirrored, n_samples, alphas, specular, noise_level, want_likelihood,
-                          entropy, channel, best_alpha, best_ks, likelihood, misfit, cell_weight, norm,
-                          light_mean_square):
-    """`_moment_entropy_chunk`'s work for texel t, with its scratch arrays."""
-    resolution = moments.shape[1]
-    n_materials = resolution * (resolution - 1) + 1
-    log_hypotheses = math.log(n_materials)
-    light_mean_square[:] = 0.0
-    weight_sum = 0.0
-    for v in range(weight.shape[1]):
-        w = np.float64(weight[t, v])
-        if w > 0.0:
-            weight_sum += w
-            for c in range(3):
-                light_mean_square[c] += w * np.float64(mirrored[t, v, c]) ** 2
-    best_entropy = 2.0
-    best_channel, best_row, best_column = 0, 0, 0
-    for c in range(3):
-        total = moments[t, 0, c, 0]
-        if not total > 0.0:  # no moments: the prior
-            norm[c] = 1.0
-            for i in range(resolution):
-                for j in range(resolution):
-                    cell_weight[c, i, j] = np.float32(1.0 / n_materials) / (resolution if j == 0 else 1)
-            value, row, column = 1.0, 0, 0
-        else:
-            lowest = np.inf
-            inverse_total = 1.0 / total
-            for i in range(resolution):
-                m = moments[t, i, c]
-                mean_u, mean_x, mean_f = m[1] * inverse_total, m[2] * inverse_total, m[6] * inverse_total
-                square_u, cross_ux, square_x = m[3] * inverse_total, m[4] * inverse_total, m[5] * inverse_total
-                diffuse = _larger(mean_f, 0.0)  # k = 0: no specular lobe at all
-                misfit[i, 0] = _larger(m[7] * inverse_total - 2.0 * diffuse * mean_f + diffuse * diffuse, 0.0)
-                for j in range(1, resolution):
-                    k = specular[j]
-                    residual = mean_u - k * mean_x  # the diffuse part's least-squares value, unclamped
-                    diffuse = _larger(residual, 0.0)
-                    e = square_u - 2.0 * k * cross_ux + k * k * square_x - 2.0 * diffuse * residual + diffuse * diffuse
-                    misfit[i, j] = _larger(e, 0.0)
-                for j in range(resolution):
-                    lowest = _smaller(lowest, misfit[i, j])
-            n = max(n_samples[t], 1)
-            mean_square = light_mean_square[c] / weight_sum if weight_sum > 0.0 else 0.0
-            variance = max(noise_level * noise_level * mean_square + lowest * n / max(n - 3, 1), 1e-30)
-            to_temperature = n / (2.0 * variance)
-            zero = 0.0  # the k = 0 column's weight: one material, so each of its cells counts 1 / R
-            weighted_distance = 0.0  # sum w d over the k > 0 cells
-            partition = 0.0  # Z over the k > 0 cells, then with the k = 0 column
-            for i in range(resolution):
-                w = _exp_neg(np.float32(_smaller((misfit[i, 0] - lowest) * to_temperature, CUTOFF)))
-                cell_weight[c, i, 0] = w / np.float32(resolution)
-                zero += cell_weight[c, i, 0]
-                for j in range(1, resolution):
-                    distance = np.float32(_smaller((misfit[i, j] - lowest) * to_temperature, CUTOFF))
-                    w = _exp_neg(distance)
-                    cell_weight[c, i, j] = w
-                    partition += w
-                    weighted_distance += w * distance
-            partition += zero
-            row, column, largest = 0, 0, np.float32(-1.0)
-            for i in range(resolution):
-                for j in range(1, resolution):
-                    if cell_weight[c, i, j] > largest:
-                        row, column, largest = i, j, cell_weight[c, i, j]
-            norm[c] = partition
-            zero_mass = zero / partition
-            value = (weighted_distance + (partition - zero) * math.log(partition)) / partition
-            if zero_mass > 0.0:
-                value -= zero_mass * math.log(zero_mass)
-            if zero >= largest:
-                row, column = 0, 0
-            value = min(max(value / log_hypotheses, 0.0), 1.0)
-        if value < best_entropy:
-            best_entropy, best_channel, best_row, best_column = value, c, row, column
-    entropy[t] = best_entropy
-    channel[t] = best_channel
-    best_alpha[t] = alphas[best_row] if best_column > 0 else np.nan
-    best_ks[t] = specular[best_column]
-    if want_likelihood:
-        scale = 1.0 / norm[best_channel]
-        for i in range(resolution):
-            for j in range(resolution):
-                likelihood[t, i, j] = cell_weight[best_channel, i, j] * scale
-
-
-@numba.njit(parallel=True, cache=True)
-def _grid_entropy_kernel(
-    light, observed, scale, row_filter, alphas, amplitude, per_light_power,
-    merge_zero, residual_dof, want_likelihood, n_threads,
-    entropy, channel, best_alpha, best_ks, likelihood,
-):
-    """Fused grid misfit, likelihood and entropy per texel; the minimum-entropy channel wins.
-
-    light, observed (N, 3, l*+1) power spectra; scale (N, 3), or
-    (N, 1) for all channels alike, turns a misfit difference into temperatures, divided by the
-    texel's light power P = mean over channels of sum_l S_refl(l) when per_light_power (no light:
-    temperature 0, no information); row_filter (R, l*+1) the per-degree factor of alpha_i (kernel
-    for amplitudes, kernel^2 for powers); alphas (R,) the rows' alpha. amplitude: compare sqrt(S),
-    grid values t_j = k_j, and bound the specular DC by the observed one; otherwise powers and
-    t_j = k_j^2. merge_zero: the k = 0 column is one hypothesis; residual_dof > 0: the noise
-    variance 1 / (2 scale) grows by the best cell's misfit / residual_dof (0: off); n_threads:
-    numba's thread count (read outside, which keeps the kernel cacheable). Outputs per texel:
-    entropy, channel, the arg-max cell's alpha (NaN at k = 0) and k_s and, if wanted, the (R, R)
-    likelihood of the chosen channel.
-
-    SIMD runs across _LANES texels at a time (structure of arrays, [..., lane]), so the loops over
-    lanes are branch-free and vectorise whatever R is. Each texel's inputs are read once, in
-    memory order, into the block's lanes. Per texel and channel:
-
-    1. moments (float64): a_l^2 and a_l b_l for l >= 1 and C = sum_l b_l^2 (the misfit at k = 0),
-       a_l, b_l the light's and the observation's amplitudes (or powers);
-    2. per alpha row (float64): A = sum_l f_il^2 a_l^2, X = sum_l f_il a_l b_l; the misfit
-       C - 2 X t + A t^2 plus the DC excess _larger(t a_0 - b_0, 0)^2 is convex in t, so the row's
-       grid minimum t_b is one of the two grid values around its continuous minimiser, which has a
-       closed form (one division);
-    3. per cell (float32): the distance in temperatures relative to the row's grid minimum,
-       d = D_i + (t_j - t_b)(A (t_j - t_b) + 2 (A t_b - X)) / T + DC excess difference: exact at the
-       row minimum, no cancellation elsewhere; exp(-d) by _exp_neg. Rows whose minimum lies beyond
-       CUTOFF in every lane are clamped without evaluating their cells.
-
-    H = log Z + sum w d / Z (w = e^-d, Z = sum w), summed per row in float32, over rows in float64;
-    log by _log. Measured on bench_entropy's data (one thread, R = 2, i.e. mostly the fixed per-texel
-    cost; old and new interleaved under load): reading the inputs once in memory order instead of per
-    channel, one division per row instead of two, a vectorised log, a skip test that vectorises and
-    64 lanes took 62 -> 36 ms (R = 8: 117 -> 73 ms). The cell loop writes the likelihood's weights
-    in place instead of into a row that was then copied: with the likelihood, T = 512, 2 threads,
-    R = 8 33 -> 27.5 ms, R = 32 290 -> 220 ms (three interleaved runs each).
-    """
-    n_blocks = (light.shape[0] + _LANES - 1) // _LANES
-    n_workers = _smaller(n_threads, n_blocks)  # worker w takes blocks w, w + n_workers, ...
-    for worker in numba.prange(n_workers):
-        # np.int64: the loop index is unsigned in numba's parallel code and signed when typed: one
-        # signature, not two (each compiles the whole kernel).
-        _grid_entropy_worker(np.int64(worker), n_workers, light, observed, scale, row_filter,
-                             alphas, amplitude, per_light_power, merge_zero, residual_dof,
-                             want_likelihood, entropy, channel, best_alpha, best_ks, likelihood)
-
-
-@numba.njit(cache=True, error_model="numpy", fastmath={"contract", "reassoc", "nsz", "arcp"})
-def _grid_entropy_worker(
-    worker, n_workers, light, observed, scale, row_filter, alphas, amplitude,
-    per_light_power, merge_zero, residual_dof, want_likelihood, entropy, channel, best_alpha, best_ks,
-    likelihood,
-):
-    """`_grid_entropy_kernel`'s work for the blocks of texels worker, worker + n_workers, ...: a
-    function of its own, so that numba's parallel passes see a small loop (on the whole body they
-    took most of the kernel's compile time)."""
-    n_texels, n_channels, n_degrees = light.shape
-    n_scales = scale.shape[1]
-    resolution = row_filter.shape[0]
-    last = resolution - 1
-    inverse_last = 1.0 / last
-    n_zero = 1 if merge_zero else resolution  # how many hypotheses the k = 0 column counts as
-    log_hypotheses = math.log(resolution * (resolution - 1) + n_zero)
-    clamped_weight = _exp_neg(np.float32(CUTOFF))  # a cell beyond CUTOFF, as the cell loop weighs it
-    specular = np.arange(resolution) / last  # k_j
-    steps = specular if amplitude else specular * specular  # t_j
-    steps32 = steps.astype(np.float32)
-    filter_sq = row_filter * row_filter
-    stored = resolution if want_likelihood else 1  # likelihood grids are kept only when returned
-    n_blocks = (n_texels + _LANES - 1) // _LANES
-    # Per-lane scratch, one array per quantity so that each loop over lanes reads and writes
-    # few arrays (LLVM's run-time overlap checks stay within its limits and the loops vectorise).
-    # The block's inputs, read once per texel in memory order: [channel, degree, lane].
-    light_lanes = np.zeros((n_channels, n_degrees, _LANES))
-    observed_lanes = np.zeros((n_channels, n_degrees, _LANES))
-    light_sq = np.empty((n_degrees, _LANES))  # a_l^2
-    light_observed = np.empty((n_degrees, _LANES))  # a_l b_l
-    constant = np.empty(_LANES)  # C = sum_{l >= 1} b_l^2
-    light_dc = np.empty(_LANES)  # a_0
-    observed_dc = np.empty(_LANES)  # b_0
-    to_temperature = np.empty(_LANES)
-    quad = np.empty(_LANES)  # A of the current row
-    linear = np.empty(_LANES)  # X of the current row
-    lowest = np.empty((3, _LANES))  # the least misfit, its row and column
-    sums = np.empty((2, _LANES))  # Z, sum w d
-    rows = np.empty((resolution, 5, _LANES))  # per row: A, X, t_b, misfit at t_b, the specular DC at t = 1
-    # t_b, A / T, 2 (A t_b - X) / T, D_i - DC excess at t_b, and the row's specular DC and the
-    # observed DC, both times sqrt(1 / T) (0 outside amplitude mode: no DC bound)
-    cell = np.zeros((6, _LANES), np.float32)
-    cell_sums = np.empty((2, _LANES), np.float32)  # sum w, sum w d over the row's cells
-    # The cells' weights [channel, row, column, lane], written in place by the cell loop; without
-    # the likelihood one row per channel is kept as scratch.
-    weights = np.empty((n_channels, stored, resolution, _LANES), np.float32)
-    channel_sums = np.empty((n_channels, 2, _LANES))  # Z and the k = 0 weight per channel
-    choice = np.empty((4, _LANES))  # lowest entropy, its channel, arg-max row and column
-    light_power = np.ones(_LANES)
-    for block in range(worker, n_blocks, n_workers):
-        start = block * _LANES
-        n_lanes = _smaller(_LANES, n_texels - start)
-        if n_lanes < _LANES:  # padding lanes hold zeros and are computed like the others
-            light_lanes[:] = 0.0
-            observed_lanes[:] = 0.0
-        for k in range(n_lanes):
-            for c in range(n_channels):
-                for l in range(n_degrees):
-                    light_lanes[c, l, k] = light[start + k, c, l]
-                    observed_lanes[c, l, k] = observed[start + k, c, l]
-        choice[0] = 2.0
-        if per_light_power:
-            light_power[:] = 0.0
-            for c in range(n_channels):
-                for l in range(n_degrees):
-                    for k in range(_LANES):
-                        light_power[k] += light_lanes[c, l, k]
-            for k in range(_LANES):
-                light_power[k] = light_power[k] / n_channels
-        for c in range(n_channels):
-            # 1. Moments.
-            for k in range(_LANES):
-                light_dc[k] = math.sqrt(_larger(light_lanes[c, 0, k], 0.0))
-                observed_dc[k] = math.sqrt(_larger(observed_lanes[c, 0, k], 0.0))
-                constant[k] = 0.0
-            for l in range(1, n_degrees):
-                if amplitude:  # a_l^2 = S_refl(l), a_l b_l = sqrt(S_refl(l) S_out(l)), b_l^2 = S_out(l)
-                    for k in range(_LANES):
-                        light_value = _larger(light_lanes[c, l, k], 0.0)
-                        observed_value = _larger(observed_lanes[c, l, k], 0.0)
-                        light_sq[l, k] = light_value
-                        light_observed[l, k] = math.sqrt(light_value * observed_value)
-                        constant[k] += observed_value
-                else:
-                    for k in range(_LANES):
-                        light_value = _larger(light_lanes[c, l, k], 0.0)
-                        observed_value = _larger(observed_lanes[c, l, k], 0.0)
-                        light_sq[l, k] = light_value * light_value
-                        light_observed[l, k] = light_value * observed_value
-                        constant[k] += observed_value * observed_value
-            # 2. Rows. The k = 0 column (misfit C in any row) and earlier rows win ties.
-            for k in range(_LANES):
-                lowest[0, k] = constant[k]
-                lowest[1, k] = 0.0
-                lowest[2, k] = 0.0
-            for i in range(resolution):
-                for k in range(_LANES):
-                    quad[k] = filter_sq[i, 1] * light_sq[1, k]
-                    linear[k] = row_filter[i, 1] * light_observed[1, k]
-                for l in range(2, n_degrees):
-                    for k in range(_LANES):
-                        quad[k] += filter_sq[i, l] * light_sq[l, k]
-                        linear[k] += row_filter[i, l] * light_observed[l, k]
-                for k in range(_LANES):
-                    a = quad[k]
-                    x = linear[k]
-                    specular_dc = light_dc[k]
-                    # Continuous minimiser of C - 2 X t + A t^2 + max(t a_0 - b_0, 0)^2: X / A, or
-                    # (X + a_0 b_0) / (A + a_0^2) where X / A would exceed the DC bound b_0 / a_0.
-                    numerator = x
-                    denominator = a
-                    if amplitude and x * specular_dc > observed_dc[k] * a:
-                        numerator += specular_dc * observed_dc[k]
-                        denominator += specular_dc * specular_dc
-                    target = numerator / (denominator if denominator > 0.0 else 1.0)  # no light: 0
-                    index = target * last if amplitude else math.sqrt(_larger(target, 0.0)) * last
-                    left = np.float64(_smaller(_larger(math.floor(index), 1.0), last))
-                    right = _smaller(left + 1.0, last)
-                    left_t = left * inverse_last
-                    right_t = right * inverse_last
-                    if not amplitude:
-                        left_t *= left_t
-                        right_t *= right_t
-                    left_misfit = constant[k] + left_t * (a * left_t - 2.0 * x)
-                    right_misfit = constant[k] + right_t * (a * right_t - 2.0 * x)
-                    if amplitude:
-                        left_misfit += _larger(left_t * specular_dc - observed_dc[k], 0.0) ** 2
-                        right_misfit += _larger(right_t * specular_dc - observed_dc[k], 0.0) ** 2
-                    take_right = right_misfit < left_misfit
-                    best_misfit = right_misfit if take_right else left_misfit
-                    rows[i, 0, k] = a
-                    rows[i, 1, k] = x
-                    rows[i, 2, k] = right_t if take_right else left_t
-                    rows[i, 3, k] = best_misfit
-                    rows[i, 4, k] = specular_dc
-                    if best_misfit < lowest[0, k]:
-                        lowest[0, k] = best_misfit
-                        lowest[1, k] = i
-                        lowest[2, k] = right if take_right else left
-            # 3. Cells. Temperature per lane, the k = 0 column, then row by row.
-            for k in range(_LANES):
-                temperature = scale[start + k, _smaller(c, n_scales - 1)] if k < n_lanes else 0.0
-                temperature = temperature / light_power[k] if light_power[k] > 0.0 else 0.0
-                if residual_dof > 0.0 and temperature > 0.0:
-                    # Noise variance = the stated floor + the best hypothesis's residual per
-                    # degree of freedom: a texel no hypothesis explains is not sure of any.
-                    temperature = 1.0 / (1.0 / temperature + 2.0 * _larger(lowest[0, k], 0.0) / residual_dof)
-                to_temperature[k] = temperature
-                zero_distance = _smaller((constant[k] - lowest[0, k]) * temperature, CUTOFF)
-                zero_weight = np.float64(_exp_neg(np.float32(zero_distance)))
-                channel_sums[c, 1, k] = zero_weight
-                sums[0, k] = n_zero * zero_weight
-                sums[1, k] = n_zero * zero_weight * zero_distance
-            for i in range(resolution):
-                # Lanes whose row minimum D_i lies within CUTOFF, counted as a float sum: a select
-                # (min) reduction would not vectorise without assuming no NaNs.
-                within = 0.0
-                for k in range(_LANES):
-                    temperature = to_temperature[k]
-                    offset = (rows[i, 3, k] - lowest[0, k]) * temperature
-                    within += 1.0 if offset < CUTOFF else 0.0
-                    best_t = rows[i, 2, k]
-                    excess = _larger(best_t * rows[i, 4, k] - observed_dc[k], 0.0)
-                    excess = excess if amplitude else 0.0
-                    # misfit(t) - misfit(t_b) = (t - t_b) (A (t - t_b) + 2 (A t_b - X)), plus the DC excess
-                    cell[0, k] = best_t
-                    cell[1, k] = rows[i, 0, k] * temperature
-                    cell[2, k] = 2.0 * (rows[i, 0, k] * best_t - rows[i, 1, k]) * temperature
-                    cell[3, k] = offset - excess * excess * temperature
-                    if amplitude:
-                        root_temperature = math.sqrt(temperature)
-                        cell[4, k] = rows[i, 4, k] * root_temperature
-                        cell[5, k] = observed_dc[k] * root_temperature
-                row_weights = weights[c, i if want_likelihood else 0]
-                if within == 0.0:  # every cell of this row is beyond CUTOFF in every lane
-                    cell_sums[0] = last * clamped_weight
-                    cell_sums[1] = last * clamped_weight * np.float32(CUTOFF)
-                    row_weights[:] = clamped_weight
-                else:
-                    cell_sums[:] = 0.0
-                    for j in range(1, resolution):
-                        t = steps32[j]
-                        for k in range(_LANES):
-                            delta = t - cell[0, k]
-                            excess = _larger(t * cell[4, k] - cell[5, k], np.float32(0.0))  # the DC bound
-                            distance = delta * (cell[1, k] * delta + cell[2, k]) + cell[3, k] + excess * excess
-                            distance = _smaller(_larger(distance, np.float32(0.0)), np.float32(CUTOFF))
-                            w = _exp_neg(distance)
-                            cell_sums[0, k] += w
-                            cell_sums[1, k] += w * distance
-                            row_weights[j, k] = w
-                for k in range(_LANES):
-                    sums[0, k] += cell_sums[0, k]
-                    sums[1, k] += cell_sums[1, k]
-            # Entropy; the channel with the lowest one wins (earlier channels win ties).
-            for k in range(_LANES):
-                total = sums[0, k]
-                value = (_log(total) + sums[1, k] / total) / log_hypotheses
-                value = _smaller(_larger(value, 0.0), 1.0)
-                channel_sums[c, 0, k] = total
-                if value < choice[0, k]:
-                    choice[0, k] = value
-                    choice[1, k] = c
-                    choice[2, k] = lowest[1, k]
-                    choice[3, k] = lowest[2, k]
-        for k in range(n_lanes):
-            texel = start + k
-            c = np.int64(choice[1, k])
-            entropy[texel] = choice[0, k]
-            channel[texel] = c
-            column = np.int64(choice[3, k])
-            best_alpha[texel] = alphas[np.int64(choice[2, k])] if column > 0 else np.nan  # k = 0: no lobe
-            best_ks[texel] = specular[column]
-            if want_likelihood:
-                inverse_total = 1.0 / channel_sums[c, 0, k]
-                zero_share = channel_sums[c, 1, k] * n_zero / resolution * inverse_total
-                for i in range(resolution):
-                    likelihood[texel, i, 0] = zero_share
-                    for j in range(1, resolution):
-                        likelihood[texel, i, j] = weights[c, i, j, k] * inverse_total
