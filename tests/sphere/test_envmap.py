@@ -148,6 +148,19 @@ def test_lowpass_and_zonal_filter_scale_each_degree(rotated):
         np.testing.assert_allclose(resampled, expected, atol=1e-5)
 
 
+def test_zonal_filters_in_chunks_give_the_same_maps(monkeypatch):
+    # zonal_filters synthesises several filters at once, in chunks of at most _SYNTHESIS_SAMPLES
+    # map samples: how it splits them must not change a bit.
+    rng = np.random.default_rng(13)
+    envmap = em.Envmap(rng.random((16, 32, 3)).astype(np.float32) * 4)
+    gains = rng.random((5, 15))
+    whole = em.zonal_filters(envmap, gains)
+    monkeypatch.setattr(em, "_SYNTHESIS_SAMPLES", 2 * 3 * 16 * 32)  # two filters per chunk
+    np.testing.assert_array_equal(em.zonal_filters(envmap, gains), whole)
+    for row, gain in zip(whole, gains):
+        np.testing.assert_array_equal(row, em.zonal_filter(envmap, gain).radiance)
+
+
 def test_clamped_cosine_kernel_matches_numerical_integral():
     kernel = em.clamped_cosine_coeffs(12)
     t, w = np.polynomial.legendre.leggauss(40)

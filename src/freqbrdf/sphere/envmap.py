@@ -13,7 +13,7 @@ Radiance is bilinear between these samples, periodic in u.
 
 For spherical harmonics the map is read as samples on a Clenshaw-Curtis grid (rings at
 theta_i = pi i / (H - 1), both poles included) in the frame E with polar axis = local +y; see
-`_EMITTER_FROM_SH_FRAME`.
+`_EMITTER_FROM_SH_FRAME`. The transforms are `freqbrdf.sht`'s.
 """
 
 from __future__ import annotations
@@ -22,12 +22,12 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import ducc0
 import numba
 import numpy as np
 
 from freqbrdf.errors import InputError
 from freqbrdf.sphere import harmonics as sh
+from freqbrdf.sphere import sht
 
 # Degree for irradiance from SH: the clamped-cosine kernel's even coefficients decay like
 # l^(-5/2), so truncating at 20 leaves a small error (the test with a bright, sharp-edged source
@@ -38,6 +38,10 @@ IRRADIANCE_LMAX = 20
 # x_E = -z_local, y_E = -x_local, z_E = +y_local (a proper rotation). A local direction with
 # Mitsuba angles (theta, phi_m) has E-frame azimuth phi_E = -phi_m.
 _EMITTER_FROM_SH_FRAME = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [-1.0, 0.0, 0.0]])
+
+# Map samples (maps x rings x columns) per `zonal_filters` synthesis, at most: its complex
+# spectra and its float64 maps then take 64 MiB each.
+_SYNTHESIS_SAMPLES = 2**23
 
 
 @dataclass
@@ -313,45 +317,8 @@ def downsample(radiance: np.ndarray, height: int) -> np.ndarray:
 # Spherical harmonics
 
 
-def _ducc_index(lmax: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """For every flat real index: degree l, order m, and the index of a_l|m| in ducc0's layout."""
-    degrees = sh.sh_degrees(lmax)
-    orders = np.arange(sh.num_coeffs(lmax)) - degrees * (degrees + 1)
-    abs_orders = np.abs(orders)
-    # healpy-style storage: m-major, a_lm at m (2 lmax + 1 - m) / 2 + l
-    return degrees, orders, abs_orders * (2 * lmax + 1 - abs_orders) // 2 + degrees
-
-
-def _complex_to_real(alm: np.ndarray, lmax: int) -> np.ndarray:
-    """ducc0 complex a_lm (..., n_alm) of a real function -> our real coefficients (..., K).
-
-    ducc0's harmonics carry the Condon-Shortley phase, ours do not:
-    c_l0 = Re a_l0, c_lm = sqrt(2) (-1)^m Re a_lm, c_l,-m = -sqrt(2) (-1)^m Im a_lm (m > 0).
-    """
-    _, orders, index = _ducc_index(lmax)
-    picked = alm[..., index]
-    sign = np.where(np.abs(orders) % 2 == 1, -math.sqrt(2.0), math.sqrt(2.0))
-    return np.where(orders == 0, picked.real, np.where(orders > 0, sign * picked.real, -sign * picked.imag))
-
-
-def _real_to_complex(coeffs: np.ndarray, lmax: int) -> np.ndarray:
-    """Inverse of `_complex_to_real`: (..., K) -> (..., n_alm) complex128."""
-    degrees, orders, index = _ducc_index(lmax)
-    n_alm = (lmax + 1) * (lmax + 2) // 2
-    alm = np.zeros(coeffs.shape[:-1] + (n_alm,), dtype=np.complex128)
-    sign = np.where(np.abs(orders) % 2 == 1, -1.0, 1.0) / math.sqrt(2.0)
-    zonal, positive, negative = orders == 0, orders > 0, orders < 0
-    alm[..., index[zonal]] = coeffs[..., zonal]
-    alm[..., index[positive]] += sign[positive] * coeffs[..., positive]
-    alm[..., index[negative]] += -1j * sign[negative] * coeffs[..., negative]
-    return alm
-
-
 def _check_resolution(height: int, width: int, lmax: int) -> None:
-    if lmax > height - 2 or 2 * lmax + 1 > width:
-        raise ValueError(
-            f"a {width}x{height} map resolves degrees up to {min(height - 2, (width - 1) // 2)}, not {lmax}"
-        )
+    sht.check_resolution(height, width, lmax)
 
 
 def envmap_sh(envmap: Envmap, lmax: int) -> np.ndarray:
@@ -377,8 +344,8 @@ def envmap_sh(envmap: Envmap, lmax: int) -> np.ndarray:
     Notes
     -----
     The map is read as samples on a Clenshaw-Curtis grid (Mitsuba's rows sit on theta =
-    pi i / (H - 1)) and transformed exactly for its band limit with ducc0, then rotated from
-    the emitter's SH frame into the world frame. Needs lmax <= H - 2 and 2 lmax + 1 <= W.
+    pi i / (H - 1)) and transformed exactly for its band limit (`freqbrdf.sht.analysis`), then
+    rotated from the emitter's SH frame into the world frame. Needs lmax <= H - 2 and 2 lmax + 1 <= W.
     """
     coeffs_sh_frame = _analysis(envmap.radiance, lmax)  # (3, K)
     return sh.rotate_sh(coeffs_sh_frame, envmap.rotation @ _EMITTER_FROM_SH_FRAME).T
@@ -426,37 +393,29 @@ def _analysis(radiance: np.ndarray, lmax: int) -> np.ndarray:
     """(H, W, 3) map -> (3, K) real SH coefficients in the emitter's SH frame (no rotation).
 
     The map is read as samples on a Clenshaw-Curtis grid (Mitsuba's rows sit on theta =
-    pi i / (H - 1)) and transformed exactly for its band limit with ducc0.
+    pi i / (H - 1)) and transformed exactly for its band limit (`freqbrdf.sht.analysis`).
     """
     height, width = radiance.shape[:2]
     _check_resolution(height, width, lmax)
     # Reversed columns run with increasing phi_E = 2 pi (j' + 0.5) / W.
     sh_frame_maps = np.ascontiguousarray(radiance[:, ::-1, :].transpose(2, 0, 1), dtype=np.float64)
-    return np.stack(
-        [
-            _complex_to_real(
-                ducc0.sht.experimental.analysis_2d(
-                    map=channel[None], spin=0, lmax=lmax, geometry="CC", phi0=math.pi / width
-                )[0],
-                lmax,
-            )
-            for channel in sh_frame_maps
-        ]
-    )
+    return sht.analysis(sh_frame_maps, lmax, phi0=math.pi / width)
 
 
-def _synthesis(coeffs_sh_frame: np.ndarray, height: int, width: int) -> np.ndarray:
-    """Inverse of `_analysis`: (3, K) SH-frame coefficients -> (H, W, 3) float32 map."""
+def _synthesis(coeffs_sh_frame: np.ndarray, height: int, width: int, out: np.ndarray | None = None) -> np.ndarray:
+    """Inverse of `_analysis`: (..., 3, K) SH-frame coefficients -> (..., H, W, 3) float32 maps,
+    written to ``out`` if given."""
+    coeffs_sh_frame = np.asarray(coeffs_sh_frame, dtype=np.float64)
     lmax = sh.lmax_of(coeffs_sh_frame.shape[-1])
     _check_resolution(height, width, lmax)
-    radiance = np.empty((height, width, 3), np.float32)
-    for c in range(3):
-        sh_frame_map = ducc0.sht.experimental.synthesis_2d(
-            alm=_real_to_complex(coeffs_sh_frame[c], lmax)[None], spin=0, lmax=lmax, geometry="CC",
-            ntheta=height, nphi=width, phi0=math.pi / width,
-        )[0]
-        radiance[..., c] = sh_frame_map[:, ::-1]
-    return radiance
+    leading = coeffs_sh_frame.shape[:-2]
+    sh_frame_maps = sht.synthesis(coeffs_sh_frame.reshape(-1, coeffs_sh_frame.shape[-1]), height, width,
+                                  phi0=math.pi / width)  # (n 3, H, W)
+    radiance = np.moveaxis(sh_frame_maps.reshape(leading + (3, height, width))[..., ::-1], -3, -1)
+    if out is None:
+        return np.ascontiguousarray(radiance, dtype=np.float32)
+    out[...] = radiance
+    return out
 
 
 def lowpass_envmap(envmap: Envmap, sigma: float) -> Envmap:
@@ -539,8 +498,17 @@ def zonal_filters(envmap: Envmap, gains: np.ndarray, height: int | None = None) 
     # The filter is zonal, so it commutes with rotations: filter in the map's own SH frame and
     # skip the two rotations to and from the world frame (dense and slow at high degree).
     coeffs = _analysis(envmap.radiance, lmax)  # (3, K)
-    degree = sh.sh_degrees(lmax)
-    return np.stack([_synthesis(coeffs * row[degree], height, width) for row in gains])
+    gains_by_degree = np.ascontiguousarray(gains[:, sh.sh_degrees(lmax)].T)  # (K, M)
+    # Several filters per synthesis (they share its Legendre functions), as many as keep its
+    # complex spectra within _SYNTHESIS_SAMPLES.
+    chunk = max(1, _SYNTHESIS_SAMPLES // (3 * height * width))
+    out = np.empty((len(gains), height, width, 3), np.float32)
+    for first in range(0, len(gains), chunk):
+        # (K, n, 3), by flat index first: the layout the synthesis reads, so it need not transpose
+        part = gains_by_degree[:, first: first + chunk, None] * coeffs.T[:, None, :]
+        count = part.shape[1]
+        _synthesis(part.reshape(len(part), -1).T.reshape(count, 3, -1), height, width, out=out[first: first + count])
+    return out
 
 
 def clamped_cosine_coeffs(lmax: int) -> np.ndarray:
