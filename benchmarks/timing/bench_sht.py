@@ -37,7 +37,6 @@ import numpy as np
 
 sys.path[:0] = [str(Path(__file__).resolve().parent), str(Path(__file__).resolve().parents[1])]
 from _common import control_seconds, machine, save_results  # noqa: E402
-
 from freqbrdf import assets  # noqa: E402
 from freqbrdf.model import brdf, light  # noqa: E402
 from freqbrdf.sphere import envmap as em  # noqa: E402

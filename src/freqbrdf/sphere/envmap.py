@@ -403,8 +403,10 @@ def _analysis(radiance: np.ndarray, lmax: int) -> np.ndarray:
 
 
 def _synthesis(coeffs_sh_frame: np.ndarray, height: int, width: int, out: np.ndarray | None = None) -> np.ndarray:
-    """Inverse of `_analysis`: (..., 3, K) SH-frame coefficients -> (..., H, W, 3) float32 maps,
-    written to ``out`` if given."""
+    """Invert `_analysis`: (..., 3, K) SH-frame coefficients -> (..., H, W, 3) float32 maps.
+
+    Written to ``out`` if given.
+    """
     coeffs_sh_frame = np.asarray(coeffs_sh_frame, dtype=np.float64)
     lmax = sh.lmax_of(coeffs_sh_frame.shape[-1])
     _check_resolution(height, width, lmax)

@@ -63,7 +63,8 @@ _PARALLEL_WORK = 2e8
 @contextlib.contextmanager
 def _threads_for(work: float):
     """Within the block, numba's parallel kernels use one thread if ``work`` is below
-    _PARALLEL_WORK (each order's sums stay in the same order: the results are the same)."""
+    _PARALLEL_WORK (each order's sums stay in the same order: the results are the same).
+    """
     if work >= _PARALLEL_WORK or numba.get_num_threads() == 1:
         yield
         return
@@ -111,8 +112,9 @@ def clenshaw_curtis_weights(n: int) -> np.ndarray:
 
 
 def _northern_nodes(n_rings: int) -> tuple[np.ndarray, np.ndarray]:
-    """cos and sin of the colatitudes pi i / (P - 1) of the rings i < ceil(P / 2) (the northern
-    half with the equator if P is odd), each computed so that poles and equator are exact."""
+    """Cos and sin of the colatitudes pi i / (P - 1) of the rings i < ceil(P / 2) (the northern
+    half with the equator if P is odd), each computed so that poles and equator are exact.
+    """
     rings = np.arange((n_rings + 1) // 2)
     cos_theta = np.sin(np.pi * (n_rings - 1 - 2 * rings) / (2.0 * (n_rings - 1)))
     sin_theta = np.sin(np.pi * rings / (n_rings - 1))
@@ -124,7 +126,8 @@ def _order_starts(lmax, sin_theta):
     """(values, exponents), each (lmax + 1, n): lambda_mm(theta_i) = sqrt(2 - delta_m0) N_mm
     P_m^m(cos theta_i) = values[m, i] _SCALE^exponents[m, i], exponents <= 0, with values in
     [1 / _SCALE, 1) wherever the exponent is negative; by lambda_mm = sqrt((2m + 1) / (2m))
-    sin(theta) lambda_{m-1,m-1} (times sqrt(2) at m = 1, which every m > 0 inherits)."""
+    sin(theta) lambda_{m-1,m-1} (times sqrt(2) at m = 1, which every m > 0 inherits).
+    """
     n = sin_theta.shape[0]
     values = np.empty((lmax + 1, n))
     exponents = np.zeros((lmax + 1, n), np.int64)
@@ -146,7 +149,8 @@ def _order_starts(lmax, sin_theta):
 @numba.njit(fastmath=False, cache=True)
 def _recurrence(m, lmax):
     """(2, lmax - m + 1): the factors a_k, b_k of lambda_{m+k,m} = a_k (x lambda_{m+k-1,m} -
-    b_k lambda_{m+k-2,m}) for k >= 2 (a_1 = sqrt(2m + 3), b_1 = 0; k = 0 unused)."""
+    b_k lambda_{m+k-2,m}) for k >= 2 (a_1 = sqrt(2m + 3), b_1 = 0; k = 0 unused).
+    """
     factors = np.zeros((2, lmax - m + 1))
     if lmax > m:
         factors[0, 1] = math.sqrt(2.0 * m + 3.0)
@@ -165,7 +169,8 @@ def _legendre_block(factors, cos_theta, value, exponent, first, count, out):
 
     Rings whose lambda_mm is below 1 / _SCALE (near the poles, at high orders) run the recurrence
     on the mantissa and raise its power of _SCALE whenever it passes 1, until the functions grow
-    into the range of doubles; until then they are written as 0 (they are below 2^-600)."""
+    into the range of doubles; until then they are written as 0 (they are below 2^-600).
+    """
     n_degrees = factors.shape[1]
     for r in range(count):
         out[0, r] = value[first + r] if exponent[first + r] == 0 else 0.0
@@ -193,7 +198,8 @@ def _legendre_block(factors, cos_theta, value, exponent, first, count, out):
 
 def _legendre_values(m: int, lmax: int, theta: np.ndarray) -> np.ndarray:
     """(lmax - m + 1, n) lambda_lm(theta) for l = m..lmax at colatitudes theta (n,) in [0, pi / 2]
-    (as the kernels compute them; for the tests)."""
+    (as the kernels compute them; for the tests).
+    """
     theta = np.asarray(theta, dtype=np.float64)
     starts, exponents = _order_starts(m, np.sin(theta))
     out = np.empty((lmax - m + 1, theta.size))
@@ -208,7 +214,8 @@ _LANES = 8  # partial sums of the projection, added in a fixed order at the end
 def _paired_order(pair, side, lmax):
     """The parallel kernels run over pairs of orders (pair, lmax - pair), whose degree counts add
     to lmax + 2, so that equal chunks of pairs are equal work: the order of this pair and side,
-    or -1 for the middle order's second side."""
+    or -1 for the middle order's second side.
+    """
     first, last = np.int64(pair), np.int64(lmax) - np.int64(pair)  # (prange's index may be unsigned)
     if side == 0:
         return first
@@ -219,7 +226,8 @@ def _paired_order(pair, side, lmax):
 def _project_order(m, lmax, cos_theta, start, exponent, even, odd, row, out):
     """out[row + k, c] = sum over the northern rings i of lambda_{m+k,m}(theta_i) times even[c, i]
     (k even) or odd[c, i] (k odd), k = 0..lmax - m. Each sum runs in _LANES interleaved partial
-    sums (vectorised), then adds them pairwise."""
+    sums (vectorised), then adds them pairwise.
+    """
     n_columns, n_north = even.shape
     n_full = n_north - n_north % _LANES
     count = lmax - m + 1
@@ -247,7 +255,8 @@ def _project_order(m, lmax, cos_theta, start, exponent, even, odd, row, out):
 @numba.njit(parallel=True, fastmath=False, cache=True)
 def _project_kernel(lmax, cos_theta, starts, exponents, even, odd, offsets, out):
     """`_project_order` for every order m: even[m], odd[m] (M, C, northern rings), out (sum of
-    the orders' degree counts, C) in `_packing`'s rows."""
+    the orders' degree counts, C) in `_packing`'s rows.
+    """
     for pair in numba.prange((lmax + 2) // 2):
         for side in range(2):
             m = _paired_order(pair, side, lmax)
@@ -262,7 +271,8 @@ def _evaluate_order(m, lmax, cos_theta, start, exponent, by_degree, scale, block
     out[b, i, m] = scale (G_c - i G_s), G_c = sum over l of lambda_lm(theta_i) by_degree[c_lm, b]
     and G_s the same with c_l,-m (0 for m = 0); by_degree (K, B) holds the maps' coefficients by
     flat index. The northern rings go in blocks of ``block``, the sums' inner loops over a
-    block's rings (vectorised)."""
+    block's rings (vectorised).
+    """
     n_north = cos_theta.shape[0]
     n_maps, n_rings = out.shape[0], out.shape[1]
     n_pairs = n_rings // 2
@@ -308,7 +318,8 @@ def _evaluate_order(m, lmax, cos_theta, start, exponent, by_degree, scale, block
 @numba.njit(parallel=True, fastmath=False, cache=True)
 def _evaluate_kernel(lmax, cos_theta, starts, exponents, by_degree, scale, block, out):
     """`_evaluate_order` for every order m: by_degree (K, B), scale (M,), out (B, P, >= lmax + 1)
-    complex; orders above lmax are left as they are."""
+    complex; orders above lmax are left as they are.
+    """
     for pair in numba.prange((lmax + 2) // 2):
         for side in range(2):
             m = _paired_order(pair, side, lmax)
@@ -319,7 +330,8 @@ def _evaluate_kernel(lmax, cos_theta, starts, exponents, by_degree, scale, block
 @functools.lru_cache(maxsize=16)
 def _packing(lmax: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Coefficients packed order by order (m = 0..lmax, then l = m..lmax): the offset of each
-    order's first row, and per row the flat index of c_lm and of c_l,-m (that of c_lm for m = 0)."""
+    order's first row, and per row the flat index of c_lm and of c_l,-m (that of c_lm for m = 0).
+    """
     orders = np.concatenate([np.full(lmax + 1 - m, m) for m in range(lmax + 1)])
     degrees = np.concatenate([np.arange(m, lmax + 1) for m in range(lmax + 1)])
     offsets = np.concatenate([[0], np.cumsum(lmax + 1 - np.arange(lmax + 1))[:-1]]).astype(np.int64)
@@ -331,7 +343,8 @@ def _packing(lmax: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def _ring_spectra(maps: np.ndarray, lmax: int, phi0: float) -> np.ndarray:
     """(B, H, lmax + 1) complex: F_m(theta_i) = int f(theta_i, phi) e^{-i m phi} dphi by the
-    trapezoid rule over the W columns (exact for azimuthal degrees < W - lmax)."""
+    trapezoid rule over the W columns (exact for azimuthal degrees < W - lmax).
+    """
     width = maps.shape[-1]
     orders = np.arange(lmax + 1)
     spectra = scipy.fft.rfft(maps, axis=-1)[..., : lmax + 1]
@@ -341,7 +354,8 @@ def _ring_spectra(maps: np.ndarray, lmax: int, phi0: float) -> np.ndarray:
 def _fine_circle_points(height: int, lmax: int) -> int:
     """Points around the meridian circle on which `_interpolation_rule` integrates: the
     interpolant has degree <= H - 1, its product with lambda_lm degree <= H - 1 + lmax, and the
-    Clenshaw-Curtis rule on the circle's n / 2 + 1 rings is exact up to degree n / 2."""
+    Clenshaw-Curtis rule on the circle's n / 2 + 1 rings is exact up to degree n / 2.
+    """
     return 2 * scipy.fft.next_fast_len(height - 1 + lmax)
 
 
@@ -351,7 +365,8 @@ def _interpolation_rule(height: int, lmax: int) -> np.ndarray:
     sum_n (A F)_n lambda_lm(theta_n) = the integral over [0, pi] of (the trigonometric interpolant
     of F) lambda_lm sin(theta), exactly, for ring values F (H,) of order m and the lmax + 2 rings
     theta_n = pi n / (lmax + 1) (the second rule of the module docstring). The steps are linear
-    and depend on m only through its parity, so they run once per grid on unit vectors."""
+    and depend on m only through its parity, so they run once per grid on unit vectors.
+    """
     n_circle = 2 * height - 2
     n_fine = _fine_circle_points(height, lmax)
     half = clenshaw_curtis_weights(n_fine // 2 + 1)
@@ -391,7 +406,8 @@ def _interpolation_rule(height: int, lmax: int) -> np.ndarray:
 @numba.njit(fastmath=False, cache=True)
 def _apply_rule(rule, values, out):
     """out[b] = rule @ values[b]: rule (N, H), values (B, H, Q), out (B, N, Q), each sum over h in
-    order (numpy's matmul would call a multi-threaded BLAS, which is slow on a busy machine)."""
+    order (numpy's matmul would call a multi-threaded BLAS, which is slow on a busy machine).
+    """
     n_maps, height, n_columns = values.shape
     sums = np.empty(n_columns)
     for b in range(n_maps):
@@ -419,7 +435,8 @@ def _interpolated_ring_values(spectra: np.ndarray, lmax: int) -> np.ndarray:
 
 def _project(ring_values: np.ndarray, lmax: int) -> np.ndarray:
     """(B, P, M) complex ring values R on a P-ring grid -> (B, K) real coefficients
-    c_lm = sum_n lambda_lm(theta_n) Re R_nm, c_l,-m = -sum_n lambda_lm(theta_n) Im R_nm."""
+    c_lm = sum_n lambda_lm(theta_n) Re R_nm, c_l,-m = -sum_n lambda_lm(theta_n) Im R_nm.
+    """
     n_maps, n_rings, _ = ring_values.shape
     n_pairs = n_rings // 2
     # lambda_lm(pi - theta) = (-1)^(l + m) lambda_lm(theta): sums and differences of mirrored rings
@@ -442,7 +459,8 @@ def _project(ring_values: np.ndarray, lmax: int) -> np.ndarray:
 
 def analysis(maps: np.ndarray, lmax: int, phi0: float = 0.0) -> np.ndarray:
     """Real SH coefficients (B, K) float64 up to lmax of maps (B, H, W) sampled on the grid of the
-    module docstring (rings theta_i = pi i / (H - 1), columns phi_j = phi0 + 2 pi j / W)."""
+    module docstring (rings theta_i = pi i / (H - 1), columns phi_j = phi0 + 2 pi j / W).
+    """
     maps = np.asarray(maps, dtype=np.float64)
     if maps.ndim != 3:
         raise ValueError(f"maps must be (B, H, W), got {maps.shape}")
@@ -459,7 +477,8 @@ def analysis(maps: np.ndarray, lmax: int, phi0: float = 0.0) -> np.ndarray:
 def synthesis(coeffs: np.ndarray, height: int, width: int, phi0: float = 0.0) -> np.ndarray:
     """(B, H, W) float64: the band-limited functions with real SH coefficients (B, K) at the
     samples of the H x W grid of the module docstring. Needs lmax <= H - 2 and 2 lmax + 1 <= W
-    (the grid could hold the values with fewer rings, but `analysis` could not read them back)."""
+    (the grid could hold the values with fewer rings, but `analysis` could not read them back).
+    """
     coeffs = np.asarray(coeffs, dtype=np.float64)
     if coeffs.ndim != 2:
         raise ValueError(f"coeffs must be (B, K), got {coeffs.shape}")
