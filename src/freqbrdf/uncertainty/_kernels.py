@@ -1,12 +1,26 @@
-"""The uncertainty stage's numba kernels: the spectral entropy over the hypothesis grid and the
-angular entropy from the search's moments (METHOD.md §3.8).
+"""The numba kernels of the uncertainty stage (METHOD.md §3.8).
 
-`freqbrdf.uncertainty` validates the inputs and calls them; nothing else should.
+Two ways of scoring the hypothesis grid (alpha_i, k_j) per texel and channel, each fused into one
+pass that scores the cells, turns them into a likelihood and takes its normalised entropy, the
+channel with the lowest entropy winning:
+
+- `grid_entropy_kernel` scores SH power spectra (the spectral modes of
+  `freqbrdf.uncertainty.spectral`), SIMD across ``_LANES`` texels at a time;
+- `moment_entropy_kernel` scores the hypotheses' moments of the samples (the angular mode of
+  `freqbrdf.uncertainty.angular`), texel by texel.
+
+Their inputs and outputs are named records (`SpectraInputs`, `SpectralOptions`, `MomentInputs`,
+`EntropyOutputs`). numba compiles a kernel once per combination of its arguments' types, so the
+builders in those modules give each field one type (the spectra: float32 or float64, as given).
+Shapes: N texels, V views, L degrees, R the grid's side. exp and log are computed in float
+arithmetic only (`_exp_neg`, `_log`), so that the loops over lanes vectorise. The callers
+validate; nothing else should call these kernels.
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -14,10 +28,53 @@ import numpy as np
 from freqbrdf.estimate import scattering_stride
 
 # Cells whose misfit exceeds the minimum by more than CUTOFF temperatures are weighted as if at
-# CUTOFF: their share of the likelihood is far below its float32 resolution.
+# CUTOFF: their share e^-CUTOFF of the likelihood is far below its float32 resolution.
 CUTOFF = 30.0
 _MOMENT_CHUNK = 64  # texels per parallel work item of the angular entropy: amortises the scratch arrays
-_LANES = 64  # texels side by side in the kernel's SIMD loops (docs/measurements.md#the-entropy)
+_LANES = 64  # texels side by side in the spectral kernel's SIMD loops (docs/measurements.md#the-entropy)
+
+
+class SpectraInputs(NamedTuple):
+    """The texels' power spectra and how the spectral grid weighs their misfits."""
+
+    light: np.ndarray  # (N, 3, L) float32 or float64 S_refl(l), the mirrored light's power spectrum
+    observed: np.ndarray  # (N, 3, L) the dtype of light, S_out(l), the observed radiance's
+    scale: np.ndarray  # (N, 3) or (N, 1) float64: a misfit difference times scale is in temperatures
+    row_filter: np.ndarray  # (R, L) float64 the per-degree factor of each alpha row
+    alphas: np.ndarray  # (R,) float64 the rows' alpha
+
+
+class SpectralOptions(NamedTuple):
+    """How the spectral kernel scores (the calibrated mode: all True; the paper's: all False)."""
+
+    amplitude: bool  # compare amplitudes sqrt(S), t_j = k_j, bound the specular DC; else powers, t_j = k_j^2
+    per_light_power: bool  # divide scale by the texel's light power P
+    merge_zero: bool  # the k = 0 column is one hypothesis
+    residual_dof: float  # > 0: the noise variance grows by the best misfit / residual_dof; 0: off
+    want_likelihood: bool  # write EntropyOutputs.likelihood
+
+
+class MomentInputs(NamedTuple):
+    """The angular mode's hypotheses: their moments and the samples' weights and light."""
+
+    moments: np.ndarray  # (N, R, 3, 8) float64 `estimate.hypothesis_moments`
+    weight: np.ndarray  # (N, V) float32 sample weights, 0 where unsampled
+    mirrored: np.ndarray  # (N, V, 3) float32 the environment in the mirror direction (the noise floor's light)
+    n_samples: np.ndarray  # (N,) integer samples per texel
+    alphas: np.ndarray  # (R,) float64 the rows' alpha
+    specular: np.ndarray  # (R,) float64 the columns' k
+    noise_level: float  # a sample's noise std relative to the light's RMS radiance
+    want_likelihood: bool  # write EntropyOutputs.likelihood
+
+
+class EntropyOutputs(NamedTuple):
+    """What both kernels write per texel (N of them)."""
+
+    entropy: np.ndarray  # (N,) float32 normalised entropy in [0, 1], the minimum over RGB
+    channel: np.ndarray  # (N,) int8 the channel of that minimum
+    best_alpha: np.ndarray  # (N,) float32 the arg-max cell's alpha, NaN where its k = 0
+    best_ks: np.ndarray  # (N,) float32 the arg-max cell's k
+    likelihood: np.ndarray  # (N, R, R) float32 the chosen channel's likelihood; (0, R, R) when not wanted
 
 
 _EXP_CENTRE = math.exp(-CUTOFF / 64)  # e^-y0 at the centre y0 = CUTOFF / 64 of the reduced argument
@@ -25,13 +82,12 @@ _EXP_CENTRE = math.exp(-CUTOFF / 64)  # e^-y0 at the centre y0 = CUTOFF / 64 of 
 
 @numba.njit(inline="always", fastmath={"contract", "reassoc", "nsz", "arcp"})
 def _exp_neg(distance):
-    """exp(-distance) in float32 for 0 <= distance <= CUTOFF, relative error < 1e-5, in float
-    arithmetic only (no libm call, no integer exponent tricks, which numba widens to 64 bits) so
-    that the loops over lanes vectorise.
+    """Return exp(-distance) in float32 for 0 <= distance <= CUTOFF, relative error < 1e-5.
 
-    exp(-d) = (e^-y)^32, y = d / 32 in [0, 2 y0]: e^-y = e^-y0 e^-(y - y0) by the degree-7 Taylor
-    polynomial of e^-(y - y0) (|y - y0| <= 0.47, truncation 5e-8), then five squarings, each of
-    which doubles the relative error.
+    In float arithmetic only (no libm call, no integer exponent tricks, which numba widens to 64
+    bits), so that the loops over lanes vectorise. exp(-d) = (e^-y)^32, y = d / 32 in [0, 2 y0]:
+    e^-y = e^-y0 e^-(y - y0) by the degree-7 Taylor polynomial of e^-(y - y0) (|y - y0| <= 0.47,
+    truncation 5e-8), then five squarings, each of which doubles the relative error.
     """
     y = distance * np.float32(1 / 32) - np.float32(CUTOFF / 64)
     p = np.float32(1.0) - y * (np.float32(1.0) - y * (np.float32(1 / 2) - y * (np.float32(1 / 6) - y * (
@@ -45,19 +101,17 @@ def _exp_neg(distance):
 
 
 _LN2 = math.log(2.0)
-
-
 _SQRT2 = math.sqrt(2.0)
 
 
 @numba.njit(inline="always", fastmath={"contract", "reassoc", "nsz", "arcp"})
 def _log(x):
-    """Ln x for 0.7 <= x < 2^32 (the partition function Z lies in [1, number of hypotheses]), error
-    < 1e-12 (measured 7e-13), in float arithmetic only (selects, one division), so that the loop
-    over lanes vectorises; a libm call per lane cost about a tenth of the map (measured at R = 2).
+    """Return ln x for 0.7 <= x < 2^32, error < 1e-12.
 
-    x = 2^e m by halving steps (16, 8, 4, 2, 1 and one to m <= sqrt 2), then
-    ln m = 2 atanh z, z = (m - 1) / (m + 1), |z| <= 0.172: the series to z^13 leaves < 1.3e-12.
+    The partition function Z lies in [1, number of hypotheses]. In float arithmetic only (selects,
+    one division), so that the loop over lanes vectorises. x = 2^e m by halving steps (16, 8, 4,
+    2, 1 and one to m <= sqrt 2), then ln m = 2 atanh z, z = (m - 1) / (m + 1), |z| <= 0.172: the
+    series to z^13 leaves < 1.3e-12.
     """
     exponent = 0.0
     big = x >= 65536.0
@@ -86,55 +140,61 @@ def _log(x):
 
 @numba.njit(inline="always")
 def _larger(a, b):
-    """max(a, b) as a compare and select; numba's builtin max is a call that blocks vectorisation."""
+    """Return max(a, b) as a compare and select (numba's builtin max is a call: no vectorising)."""
     return a if a > b else b
 
 
 @numba.njit(inline="always")
 def _smaller(a, b):
-    """min(a, b) as a compare and select (see _larger)."""
+    """Return min(a, b) as a compare and select (see `_larger`)."""
     return a if a < b else b
 
 
 @numba.njit(parallel=True, cache=True)
-def _moment_entropy_kernel(moments, weight, mirrored, n_samples, alphas, specular, noise_level, want_likelihood,
-                           entropy, channel, best_alpha, best_ks, likelihood):
-    """`entropy_angular`'s grid per texel from `estimate.hypothesis_moments` (n, R, 3, 8) and the
-    texel's samples' weights (n, V) and mirrored radiance (n, V, 3) (the noise floor's light);
-    texels without moments (too few samples) get the prior. Outputs as `_grid_entropy_kernel`'s.
+def moment_entropy_kernel(inputs, outputs):
+    """Score the angular mode's grid per texel from its hypotheses' moments.
+
+    Per texel, channel and cell, the misfit of the samples with the best constant diffuse part
+    (`freqbrdf.uncertainty.angular.entropy_angular` states the model), the likelihood and its
+    normalised entropy; texels without moments (too few samples) get the prior.
+
+    Parameters
+    ----------
+    inputs : MomentInputs
+        The moments (N, R, 3, 8), the samples' weights and mirrored light, the grid.
+    outputs : EntropyOutputs
+        Written per texel (N of them).
     """
-    n_chunks = (moments.shape[0] + _MOMENT_CHUNK - 1) // _MOMENT_CHUNK
+    n_chunks = (inputs.moments.shape[0] + _MOMENT_CHUNK - 1) // _MOMENT_CHUNK
     stride = scattering_stride(n_chunks)  # texels without moments cost little: spread them over the threads
     for item in numba.prange(n_chunks):
-        _moment_entropy_chunk((np.int64(item) * stride) % n_chunks, moments, weight, mirrored, n_samples, alphas,
-                              specular, noise_level, want_likelihood, entropy, channel, best_alpha, best_ks,
-                              likelihood)
+        _moment_entropy_chunk((np.int64(item) * stride) % n_chunks, inputs, outputs)
 
 
 @numba.njit(cache=True, fastmath={"contract", "reassoc", "nsz", "arcp"})
-def _moment_entropy_chunk(chunk, moments, weight, mirrored, n_samples, alphas, specular, noise_level,
-                          want_likelihood, entropy, channel, best_alpha, best_ks, likelihood):
-    """`_moment_entropy_kernel`'s work for the texels of one chunk. The cells' weights w = exp(-d)
-    (d the misfit above the least in temperatures, at most CUTOFF) in float32 with `_exp_neg`; the
-    entropy without a log per cell: for p = w / Z, -sum p log p = (sum w d) / Z + log Z over the
-    k > 0 cells, and the k = 0 column's merged mass P0 adds -P0 log P0.
+def _moment_entropy_chunk(chunk, inputs, outputs):
+    """Do `moment_entropy_kernel`'s work for the texels of one chunk, with one set of scratch arrays.
+
+    The cells' weights w = exp(-d) (d the misfit above the least in temperatures, at most CUTOFF)
+    in float32 with `_exp_neg`; the entropy without a log per cell: for p = w / Z,
+    -sum p log p = (sum w d) / Z + log Z over the k > 0 cells, and the k = 0 column's merged mass
+    P0 adds -P0 log P0.
     """
+    moments = inputs.moments
     resolution = moments.shape[1]
     misfit = np.empty((resolution, resolution))
     cell_weight = np.empty((3, resolution, resolution), np.float32)
     norm = np.empty(3)
     light_mean_square = np.empty(3)
     for t in range(chunk * _MOMENT_CHUNK, min((chunk + 1) * _MOMENT_CHUNK, moments.shape[0])):
-        _moment_entropy_texel(t, moments, weight, mirrored, n_samples, alphas, specular, noise_level,
-                              want_likelihood, entropy, channel, best_alpha, best_ks, likelihood, misfit,
-                              cell_weight, norm, light_mean_square)
+        _moment_entropy_texel(t, inputs, outputs, misfit, cell_weight, norm, light_mean_square)
 
 
 @numba.njit(cache=True, fastmath={"contract", "reassoc", "nsz", "arcp"})
-def _moment_entropy_texel(t, moments, weight, mirrored, n_samples, alphas, specular, noise_level, want_likelihood,
-                          entropy, channel, best_alpha, best_ks, likelihood, misfit, cell_weight, norm,
-                          light_mean_square):
-    """`_moment_entropy_chunk`'s work for texel t, with its scratch arrays."""
+def _moment_entropy_texel(t, inputs, outputs, misfit, cell_weight, norm, light_mean_square):
+    """Do `_moment_entropy_chunk`'s work for texel t, with its scratch arrays."""
+    moments, weight, mirrored, n_samples, alphas, specular, noise_level, want_likelihood = inputs
+    entropy, channel, best_alpha, best_ks, likelihood = outputs
     resolution = moments.shape[1]
     n_materials = resolution * (resolution - 1) + 1
     log_hypotheses = math.log(n_materials)
@@ -218,24 +278,14 @@ def _moment_entropy_texel(t, moments, weight, mirrored, n_samples, alphas, specu
 
 
 @numba.njit(parallel=True, cache=True)
-def _grid_entropy_kernel(
-    light, observed, scale, row_filter, alphas, amplitude, per_light_power,
-    merge_zero, residual_dof, want_likelihood, n_threads,
-    entropy, channel, best_alpha, best_ks, likelihood,
-):
-    """Fused grid misfit, likelihood and entropy per texel; the minimum-entropy channel wins.
+def grid_entropy_kernel(spectra, options, n_threads, outputs):
+    """Score the spectral grid per texel: fused misfit, likelihood and entropy.
 
-    light, observed (N, 3, l*+1) power spectra; scale (N, 3), or
-    (N, 1) for all channels alike, turns a misfit difference into temperatures, divided by the
-    texel's light power P = mean over channels of sum_l S_refl(l) when per_light_power (no light:
-    temperature 0, no information); row_filter (R, l*+1) the per-degree factor of alpha_i (kernel
-    for amplitudes, kernel^2 for powers); alphas (R,) the rows' alpha. amplitude: compare sqrt(S),
-    grid values t_j = k_j, and bound the specular DC by the observed one; otherwise powers and
-    t_j = k_j^2. merge_zero: the k = 0 column is one hypothesis; residual_dof > 0: the noise
-    variance 1 / (2 scale) grows by the best cell's misfit / residual_dof (0: off); n_threads:
-    numba's thread count (read outside, which keeps the kernel cacheable). Outputs per texel:
-    entropy, channel, the arg-max cell's alpha (NaN at k = 0) and k_s and, if wanted, the (R, R)
-    likelihood of the chosen channel.
+    ``spectra.scale`` turns a misfit difference into temperatures, divided by the texel's light
+    power P = mean over channels of sum_l S_refl(l) when ``options.per_light_power`` (no light:
+    temperature 0, no information). ``row_filter`` is the kernel for amplitudes, the kernel
+    squared for powers. With ``options.residual_dof`` > 0 the noise variance 1 / (2 scale) grows
+    by the best cell's misfit / residual_dof.
 
     SIMD runs across _LANES texels at a time (structure of arrays, [..., lane]), so the loops over
     lanes are branch-free and vectorise whatever R is. Each texel's inputs are read once, in
@@ -253,33 +303,37 @@ def _grid_entropy_kernel(
        CUTOFF in every lane are clamped without evaluating their cells.
 
     H = log Z + sum w d / Z (w = e^-d, Z = sum w), summed per row in float32, over rows in float64;
-    log by _log. Measured on bench_entropy's data (one thread, R = 2, i.e. mostly the fixed per-texel
-    cost; old and new interleaved under load): reading the inputs once in memory order instead of per
-    channel, one division per row instead of two, a vectorised log, a skip test that vectorises and
-    64 lanes took 62 -> 36 ms (R = 8: 117 -> 73 ms). The cell loop writes the likelihood's weights
-    in place instead of into a row that was then copied: with the likelihood, T = 512, 2 threads,
-    R = 8 33 -> 27.5 ms, R = 32 290 -> 220 ms (three interleaved runs each).
+    log by _log. The cell loop writes the likelihood's weights in place.
+
+    Parameters
+    ----------
+    spectra : SpectraInputs
+        The spectra (N, 3, L), their scale, the rows' filter and alpha.
+    options : SpectralOptions
+        How to score.
+    n_threads : int
+        numba's thread count (read by the caller, which keeps the kernel cacheable).
+    outputs : EntropyOutputs
+        Written per texel (N of them).
     """
-    n_blocks = (light.shape[0] + _LANES - 1) // _LANES
+    n_blocks = (spectra.light.shape[0] + _LANES - 1) // _LANES
     n_workers = _smaller(n_threads, n_blocks)  # worker w takes blocks w, w + n_workers, ...
     for worker in numba.prange(n_workers):
         # np.int64: the loop index is unsigned in numba's parallel code and signed when typed: one
         # signature, not two (each compiles the whole kernel).
-        _grid_entropy_worker(np.int64(worker), n_workers, light, observed, scale, row_filter,
-                             alphas, amplitude, per_light_power, merge_zero, residual_dof,
-                             want_likelihood, entropy, channel, best_alpha, best_ks, likelihood)
+        _grid_entropy_worker(np.int64(worker), n_workers, spectra, options, outputs)
 
 
 @numba.njit(cache=True, error_model="numpy", fastmath={"contract", "reassoc", "nsz", "arcp"})
-def _grid_entropy_worker(
-    worker, n_workers, light, observed, scale, row_filter, alphas, amplitude,
-    per_light_power, merge_zero, residual_dof, want_likelihood, entropy, channel, best_alpha, best_ks,
-    likelihood,
-):
-    """`_grid_entropy_kernel`'s work for the blocks of texels worker, worker + n_workers, ...: a
-    function of its own, so that numba's parallel passes see a small loop (on the whole body they
-    took most of the kernel's compile time).
+def _grid_entropy_worker(worker, n_workers, spectra, options, outputs):
+    """Do `grid_entropy_kernel`'s work for the blocks of texels worker, worker + n_workers, ...
+
+    A function of its own, so that numba's parallel passes see a small loop (on the whole body
+    they take most of the kernel's compile time).
     """
+    light, observed, scale, row_filter, alphas = spectra
+    amplitude, per_light_power, merge_zero, residual_dof, want_likelihood = options
+    entropy, channel, best_alpha, best_ks, likelihood = outputs
     n_texels, n_channels, n_degrees = light.shape
     n_scales = scale.shape[1]
     resolution = row_filter.shape[0]
