@@ -217,7 +217,7 @@ def test_to_texels_samples_the_maps_bilinearly_and_takes_the_rest_from_the_paren
     from freqbrdf.sphere import harmonics as sh
     from freqbrdf.texels import rasterise
     from freqbrdf.uncertainty import entropy_map
-    from test_uncertainty import LMAX, _estimate_of, _observations_from_spectra
+    from uncertainty.test_uncertainty import LMAX, _estimate_of, _observations_from_spectra
 
     coarse_index = np.array([i for i in range(16) if i != 5])  # texel (1, 1) not covered
     rows, columns = np.divmod(coarse_index, 4)
