@@ -1,6 +1,6 @@
 """Observations, checked against Mitsuba's own renders (never against our forward model).
 
-Three tiny captures are path traced once per session with freqbrdf.synthetic.synth:
+Three tiny captures are path traced once per test run with freqbrdf.synthetic.synth:
 
 - a smooth conductor sphere (base colour 1, metallic 1, roughness 0): a mirror, so the observed
   radiance must be the environment in the mirror direction;
