@@ -21,6 +21,7 @@ setup: sysdeps $(STAMP)
 
 test: setup
 	@bash scripts/ensure_system_deps.sh --test
+	@bash scripts/ensure_test_tools.sh
 	$(VENV)/bin/ruff check src tests benchmarks scripts
 	$(PY) scripts/make_api_reference.py --check
 	$(PY) -m pytest -n 2 -q

@@ -4,20 +4,24 @@ from __future__ import annotations
 
 import io
 import json
+import shutil
 import struct
+import subprocess
+from pathlib import Path
 
 import numpy as np
 import pytest
 from matplotlib import colormaps
 from PIL import Image
 
+from freqbrdf import __version__
 from freqbrdf.capture.mesh import plane_mesh, uv_sphere_mesh
 from freqbrdf.config import Config, TexelConfig
 from freqbrdf.estimate import MaterialEstimate
 from freqbrdf.fileio import write_json
 from freqbrdf.images import read_image
 from freqbrdf.model.materials import MaterialMaps, load_material_maps
-from freqbrdf.outputs import export
+from freqbrdf.outputs import export, report
 from freqbrdf.texels import fill_texture, rasterise
 from freqbrdf.uncertainty import FLAG_UNOBSERVED, Uncertainty, hypothesis_grid
 
@@ -126,6 +130,72 @@ def test_gltf_follows_the_pbr_texture_and_uv_conventions(tmp_path):
     sampler = document["samplers"][0]
     assert sampler["wrapS"] == sampler["wrapT"] == 33071  # CLAMP_TO_EDGE
     assert all(texture["sampler"] == 0 for texture in document["textures"])
+
+
+def test_gltf_names_its_parts_and_targets_its_buffer_views(tmp_path):
+    mesh = uv_sphere_mesh(16, 8)
+    maps = MaterialMaps(np.full((8, 8, 3), 0.25, np.float32), np.full((8, 8), 0.5, np.float32),
+                        np.zeros((8, 8), np.float32))
+    export.write_gltf(tmp_path / "material.glb", mesh, maps)
+    document, _ = read_glb(tmp_path / "material.glb")
+    assert document["asset"] == {"version": "2.0", "generator": f"freqbrdf {__version__}"}
+    assert [image["name"] for image in document["images"]] == ["base_color", "metallic_roughness"]
+    assert [texture["name"] for texture in document["textures"]] == ["base_color", "metallic_roughness"]
+    assert document["materials"][0]["name"] == "freqbrdf"
+    primitive = document["meshes"][0]["primitives"][0]
+    views = document["bufferViews"]
+    for accessor in primitive["attributes"].values():
+        assert views[document["accessors"][accessor]["bufferView"]]["target"] == 34962  # ARRAY_BUFFER
+    assert views[document["accessors"][primitive["indices"]]["bufferView"]]["target"] == 34963  # ELEMENT_ARRAY_BUFFER
+    # One bufferView per accessor: on a unit sphere the normals equal the positions, and a shared
+    # view would need a byteStride.
+    used = [document["accessors"][index]["bufferView"] for index in [*primitive["attributes"].values(), primitive["indices"]]]
+    assert len(set(used)) == len(used)
+    # Deterministic: the same input gives the same bytes (no timestamp anywhere).
+    export.write_gltf(tmp_path / "again.glb", mesh, maps)
+    assert (tmp_path / "again.glb").read_bytes() == (tmp_path / "material.glb").read_bytes()
+
+
+REPOSITORY = Path(__file__).resolve().parents[2]
+GLTF_VALIDATOR = REPOSITORY / ".cache" / "node" / "node_modules" / "gltf-validator"
+VALIDATE_SCRIPT = REPOSITORY / "tests" / "node" / "validate_gltf.cjs"
+
+
+def khronos_validator_reports(paths: list[Path]) -> list[dict]:
+    """Run the Khronos glTF validator (tests/node/validate_gltf.cjs) on GLB files; one report per file."""
+    node = shutil.which("node")
+    if node is None:
+        pytest.skip("needs Node.js (`node`) for the Khronos glTF validator; `make test` installs it when run as root")
+    if not (GLTF_VALIDATOR / "package.json").is_file():
+        pytest.skip("needs the npm package gltf-validator in .cache/node: run `bash scripts/ensure_test_tools.sh` "
+                    "(part of `make test`)")
+    result = subprocess.run([node, str(VALIDATE_SCRIPT), str(GLTF_VALIDATOR), *map(str, paths)],
+                            capture_output=True, text=True, timeout=120, check=False)
+    assert result.returncode == 0, result.stderr
+    return json.loads(result.stdout)
+
+
+def test_gltf_files_pass_the_khronos_validator_without_any_message(tmp_path):
+    mesh, texels, estimate = sphere_fit()
+    n_texels = texels.n_texels
+    uncertainty = Uncertainty(
+        entropy=np.linspace(0, 1, n_texels).astype(np.float32),
+        flags=np.zeros(n_texels, np.uint8), likelihood=None,
+        best_alpha=np.zeros(n_texels, np.float32), best_ks=np.zeros(n_texels, np.float32),
+        channel=np.zeros(n_texels, np.int8), mode="calibrated", grid=hypothesis_grid(8),
+    )
+    config = Config(texels=TexelConfig(texture_res=32, dilation_px=3))
+    out = export.write_fit_outputs(tmp_path / "fit", mesh, texels, estimate, uncertainty, config)
+    # The report's entropy overlay: the same writer, on the entropy colour map.
+    (tmp_path / "entropy.glb").write_bytes(report._entropy_glb(mesh, read_image(out / "entropy.exr")[..., 0]))
+    (tmp_path / "plane.glb").write_bytes(export.gltf_bytes(plane_mesh(), load_material_maps(out)))
+    files = [out / "material.glb", tmp_path / "entropy.glb", tmp_path / "plane.glb"]
+    reports = khronos_validator_reports(files)
+    assert len(reports) == len(files)
+    for path, result in zip(files, reports):
+        counts = {key: result[key] for key in ("numErrors", "numWarnings", "numInfos", "numHints")}
+        assert counts == dict.fromkeys(counts, 0), (path.name, result["messages"])
+        assert result["generator"] == f"freqbrdf {__version__}"
 
 
 def sphere_fit(texture_res: int = 32, seed: int = 0):

@@ -19,7 +19,6 @@ import base64
 import html
 import json
 import shutil
-import tempfile
 from importlib import resources
 from pathlib import Path
 
@@ -306,10 +305,7 @@ def _entropy_glb(mesh: Mesh, entropy: np.ndarray) -> bytes:
         roughness=np.ones(entropy.shape, np.float32),
         metallic=np.zeros(entropy.shape, np.float32),
     )
-    with tempfile.TemporaryDirectory() as scratch:
-        path = Path(scratch) / "entropy.glb"
-        export.write_gltf(path, mesh, maps)
-        return path.read_bytes()
+    return export.gltf_bytes(mesh, maps)
 
 
 def _picture_set(folder: Path, prefix: str, maps: MaterialMaps) -> dict[str, str]:
