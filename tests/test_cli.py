@@ -9,6 +9,7 @@ import subprocess
 import sys
 
 import numpy as np
+import OpenEXR
 import pytest
 
 from freqbrdf import pipeline
@@ -92,6 +93,9 @@ def test_uncertainty_command(run_cli, tiny_capture, tmp_path, monkeypatch, capsy
     assert 0.0 <= summary["uncertainty"]["entropy_mean"] <= 1.0
     assert {"observe", "uncertainty"} <= set(summary["timings"])
     assert {p.name for p in out.iterdir()} == {"entropy.exr", "entropy.png", "flags.png", "uncertainty.json"}
+    with OpenEXR.File(str(out / "entropy.exr"), header_only=True) as exr:  # says what it is
+        assert "normalised entropy" in exr.parts[0].header["comments"]
+        assert f"({summary['uncertainty']['mode']} mode)" in exr.parts[0].header["comments"]
     assert json.loads((out / "uncertainty.json").read_text()) == summary
     # No estimate, so no roughness_std: the summary and the message say so rather than omit it.
     assert "freqbrdf fit" in summary["not_computed"]["roughness_std"]

@@ -6,8 +6,10 @@ import numpy as np
 import OpenEXR
 import pytest
 
+from freqbrdf import __version__
 from freqbrdf.errors import InputError
 from freqbrdf.images import (
+    REC709_CHROMATICITIES,
     linear_to_srgb,
     read_image,
     read_mask,
@@ -53,6 +55,33 @@ def test_exr_half_and_single_channel(tmp_path):
     assert back.shape == grey.shape + (3,)
     for channel in range(3):
         np.testing.assert_array_equal(back[..., channel], grey.astype(np.float32))
+
+
+def exr_header(path):
+    with OpenEXR.File(str(path), header_only=True) as exr:
+        return dict(exr.parts[0].header)
+
+
+def test_exr_header_carries_software_comments_and_chromaticities_and_no_time(tmp_path):
+    radiance = hdr_test_image(12, 13)
+    write_exr(tmp_path / "colour.exr", radiance, comments="a test colour map", chromaticities=REC709_CHROMATICITIES)
+    header = exr_header(tmp_path / "colour.exr")
+    assert header["software"] == f"freqbrdf {__version__}"
+    assert header["comments"] == "a test colour map"
+    # Rec.709 primaries, D65 white, as float32 (the attribute's precision).
+    np.testing.assert_allclose(header["chromaticities"], (0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, 0.3290),
+                               rtol=1e-6)
+    assert not {"capDate", "utcOffset"} & set(header)
+    # Without them: software only; same pixels and attributes, same bytes.
+    write_exr(tmp_path / "plain.exr", radiance[..., 0])
+    plain = exr_header(tmp_path / "plain.exr")
+    assert plain["software"] == f"freqbrdf {__version__}"
+    assert "chromaticities" not in plain and "comments" not in plain
+    write_exr(tmp_path / "again.exr", radiance, comments="a test colour map", chromaticities=REC709_CHROMATICITIES)
+    assert (tmp_path / "again.exr").read_bytes() == (tmp_path / "colour.exr").read_bytes()
+    np.testing.assert_array_equal(read_image(tmp_path / "colour.exr"), radiance)
+    with pytest.raises(ValueError, match="8 numbers"):
+        write_exr(tmp_path / "bad.exr", radiance, chromaticities=(0.64, 0.33))
 
 
 def test_exr_rgba_drops_alpha_and_single_odd_channel_is_grey(tmp_path):

@@ -423,7 +423,8 @@ def uncertainty(
     atlas = observations.mask()
     entropy = observations.to_texture(result.entropy.astype("float32"), fill=0.0)
     with atomic_directory(out) as folder:
-        export.write_scalar_map(folder / export.FILES["entropy"], entropy)
+        export.write_scalar_map(folder / export.FILES["entropy"], entropy,
+                                description=export.entropy_description(result.mode))
         export.write_scalar_map(folder / export.FILES["entropy_png"], entropy, export.ENTROPY_COLORMAP,
                                 export.ENTROPY_RANGE)
         write_png(folder / export.FILES["flags_png"],

@@ -20,12 +20,18 @@ import numpy as np
 import OpenEXR
 from PIL import Image, UnidentifiedImageError
 
+from freqbrdf import __version__
 from freqbrdf.errors import InputError
 from freqbrdf.fileio import atomic_path
 
 HDR_SUFFIXES = (".exr", ".hdr")
 LDR_SUFFIXES = (".png", ".jpg", ".jpeg")
 IMAGE_SUFFIXES = HDR_SUFFIXES + LDR_SUFFIXES
+#: The ``software`` attribute of every EXR written (no date or host: the same image, the same bytes).
+EXR_SOFTWARE = f"freqbrdf {__version__}"
+#: CIE xy of the red, green and blue primaries and the white point, in OpenEXR's ``chromaticities``
+#: order: ITU-R BT.709 (the sRGB primaries) with the D65 white, i.e. linear sRGB.
+REC709_CHROMATICITIES = (0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, 0.3290)
 
 
 # --- sRGB transfer function (IEC 61966-2-1), the only definition in the package -------------------
@@ -382,8 +388,12 @@ def write_hdr(path: str | Path, image: np.ndarray) -> None:
 # --- writing EXR and PNG --------------------------------------------------------------------------
 
 
-def write_exr(path: str | Path, image: np.ndarray) -> None:
+def write_exr(path: str | Path, image: np.ndarray, comments: str | None = None,
+              chromaticities: tuple[float, ...] | None = None) -> None:
     """Write an image as ZIP-compressed OpenEXR, atomically.
+
+    Besides the required attributes the header holds ``software`` (`EXR_SOFTWARE`) and, when
+    given, ``comments`` and ``chromaticities``; nothing that changes between runs.
 
     Parameters
     ----------
@@ -391,11 +401,16 @@ def write_exr(path: str | Path, image: np.ndarray) -> None:
         The ``.exr`` file.
     image : (H, W), (H, W, 1) or (H, W, 3) array_like
         Channel Y, or R, G, B. A float16 array is stored as half, anything else as float32.
+    comments : str, optional
+        What the image is, in words (the standard ``comments`` attribute).
+    chromaticities : tuple of 8 floats, optional
+        CIE xy of the red, green, blue primaries and the white point (e.g.
+        `REC709_CHROMATICITIES` for linear sRGB); for colour images only.
 
     Raises
     ------
     ValueError
-        If ``image`` has another shape.
+        If ``image`` has another shape, or ``chromaticities`` is not 8 numbers.
     """
     pixels = np.asarray(image)
     if pixels.ndim == 3 and pixels.shape[2] == 1:
@@ -410,7 +425,14 @@ def write_exr(path: str | Path, image: np.ndarray) -> None:
         }
     else:
         raise ValueError(f"write_exr needs (H, W), (H, W, 1) or (H, W, 3), got {pixels.shape}")
-    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage, "software": EXR_SOFTWARE}
+    if comments is not None:
+        header["comments"] = str(comments)
+    if chromaticities is not None:
+        values = tuple(float(value) for value in chromaticities)
+        if len(values) != 8:
+            raise ValueError(f"chromaticities needs 8 numbers (red, green, blue, white x y), got {len(values)}")
+        header["chromaticities"] = values  # the bindings take the 8 floats as a tuple
     with atomic_path(path) as tmp:
         with OpenEXR.File(header, planes) as exr:
             exr.write(str(tmp))

@@ -10,6 +10,7 @@ import subprocess
 from pathlib import Path
 
 import numpy as np
+import OpenEXR
 import pytest
 from matplotlib import colormaps
 from PIL import Image
@@ -19,7 +20,7 @@ from freqbrdf.capture.mesh import plane_mesh, uv_sphere_mesh
 from freqbrdf.config import Config, TexelConfig
 from freqbrdf.estimate import MaterialEstimate
 from freqbrdf.fileio import write_json
-from freqbrdf.images import read_image
+from freqbrdf.images import REC709_CHROMATICITIES, read_image
 from freqbrdf.model.materials import MaterialMaps, load_material_maps
 from freqbrdf.outputs import export, report
 from freqbrdf.texels import fill_texture, rasterise
@@ -61,6 +62,11 @@ def test_write_scalar_map_grey_colormap_and_exr(tmp_path):
     assert np.abs(pixels.astype(int) - expected).max() <= 1
     with pytest.raises(ValueError):
         export.write_scalar_map(tmp_path / "map.jpg", texture)
+
+
+def exr_header(path):
+    with OpenEXR.File(str(path), header_only=True) as exr:
+        return dict(exr.parts[0].header)
 
 
 def read_glb(path):
@@ -275,6 +281,25 @@ def test_write_fit_outputs_writes_a_complete_hole_free_folder(tmp_path):
     with np.load(out / "uncertainty.npz") as arrays:
         np.testing.assert_array_equal(arrays["roughness_std"], spread)  # NaN where not estimated
     assert summary["uncertainty"]["roughness_std_mean"] == pytest.approx(np.nanmean(spread), rel=1e-5)
+
+    # Every EXR says what it is; base colour also its primaries; none holds a time (same bytes again).
+    headers = {name: exr_header(out / name) for name in
+               ("base_color.exr", "roughness.exr", "metallic.exr", "entropy.exr", "roughness_std.exr")}
+    assert all(header["software"] == f"freqbrdf {__version__}" for header in headers.values())
+    np.testing.assert_allclose(headers["base_color.exr"]["chromaticities"], REC709_CHROMATICITIES, rtol=1e-6)
+    assert all("chromaticities" not in headers[name] for name in headers if name != "base_color.exr")
+    assert "linear RGB" in headers["base_color.exr"]["comments"]
+    assert "D65" in headers["base_color.exr"]["comments"]
+    assert "roughness r" in headers["roughness.exr"]["comments"]
+    assert "alpha is r^2" in headers["roughness.exr"]["comments"]
+    assert "metallic" in headers["metallic.exr"]["comments"] and "[0, 1]" in headers["metallic.exr"]["comments"]
+    assert "normalised entropy" in headers["entropy.exr"]["comments"]
+    assert "(calibrated mode)" in headers["entropy.exr"]["comments"]
+    assert "standard deviation" in headers["roughness_std.exr"]["comments"]
+    again = export.write_fit_outputs(tmp_path / "again", mesh, texels, estimate, uncertainty, config,
+                                     timings={"estimate": 1.5})
+    for name in (*headers, "material.glb"):
+        assert (again / name).read_bytes() == (out / name).read_bytes(), name
 
     # Without roughness_std (turned off): neither its maps nor its array.
     uncertainty.roughness_std = None

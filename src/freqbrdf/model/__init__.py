@@ -53,7 +53,14 @@ from freqbrdf.model.light import (
     prefiltered_environment,
     prefiltered_light,
 )
-from freqbrdf.model.materials import MAP_FILES, MaterialMaps, load_material_maps, resize, save_material_maps
+from freqbrdf.model.materials import (
+    MAP_DESCRIPTIONS,
+    MAP_FILES,
+    MaterialMaps,
+    load_material_maps,
+    resize,
+    save_material_maps,
+)
 from freqbrdf.model.tables import (
     ENVIRONMENT_LMAX,
     LOBE_TERMS,
@@ -76,6 +83,7 @@ __all__ = [
     "DIELECTRIC_F0",
     "ENVIRONMENT_LMAX",
     "LOBE_TERMS",
+    "MAP_DESCRIPTIONS",
     "MAP_FILES",
     "PREFILTER_MAX_HEIGHT",
     "PREFILTER_STEP",

@@ -14,13 +14,23 @@ import numpy as np
 from skimage.transform import resize as resize_image
 
 from freqbrdf.errors import InputError
-from freqbrdf.images import read_image, write_exr
+from freqbrdf.images import REC709_CHROMATICITIES, read_image, write_exr
 
 #: The file of each map in a texture-set folder.
 MAP_FILES = {
     "base_color": "base_color.exr",
     "roughness": "roughness.exr",
     "metallic": "metallic.exr",
+}
+#: What each map's EXR says it is (its ``comments`` attribute; see docs/formats.md).
+MAP_DESCRIPTIONS = {
+    "base_color": "freqbrdf base colour: the Principled BSDF's base colour per texel, linear RGB with the "
+                  "Rec.709/sRGB primaries and D65 white (no transfer curve), in [0, 1]. Texture space: "
+                  "row 0 is v = 1.",
+    "roughness": "freqbrdf roughness: the Principled BSDF's roughness r per texel, in [0, 1]; the GGX "
+                 "alpha is r^2 (this map is r, not alpha). Texture space: row 0 is v = 1.",
+    "metallic": "freqbrdf metallic: the Principled BSDF's metallic per texel, in [0, 1] (0 dielectric, "
+                "1 metal). Texture space: row 0 is v = 1.",
 }
 
 
@@ -110,6 +120,9 @@ def load_material_maps(folder: str | Path) -> MaterialMaps:
 def save_material_maps(folder: str | Path, maps: MaterialMaps, half: bool = False) -> None:
     """Write the three maps as EXR files (`MAP_FILES`), each atomically.
 
+    Each file's ``comments`` say what it holds (`MAP_DESCRIPTIONS`); base colour carries the
+    linear Rec.709 ``chromaticities``.
+
     Parameters
     ----------
     folder : str or Path
@@ -122,7 +135,8 @@ def save_material_maps(folder: str | Path, maps: MaterialMaps, half: bool = Fals
     folder = Path(folder)
     precision = np.float16 if half else np.float32
     for name, filename in MAP_FILES.items():
-        write_exr(folder / filename, getattr(maps, name).astype(precision))
+        write_exr(folder / filename, getattr(maps, name).astype(precision), comments=MAP_DESCRIPTIONS[name],
+                  chromaticities=REC709_CHROMATICITIES if name == "base_color" else None)
 
 
 def resize(maps: MaterialMaps, resolution: int) -> MaterialMaps:

@@ -22,7 +22,9 @@ report
 
 from freqbrdf.outputs.evaluate import evaluate_fit
 from freqbrdf.outputs.export import (
+    ROUGHNESS_STD_DESCRIPTION,
     coverage,
+    entropy_description,
     entropy_texture,
     flags_picture,
     gltf_bytes,
@@ -62,11 +64,13 @@ __all__ = [
     "Evaluation",
     "FitOutputs",
     "PSNRResult",
+    "ROUGHNESS_STD_DESCRIPTION",
     "RelightSettings",
     "RelitView",
     "check_output_folder",
     "comparison_image",
     "coverage",
+    "entropy_description",
     "entropy_texture",
     "erode_mask",
     "evaluate_fit",

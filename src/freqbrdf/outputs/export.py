@@ -198,8 +198,36 @@ def roughness_std_texture(uncertainty: Uncertainty, estimate: MaterialEstimate, 
 # Writers (each atomic)
 
 
+def entropy_description(mode: str) -> str:
+    """Say what an entropy map is, for its EXR's ``comments``.
+
+    Parameters
+    ----------
+    mode : str
+        The uncertainty's mode (``Uncertainty.mode``: "calibrated", "paper" or "angular").
+
+    Returns
+    -------
+    str
+        One paragraph: the quantity, its range and that it is normalised.
+    """
+    return (f"freqbrdf entropy ({mode} mode): the normalised entropy of the likelihood over the specular "
+            "hypotheses (GGX alpha = roughness^2, specular k_s) per texel, in [0, 1]: 0 = the data pin the "
+            "material down, 1 = every hypothesis fits equally (a uniform likelihood; also unobserved texels). "
+            "Normalised by the entropy of the uniform likelihood, not in bits; the minimum over RGB. "
+            "Texture space: row 0 is v = 1.")
+
+
+#: What roughness_std.exr is (its ``comments``).
+ROUGHNESS_STD_DESCRIPTION = (
+    "freqbrdf roughness std: the posterior standard deviation of the estimated Principled roughness r "
+    "per texel, in roughness units (r, not GGX alpha = r^2), >= 0; texels without an estimate hold the "
+    "prior's sqrt(1/12) (roughness uniform on [0, 1]). Texture space: row 0 is v = 1.")
+
+
+
 def write_scalar_map(path: str | Path, texture: np.ndarray, colormap: str | None = None,
-                     value_range: tuple[float, float] = (0.0, 1.0)) -> None:
+                     value_range: tuple[float, float] = (0.0, 1.0), description: str | None = None) -> None:
     """Write a scalar texture: ``.exr`` as float values, ``.png`` as an 8-bit picture.
 
     Parameters
@@ -213,6 +241,9 @@ def write_scalar_map(path: str | Path, texture: np.ndarray, colormap: str | None
     value_range : (float, float), optional
         The values mapped linearly onto the PNG's range; values outside are clipped, NaN is
         black.
+    description : str, optional
+        What the map is, stored in the EXR's ``comments`` (e.g. `entropy_description`); unused for
+        PNG.
 
     Raises
     ------
@@ -224,7 +255,7 @@ def write_scalar_map(path: str | Path, texture: np.ndarray, colormap: str | None
     if texture.ndim != 2:
         raise ValueError(f"write_scalar_map needs a (T, T) texture, got shape {texture.shape}")
     if path.suffix.lower() == ".exr":
-        write_exr(path, texture)
+        write_exr(path, texture, comments=description)
         return
     if path.suffix.lower() != ".png":
         raise ValueError(f"write_scalar_map writes .exr or .png, not {path.name}")
@@ -518,7 +549,7 @@ def _write_uncertainty_maps(folder: Path, uncertainty: Uncertainty, estimate: Ma
                             dilation_px: int) -> None:
     """Write entropy.exr, entropy.png and flags.png."""
     entropy = entropy_texture(uncertainty, estimate, dilation_px)
-    write_scalar_map(folder / FILES["entropy"], entropy)
+    write_scalar_map(folder / FILES["entropy"], entropy, description=entropy_description(uncertainty.mode))
     write_scalar_map(folder / FILES["entropy_png"], entropy, ENTROPY_COLORMAP, ENTROPY_RANGE)
     write_png(folder / FILES["flags_png"],
               flags_picture(estimate.to_texture(uncertainty.flags, fill=0), _atlas_mask(estimate)))
@@ -528,7 +559,7 @@ def _write_roughness_std_maps(folder: Path, uncertainty: Uncertainty, estimate: 
                               dilation_px: int) -> None:
     """Write roughness_std.exr and roughness_std.png."""
     spread = roughness_std_texture(uncertainty, estimate, dilation_px)
-    write_scalar_map(folder / FILES["roughness_std"], spread)
+    write_scalar_map(folder / FILES["roughness_std"], spread, description=ROUGHNESS_STD_DESCRIPTION)
     write_scalar_map(folder / FILES["roughness_std_png"], spread, ROUGHNESS_STD_COLORMAP, ROUGHNESS_STD_RANGE)
 
 
