@@ -32,7 +32,7 @@ from freqbrdf.config import Config, TexelConfig
 from freqbrdf.outputs.evaluate import evaluate_fit
 from freqbrdf.outputs.fit_folder import load_fit
 from freqbrdf.outputs.relight import RelightSettings
-from freqbrdf.outputs.report import REPORT_FILE, write_report
+from freqbrdf.outputs.report import REPORT_FILE, _timing_rows, write_report
 from freqbrdf.synthetic import demo
 from freqbrdf.synthetic.synth import SynthSettings, synthesize
 
@@ -69,6 +69,28 @@ def test_report_has_every_section_and_its_files(fit_folder):
     assert models.count("data:model/gltf-binary;base64,") == 2  # material and entropy overlay
     assert "(calibrated mode, 8 x 8 hypotheses)" in text  # what the entropy scored
     assert "It says how ambiguous the light makes the material" in text  # and what that means
+    # The capture named relative to the fit folder, never by its absolute path.
+    assert "<code>../capture</code>" in text and str(fit_folder.parent.resolve()) not in text
+    # The buttons say which is shown; the overlay, the maps and the error images have colour bars.
+    assert 'data-model="material" aria-pressed="true"' in text and 'data-model="entropy" aria-pressed="false"' in text
+    assert 'id="overlay-colourbar"' in text
+    assert {"viridis", "magma"} <= set(re.findall(r'class="colourbar" data-colormap="(\w+)"', text))
+    assert "<th>reference | estimate, relit | error</th>" in text
+    # Every image sits in a figure with a caption.
+    figures = re.findall(r"<figure>(.*?)</figure>", text, flags=re.S)
+    assert len(re.findall(r"<img ", text)) == sum(figure.count("<img ") for figure in figures)
+    assert all(re.search(r"<figcaption>[^<]+", figure) for figure in figures)
+    # Timings: "write" before "total", the total last.
+    stages = re.findall(r"<tr class=\"(?:stage|sub)\"><td>([^<]+)</td>", text)
+    assert stages[-2:] == ["write", "total"]
+
+
+def test_timing_rows_leave_out_zero_sub_stages_and_end_with_write_and_total():
+    timings = {"observe": 2.0, "observe.raster": 1e-7, "observe.fits": 0.5, "estimate": 3.0, "textures": 0.001,
+               "total": 5.0, "write": 0.25, "note": "not a number"}
+    assert _timing_rows(timings) == [("observe", 2.0), ("observe.fits", 0.5), ("estimate", 3.0), ("textures", 0.001),
+                                     ("write", 0.25), ("total", 5.25)]
+    assert _timing_rows({"estimate": 1.0}) == [("estimate", 1.0)]
 
 
 @pytest.mark.slow
@@ -222,6 +244,24 @@ def test_report_works_in_headless_chromium(fit_folder):
                     break
             assert picture.shape[0] > 100 and picture.shape[1] > 100
             assert differs.mean() > 0.03, f"3D view looks blank ({differs.mean():.3%} non-background pixels)"
+            # Every image has a caption; the shown model's button is pressed and looks it.
+            assert tools.evaluate("""[...document.images].every(image => {
+                const caption = image.closest('figure')?.querySelector('figcaption');
+                return caption && caption.textContent.trim().length > 10; })""")
+            buttons_state = """(() => {
+                const state = {};
+                for (const button of document.querySelectorAll('button[data-model]')) {
+                  state[button.dataset.model] = {pressed: button.getAttribute('aria-pressed'),
+                                                 background: getComputedStyle(button).backgroundColor};
+                }
+                const bar = document.getElementById('overlay-colourbar');
+                state.bar = {visible: !!bar && !bar.hidden && bar.offsetWidth > 0,
+                             gradient: !!bar && getComputedStyle(bar.querySelector('.bar')).backgroundImage};
+                return state; })()"""
+            before = tools.evaluate(buttons_state)
+            assert before["material"]["pressed"] == "true" and before["entropy"]["pressed"] == "false"
+            assert before["material"]["background"] != before["entropy"]["background"]
+            assert not before["bar"]["visible"]
             # The overlay switch loads the entropy model without errors.
             switched = tools.evaluate("""new Promise(resolve => {
                 const viewer = document.getElementById('model');
@@ -230,6 +270,16 @@ def test_report_works_in_headless_chromium(fit_folder):
                 setTimeout(() => resolve(false), 30000);
             })""")
             assert switched
+            after = tools.evaluate(buttons_state)
+            assert after["entropy"]["pressed"] == "true" and after["material"]["pressed"] == "false"
+            assert after["entropy"]["background"] == before["material"]["background"]
+            assert after["bar"]["visible"] and "linear-gradient" in after["bar"]["gradient"]
+            # At 600 px wide the page does not scroll sideways (wide tables scroll inside their box).
+            tools.call("Emulation.setDeviceMetricsOverride", width=600, height=900, deviceScaleFactor=1, mobile=False)
+            widths = tools.evaluate("""new Promise(resolve => requestAnimationFrame(() => requestAnimationFrame(() =>
+                resolve({scroll: document.scrollingElement.scrollWidth, client: document.scrollingElement.clientWidth,
+                         inner: window.innerWidth}))))""")
+            assert widths["inner"] == 600 and widths["scroll"] <= widths["client"], widths
             tools.call("Runtime.evaluate", expression="0")  # flush pending events into tools.events
             problems = [
                 event["params"] for event in tools.events

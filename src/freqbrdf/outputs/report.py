@@ -18,6 +18,7 @@ from __future__ import annotations
 import base64
 import html
 import json
+import os
 import shutil
 from importlib import resources
 from pathlib import Path
@@ -39,11 +40,14 @@ from freqbrdf.outputs.fit_folder import (
     FitOutputs,
     load_fit,
 )
+from freqbrdf.outputs.relight import ERROR_COLORMAP, ERROR_RANGE
 
 REPORT_FOLDER = "report"
 REPORT_FILE = "report.html"
 VIEWER_SCRIPT = "model-viewer-umd.min.js"
 PICKED_TEXELS = 3  # most certain, median, least certain observed texel
+COLOUR_BAR_STOPS = 11  # samples of a colour map in a colour bar's CSS gradient
+SHOWN_SECONDS = 0.005  # sub-stages that would show as 0.00 s are left out of the timings
 
 
 def write_report(fit_dir: str | Path, out_dir: str | Path | None = None) -> Path:
@@ -100,16 +104,24 @@ def _viewer_section(folder: Path, outputs: FitOutputs, mesh: Mesh | None) -> str
             for name, data in models.items()}
     (folder / "models.js").write_text(f"window.FREQBRDF_MODELS = {json.dumps(urls)};\n", encoding="utf-8")
     buttons = "".join(
-        f'<button type="button" data-model="{name}">{label}</button>'
+        f'<button type="button" data-model="{name}" aria-pressed="{str(name == "material").lower()}">{label}</button>'
         for name, label in (("material", "material"), ("entropy", "entropy overlay")) if name in models
     )
-    note = "" if "entropy" in models else '<p class="note">Entropy overlay unavailable (needs the capture\'s mesh and entropy.exr).</p>'
+    if "entropy" in models:
+        low, high = export.ENTROPY_RANGE
+        overlay = (f'<div id="overlay-colourbar" hidden>'
+                   f'{_colour_bar(export.ENTROPY_COLORMAP, f"{low:g} certain", f"{high:g} uncertain")}</div>')
+        note = ""
+    else:
+        overlay = ""
+        note = '<p class="note">Entropy overlay unavailable (needs the capture\'s mesh and entropy.exr).</p>'
     return f"""<section id="viewer"><h2>3D view</h2>
 <model-viewer id="model" camera-controls auto-rotate shadow-intensity="0" exposure="1"
  alt="estimated material on the mesh" style="width:100%;height:420px;background:#222"></model-viewer>
-<div class="buttons">{buttons}</div>{note}
-<p class="note">Drag to orbit. The entropy overlay colours the surface by normalised entropy
-({export.ENTROPY_COLORMAP}, 0 = certain, 1 = uncertain).</p></section>"""
+<div class="buttons" role="group" aria-label="shown on the mesh">{buttons}</div>{overlay}{note}
+<p class="note">Drag to orbit. The material view shows the estimated maps as a glTF PBR material under
+a neutral light; the entropy overlay colours the surface by normalised entropy
+({export.ENTROPY_COLORMAP}, {export.ENTROPY_RANGE[0]:g} = certain, {export.ENTROPY_RANGE[1]:g} = uncertain).</p></section>"""
 
 
 def _maps_section(folder: Path, outputs: FitOutputs, truth: MaterialMaps | None) -> str:
@@ -119,35 +131,57 @@ def _maps_section(folder: Path, outputs: FitOutputs, truth: MaterialMaps | None)
         rows.append(("ground truth", _picture_set(folder, "truth", resize(truth, outputs.maps.resolution))))
     header = "".join(f"<th>{name}</th>" for name in ("", "base colour", "roughness", "metallic"))
     body = "".join(
-        "<tr><th>" + label + "</th>" + "".join(f'<td><img src="{src}" alt="{label} {name}"></td>'
-                                              for name, src in pictures.items()) + "</tr>"
+        "<tr><th>" + label + "</th>" + "".join(
+            f'<td>{_figure(src, f"{label} {_MAP_NAMES[name]}", _MAP_CAPTIONS[name])}</td>'
+            for name, src in pictures.items()) + "</tr>"
         for label, pictures in rows
     )
     note = "" if truth is not None else '<p class="note">No ground truth in this capture.</p>'
-    return f"""<section id="maps"><h2>Material maps</h2><table class="maps"><tr>{header}</tr>{body}</table>
+    return f"""<section id="maps"><h2>Material maps</h2><div class="scroll"><table class="maps"><tr>{header}</tr>{body}</table></div>
 {note}<p class="note">Texture space (T = {outputs.maps.resolution}). Base colour sRGB-encoded;
 roughness and metallic grey, 0 black to 1 white. Unobserved texels are filled from their neighbours.</p></section>"""
+
+
+_MAP_NAMES = {"base_color": "base colour", "roughness": "roughness", "metallic": "metallic"}
+# What each map picture's colours mean (its caption).
+_MAP_CAPTIONS = {
+    "base_color": "Base colour as displayed (sRGB-encoded).",
+    "roughness": "Roughness r, grey: 0 black (mirror) to 1 white (rough); GGX &alpha; = r&sup2;.",
+    "metallic": "Metallic, grey: 0 black (dielectric) to 1 white (metal).",
+}
 
 
 def _entropy_section(folder: Path, outputs: FitOutputs) -> str:
     entropy_png = outputs.folder / export.FILES["entropy_png"]
     if not entropy_png.is_file():
         return _missing("Uncertainty", "entropy.png is missing")
+    legend = "".join(
+        f'<span class="swatch" style="background:{_css(colour)}"></span>{name} '
+        for name, colour in _flag_legend()
+    )
+    low, high = export.ENTROPY_RANGE
+    spread = outputs.summary.get("roughness_std_png", {})
+    spread_map = str(spread.get("colormap", export.ROUGHNESS_STD_COLORMAP))
+    spread_low, spread_high = spread.get("range", export.ROUGHNESS_STD_RANGE)
+    meanings = {
+        "entropy_png": f"Normalised entropy, {export.ENTROPY_COLORMAP}: {low:g} certain to {high:g} uncertain."
+                       + _colour_bar(export.ENTROPY_COLORMAP, f"{low:g}", f"{high:g}"),
+        "roughness_std_png": f"Roughness std, {html.escape(spread_map)}: {spread_low:g} to {spread_high:g} "
+                             "roughness units (clipped above)."
+                             + _colour_bar(spread_map, f"{spread_low:g}", f"&ge; {spread_high:g}"),
+        "flags_png": f"Flags, the first set bit: {legend}",
+    }
     captions, cells = [], []
     for key, caption in (("entropy_png", "entropy"), ("roughness_std_png", "roughness std"), ("flags_png", "flags")):
         source = outputs.folder / export.FILES[key]
         if source.is_file():
             shutil.copyfile(source, folder / source.name)
             captions.append(f"<th>{caption}</th>")
-            cells.append(f'<td><img src="{source.name}" alt="{caption} map"></td>')
-    legend = "".join(
-        f'<span class="swatch" style="background:{_css(colour)}"></span>{name} '
-        for name, colour in _flag_legend()
-    )
+            cells.append(f"<td>{_figure(source.name, f'{caption} map', meanings[key])}</td>")
     stats = outputs.summary.get("uncertainty", {})
     fractions = ", ".join(f"{name} {value:.1%}" for name, value in stats.get("flagged_fraction", {}).items())
-    return f"""<section id="uncertainty"><h2>Uncertainty</h2><table class="maps"><tr>{''.join(captions)}</tr>
-<tr>{''.join(cells)}</tr></table>
+    return f"""<section id="uncertainty"><h2>Uncertainty</h2><div class="scroll"><table class="maps"><tr>{''.join(captions)}</tr>
+<tr>{''.join(cells)}</tr></table></div>
 <p>Mean entropy {_number(stats.get('entropy_mean'))}, median {_number(stats.get('entropy_median'))}
 over {stats.get('observed_texels', '?')} observed texels ({html.escape(_entropy_kind(stats))}).
 {_ENTROPY_MEANING.get(stats.get('mode'), '')}
@@ -213,7 +247,9 @@ def _spectra_section(folder: Path, outputs: FitOutputs) -> str:
     picks = {"most certain": order[0], "median": order[len(order) // 2], "least certain": order[-1]}
     _plot_spectra(folder / "spectra.png", outputs, picks)
     return """<section id="spectra"><h2>SH power spectra of picked texels</h2>
-<img class="wide" src="spectra.png" alt="power spectra">
+<figure><img class="wide" src="spectra.png" alt="power spectra">
+<figcaption>Lines, per the legend in each panel: incoming light (blue, circles), outgoing radiance
+(orange, squares), fitted specular reflection (green, dashed, triangles); log scale.</figcaption></figure>
 <p class="note">Per degree l (luminance-weighted mean over RGB): incoming light (the mirrored environment,
 low-passed as fitted), outgoing radiance (the observations) and the fitted specular reflection
 R0&sup2; k<sub>&alpha;</sub>(l)&sup2; S<sub>in</sub>(l). A sharp material passes the incoming spectrum;
@@ -235,8 +271,10 @@ def _evaluation_sections(folder: Path, outputs: FitOutputs) -> str:
     sparsification = evaluation / SPARSIFICATION_PLOT
     if sparsification.is_file():
         shutil.copyfile(sparsification, folder / SPARSIFICATION_PLOT)
-        parts.append(f'<h3>Sparsification</h3><img class="wide" src="{SPARSIFICATION_PLOT}" alt="sparsification curves">'
-                     '<p class="note">Remove the most uncertain texels first (by the entropy, and by the roughness '
+        parts.append(f'<h3>Sparsification</h3><figure><img class="wide" src="{SPARSIFICATION_PLOT}" '
+                     'alt="sparsification curves"><figcaption>Curves, per the legend: the mean error of the texels '
+                     'kept, as the most uncertain are removed first by each uncertainty, and by the oracle (the '
+                     'true error).</figcaption></figure><p class="note">Remove the most uncertain texels first (by the entropy, and by the roughness '
                      'std): a useful uncertainty lowers the mean error of the rest (AURG &gt; 0) and approaches '
                      'the oracle (AUSE &rarr; 0).</p>')
     views = metrics.get("views", [])
@@ -248,7 +286,13 @@ def _evaluation_sections(folder: Path, outputs: FitOutputs) -> str:
             name = f"relit_{view['index']:04d}.png"
             if source.is_file():
                 shutil.copyfile(source, folder / name)
-            rows.append(f'<tr><td><img class="relit" src="{name}" alt="relit view {view["index"]}"></td>'
+            picture = (f'<div class="panels" aria-hidden="true"><span>reference</span><span>estimate, relit</span>'
+                       f'<span>error</span></div><img class="relit" src="{name}" alt="relit view {view["index"]}: '
+                       f'reference, estimate relit, error">')
+            caption = (f"Reference photograph | our estimate rendered by Mitsuba under the same light (scaled as "
+                       f"the protocol does) | mean absolute sRGB error, {ERROR_COLORMAP}: 0 (black) to "
+                       f"{ERROR_RANGE:g} or more (light yellow).{_colour_bar(ERROR_COLORMAP, '0', f'&ge; {ERROR_RANGE:g}')}")
+            rows.append(f'<tr><td><figure>{picture}<figcaption>{caption}</figcaption></figure></td>'
                         f'<td>PSNR-H {_number(view.get("psnr_hdr"))}<br>PSNR-L {_number(view.get("psnr_ldr"))}'
                         f'<br>SSIM {_number(view.get("ssim"), 3)}<br>LPIPS {_number(view.get("lpips"), 3)}'
                         f'<br><span class="note">{html.escape(view["envmap"])}</span></td></tr>')
@@ -257,7 +301,8 @@ def _evaluation_sections(folder: Path, outputs: FitOutputs) -> str:
             f"{_number(relit.get('psnr_hdr'))}, PSNR-L {_number(relit.get('psnr_ldr'))}, SSIM "
             f"{_number(relit.get('ssim'), 3)}, LPIPS {_number(relit.get('lpips'), 3)}.</p>"
             '<p class="note">Each row: reference | our estimate rendered by Mitsuba under the same light | error.</p>'
-            f'<table class="relit">{"".join(rows)}</table>')
+            '<div class="scroll"><table class="relit"><tr><th>reference | estimate, relit | error</th>'
+            f'<th>scores</th></tr>{"".join(rows)}</table></div>')
     return '<section id="evaluation"><h2>Evaluation</h2>' + "".join(parts) + "</section>"
 
 
@@ -265,9 +310,37 @@ def _timings_section(outputs: FitOutputs) -> str:
     timings = outputs.summary.get("timings", {})
     if not timings:
         return _missing("Timings", "summary.json has none")
-    rows = "".join(f"<tr><td>{html.escape(stage)}</td><td>{seconds:.2f} s</td></tr>"
-                   for stage, seconds in timings.items() if isinstance(seconds, (int, float)))
-    return f'<section id="timings"><h2>Timings</h2><table class="timings">{rows}</table></section>'
+    rows = "".join(f'<tr class="{"sub" if "." in stage else "stage"}"><td>{html.escape(stage)}</td>'
+                   f"<td>{_seconds(seconds)}</td></tr>" for stage, seconds in _timing_rows(timings))
+    return (f'<section id="timings"><h2>Timings</h2><table class="timings">{rows}</table>'
+            '<p class="note">Wall-clock seconds per stage (sub-stages indented, those under 0.01 s left out); '
+            'the total includes writing the folder.</p></section>')
+
+
+def _timing_rows(timings: dict) -> list[tuple[str, float]]:
+    """Order a fit's timings for the report: the stages as run, then "write", then "total".
+
+    Parameters
+    ----------
+    timings : dict of str to float
+        ``summary.json``'s ``timings``: seconds per stage, sub-stages named ``stage.part``,
+        ``total`` (the stages before writing) and ``write`` (recorded after the folder exists).
+
+    Returns
+    -------
+    list of (str, float)
+        The rows: sub-stages that would show as 0.00 s are left out; ``total`` is last and
+        includes ``write``.
+    """
+    numbers = {stage: float(seconds) for stage, seconds in timings.items()
+               if isinstance(seconds, (int, float)) and not isinstance(seconds, bool)}
+    rows = [(stage, seconds) for stage, seconds in numbers.items()
+            if stage not in ("total", "write") and not ("." in stage and seconds < SHOWN_SECONDS)]
+    if "write" in numbers:
+        rows.append(("write", numbers["write"]))
+    if "total" in numbers:
+        rows.append(("total", numbers["total"] + numbers.get("write", 0.0)))
+    return rows
 
 
 # ---------------------------------------------------------------------------------------------
@@ -362,6 +435,26 @@ def _flag_legend() -> list[tuple[str, tuple[float, float, float]]]:
     return [(FLAG_NAMES[bit], colour) for bit, colour in export.FLAG_COLOURS.items()] + [("none", (1.0, 1.0, 1.0))]
 
 
+def _seconds(seconds: float) -> str:
+    """Format seconds with two decimals; below what they show, "< 0.01 s" rather than "0.00 s"."""
+    return "&lt; 0.01 s" if seconds < SHOWN_SECONDS else f"{seconds:.2f} s"
+
+
+def _figure(source: str, alt: str, caption: str) -> str:
+    """Return an image with its caption as HTML (``caption`` is HTML already)."""
+    return (f'<figure><img src="{html.escape(source)}" alt="{html.escape(alt)}">'
+            f"<figcaption>{caption}</figcaption></figure>")
+
+
+def _colour_bar(colormap: str, low_label: str, high_label: str) -> str:
+    """Return a horizontal colour bar of a matplotlib colour map, labelled at both ends, as HTML."""
+    stops = ", ".join(_css(colormaps[colormap](position)[:3])
+                      for position in np.linspace(0.0, 1.0, COLOUR_BAR_STOPS))
+    return (f'<span class="colourbar" data-colormap="{html.escape(colormap)}"><span class="bar" '
+            f'style="background:linear-gradient(to right, {stops})"></span>'
+            f'<span class="ends"><span>{low_label}</span><span>{high_label}</span></span></span>')
+
+
 def _css(colour) -> str:
     return "rgb(" + ",".join(str(int(round(255 * c))) for c in colour) + ")"
 
@@ -375,31 +468,58 @@ def _missing(title: str, reason: str) -> str:
 
 
 _STYLE = """
-body{font-family:system-ui,sans-serif;max-width:1100px;margin:1em auto;padding:0 1em;color:#222}
+body{font-family:system-ui,sans-serif;max-width:1100px;margin:1em auto;padding:0 1em;color:#222;overflow-wrap:anywhere}
 h1{font-size:1.5em} h2{border-bottom:1px solid #ccc;padding-bottom:.2em}
+.scroll{max-width:100%;overflow-x:auto}
+figure{margin:0} figcaption{color:#444;font-size:.85em;max-width:256px}
+table.maps td,table.maps th{vertical-align:top}
 table.maps img{width:256px;height:256px;image-rendering:pixelated;border:1px solid #ccc}
-img.wide{max-width:100%} img.relit{max-width:720px;width:100%}
+img.wide{max-width:100%} img.relit{max-width:720px;width:100%;display:block}
+table.relit figcaption{max-width:720px}
+.panels{display:grid;grid-template-columns:repeat(3,1fr);max-width:720px;font-size:.85em;font-weight:bold;text-align:center}
+.colourbar{display:block;max-width:256px;margin:.3em 0} .colourbar .bar{display:block;height:.8em;border:1px solid #999}
+.colourbar .ends{display:flex;justify-content:space-between;font-size:.85em}
+#overlay-colourbar{max-width:320px}
 .note{color:#666;font-size:.9em} .swatch{display:inline-block;width:.9em;height:.9em;border:1px solid #999;margin:0 .2em}
-.buttons button{margin:.4em .4em 0 0;padding:.3em .8em}
-table.timings td{padding:0 1em 0 0}
+.buttons button{margin:.4em .4em 0 0;padding:.3em .8em;border:1px solid #888;background:#f4f4f4;color:#222;cursor:pointer}
+.buttons button[aria-pressed="true"]{background:#2a5db0;border-color:#2a5db0;color:#fff;font-weight:bold}
+table.timings td{padding:0 1em 0 0} table.timings tr.sub td:first-child{padding-left:1.5em;color:#555}
+table.timings tr:last-child td{font-weight:bold;border-top:1px solid #ccc}
 """
 
 _SCRIPT = """
 const viewer = document.getElementById('model');
 if (viewer && window.FREQBRDF_MODELS) {
   viewer.src = window.FREQBRDF_MODELS.material;
-  for (const button of document.querySelectorAll('button[data-model]')) {
-    button.addEventListener('click', () => { viewer.src = window.FREQBRDF_MODELS[button.dataset.model]; });
+  const buttons = [...document.querySelectorAll('button[data-model]')];
+  const overlayBar = document.getElementById('overlay-colourbar');
+  for (const button of buttons) {
+    button.addEventListener('click', () => {
+      viewer.src = window.FREQBRDF_MODELS[button.dataset.model];
+      for (const other of buttons) { other.setAttribute('aria-pressed', String(other === button)); }
+      if (overlayBar) { overlayBar.hidden = button.dataset.model !== 'entropy'; }
+    });
   }
 }
 """
+
+
+def _capture_name(outputs: FitOutputs) -> str:
+    """Name the fit's capture relative to the fit folder (its folder name when no relative path exists)."""
+    path = outputs.capture_path
+    if path is None:
+        return "?"
+    try:
+        return Path(os.path.relpath(path, outputs.folder.resolve())).as_posix()
+    except ValueError:  # another drive: no relative path
+        return path.name
 
 
 def _page(outputs: FitOutputs, sections: list[str]) -> str:
     summary = outputs.summary
     coverage = summary.get("coverage", {})
     method = summary.get("estimate", {}).get("method", "?")
-    capture = html.escape(str(summary.get("capture", "?")))
+    capture = html.escape(_capture_name(outputs))
     has_viewer = 'id="viewer"' in sections[0]
     scripts = (f'<script src="{VIEWER_SCRIPT}"></script><script src="models.js"></script>'
                if has_viewer else "")
@@ -407,7 +527,7 @@ def _page(outputs: FitOutputs, sections: list[str]) -> str:
 <html lang="en"><head><meta charset="utf-8"><title>freqbrdf report</title>
 <style>{_STYLE}</style>{scripts}</head><body>
 <h1>freqbrdf report</h1>
-<p>Capture <code>{capture}</code>; estimator <b>{html.escape(str(method))}</b>;
+<p>Capture <code>{capture}</code> (relative to the fit folder); estimator <b>{html.escape(str(method))}</b>;
 {coverage.get('observed_fraction', 0):.0%} of {coverage.get('texels', '?')} texels observed,
 {_number(coverage.get('mean_views_per_observed_texel'), 1)} views per observed texel on average.</p>
 {''.join(sections)}
