@@ -468,7 +468,8 @@ def _missing(title: str, reason: str) -> str:
 
 
 _STYLE = """
-body{font-family:system-ui,sans-serif;max-width:1100px;margin:1em auto;padding:0 1em;color:#222;overflow-wrap:anywhere}
+body{font-family:system-ui,sans-serif;max-width:1100px;margin:1em auto;padding:0 1em;color:#222}
+code{overflow-wrap:anywhere} th{white-space:nowrap}
 h1{font-size:1.5em} h2{border-bottom:1px solid #ccc;padding-bottom:.2em}
 .scroll{max-width:100%;overflow-x:auto}
 figure{margin:0} figcaption{color:#444;font-size:.85em;max-width:256px}
