@@ -55,7 +55,7 @@ from scipy.sparse.csgraph import connected_components
 
 from freqbrdf import pipeline
 from freqbrdf.capture.layouts import load
-from freqbrdf.config import Config, TexelConfig, preset
+from freqbrdf.config import Config, SurfaceConfig, TexelConfig, preset
 from freqbrdf.fileio import atomic_path, write_json
 from freqbrdf.model.materials import MaterialMaps, load_material_maps, resize, save_material_maps
 from freqbrdf.observe.observations import observe
@@ -82,8 +82,9 @@ from scenes import (
 # plus the 5 x 5 neighbour vote); once the whole-surface estimate is the default, give
 # "per_texel" its ablation switch and add e.g. "whole_surface": Config().
 ESTIMATORS: dict[str, Config] = {
-    "per_texel": Config(),
-    "per_texel_fast": preset("fast"),
+    "per_texel": Config(surface=SurfaceConfig(enabled=False)),
+    "per_texel_fast": preset("fast").replace(surface=SurfaceConfig(enabled=False)),
+    "whole_surface": Config(surface=SurfaceConfig(enabled=True)),
 }
 BASELINE = "per_texel"  # "today's" in the goals
 CANDIDATE = "whole_surface"  # the method the goals are checked for, when it has rows

@@ -304,6 +304,9 @@ def fit(
     entropy: str = typer.Option(None, help=ENTROPY_HELP),
     share: bool = typer.Option(False, "--share", help="Pull uncertain texels towards affine confident anchors "
                                "(METHOD.md §4; it helps the texels it touches a little)."),
+    per_texel: bool = typer.Option(
+        False, "--per-texel", help="Keep each texel's own estimate (no whole-surface solve): the ablation of the "
+        "default, which weighs every texel's evidence against its neighbours' and fills texels no view sees."),
     neighbour_vote: bool = typer.Option(
         True, "--neighbour-vote/--no-neighbour-vote", help="Let a texel whose data fit two roughness values "
         "about equally take the one nearer its neighbours' (a likelihood-ratio test keeps what the data decide)."),
@@ -332,6 +335,8 @@ def fit(
     config = _config(preset, texture_res, lmax, estimator=estimator, model=model, entropy=entropy)
     if share:
         config = config.replace(share=dataclasses.replace(config.share, enabled=True))
+    if per_texel:
+        config = config.replace(surface=dataclasses.replace(config.surface, enabled=False))
     if split_half:
         config = config.replace(uncertainty=dataclasses.replace(config.uncertainty, split_half=True))
     if estimation_res is not None:

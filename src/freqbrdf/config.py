@@ -18,7 +18,7 @@ from typing import Literal
 
 __all__ = [
     "Config", "EstimateConfig", "FitConfig", "PRESETS", "RegulariserKind", "SPECTRAL_GRID_RES", "ShareConfig",
-    "TexelConfig", "UncertaintyConfig", "choices", "preset",
+    "SurfaceConfig", "TexelConfig", "UncertaintyConfig", "choices", "preset",
 ]
 
 RegulariserKind = Literal["none", "constant", "exponential"]
@@ -325,6 +325,47 @@ class ShareConfig:
 
 
 @dataclass(frozen=True)
+class SurfaceConfig:
+    """The whole-surface estimate: the per-texel evidence weighed against a prior over the surface.
+
+    See `freqbrdf.estimate.surface`; figures in docs/measurements.md#whole-surface.
+    """
+
+    enabled: bool = True
+    """Solve the whole surface (the default); off, each texel keeps its own estimate (``fit --per-texel``)."""
+    neighbours: int = 8
+    """Nearest texels on the mesh (3D, across seams) each texel is coupled to."""
+    appearance_width: float = 0.25
+    """Width of the appearance affinity, in log apparent albedo: neighbours this different weigh exp(-1/2)."""
+    noise_inflation: float = 10.0
+    """How much the model's misfit exceeds independent noise: divides the samples' evidence."""
+    metal_prior: float = 0.4
+    """Prior probability that a texel is metal: a texel is metal only with evidence."""
+    label_coupling: float = 0.5
+    """Ising coupling of a texel's metal label to each alike neighbour's."""
+    mixed_evidence: float = 5.0
+    """Log-likelihood a texel's samples must lose by its label's pure metallic (0 or 1) to keep its own metallic."""
+    label_iterations: int = 30
+    """Damped mean-field sweeps of the metal labels."""
+    roughness_smoothing: float = 3.0
+    """Coupling of neighbours' roughness, relative to the median precision of a texel's own roughness."""
+    color_smoothing: float = 0.3
+    """Coupling of neighbours' base colour, relative to the median precision of a texel's own base colour."""
+    few_sample_power: float = 2.0
+    """A texel with fewer samples than the median has its precision scaled by (n / median) to this power."""
+    roughness_huber: float = 0.05
+    """Roughness difference above which the coupling is L1 (Huber): keeps edges."""
+    color_huber: float = 0.05
+    """Base-colour difference (Euclidean, linear RGB) above which the coupling is L1 (Huber)."""
+    smoothing_passes: int = 3
+    """Re-weightings of the Huber coupling (IRLS)."""
+    cg_iterations: int = 200
+    """Conjugate-gradient iterations per re-weighting."""
+    std_scale: float = 1.0
+    """Multiplies the posterior std maps (1: as the solve's scatter calibrates them)."""
+
+
+@dataclass(frozen=True)
 class Config:
     """All settings of a fit, one section per stage (METHOD.md §3-4).
 
@@ -342,6 +383,8 @@ class Config:
     """The material estimator."""
     share: ShareConfig = field(default_factory=ShareConfig)
     """Sharing across the surface (off by default)."""
+    surface: SurfaceConfig = field(default_factory=SurfaceConfig)
+    """The whole-surface estimate (on by default)."""
     seed: int = 0
     """Seed of every random choice a fit makes, so that a fit is reproducible."""
 

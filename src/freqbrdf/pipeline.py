@@ -24,6 +24,7 @@ from freqbrdf.config import Config
 from freqbrdf.errors import InputError
 from freqbrdf.estimate import MaterialEstimate
 from freqbrdf.estimate import estimate as estimate_materials
+from freqbrdf.estimate.surface import whole_surface
 from freqbrdf.fileio import atomic_directory, write_json
 from freqbrdf.images import write_png
 from freqbrdf.model.materials import MaterialMaps, save_material_maps
@@ -198,6 +199,15 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
         estimate = share(observations, estimate, uncertainty, config)
         timings["share"] = time.perf_counter() - start
 
+    if config.surface.enabled and config.estimate.method == "global":
+        start = time.perf_counter()
+        estimate, posterior = whole_surface(observations, estimate, rasterise(capture.mesh, estimation_res), config)
+        uncertainty.roughness_std = posterior.roughness_std
+        uncertainty.metallic_std = posterior.metallic_std
+        uncertainty.base_color_std = posterior.base_color_std
+        timings["surface"] = time.perf_counter() - start
+        timings.update({f"surface.{step}": seconds for step, seconds in posterior.timings.items()})
+
     if fine is not None:
         start = time.perf_counter()
         observations, estimate, uncertainty = to_texels(observations, estimate, uncertainty, fine,
@@ -247,9 +257,10 @@ def to_texels(observations: Observations, estimate: MaterialEstimate, uncertaint
     fine_observations, fine_uncertainty = uncertainty_to_texels(observations, uncertainty, fine, dilation_px, parent)
     maps = export.material_textures(estimate, dilation_px)
     estimated = estimate.estimated[parent]
+    has_value = np.isfinite(estimate.roughness)[parent]  # the whole-surface solve gives unseen texels values too
 
     def where_estimated(values):
-        return np.where(estimated.reshape((-1,) + (1,) * (values.ndim - 1)), values, np.nan)
+        return np.where(has_value.reshape((-1,) + (1,) * (values.ndim - 1)), values, np.nan)
 
     fine_estimate = replace(
         estimate, texture_res=fine.texture_res, texel_index=fine.texel_index,
@@ -303,7 +314,8 @@ def uncertainty_to_texels(observations: Observations, uncertainty: Uncertainty, 
     fine_observations = replace(observations.texel_fields(parent), texture_res=fine.texture_res,
                                 texel_index=fine.texel_index)
     changes = {name: getattr(uncertainty, name)[parent]
-               for name in ("flags", "likelihood", "best_alpha", "best_ks", "channel", "roughness_std")
+               for name in ("flags", "likelihood", "best_alpha", "best_ks", "channel", "roughness_std", "metallic_std",
+                            "base_color_std")
                if getattr(uncertainty, name) is not None}
     # The entropy varies smoothly: bilinear, so that neighbouring fine texels are not ranked as ties.
     entropy_texture = export.entropy_texture(uncertainty, observations, dilation_px)

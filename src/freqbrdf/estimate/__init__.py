@@ -151,14 +151,10 @@ class MaterialEstimate:
         -------
         dict of str to array
             "base_color" (T, T, 3), "roughness" and "metallic" (T, T) float64: NaN off the
-            estimated texels.
+            texels with a value (the estimated ones, and with the whole-surface solve every texel).
         """
-        keep = self.estimated[:, None]
-        return {
-            "base_color": self.to_texture(np.where(keep, self.base_color, np.nan)),
-            "roughness": self.to_texture(np.where(self.estimated, self.roughness, np.nan)),
-            "metallic": self.to_texture(np.where(self.estimated, self.metallic, np.nan)),
-        }
+        return {"base_color": self.to_texture(self.base_color), "roughness": self.to_texture(self.roughness),
+                "metallic": self.to_texture(self.metallic)}
 
 
 @dataclass(frozen=True)

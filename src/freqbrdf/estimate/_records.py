@@ -79,6 +79,7 @@ class SearchSettings(NamedTuple):
     metallic_grid: int
     robust_passes: int
     search: bool  # search the roughness, else only the hypotheses (or the vote)
+    vote_chi2: float  # how far (in noise variances) a candidate's loss may exceed the estimate's
 
 
 class Hypotheses(NamedTuple):

@@ -56,7 +56,7 @@ MIN_SAMPLES = 2
 # Base colour (3), roughness and metallic: the degrees of freedom a texel's residual loses.
 FITTED_PARAMETERS = 5
 # The neighbour vote's likelihood-ratio threshold: chi^2 with one degree of freedom at 95 %.
-_VOTE_CHI2 = 3.84
+VOTE_CHI2 = 3.84
 # A vote's minimum this close (in grid cells) to its search's bounds lies beyond them: refused.
 _VOTE_MARGIN = 0.01
 # Texels per parallel work item of the search: amortises the scratch buffers.
@@ -541,7 +541,7 @@ def _global_search_chunk(chunk, samples, light, recurrence, options, tables, env
     prefiltered, n_full = prefiltered_light.maps, prefiltered_light.n_full
     world_to_local, map_height, map_width = prefiltered_light.world_to_local, prefiltered_light.height, prefiltered_light.width
     roughness_grid, metallic_grid = settings.roughness_grid, settings.metallic_grid
-    robust_passes, search = settings.robust_passes, settings.search
+    robust_passes, search, vote_chi2 = settings.robust_passes, settings.search, settings.vote_chi2
     hypothesis_roughness, hypothesis_moments, node_rows = hypotheses.roughness, hypotheses.moments, hypotheses.node_rows
     params, loss, curvature = estimates.params, estimates.loss, estimates.curvature
     n_texels, n_views = weight.shape
@@ -677,14 +677,14 @@ def _global_search_chunk(chunk, samples, light, recurrence, options, tables, env
                 _record_hypothesis(objective, sample_weight, hypothesis_moments[t, i])
         if voting:
             # The neighbour vote. A likelihood-ratio test bounds what it may cost: the profiled
-            # least-squares loss may exceed the estimate's by _VOTE_CHI2 times the noise variance
+            # least-squares loss may exceed the estimate's by vote_chi2 times the noise variance
             # (the residual over its 3n - FITTED_PARAMETERS degrees of freedom). Roughness: a
             # local minimum within a grid cell of the candidate (Brent, not at its bounds, over a
             # cell from the estimate: another minimum). Then metallic: the candidate's, base
             # colour profiled, at the roughness kept.
             estimate_r = params[t, 3]
             estimate_f = _roughness_objective(estimate_r, objective)
-            limit = estimate_f + _VOTE_CHI2 * estimate_f / (3 * n - FITTED_PARAMETERS)
+            limit = estimate_f + vote_chi2 * estimate_f / (3 * n - FITTED_PARAMETERS)
             voted_r = estimate_r
             if far_roughness:
                 cell = 1.0 / (roughness_grid - 1)

@@ -50,7 +50,7 @@ from freqbrdf.estimate._records import (
     SearchSettings,
     ShRecurrence,
 )
-from freqbrdf.estimate._search_kernels import MIN_SAMPLES, global_search_kernel
+from freqbrdf.estimate._search_kernels import MIN_SAMPLES, VOTE_CHI2, global_search_kernel
 from freqbrdf.model import brdf
 from freqbrdf.model.light import (
     environment_azimuthal,
@@ -190,7 +190,7 @@ def estimate_global(observations: Observations, config: Config, reporter: Report
 def run_search_kernel(observations: Observations, settings: EstimateConfig, light: np.ndarray,
                       hypothesis_roughness: np.ndarray, hypothesis_moments: np.ndarray, search: bool,
                       params: np.ndarray, loss: np.ndarray, curvature: np.ndarray,
-                      candidate: np.ndarray = np.zeros((0, 2))) -> None:
+                      candidate: np.ndarray = np.zeros((0, 2)), vote_chi2: float = VOTE_CHI2) -> None:
     """Run the search kernel on the observations.
 
     Parameters
@@ -214,6 +214,9 @@ def run_search_kernel(observations: Observations, settings: EstimateConfig, ligh
         Receive `MaterialEstimate.loss` and the unnormalised roughness curvature.
     candidate : (N, 2) float64, optional
         The neighbour vote's (roughness, metallic) per texel; (0, 2): no vote.
+    vote_chi2 : float, optional
+        A candidate is taken where its profiled loss exceeds the estimate's by at most this many
+        noise variances (the residual over its degrees of freedom); infinity takes every candidate.
     """
     tangent, environment, prefiltered = _light_inputs(observations, settings)
     hypothesis_roughness = np.ascontiguousarray(hypothesis_roughness, dtype=np.float64)
@@ -223,7 +226,8 @@ def run_search_kernel(observations: Observations, settings: EstimateConfig, ligh
         _samples(observations, tangent), np.ascontiguousarray(light, dtype=np.float32),
         ShRecurrence(observations.lmax, *sh._legendre_tables(observations.lmax)), _model_options(observations, settings),
         _model_tables(settings), environment, prefiltered,
-        SearchSettings(settings.roughness_grid, settings.metallic_grid, settings.robust_passes, search),
+        SearchSettings(settings.roughness_grid, settings.metallic_grid, settings.robust_passes, search,
+                       float(vote_chi2)),
         Hypotheses(hypothesis_roughness, hypothesis_moments, node_rows), candidate, Estimates(params, loss, curvature),
     )
 

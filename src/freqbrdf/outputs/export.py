@@ -75,6 +75,10 @@ UNESTIMATED_ROUGHNESS_STD = math.sqrt(PRIOR_ROUGHNESS_VARIANCE)
 # on the default fits: docs/measurements.md).
 ROUGHNESS_STD_RANGE = (0.0, 0.3)
 ROUGHNESS_STD_COLORMAP = "magma"  # not viridis: a different quantity and unit than the entropy
+# The metallic std's PNG range: 0.5 is a coin toss between dielectric and metal.
+METALLIC_STD_RANGE = (0.0, 0.5)
+# The base colour std's PNG range (the mean over RGB), in linear base-colour units.
+BASE_COLOR_STD_RANGE = (0.0, 0.3)
 METALLIC_ROUGHNESS_R = 255  # unused channel of the glTF metallic-roughness texture (see above)
 # Files of a fit folder written at once (see write_fit_outputs); more threads than jobs idle.
 WRITER_THREADS = 4
@@ -97,6 +101,10 @@ FILES = {
     "entropy_png": "entropy.png",
     "roughness_std": "roughness_std.exr",
     "roughness_std_png": "roughness_std.png",
+    "metallic_std": "metallic_std.exr",
+    "metallic_std_png": "metallic_std.png",
+    "base_color_std": "base_color_std.exr",
+    "base_color_std_png": "base_color_std.png",
     "flags_png": "flags.png",
     "gltf": "material.glb",
     "spectra": "spectra.npz",
@@ -524,6 +532,12 @@ def write_fit_outputs(
             summary["uncertainty"] = uncertainty_summary(uncertainty)
             summary["entropy_png"] = {"colormap": ENTROPY_COLORMAP, "range": list(ENTROPY_RANGE)}
             written += ["entropy", "entropy_png", "flags_png", "uncertainty"]
+            if uncertainty.metallic_std is not None and uncertainty.base_color_std is not None:
+                jobs.append(pool.submit(_write_posterior_std_maps, folder, uncertainty, estimate, dilation))
+                summary["metallic_std_png"] = {"colormap": ROUGHNESS_STD_COLORMAP, "range": list(METALLIC_STD_RANGE)}
+                summary["base_color_std_png"] = {"colormap": ROUGHNESS_STD_COLORMAP, "range": list(BASE_COLOR_STD_RANGE),
+                                                 "of": "the mean over RGB"}
+                written += ["metallic_std", "metallic_std_png", "base_color_std", "base_color_std_png"]
             if uncertainty.roughness_std is not None:
                 jobs.append(pool.submit(_write_roughness_std_maps, folder, uncertainty, estimate, dilation))
                 summary["roughness_std_png"] = {"colormap": ROUGHNESS_STD_COLORMAP, "range": list(ROUGHNESS_STD_RANGE),
@@ -563,13 +577,40 @@ def _write_roughness_std_maps(folder: Path, uncertainty: Uncertainty, estimate: 
     write_scalar_map(folder / FILES["roughness_std_png"], spread, ROUGHNESS_STD_COLORMAP, ROUGHNESS_STD_RANGE)
 
 
+#: What metallic_std.exr is (its ``comments``).
+METALLIC_STD_DESCRIPTION = (
+    "freqbrdf metallic std: the whole-surface posterior's standard deviation of the metallic per texel, "
+    "sqrt(p (1 - p)) for the probability p of the metal label, in [0, 0.5]. Texture space: row 0 is v = 1.")
+#: What base_color_std.exr is (its ``comments``).
+BASE_COLOR_STD_DESCRIPTION = (
+    "freqbrdf base colour std: the whole-surface posterior's standard deviation of each linear base-colour "
+    "channel (R, G, B) per texel, >= 0. Texture space: row 0 is v = 1.")
+
+
+def _write_posterior_std_maps(folder: Path, uncertainty: Uncertainty, estimate: MaterialEstimate,
+                              dilation_px: int) -> None:
+    """Write metallic_std.exr/.png and base_color_std.exr/.png (the whole-surface posterior's)."""
+    atlas = _atlas_mask(estimate)
+    metallic = fill_texture(estimate.to_texture(np.asarray(uncertainty.metallic_std, np.float32), fill=np.nan), atlas,
+                            dilation_px, fallback=METALLIC_STD_RANGE[1])
+    write_scalar_map(folder / FILES["metallic_std"], metallic, description=METALLIC_STD_DESCRIPTION)
+    write_scalar_map(folder / FILES["metallic_std_png"], metallic, ROUGHNESS_STD_COLORMAP, METALLIC_STD_RANGE)
+    color = estimate.to_texture(np.asarray(uncertainty.base_color_std, np.float32), fill=np.nan)
+    color = np.stack([fill_texture(color[..., c], atlas, dilation_px, fallback=BASE_COLOR_STD_RANGE[1])
+                      for c in range(3)], axis=-1).astype(np.float32)
+    write_exr(folder / FILES["base_color_std"], color, comments=BASE_COLOR_STD_DESCRIPTION)
+    write_scalar_map(folder / FILES["base_color_std_png"], color.mean(axis=-1), ROUGHNESS_STD_COLORMAP,
+                     BASE_COLOR_STD_RANGE)
+
+
 def _save_uncertainty(path: Path, uncertainty: Uncertainty, texel_index: np.ndarray) -> None:
     """Write uncertainty.npz, deflated (the float16 likelihood grids compress well).
 
     roughness_std is stored as computed (NaN where not estimated).
     """
     optional = {"likelihood": None if uncertainty.likelihood is None else to_float16(uncertainty.likelihood),
-                "roughness_std": uncertainty.roughness_std}
+                "roughness_std": uncertainty.roughness_std, "metallic_std": uncertainty.metallic_std,
+                "base_color_std": uncertainty.base_color_std}
     _save_npz(path, True, texel_index=texel_index, entropy=uncertainty.entropy, flags=uncertainty.flags,
               best_alpha=uncertainty.best_alpha, best_ks=uncertainty.best_ks,
               **{name: values for name, values in optional.items() if values is not None})

@@ -169,10 +169,18 @@ def _entropy_section(folder: Path, outputs: FitOutputs) -> str:
         "roughness_std_png": f"Roughness std, {html.escape(spread_map)}: {spread_low:g} to {spread_high:g} "
                              "roughness units (clipped above)."
                              + _colour_bar(spread_map, f"{spread_low:g}", f"&ge; {spread_high:g}"),
+        "metallic_std_png": f"Metallic std, {html.escape(spread_map)}: 0 certain to 0.5, a coin toss between "
+                            "dielectric and metal." + _colour_bar(spread_map, "0", "0.5"),
+        "base_color_std_png": f"Base colour std (mean over RGB), {html.escape(spread_map)}: "
+                              f"{export.BASE_COLOR_STD_RANGE[0]:g} to {export.BASE_COLOR_STD_RANGE[1]:g} linear units "
+                              "(clipped above)." + _colour_bar(spread_map, f"{export.BASE_COLOR_STD_RANGE[0]:g}",
+                                                                f"&ge; {export.BASE_COLOR_STD_RANGE[1]:g}"),
         "flags_png": f"Flags, the first set bit: {legend}",
     }
     captions, cells = [], []
-    for key, caption in (("entropy_png", "entropy"), ("roughness_std_png", "roughness std"), ("flags_png", "flags")):
+    for key, caption in (("entropy_png", "entropy"), ("roughness_std_png", "roughness std"),
+                         ("metallic_std_png", "metallic std"), ("base_color_std_png", "base colour std"),
+                         ("flags_png", "flags")):
         source = outputs.folder / export.FILES[key]
         if source.is_file():
             shutil.copyfile(source, folder / source.name)
@@ -222,6 +230,9 @@ def _roughness_std_text(outputs: FitOutputs) -> str:
     terms = [f"the scatter of the per-texel estimates over a {window} &times; {window}-texel window"] if window else []
     if settings.get("loss_curvature"):
         terms.append("the Laplace variance of the estimator's loss")
+    if outputs.summary.get("settings", {}).get("surface", {}).get("enabled"):
+        terms = ["the whole-surface posterior (each texel's loss curvature and its neighbours', growing with the "
+                 "distance from the texels the views see)"]
     scores = (_read_metrics(outputs) or {}).get("uncertainty", {})
     spread_rho = scores.get("roughness_std", {}).get("roughness", {}).get("spearman")
     entropy_rho = scores.get("roughness", {}).get("spearman")

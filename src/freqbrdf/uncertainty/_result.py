@@ -98,7 +98,12 @@ class Uncertainty:
         The hypotheses scored.
     roughness_std : (N,) float32 or None
         Posterior std of the estimated roughness (`freqbrdf.uncertainty.roughness_std`); NaN
-        where not estimated; None when not computed (it needs the estimate).
+        where not estimated; None when not computed (it needs the estimate). With the whole-surface
+        estimate, its posterior's (`freqbrdf.estimate.surface`), for every texel.
+    metallic_std : (N,) float32 or None
+        The whole-surface posterior's std of the metallic; None without it.
+    base_color_std : (N, 3) float32 or None
+        The whole-surface posterior's std of each base-colour channel; None without it.
     """
 
     entropy: np.ndarray
@@ -110,6 +115,8 @@ class Uncertainty:
     mode: str
     grid: HypothesisGrid
     roughness_std: np.ndarray | None = None
+    metallic_std: np.ndarray | None = None
+    base_color_std: np.ndarray | None = None
 
     def to_texture(self, observations: Observations, quantity: str = "entropy", fill: float = 0.0) -> np.ndarray:
         """Scatter one per-texel field into a texture.

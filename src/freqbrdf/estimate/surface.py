@@ -1,0 +1,443 @@
+"""The whole-surface estimate: each texel's evidence weighed against a prior over the surface.
+
+The per-texel search (`freqbrdf.estimate.search`) answers every texel from its own samples; where
+they cannot tell materials apart the answer is arbitrary, and texels no view sees have none. This
+stage keeps what each texel's samples say and lets the surface decide the rest (the sharing of
+METHOD.md §4, done inside the estimate):
+
+1. **The surface graph** (`surface_graph`): each texel's nearest texels on the mesh, in 3D and so
+   across UV seams, weighted by the likeness of their apparent albedo (the mean observed radiance
+   over the irradiance / pi), so that material edges survive.
+2. **The metal label** (`metal_evidence`, `metal_posterior`): the texel's samples score the
+   dielectric (m = 0) and the metal (m = 1), base colour re-fitted at the texel's roughness; their
+   loss difference over the noise variance, deflated by ``SurfaceConfig.noise_inflation`` (the
+   model's own misfit is not independent noise), is the label's log-likelihood ratio. A prior
+   favours dielectrics (a texel is metal only with evidence) and texels of like appearance share
+   their label (mean field on the graph).
+3. **Roughness and base colour** (`smooth_on_surface`): each texel's value held by its precision
+   (the loss's curvature over the noise), and an edge-preserving (Huber) coupling to its
+   neighbours; iteratively re-weighted least squares solved by conjugate gradients. Texels no view
+   sees have no data term: their values come from the solve alone, along the surface.
+4. **Posterior std** of roughness, metallic and base colour: the label marginals, and the inverse
+   of each texel's precision in the solve, scaled so that the per-texel estimates scatter about
+   the solution as the std says.
+
+Deterministic: fixed iteration counts, no random choice, single-threaded sparse products.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
+
+import numpy as np
+from scipy import sparse
+from scipy.sparse import csgraph
+from scipy.spatial import cKDTree
+
+from freqbrdf.config import Config, SurfaceConfig
+from freqbrdf.estimate._search_kernels import FITTED_PARAMETERS
+from freqbrdf.estimate.search import run_search_kernel
+
+if TYPE_CHECKING:
+    from freqbrdf.estimate import MaterialEstimate
+    from freqbrdf.observe.observations import Observations
+    from freqbrdf.texels import Texels
+
+__all__ = ["SurfacePosterior", "metal_evidence", "metal_posterior", "smooth_on_surface", "surface_graph",
+           "whole_surface"]
+
+# Apparent albedo floor (log space): keeps black texels' logarithm finite.
+_ALBEDO_FLOOR = 1e-3
+# Neighbours farther than this many median neighbour spacings are not neighbours (thin parts, gaps).
+_REACH = 3.0
+# Neighbours whose normals differ by more than this cosine are not neighbours (the two sides of a thin part).
+_MIN_NORMAL_COSINE = 0.3
+# The precision that pins a texel without data to the mean of the estimated texels, relative to
+# the coupling: only decides components of the graph that no estimated texel reaches.
+_PRIOR_PRECISION = 1e-4
+
+
+@dataclass(eq=False)
+class SurfacePosterior:
+    """The whole-surface solve's posterior per texel (N texels).
+
+    Attributes
+    ----------
+    metal_probability : (N,) float64
+        The posterior probability of the metal label.
+    roughness_std, metallic_std : (N,) float32
+        Posterior standard deviations of roughness and metallic.
+    base_color_std : (N, 3) float32
+        Posterior standard deviation of each base-colour channel.
+    inferred : (N,) bool
+        Texels whose values come from the surface alone (no estimate of their own).
+    timings : dict of str to float
+        Seconds per step.
+    """
+
+    metal_probability: np.ndarray
+    roughness_std: np.ndarray
+    metallic_std: np.ndarray
+    base_color_std: np.ndarray
+    inferred: np.ndarray
+    timings: dict
+
+
+def whole_surface(observations: Observations, estimate: MaterialEstimate, texels: Texels,
+                  config: Config = Config()) -> tuple[MaterialEstimate, SurfacePosterior]:
+    """Estimate the whole surface from the per-texel estimate and the surface prior.
+
+    Parameters
+    ----------
+    observations : Observations
+        The texels' samples (N texels).
+    estimate : MaterialEstimate
+        The ``global`` estimator's per-texel estimate of those texels.
+    texels : Texels
+        The same N texels on the mesh (positions and normals): `freqbrdf.texels.rasterise` at the
+        observations' resolution.
+    config : Config, optional
+        ``config.surface`` the solve's settings, ``config.estimate`` the model that scores labels.
+
+    Returns
+    -------
+    estimate : MaterialEstimate
+        Every texel of the atlas with a value; ``estimated`` unchanged (the texels with samples of
+        their own).
+    posterior : SurfacePosterior
+        The label probabilities and the std maps.
+
+    Raises
+    ------
+    ValueError
+        If ``texels`` are not the observations' texels.
+    """
+    if not np.array_equal(texels.texel_index, observations.texel_index):
+        raise ValueError("whole_surface needs the observations' own texels (rasterise at their resolution)")
+    settings = config.surface
+    timings: dict[str, float] = {}
+    start = time.perf_counter()
+    estimated = estimate.estimated.copy()
+    albedo = apparent_albedo(observations)
+    graph = surface_graph(texels.position, texels.normal, np.log(albedo), estimated, settings)
+    timings["graph"] = time.perf_counter() - start
+
+    start = time.perf_counter()
+    log_ratio, costs, labelled = metal_evidence(observations, estimate, config)
+    timings["evidence"] = time.perf_counter() - start
+
+    start = time.perf_counter()
+    probability = metal_posterior(log_ratio / settings.noise_inflation, estimated, graph, settings)
+    metal = probability > 0.5
+    params = np.where(metal[:, None], labelled[1], labelled[0])  # (N, 5): base colour, roughness, metallic
+    params[:, 4] = metal
+    # A texel whose samples reject its label's pure material keeps its own (mixed) metallic.
+    mixed = estimated & (np.where(metal, costs[:, 1], costs[:, 0]) / settings.noise_inflation > settings.mixed_evidence)
+    own = np.nan_to_num(np.concatenate([estimate.base_color, estimate.roughness[:, None], estimate.metallic[:, None]],
+                                       axis=1))
+    params[mixed] = own[mixed]
+    timings["labels"] = time.perf_counter() - start
+
+    start = time.perf_counter()
+    dof = np.maximum(3.0 * observations.n_samples - FITTED_PARAMETERS, 1.0)
+    noise = np.where(estimated, np.maximum(np.nan_to_num(estimate.loss), 1e-12), 1.0) / dof * settings.noise_inflation
+    curvature = np.nan_to_num(estimate.roughness_curvature) if estimate.roughness_curvature is not None else None
+    if curvature is None:
+        curvature = np.ones(estimate.n_texels)
+    roughness_precision = np.where(estimated, 0.5 * np.maximum(curvature, 0.0) / noise, 0.0)
+    # d loss / d b per channel: the diffuse term's light for a dielectric, the mirrored light's for a metal.
+    mirrored = _mean_over_views(observations, observations.mirrored)
+    light = np.where(metal[:, None], mirrored, observations.irradiance / np.pi)
+    color_precision = np.where(estimated[:, None], light.astype(np.float64) ** 2 / noise[:, None], 0.0)
+    # Few samples are mostly grazing or edge samples, whose errors are the model's, not noise: weaker.
+    counts = observations.n_samples.astype(np.float64)
+    typical = max(float(np.median(counts[estimated])), 1.0) if estimated.any() else 1.0
+    few = np.minimum(counts / typical, 1.0) ** settings.few_sample_power
+    roughness_precision *= few
+    color_precision *= few[:, None]
+    roughness, roughness_spread = smooth_on_surface(params[:, 3:4], roughness_precision[:, None], graph,
+                                                    settings.roughness_smoothing, settings.roughness_huber, settings)
+    color, color_spread = smooth_on_surface(params[:, :3], color_precision, graph, settings.color_smoothing,
+                                            settings.color_huber, settings)
+    timings["smooth"] = time.perf_counter() - start
+
+    solved = replace(
+        estimate,
+        base_color=np.clip(color, 0.0, 1.0), roughness=np.clip(roughness[:, 0], 0.0, 1.0),
+        metallic=params[:, 4].copy(),
+        timings={**estimate.timings, **{f"surface.{step}": seconds for step, seconds in timings.items()}},
+    )
+    posterior = SurfacePosterior(
+        metal_probability=probability,
+        roughness_std=roughness_spread[:, 0].astype(np.float32),
+        metallic_std=np.sqrt(probability * (1.0 - probability)).astype(np.float32),
+        base_color_std=color_spread.astype(np.float32),
+        inferred=~estimated,
+        timings=timings,
+    )
+    return solved, posterior
+
+
+def apparent_albedo(observations: Observations) -> np.ndarray:
+    """Return each texel's mean observed radiance over its irradiance / pi.
+
+    Parameters
+    ----------
+    observations : Observations
+        The texels' samples (N texels).
+
+    Returns
+    -------
+    (N, 3) float64
+        The apparent albedo, at least ``_ALBEDO_FLOOR``; the floor where a texel has no sample.
+    """
+    radiance = _mean_over_views(observations, observations.observed)
+    irradiance = np.maximum(observations.irradiance.astype(np.float64) / np.pi, 1e-12)
+    return np.maximum(radiance / irradiance, _ALBEDO_FLOOR)
+
+
+def _mean_over_views(observations: Observations, values: np.ndarray) -> np.ndarray:
+    """(N, 3) float64: the weighted mean of (N, V, 3) values over each texel's samples (0 without any)."""
+    weight = observations.weight.astype(np.float64)
+    total = weight.sum(axis=1)
+    summed = np.einsum("nv,nvc->nc", weight, values, dtype=np.float64)
+    return np.where(total[:, None] > 0, summed / np.maximum(total, 1e-30)[:, None], 0.0)
+
+
+def surface_graph(position: np.ndarray, normal: np.ndarray, appearance: np.ndarray, observed: np.ndarray,
+                  settings: SurfaceConfig) -> sparse.csr_matrix:
+    """Build the texels' neighbour graph on the surface, weighted by likeness of appearance.
+
+    Parameters
+    ----------
+    position, normal : (N, 3) array
+        The texels' points and normals on the mesh.
+    appearance : (N, C) array
+        What a texel looks like (the log apparent albedo); compared only between observed texels.
+    observed : (N,) bool
+        Texels whose appearance is known.
+    settings : SurfaceConfig
+        ``neighbours`` and ``appearance_width``.
+
+    Returns
+    -------
+    (N, N) scipy.sparse.csr_matrix of float64
+        Symmetric weights in (0, 1]: exp(-|a_i - a_j|^2 / (2 width^2)) between observed texels, 1
+        where either is unobserved; no self-loops.
+    """
+    n_texels = len(position)
+    k = min(settings.neighbours, max(n_texels - 1, 0))
+    if k == 0:
+        return sparse.csr_matrix((n_texels, n_texels))
+    distance, index = cKDTree(np.asarray(position, np.float64)).query(position, k=k + 1)
+    distance, index = distance[:, 1:], index[:, 1:]
+    spacing = float(np.median(distance[:, 0])) if n_texels else 0.0
+    rows = np.repeat(np.arange(n_texels), k)
+    cols = index.reshape(-1)
+    normal = np.asarray(normal, np.float64)
+    keep = (distance.reshape(-1) <= _REACH * max(spacing, 1e-12)) & (
+        np.einsum("ij,ij->i", normal[rows], normal[cols]) > _MIN_NORMAL_COSINE)
+    rows, cols = rows[keep], cols[keep]
+    both = observed[rows] & observed[cols]
+    difference = np.sum((appearance[rows] - appearance[cols]) ** 2, axis=1)
+    weight = np.where(both, np.exp(-difference / (2.0 * settings.appearance_width ** 2)), 1.0)
+    graph = sparse.coo_matrix((weight, (rows, cols)), shape=(n_texels, n_texels)).tocsr()
+    return graph.maximum(graph.T).tocsr()
+
+
+def metal_evidence(observations: Observations, estimate: MaterialEstimate,
+                   config: Config = Config()) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray]]:
+    """Score each texel's samples as a dielectric and as a metal.
+
+    Each hypothesis keeps the texel's roughness and re-fits its base colour (the search kernel's
+    neighbour vote with every candidate taken).
+
+    Parameters
+    ----------
+    observations : Observations
+        The texels' samples (N texels).
+    estimate : MaterialEstimate
+        The per-texel estimate.
+    config : Config, optional
+        ``config.estimate``: the model.
+
+    Returns
+    -------
+    log_ratio : (N,) float64
+        (loss as a dielectric - loss as a metal) / (2 noise variance), the noise the least loss
+        over its 3n - 5 degrees of freedom: the metal label's log-likelihood ratio for
+        independent noise; 0 where not estimated.
+    costs : (N, 2) float64
+        What the samples lose as a dielectric and as a metal against the best of the estimate and
+        both labels, over 2 noise variances (0 where not estimated).
+    labelled : tuple of two (N, 5) float64
+        Base colour RGB, roughness and metallic as a dielectric and as a metal (the estimate's
+        values where its metallic lies within a grid cell of the label's).
+    """
+    from freqbrdf.estimate import model_light
+
+    estimated = estimate.estimated
+    params = np.nan_to_num(np.concatenate(
+        [estimate.base_color, estimate.roughness[:, None], estimate.metallic[:, None]], axis=1))
+    light = model_light(observations, params[:, 3], config)
+    losses, labelled = [], []
+    for metallic in (0.0, 1.0):
+        fitted = params.copy()
+        loss = np.nan_to_num(estimate.loss).copy()
+        curvature = np.zeros(estimate.n_texels)
+        candidate = np.stack([params[:, 3], np.full(estimate.n_texels, metallic)], axis=1)
+        run_search_kernel(observations, config.estimate, light, np.zeros(0), np.zeros((0, 0, 3, 8)), False,
+                          fitted, loss, curvature, candidate, vote_chi2=np.inf)
+        losses.append(loss)
+        labelled.append(fitted)
+    dof = np.maximum(3.0 * observations.n_samples - FITTED_PARAMETERS, 1.0)
+    least = np.minimum(np.minimum(losses[0], losses[1]), np.nan_to_num(estimate.loss))
+    noise = np.maximum(least, 1e-12) / dof
+    log_ratio = np.where(estimated, (losses[0] - losses[1]) / (2.0 * noise), 0.0)
+    costs = np.stack([np.where(estimated, (loss - least) / (2.0 * noise), 0.0) for loss in losses], axis=1)
+    return log_ratio, costs, (labelled[0], labelled[1])
+
+
+def metal_posterior(log_ratio: np.ndarray, observed: np.ndarray, graph: sparse.csr_matrix,
+                    settings: SurfaceConfig) -> np.ndarray:
+    """Return each texel's probability of being metal: its evidence, the prior and its neighbours.
+
+    Mean field on the graph's Ising model: q = sigmoid(h + J sum_j w_ij (2 q_j - 1)), h the
+    texel's log-likelihood ratio plus the prior's log-odds, damped synchronous updates.
+
+    Parameters
+    ----------
+    log_ratio : (N,) float64
+        The metal label's log-likelihood ratio per texel (0: no evidence either way).
+    observed : (N,) bool
+        Texels with evidence of their own.
+    graph : (N, N) scipy.sparse.csr_matrix
+        `surface_graph`'s weights.
+    settings : SurfaceConfig
+        ``metal_prior``, ``label_coupling`` and ``label_iterations``.
+
+    Returns
+    -------
+    (N,) float64
+        The posterior probability of the metal label.
+    """
+    prior = np.log(settings.metal_prior / (1.0 - settings.metal_prior))
+    field = np.clip(np.where(observed, log_ratio, 0.0), -_MAX_LOG_RATIO, _MAX_LOG_RATIO) + prior
+    probability = _sigmoid(field)
+    for _ in range(settings.label_iterations):
+        updated = _sigmoid(field + settings.label_coupling * (graph @ (2.0 * probability - 1.0)))
+        probability = 0.5 * (probability + updated)
+    return probability
+
+
+_MAX_LOG_RATIO = 50.0
+# Conjugate gradients stop where the preconditioned residual norm falls below this share of the right-hand side's.
+_CG_TOLERANCE = 1e-4
+
+
+def _sigmoid(x: np.ndarray) -> np.ndarray:
+    return 0.5 * (1.0 + np.tanh(0.5 * x))
+
+
+def smooth_on_surface(values: np.ndarray, precision: np.ndarray, graph: sparse.csr_matrix, smoothing: float,
+                      huber: float, settings: SurfaceConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Solve for values held by their precision and coupled to their neighbours (Huber, IRLS).
+
+    Minimises sum_t P_t |x_t - v_t|^2 + lambda sum_ij w_ij rho(|x_i - x_j|), rho Huber's with
+    threshold ``huber`` on the channels' Euclidean difference, lambda = ``smoothing`` x the median
+    precision of the texels with data; ``smoothing_passes`` re-weightings, each solved by
+    conjugate gradients (Jacobi preconditioner, ``cg_iterations``). Texels without data
+    (P = 0) take the solve's values; a component of the graph without data, the precision-weighted
+    mean of all data.
+
+    Parameters
+    ----------
+    values : (N, C) array
+        The per-texel values (ignored where the precision is 0).
+    precision : (N, C) array
+        Their precisions (1 / variance).
+    graph : (N, N) scipy.sparse.csr_matrix
+        `surface_graph`'s weights.
+    smoothing : float
+        The coupling relative to the median precision.
+    huber : float
+        Huber's threshold on neighbour differences.
+    settings : SurfaceConfig
+        ``smoothing_passes``, ``cg_iterations`` and ``std_scale``.
+
+    Returns
+    -------
+    solution : (N, C) float64
+        The smoothed values.
+    std : (N, C) float64
+        s / sqrt(P_t + lambda sum_j w_ij) per texel and channel, s^2 the mean of P_t (v_t - x_t)^2
+        over the texels with data (how far they scatter about the solution for their
+        precision); texels without data add s^2 / lambda per hop from the nearest texel with data,
+        up to the spread of the solution over the texels with data; times ``std_scale``.
+    """
+    values = np.nan_to_num(np.asarray(values, np.float64))
+    precision = np.maximum(np.asarray(precision, np.float64), 0.0)
+    has_data = precision.sum(axis=1) > 0
+    if not has_data.any():
+        return values.copy(), np.full(values.shape, np.nan)
+    scale = float(np.median(precision[has_data].mean(axis=1)))
+    coupling = smoothing * scale
+    mean = (precision * values).sum(axis=0) / np.maximum(precision.sum(axis=0), 1e-300)
+    pin = _PRIOR_PRECISION * coupling
+    target = np.where(precision > 0, values, mean)
+    diagonal_data = precision + pin
+    solution = target.copy()
+    edges = graph.tocoo()
+    rows, cols, weights = edges.row, edges.col, edges.data
+    for _ in range(max(settings.smoothing_passes, 1)):
+        difference = np.sqrt(np.sum((solution[rows] - solution[cols]) ** 2, axis=1))
+        robust = weights * np.minimum(1.0, huber / np.maximum(difference, 1e-12))
+        coupled = sparse.csr_matrix((coupling * robust, (rows, cols)), shape=graph.shape)
+        degree = np.asarray(coupled.sum(axis=1)).ravel()
+        solution = _conjugate_gradients(coupled, degree, diagonal_data, diagonal_data * target, solution,
+                                        settings.cg_iterations)
+    degree = np.asarray(graph.sum(axis=1)).ravel() * coupling
+    # A texel's variance: its own and its neighbours' precision, s^2 / (P_t + lambda sum_j w_ij), s
+    # from how far the texels with data scatter about the solution for their precision; a texel
+    # without data adds a neighbour's s^2 / lambda per hop from the nearest texel with data (a
+    # random walk's growth), up to the spread of the material over the surface.
+    calibration = np.mean(((values - solution) ** 2 * precision)[has_data])
+    variance = calibration / (precision + degree[:, None] + pin)
+    if not has_data.all():
+        hops = csgraph.dijkstra(graph, unweighted=True, indices=np.flatnonzero(has_data), min_only=True)
+        spread = np.average((solution[has_data] - mean) ** 2, axis=0, weights=precision[has_data].mean(axis=1))
+        variance = np.minimum(variance + calibration / coupling * np.nan_to_num(hops, posinf=np.inf)[:, None],
+                              np.maximum(spread, variance))
+    return solution, np.sqrt(variance) * settings.std_scale
+
+
+def _conjugate_gradients(coupled: sparse.csr_matrix, degree: np.ndarray, diagonal: np.ndarray, rhs: np.ndarray,
+                         start: np.ndarray, iterations: int) -> np.ndarray:
+    """Solve (diag(diagonal_c) + D - W) x_c = rhs_c for every channel c at once (Jacobi-preconditioned CG).
+
+    Parameters: W ``coupled`` (N, N), D = diag(``degree``), ``diagonal`` and ``rhs`` (N, C).
+    """
+    def apply(x):
+        return (diagonal + degree[:, None]) * x - coupled @ x
+
+    inverse = 1.0 / (diagonal + degree[:, None])
+    x = start.copy()
+    residual = rhs - apply(x)
+    z = inverse * residual
+    direction = z.copy()
+    rz = np.sum(residual * z, axis=0)
+    stop = _CG_TOLERANCE ** 2 * np.maximum(np.sum(rhs * inverse * rhs, axis=0), 1e-300)
+    for _ in range(iterations):
+        if not np.any(rz > stop):
+            break
+        ad = apply(direction)
+        step = np.where(rz > 0, rz / np.maximum(np.sum(direction * ad, axis=0), 1e-300), 0.0)
+        x += step * direction
+        residual -= step * ad
+        z = inverse * residual
+        rz_next = np.sum(residual * z, axis=0)
+        direction = z + np.where(rz > 0, rz_next / np.maximum(rz, 1e-300), 0.0) * direction
+        rz = rz_next
+    return x

@@ -1,0 +1,141 @@
+"""Tests of freqbrdf.estimate.surface: the whole-surface solve's graph, labels and smoothing."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from freqbrdf.config import Config, SurfaceConfig, TexelConfig
+from freqbrdf.estimate.surface import metal_posterior, smooth_on_surface, surface_graph
+from freqbrdf.synthetic.synth import SynthSettings, synthesize
+
+SETTINGS = SurfaceConfig()
+TINY = SynthSettings(mesh="bunny", views=6, resolution=40, spp=4, texture_res=32, test_views=0)
+
+
+@pytest.fixture(scope="module")
+def tiny_capture_path(tmp_path_factory):
+    """A tiny bunny capture whose six views leave part of the atlas unseen."""
+    return synthesize(tmp_path_factory.mktemp("capture") / "tiny", TINY, progress=False)
+
+
+def grid(side: int) -> tuple[np.ndarray, np.ndarray]:
+    """(side^2, 3) points of a flat side x side grid of unit spacing, and their normals (+z)."""
+    rows, cols = np.divmod(np.arange(side * side), side)
+    position = np.stack([cols, rows, np.zeros_like(rows)], axis=1).astype(np.float64)
+    return position, np.tile([0.0, 0.0, 1.0], (side * side, 1))
+
+
+def test_graph_joins_surface_neighbours_across_a_seam_and_not_the_two_sides_of_a_thin_part():
+    position, normal = grid(8)
+    # A second sheet 0.5 below with opposite normals: as close as the grid's spacing, other side.
+    below = position - [0.0, 0.0, 0.5]
+    graph = surface_graph(np.vstack([position, below]), np.vstack([normal, -normal]), np.zeros((128, 1)),
+                          np.ones(128, bool), SETTINGS)
+    assert (graph != graph.T).nnz == 0
+    coo = graph.tocoo()
+    assert np.all((coo.row < 64) == (coo.col < 64)), "an edge joins the two sides"
+    assert graph[0, 1] == 1.0 and graph[0, 8] == 1.0  # neighbours on one sheet (in 3D: the seam does not matter)
+
+
+def test_graph_weighs_unlike_neighbours_down():
+    position, normal = grid(8)
+    appearance = np.where(position[:, :1] < 4, 0.0, 1.0)  # two materials, an edge between columns 3 and 4
+    graph = surface_graph(position, normal, appearance, np.ones(64, bool), SETTINGS)
+    assert graph[3, 4] == pytest.approx(np.exp(-1.0 / (2 * SETTINGS.appearance_width ** 2)))
+    assert graph[2, 3] == 1.0
+    unobserved = surface_graph(position, normal, appearance, np.zeros(64, bool), SETTINGS)
+    assert unobserved[3, 4] == 1.0  # no appearance to compare
+
+
+def test_metal_needs_evidence_and_a_metal_island_keeps_its_edge():
+    side = 16
+    position, normal = grid(side)
+    island = (np.abs(position[:, 0] - 8) < 3) & (np.abs(position[:, 1] - 8) < 3)
+    appearance = np.where(island, 1.0, 0.0)[:, None]
+    observed = np.ones(side * side, bool)
+    graph = surface_graph(position, normal, appearance, observed, SETTINGS)
+    # Strong evidence on the island; a weak pull towards metal on the dielectric around it, as a
+    # rough dielectric's model misfit gives, short of the prior's odds.
+    log_ratio = np.where(island, 20.0, 0.2)
+    probability = metal_posterior(log_ratio, observed, graph, SETTINGS)
+    assert np.all(probability[island] > 0.95) and np.all(probability[~island] < 0.5)
+    # No evidence at all: the prior's dielectric.
+    assert np.all(metal_posterior(np.zeros(side * side), observed, graph, SETTINGS) < 0.5)
+
+
+def test_a_texel_without_samples_takes_its_neighbours_label():
+    position, normal = grid(12)
+    observed = np.ones(144, bool)
+    observed[60:64] = False  # a hole in a metal plate
+    graph = surface_graph(position, normal, np.zeros((144, 1)), observed, SETTINGS)
+    probability = metal_posterior(np.where(observed, 30.0, 0.0), observed, graph, SETTINGS)
+    assert np.all(probability[~observed] > 0.9)
+
+
+def test_smoothing_fills_unseen_texels_from_their_neighbours_and_keeps_edges():
+    side = 20
+    position, normal = grid(side)
+    truth = np.where(position[:, 0] < 10, 0.2, 0.8)[:, None]
+    rng = np.random.default_rng(0)
+    values = truth + rng.normal(0.0, 0.02, truth.shape)
+    precision = np.full(truth.shape, 1.0 / 0.02 ** 2)
+    unseen = (position[:, 1] >= 8) & (position[:, 1] < 12) & (np.abs(position[:, 0] - 4) < 2)  # inside the 0.2 half
+    precision[unseen] = 0.0
+    values[unseen] = 5.0  # ignored: no data
+    # The two materials look different (the graph's appearance), as at a material edge.
+    graph = surface_graph(position, normal, 4.0 * truth, ~unseen, SETTINGS)
+    solution, std = smooth_on_surface(values, precision, graph, 1.0, 0.05, SETTINGS)
+    assert np.abs(solution[unseen] - 0.2).max() < 0.02
+    edge_left, edge_right = position[:, 0] == 9, position[:, 0] == 10
+    assert np.abs(solution[edge_left] - 0.2).max() < 0.05 and np.abs(solution[edge_right] - 0.8).max() < 0.05
+    # Less noisy than the data, and the unseen texels are the least certain.
+    seen = ~unseen
+    assert np.sqrt(np.mean((solution[seen] - truth[seen]) ** 2)) < 0.02
+    assert std[unseen].min() > std[seen].max()
+
+
+def test_std_is_calibrated_on_a_case_with_known_noise():
+    """Per-texel values with known Gaussian noise around a smooth truth: the 1-sigma interval of
+    the solution holds the truth for about 68 % of texels."""
+    side = 48
+    position, normal = grid(side)
+    truth = (0.3 + 0.2 * np.sin(position[:, 0] / 9.0) * np.cos(position[:, 1] / 11.0))[:, None]
+    rng = np.random.default_rng(1)
+    noise = rng.uniform(0.02, 0.1, truth.shape)
+    values = truth + rng.normal(0.0, 1.0, truth.shape) * noise
+    graph = surface_graph(position, normal, np.zeros((side * side, 1)), np.ones(side * side, bool), SETTINGS)
+    solution, std = smooth_on_surface(values, 1.0 / noise ** 2, graph, 0.3, 1.0, SETTINGS)
+    coverage = np.mean(np.abs(solution - truth) <= std)
+    assert 0.55 <= coverage <= 0.8, coverage
+
+
+def test_solve_is_deterministic():
+    position, normal = grid(24)
+    rng = np.random.default_rng(2)
+    values = rng.uniform(0.0, 1.0, (576, 3))
+    precision = rng.uniform(0.0, 100.0, (576, 3))
+    graph = surface_graph(position, normal, rng.normal(0.0, 0.3, (576, 3)), np.ones(576, bool), SETTINGS)
+    first = smooth_on_surface(values, precision, graph, 0.3, 0.05, SETTINGS)
+    second = smooth_on_surface(values.copy(), precision.copy(), graph.copy(), 0.3, 0.05, SETTINGS)
+    assert all(np.array_equal(a, b) for a, b in zip(first, second))
+
+
+@pytest.mark.slow
+def test_fit_gives_every_texel_a_value_and_its_ablation_leaves_unseen_texels_empty(tiny_capture_path):
+    from freqbrdf import pipeline
+    from freqbrdf.capture.layouts import load
+
+    capture = load(tiny_capture_path)
+    config = Config(texels=TexelConfig(texture_res=32))
+    solved = pipeline.fit(capture, config)
+    per_texel = pipeline.fit(capture, config.replace(surface=dataclasses.replace(config.surface, enabled=False)))
+    unseen = ~per_texel.estimate.estimated
+    assert unseen.any() and np.all(np.isnan(per_texel.estimate.roughness[unseen]))
+    assert np.all(np.isfinite(solved.estimate.roughness)) and np.all(np.isfinite(solved.estimate.base_color))
+    assert np.all(np.isin(solved.estimate.metallic[unseen], [0.0, 1.0]))  # a label; mixed metals need samples
+    for name in ("roughness_std", "metallic_std", "base_color_std"):
+        assert np.all(np.isfinite(getattr(solved.uncertainty, name))), name
+    assert "surface" in solved.timings
