@@ -34,7 +34,7 @@ from pathlib import Path
 
 from freqbrdf import pipeline
 from freqbrdf.capture.layouts import load
-from freqbrdf.config import Config, EstimateConfig, TexelConfig, preset
+from freqbrdf.config import Config, EstimateConfig, SurfaceConfig, TexelConfig, preset
 from freqbrdf.estimate import estimate
 from freqbrdf.fileio import atomic_path
 from freqbrdf.observe.observations import observe
@@ -47,24 +47,29 @@ from _common import RESULTS_DIR as RESULTS
 from _common import control_seconds, machine
 from scenes import FULL_RENDER, QUICK_RENDER, compare_capture, compare_settings
 
-METHODS = ("global", "global_without_vote", "global_fast", "global_environment_light", "global_fitted_light",
+METHODS = ("whole_surface", "global", "global_without_vote", "global_fast", "global_environment_light", "global_fitted_light",
            "paper_angular", "paper_spectrum", "mitsuba")
 QUICK_ARGS = {"views": 24, "texture_res": 128, "relight_spp": 8}
 
 
 def method_config(method: str, texture_res: int) -> Config:
-    """Our default Config for `global`; `global_environment_light` without the prefiltered light
+    """Our default Config for `whole_surface` (the whole-surface estimate, the default since issue
+    #27); the `global*` methods are the per-texel estimate (SurfaceConfig.enabled off, the default
+    before it): `global`; `global_environment_light` without the prefiltered light
     (smooth lobes read the per-texel fit of the mirrored light, the default before commit 8e664ea);
     `global_fitted_light` without the environment light either (every lobe reads that fit, the
     default before commit 235c542); `global_without_vote`:
     without EstimateConfig.neighbour_vote; `global_fast`: the fast preset; the paper preset (its
     lambda, Adam, TV) for `paper_*`."""
     texels = TexelConfig(texture_res=texture_res)
+    if method == "whole_surface":
+        return Config(texels=texels)
+    per_texel = SurfaceConfig(enabled=False)
     if method == "global_fast":
         fast = preset("fast")
-        return fast.replace(texels=dataclasses.replace(fast.texels, texture_res=texture_res))
+        return fast.replace(texels=dataclasses.replace(fast.texels, texture_res=texture_res), surface=per_texel)
     if method.startswith("global"):
-        return Config(texels=texels, estimate=EstimateConfig(
+        return Config(texels=texels, surface=per_texel, estimate=EstimateConfig(
             environment_light=method != "global_fitted_light",
             prefiltered_light=method in ("global", "global_without_vote"),
             neighbour_vote=method != "global_without_vote"))

@@ -38,6 +38,7 @@ from scipy.spatial import cKDTree
 
 from freqbrdf.config import Config, SurfaceConfig
 from freqbrdf.estimate._search_kernels import FITTED_PARAMETERS
+from freqbrdf.estimate._surface_kernels import conjugate_gradients, huber_weights
 from freqbrdf.estimate.search import run_search_kernel
 
 if TYPE_CHECKING:
@@ -389,15 +390,15 @@ def smooth_on_surface(values: np.ndarray, precision: np.ndarray, graph: sparse.c
     target = np.where(precision > 0, values, mean)
     diagonal_data = precision + pin
     solution = target.copy()
-    edges = graph.tocoo()
-    rows, cols, weights = edges.row, edges.col, edges.data
+    graph = graph.tocsr()
+    indptr, indices = graph.indptr.astype(np.int64), graph.indices.astype(np.int64)
+    weights = graph.data.astype(np.float64)
+    robust = np.empty_like(weights)
+    robust_degree = np.empty(len(values))
     for _ in range(max(settings.smoothing_passes, 1)):
-        difference = np.sqrt(np.sum((solution[rows] - solution[cols]) ** 2, axis=1))
-        robust = weights * np.minimum(1.0, huber / np.maximum(difference, 1e-12))
-        coupled = sparse.csr_matrix((coupling * robust, (rows, cols)), shape=graph.shape)
-        degree = np.asarray(coupled.sum(axis=1)).ravel()
-        solution = _conjugate_gradients(coupled, degree, diagonal_data, diagonal_data * target, solution,
-                                        settings.cg_iterations)
+        huber_weights(indptr, indices, weights, solution, huber, coupling, robust, robust_degree)
+        conjugate_gradients(indptr, indices, robust, robust_degree, diagonal_data, diagonal_data * target, solution,
+                            settings.cg_iterations, _CG_TOLERANCE)
     degree = np.asarray(graph.sum(axis=1)).ravel() * coupling
     # A texel's variance: its own and its neighbours' precision, s^2 / (P_t + lambda sum_j w_ij), s
     # from how far the texels with data scatter about the solution for their precision; a texel
@@ -411,33 +412,3 @@ def smooth_on_surface(values: np.ndarray, precision: np.ndarray, graph: sparse.c
         variance = np.minimum(variance + calibration / coupling * np.nan_to_num(hops, posinf=np.inf)[:, None],
                               np.maximum(spread, variance))
     return solution, np.sqrt(variance) * settings.std_scale
-
-
-def _conjugate_gradients(coupled: sparse.csr_matrix, degree: np.ndarray, diagonal: np.ndarray, rhs: np.ndarray,
-                         start: np.ndarray, iterations: int) -> np.ndarray:
-    """Solve (diag(diagonal_c) + D - W) x_c = rhs_c for every channel c at once (Jacobi-preconditioned CG).
-
-    Parameters: W ``coupled`` (N, N), D = diag(``degree``), ``diagonal`` and ``rhs`` (N, C).
-    """
-    def apply(x):
-        return (diagonal + degree[:, None]) * x - coupled @ x
-
-    inverse = 1.0 / (diagonal + degree[:, None])
-    x = start.copy()
-    residual = rhs - apply(x)
-    z = inverse * residual
-    direction = z.copy()
-    rz = np.sum(residual * z, axis=0)
-    stop = _CG_TOLERANCE ** 2 * np.maximum(np.sum(rhs * inverse * rhs, axis=0), 1e-300)
-    for _ in range(iterations):
-        if not np.any(rz > stop):
-            break
-        ad = apply(direction)
-        step = np.where(rz > 0, rz / np.maximum(np.sum(direction * ad, axis=0), 1e-300), 0.0)
-        x += step * direction
-        residual -= step * ad
-        z = inverse * residual
-        rz_next = np.sum(residual * z, axis=0)
-        direction = z + np.where(rz > 0, rz_next / np.maximum(rz, 1e-300), 0.0) * direction
-        rz = rz_next
-    return x

@@ -17,12 +17,13 @@ from freqbrdf.fileio import atomic_directory
 from freqbrdf.model.materials import resize
 from freqbrdf.outputs import export
 from freqbrdf.outputs.fit_folder import (
+    CALIBRATION_PLOT,
     EVALUATION_FOLDER,
     SPARSIFICATION_PLOT,
     FitOutputs,
     check_output_folder,
 )
-from freqbrdf.outputs.relight import RelightSettings, write_evaluation
+from freqbrdf.outputs.relight import UNSEEN_SIDE_PICTURE, RelightSettings, unseen_side_picture, write_evaluation
 from freqbrdf.outputs.relight import evaluate as relight_evaluate
 from freqbrdf.progress import SILENT, Reporter
 from freqbrdf.uncertainty import FLAG_UNOBSERVED
@@ -73,6 +74,13 @@ def evaluate_fit(fit_outputs: FitOutputs, capture: Capture, out_dir: str | Path 
         uncertainty_scores = _uncertainty_scores(fit_outputs, capture, folder)
         if uncertainty_scores is not None:
             extra["uncertainty"] = uncertainty_scores
+        calibration = _std_calibration(fit_outputs, capture, folder)
+        if calibration is not None:
+            extra["calibration"] = calibration
+        if capture.frames:
+            unseen_side_picture(capture, fit_outputs.maps, folder / UNSEEN_SIDE_PICTURE, settings)
+            extra["unseen_side"] = {"picture": UNSEEN_SIDE_PICTURE, "left": "ground truth" if capture.ground_truth
+                                    is not None else "fit", "right": "fit" if capture.ground_truth is not None else None}
         metrics_path = write_evaluation(folder, evaluation, extra)
         document = json.loads(metrics_path.read_text(encoding="utf-8"))  # as written (inf as null)
     return document
@@ -118,3 +126,69 @@ def _uncertainty_scores(fit_outputs: FitOutputs, capture: Capture, out: Path) ->
         **scores["entropy"],
         **({"roughness_std": scores["roughness_std"]} if "roughness_std" in scores else {}),
     }
+
+
+# The multiples k of each std at which the calibration counts the texels whose error lies within k std.
+CALIBRATION_MULTIPLES = (0.5, 1.0, 1.5, 2.0, 2.5, 3.0)
+
+
+def _std_calibration(fit_outputs: FitOutputs, capture: Capture, out: Path) -> dict | None:
+    """Score each posterior std map against its parameter's error: the fraction within k std.
+
+    Every texel of the atlas (observed or not); base colour per channel. A calibrated std holds
+    the truth within k std for 2 Phi(k) - 1 of the texels (68 % at k = 1). None without ground
+    truth or std maps.
+    """
+    from math import erf, sqrt
+
+    arrays = fit_outputs.arrays
+    names = [name for name in ("roughness", "metallic", "base_color") if f"{name}_std" in arrays]
+    if capture.ground_truth is None or not names:
+        return None
+    truth = resize(capture.ground_truth, fit_outputs.maps.resolution)
+    flat = fit_outputs.texel_index
+    observed = (arrays["flags"] & FLAG_UNOBSERVED) == 0
+    scores = {}
+    for name in names:
+        estimate = getattr(fit_outputs.maps, name)
+        channels = 3 if name == "base_color" else 1
+        error = np.abs(estimate.reshape(-1, channels)[flat] - getattr(truth, name).reshape(-1, channels)[flat])
+        sigma = np.asarray(arrays[f"{name}_std"], np.float64).reshape(len(flat), -1)
+        usable = np.isfinite(sigma) & np.isfinite(error)
+        within = {f"{k:g}": float(np.mean((error <= k * sigma)[usable])) for k in CALIBRATION_MULTIPLES}
+        seen = usable & observed[:, None]
+        unseen = usable & ~observed[:, None]
+        scores[name] = {"within": within,
+                        "within_1_observed": float(np.mean((error <= sigma)[seen])) if seen.any() else None,
+                        "within_1_unobserved": float(np.mean((error <= sigma)[unseen])) if unseen.any() else None,
+                        "texels": int(usable.any(axis=1).sum())}
+    ideal = {f"{k:g}": erf(k / sqrt(2.0)) for k in CALIBRATION_MULTIPLES}
+    _plot_calibration(scores, ideal, out / CALIBRATION_PLOT)
+    return {"of": "fraction of atlas texels whose absolute error lies within k std (base colour: per channel)",
+            "ideal": ideal, "plot": CALIBRATION_PLOT, **scores}
+
+
+def _plot_calibration(scores: dict, ideal: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from freqbrdf.fileio import atomic_path
+
+    figure, axis = plt.subplots(figsize=(4.6, 3.6))
+    multiples = [float(k) for k in ideal]
+    axis.plot(multiples, list(ideal.values()), color="0.4", linestyle="--", label="calibrated (Gaussian)")
+    for index, (name, score) in enumerate(scores.items()):
+        axis.plot(multiples, list(score["within"].values()), marker="o", color=f"C{index}",
+                  label=f"{name.replace('_', ' ')} std")
+    axis.set_xlabel("k (multiples of the std)")
+    axis.set_ylabel("fraction of texels with |error| <= k std")
+    axis.set_ylim(0, 1)
+    axis.set_xlim(0, max(multiples))
+    axis.grid(alpha=0.3)
+    axis.legend(fontsize=8, loc="lower right")
+    figure.tight_layout()
+    with atomic_path(path) as tmp:
+        figure.savefig(tmp, dpi=110, format="png")
+    plt.close(figure)

@@ -20,6 +20,7 @@ EVALUATION_FOLDER = "evaluation"
 
 
 SPARSIFICATION_PLOT = "sparsification.png"
+CALIBRATION_PLOT = "calibration.png"  # the std maps' calibration, in the evaluation folder
 
 
 @dataclass(eq=False)

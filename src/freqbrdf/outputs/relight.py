@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib import colormaps
 
+from freqbrdf.capture.camera import Camera, look_at
 from freqbrdf.capture.layouts import Capture
 from freqbrdf.fileio import write_json
 from freqbrdf.images import linear_to_srgb, write_png
@@ -307,3 +308,82 @@ def write_evaluation(out_dir: str | Path, evaluation: Evaluation, extra: dict | 
     }
     write_json(out_dir / METRICS_FILE, document)
     return out_dir / METRICS_FILE
+
+
+# Directions on the sphere scored for the side the training views saw least (Fibonacci points).
+UNSEEN_SIDE_CANDIDATES = 512
+UNSEEN_SIDE_PICTURE = "unseen_side.png"
+
+
+def unseen_side_camera(capture: Capture) -> Camera:
+    """Place a camera on the side of the object the training views saw least.
+
+    Its direction from the mesh's bounding-box centre is the one, of `UNSEEN_SIDE_CANDIDATES`
+    spread over the sphere, farthest in angle from every training camera's; it stands at the
+    training cameras' mean distance, looks at the centre, with the first training view's
+    intrinsics.
+
+    Parameters
+    ----------
+    capture : Capture
+        The capture (at least one training frame).
+
+    Returns
+    -------
+    Camera
+        The camera.
+    """
+    vertices = capture.mesh.vertices
+    centre = 0.5 * (vertices.min(axis=0) + vertices.max(axis=0))
+    positions = np.array([frame.camera.camera_to_world[:3, 3] for frame in capture.frames])
+    offsets = positions - centre
+    distance = float(np.mean(np.linalg.norm(offsets, axis=1)))
+    seen = offsets / np.maximum(np.linalg.norm(offsets, axis=1, keepdims=True), 1e-12)
+    index = np.arange(UNSEEN_SIDE_CANDIDATES) + 0.5
+    height = 1.0 - 2.0 * index / UNSEEN_SIDE_CANDIDATES
+    azimuth = np.pi * (1.0 + 5.0 ** 0.5) * index
+    ring = np.sqrt(1.0 - height ** 2)
+    candidates = np.stack([ring * np.cos(azimuth), height, ring * np.sin(azimuth)], axis=1)
+    direction = candidates[int(np.argmin((candidates @ seen.T).max(axis=1)))]
+    up = np.array([0.0, 1.0, 0.0]) if abs(direction[1]) < 0.9 else np.array([0.0, 0.0, 1.0])
+    first = capture.frames[0].camera
+    return Camera(look_at(centre + distance * direction, centre, up), first.fx, first.fy, first.cx, first.cy,
+                  first.width, first.height)
+
+
+def unseen_side_picture(capture: Capture, materials: MaterialMaps, path: str | Path,
+                        settings: RelightSettings = RelightSettings()) -> Path:
+    """Render the fitted maps (and the ground truth, when there is one) from `unseen_side_camera`.
+
+    Under the capture's own light, path traced by Mitsuba; the picture holds the ground truth on
+    the left and the fit on the right (the fit alone without ground truth), sRGB, both at the
+    exposure that maps the ground truth's (else the fit's) 99th-percentile object pixel to 1.
+
+    Parameters
+    ----------
+    capture : Capture
+        The capture.
+    materials : MaterialMaps
+        The fitted maps.
+    path : str or Path
+        The PNG to write (atomically).
+    settings : RelightSettings, optional
+        Samples per pixel, path length and seed of the renders.
+
+    Returns
+    -------
+    Path
+        The PNG.
+    """
+    camera = unseen_side_camera(capture)
+    sets = [capture.ground_truth, materials] if capture.ground_truth is not None else [materials]
+    renders = []
+    for maps in sets:
+        scene = build_scene(capture.mesh, principled_bsdf(maps), capture.envmap, settings.max_depth)
+        renders.append(render_view(scene, camera, settings.spp, view_seed(settings.seed, 0)))
+    first = renders[0]
+    inside = first.coverage > 0.5
+    peak = float(np.percentile(first.radiance[inside], 99)) if inside.any() else 1.0
+    pictures = [linear_to_srgb(np.clip(render.radiance / max(peak, 1e-12), 0.0, 1.0)) for render in renders]
+    write_png(path, np.concatenate(pictures, axis=1))
+    return Path(path)

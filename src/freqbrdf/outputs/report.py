@@ -35,6 +35,7 @@ from freqbrdf.model import brdf
 from freqbrdf.model.materials import MaterialMaps, resize
 from freqbrdf.outputs import export
 from freqbrdf.outputs.fit_folder import (
+    CALIBRATION_PLOT,
     EVALUATION_FOLDER,
     SPARSIFICATION_PLOT,
     FitOutputs,
@@ -288,6 +289,26 @@ def _evaluation_sections(folder: Path, outputs: FitOutputs) -> str:
                      'true error).</figcaption></figure><p class="note">Remove the most uncertain texels first (by the entropy, and by the roughness '
                      'std): a useful uncertainty lowers the mean error of the rest (AURG &gt; 0) and approaches '
                      'the oracle (AUSE &rarr; 0).</p>')
+    calibration = evaluation / CALIBRATION_PLOT
+    if calibration.is_file():
+        shutil.copyfile(calibration, folder / CALIBRATION_PLOT)
+        within = {name: score.get("within", {}).get("1") for name, score in metrics.get("calibration", {}).items()
+                  if isinstance(score, dict) and "within" in score}
+        figures = ", ".join(f"{html.escape(name.replace('_', ' '))} {_number(value * 100 if value is not None else None, 0)} %"
+                            for name, value in within.items())
+        parts.append(f'<h3>Calibration of the std maps</h3><figure><img class="wide" src="{CALIBRATION_PLOT}" '
+                     'alt="calibration of the std maps"><figcaption>Per std map, the fraction of texels whose '
+                     'absolute error lies within k std, against k; the dashed line is a calibrated std '
+                     f'(68 % within 1 std). Within 1 std: {figures}.</figcaption></figure>')
+    unseen = metrics.get("unseen_side") or {}
+    if unseen and (evaluation / unseen.get("picture", "")).is_file():
+        shutil.copyfile(evaluation / unseen["picture"], folder / unseen["picture"])
+        sides = (f"{html.escape(unseen['left'])} (left) and {html.escape(unseen['right'])} (right)" if unseen.get("right")
+                 else html.escape(unseen["left"]))
+        parts.append(f'<h3>The side the views saw least</h3><figure><img class="wide" src="{unseen["picture"]}" '
+                     f'alt="renders from the side the training views saw least"><figcaption>Path traced by Mitsuba '
+                     f'under the capture\'s light from the direction farthest from every training camera: {sides}, '
+                     'sRGB, one exposure for both.</figcaption></figure>')
     views = metrics.get("views", [])
     if views:
         relit = metrics["relighting"]
