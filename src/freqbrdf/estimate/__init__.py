@@ -99,6 +99,13 @@ class MaterialEstimate:
         re-optimised at each roughness) at the estimate, from a second divided difference over
         `CURVATURE_STEP` (one-sided within [0, 1]); NaN where not estimated. Its inverse scales
         the marginal posterior variance of the roughness (`uncertainty.roughness_std`).
+    label_loss : (N, 2) float64 or None
+        ``global`` only: the loss (as ``loss``, least squares) of the pure materials at the
+        estimated roughness, base colour re-fitted: column 0 a dielectric (m = 0), column 1 a metal
+        (m = 1); what the samples say about the metal label (`freqbrdf.estimate.surface`). NaN
+        where not estimated.
+    label_base_color : (N, 2, 3) float64 or None
+        ``global`` only: those two materials' base colours; NaN where not estimated.
     """
 
     texture_res: int
@@ -111,6 +118,8 @@ class MaterialEstimate:
     method: str
     timings: dict = field(default_factory=dict)
     roughness_curvature: np.ndarray | None = None
+    label_loss: np.ndarray | None = None
+    label_base_color: np.ndarray | None = None
 
     @property
     def n_texels(self) -> int:
@@ -323,4 +332,7 @@ def _material_estimate(observations: Observations, result: EstimatorResult) -> M
         method=result.method,
         timings=result.timings,
         roughness_curvature=None if curvature is None else np.where(result.estimated, curvature, np.nan),
+        label_loss=None if result.label_loss is None else np.where(unknown[:, None], np.nan, result.label_loss),
+        label_base_color=(None if result.label_base_color is None
+                          else np.where(unknown[:, None, None], np.nan, result.label_base_color)),
     )

@@ -79,7 +79,6 @@ class SearchSettings(NamedTuple):
     metallic_grid: int
     robust_passes: int
     search: bool  # search the roughness, else only the hypotheses (or the vote)
-    vote_chi2: float  # how far (in noise variances) a candidate's loss may exceed the estimate's
 
 
 class Hypotheses(NamedTuple):
@@ -96,3 +95,5 @@ class Estimates(NamedTuple):
     params: np.ndarray  # (n, 5) float64 base colour RGB, roughness, metallic
     loss: np.ndarray  # (n,) float64
     curvature: np.ndarray  # (n,) float64
+    label_loss: np.ndarray  # (n, 2) float64 the loss as a dielectric and as a metal; (0, 2): not recorded
+    label_base_color: np.ndarray  # (n, 2, 3) float64 their base colours

@@ -56,7 +56,7 @@ MIN_SAMPLES = 2
 # Base colour (3), roughness and metallic: the degrees of freedom a texel's residual loses.
 FITTED_PARAMETERS = 5
 # The neighbour vote's likelihood-ratio threshold: chi^2 with one degree of freedom at 95 %.
-VOTE_CHI2 = 3.84
+_VOTE_CHI2 = 3.84
 # A vote's minimum this close (in grid cells) to its search's bounds lies beyond them: refused.
 _VOTE_MARGIN = 0.01
 # Texels per parallel work item of the search: amortises the scratch buffers.
@@ -484,8 +484,9 @@ def global_search_kernel(samples, light, recurrence, options, tables, environmen
     (roughness, metallic) instead of a search, the neighbour vote (``EstimateConfig.neighbour_vote``)
     on the estimate in estimates.params. Writes estimates (`Estimates`): params (n, 5) [b_rgb, r, m],
     loss (n,) (divided by sum_v w^2) and the profiled loss's curvature in roughness (n,)
-    (`MaterialEstimate.roughness_curvature`) for texels with at least `MIN_SAMPLES` samples; others
-    are left untouched.
+    (`MaterialEstimate.roughness_curvature`) for texels with at least `MIN_SAMPLES` samples, and
+    after a search, where estimates.label_loss has rows, the loss and base colour as a dielectric
+    (m = 0) and as a metal (m = 1) at the estimated roughness; others are left untouched.
     """
     n_chunks = (samples.weight.shape[0] + _SEARCH_CHUNK - 1) // _SEARCH_CHUNK
     # numba hands each thread a contiguous run of items: where the texels the cameras see lie in
@@ -523,6 +524,21 @@ def scattering_stride(n_items):
     return np.int64(stride)
 
 
+@borrowing_jit
+def _record_labels(roughness, objective, quadratics, label_state, total_weight, label_loss, label_base_color):
+    """Write the loss and base colour of a dielectric (m = 0) and a metal (m = 1) at a roughness.
+
+    Base colour re-fitted (`metallic_terms`): what the samples say about the metal label
+    (`freqbrdf.estimate.surface`). Probes the roughness, so the probe's state changes.
+    """
+    _roughness_objective(roughness, objective)
+    for label in range(2):
+        label_f = metallic_terms(np.float64(label), quadratics, label_state)[0]
+        label_loss[label] = max(label_f, 0.0) / total_weight
+        for c in range(3):
+            label_base_color[label, c] = label_state[c]
+
+
 @numba.njit(fastmath=True, cache=True)
 def _global_search_chunk(chunk, samples, light, recurrence, options, tables, environment_light, prefiltered_light,
                          settings, hypotheses, candidate, estimates):
@@ -541,9 +557,10 @@ def _global_search_chunk(chunk, samples, light, recurrence, options, tables, env
     prefiltered, n_full = prefiltered_light.maps, prefiltered_light.n_full
     world_to_local, map_height, map_width = prefiltered_light.world_to_local, prefiltered_light.height, prefiltered_light.width
     roughness_grid, metallic_grid = settings.roughness_grid, settings.metallic_grid
-    robust_passes, search, vote_chi2 = settings.robust_passes, settings.search, settings.vote_chi2
+    robust_passes, search = settings.robust_passes, settings.search
     hypothesis_roughness, hypothesis_moments, node_rows = hypotheses.roughness, hypotheses.moments, hypotheses.node_rows
     params, loss, curvature = estimates.params, estimates.loss, estimates.curvature
+    label_loss, label_base_color = estimates.label_loss, estimates.label_base_color
     n_texels, n_views = weight.shape
     n_degrees = lmax + 1
     n_coeffs = n_degrees * n_degrees
@@ -575,6 +592,7 @@ def _global_search_chunk(chunk, samples, light, recurrence, options, tables, env
     scale = np.empty(3)
     state = np.empty(4)
     best_state = np.empty(4)
+    label_state = np.empty(4)
     roughness_brent = np.empty(13)
     node_loss = np.empty(roughness_grid)
     # The hypotheses the first scan records: the others are probed before the search.
@@ -677,14 +695,14 @@ def _global_search_chunk(chunk, samples, light, recurrence, options, tables, env
                 _record_hypothesis(objective, sample_weight, hypothesis_moments[t, i])
         if voting:
             # The neighbour vote. A likelihood-ratio test bounds what it may cost: the profiled
-            # least-squares loss may exceed the estimate's by vote_chi2 times the noise variance
+            # least-squares loss may exceed the estimate's by _VOTE_CHI2 times the noise variance
             # (the residual over its 3n - FITTED_PARAMETERS degrees of freedom). Roughness: a
             # local minimum within a grid cell of the candidate (Brent, not at its bounds, over a
             # cell from the estimate: another minimum). Then metallic: the candidate's, base
             # colour profiled, at the roughness kept.
             estimate_r = params[t, 3]
             estimate_f = _roughness_objective(estimate_r, objective)
-            limit = estimate_f + vote_chi2 * estimate_f / (3 * n - FITTED_PARAMETERS)
+            limit = estimate_f + _VOTE_CHI2 * estimate_f / (3 * n - FITTED_PARAMETERS)
             voted_r = estimate_r
             if far_roughness:
                 cell = 1.0 / (roughness_grid - 1)
@@ -712,6 +730,9 @@ def _global_search_chunk(chunk, samples, light, recurrence, options, tables, env
             params[t, 3], params[t, 4] = voted_r, state[3]
             loss[t] = max(voted_f, 0.0) / total_weight
             curvature[t] = _loss_curvature(voted_r, profiled_f, objective) / total_weight
+            if label_loss.shape[0] > 0 and voted_r != estimate_r:
+                _record_labels(voted_r, objective, quadratics, label_state, total_weight, label_loss[t],
+                               label_base_color[t])
             continue
         if not search:
             continue
@@ -760,3 +781,6 @@ def _global_search_chunk(chunk, samples, light, recurrence, options, tables, env
         params[t, 0], params[t, 1], params[t, 2] = best_state[0], best_state[1], best_state[2]
         params[t, 3], params[t, 4] = best_r, best_state[3]
         loss[t] = max(best_f, 0.0) / total_weight
+        if label_loss.shape[0] > 0:
+            _record_labels(best_r, objective, quadratics, label_state, total_weight, label_loss[t],
+                           label_base_color[t])

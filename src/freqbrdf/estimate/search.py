@@ -50,7 +50,7 @@ from freqbrdf.estimate._records import (
     SearchSettings,
     ShRecurrence,
 )
-from freqbrdf.estimate._search_kernels import MIN_SAMPLES, VOTE_CHI2, global_search_kernel
+from freqbrdf.estimate._search_kernels import MIN_SAMPLES, global_search_kernel
 from freqbrdf.model import brdf
 from freqbrdf.model.light import (
     environment_azimuthal,
@@ -100,6 +100,10 @@ class EstimatorResult(NamedTuple):
         Seconds per stage.
     roughness_curvature : (N,) float64 or None
         `MaterialEstimate.roughness_curvature`, or None where the estimator has none.
+    label_loss : (N, 2) float64 or None
+        `MaterialEstimate.label_loss`, or None where the estimator has none.
+    label_base_color : (N, 2, 3) float64 or None
+        `MaterialEstimate.label_base_color`, or None where the estimator has none.
     """
 
     params: np.ndarray
@@ -108,6 +112,8 @@ class EstimatorResult(NamedTuple):
     method: str
     timings: dict
     roughness_curvature: np.ndarray | None
+    label_loss: np.ndarray | None = None
+    label_base_color: np.ndarray | None = None
 
 
 def estimate_global(observations: Observations, config: Config, reporter: Reporter,
@@ -138,6 +144,7 @@ def estimate_global(observations: Observations, config: Config, reporter: Report
     params = np.zeros((n_texels, 5))  # base colour RGB, roughness, metallic
     loss = np.zeros(n_texels)
     curvature = np.zeros(n_texels)
+    labels = (np.zeros((n_texels, 2)), np.zeros((n_texels, 2, 3)))  # as a dielectric and as a metal
     # The light of pass 0 is unshadowed, i.e. shadowed at alpha = 0 (G1 = 1). Each further pass
     # shadows it at a roughness closer to the fixed point r = search(light shadowed at r): a
     # secant step on search(r) - r, which converges much faster than re-using the last estimate.
@@ -158,11 +165,12 @@ def estimate_global(observations: Observations, config: Config, reporter: Report
                 for rows in texel_blocks(n_texels, hypotheses.block):
                     moments = np.zeros((rows.stop - rows.start, len(hypotheses.roughness), 3, 8))
                     run_search_kernel(observations.select(rows), settings, light[rows], hypotheses.roughness,
-                                      moments, True, params[rows], loss[rows], curvature[rows])
+                                      moments, True, params[rows], loss[rows], curvature[rows],
+                                      labels=(labels[0][rows], labels[1][rows]))
                     hypotheses.consume(rows, moments)
             else:
                 run_search_kernel(observations, settings, light, np.zeros(0), np.zeros((0, 0, 3, 8)), True, params,
-                                  loss, curvature)
+                                  loss, curvature, labels=labels)
             timings["search"] += time.perf_counter() - tick
             residual = params[:, 3] - shadow_roughness
             next_roughness = params[:, 3].copy()
@@ -181,16 +189,17 @@ def estimate_global(observations: Observations, config: Config, reporter: Report
                               for column in (3, 4)], axis=1)  # (N, 2) roughness, metallic
         candidate = np.where(np.isnan(candidate), params[:, 3:5], candidate)
         run_search_kernel(observations, settings, light, np.zeros(0), np.zeros((0, 0, 3, 8)), False, params, loss,
-                          curvature, candidate)
+                          curvature, candidate, labels=labels)
         timings["vote"] = time.perf_counter() - tick
     timings["total"] = sum(timings.values())
-    return EstimatorResult(params, loss, estimated, "global", timings, curvature)
+    return EstimatorResult(params, loss, estimated, "global", timings, curvature, *labels)
 
 
 def run_search_kernel(observations: Observations, settings: EstimateConfig, light: np.ndarray,
                       hypothesis_roughness: np.ndarray, hypothesis_moments: np.ndarray, search: bool,
                       params: np.ndarray, loss: np.ndarray, curvature: np.ndarray,
-                      candidate: np.ndarray = np.zeros((0, 2)), vote_chi2: float = VOTE_CHI2) -> None:
+                      candidate: np.ndarray = np.zeros((0, 2)),
+                      labels: tuple[np.ndarray, np.ndarray] | None = None) -> None:
     """Run the search kernel on the observations.
 
     Parameters
@@ -214,9 +223,10 @@ def run_search_kernel(observations: Observations, settings: EstimateConfig, ligh
         Receive `MaterialEstimate.loss` and the unnormalised roughness curvature.
     candidate : (N, 2) float64, optional
         The neighbour vote's (roughness, metallic) per texel; (0, 2): no vote.
-    vote_chi2 : float, optional
-        A candidate is taken where its profiled loss exceeds the estimate's by at most this many
-        noise variances (the residual over its degrees of freedom); infinity takes every candidate.
+    labels : tuple of (N, 2) and (N, 2, 3) float64, optional
+        Receive the loss and base colour as a dielectric and as a metal at the estimated roughness
+        (`MaterialEstimate.label_loss`, ``label_base_color``): after a search, and where the
+        neighbour vote moves a texel's roughness.
     """
     tangent, environment, prefiltered = _light_inputs(observations, settings)
     hypothesis_roughness = np.ascontiguousarray(hypothesis_roughness, dtype=np.float64)
@@ -226,9 +236,9 @@ def run_search_kernel(observations: Observations, settings: EstimateConfig, ligh
         _samples(observations, tangent), np.ascontiguousarray(light, dtype=np.float32),
         ShRecurrence(observations.lmax, *sh._legendre_tables(observations.lmax)), _model_options(observations, settings),
         _model_tables(settings), environment, prefiltered,
-        SearchSettings(settings.roughness_grid, settings.metallic_grid, settings.robust_passes, search,
-                       float(vote_chi2)),
-        Hypotheses(hypothesis_roughness, hypothesis_moments, node_rows), candidate, Estimates(params, loss, curvature),
+        SearchSettings(settings.roughness_grid, settings.metallic_grid, settings.robust_passes, search),
+        Hypotheses(hypothesis_roughness, hypothesis_moments, node_rows), candidate,
+        Estimates(params, loss, curvature, *(labels or (np.zeros((0, 2)), np.zeros((0, 2, 3))))),
     )
 
 

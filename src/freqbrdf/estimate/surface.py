@@ -39,7 +39,6 @@ from scipy.spatial import cKDTree
 from freqbrdf.config import Config, SurfaceConfig
 from freqbrdf.estimate._search_kernels import FITTED_PARAMETERS
 from freqbrdf.estimate._surface_kernels import conjugate_gradients, huber_weights
-from freqbrdf.estimate.search import run_search_kernel
 
 if TYPE_CHECKING:
     from freqbrdf.estimate import MaterialEstimate
@@ -100,7 +99,7 @@ def whole_surface(observations: Observations, estimate: MaterialEstimate, texels
         The same N texels on the mesh (positions and normals): `freqbrdf.texels.rasterise` at the
         observations' resolution.
     config : Config, optional
-        ``config.surface`` the solve's settings, ``config.estimate`` the model that scores labels.
+        ``config.surface``: the solve's settings.
 
     Returns
     -------
@@ -126,18 +125,21 @@ def whole_surface(observations: Observations, estimate: MaterialEstimate, texels
     timings["graph"] = time.perf_counter() - start
 
     start = time.perf_counter()
-    log_ratio, costs, labelled = metal_evidence(observations, estimate, config)
+    log_ratio, costs, labelled = metal_evidence(estimate, observations.n_samples)
     timings["evidence"] = time.perf_counter() - start
 
     start = time.perf_counter()
     probability = metal_posterior(log_ratio / settings.noise_inflation, estimated, graph, settings)
     metal = probability > 0.5
     params = np.where(metal[:, None], labelled[1], labelled[0])  # (N, 5): base colour, roughness, metallic
-    params[:, 4] = metal
-    # A texel whose samples reject its label's pure material keeps its own (mixed) metallic.
-    mixed = estimated & (np.where(metal, costs[:, 1], costs[:, 0]) / settings.noise_inflation > settings.mixed_evidence)
     own = np.nan_to_num(np.concatenate([estimate.base_color, estimate.roughness[:, None], estimate.metallic[:, None]],
                                        axis=1))
+    # A texel whose own metallic lies within a grid cell of its label keeps its own (robust) base
+    # colour; one whose samples reject its label's pure material keeps its own, mixed, metallic too.
+    agrees = estimated & (np.abs(own[:, 4] - metal) * (config.estimate.metallic_grid - 1) <= 1.0)
+    params[agrees, :4] = own[agrees, :4]
+    params[:, 4] = metal
+    mixed = estimated & (np.where(metal, costs[:, 1], costs[:, 0]) / settings.noise_inflation > settings.mixed_evidence)
     params[mixed] = own[mixed]
     timings["labels"] = time.perf_counter() - start
 
@@ -248,21 +250,18 @@ def surface_graph(position: np.ndarray, normal: np.ndarray, appearance: np.ndarr
     return graph.maximum(graph.T).tocsr()
 
 
-def metal_evidence(observations: Observations, estimate: MaterialEstimate,
-                   config: Config = Config()) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray]]:
-    """Score each texel's samples as a dielectric and as a metal.
+def metal_evidence(estimate: MaterialEstimate, n_samples: np.ndarray) -> tuple[np.ndarray, np.ndarray, tuple]:
+    """Weigh what each texel's samples say about the metal label.
 
-    Each hypothesis keeps the texel's roughness and re-fits its base colour (the search kernel's
-    neighbour vote with every candidate taken).
+    From the search's losses of a dielectric (m = 0) and a metal (m = 1) at the texel's roughness,
+    base colour re-fitted (`MaterialEstimate.label_loss`).
 
     Parameters
     ----------
-    observations : Observations
-        The texels' samples (N texels).
     estimate : MaterialEstimate
-        The per-texel estimate.
-    config : Config, optional
-        ``config.estimate``: the model.
+        The ``global`` estimator's per-texel estimate (N texels), with its label losses.
+    n_samples : (N,) int
+        Each texel's samples.
 
     Returns
     -------
@@ -274,31 +273,26 @@ def metal_evidence(observations: Observations, estimate: MaterialEstimate,
         What the samples lose as a dielectric and as a metal against the best of the estimate and
         both labels, over 2 noise variances (0 where not estimated).
     labelled : tuple of two (N, 5) float64
-        Base colour RGB, roughness and metallic as a dielectric and as a metal (the estimate's
-        values where its metallic lies within a grid cell of the label's).
-    """
-    from freqbrdf.estimate import model_light
+        Base colour RGB, roughness and metallic as a dielectric and as a metal.
 
+    Raises
+    ------
+    ValueError
+        If the estimate has no label losses (not the ``global`` estimator's).
+    """
+    if estimate.label_loss is None or estimate.label_base_color is None:
+        raise ValueError("the whole-surface estimate needs the global estimator's label losses")
     estimated = estimate.estimated
-    params = np.nan_to_num(np.concatenate(
-        [estimate.base_color, estimate.roughness[:, None], estimate.metallic[:, None]], axis=1))
-    light = model_light(observations, params[:, 3], config)
-    losses, labelled = [], []
-    for metallic in (0.0, 1.0):
-        fitted = params.copy()
-        loss = np.nan_to_num(estimate.loss).copy()
-        curvature = np.zeros(estimate.n_texels)
-        candidate = np.stack([params[:, 3], np.full(estimate.n_texels, metallic)], axis=1)
-        run_search_kernel(observations, config.estimate, light, np.zeros(0), np.zeros((0, 0, 3, 8)), False,
-                          fitted, loss, curvature, candidate, vote_chi2=np.inf)
-        losses.append(loss)
-        labelled.append(fitted)
-    dof = np.maximum(3.0 * observations.n_samples - FITTED_PARAMETERS, 1.0)
-    least = np.minimum(np.minimum(losses[0], losses[1]), np.nan_to_num(estimate.loss))
+    losses = np.nan_to_num(estimate.label_loss)
+    dof = np.maximum(3.0 * np.asarray(n_samples, np.float64) - FITTED_PARAMETERS, 1.0)
+    least = np.minimum(losses.min(axis=1), np.nan_to_num(estimate.loss, nan=np.inf))
     noise = np.maximum(least, 1e-12) / dof
-    log_ratio = np.where(estimated, (losses[0] - losses[1]) / (2.0 * noise), 0.0)
-    costs = np.stack([np.where(estimated, (loss - least) / (2.0 * noise), 0.0) for loss in losses], axis=1)
-    return log_ratio, costs, (labelled[0], labelled[1])
+    log_ratio = np.where(estimated, (losses[:, 0] - losses[:, 1]) / (2.0 * noise), 0.0)
+    costs = np.where(estimated[:, None], (losses - least[:, None]) / (2.0 * noise[:, None]), 0.0)
+    roughness = np.nan_to_num(estimate.roughness)[:, None]
+    labelled = tuple(np.concatenate([np.nan_to_num(estimate.label_base_color[:, label]), roughness,
+                                     np.full_like(roughness, float(label))], axis=1) for label in (0, 1))
+    return log_ratio, costs, labelled
 
 
 def metal_posterior(log_ratio: np.ndarray, observed: np.ndarray, graph: sparse.csr_matrix,
