@@ -60,12 +60,14 @@ def test_fit_and_evaluate_commands(run_cli, tiny_capture, tmp_path, monkeypatch,
     assert json.loads((evaluation / "metrics.json").read_text()) == metrics
     assert (evaluation / "sparsification.png").is_file() and len(list((evaluation / "relight").glob("*.png"))) == 2
 
-    shared_dir = tmp_path / "shared"
-    assert run_cli("fit", tiny_capture, "--out", shared_dir, "--texture-res", 32, "--share",
+    shared_dir = tmp_path / "per_texel"
+    assert run_cli("fit", tiny_capture, "--out", shared_dir, "--texture-res", 32, "--per-texel",
                    "--no-neighbour-vote", "--split-half", "--estimation-res", 16, "--quiet") == 0
     assert capsys.readouterr().out == ""
     shared_summary = json.loads((shared_dir / "summary.json").read_text())
-    assert shared_summary["settings"]["share"]["enabled"] and "share" in shared_summary["timings"]
+    assert not shared_summary["settings"]["surface"]["enabled"] and "surface" not in shared_summary["timings"]
+    assert summary["settings"]["surface"]["enabled"] and "surface" in summary["timings"]
+    assert not (shared_dir / "metallic_std.exr").exists() and (fit_dir / "metallic_std.exr").is_file()
     shared_settings, default_settings = shared_summary["settings"]["estimate"], summary["settings"]["estimate"]
     assert not shared_settings["neighbour_vote"]
     assert shared_summary["settings"]["uncertainty"]["split_half"]

@@ -1,6 +1,6 @@
 """The applications of the uncertainty (issue #8), measured on Mitsuba-rendered captures.
 
-    python benchmarks/studies/applications.py [--applications guidance,share,inpaint]
+    python benchmarks/studies/applications.py [--applications guidance,inpaint]
         [--scenes bunny_forest,...] [--texture-res 128] [--pool 100] [--random-seeds 3] [--sparse-views 20]
 
 Re-measuring after a change to the entropy, the estimator or an application is this one line (the
@@ -29,18 +29,13 @@ strategy leaves unseen count, with the exported fill), entropy as the mean over 
 (unobserved ones count 1). The paired test (Wilcoxon signed-rank, scipy) pairs each guided variant's
 error with each baseline's over all (scene, budget in 20/30/40) cells.
 
-share and inpaint work on one fit per scene of its first ``--sparse-views`` farthest-point views
-(sparse, so that uncertain texels are common), errors measured per texel against the ground truth:
-- share: the Spearman rho of the entropy and the roughness std against the roughness and
-  base-colour errors; `share.share_details` with the shipped ShareConfig and the ``--share-variants``
-  (SHARE_VARIANTS by default); MAE of roughness, metallic and base colour on
-  the uncertain texels (those it considered) without and with sharing, and on the certain ones;
-- inpaint: masks from the flags (the command's default) and from entropy thresholds; per mask
+inpaint works on one fit per scene of its first ``--sparse-views`` farthest-point views (sparse,
+so that uncertain texels are common), errors measured per texel against the ground truth: masks from the flags (the command's default) and from entropy thresholds; per mask
   either every map is filled ("all maps") or, on observed texels, only roughness and metallic
   ("specular"; the entropy is about the specular lobe); MAE on the masked texels before and after,
   and relighting (`relight.evaluate`, Stanford-ORB scores, 32 spp) of the fit and of each result.
 Every results file records the commit and which source files differed from it. ``--entropy
-angular`` (or paper) runs share and inpaint with that entropy mode, saved beside the default's as
+angular`` (or paper) runs inpaint with that entropy mode, saved beside the default's as
 applications_<application>_<mode>.{json,png}.
 """
 
@@ -57,18 +52,15 @@ import time
 from pathlib import Path
 
 import numpy as np
-from scipy import stats
 
 from freqbrdf.applications import guidance
 from freqbrdf.applications.candidates import farthest_point_views, view_directions
 from freqbrdf.applications.inpaint import biharmonic_fill, inpaint_maps, inpaint_mask
-from freqbrdf.applications.share import share_details
 from freqbrdf.capture.layouts import Capture, load
-from freqbrdf.config import Config, ShareConfig, TexelConfig, UncertaintyConfig
+from freqbrdf.config import Config, TexelConfig, UncertaintyConfig
 from freqbrdf.fileio import atomic_path, write_json
 from freqbrdf.model.materials import MaterialMaps, resize
 from freqbrdf.observe.observations import observe
-from freqbrdf.outputs import export
 from freqbrdf.outputs.relight import RelightSettings
 from freqbrdf.outputs.relight import evaluate as relight_evaluate
 from freqbrdf.pipeline import FitResult, fit
@@ -79,14 +71,10 @@ from _common import RESULTS_DIR as RESULTS
 from _common import machine
 from scenes import APPLICATION_SCENES, APPLICATION_TEST_VIEWS, application_capture
 
-APPLICATIONS = ("guidance", "share", "inpaint")
+APPLICATIONS = ("guidance", "inpaint")
 INITIAL_VIEWS = 10
 STEP_VIEWS = 10
 FINAL_VIEWS = 40
-# Sharing settings measured besides the defaults: the uncertain texels from the ambiguous flag's
-# entropy up, less certain anchors, and a looser data-loss tolerance (ShareConfig's fields).
-SHARE_VARIANTS = ("uncertain_entropy=0.7", "anchor_certainty=0.6", "uncertain_entropy=0.7,anchor_certainty=0.6",
-                  "loss_tolerance=0.2")
 
 
 def scene_capture(name: str, pool: int) -> Capture:
@@ -273,8 +261,8 @@ def guidance_benchmark(args) -> dict:
     return results
 
 # --------------------------------------------------------------------------------------------
-# Sharing and inpainting: one sparse fit per scene (the first --sparse-views farthest-point views
-# of the pool, where uncertainty is common), shared by both parts within a run.
+# Inpainting: one sparse fit per scene (the first --sparse-views farthest-point views
+# of the pool, where uncertainty is common).
 
 PARAMETERS = ("roughness", "metallic", "base_color")
 # Relighting renders: the test views at the pool's resolution; LPIPS left out (it needs weights
@@ -313,54 +301,6 @@ def parameter_errors(params: np.ndarray, truth: np.ndarray, rows: np.ndarray) ->
 def estimate_params(estimate) -> np.ndarray:
     """(N, 5) base colour RGB, roughness, metallic of a MaterialEstimate."""
     return np.column_stack([estimate.base_color, estimate.roughness, estimate.metallic]).astype(np.float64)
-
-
-def share_variants(args) -> dict[str, ShareConfig]:
-    """The shipped settings and the ``--share-variants`` (each "field=value[,field=value]")."""
-    default = ShareConfig(enabled=True)
-    variants = {"default": default}
-    for variant in args.share_variants:
-        changes = dict(item.split("=") for item in variant.split(","))
-        variants[variant] = dataclasses.replace(default, **{key: float(value) for key, value in changes.items()})
-    return variants
-
-
-def share_scene(name: str, args) -> dict:
-    result, truth, config = sparse_fit(name, args)
-    estimate = result.estimate
-    before = estimate_params(estimate)
-    variants = {}
-    for label, settings in share_variants(args).items():
-        sharing = share_details(result.observations, estimate, result.uncertainty, config.replace(share=settings))
-        after = estimate_params(sharing.estimate)
-        uncertain = sharing.pulled_rows
-        certain = np.setdiff1d(np.flatnonzero(estimate.estimated), uncertain)
-        variants[label] = {
-            "settings": dataclasses.asdict(settings),
-            **sharing.summary(),
-            "uncertain_without": parameter_errors(before, truth, uncertain),
-            "uncertain_with": parameter_errors(after, truth, uncertain),
-            "certain_without": parameter_errors(before, truth, certain),
-            "certain_with": parameter_errors(after, truth, certain),
-            "certain_changed_texels": int(np.any(after[certain] != before[certain], axis=1).sum()),
-        }
-        print(f"[{name}] share {label}: {json.dumps(variants[label])}", flush=True)
-    return {"fit_seconds": result.timings["total"], "estimated_texels": int(estimate.estimated.sum()),
-            "entropy_mean": float(result.uncertainty.entropy.mean()),
-            "spearman_vs_error": error_ranking(result, truth), "variants": variants}
-
-
-def error_ranking(result: FitResult, truth: np.ndarray) -> dict:
-    """Spearman rho of the entropy and of the roughness std against the estimated texels' roughness
-    and base-colour (mean over RGB) errors."""
-    estimate = result.estimate
-    rows = np.flatnonzero(estimate.estimated)
-    error = np.abs(estimate_params(estimate)[rows] - truth[rows])
-    uncertainties = {"entropy": result.uncertainty.entropy[rows],
-                     "roughness_std": export.roughness_std_values(result.uncertainty.roughness_std)[rows]}
-    return {name: {"roughness": float(stats.spearmanr(values, error[:, 3]).statistic),
-                   "base_color": float(stats.spearmanr(values, error[:, :3].mean(axis=1)).statistic)}
-            for name, values in uncertainties.items()}
 
 
 def inpaint_scene(name: str, args) -> dict:
@@ -415,28 +355,6 @@ def inpaint_scene(name: str, args) -> dict:
     return {"fit_seconds": result.timings["total"], "fit_relighting": relighting(result.maps), "masks": masks}
 
 
-def plot_share(scenes: dict, path: Path) -> None:
-    """Roughness MAE of the uncertain texels without / with sharing, per scene and variant."""
-    from matplotlib.figure import Figure
-
-    labels = list(next(iter(scenes.values()))["variants"])
-    figure = Figure(figsize=(3.6 * len(scenes), 3.2), dpi=100, layout="constrained")
-    axes = figure.subplots(1, len(scenes), squeeze=False)[0]
-    for ax, (name, scene) in zip(axes, scenes.items()):
-        positions = np.arange(len(labels))
-        for offset, (key, colour, legend) in enumerate((("uncertain_without", "C0", "without"),
-                                                         ("uncertain_with", "C3", "with sharing"))):
-            values = [scene["variants"][label][key]["roughness"] for label in labels]
-            ax.bar(positions + 0.4 * offset, [np.nan if v is None else v for v in values], 0.4, color=colour,
-                   label=legend)
-        ax.set_xticks(positions + 0.2, labels, fontsize=7, rotation=30, ha="right")
-        ax.set_title(name)
-        ax.set_ylabel("roughness MAE, uncertain texels")
-    axes[0].legend(fontsize=8)
-    with atomic_path(path) as tmp:
-        figure.savefig(tmp, format="png")
-
-
 def plot_inpaint(scenes: dict, path: Path) -> None:
     """Relighting PSNR-H of the fit and of each inpainting mask, per scene."""
     from matplotlib.figure import Figure
@@ -454,11 +372,6 @@ def plot_inpaint(scenes: dict, path: Path) -> None:
     with atomic_path(path) as tmp:
         figure.savefig(tmp, format="png")
 
-
-def share_benchmark(args) -> dict:
-    scenes = {name: share_scene(name, args) for name in args.scenes}
-    plot_share(scenes, RESULTS / f"applications_share{args.suffix}.png")
-    return {"application": "sharing across the surface (issue #8)", **sparse_settings(args), "scenes": scenes}
 
 
 def inpaint_benchmark(args) -> dict:
@@ -488,22 +401,19 @@ def main(argv=None) -> int:
     parser.add_argument("--guidance-spreads", default=f"0,{guidance.SPREAD:g}",
                         help="guided variants: each pick competes among the (1 - spread) of the candidates "
                              "farthest from the views (0: all compete)")
-    parser.add_argument("--sparse-views", type=int, default=20, help="views of the share and inpaint fits")
-    parser.add_argument("--share-variants", default=";".join(SHARE_VARIANTS),
-                        help="ShareConfig changes measured besides the defaults, ';'-separated")
+    parser.add_argument("--sparse-views", type=int, default=20, help="views of the inpaint fits")
     parser.add_argument("--inpaint-entropies", default="0.3", help="entropy thresholds besides the flags")
     parser.add_argument("--entropy", default="calibrated", choices=("calibrated", "paper", "angular"),
-                        help="the share and inpaint fits' entropy mode; results other than calibrated's are "
+                        help="the inpaint fits' entropy mode; results other than calibrated's are "
                              "saved as applications_<application>_<mode>.{json,png}")
     args = parser.parse_args(argv)
     args.suffix = "" if args.entropy == "calibrated" else f"_{args.entropy}"
     if args.entropy == "angular" and "guidance" in args.applications.split(","):
-        parser.error("guidance predicts spectra: --entropy angular measures share and inpaint only")
+        parser.error("guidance predicts spectra: --entropy angular measures inpaint only")
     args.scenes = args.scenes.split(",")
     args.guidance_spreads = [float(value) for value in args.guidance_spreads.split(",") if value]
-    args.share_variants = [value for value in args.share_variants.split(";") if value]
     args.inpaint_entropies = [float(value) for value in args.inpaint_entropies.split(",") if value]
-    runners = {"guidance": guidance_benchmark, "share": share_benchmark, "inpaint": inpaint_benchmark}
+    runners = {"guidance": guidance_benchmark, "inpaint": inpaint_benchmark}
     RESULTS.mkdir(exist_ok=True)
     for application in args.applications.split(","):
         start = time.perf_counter()

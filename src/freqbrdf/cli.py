@@ -272,8 +272,8 @@ def _estimation_res(value: str, texture_res: int):
     return int(value)
 
 
-ENTROPY_HELP = ("Entropy mode: calibrated (from the spectra, fast; what next-views predicts and what sharing and "
-                "inpainting are tuned on), paper (the published recipe, to compare with it) or angular (the "
+ENTROPY_HELP = ("Entropy mode: calibrated (from the spectra, fast; what next-views predicts and what "
+                "inpainting is tuned on), paper (the published recipe, to compare with it) or angular (the "
                 "estimator's model on the samples: agrees with a path tracer; little extra time inside fit). "
                 "Default: the preset's. Figures: docs/measurements.md#the-entropy.")
 
@@ -302,8 +302,6 @@ def fit(
                                "robust pass, a coarser roughness grid: smoother maps, less time); or paper (the "
                                "prototype's hyper-parameters)."),
     entropy: str = typer.Option(None, help=ENTROPY_HELP),
-    share: bool = typer.Option(False, "--share", help="Pull uncertain texels towards affine confident anchors "
-                               "(METHOD.md §4; it helps the texels it touches a little)."),
     per_texel: bool = typer.Option(
         False, "--per-texel", help="Keep each texel's own estimate (no whole-surface solve): the ablation of the "
         "default, which weighs every texel's evidence against its neighbours' and fills texels no view sees."),
@@ -333,8 +331,6 @@ def fit(
     from freqbrdf.progress import Reporter
 
     config = _config(preset, texture_res, lmax, estimator=estimator, model=model, entropy=entropy)
-    if share:
-        config = config.replace(share=dataclasses.replace(config.share, enabled=True))
     if per_texel:
         config = config.replace(surface=dataclasses.replace(config.surface, enabled=False))
     if split_half:

@@ -2,7 +2,7 @@
 
 Every stage reads its settings from here; the command line only overrides fields. Each settings
 class follows a stage of METHOD.md §3: `TexelConfig` (§3.1), `FitConfig` (§3.3-3.4),
-`EstimateConfig` (§3.6-3.7), `UncertaintyConfig` (§3.8), `ShareConfig` (§4). Each field's
+`EstimateConfig` (§3.6-3.7), `UncertaintyConfig` (§3.8), `SurfaceConfig` (§4). Each field's
 docstring says what it is, why its default, and where docs/measurements.md has the figures.
 `preset` names the configurations a user chooses between: ``default``, ``fast`` and ``paper``
 (the authors' prototype, for comparison).
@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 __all__ = [
-    "Config", "EstimateConfig", "FitConfig", "PRESETS", "RegulariserKind", "SPECTRAL_GRID_RES", "ShareConfig",
+    "Config", "EstimateConfig", "FitConfig", "PRESETS", "RegulariserKind", "SPECTRAL_GRID_RES",
     "SurfaceConfig", "TexelConfig", "UncertaintyConfig", "choices", "preset",
 ]
 
@@ -296,35 +296,6 @@ class EstimateConfig:
 
 
 @dataclass(frozen=True)
-class ShareConfig:
-    """Sharing across the surface: uncertain texels pulled towards affine confident anchors (METHOD.md §4).
-
-    Off by default (``fit --share``); see `freqbrdf.applications.share`.
-    """
-
-    enabled: bool = False
-    """Run the sharing step: off, since it helps the texels it touches only a little.
-    docs/measurements.md#applications-guidance-sharing-inpainting"""
-    uncertain_entropy: float = 0.5
-    """Texels at or above this normalised entropy are pulled."""
-    anchor_certainty: float = 0.6
-    """An anchor's certainty 1 - H must reach this: 0.6, not 0.8, since the calibrated entropy counts the samples.
-    docs/measurements.md#applications-guidance-sharing-inpainting"""
-    anchor_cells: int = 32
-    """The texture is split into cells x cells with at most one anchor each, so that anchors spread over the surface."""
-    neighbours: int = 8
-    """The k nearest anchors (texture space) scored per uncertain texel."""
-    affinity_width: float = 0.4
-    """Gaussian width of the affinity, in units of the mean KL divergence; METHOD.md §4's 0.4."""
-    min_affinity: float = 0.1
-    """Texels whose summed affinity is below this keep their estimate."""
-    loss_tolerance: float = 0.05
-    """The relative increase of a texel's own data loss that the pull may cost."""
-    chunk_texels: int = 16384
-    """Texels per affinity chunk: bounds the memory to chunk x k x R^2 floats."""
-
-
-@dataclass(frozen=True)
 class SurfaceConfig:
     """The whole-surface estimate: the per-texel evidence weighed against a prior over the surface.
 
@@ -381,8 +352,6 @@ class Config:
     """The entropy and the roughness std."""
     estimate: EstimateConfig = field(default_factory=EstimateConfig)
     """The material estimator."""
-    share: ShareConfig = field(default_factory=ShareConfig)
-    """Sharing across the surface (off by default)."""
     surface: SurfaceConfig = field(default_factory=SurfaceConfig)
     """The whole-surface estimate (on by default)."""
     seed: int = 0

@@ -18,7 +18,6 @@ import numpy as np
 from scipy import ndimage
 
 from freqbrdf.applications import inpaint
-from freqbrdf.applications.share import share
 from freqbrdf.capture.layouts import Capture
 from freqbrdf.config import Config
 from freqbrdf.errors import InputError
@@ -150,8 +149,9 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
 
     The first three run on the texels of `estimation_resolution` (`observe_on_estimation_texels`);
     where those are coarser than T, the results are then taken to the T x T texels (`to_texels`).
-    With ``config.share.enabled`` the estimate is shared across the surface after the uncertainty
-    (METHOD.md §4).
+    With ``config.surface.enabled`` (the default) the ``global`` estimate becomes the whole-surface
+    estimate after the uncertainty (`freqbrdf.estimate.surface`, METHOD.md §4), whose posterior
+    gives the roughness, metallic and base-colour std.
 
     Parameters
     ----------
@@ -193,11 +193,6 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
                    entropy_map(observations, config.uncertainty, estimate_config=config.estimate))
     uncertainty.roughness_std = roughness_std(observations, estimate, config)
     timings["uncertainty"] = time.perf_counter() - start + (angular.seconds if angular else 0.0)
-
-    if config.share.enabled:
-        start = time.perf_counter()
-        estimate = share(observations, estimate, uncertainty, config)
-        timings["share"] = time.perf_counter() - start
 
     if config.surface.enabled and config.estimate.method == "global":
         start = time.perf_counter()

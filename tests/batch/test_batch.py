@@ -80,13 +80,13 @@ def test_manifest_formats(captures, tmp_path):
     assert entries[1].settings == {"lmax": 4, "evaluate": "auto", "report": False}
 
     jsonl = captures / "m.jsonl"
-    jsonl.write_text('{"name": "a", "capture": "bunny/transforms.json", "preset": "fast", "share": true}\n\n'
+    jsonl.write_text('{"name": "a", "capture": "bunny/transforms.json", "preset": "fast", "per_texel": true}\n\n'
                      '{"capture": "sphere", "estimation_res": 8}\n', encoding="utf-8")
     entries = batch.read_manifest(jsonl)
-    assert [(e.name, e.settings) for e in entries] == [("a", {"preset": "fast", "share": True}),
+    assert [(e.name, e.settings) for e in entries] == [("a", {"preset": "fast", "per_texel": True}),
                                                        ("sphere", {"estimation_res": 8})]
     assert entries[0].root == (captures / "bunny").resolve()
-    assert batch.capture_config(entries[0].settings).share.enabled
+    assert not batch.capture_config(entries[0].settings).surface.enabled
 
     # A folder: its subfolders holding a capture, by name (files and other folders ignored).
     (captures / "not_a_capture").mkdir(exist_ok=True)

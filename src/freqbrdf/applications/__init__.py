@@ -1,8 +1,8 @@
-"""Applications of the uncertainty: guidance, sharing and inpainting (METHOD.md §4).
+"""Applications of the uncertainty: guidance and inpainting (METHOD.md §4).
 
 Each reads a fit's observations, estimate and uncertainty and gives something a user acts on:
-where to photograph next, an estimate whose uncertain texels borrow from confident look-alikes,
-and material maps whose uncertain regions are filled.
+where to photograph next, and material maps whose uncertain regions are filled. Sharing across
+the surface is part of the estimate itself (`freqbrdf.estimate.surface`).
 
 Modules
 -------
@@ -15,10 +15,6 @@ candidates
 next_views
     The ``next_views`` folder: the ranked cameras, a picture of them and a summary
     (`write_next_views`).
-share
-    Sharing across the surface: anchors, affinities and the pull of uncertain texels towards
-    them (`share_details`; its `freqbrdf.applications.share.share` is not re-exported: the name
-    is the module's).
 inpaint
     Inpainting a fit's maps where the fit cannot vouch for them, chart by chart, with a
     biharmonic or a diffusion backend.
@@ -64,15 +60,6 @@ from freqbrdf.applications.next_views import (
     plot_views,
     write_next_views,
 )
-from freqbrdf.applications.share import (
-    PROBABILITY_FLOOR,
-    PULL_FRACTIONS,
-    Sharing,
-    anchor_affinity,
-    find_anchors,
-    share_details,
-    texel_coordinates,
-)
 
 __all__ = [
     "MAP_NAMES",
@@ -81,8 +68,6 @@ __all__ = [
     "MIN_CELL_PROBABILITY",
     "NEXT_VIEWS_FILE",
     "PICTURE_FILE",
-    "PROBABILITY_FLOOR",
-    "PULL_FRACTIONS",
     "SPREAD",
     "SUMMARY_FILE",
     "CandidateSamples",
@@ -91,16 +76,13 @@ __all__ = [
     "InpaintSettings",
     "Inpainted",
     "Pick",
-    "Sharing",
     "add_samples",
-    "anchor_affinity",
     "biharmonic_fill",
     "candidate_samples",
     "chart_labels",
     "diffusion_fill",
     "expected_entropy",
     "farthest_point_views",
-    "find_anchors",
     "initial_state",
     "inpaint_maps",
     "inpaint_mask",
@@ -109,9 +91,7 @@ __all__ = [
     "plot_views",
     "sample_candidates",
     "select_views",
-    "share_details",
     "state_coeffs",
-    "texel_coordinates",
     "view_directions",
     "write_next_views",
 ]

@@ -69,8 +69,8 @@ SETTINGS = {
     "model": (_choice(choices(EstimateConfig)["forward_model"]), None),
     "entropy": (_choice(choices(UncertaintyConfig)["mode"]), None),
     "estimation_res": (_estimation_res, None),
-    "share": (_boolean, False),
     "split_half": (_boolean, False),
+    "per_texel": (_boolean, False),
     "evaluate": (_evaluate, "auto"),  # auto: when the capture has ground truth or test views
     "report": (_boolean, True),
     "spp": (_integer(1), 64),  # samples per pixel of the relit renders of the evaluation
@@ -149,8 +149,8 @@ def capture_config(settings: dict) -> Config:
         uncertainty = dataclasses.replace(uncertainty, mode=settings["entropy"])
     if settings.get("split_half"):
         uncertainty = dataclasses.replace(uncertainty, split_half=True)
-    share = dataclasses.replace(config.share, enabled=True) if settings.get("share") else config.share
-    return config.replace(texels=texels, fit=fit, estimate=estimate, uncertainty=uncertainty, share=share)
+    surface = dataclasses.replace(config.surface, enabled=False) if settings.get("per_texel") else config.surface
+    return config.replace(texels=texels, fit=fit, estimate=estimate, uncertainty=uncertainty, surface=surface)
 
 
 def full_settings(settings: dict) -> dict:
