@@ -39,6 +39,7 @@ from scipy.spatial import cKDTree
 from freqbrdf.config import Config, SurfaceConfig
 from freqbrdf.estimate._search_kernels import FITTED_PARAMETERS
 from freqbrdf.estimate._surface_kernels import conjugate_gradients, huber_weights
+from freqbrdf.estimate.search import lambert_scale
 
 if TYPE_CHECKING:
     from freqbrdf.estimate import MaterialEstimate
@@ -152,7 +153,7 @@ def whole_surface(observations: Observations, estimate: MaterialEstimate, texels
     roughness_precision = np.where(estimated, 0.5 * np.maximum(curvature, 0.0) / noise, 0.0)
     # d loss / d b per channel: the diffuse term's light for a dielectric, the mirrored light's for a metal.
     mirrored = _mean_over_views(observations, observations.mirrored)
-    light = np.where(metal[:, None], mirrored, observations.irradiance / np.pi)
+    light = np.where(metal[:, None], mirrored, lambert_scale(observations))
     color_precision = np.where(estimated[:, None], light.astype(np.float64) ** 2 / noise[:, None], 0.0)
     # Few samples are mostly grazing or edge samples, whose errors are the model's, not noise: weaker.
     counts = observations.n_samples.astype(np.float64)
@@ -197,7 +198,7 @@ def apparent_albedo(observations: Observations) -> np.ndarray:
         The apparent albedo, at least ``_ALBEDO_FLOOR``; the floor where a texel has no sample.
     """
     radiance = _mean_over_views(observations, observations.observed)
-    irradiance = np.maximum(observations.irradiance.astype(np.float64) / np.pi, 1e-12)
+    irradiance = np.maximum(lambert_scale(observations), 1e-12)
     return np.maximum(radiance / irradiance, _ALBEDO_FLOOR)
 
 
