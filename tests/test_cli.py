@@ -16,6 +16,7 @@ from freqbrdf import pipeline
 from freqbrdf.capture.layouts import load
 from freqbrdf.cli import RERUN_VARIABLE
 from freqbrdf.config import Config, TexelConfig
+from freqbrdf.fileio import OUTPUT_MARKER, allow_replacing_foreign_folders
 from freqbrdf.synthetic.synth import SynthSettings, synthesize
 
 TINY = SynthSettings(mesh="bunny", views=6, resolution=40, spp=4, texture_res=32, test_views=2, test_envmaps=1)
@@ -45,7 +46,7 @@ def test_fit_and_evaluate_commands(run_cli, tiny_capture, tmp_path, monkeypatch,
                  "entropy.exr", "entropy.png", "roughness_std.exr", "roughness_std.png", "flags.png", "spectra.npz",
                  "uncertainty.npz"):
         assert (fit_dir / name).is_file(), name
-    assert sorted(summary["files"]) == sorted(p.name for p in fit_dir.iterdir())
+    assert sorted(summary["files"]) == sorted(p.name for p in fit_dir.iterdir() if p.name != OUTPUT_MARKER)
     with np.load(fit_dir / "spectra.npz") as spectra:
         assert spectra["observed_spectrum"].shape[1:] == (3, 5)  # l* = 4: degrees 0..4
 
@@ -94,7 +95,7 @@ def test_uncertainty_command(run_cli, tiny_capture, tmp_path, monkeypatch, capsy
     assert summary["capture"] == str(tiny_capture.resolve())
     assert 0.0 <= summary["uncertainty"]["entropy_mean"] <= 1.0
     assert {"observe", "uncertainty"} <= set(summary["timings"])
-    assert {p.name for p in out.iterdir()} == {"entropy.exr", "entropy.png", "flags.png", "uncertainty.json"}
+    assert {p.name for p in out.iterdir()} - {OUTPUT_MARKER} == {"entropy.exr", "entropy.png", "flags.png", "uncertainty.json"}
     with OpenEXR.File(str(out / "entropy.exr"), header_only=True) as exr:  # says what it is
         assert "normalised entropy" in exr.parts[0].header["comments"]
         assert f"({summary['uncertainty']['mode']} mode)" in exr.parts[0].header["comments"]
@@ -239,3 +240,27 @@ def test_bad_options_and_captures_are_refused_before_any_output(run_cli, tiny_ca
     (moved / "summary.json").write_text(json.dumps(summary))
     assert run_cli("evaluate", moved) == 2
     assert "moved_capture" in capsys.readouterr().err and not (moved / "evaluation").exists()
+
+
+def test_out_never_replaces_a_users_folder_nor_the_current_one(tiny_capture, tmp_path, run_cli, capsys, monkeypatch):
+    """A user's folder, or the current one, as --out: one line and exit 2 before any work, nothing
+    written or removed; `freqbrdf --force` lets a user's folder be replaced."""
+    mine = tmp_path / "thesis"
+    mine.mkdir()
+    (mine / "thesis.txt").write_text("years of work")
+    before = sorted(p.name for p in tmp_path.iterdir())
+    assert run_cli("fit", tiny_capture, "--out", mine, "--texture-res", 16, "--quiet") == 2
+    error = capsys.readouterr().err.strip()
+    assert error.startswith(f"error: {mine}: exists and holds files freqbrdf did not write") and "\n" not in error
+    assert sorted(p.name for p in mine.iterdir()) == ["thesis.txt"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
+    monkeypatch.chdir(mine)
+    assert run_cli("fit", tiny_capture, "--out", ".", "--texture-res", 16, "--quiet") == 2
+    assert "is the current folder or contains it" in capsys.readouterr().err
+    assert sorted(p.name for p in mine.iterdir()) == ["thesis.txt"]
+    monkeypatch.chdir(tmp_path)
+    try:
+        assert run_cli("--force", "fit", tiny_capture, "--out", mine, "--texture-res", 16, "--quiet") == 0
+        assert (mine / "base_color.exr").is_file() and not (mine / "thesis.txt").exists()
+    finally:
+        allow_replacing_foreign_folders(False)  # the flag holds for the process, as for one command line

@@ -13,6 +13,7 @@ from freqbrdf import pipeline
 from freqbrdf.capture.layouts import load
 from freqbrdf.config import Config, FitConfig, TexelConfig, UncertaintyConfig, preset
 from freqbrdf.errors import InputError
+from freqbrdf.fileio import OUTPUT_MARKER
 from freqbrdf.model.materials import MaterialMaps
 from freqbrdf.outputs import sparsification
 from freqbrdf.outputs.evaluate import _uncertainty_scores, evaluate_fit
@@ -148,7 +149,7 @@ def test_fit_writes_a_complete_folder_that_loads_back(tiny_capture, tmp_path, mo
         patch.setattr(sparsification, "plot", failing_plot)
         evaluate_fit(outputs, load(tiny_capture), settings=NO_LPIPS)
     assert (evaluation / "metrics.json").read_bytes() == before
-    assert not [p.name for p in folder.iterdir() if p.name.startswith(".")]  # no temporary left
+    assert [p.name for p in folder.iterdir() if p.name.startswith(".")] == [OUTPUT_MARKER]  # no temporary left
 
 
 @pytest.mark.slow

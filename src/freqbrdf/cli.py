@@ -46,7 +46,16 @@ def _version(value: bool) -> None:
 
 
 def _output_folder(value: str | None) -> str | None:
-    """--out: refused before any work when it cannot become a folder (an existing file, or under one)."""
+    """--out replaced as a whole: refused before any work (see `freqbrdf.fileio.check_output_path`)."""
+    if value is not None:
+        from freqbrdf.fileio import check_output_path
+
+        check_output_path(value, folder=True, replaced=True)
+    return value
+
+
+def _container_folder(value: str | None) -> str | None:
+    """--out written into, not replaced: refused before any work when it cannot become a folder."""
     if value is not None:
         from freqbrdf.fileio import check_output_path
 
@@ -79,13 +88,19 @@ def _root(
     debug: bool = typer.Option(False, "--debug", help="Show full tracebacks on errors."),
     version: bool = typer.Option(False, "--version", callback=_version, is_eager=True,
                                  help="Print the version and exit."),
+    force: bool = typer.Option(False, "--force", help="Let an --out replace an existing folder that freqbrdf did "
+                               "not write (its files are lost)."),
 ) -> None:
     _state["debug"] = debug
+    from freqbrdf.fileio import allow_replacing_foreign_folders
+
+    allow_replacing_foreign_folders(force)
 
 
 @app.command()
 def demo(
-    out: str = typer.Option("out/demo", "--out", help="Output folder.", callback=_output_folder),
+    out: str = typer.Option("out/demo", "--out", help="Output folder (its capture and fit/ are written into it).",
+                            callback=_container_folder),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars or messages."),
     json_output: bool = typer.Option(False, "--json", help="Print the demo's results as JSON."),
 ) -> None:
@@ -174,7 +189,7 @@ def synth(
 def observe(
     capture: str = typer.Argument(..., help="Capture folder or its transforms file."),
     out: str = typer.Option(
-        ..., "--out", help="Output folder (its files are replaced one by one).", callback=_output_folder,
+        ..., "--out", help="Output folder (its files are replaced one by one).", callback=_container_folder,
     ),
     texture_res: int = typer.Option(512, min=1, help="Texture resolution T (maps are T x T)."),
     lmax: int = typer.Option(5, min=0, help="Degree l* of the per-texel SH fits."),
@@ -598,7 +613,7 @@ def batch(
     manifest: str = typer.Argument(..., help="CSV or JSON Lines file (a capture a line: name, capture, settings) "
                                    "or a folder of captures."),
     out: str = typer.Option(..., "--out", help="Output folder: <name>/ per capture, batch.json, index.html.",
-                            callback=_output_folder),
+                            callback=_container_folder),
     workers: int = typer.Option(None, "--workers", min=1, help="Captures at once (default: as many as this "
                                 "machine's cores give --threads each and its memory holds; on a cluster, its CPUs)."),
     threads: int = typer.Option(None, "--threads", min=1, help="CPUs (numba threads) per capture (default 2, or "

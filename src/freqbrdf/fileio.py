@@ -1,8 +1,18 @@
-"""Atomic file output: write to a temporary sibling, rename on success, remove on failure."""
+"""Atomic file output: write to a temporary sibling, rename on success, remove on failure.
+
+An output folder is replaced as a whole, so it must be one freqbrdf wrote (`OUTPUT_MARKER`, or a
+file an earlier version left, `LEGACY_OUTPUT_FILES`), an empty folder or a new path: a folder of
+the user's, the current folder or one that contains it is refused before any work, unless
+`allow_replacing_foreign_folders` (``freqbrdf --force``). Concurrent writers to one folder take
+turns at the swap (a lock on the parent folder); the last one's folder stays.
+"""
 
 from __future__ import annotations
 
 import contextlib
+import contextvars
+import errno
+import fcntl
 import json
 import math
 import os
@@ -15,12 +25,50 @@ import numpy as np
 
 from freqbrdf.errors import InputError
 
+# The file every output folder holds: how freqbrdf knows a folder it may replace.
+OUTPUT_MARKER = ".freqbrdf"
+# Files by which a folder written before OUTPUT_MARKER existed is known as freqbrdf's.
+LEGACY_OUTPUT_FILES = ("summary.json", "metrics.json", "report.html", "observations.npz", "next_views.json")
+_replace_foreign = contextvars.ContextVar("replace_foreign", default=False)
 
-def check_output_path(path: str | Path, folder: bool) -> None:
-    """Refuse a path that cannot become a folder or a file.
+
+def allow_replacing_foreign_folders(allow: bool) -> None:
+    """Let output folders replace existing folders that freqbrdf did not write (``freqbrdf --force``).
+
+    Parameters
+    ----------
+    allow : bool
+        Whether to allow it, for the rest of this context (the process, for the command line).
+    """
+    _replace_foreign.set(bool(allow))
+
+
+def is_output_folder(folder: str | Path) -> bool:
+    """Tell whether a folder is one freqbrdf may replace: empty, or written by freqbrdf.
+
+    Parameters
+    ----------
+    folder : str or Path
+        An existing folder.
+
+    Returns
+    -------
+    bool
+        True where it is empty, holds `OUTPUT_MARKER` or one of `LEGACY_OUTPUT_FILES`.
+    """
+    folder = Path(folder)
+    if (folder / OUTPUT_MARKER).is_file() or any((folder / name).is_file() for name in LEGACY_OUTPUT_FILES):
+        return True
+    return next(folder.iterdir(), None) is None
+
+
+def check_output_path(path: str | Path, folder: bool, replaced: bool = False) -> None:
+    """Refuse a path that cannot become a folder or a file, before any work.
 
     Where it exists it must be one already (a file is not replaced by a folder, nor a folder by a
-    file), and its nearest existing ancestor must be a folder.
+    file), and its nearest existing ancestor must be a folder the process may write in. A folder
+    to be replaced as a whole must not be the current folder or contain it, and where it exists it
+    must be an output folder (`is_output_folder`) unless `allow_replacing_foreign_folders`.
 
     Parameters
     ----------
@@ -28,11 +76,15 @@ def check_output_path(path: str | Path, folder: bool) -> None:
         The output path.
     folder : bool
         Whether it is to be a folder (else a file).
+    replaced : bool, optional
+        Whether the folder is replaced as a whole (`atomic_directory`).
 
     Raises
     ------
     InputError
-        If ``path`` is of the other kind or an ancestor is a file.
+        If ``path`` is of the other kind, an ancestor is a file, or the folder may not be replaced.
+    PermissionError
+        If the nearest existing ancestor cannot be written in.
     """
     path = Path(path)
     if path.exists() and path.is_dir() != folder:
@@ -42,6 +94,16 @@ def check_output_path(path: str | Path, folder: bool) -> None:
         ancestor = ancestor.parent
     if ancestor.exists() and not ancestor.is_dir():
         raise InputError(ancestor, "is a file, so nothing can be written under it")
+    if folder and replaced:
+        resolved, here = path.resolve(), Path.cwd().resolve()
+        if resolved == here or resolved in here.parents:
+            raise InputError(path, "is the current folder or contains it, and an output folder is replaced as a "
+                                   "whole: choose a new folder")
+        if path.is_dir() and not is_output_folder(path) and not _replace_foreign.get():
+            raise InputError(path, "exists and holds files freqbrdf did not write, which would be replaced: "
+                                   "choose another folder, or pass --force (freqbrdf --force COMMAND ...)")
+    if ancestor.exists() and not os.access(ancestor, os.W_OK | os.X_OK):
+        raise PermissionError(errno.EACCES, "permission denied: nothing can be written here", str(ancestor))
 
 
 @contextlib.contextmanager
@@ -101,29 +163,41 @@ def atomic_directory(path: str | Path) -> Iterator[Path]:
     Raises
     ------
     InputError
-        If ``path`` cannot become a folder (`check_output_path`).
+        If ``path`` cannot become a folder or may not be replaced (`check_output_path`).
+    PermissionError
+        If nothing can be written there.
     """
     path = Path(path)
-    check_output_path(path, folder=True)
+    check_output_path(path, folder=True, replaced=True)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
     _plain_permissions(tmp, 0o777)
     try:
         yield tmp
-        if path.exists():
-            old = path.with_name(f".{path.name}.old")
-            if old.is_dir():
+        (tmp / OUTPUT_MARKER).write_text(json.dumps({"written_by": "freqbrdf"}) + "\n", encoding="utf-8")
+        with _folder_lock(path.parent):  # concurrent writers to one folder take turns at the swap
+            if path.exists():
+                old = Path(tempfile.mkdtemp(prefix=f".{path.name}.old.", dir=path.parent))
+                os.replace(path, old)
+                os.replace(tmp, path)
                 shutil.rmtree(old)
-            elif old.exists():  # a stray file of that name
-                old.unlink()
-            os.replace(path, old)
-            os.replace(tmp, path)
-            shutil.rmtree(old)
-        else:
-            os.replace(tmp, path)
+            else:
+                os.replace(tmp, path)
     finally:
         if tmp.exists():
             shutil.rmtree(tmp)
+
+
+@contextlib.contextmanager
+def _folder_lock(folder: Path) -> Iterator[None]:
+    """Hold an exclusive lock on a folder (flock on its descriptor) for the block."""
+    descriptor = os.open(folder, os.O_RDONLY)
+    try:
+        fcntl.flock(descriptor, fcntl.LOCK_EX)
+        yield
+    finally:
+        fcntl.flock(descriptor, fcntl.LOCK_UN)
+        os.close(descriptor)
 
 
 def _plain_permissions(path: Path, mode: int) -> None:
