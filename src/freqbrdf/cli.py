@@ -63,6 +63,16 @@ def _container_folder(value: str | None) -> str | None:
     return value
 
 
+def _checked(capture, quiet: bool):
+    """Check a loaded capture before any work (`freqbrdf.capture.checks`); print its warnings."""
+    from freqbrdf.capture.checks import check_capture
+
+    for warning in check_capture(capture).warnings:
+        if not quiet:
+            err_console.print(f"[yellow]warning:[/yellow] {escape(warning)}", highlight=False, soft_wrap=True)
+    return capture
+
+
 def _results_from_cache(quiet: bool) -> None:
     """Run this command again in a fresh process if numba compiled kernels in this one.
 
@@ -142,14 +152,24 @@ def info(capture: str = typer.Argument(..., help="Capture folder or its transfor
     """Summarise a capture: views, resolution, mesh, environment map, test set, ground truth."""
     from rich.table import Table
 
+    from freqbrdf.capture.checks import check_capture
     from freqbrdf.capture.layouts import (  # here: its imports would slow every command
         describe,
         load,
     )
 
+    loaded = load(capture)
     table = Table(show_header=False, box=None)
-    for topic, text in describe(load(capture)):
+    for topic, text in describe(loaded):
         table.add_row(f"[bold]{topic}[/bold]", escape(text))
+    check = check_capture(loaded)
+    figures = check.figures
+    overlap = "no masks" if figures["mask_overlap"] is None else f"{figures['mask_overlap']:.0%} of it inside the masks"
+    table.add_row("[bold]check[/bold]", escape(
+        f"the mesh in front of the cameras in {1 - figures['behind']:.0%} of the views, up to "
+        f"{figures['pixels']:.0f} px wide, {overlap}; {figures['black_frames']} black frames"))
+    for warning in check.warnings:
+        table.add_row("[bold yellow]warning[/bold yellow]", escape(warning))
     Console().print(table)
 
 
@@ -211,7 +231,7 @@ def observe(
     from freqbrdf.progress import Reporter
 
     config = _config("default", texture_res, lmax)
-    observations = observe_capture(load(capture), config, Reporter(enabled=not quiet))
+    observations = observe_capture(_checked(load(capture), quiet), config, Reporter(enabled=not quiet))
     _results_from_cache(quiet)
     folder = Path(out)
     observations.save(folder / "observations.npz")
@@ -357,7 +377,7 @@ def fit(
     config = config.replace(estimate=dataclasses.replace(
         config.estimate, neighbour_vote=config.estimate.neighbour_vote and neighbour_vote))
     reporter = Reporter(enabled=not (quiet or json_output))
-    loaded = load(capture)
+    loaded = _checked(load(capture), quiet or json_output)
     check_output_folder(out, {"the capture": loaded.root.resolve()})  # before minutes of work
     result = pipeline.fit(loaded, config, reporter)
     _results_from_cache(quiet or json_output)
@@ -410,7 +430,7 @@ def uncertainty(
     from freqbrdf.uncertainty import summary as uncertainty_summary
 
     config = _config(preset, texture_res, lmax, entropy=entropy)
-    loaded = load(capture)
+    loaded = _checked(load(capture), quiet or json_output)
     check_output_folder(out, {"the capture": loaded.root.resolve()})
     start = time.perf_counter()
     # On the texels `fit` would estimate on, so that the two entropy maps agree.
@@ -570,7 +590,7 @@ def next_views(
     if (candidates is None) == (sample is None):
         raise typer.BadParameter("give exactly one of --candidates FILE and --sample N")
     config = _config("default", texture_res)
-    loaded = load(capture)
+    loaded = _checked(load(capture), quiet)
     if candidates is not None:
         cameras = candidate_views.load_candidates(candidates, loaded)
         source = candidates

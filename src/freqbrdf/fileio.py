@@ -17,6 +17,7 @@ import json
 import math
 import os
 import shutil
+import stat
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -56,10 +57,11 @@ def is_output_folder(folder: str | Path) -> bool:
     bool
         True where it is empty, holds `OUTPUT_MARKER` or one of `LEGACY_OUTPUT_FILES`.
     """
-    folder = Path(folder)
-    if (folder / OUTPUT_MARKER).is_file() or any((folder / name).is_file() for name in LEGACY_OUTPUT_FILES):
+    try:  # one listing: another writer may be swapping the folder right now
+        names = set(os.listdir(folder))
+    except FileNotFoundError:  # swapped away in the meantime: nothing of the user's
         return True
-    return next(folder.iterdir(), None) is None
+    return not names or OUTPUT_MARKER in names or bool(names & set(LEGACY_OUTPUT_FILES))
 
 
 def check_output_path(path: str | Path, folder: bool, replaced: bool = False) -> None:
@@ -87,7 +89,11 @@ def check_output_path(path: str | Path, folder: bool, replaced: bool = False) ->
         If the nearest existing ancestor cannot be written in.
     """
     path = Path(path)
-    if path.exists() and path.is_dir() != folder:
+    try:  # one stat: another writer may be swapping the folder right now
+        is_dir = stat.S_ISDIR(path.stat().st_mode)
+    except (FileNotFoundError, NotADirectoryError):
+        is_dir = None
+    if is_dir is not None and is_dir != folder:
         raise InputError(path, "exists and is not a folder" if folder else "is a folder, not a file")
     ancestor = path.parent
     while not ancestor.exists() and ancestor != ancestor.parent:
@@ -99,7 +105,7 @@ def check_output_path(path: str | Path, folder: bool, replaced: bool = False) ->
         if resolved == here or resolved in here.parents:
             raise InputError(path, "is the current folder or contains it, and an output folder is replaced as a "
                                    "whole: choose a new folder")
-        if path.is_dir() and not is_output_folder(path) and not _replace_foreign.get():
+        if is_dir and not _replace_foreign.get() and not is_output_folder(path):
             raise InputError(path, "exists and holds files freqbrdf did not write, which would be replaced: "
                                    "choose another folder, or pass --force (freqbrdf --force COMMAND ...)")
     if ancestor.exists() and not os.access(ancestor, os.W_OK | os.X_OK):

@@ -430,11 +430,14 @@ def test_stanford_orb_envmap_to_world_is_rigid_and_ignores_translation():
 def test_info_summarises_a_capture(tmp_path):
     from freqbrdf.cli import app
 
-    write_capture(tmp_path)
+    frames, _, _ = write_capture(tmp_path)
+    for frame in frames:  # masks the plane falls in, so that the capture passes its check
+        write_png(frame.mask_path, np.ones((frame.camera.height, frame.camera.width)))
     result = CliRunner().invoke(app, ["info", str(tmp_path)])
     assert result.exit_code == 0, result.output
     assert "3 views, 3 with masks" in result.output and "8x8" in result.output
     assert "4 vertices, 2 faces" in result.output
+    assert "the mesh in front of the cameras in 100% of the views" in result.output
 
 
 def test_cli_bad_input_is_one_line_and_exit_code_2(tmp_path):

@@ -1,0 +1,118 @@
+"""Tests of freqbrdf.capture.checks: the common mistakes of real captures, caught before any work."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from freqbrdf.capture.checks import check_capture
+from freqbrdf.capture.layouts import load
+from freqbrdf.errors import InputError
+from freqbrdf.images import read_image, write_exr
+from freqbrdf.synthetic.synth import SynthSettings, synthesize
+
+TINY = SynthSettings(mesh="bunny", views=6, resolution=32, spp=4, texture_res=32, test_views=0)
+
+
+@pytest.fixture(scope="module")
+def good_capture(tmp_path_factory):
+    return synthesize(tmp_path_factory.mktemp("capture") / "good", TINY, progress=False)
+
+
+@pytest.fixture
+def capture_copy(good_capture, tmp_path):
+    copy = tmp_path / "capture"
+    shutil.copytree(good_capture, copy)
+    return copy
+
+
+def edit_frames(root, change):
+    path = root / "transforms.json"
+    document = json.loads(path.read_text())
+    change(document)
+    path.write_text(json.dumps(document))
+
+
+def scale_mesh(root, factor=1.0, shift=0.0):
+    lines = []
+    for line in (root / "mesh.obj").read_text().splitlines():
+        if line.startswith("v "):
+            x, y, z = (float(value) * factor + shift for value in line.split()[1:4])
+            line = f"v {x} {y} {z}"
+        lines.append(line)
+    (root / "mesh.obj").write_text("\n".join(lines) + "\n")
+
+
+def test_a_good_capture_passes_with_its_figures(good_capture):
+    check = check_capture(load(good_capture))
+    assert check.warnings == []
+    assert check.figures["views"] == 6 and check.figures["behind"] == 0.0
+    assert check.figures["mask_overlap"] > 0.8 and check.figures["pixels"] > 10 and check.figures["black_frames"] == 0
+
+
+def test_opencv_axes_are_named(capture_copy):
+    def to_opencv(document):
+        for frame in document["frames"]:
+            frame["transform_matrix"] = (np.array(frame["transform_matrix"]) @ np.diag([1.0, -1.0, -1.0, 1.0])).tolist()
+
+    edit_frames(capture_copy, to_opencv)
+    with pytest.raises(InputError, match=r"transforms.json: the mesh is behind the camera in 100% of the views: the "
+                                         r"cameras look along \+Z, OpenCV"):
+        check_capture(load(capture_copy))
+
+
+def test_a_mesh_in_millimetres_is_named(capture_copy):
+    scale_mesh(capture_copy, factor=1000.0)
+    with pytest.raises(InputError, match="mesh.obj: the mesh is .*x larger than the cameras' distance.*millimetres"):
+        check_capture(load(capture_copy))
+
+
+def test_cameras_far_too_far_are_named(capture_copy):
+    def far(document):
+        for frame in document["frames"]:
+            frame["transform_matrix"] = [row[:3] + [row[3] * 1000.0] if index < 3 else row
+                                         for index, row in enumerate(frame["transform_matrix"])]
+
+    edit_frames(capture_copy, far)
+    with pytest.raises(InputError, match="spans .* pixels in the closest view"):
+        check_capture(load(capture_copy))
+
+
+def test_a_misaligned_mesh_gives_its_overlap_with_the_masks(capture_copy):
+    scale_mesh(capture_copy, shift=0.6)
+    with pytest.raises(InputError, match=r"only \d+% of the mesh's projected points fall inside the masks"):
+        check_capture(load(capture_copy))
+
+
+def test_one_view_black_frames_and_a_dark_map(capture_copy):
+    frames = json.loads((capture_copy / "transforms.json").read_text())["frames"]
+    black = np.zeros_like(read_image(capture_copy / frames[0]["file_path"]))
+    write_exr(capture_copy / frames[0]["file_path"], black)
+    check = check_capture(load(capture_copy))
+    assert check.figures["black_frames"] == 1 and check.warnings == [
+        f"1 of 6 frames are black (first: {capture_copy / frames[0]['file_path']})"]
+    for frame in frames:
+        write_exr(capture_copy / frame["file_path"], black)
+    with pytest.raises(InputError, match="every frame is black"):
+        check_capture(load(capture_copy))
+    edit_frames(capture_copy, lambda document: document.update(frames=document["frames"][:1]))
+    with pytest.raises(InputError, match="transforms.json: 1 view: every texel needs samples from at least two"):
+        check_capture(load(capture_copy))
+
+
+def test_an_environment_map_without_light(capture_copy):
+    envmap = read_image(capture_copy / "envmap.exr")
+    write_exr(capture_copy / "envmap.exr", np.zeros_like(envmap))
+    with pytest.raises(InputError, match="envmap.exr: the environment map has no light"):
+        check_capture(load(capture_copy))
+
+
+def test_fit_refuses_a_broken_capture_before_any_work(capture_copy, tmp_path, run_cli, capsys):
+    scale_mesh(capture_copy, factor=1000.0)
+    assert run_cli("fit", capture_copy, "--out", tmp_path / "fit", "--texture-res", 16) == 2
+    error = capsys.readouterr().err.strip()
+    assert "millimetres" in error and "\n" not in error
+    assert not (tmp_path / "fit").exists()
