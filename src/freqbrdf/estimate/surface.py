@@ -8,19 +8,21 @@ METHOD.md §4, done inside the estimate):
 1. **The surface graph** (`surface_graph`): each texel's nearest texels on the mesh, in 3D and so
    across UV seams, weighted by the likeness of their apparent albedo (the mean observed radiance
    over the irradiance / pi), so that material edges survive.
-2. **The metal label** (`metal_evidence`, `metal_posterior`): the texel's samples score the
-   dielectric (m = 0) and the metal (m = 1), base colour re-fitted at the texel's roughness; their
-   loss difference over the noise variance, deflated by ``SurfaceConfig.noise_inflation`` (the
-   model's own misfit is not independent noise), is the label's log-likelihood ratio. A prior
-   favours dielectrics (a texel is metal only with evidence) and texels of like appearance share
-   their label (mean field on the graph).
+2. **The metal label** (`metal_evidence`, `metal_posterior`): the search scores each texel's
+   samples as a dielectric (m = 0) and as a metal (m = 1), base colour re-fitted at its roughness
+   (`MaterialEstimate.label_loss`); their loss difference over the noise variance, deflated by
+   ``SurfaceConfig.noise_inflation`` (the model's own misfit is not independent noise), is the
+   label's log-likelihood ratio. A prior favours dielectrics (a texel is metal only with
+   evidence) and texels of like appearance share their label (mean field on the graph); a texel
+   whose samples reject its label's pure material keeps its own, mixed, metallic.
 3. **Roughness and base colour** (`smooth_on_surface`): each texel's value held by its precision
-   (the loss's curvature over the noise), and an edge-preserving (Huber) coupling to its
-   neighbours; iteratively re-weighted least squares solved by conjugate gradients. Texels no view
+   (the loss's curvature over the noise; weaker with fewer samples than the median, which are
+   mostly grazing), and an edge-preserving (Huber) coupling to its neighbours; iteratively
+   re-weighted least squares solved by conjugate gradients (`_surface_kernels`). Texels no view
    sees have no data term: their values come from the solve alone, along the surface.
-4. **Posterior std** of roughness, metallic and base colour: the label marginals, and the inverse
-   of each texel's precision in the solve, scaled so that the per-texel estimates scatter about
-   the solution as the std says.
+4. **Posterior std** of roughness, metallic and base colour: the label's probability, and each
+   texel's precision in the solve with its neighbours', scaled by how far the per-texel
+   estimates scatter about the solution, growing with the distance from the texels with data.
 
 Deterministic: fixed iteration counts, no random choice, single-threaded sparse products.
 """
@@ -147,9 +149,8 @@ def whole_surface(observations: Observations, estimate: MaterialEstimate, texels
     start = time.perf_counter()
     dof = np.maximum(3.0 * observations.n_samples - FITTED_PARAMETERS, 1.0)
     noise = np.where(estimated, np.maximum(np.nan_to_num(estimate.loss), 1e-12), 1.0) / dof * settings.noise_inflation
-    curvature = np.nan_to_num(estimate.roughness_curvature) if estimate.roughness_curvature is not None else None
-    if curvature is None:
-        curvature = np.ones(estimate.n_texels)
+    curvature = (np.ones(estimate.n_texels) if estimate.roughness_curvature is None
+                 else np.nan_to_num(estimate.roughness_curvature))
     roughness_precision = np.where(estimated, 0.5 * np.maximum(curvature, 0.0) / noise, 0.0)
     # d loss / d b per channel: the diffuse term's light for a dielectric, the mirrored light's for a metal.
     mirrored = _mean_over_views(observations, observations.mirrored)
@@ -171,7 +172,6 @@ def whole_surface(observations: Observations, estimate: MaterialEstimate, texels
         estimate,
         base_color=np.clip(color, 0.0, 1.0), roughness=np.clip(roughness[:, 0], 0.0, 1.0),
         metallic=params[:, 4].copy(),
-        timings={**estimate.timings, **{f"surface.{step}": seconds for step, seconds in timings.items()}},
     )
     posterior = SurfacePosterior(
         metal_probability=probability,
