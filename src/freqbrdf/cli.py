@@ -349,9 +349,9 @@ def fit(
         "texels are at least a pixel wide), full (T, METHOD.md's per-texel recipe) or a number. Default: the "
         "preset's (pixel; fast: coarse; paper: full)."),
     split_half: bool = typer.Option(
-        False, "--split-half", help="Add to roughness_std the scatter between two more estimates, from the even "
-        "and from the odd views alone: it ranks the roughness errors better, for a large share of the fit's "
-        "time again (docs/measurements.md#the-roughness-std)."),
+        False, "--split-half", help="With --per-texel: add to roughness_std the scatter between two more "
+        "estimates, from the even and from the odd views alone: it ranks the roughness errors better, for a large "
+        "share of the fit's time again (docs/measurements.md#the-roughness-std)."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars or messages."),
     json_output: bool = typer.Option(False, "--json", help="Print summary.json to stdout."),
 ) -> None:
@@ -369,6 +369,9 @@ def fit(
     if per_texel:
         config = config.replace(surface=dataclasses.replace(config.surface, enabled=False))
     if split_half:
+        if not per_texel:
+            raise typer.BadParameter("--split-half scores the per-texel estimate: add --per-texel (the default "
+                                     "whole-surface estimate has its own roughness std)")
         config = config.replace(uncertainty=dataclasses.replace(config.uncertainty, split_half=True))
     if estimation_res is not None:
         config = config.replace(texels=dataclasses.replace(config.texels, estimation_res=_estimation_res(

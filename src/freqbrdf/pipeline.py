@@ -191,10 +191,12 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
     start = time.perf_counter()
     uncertainty = (angular.result() if angular else
                    entropy_map(observations, config.uncertainty, estimate_config=config.estimate))
-    uncertainty.roughness_std = roughness_std(observations, estimate, config)
+    whole = config.surface.enabled and config.estimate.method == "global"
+    if not whole:  # the whole-surface posterior gives the roughness std (below)
+        uncertainty.roughness_std = roughness_std(observations, estimate, config)
     timings["uncertainty"] = time.perf_counter() - start + (angular.seconds if angular else 0.0)
 
-    if config.surface.enabled and config.estimate.method == "global":
+    if whole:
         start = time.perf_counter()
         estimate, posterior = whole_surface(observations, estimate, rasterise(capture.mesh, estimation_res), config)
         uncertainty.roughness_std = posterior.roughness_std

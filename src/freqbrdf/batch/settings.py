@@ -126,8 +126,8 @@ def capture_config(settings: dict) -> Config:
     Raises
     ------
     ValueError
-        Where the combination is invalid (``estimation_res`` above ``texture_res``, or what
-        `Config` refuses).
+        Where the combination is invalid (``estimation_res`` above ``texture_res``, ``split_half``
+        without ``per_texel``, or what `Config` refuses).
     """
     config = preset(settings.get("preset", "default"))
     texels = config.texels
@@ -148,6 +148,8 @@ def capture_config(settings: dict) -> Config:
     if settings.get("entropy") is not None:
         uncertainty = dataclasses.replace(uncertainty, mode=settings["entropy"])
     if settings.get("split_half"):
+        if not settings.get("per_texel"):
+            raise ValueError("split_half scores the per-texel estimate: set per_texel too")
         uncertainty = dataclasses.replace(uncertainty, split_half=True)
     surface = dataclasses.replace(config.surface, enabled=False) if settings.get("per_texel") else config.surface
     return config.replace(texels=texels, fit=fit, estimate=estimate, uncertainty=uncertainty, surface=surface)
