@@ -10,6 +10,7 @@ from freqbrdf import __version__
 from freqbrdf.errors import InputError
 from freqbrdf.images import (
     REC709_CHROMATICITIES,
+    CaptureDataWarning,
     linear_to_srgb,
     read_image,
     read_mask,
@@ -240,7 +241,22 @@ def test_validate_reports_count_and_first_bad_pixel(tmp_path):
     message = str(err.value)
     assert "bad.exr" in message
     assert "2 non-finite pixel(s), first at row 1, column 4" in message
-    assert "1 negative pixel(s), first at row 2, column 5" in message
+    radiance[1, 4, 2] = radiance[3, 0, 0] = 1.0
+    write_exr(tmp_path / "bad.exr", radiance)
+    with pytest.raises(InputError, match=r"bad.exr: 1 negative pixel\(s\) down to -0.5, first at row 2, column 5: "
+                                         r"deeper than the noise of an HDR merge"):
+        read_image(tmp_path / "bad.exr", validate=True)
+
+
+def test_negative_noise_of_an_hdr_merge_is_clamped_with_a_warning(tmp_path):
+    radiance = np.full((5, 6, 3), 2.0, dtype=np.float32)
+    radiance[2, 5, 1] = -0.004  # as real HDR merges have, near black
+    radiance[4, 0, 0] = -0.001
+    write_exr(tmp_path / "merged.exr", radiance)
+    with pytest.warns(CaptureDataWarning, match=r"merged.exr: 2 slightly negative pixel\(s\) \(down to -0.004\) "
+                                                r"clamped to 0"):
+        image = read_image(tmp_path / "merged.exr", validate=True)
+    assert image.min() == 0.0 and image[2, 5, 1] == 0.0 and image[0, 0, 0] == 2.0
 
 
 # --- atomic writes -------------------------------------------------------------------------------

@@ -63,14 +63,28 @@ def _container_folder(value: str | None) -> str | None:
     return value
 
 
-def _checked(capture, quiet: bool):
-    """Check a loaded capture before any work (`freqbrdf.capture.checks`); print its warnings."""
-    from freqbrdf.capture.checks import check_capture
+def _checked(capture: str, quiet: bool):
+    """Load a capture and check it before any work (`freqbrdf.capture.checks`).
 
-    for warning in check_capture(capture).warnings:
-        if not quiet:
-            err_console.print(f"[yellow]warning:[/yellow] {escape(warning)}", highlight=False, soft_wrap=True)
-    return capture
+    Its warnings are printed once, one line per kind (none with ``quiet``); the data warnings the
+    later stages would raise again are silenced.
+    """
+    import warnings
+
+    from freqbrdf.capture.checks import check_capture
+    from freqbrdf.capture.layouts import load
+    from freqbrdf.images import CaptureDataWarning
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", CaptureDataWarning)
+        loaded = load(capture)
+    lines = [str(warning.message) for warning in caught if issubclass(warning.category, CaptureDataWarning)]
+    lines += check_capture(loaded).warnings
+    if not quiet:
+        for line in lines:
+            err_console.print(f"[yellow]warning:[/yellow] {escape(line)}", highlight=False, soft_wrap=True)
+    warnings.filterwarnings("ignore", category=CaptureDataWarning)  # said once, above
+    return loaded
 
 
 def _results_from_cache(quiet: bool) -> None:
@@ -224,14 +238,13 @@ def observe(
 
     import numpy as np
 
-    from freqbrdf.capture.layouts import load
     from freqbrdf.fileio import atomic_path
     from freqbrdf.observe.maps import write_maps
     from freqbrdf.observe.observations import observe as observe_capture
     from freqbrdf.progress import Reporter
 
     config = _config("default", texture_res, lmax)
-    observations = observe_capture(_checked(load(capture), quiet), config, Reporter(enabled=not quiet))
+    observations = observe_capture(_checked(capture, quiet), config, Reporter(enabled=not quiet))
     _results_from_cache(quiet)
     folder = Path(out)
     observations.save(folder / "observations.npz")
@@ -361,7 +374,6 @@ def fit(
     from pathlib import Path
 
     from freqbrdf import pipeline
-    from freqbrdf.capture.layouts import load
     from freqbrdf.outputs.fit_folder import check_output_folder
     from freqbrdf.progress import Reporter
 
@@ -380,7 +392,7 @@ def fit(
     config = config.replace(estimate=dataclasses.replace(
         config.estimate, neighbour_vote=config.estimate.neighbour_vote and neighbour_vote))
     reporter = Reporter(enabled=not (quiet or json_output))
-    loaded = _checked(load(capture), quiet or json_output)
+    loaded = _checked(capture, quiet or json_output)
     check_output_folder(out, {"the capture": loaded.root.resolve()})  # before minutes of work
     result = pipeline.fit(loaded, config, reporter)
     _results_from_cache(quiet or json_output)
@@ -423,7 +435,6 @@ def uncertainty(
     import time
 
     from freqbrdf import pipeline
-    from freqbrdf.capture.layouts import load
     from freqbrdf.fileio import atomic_directory, write_json
     from freqbrdf.images import write_png
     from freqbrdf.outputs import export
@@ -433,7 +444,7 @@ def uncertainty(
     from freqbrdf.uncertainty import summary as uncertainty_summary
 
     config = _config(preset, texture_res, lmax, entropy=entropy)
-    loaded = _checked(load(capture), quiet or json_output)
+    loaded = _checked(capture, quiet or json_output)
     check_output_folder(out, {"the capture": loaded.root.resolve()})
     start = time.perf_counter()
     # On the texels `fit` would estimate on, so that the two entropy maps agree.
@@ -587,13 +598,12 @@ def next_views(
     from freqbrdf.applications import candidates as candidate_views
     from freqbrdf.applications import guidance
     from freqbrdf.applications import next_views as next_views_folder
-    from freqbrdf.capture.layouts import load
     from freqbrdf.progress import Reporter
 
     if (candidates is None) == (sample is None):
         raise typer.BadParameter("give exactly one of --candidates FILE and --sample N")
     config = _config("default", texture_res)
-    loaded = _checked(load(capture), quiet)
+    loaded = _checked(capture, quiet)
     if candidates is not None:
         cameras = candidate_views.load_candidates(candidates, loaded)
         source = candidates

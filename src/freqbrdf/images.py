@@ -22,6 +22,15 @@ from PIL import Image, UnidentifiedImageError
 
 from freqbrdf import __version__
 from freqbrdf.errors import InputError
+
+
+class CaptureDataWarning(UserWarning):
+    """Suspicious but usable input data (8-bit frames, tiny negative HDR values): reported once, aggregated."""
+
+
+# Negative pixels no deeper than this share of an image's bright level (its 99.9th percentile) are
+# noise of an HDR merge or a lossy encoding, clamped to 0; deeper ones mean a broken file.
+NEGATIVE_NOISE = 0.01
 from freqbrdf.fileio import atomic_path
 
 HDR_SUFFIXES = (".exr", ".hdr")
@@ -90,7 +99,8 @@ def read_image(path: str | Path, validate: bool = False) -> np.ndarray:
     path : str or Path
         An ``.exr``, ``.hdr``, ``.png``, ``.jpg`` or ``.jpeg`` file.
     validate : bool, optional
-        Refuse non-finite or negative pixels.
+        Refuse non-finite pixels and negative ones deeper than noise; clamp the noise to 0
+        (`clamp_negative_noise`).
 
     Returns
     -------
@@ -101,7 +111,7 @@ def read_image(path: str | Path, validate: bool = False) -> np.ndarray:
     ------
     InputError
         If the type is unsupported, the file is missing or unreadable, or (with ``validate``) it
-        has non-finite or negative pixels (how many, and where the first one is).
+        has non-finite or deeply negative pixels (how many, and where the first one is).
     """
     path = Path(path)
     pixels, is_srgb = _read_pixels(path)  # (H, W, C)
@@ -111,7 +121,7 @@ def read_image(path: str | Path, validate: bool = False) -> np.ndarray:
         warnings.warn(
             f"{path.name}: 8-bit sRGB image linearised as radiance; clipped highlights and "
             "quantisation bias the result, HDR input (.exr, .hdr) is preferred",
-            UserWarning,
+            CaptureDataWarning,
             stacklevel=2,
         )
         rgb = srgb_to_linear(rgb)
@@ -119,6 +129,46 @@ def read_image(path: str | Path, validate: bool = False) -> np.ndarray:
     if validate:
         _check_finite_non_negative(path, rgb)
     return rgb
+
+
+def clamp_negative_noise(path: str | Path, rgb: np.ndarray) -> np.ndarray:
+    """Clamp an HDR image's negative noise to 0; refuse negatives deep enough to mean a broken file.
+
+    HDR merges of photographs and lossy encodings leave small negative values near black; those no
+    deeper than `NEGATIVE_NOISE` times the image's bright level (its 99.9th percentile) are set to
+    0 with a `CaptureDataWarning`.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file the image came from (for the messages).
+    rgb : (H, W, 3) float32
+        The image, finite.
+
+    Returns
+    -------
+    (H, W, 3) float32
+        The image with its negative noise at 0 (the same array where it had none).
+
+    Raises
+    ------
+    InputError
+        If a pixel is more negative than that (how many, how deep, where the first one is).
+    """
+    negative = rgb < 0
+    if not negative.any():
+        return rgb
+    bright = float(np.percentile(rgb, 99.9))
+    deepest = float(rgb.min())
+    if bright <= 0.0 or -deepest > NEGATIVE_NOISE * bright:
+        pixel = negative.any(axis=2)
+        row, col = np.argwhere(pixel)[0]
+        raise InputError(path, f"{int(pixel.sum())} negative pixel(s) down to {deepest:.3g}, first at row {row}, "
+                               f"column {col}: deeper than the noise of an HDR merge "
+                               f"({NEGATIVE_NOISE:.0%} of the image's bright level {bright:.3g})")
+    warnings.warn(f"{Path(path).name}: {int(negative.any(axis=2).sum())} slightly negative pixel(s) (down to "
+                  f"{deepest:.2g}) clamped to 0", CaptureDataWarning, stacklevel=2)
+    return np.maximum(rgb, 0.0)
 
 
 def read_mask(path: str | Path) -> np.ndarray:
@@ -200,16 +250,12 @@ def _read_ldr(path: Path) -> np.ndarray:
 
 
 def _check_finite_non_negative(path: Path, rgb: np.ndarray) -> None:
-    problems = []
     non_finite = ~np.isfinite(rgb).all(axis=2)
-    negative = (rgb < 0).any(axis=2)  # NaN compares False, so the two sets are disjoint
-    for bad, what in ((non_finite, "non-finite"), (negative, "negative")):
-        count = int(bad.sum())
-        if count:
-            row, col = np.argwhere(bad)[0]
-            problems.append(f"{count} {what} pixel(s), first at row {row}, column {col}")
-    if problems:
-        raise InputError(path, "; ".join(problems))
+    count = int(non_finite.sum())
+    if count:
+        row, col = np.argwhere(non_finite)[0]
+        raise InputError(path, f"{count} non-finite pixel(s), first at row {row}, column {col}")
+    rgb[...] = clamp_negative_noise(path, rgb)
 
 
 # --- Radiance RGBE (.hdr) -------------------------------------------------------------------------

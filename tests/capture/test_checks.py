@@ -116,3 +116,22 @@ def test_fit_refuses_a_broken_capture_before_any_work(capture_copy, tmp_path, ru
     error = capsys.readouterr().err.strip()
     assert "millimetres" in error and "\n" not in error
     assert not (tmp_path / "fit").exists()
+
+
+def test_negative_noise_is_one_warning_and_deep_negatives_are_refused(capture_copy, tmp_path, run_cli, capsys):
+    frames = json.loads((capture_copy / "transforms.json").read_text())["frames"]
+    for frame in frames[:2]:  # two frames with an HDR merge's noise near black
+        image = read_image(capture_copy / frame["file_path"])
+        image[0, 0] = -0.002
+        write_exr(capture_copy / frame["file_path"], image)
+    check = check_capture(load(capture_copy))
+    assert len(check.warnings) == 1 and check.warnings[0].startswith(
+        "2 of 6 frames had slightly negative pixels (HDR merge noise), clamped to 0")
+    assert run_cli("observe", capture_copy, "--out", tmp_path / "observed", "--texture-res", 8) == 0
+    warnings_printed = [line for line in capsys.readouterr().err.splitlines() if line.startswith("warning:")]
+    assert len(warnings_printed) == 1 and "slightly negative" in warnings_printed[0]
+    envmap = read_image(capture_copy / "envmap.exr")
+    envmap[0, 0] = -0.5 * envmap.max()
+    write_exr(capture_copy / "envmap.exr", envmap)
+    with pytest.raises(InputError, match="envmap.exr: 1 negative pixel.* deeper than the noise of an HDR merge"):
+        load(capture_copy)

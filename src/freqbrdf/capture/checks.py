@@ -16,12 +16,14 @@ at the likely cause; what is only suspicious is returned as warnings.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from freqbrdf.capture.layouts import Capture
 from freqbrdf.errors import InputError
+from freqbrdf.images import CaptureDataWarning
 
 __all__ = ["CaptureCheck", "check_capture", "surface_points"]
 
@@ -51,7 +53,8 @@ class CaptureCheck:
         in pixels over the views), ``mask_overlap`` (median share of projected points inside
         the masks; None without masks) and ``black_frames``.
     warnings : list of str
-        Suspicious but usable data, one line per kind.
+        Suspicious but usable data, one line per kind (black frames; the frames'
+        `freqbrdf.images.CaptureDataWarning`, 8-bit or with negative noise, aggregated).
     """
 
     figures: dict = field(default_factory=dict)
@@ -115,7 +118,10 @@ def check_capture(capture: Capture, read_frames: bool = True) -> CaptureCheck:
     check.figures["mask_overlap"] = None
     check.figures["black_frames"] = 0
     if read_frames:
-        _check_frames(capture, points, check)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", CaptureDataWarning)
+            _check_frames(capture, points, check)
+        check.warnings += _aggregated(caught, views)
     if not float(np.max(capture.envmap.radiance)) > 0.0:
         raise InputError(capture.envmap_path, "the environment map has no light (every pixel is 0)")
     return check
@@ -143,6 +149,21 @@ def surface_points(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     count = min(CHECK_VERTICES // len(weights), len(faces))
     picked = vertices[faces[np.linspace(0, len(faces) - 1, count).astype(np.int64)]]  # (count, 3, 3)
     return np.einsum("wk,fkc->fwc", weights, picked).reshape(-1, 3)
+
+
+def _aggregated(caught: list, views: int) -> list[str]:
+    """One line per kind of `CaptureDataWarning` the frames raised."""
+    messages = [str(warning.message) for warning in caught if issubclass(warning.category, CaptureDataWarning)]
+    srgb = [message for message in messages if "8-bit sRGB" in message]
+    negative = [message for message in messages if "negative" in message]
+    lines = []
+    if srgb:
+        lines.append(f"{len(srgb)} of {views} frames are 8-bit sRGB, linearised as radiance: clipped highlights and "
+                     "quantisation bias the result; HDR input (.exr, .hdr) is preferred")
+    if negative:
+        lines.append(f"{len(negative)} of {views} frames had slightly negative pixels (HDR merge noise), clamped to "
+                     f"0; first: {negative[0]}")
+    return lines
 
 
 def _check_frames(capture: Capture, points: np.ndarray, check: CaptureCheck) -> None:

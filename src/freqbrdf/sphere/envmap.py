@@ -87,8 +87,9 @@ class Envmap:
 def load_envmap(path: str | Path, to_world: np.ndarray | None = None) -> Envmap:
     """Read an equirectangular HDR map (EXR or Radiance HDR) with a 2:1 aspect ratio.
 
-    Negative values, which lossy HDR encodings produce near black, are clamped to zero;
-    non-finite pixels are an InputError.
+    Negative noise, which HDR merges and lossy encodings leave near black, is clamped to zero
+    (`freqbrdf.images.clamp_negative_noise`); deeper negatives and non-finite pixels are an
+    InputError.
 
     Parameters
     ----------
@@ -105,9 +106,9 @@ def load_envmap(path: str | Path, to_world: np.ndarray | None = None) -> Envmap:
     Raises
     ------
     InputError
-        If the map is not 2:1 or has non-finite pixels (or cannot be read).
+        If the map is not 2:1, has non-finite or deeply negative pixels (or cannot be read).
     """
-    from freqbrdf.images import read_image
+    from freqbrdf.images import clamp_negative_noise, read_image
 
     radiance = read_image(path)
     height, width = radiance.shape[:2]
@@ -115,7 +116,7 @@ def load_envmap(path: str | Path, to_world: np.ndarray | None = None) -> Envmap:
         raise InputError(path, f"environment map must be 2:1 (width = 2 x height), got {width}x{height}")
     if not np.isfinite(radiance).all():
         raise InputError(path, f"{int(np.sum(~np.isfinite(radiance)))} non-finite values in the environment map")
-    return Envmap(np.maximum(radiance, 0.0), np.eye(4) if to_world is None else to_world)
+    return Envmap(clamp_negative_noise(path, radiance), np.eye(4) if to_world is None else to_world)
 
 
 # --------------------------------------------------------------------------------------------
