@@ -66,8 +66,9 @@ def _container_folder(value: str | None) -> str | None:
 def _checked(capture: str, quiet: bool):
     """Load a capture and check it before any work (`freqbrdf.capture.checks`).
 
-    Its warnings are printed once, one line per kind (none with ``quiet``); the data warnings the
-    later stages would raise again are silenced.
+    Its warnings are printed once, one line per kind (none with ``quiet``), and returned with it
+    (``fit`` records them in summary.json); the data warnings the later stages would raise again
+    are silenced.
     """
     import warnings
 
@@ -84,7 +85,7 @@ def _checked(capture: str, quiet: bool):
         for line in lines:
             err_console.print(f"[yellow]warning:[/yellow] {escape(line)}", highlight=False, soft_wrap=True)
     warnings.filterwarnings("ignore", category=CaptureDataWarning)  # said once, above
-    return loaded
+    return loaded, lines
 
 
 def _results_from_cache(quiet: bool) -> None:
@@ -244,7 +245,7 @@ def observe(
     from freqbrdf.progress import Reporter
 
     config = _config("default", texture_res, lmax)
-    observations = observe_capture(_checked(capture, quiet), config, Reporter(enabled=not quiet))
+    observations = observe_capture(_checked(capture, quiet)[0], config, Reporter(enabled=not quiet))
     _results_from_cache(quiet)
     folder = Path(out)
     observations.save(folder / "observations.npz")
@@ -392,9 +393,10 @@ def fit(
     config = config.replace(estimate=dataclasses.replace(
         config.estimate, neighbour_vote=config.estimate.neighbour_vote and neighbour_vote))
     reporter = Reporter(enabled=not (quiet or json_output))
-    loaded = _checked(capture, quiet or json_output)
+    loaded, capture_warnings = _checked(capture, quiet or json_output)
     check_output_folder(out, {"the capture": loaded.root.resolve()})  # before minutes of work
     result = pipeline.fit(loaded, config, reporter)
+    result.warnings = capture_warnings
     _results_from_cache(quiet or json_output)
     folder = pipeline.write_fit(out, result, config)
     summary = json.loads((folder / "summary.json").read_text(encoding="utf-8"))
@@ -444,7 +446,7 @@ def uncertainty(
     from freqbrdf.uncertainty import summary as uncertainty_summary
 
     config = _config(preset, texture_res, lmax, entropy=entropy)
-    loaded = _checked(capture, quiet or json_output)
+    loaded, _ = _checked(capture, quiet or json_output)
     check_output_folder(out, {"the capture": loaded.root.resolve()})
     start = time.perf_counter()
     # On the texels `fit` would estimate on, so that the two entropy maps agree.
@@ -603,7 +605,7 @@ def next_views(
     if (candidates is None) == (sample is None):
         raise typer.BadParameter("give exactly one of --candidates FILE and --sample N")
     config = _config("default", texture_res)
-    loaded = _checked(capture, quiet)
+    loaded, _ = _checked(capture, quiet)
     if candidates is not None:
         cameras = candidate_views.load_candidates(candidates, loaded)
         source = candidates

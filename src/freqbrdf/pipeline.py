@@ -64,6 +64,8 @@ class FitResult:
         The texture resolution observed and estimated on (`estimation_resolution`); below T, the
         observations, estimate and uncertainty above are its, taken to the T x T texels
         (`to_texels`).
+    warnings : list of str
+        What is suspicious about the capture (`freqbrdf.capture.checks`), for summary.json.
     """
 
     capture: Capture
@@ -73,6 +75,7 @@ class FitResult:
     maps: MaterialMaps
     timings: dict[str, float] = field(default_factory=dict)
     estimation_res: int | None = None
+    warnings: list[str] = field(default_factory=list)
 
 
 def estimation_resolution(capture: Capture, config: Config = Config(), fine: Texels | None = None) -> int:
@@ -360,7 +363,8 @@ def write_fit(out_dir: str | Path, result: FitResult, config: Config = Config())
     """Write the fit folder, replacing it as a whole, atomically.
 
     ``summary.json`` also records the capture, its layout, the estimation resolution, the
-    capture's number of views and the time taken to write.
+    capture's number of views, the warnings about it (``result.warnings``) and the time taken to
+    write.
 
     Parameters
     ----------
@@ -389,7 +393,8 @@ def write_fit(out_dir: str | Path, result: FitResult, config: Config = Config())
              # The views of the capture, also where the observations were taken to finer texels
              # without their samples (`to_texels`).
              "coverage": {**export.coverage(result.observations, result.estimate),
-                          "views": len(result.capture.frames)}}
+                          "views": len(result.capture.frames)},
+             "warnings": list(result.warnings)}
     out = export.write_fit_outputs(
         out_dir, result.capture.mesh, result.observations, result.estimate, result.uncertainty,
         config, timings=result.timings, extra_summary=extra, maps=result.maps,
