@@ -264,3 +264,15 @@ def test_out_never_replaces_a_users_folder_nor_the_current_one(tiny_capture, tmp
         assert (mine / "base_color.exr").is_file() and not (mine / "thesis.txt").exists()
     finally:
         allow_replacing_foreign_folders(False)  # the flag holds for the process, as for one command line
+
+
+def test_option_mistakes_are_refused_before_any_work(tiny_capture, tmp_path, run_cli, capsys):
+    """A paper forward model without the paper estimator, and an empty test-map name, are refused
+    before anything is observed or rendered: exit 2, nothing written."""
+    assert run_cli("fit", tiny_capture, "--out", tmp_path / "fit", "--model", "spectrum", "--quiet") == 2
+    assert "add --estimator paper" in capsys.readouterr().err
+    assert run_cli("synth", tmp_path / "synth", "--test-envmaps", "studio,", "--views", 2, "--resolution", 8,
+                   "--spp", 1) == 2
+    error = capsys.readouterr().err
+    assert "test_envmaps has an empty name" in error and "rendering" not in error
+    assert sorted(p.name for p in tmp_path.iterdir()) == []

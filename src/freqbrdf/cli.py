@@ -288,8 +288,11 @@ def _config(preset: str, texture_res: int | None = None, lmax: int | None = None
     estimate_changes = _choices(config.estimate, {"method": ("estimator", estimator),
                                                   "forward_model": ("model", model)})
     uncertainty_changes = _choices(config.uncertainty, {"mode": ("entropy mode", entropy)})
-    return config.replace(texels=texels, fit=fit_settings,
-                          estimate=dataclasses.replace(config.estimate, **estimate_changes),
+    estimate = dataclasses.replace(config.estimate, **estimate_changes)
+    if estimate.method == "global" and estimate.forward_model != "angular":  # checked before any work
+        raise typer.BadParameter(f"--model {estimate.forward_model} is a forward model of the paper's estimator: "
+                                 "add --estimator paper (the global estimator searches the angular model)")
+    return config.replace(texels=texels, fit=fit_settings, estimate=estimate,
                           uncertainty=dataclasses.replace(config.uncertainty, **uncertainty_changes))
 
 

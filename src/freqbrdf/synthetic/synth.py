@@ -429,4 +429,6 @@ def _test_envmap_paths(settings: SynthSettings, training: Path, rng: np.random.G
         return [assets.envmap_path(others[k]) for k in sorted(chosen)]
     if not settings.test_envmaps:
         raise InputError(Path("synth settings"), "test_envmaps is empty")
+    if any(not str(name).strip() for name in settings.test_envmaps):
+        raise InputError(Path("synth settings"), f"test_envmaps has an empty name: {list(settings.test_envmaps)}")
     return [_asset(name, assets.list_envmaps(), assets.envmap_path) for name in settings.test_envmaps]
