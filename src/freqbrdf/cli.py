@@ -63,10 +63,10 @@ def _container_folder(value: str | None) -> str | None:
     return value
 
 
-def _checked(capture: str, quiet: bool):
-    """Load a capture and check it before any work (`freqbrdf.capture.checks`).
+def _checked(capture: str, quiet: bool, lmax: int):
+    """Load a capture and check it before any work (`freqbrdf.capture.checks`, and ``lmax``).
 
-    Its warnings are printed once, one line per kind (none with ``quiet``), and returned with it
+    Its environment map must resolve the SH degree ``lmax`` of the fits. Its warnings are printed once, one line per kind (none with ``quiet``), and returned with it
     (``fit`` records them in summary.json); the data warnings the later stages would raise again
     are silenced.
     """
@@ -81,6 +81,13 @@ def _checked(capture: str, quiet: bool):
         loaded = load(capture)
     lines = [str(warning.message) for warning in caught if issubclass(warning.category, CaptureDataWarning)]
     lines += check_capture(loaded).warnings
+    from freqbrdf.sphere.sht import check_resolution
+
+    height, width = loaded.envmap.radiance.shape[:2]
+    try:
+        check_resolution(height, width, lmax)
+    except ValueError as err:
+        raise InputError(loaded.envmap_path, f"{err} (--lmax): choose a lower --lmax or a larger map") from None
     if not quiet:
         for line in lines:
             err_console.print(f"[yellow]warning:[/yellow] {escape(line)}", highlight=False, soft_wrap=True)
@@ -245,7 +252,7 @@ def observe(
     from freqbrdf.progress import Reporter
 
     config = _config("default", texture_res, lmax)
-    observations = observe_capture(_checked(capture, quiet)[0], config, Reporter(enabled=not quiet))
+    observations = observe_capture(_checked(capture, quiet, config.fit.lmax)[0], config, Reporter(enabled=not quiet))
     _results_from_cache(quiet)
     folder = Path(out)
     observations.save(folder / "observations.npz")
@@ -396,7 +403,7 @@ def fit(
     config = config.replace(estimate=dataclasses.replace(
         config.estimate, neighbour_vote=config.estimate.neighbour_vote and neighbour_vote))
     reporter = Reporter(enabled=not (quiet or json_output))
-    loaded, capture_warnings = _checked(capture, quiet or json_output)
+    loaded, capture_warnings = _checked(capture, quiet or json_output, config.fit.lmax)
     check_output_folder(out, {"the capture": loaded.root.resolve()})  # before minutes of work
     result = pipeline.fit(loaded, config, reporter)
     result.warnings = capture_warnings
@@ -449,7 +456,7 @@ def uncertainty(
     from freqbrdf.uncertainty import summary as uncertainty_summary
 
     config = _config(preset, texture_res, lmax, entropy=entropy)
-    loaded, _ = _checked(capture, quiet or json_output)
+    loaded, _ = _checked(capture, quiet or json_output, config.fit.lmax)
     check_output_folder(out, {"the capture": loaded.root.resolve()})
     start = time.perf_counter()
     # On the texels `fit` would estimate on, so that the two entropy maps agree.
@@ -608,7 +615,7 @@ def next_views(
     if (candidates is None) == (sample is None):
         raise typer.BadParameter("give exactly one of --candidates FILE and --sample N")
     config = _config("default", texture_res)
-    loaded, _ = _checked(capture, quiet)
+    loaded, _ = _checked(capture, quiet, config.fit.lmax)
     if candidates is not None:
         cameras = candidate_views.load_candidates(candidates, loaded)
         source = candidates

@@ -136,3 +136,13 @@ def test_negative_noise_is_one_warning_and_deep_negatives_are_refused(capture_co
     write_exr(capture_copy / "envmap.exr", envmap)
     with pytest.raises(InputError, match="envmap.exr: 1 negative pixel.* deeper than the noise of an HDR merge"):
         load(capture_copy)
+
+
+def test_an_environment_map_too_small_for_the_fit(capture_copy, tmp_path, run_cli, capsys):
+    write_exr(capture_copy / "envmap.exr", np.ones((8, 16, 3), np.float32))
+    assert run_cli("fit", capture_copy, "--out", tmp_path / "fit", "--lmax", 8, "--quiet") == 2
+    assert "a 16x8 map resolves degrees up to 6, not 8 (--lmax)" in capsys.readouterr().err
+    write_exr(capture_copy / "envmap.exr", np.ones((1, 2, 3), np.float32))
+    with pytest.raises(InputError, match="envmap.exr: environment map of 2x1 pixels is too small"):
+        load(capture_copy)
+    assert not (tmp_path / "fit").exists()

@@ -114,6 +114,8 @@ def load_envmap(path: str | Path, to_world: np.ndarray | None = None) -> Envmap:
     height, width = radiance.shape[:2]
     if width != 2 * height:
         raise InputError(path, f"environment map must be 2:1 (width = 2 x height), got {width}x{height}")
+    if height < 4:
+        raise InputError(path, f"environment map of {width}x{height} pixels is too small (at least 8x4)")
     if not np.isfinite(radiance).all():
         raise InputError(path, f"{int(np.sum(~np.isfinite(radiance)))} non-finite values in the environment map")
     return Envmap(clamp_negative_noise(path, radiance), np.eye(4) if to_world is None else to_world)
