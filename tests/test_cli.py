@@ -276,3 +276,17 @@ def test_option_mistakes_are_refused_before_any_work(tiny_capture, tmp_path, run
     error = capsys.readouterr().err
     assert "test_envmaps has an empty name" in error and "rendering" not in error
     assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+def test_a_truncated_exr_is_one_line_on_stderr_and_nothing_on_stdout(tiny_capture, tmp_path):
+    """OpenEXR prints its own lines about a damaged file (one on stdout); `--json` output stays clean."""
+    capture = tmp_path / "capture"
+    shutil.copytree(tiny_capture, capture)
+    frame = sorted((capture / "images").glob("*.exr"))[1]
+    frame.write_bytes(frame.read_bytes()[:2000])
+    done = subprocess.run([sys.executable, "-m", "freqbrdf.cli", "fit", str(capture), "--out", str(tmp_path / "fit"),
+                           "--texture-res", "16", "--json"], capture_output=True, text=True, timeout=300,
+                          env={key: value for key, value in os.environ.items() if key != RERUN_VARIABLE})
+    assert done.returncode == 2 and done.stdout == ""
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"error: {frame}: not a readable OpenEXR file ("), lines

@@ -11,8 +11,13 @@ Photographs are the posed HDR images of METHOD.md §1; environment maps are read
 
 from __future__ import annotations
 
+import contextlib
+import os
 import re
+import sys
+import threading
 import warnings
+from collections.abc import Iterator
 from pathlib import Path
 
 import numba
@@ -217,9 +222,35 @@ def _read_pixels(path: Path) -> tuple[np.ndarray, bool]:
     return _read_ldr(path), True
 
 
+@contextlib.contextmanager
+def _native_output_silenced() -> Iterator[None]:
+    """Send what C libraries print to the process's stdout and stderr to /dev/null for the block.
+
+    OpenEXR prints its own lines (one of them on stdout, which breaks ``--json``) about a damaged
+    file before it raises; the error it raises says the same in one line.
+    """
+    with _NATIVE_OUTPUT_LOCK:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        saved = [os.dup(1), os.dup(2)]
+        null = os.open(os.devnull, os.O_WRONLY)
+        try:
+            os.dup2(null, 1)
+            os.dup2(null, 2)
+            yield
+        finally:
+            os.dup2(saved[0], 1)
+            os.dup2(saved[1], 2)
+            for descriptor in (*saved, null):
+                os.close(descriptor)
+
+
+_NATIVE_OUTPUT_LOCK = threading.Lock()
+
+
 def _read_exr(path: Path) -> np.ndarray:
     try:
-        with OpenEXR.File(str(path), separate_channels=True) as exr:
+        with _native_output_silenced(), OpenEXR.File(str(path), separate_channels=True) as exr:
             planes = {name: channel.pixels for name, channel in exr.channels().items()}
     except Exception as err:  # OpenEXR raises RuntimeError or ValueError on damaged files
         raise InputError(path, f"not a readable OpenEXR file ({err})") from None
