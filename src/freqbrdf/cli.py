@@ -561,7 +561,7 @@ def inpaint(
         None, min=0.0, max=1.0, help="Fill observed texels with entropy >= H (default: texels flagged unobserved or ambiguous)."),
     maps: str = typer.Option("base_color,roughness,metallic", help="Maps to fill, comma-separated."),
     model: str = typer.Option(
-        None, help="Local diffusers inpainting pipeline folder (needs freqbrdf[diffusion]); default: biharmonic."),
+        None, help="Local diffusers inpainting pipeline folder (needs the diffusion extra: pip install -e '.\\[diffusion]'); default: biharmonic."),
     prompt: str = typer.Option(None, help="Diffusion prompt."),
     steps: int = typer.Option(25, min=1, help="Diffusion denoising steps."),
     capture: str = typer.Option(None, "--capture", help="Capture with the mesh (default: the fit's)."),
