@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import sys
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -15,6 +16,8 @@ from freqbrdf.cli import RERUN_VARIABLE, main
 # The command line re-runs a first run that compiled numba kernels in a fresh process (os.execve):
 # never the test process. test_cli.py tests that re-run in a child process of its own.
 os.environ[RERUN_VARIABLE] = "1"
+# Generated atlases go to a cache of the test run's own, not the user's.
+os.environ["FREQBRDF_CACHE"] = tempfile.mkdtemp(prefix="freqbrdf-cache-")
 
 
 @pytest.fixture

@@ -172,18 +172,21 @@ def test_nerf_style_transforms_with_field_of_view_and_bare_file_paths(tmp_path):
     assert capture.ground_truth.resolution == 16
 
 
-def test_mesh_without_uvs_caches_its_atlas_beside_the_capture(tmp_path):
-    write_capture(tmp_path)
+def test_mesh_without_uvs_caches_its_atlas_outside_the_capture(tmp_path, monkeypatch):
+    capture = tmp_path / "capture"
+    write_capture(capture)
     sphere = uv_sphere_mesh(8, 4)
     lines = [f"v {x} {y} {z}" for x, y, z in sphere.vertices]
     lines += [f"f {a} {b} {c}" for a, b, c in sphere.faces + 1]
-    (tmp_path / "mesh.obj").write_text("\n".join(lines) + "\n")
-    cache = tmp_path / "mesh.atlas.obj"
+    (capture / "mesh.obj").write_text("\n".join(lines) + "\n")
+    monkeypatch.setenv("FREQBRDF_CACHE", str(tmp_path / "cache"))
+    before = sorted(path.name for path in capture.iterdir())
 
-    first = load(tmp_path).mesh
-    assert cache.is_file()
+    first = load(capture).mesh
+    (cache,) = (tmp_path / "cache" / "atlas").glob("mesh-*.obj")
+    assert sorted(path.name for path in capture.iterdir()) == before  # the capture folder is never written
     written = cache.stat().st_mtime_ns
-    second = load(tmp_path).mesh
+    second = load(capture).mesh
     assert cache.stat().st_mtime_ns == written  # reused, not rebuilt
     np.testing.assert_array_equal(first.uv, second.uv)
     assert first.uv.min() >= 0 and first.uv.max() <= 1

@@ -40,7 +40,7 @@ def _sha256(path: Path) -> str:
 
 
 def _is_input_name(name: str) -> bool:
-    # Hidden files and the atlas cache the mesh loader writes beside the capture are not inputs.
+    # Hidden files and the atlas caches earlier versions wrote beside the capture are not inputs.
     return not name.startswith(".") and not name.endswith(".atlas.obj")
 
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import hashlib
 import json
 import os
 from collections.abc import Callable, Sequence
@@ -310,7 +311,7 @@ def _load_ours(transforms_path: Path) -> Capture:
         document.get("envmap_to_world", np.eye(4)), transforms_path, "envmap_to_world"
     )
     envmap_scale = _number(transforms_path, "", "envmap_scale", document.get("envmap_scale", 1.0))
-    mesh = load_mesh(mesh_path, atlas_cache=_atlas_cache(root, mesh_path))
+    mesh = load_mesh(mesh_path, atlas_cache=_atlas_cache(mesh_path))
     envmap = _load_scaled_envmap(envmap_path, envmap_to_world, envmap_scale)
 
     test_path = root / TEST_TRANSFORMS_FILE
@@ -424,7 +425,7 @@ def _load_stanford_orb(scene_folder: Path) -> Capture:
     meshes = sorted(mesh_folder.glob("*.obj"))
     if len(meshes) != 1:
         raise InputError(mesh_folder, f"needs exactly one .obj mesh, found {len(meshes)}")
-    mesh = _orb_normals(load_mesh(meshes[0], atlas_cache=_atlas_cache(scene_folder, meshes[0])))
+    mesh = _orb_normals(load_mesh(meshes[0], atlas_cache=_atlas_cache(meshes[0])))
     # Stanford-ORB has no texture-space ground truth; synthetic captures in its layout add gt/.
     truth_maps = scene_truth / GROUND_TRUTH_FOLDER
     ground_truth = load_material_maps(truth_maps) if truth_maps.is_dir() else None
@@ -561,9 +562,30 @@ def _load_scaled_envmap(path: Path, to_world: np.ndarray, scale: float) -> Envma
     return dataclasses.replace(envmap, radiance=envmap.radiance * np.float32(scale))
 
 
-def _atlas_cache(folder: Path, mesh_path: Path) -> Path:
-    """Where the xatlas atlas of a mesh without UVs is kept: beside the capture."""
-    return folder / f"{mesh_path.stem}.atlas.obj"
+def atlas_cache_folder() -> Path:
+    """Return where the xatlas atlases of meshes without UVs are kept, outside every capture.
+
+    ``$FREQBRDF_CACHE/atlas``, else ``$XDG_CACHE_HOME/freqbrdf/atlas``, else
+    ``~/.cache/freqbrdf/atlas``: a capture folder is never written to (it may be read-only, and a
+    batch hashes its files).
+
+    Returns
+    -------
+    Path
+        The folder (not created here).
+    """
+    base = os.environ.get("FREQBRDF_CACHE")
+    if base:
+        return Path(base) / "atlas"
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "freqbrdf" / "atlas"
+
+
+def _atlas_cache(mesh_path: Path) -> Path:
+    """Name the atlas cache file of a mesh by its content (in `atlas_cache_folder`)."""
+    if not Path(mesh_path).is_file():  # `load_mesh` names the missing file
+        return atlas_cache_folder() / f"{mesh_path.stem}.obj"
+    digest = hashlib.sha256(Path(mesh_path).read_bytes()).hexdigest()[:32]
+    return atlas_cache_folder() / f"{mesh_path.stem}-{digest}.obj"
 
 
 # ---------------------------------------------------------------------------------------------
