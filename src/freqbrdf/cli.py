@@ -64,9 +64,9 @@ def _container_folder(value: str | None) -> str | None:
 
 
 def _checked(capture: str, quiet: bool, lmax: int):
-    """Load a capture and check it before any work (`freqbrdf.capture.checks`, and ``lmax``).
+    """Load a capture and check it before any work (`freqbrdf.capture.checks`, for SH degree ``lmax``).
 
-    Its environment map must resolve the SH degree ``lmax`` of the fits. Its warnings are printed once, one line per kind (none with ``quiet``), and returned with it
+    Its warnings are printed once, one line per kind (none with ``quiet``), and returned with it
     (``fit`` records them in summary.json); the data warnings the later stages would raise again
     are silenced.
     """
@@ -80,14 +80,7 @@ def _checked(capture: str, quiet: bool, lmax: int):
         warnings.simplefilter("always", CaptureDataWarning)
         loaded = load(capture)
     lines = [str(warning.message) for warning in caught if issubclass(warning.category, CaptureDataWarning)]
-    lines += check_capture(loaded).warnings
-    from freqbrdf.sphere.sht import check_resolution
-
-    height, width = loaded.envmap.radiance.shape[:2]
-    try:
-        check_resolution(height, width, lmax)
-    except ValueError as err:
-        raise InputError(loaded.envmap_path, f"{err} (--lmax): choose a lower --lmax or a larger map") from None
+    lines += check_capture(loaded, lmax=lmax).warnings
     if not quiet:
         for line in lines:
             err_console.print(f"[yellow]warning:[/yellow] {escape(line)}", highlight=False, soft_wrap=True)

@@ -8,7 +8,7 @@ the minutes of a fit (the capture format: docs/capture-format.md; what a fit nee
   of a size they can resolve (not a mesh in millimetres before cameras a metre away, nor one a
   pixel wide), inside the masks where there are masks (a misaligned mesh is not);
 - the frames: at least two views, not black;
-- the environment map: some light.
+- the environment map: some light, and fine enough for the fits' SH degree.
 
 A problem that makes the fit meaningless is an `InputError` naming the file at fault, with a hint
 at the likely cause; what is only suspicious is returned as warnings.
@@ -24,6 +24,7 @@ import numpy as np
 from freqbrdf.capture.layouts import Capture
 from freqbrdf.errors import InputError
 from freqbrdf.images import CaptureDataWarning
+from freqbrdf.sphere.sht import check_resolution
 
 __all__ = ["CaptureCheck", "check_capture", "surface_points"]
 
@@ -61,7 +62,7 @@ class CaptureCheck:
     warnings: list = field(default_factory=list)
 
 
-def check_capture(capture: Capture, read_frames: bool = True) -> CaptureCheck:
+def check_capture(capture: Capture, read_frames: bool = True, lmax: int | None = None) -> CaptureCheck:
     """Check a loaded capture before any work; raise on what makes a fit meaningless.
 
     Parameters
@@ -70,6 +71,8 @@ def check_capture(capture: Capture, read_frames: bool = True) -> CaptureCheck:
         The capture.
     read_frames : bool, optional
         Read every frame (and mask) to find black frames and the masks' overlap with the mesh.
+    lmax : int, optional
+        The SH degree of the fits, which the environment map must resolve; None: not checked.
 
     Returns
     -------
@@ -82,7 +85,7 @@ def check_capture(capture: Capture, read_frames: bool = True) -> CaptureCheck:
         Fewer than two views, cameras facing away from the mesh (with a hint at OpenCV axes where
         flipping them would put it in front), a mesh far larger than the camera distance or too
         small to see, masks that the mesh does not fall in, every frame black, or an environment
-        map without light.
+        map without light or too coarse for ``lmax``.
     """
     transforms = capture.root / "transforms.json"
     source = transforms if transforms.is_file() else capture.root
@@ -124,6 +127,12 @@ def check_capture(capture: Capture, read_frames: bool = True) -> CaptureCheck:
         check.warnings += _aggregated(caught, views)
     if not float(np.max(capture.envmap.radiance)) > 0.0:
         raise InputError(capture.envmap_path, "the environment map has no light (every pixel is 0)")
+    if lmax is not None:
+        height, width = capture.envmap.radiance.shape[:2]
+        try:
+            check_resolution(height, width, lmax)
+        except ValueError as err:
+            raise InputError(capture.envmap_path, f"{err} (--lmax): choose a lower --lmax or a larger map") from None
     return check
 
 
