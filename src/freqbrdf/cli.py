@@ -524,24 +524,30 @@ def evaluate(
         _print_json(document)
     elif not quiet:
         lines = []
+        if document.get("texture_refused"):
+            lines.append(f"texture: not compared ({document['texture_refused']})")
         if document.get("texture"):
             t = document["texture"]
-            lines.append(f"texture: base colour PSNR {t['base_color_psnr']:.2f} dB, roughness MAE "
-                         f"{t['roughness_mae']:.3f}, metallic MAE {t['metallic_mae']:.3f}")
+            lines.append(f"texture: base colour PSNR {_figure(t['base_color_psnr'], '.2f')} dB, roughness MAE "
+                         f"{_figure(t['roughness_mae'], '.3f')}, metallic MAE {_figure(t['metallic_mae'], '.3f')}")
         if document["views"]:
             r = document["relighting"]
-            lines.append(f"relighting ({len(document['views'])} views): PSNR-H {r['psnr_hdr']:.2f}, "
-                         f"PSNR-L {r['psnr_ldr']:.2f}, SSIM {r['ssim']:.3f}")
+            lines.append(f"relighting ({len(document['views'])} views): PSNR-H {_figure(r['psnr_hdr'], '.2f')}, "
+                         f"PSNR-L {_figure(r['psnr_ldr'], '.2f')}, SSIM {_figure(r['ssim'], '.3f')}")
         if "uncertainty" in document:
             scored = {"entropy": document["uncertainty"].get("roughness"),
                       "roughness std": document["uncertainty"].get("roughness_std", {}).get("roughness")}
             for name, u in scored.items():
                 if u:
-                    rho = "n/a" if u["spearman"] is None else f"{u['spearman']:.2f}"
-                    lines.append(f"{name} vs roughness error: Spearman {rho}, AUSE {u['ause']:.3f}, "
-                                 f"AURG {u['aurg']:.3f}")
+                    lines.append(f"{name} vs roughness error: Spearman {_figure(u['spearman'], '.2f')}, AUSE "
+                                 f"{_figure(u['ause'], '.3f')}, AURG {_figure(u['aurg'], '.3f')}")
         for line in lines:
             Console().print(escape(line), soft_wrap=True)
+
+
+def _figure(value: float | None, spec: str) -> str:
+    """Format a metric for a person; n/a where there was nothing to measure (e.g. no texel observed)."""
+    return "n/a" if value is None else format(value, spec)
 
 
 @app.command()

@@ -204,6 +204,66 @@ def read_mask(path: str | Path) -> np.ndarray:
     return colour.mean(axis=2) > 0.5
 
 
+def read_alpha_mask(path: str | Path) -> np.ndarray:
+    """Read an image's alpha channel as an object mask (NeRF-synthetic's RGBA frames).
+
+    Parameters
+    ----------
+    path : str or Path
+        An image file with an alpha channel (see `image_has_alpha`).
+
+    Returns
+    -------
+    (H, W) bool
+        alpha > 0.5 (of full scale for PNG, of 1.0 for EXR).
+
+    Raises
+    ------
+    InputError
+        If the file is unreadable or has no alpha channel.
+    """
+    pixels, _ = _read_pixels(Path(path))  # (H, W, C)
+    if pixels.shape[2] not in (2, 4):
+        raise InputError(path, "has no alpha channel to take the object mask from")
+    return pixels[..., -1] > 0.5
+
+
+def image_has_alpha(path: str | Path) -> bool:
+    """Whether an image file has an alpha channel, from its header alone.
+
+    Parameters
+    ----------
+    path : str or Path
+        An image file of a type `read_image` reads.
+
+    Returns
+    -------
+    bool
+        True for PNG with alpha or transparency, EXR with an ``A`` channel beside R, G, B.
+
+    Raises
+    ------
+    InputError
+        If the header cannot be read.
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix == ".exr":
+        try:
+            with _native_output_silenced(), OpenEXR.File(str(path), header_only=True) as exr:
+                names = {channel.name for channel in exr.header()["channels"]}
+        except Exception as err:  # OpenEXR raises RuntimeError or ValueError on damaged files
+            raise InputError(path, f"not a readable OpenEXR file ({err})") from None
+        return "A" in names and {"R", "G", "B"} <= names
+    if suffix in (".png",):
+        try:
+            with Image.open(path) as image:
+                return "A" in image.mode or "transparency" in image.info
+        except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as err:
+            raise InputError(path, f"not a readable PNG image ({err})") from None
+    return False
+
+
 def _read_pixels(path: Path) -> tuple[np.ndarray, bool]:
     """Read all channels of the file ``(H, W, C)`` float32, and whether they are sRGB-encoded."""
     suffix = path.suffix.lower()

@@ -13,10 +13,10 @@ from freqbrdf.capture.camera import Camera, look_at
 from freqbrdf.capture.layouts import (
     Frame,
     load,
-    stanford_orb_envmap_to_world,
     write_transforms,
 )
 from freqbrdf.capture.mesh import Mesh, plane_mesh, save_obj, uv_sphere_mesh
+from freqbrdf.capture.stanford_orb import stanford_orb_envmap_to_world
 from freqbrdf.errors import InputError
 from freqbrdf.images import write_exr, write_png
 from freqbrdf.model.materials import save_material_maps

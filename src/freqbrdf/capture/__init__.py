@@ -10,7 +10,12 @@ camera
 camera_layouts
     Where cameras go around an object (Fibonacci or random orbits).
 layouts
-    `Capture` and `Frame`; loading our layout and Stanford-ORB's, writing ours, summaries.
+    `Capture` and `Frame`; loading our layout (nerfstudio and NeRF-synthetic files too), writing
+    it, summaries.
+stanford_orb
+    The Stanford-ORB benchmark's layout.
+checks
+    A loaded capture checked as a whole before any work.
 mesh
     Triangle meshes with one UV atlas: loading, xatlas atlases, OBJ output, test meshes.
 """
@@ -37,7 +42,6 @@ from freqbrdf.capture.layouts import (
     load,
     read_frame_image,
     read_frame_mask,
-    stanford_orb_envmap_to_world,
     write_transforms,
 )
 from freqbrdf.capture.mesh import (
@@ -50,6 +54,7 @@ from freqbrdf.capture.mesh import (
     unit_or_fallback,
     uv_sphere_mesh,
 )
+from freqbrdf.capture.stanford_orb import stanford_orb_envmap_to_world
 
 __all__ = [
     "Camera",

@@ -37,7 +37,7 @@ MAX_SIZE_RATIO = 5.0
 # Pixels the mesh must span in at least one view.
 MIN_PIXELS = 4.0
 # Share of the projected points inside the masks below which the mesh and masks disagree.
-MIN_MASK_OVERLAP = 0.6
+MIN_MASK_OVERLAP = 0.8
 # A frame whose brightest pixel is below this is black.
 BLACK = 1e-6
 

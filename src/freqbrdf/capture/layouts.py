@@ -2,14 +2,17 @@
 
 A capture is the input of METHOD.md §1 (mesh, posed HDR photographs, distant environment map),
 with cameras in the convention of §2 and, optionally, the relighting views and ground truth used
-to judge results (§5). Two layouts load into the same `Capture` (the format is described for
+to judge results (§5). Three layouts load into the same `Capture` (the format is described for
 users in docs/capture-format.md):
 
 - ours: ``transforms.json`` in the NeRF/Blender style plus the keys ``mesh``, ``envmap``,
   ``envmap_to_world`` and ``envmap_scale``; optionally ``transforms_test.json`` (relighting views,
-  each with its own environment map) and ``gt/`` (ground-truth material maps);
-- Stanford-ORB: ``blender_HDR/<scene>/transforms_{train,test,novel}.json`` with
-  ``ground_truth/<scene>/{env_map,mesh_blender}``.
+  each under its own environment map or the capture's) and ``gt/`` (ground-truth material maps).
+  A nerfstudio file is ours too: its ``applied_transform`` and ``applied_scale`` are undone, so
+  the cameras are in the frame of the reconstruction the mesh comes from;
+- NeRF-synthetic: ``transforms_{train,test}.json`` with the same keys, the train split fitted,
+  the test split relit; RGBA images give their alpha as the mask;
+- Stanford-ORB (`freqbrdf.capture.stanford_orb`), recognised by its ground-truth folder.
 
 `write_transforms` is the only writer of the format. Images and masks are read on demand;
 every problem with the input raises `InputError` naming the file.
@@ -22,7 +25,7 @@ import functools
 import hashlib
 import json
 import os
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -46,34 +49,21 @@ from freqbrdf.capture.camera import (
 from freqbrdf.capture.camera import (
     read_json_object as _read_json,
 )
-from freqbrdf.capture.mesh import Mesh, load_mesh, smooth_normals
+from freqbrdf.capture.mesh import Mesh, load_mesh
 from freqbrdf.errors import InputError
 from freqbrdf.fileio import atomic_path
-from freqbrdf.images import IMAGE_SUFFIXES, read_image, read_mask
+from freqbrdf.images import IMAGE_SUFFIXES, image_has_alpha, read_alpha_mask, read_image, read_mask
 from freqbrdf.model.materials import MaterialMaps, load_material_maps
 from freqbrdf.sphere.envmap import Envmap, load_envmap
 
 TRANSFORMS_FILE = "transforms.json"
 TEST_TRANSFORMS_FILE = "transforms_test.json"
+# NeRF-synthetic's training split; a folder with it and without transforms.json is that layout.
+TRAIN_TRANSFORMS_FILE = "transforms_train.json"
 GROUND_TRUTH_FOLDER = "gt"
 # Tried in this order when a file_path has no extension, as in NeRF datasets.
 IMAGE_SUFFIX_ORDER = (".exr", ".hdr", ".png", ".jpg")
 
-ORB_TRAIN_FILE = "transforms_train.json"
-ORB_TEST_FILE = "transforms_test.json"
-ORB_NOVEL_FILE = "transforms_novel.json"
-# Stanford-ORB stores each environment map in the camera frame of the test photograph it belongs
-# to, with longitude u = 0 at +z and u = 1/4 at -x (its orb/utils/env_map.py); Mitsuba's envmap
-# has u = 0 at -z and u = 1/4 at +x. The two differ by a half turn about y.
-ORB_ENVMAP_TO_MITSUBA = np.diag([-1.0, 1.0, -1.0])
-# Its OBJ normals are in another axis convention than its vertices: y and z are exchanged, with
-# or without a sign. The candidate that agrees with the surface is chosen (see _orb_normals).
-ORB_NORMAL_FIXES = (
-    np.eye(3),  # a release with consistent normals
-    np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]]),  # (x, y, z) -> (x, z, -y): Blender Z-up -> Y-up
-    np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]]),  # (x, y, z) -> (x, -z, y)
-    np.array([[1.0, 0, 0], [0, 0, 1], [0, 1, 0]]),  # (x, y, z) -> (x, z, y)
-)
 
 
 @dataclass(frozen=True)
@@ -94,6 +84,9 @@ class Frame:
         Test frames only: that map's Mitsuba envmap to_world.
     envmap_scale : float
         Test frames only: the factor applied to that map's radiance.
+    mask_from_alpha : bool
+        The mask is the alpha channel of ``mask_path`` (alpha > 0.5), as in NeRF-synthetic's
+        RGBA images.
     """
 
     camera: Camera
@@ -102,6 +95,7 @@ class Frame:
     envmap_path: Path | None = None
     envmap_to_world: np.ndarray | None = None
     envmap_scale: float = 1.0
+    mask_from_alpha: bool = False
 
 
 @dataclass(frozen=True)
@@ -113,7 +107,8 @@ class Capture:
     root : Path
         The folder holding the transforms files.
     layout : str
-        "freqbrdf" or "stanford-orb".
+        "freqbrdf", "nerfstudio" (ours, with its applied transform undone), "nerf-synthetic" or
+        "stanford-orb".
     mesh : Mesh
         The object's geometry, with a UV atlas.
     envmap : Envmap
@@ -126,6 +121,9 @@ class Capture:
         Relighting views, each under its own environment map (may be empty).
     ground_truth : MaterialMaps or None
         Ground-truth material maps in texture space, when the capture has them.
+    ground_truth_refused : str or None
+        Why the capture's ``gt/`` maps were not loaded (they are in a UV layout the mesh used
+        here does not have); None when there are none or they were loaded.
     """
 
     root: Path
@@ -136,6 +134,7 @@ class Capture:
     frames: tuple[Frame, ...]
     test_frames: tuple[Frame, ...]
     ground_truth: MaterialMaps | None
+    ground_truth_refused: str | None = None
 
     def image(self, index: int) -> np.ndarray:
         """Read the image of a frame.
@@ -211,7 +210,7 @@ class Capture:
             The map in world space, its scale applied.
         """
         frame = self.test_frames[index]
-        return _load_scaled_envmap(frame.envmap_path, frame.envmap_to_world, frame.envmap_scale)
+        return load_scaled_envmap(frame.envmap_path, frame.envmap_to_world, frame.envmap_scale)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -222,7 +221,8 @@ def load(path: str | Path) -> Capture:
     """Load a capture from its folder or its transforms file.
 
     The layout is recognised from the files: a folder with ``transforms.json`` (or that file) is
-    ours; a folder with ``transforms_train.json`` (or that file) is a Stanford-ORB scene.
+    ours; a folder with ``transforms_train.json`` (or that file) is a Stanford-ORB scene when the
+    benchmark's ground-truth folder lies beside it, else a NeRF-synthetic scene.
 
     Parameters
     ----------
@@ -239,16 +239,16 @@ def load(path: str | Path) -> Capture:
     InputError
         Naming the file, for anything missing or malformed.
     """
+    from freqbrdf.capture import stanford_orb  # it builds on this module
+
     path = Path(path)
     if not path.exists():
         raise InputError(path, "capture does not exist")
     transforms_path = path if path.is_file() else path / TRANSFORMS_FILE
-    folder = transforms_path.parent
-    is_orb = transforms_path.name == ORB_TRAIN_FILE or (
-        path.is_dir() and not transforms_path.exists() and (folder / ORB_TRAIN_FILE).is_file()
-    )
-    if is_orb:
-        return _load_stanford_orb(folder)
+    if path.is_dir() and not transforms_path.exists() and (path / TRAIN_TRANSFORMS_FILE).is_file():
+        transforms_path = path / TRAIN_TRANSFORMS_FILE
+    if transforms_path.name == TRAIN_TRANSFORMS_FILE and stanford_orb.is_stanford_orb_scene(transforms_path.parent):
+        return stanford_orb.load_stanford_orb(transforms_path.parent)
     return _load_ours(transforms_path)
 
 
@@ -296,7 +296,7 @@ def read_frame_mask(frame: Frame) -> np.ndarray:
     """
     if frame.mask_path is None:
         return np.ones((frame.camera.height, frame.camera.width), dtype=bool)
-    mask = read_mask(frame.mask_path)
+    mask = read_alpha_mask(frame.mask_path) if frame.mask_from_alpha else read_mask(frame.mask_path)
     _check_size(frame.mask_path, mask.shape, frame.camera)
     return mask
 
@@ -304,67 +304,153 @@ def read_frame_mask(frame: Frame) -> np.ndarray:
 def _load_ours(transforms_path: Path) -> Capture:
     root = transforms_path.parent
     document = _read_json(transforms_path)
-    frames = _parse_frames(transforms_path, document, with_envmaps=False)
-    mesh_path = root / _string(transforms_path, "", document, "mesh")
-    envmap_path = root / _string(transforms_path, "", document, "envmap")
+    layout = "nerf-synthetic" if transforms_path.name == TRAIN_TRANSFORMS_FILE else "freqbrdf"
+    for key, what in (("mesh", "the object's mesh"), ("envmap", "the environment map it was photographed under")):
+        if key not in document:
+            raise InputError(transforms_path, f"missing required key {key!r}: freqbrdf needs {what}; add "
+                             f'"{key}": "<path relative to this file>" (docs/capture-format.md)')
+    mesh_path = root / string_key(transforms_path, "", document, "mesh")
+    envmap_path = root / string_key(transforms_path, "", document, "envmap")
     envmap_to_world = check_rigid(
         document.get("envmap_to_world", np.eye(4)), transforms_path, "envmap_to_world"
     )
     envmap_scale = _number(transforms_path, "", "envmap_scale", document.get("envmap_scale", 1.0))
-    mesh = load_mesh(mesh_path, atlas_cache=_atlas_cache(mesh_path))
-    envmap = _load_scaled_envmap(envmap_path, envmap_to_world, envmap_scale)
+    reconstruction = reconstruction_from_transforms(transforms_path, document)
+    if reconstruction is not None:
+        layout = "nerfstudio"
+    frames = _parse_frames(transforms_path, document, reconstruction=reconstruction)
+    mesh = load_mesh(mesh_path, atlas_cache=atlas_cache_path(mesh_path))
+    envmap = load_scaled_envmap(envmap_path, envmap_to_world, envmap_scale)
 
     test_path = root / TEST_TRANSFORMS_FILE
     test_frames = ()
     if test_path.exists():
-        test_frames = _parse_frames(test_path, _read_json(test_path), with_envmaps=True)
+        test_frames = _parse_frames(test_path, _read_json(test_path), reconstruction=reconstruction,
+                                    light=(envmap_path, envmap_to_world, envmap_scale))
     ground_truth_folder = root / GROUND_TRUTH_FOLDER
-    ground_truth = load_material_maps(ground_truth_folder) if ground_truth_folder.is_dir() else None
+    ground_truth, refused = None, None
+    if ground_truth_folder.is_dir() and mesh.atlas_generated:
+        refused = (f"its maps are in a UV layout of their own, but {mesh_path.name} has no usable UVs (freqbrdf "
+                   "made an atlas for it), so they cannot be compared; give the mesh with the UVs the maps were made "
+                   "for")
+    elif ground_truth_folder.is_dir():
+        ground_truth = load_material_maps(ground_truth_folder)
     return Capture(
-        root, "freqbrdf", mesh, envmap, envmap_path, frames, test_frames, ground_truth
+        root, layout, mesh, envmap, envmap_path, frames, test_frames, ground_truth, refused
     )
 
 
-def _parse_frames(source: Path, document: dict, with_envmaps: bool) -> tuple[Frame, ...]:
+def reconstruction_from_transforms(source: Path, document: dict) -> np.ndarray | None:
+    """Return what undoes nerfstudio's ``applied_transform`` and ``applied_scale``, if given.
+
+    nerfstudio's data processing writes poses as ``applied_scale * (applied_transform @ pose)``
+    (positions scaled) of the reconstruction it read; a mesh of that reconstruction is in its
+    original frame, where this brings the cameras back.
+
+    Parameters
+    ----------
+    source : Path
+        The transforms file (for messages).
+    document : dict
+        Its parsed content.
+
+    Returns
+    -------
+    (4, 4) float64 or None
+        A similarity transform mapping the file's world frame to the reconstruction's: applied to
+        positions; None when the file has neither key.
+
+    Raises
+    ------
+    InputError
+        If ``applied_transform`` is not a rigid 3x4 or 4x4 matrix or ``applied_scale`` not a
+        positive number.
+    """
+    if "applied_transform" not in document and "applied_scale" not in document:
+        return None
+    applied = np.eye(4)
+    if "applied_transform" in document:
+        matrix = document["applied_transform"]
+        try:
+            matrix = np.asarray(matrix, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise InputError(source, "'applied_transform' must be a 3x4 or 4x4 matrix of numbers") from None
+        if matrix.shape == (3, 4):
+            matrix = np.vstack([matrix, [0.0, 0.0, 0.0, 1.0]])
+        if matrix.shape != (4, 4):
+            raise InputError(source, f"'applied_transform' must be 3x4 or 4x4, got shape {matrix.shape}")
+        applied = check_rigid(matrix, source, "applied_transform")
+    scale = _number(source, "", "applied_scale", document.get("applied_scale", 1.0))
+    undo = np.linalg.inv(applied)
+    undo[:3, :3] /= scale
+    return undo
+
+
+def _parse_frames(source: Path, document: dict, reconstruction: np.ndarray | None = None,
+                  light: tuple[Path, np.ndarray, float] | None = None) -> tuple[Frame, ...]:
     """Parse the frames of one transforms file of ours; paths are relative to its folder.
 
-    Any per-frame key may also be given at the top level, as the default for every frame.
+    Any per-frame key may also be given at the top level, as the default for every frame. Without
+    masks, images with an alpha channel give it as their mask. ``reconstruction`` (see
+    `reconstruction_from_transforms`) moves the cameras; with ``light`` (the capture's map, its
+    to_world and scale) the frames are test frames, each under its own ``envmap`` or that light.
     """
     root = source.parent
     entries = _frame_entries(source, document)
     image_paths, mask_paths = [], []
     for index, entry in enumerate(entries):
         where = f"frame {index}: "
-        image = root / _string(source, where, entry, "file_path")
-        image_paths.append(_resolve_image(source, f"image of frame {index}", image))
+        image = root / string_key(source, where, entry, "file_path")
+        image_paths.append(resolve_image(source, f"image of frame {index}", image))
         if "mask_path" in entry:
-            mask = root / _string(source, where, entry, "mask_path")
-            mask_paths.append(_resolve_image(source, f"mask of frame {index}", mask))
+            mask = root / string_key(source, where, entry, "mask_path")
+            mask_paths.append(resolve_image(source, f"mask of frame {index}", mask))
         else:
             mask_paths.append(None)
     _check_masks_for_all(source, mask_paths)
+    from_alpha = not any(mask_paths) and _alpha_for_all(source, image_paths)
+    if from_alpha:
+        mask_paths = list(image_paths)
     size_of_first = functools.cache(lambda: read_image(image_paths[0]).shape[:2])
     frames = []
     for index, (entry, image_path, mask_path) in enumerate(zip(entries, image_paths, mask_paths)):
         camera = _camera(source, index, entry, document, size_of_first)
-        if not with_envmaps:
-            frames.append(Frame(camera, image_path, mask_path))
-            continue
-        where = f"frame {index}: "
-        defaults = {**document, **entry}
-        envmap_to_world = defaults.get("envmap_to_world", np.eye(4))
-        envmap_scale = defaults.get("envmap_scale", 1.0)
-        frames.append(
-            Frame(
-                camera,
-                image_path,
-                mask_path,
-                envmap_path=root / _string(source, where, defaults, "envmap"),
-                envmap_to_world=check_rigid(envmap_to_world, source, f"{where}envmap_to_world"),
-                envmap_scale=_number(source, where, "envmap_scale", envmap_scale),
-            )
-        )
+        if reconstruction is not None:
+            pose = np.array(camera.camera_to_world)
+            pose[:3, :3] = reconstruction[:3, :3] @ pose[:3, :3] / np.cbrt(np.linalg.det(reconstruction[:3, :3]))
+            pose[:3, 3] = reconstruction[:3, :3] @ pose[:3, 3] + reconstruction[:3, 3]
+            camera = dataclasses.replace(camera, camera_to_world=pose)
+        frame = Frame(camera, image_path, mask_path, mask_from_alpha=from_alpha)
+        if light is not None:
+            frame = dataclasses.replace(frame, **_test_light(source, index, {**document, **entry}, light))
+        frames.append(frame)
     return tuple(frames)
+
+
+def _test_light(source: Path, index: int, keys: dict, light: tuple[Path, np.ndarray, float]) -> dict:
+    """Return a test frame's light: its ``envmap`` (with to_world and scale), else the capture's."""
+    if "envmap" not in keys:
+        envmap_path, envmap_to_world, envmap_scale = light
+        return dict(envmap_path=envmap_path, envmap_to_world=envmap_to_world, envmap_scale=envmap_scale)
+    where = f"frame {index}: "
+    return dict(
+        envmap_path=source.parent / string_key(source, where, keys, "envmap"),
+        envmap_to_world=check_rigid(keys.get("envmap_to_world", np.eye(4)), source, f"{where}envmap_to_world"),
+        envmap_scale=_number(source, where, "envmap_scale", keys.get("envmap_scale", 1.0)),
+    )
+
+
+def _alpha_for_all(source: Path, image_paths: Sequence[Path]) -> bool:
+    """Whether every image has an alpha channel (NeRF-synthetic's mask); refuse some having it."""
+    has_alpha = [image_has_alpha(path) for path in image_paths]
+    if all(has_alpha):
+        return True
+    if any(has_alpha):
+        first = has_alpha.index(False)
+        raise InputError(source, f"{sum(has_alpha)} of {len(has_alpha)} images have an alpha channel, taken as the "
+                                 f"object mask (first without one: frame {first}); give it on every image, or "
+                                 "mask_path for every frame")
+    return False
 
 
 def _check_masks_for_all(source: Path, mask_paths: Sequence[Path | None]) -> None:
@@ -378,160 +464,18 @@ def _check_masks_for_all(source: Path, mask_paths: Sequence[Path | None]) -> Non
         )
 
 
-# --- Stanford-ORB --------------------------------------------------------------------------------
-
-
-def _load_stanford_orb(scene_folder: Path) -> Capture:
-    """``blender_HDR/<scene>``: train views as frames, novel-scene test views as test frames.
-
-    The scene's light is the environment map of its first test photograph (Stanford-ORB has one
-    per test photograph, none for the training views), placed by that test camera's pose.
-    """
-    scene = scene_folder.name
-    ground_truth_root = scene_folder.parent.parent / "ground_truth"
-    scene_truth = ground_truth_root / scene
-    if not scene_truth.is_dir():
-        raise InputError(
-            scene_truth,
-            f"Stanford-ORB layout ({ORB_TRAIN_FILE} found) needs this ground-truth folder",
-        )
-    train_path = scene_folder / ORB_TRAIN_FILE
-    frames = _parse_orb_frames(train_path, lambda entry: scene_folder, lambda entry: None)
-
-    test_path = scene_folder / ORB_TEST_FILE
-    test_entries = _frame_entries(test_path, _read_json(test_path))
-    light_pose = check_rigid(
-        required_key(test_path, "frame 0: ", test_entries[0], "transform_matrix"),
-        test_path,
-        "frame 0: transform_matrix",
-    )
-    envmap_path = _orb_envmap_path(test_path, 0, test_entries[0], scene_truth)
-    envmap = _load_scaled_envmap(envmap_path, stanford_orb_envmap_to_world(light_pose), 1.0)
-
-    novel_path = scene_folder / ORB_NOVEL_FILE
-    test_frames = ()
-    if novel_path.exists():
-        # Novel-scene views live in the other scene's folders; their poses are already aligned.
-        def other_scene(entry: dict) -> str:
-            return _string(novel_path, "", entry, "scene_name")
-
-        test_frames = _parse_orb_frames(
-            novel_path,
-            lambda entry: scene_folder.parent / other_scene(entry),
-            lambda entry: ground_truth_root / other_scene(entry),
-        )
-
-    mesh_folder = scene_truth / "mesh_blender"
-    meshes = sorted(mesh_folder.glob("*.obj"))
-    if len(meshes) != 1:
-        raise InputError(mesh_folder, f"needs exactly one .obj mesh, found {len(meshes)}")
-    mesh = _orb_normals(load_mesh(meshes[0], atlas_cache=_atlas_cache(meshes[0])))
-    # Stanford-ORB has no texture-space ground truth; synthetic captures in its layout add gt/.
-    truth_maps = scene_truth / GROUND_TRUTH_FOLDER
-    ground_truth = load_material_maps(truth_maps) if truth_maps.is_dir() else None
-    return Capture(
-        scene_folder, "stanford-orb", mesh, envmap, envmap_path, frames, test_frames, ground_truth
-    )
-
-
-def _parse_orb_frames(
-    source: Path,
-    image_folder: Callable[[dict], Path],
-    truth_folder: Callable[[dict], Path | None],
-) -> tuple[Frame, ...]:
-    """Parse the frames of a Stanford-ORB transforms file.
-
-    Masks are ``<images>_mask/<name>.png``; with a ``truth_folder`` each frame gets its
-    environment map, placed by its camera.
-    """
-    document = _read_json(source)
-    entries = _frame_entries(source, document)
-    image_paths = []
-    for index, entry in enumerate(entries):
-        image = image_folder(entry) / _string(source, f"frame {index}: ", entry, "file_path")
-        image_paths.append(_resolve_image(source, f"image of frame {index}", image))
-    mask_paths = [
-        image.parent.with_name(image.parent.name + "_mask") / f"{image.stem}.png"
-        for image in image_paths
-    ]
-    missing = [mask for mask in mask_paths if not mask.is_file()]
-    if len(missing) == len(mask_paths):
-        mask_paths = [None] * len(image_paths)
-    elif missing:
-        raise InputError(
-            missing[0].parent,
-            f"has no mask for {len(missing)} of {len(mask_paths)} frames of {source.name} "
-            f"(first missing: {missing[0].name})",
-        )
-    size_of_first = functools.cache(lambda: read_image(image_paths[0]).shape[:2])
-    frames = []
-    for index, (entry, image_path, mask_path) in enumerate(zip(entries, image_paths, mask_paths)):
-        camera = _camera(source, index, entry, document, size_of_first)
-        truth = truth_folder(entry)
-        if truth is None:
-            frames.append(Frame(camera, image_path, mask_path))
-            continue
-        envmap_path = _orb_envmap_path(source, index, entry, truth)
-        envmap_to_world = stanford_orb_envmap_to_world(camera.camera_to_world)
-        frames.append(Frame(camera, image_path, mask_path, envmap_path, envmap_to_world))
-    return tuple(frames)
-
-
-def _orb_envmap_path(source: Path, index: int, entry: dict, scene_truth: Path) -> Path:
-    """``env_map/<name>.exr``, named after the test photograph; it must exist."""
-    photo = Path(_string(source, f"frame {index}: ", entry, "file_path"))
-    name = photo.stem if photo.suffix.lower() in IMAGE_SUFFIXES else photo.name
-    envmap_path = scene_truth / "env_map" / f"{name}.exr"
-    if not envmap_path.is_file():
-        raise InputError(
-            envmap_path, f"environment map of frame {index} in {source.name} does not exist"
-        )
-    return envmap_path
-
-
-def stanford_orb_envmap_to_world(camera_to_world: np.ndarray) -> np.ndarray:
-    """Place a Stanford-ORB environment map, stored in a camera's frame, in world space.
-
-    Parameters
-    ----------
-    camera_to_world : (4, 4) array_like
-        The pose of the camera whose frame the map is stored in.
-
-    Returns
-    -------
-    (4, 4) float64
-        The map's Mitsuba envmap to_world (a rotation).
-    """
-    to_world = np.eye(4)
-    to_world[:3, :3] = np.asarray(camera_to_world)[:3, :3] @ ORB_ENVMAP_TO_MITSUBA
-    return to_world
-
-
-def _orb_normals(mesh: Mesh) -> Mesh:
-    """Undo the axis exchange of Stanford-ORB's normals.
-
-    Keeps the candidate in ORB_NORMAL_FIXES that agrees best with the area-weighted normals of
-    the triangles themselves.
-    """
-    geometric = smooth_normals(mesh.vertices, mesh.faces)  # (V, 3)
-    agreement = [
-        np.mean(np.sum((mesh.normals @ fix.T) * geometric, axis=1)) for fix in ORB_NORMAL_FIXES
-    ]
-    best = ORB_NORMAL_FIXES[int(np.argmax(agreement))]
-    return dataclasses.replace(mesh, normals=mesh.normals @ best.T)
-
-
 # --- shared parsing helpers --------------------------------------------------------------------
 
 
-def _string(source: Path, where: str, mapping: dict, key: str) -> str:
+def string_key(source: Path, where: str, mapping: dict, key: str) -> str:
+    """Return ``mapping[key]``, a non-empty string (a path); `InputError` naming ``source`` if not."""
     value = required_key(source, where, mapping, key)
     if not isinstance(value, str) or not value:
         raise InputError(source, f"{where}{key!r} must be a non-empty string (a path)")
     return value
 
 
-def _resolve_image(source: Path, what: str, path: Path) -> Path:
+def resolve_image(source: Path, what: str, path: Path) -> Path:
     """``path`` itself, or with the first of IMAGE_SUFFIX_ORDER that exists when it has none.
 
     ``what`` names the file for the error message, e.g. "image of frame 3".
@@ -555,7 +499,8 @@ def _check_size(path: Path, shape: tuple[int, ...], camera: Camera) -> None:
         )
 
 
-def _load_scaled_envmap(path: Path, to_world: np.ndarray, scale: float) -> Envmap:
+def load_scaled_envmap(path: Path, to_world: np.ndarray, scale: float) -> Envmap:
+    """Load an environment map placed by ``to_world`` (4, 4), its radiance times ``scale``."""
     envmap = load_envmap(path, to_world)
     if scale == 1.0:
         return envmap
@@ -580,7 +525,7 @@ def atlas_cache_folder() -> Path:
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "freqbrdf" / "atlas"
 
 
-def _atlas_cache(mesh_path: Path) -> Path:
+def atlas_cache_path(mesh_path: Path) -> Path:
     """Name the atlas cache file of a mesh by its content (in `atlas_cache_folder`)."""
     if not Path(mesh_path).is_file():  # `load_mesh` names the missing file
         return atlas_cache_folder() / f"{mesh_path.stem}.obj"

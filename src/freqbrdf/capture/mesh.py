@@ -50,6 +50,9 @@ class Mesh:
         Texture coordinates in [0, 1], origin bottom-left (see the module docstring).
     path : Path or None
         The file it was loaded from.
+    atlas_generated : bool
+        Whether ``uv`` is an xatlas atlas made here (the file had no usable UVs), so maps made
+        for the file's own UV layout do not apply.
     """
 
     vertices: np.ndarray
@@ -57,6 +60,7 @@ class Mesh:
     normals: np.ndarray
     uv: np.ndarray
     path: Path | None = None
+    atlas_generated: bool = False
 
 
 def load_mesh(path: str | Path, atlas_cache: str | Path | None = None) -> Mesh:
@@ -101,11 +105,11 @@ def load_mesh(path: str | Path, atlas_cache: str | Path | None = None) -> Mesh:
         cached = _read_atlas_cache(atlas_cache, cache_key)
         if cached is not None:
             vertices, faces, normals, uv = cached
-            return Mesh(vertices, faces, normals, uv, path)
+            return Mesh(vertices, faces, normals, uv, path, atlas_generated=True)
     vertices, faces, normals, uv = _read_geometry(path)
     if uv is not None:
         return Mesh(vertices, faces, normals, uv, path)
-    mesh = Mesh(*generate_atlas(vertices, faces, normals), path)
+    mesh = Mesh(*generate_atlas(vertices, faces, normals), path, atlas_generated=True)
     if atlas_cache is not None:
         save_obj(atlas_cache, mesh, comment=f"{_CACHE_TAG} {cache_key}")
     return mesh

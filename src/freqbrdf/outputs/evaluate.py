@@ -12,7 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from freqbrdf.capture.layouts import Capture
+from freqbrdf.capture.layouts import GROUND_TRUTH_FOLDER, Capture
+from freqbrdf.errors import InputError
 from freqbrdf.fileio import atomic_directory
 from freqbrdf.model.materials import resize
 from freqbrdf.outputs import export
@@ -63,14 +64,19 @@ def evaluate_fit(fit_outputs: FitOutputs, capture: Capture, out_dir: str | Path 
     Raises
     ------
     InputError
-        If ``out_dir`` would replace the fit or the capture folder.
+        If ``out_dir`` would replace the fit or the capture folder, or there is nothing to score:
+        no test views, and ground truth in a UV layout the fit's mesh does not have.
     """
     out = Path(out_dir) if out_dir is not None else fit_outputs.folder / EVALUATION_FOLDER
+    if capture.ground_truth_refused is not None and not capture.test_frames:
+        raise InputError(Path(capture.root) / GROUND_TRUTH_FOLDER, capture.ground_truth_refused)
     check_output_folder(out, {"the fit": fit_outputs.folder.resolve(), "the capture": Path(capture.root).resolve()})
     evaluation = relight_evaluate(capture, fit_outputs.maps, fit_outputs.observed, settings, reporter)
     # One folder, renamed into place when complete: a failure leaves the previous evaluation (or none).
     with atomic_directory(out) as folder:
         extra = {"fit": str(fit_outputs.folder.resolve()), "capture": str(Path(capture.root).resolve())}
+        if capture.ground_truth_refused is not None:
+            extra["texture_refused"] = f"{GROUND_TRUTH_FOLDER}/: {capture.ground_truth_refused}"
         uncertainty_scores = _uncertainty_scores(fit_outputs, capture, folder)
         if uncertainty_scores is not None:
             extra["uncertainty"] = uncertainty_scores
@@ -155,6 +161,8 @@ def _std_calibration(fit_outputs: FitOutputs, capture: Capture, out: Path) -> di
         error = np.abs(estimate.reshape(-1, channels)[flat] - getattr(truth, name).reshape(-1, channels)[flat])
         sigma = np.asarray(arrays[f"{name}_std"], np.float64).reshape(len(flat), -1)
         usable = np.isfinite(sigma) & np.isfinite(error)
+        if not usable.any():  # e.g. a fit with no texel observed: no std to score
+            continue
         within = {f"{k:g}": float(np.mean((error <= k * sigma)[usable])) for k in CALIBRATION_MULTIPLES}
         seen = usable & observed[:, None]
         unseen = usable & ~observed[:, None]
@@ -162,6 +170,8 @@ def _std_calibration(fit_outputs: FitOutputs, capture: Capture, out: Path) -> di
                         "within_1_observed": float(np.mean((error <= sigma)[seen])) if seen.any() else None,
                         "within_1_unobserved": float(np.mean((error <= sigma)[unseen])) if unseen.any() else None,
                         "texels": int(usable.any(axis=1).sum())}
+    if not scores:
+        return None
     ideal = {f"{k:g}": erf(k / sqrt(2.0)) for k in CALIBRATION_MULTIPLES}
     _plot_calibration(scores, ideal, out / CALIBRATION_PLOT)
     return {"of": "fraction of atlas texels whose absolute error lies within k std (base colour: per channel)",

@@ -37,15 +37,13 @@ from freqbrdf.capture.camera_layouts import (
 )
 from freqbrdf.capture.layouts import (
     GROUND_TRUTH_FOLDER,
-    ORB_NORMAL_FIXES,
-    ORB_NOVEL_FILE,
     TEST_TRANSFORMS_FILE,
     TRANSFORMS_FILE,
     Frame,
-    stanford_orb_envmap_to_world,
     write_transforms,
 )
 from freqbrdf.capture.mesh import Mesh, load_mesh, save_obj
+from freqbrdf.capture.stanford_orb import ORB_NORMAL_FIXES, ORB_NOVEL_FILE, stanford_orb_envmap_to_world
 from freqbrdf.errors import InputError
 from freqbrdf.fileio import atomic_directory
 from freqbrdf.images import write_exr, write_png
