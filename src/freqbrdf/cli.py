@@ -72,6 +72,20 @@ def _checked(capture: str, quiet: bool, lmax: int):
     """
     import warnings
 
+    from freqbrdf.images import CaptureDataWarning
+
+    loaded, _, lines = _load_and_check(capture, lmax)
+    if not quiet:
+        for line in lines:
+            err_console.print(f"[yellow]warning:[/yellow] {escape(line)}", highlight=False, soft_wrap=True)
+    warnings.filterwarnings("ignore", category=CaptureDataWarning)  # said once, above
+    return loaded, lines
+
+
+def _load_and_check(capture: str, lmax: int | None):
+    """Load and check a capture: (the capture, its `CaptureCheck`, every warning line of both)."""
+    import warnings
+
     from freqbrdf.capture.checks import check_capture
     from freqbrdf.capture.layouts import load
     from freqbrdf.images import CaptureDataWarning
@@ -80,12 +94,8 @@ def _checked(capture: str, quiet: bool, lmax: int):
         warnings.simplefilter("always", CaptureDataWarning)
         loaded = load(capture)
     lines = [str(warning.message) for warning in caught if issubclass(warning.category, CaptureDataWarning)]
-    lines += check_capture(loaded, lmax=lmax).warnings
-    if not quiet:
-        for line in lines:
-            err_console.print(f"[yellow]warning:[/yellow] {escape(line)}", highlight=False, soft_wrap=True)
-    warnings.filterwarnings("ignore", category=CaptureDataWarning)  # said once, above
-    return loaded, lines
+    check = check_capture(loaded, lmax=lmax)
+    return loaded, check, lines + check.warnings
 
 
 def _results_from_cache(quiet: bool) -> None:
@@ -167,22 +177,23 @@ def info(capture: str = typer.Argument(..., help="Capture folder or its transfor
     """Summarise a capture: views, resolution, mesh, environment map, test set, ground truth."""
     from rich.table import Table
 
-    from freqbrdf.capture.checks import check_capture
-    from freqbrdf.capture.layouts import (  # here: its imports would slow every command
-        describe,
-        load,
-    )
+    from freqbrdf.capture.layouts import describe  # here: its imports would slow every command
 
-    loaded = load(capture)
+    loaded, check, warning_lines = _load_and_check(capture, None)
     table = Table(show_header=False, box=None)
     for topic, text in describe(loaded):
         table.add_row(f"[bold]{topic}[/bold]", escape(text))
-    check = check_capture(loaded)
     figures = check.figures
     overlap = "no masks" if figures["mask_overlap"] is None else f"{figures['mask_overlap']:.0%} of it inside the masks"
+    exposure = figures["exposure_range"]
     table.add_row("[bold]check[/bold]", escape(
         f"the mesh in front of the cameras in {1 - figures['behind']:.0%} of the views, up to "
         f"{figures['pixels']:.0f} px wide, {overlap}; {figures['black_frames']} black frames"))
+    table.add_row("", escape(
+        f"a point of the mesh is seen by {figures['views_per_point']['median']:.0f} views (median, up to "
+        f"{figures['views_per_point']['most']}); object radiance per frame "
+        + ("n/a" if exposure is None else f"{exposure[0]:.2g}-{exposure[1]:.2g}x the median")
+        + f"; {figures['duplicate_poses']} repeated poses, {figures['ldr_frames']} LDR frames in HDR files"))
     for warning in check.warnings:
         table.add_row("[bold yellow]warning[/bold yellow]", escape(warning))
     Console().print(table)

@@ -146,3 +146,44 @@ def test_an_environment_map_too_small_for_the_fit(capture_copy, tmp_path, run_cl
     with pytest.raises(InputError, match="envmap.exr: environment map of 2x1 pixels is too small"):
         load(capture_copy)
     assert not (tmp_path / "fit").exists()
+
+
+def test_a_repeated_pose_a_frame_exposed_apart_and_ldr_data_are_one_warning_each(capture_copy):
+    def repeat_first(document):
+        document["frames"][3]["transform_matrix"] = document["frames"][0]["transform_matrix"]
+
+    edit_frames(capture_copy, repeat_first)
+    bright = capture_copy / "images" / "0001.exr"
+    write_exr(bright, read_image(bright) * 40.0)  # four stops and more above the others
+    for name in ("0002.exr", "0004.exr"):  # 8-bit sRGB values written as float
+        path = capture_copy / "images" / name
+        encoded = np.round(np.clip(read_image(path) ** (1 / 2.2), 0, 1) * 255) / 255
+        write_exr(path, encoded.astype(np.float32))
+    check = check_capture(load(capture_copy))
+    assert check.figures["duplicate_poses"] == 1 and check.figures["ldr_frames"] == 2
+    assert check.figures["exposure_range"][1] > 10
+    assert len(check.warnings) == 3, check.warnings
+    repeated, exposure, ldr = (next(line for line in check.warnings if word in line)
+                               for word in ("repeat", "exposed", "LDR"))
+    assert "frame 3 = frame 0" in repeated
+    assert "1 of 6 frames are exposed unlike the others" in exposure and "0001.exr" in exposure
+    assert "2 of 6 HDR frames hold LDR data" in ldr and "0002.exr" in ldr
+
+
+def test_an_exr_clipped_at_one_is_ldr_data(capture_copy):
+    for path in sorted((capture_copy / "images").glob("*.exr")):
+        write_exr(path, np.minimum(read_image(path) * 4.0, 1.0))
+    check = check_capture(load(capture_copy))
+    assert check.figures["ldr_frames"] == 6 and any("clipped at 1.0" in line for line in check.warnings)
+
+
+def test_an_lmax_far_beyond_the_views_per_point_is_refused_with_the_highest_that_fits(capture_copy, tmp_path, run_cli,
+                                                                                      capsys):
+    check = check_capture(load(capture_copy), lmax=5)
+    most = check.figures["views_per_point"]["most"]
+    assert 1 <= most <= 6 and check.figures["views_per_point"]["median"] <= most
+    out = tmp_path / "fit"
+    assert run_cli("fit", capture_copy, "--out", out, "--lmax", 50, "--quiet") == 2
+    error = capsys.readouterr().err.strip()
+    assert "--lmax 50 fits (lmax+1)^2 = 2601 SH coefficients per texel" in error and "\n" not in error
+    assert f"at most {most} views see any point" in error and not out.exists()

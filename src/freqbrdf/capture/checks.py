@@ -7,7 +7,9 @@ the minutes of a fit (the capture format: docs/capture-format.md; what a fit nee
 - the cameras against the mesh: the mesh in front of them (OpenCV's +Z-forward axes put it behind),
   of a size they can resolve (not a mesh in millimetres before cameras a metre away, nor one a
   pixel wide), inside the masks where there are masks (a misaligned mesh is not);
-- the frames: at least two views, not black;
+- the frames: at least two views, not black, not the same pose twice, exposed alike, and HDR (not
+  clipped at 1 or on 8-bit steps);
+- the fits' SH degree: not far beyond what the views per texel can determine;
 - the environment map: some light, and fine enough for the fits' SH degree.
 
 A problem that makes the fit meaningless is an `InputError` naming the file at fault, with a hint
@@ -23,7 +25,7 @@ import numpy as np
 
 from freqbrdf.capture.layouts import Capture
 from freqbrdf.errors import InputError
-from freqbrdf.images import CaptureDataWarning
+from freqbrdf.images import HDR_SUFFIXES, CaptureDataWarning
 from freqbrdf.sphere.sht import check_resolution
 
 __all__ = ["CaptureCheck", "check_capture", "surface_points"]
@@ -40,6 +42,15 @@ MIN_PIXELS = 4.0
 MIN_MASK_OVERLAP = 0.8
 # A frame whose brightest pixel is below this is black.
 BLACK = 1e-6
+# A frame whose median object radiance differs from the frames' median by more than this factor
+# (either way) is exposed differently: views of one object under one light stay well within it.
+EXPOSURE_FACTOR = 10.0
+# An HDR frame whose values all lie on 1/255 steps, or whose brightest values sit at 1.0 in more
+# than this share of its lit pixels, holds LDR data.
+CLIPPED_SHARE = 0.005
+# The unknowns of one texel's SH fit, (lmax + 1)^2, above this multiple of the views that can see
+# a point of the mesh: the degree is far beyond what the samples determine (and costs O(lmax^4)).
+MAX_UNKNOWNS_PER_VIEW = 16
 
 
 @dataclass
@@ -51,10 +62,14 @@ class CaptureCheck:
     figures : dict
         ``views``, ``behind`` (share of views with the mesh behind the camera), ``size_ratio``
         (bounding radius over the median camera distance), ``pixels`` (the mesh's largest extent
-        in pixels over the views), ``mask_overlap`` (median share of projected points inside
-        the masks; None without masks) and ``black_frames``.
+        in pixels over the views), ``views_per_point`` (median and most views that see a point
+        of the mesh, occlusion aside), ``duplicate_poses``, ``mask_overlap`` (median share of
+        projected points inside the masks; None without masks), ``black_frames``,
+        ``exposure_range`` (the least and most median object radiance over the frames' median)
+        and ``ldr_frames``.
     warnings : list of str
-        Suspicious but usable data, one line per kind (black frames; the frames'
+        Suspicious but usable data, one line per kind (black frames, duplicate poses, frames
+        exposed differently, LDR data in HDR files; the frames'
         `freqbrdf.images.CaptureDataWarning`, 8-bit or with negative noise, aggregated).
     """
 
@@ -84,8 +99,9 @@ def check_capture(capture: Capture, read_frames: bool = True, lmax: int | None =
     InputError
         Fewer than two views, cameras facing away from the mesh (with a hint at OpenCV axes where
         flipping them would put it in front), a mesh far larger than the camera distance or too
-        small to see, masks that the mesh does not fall in, every frame black, or an environment
-        map without light or too coarse for ``lmax``.
+        small to see, masks that the mesh does not fall in, every frame black, an ``lmax`` with
+        far more unknowns than views per point, or an environment map without light or too coarse
+        for ``lmax``.
     """
     transforms = capture.root / "transforms.json"
     source = transforms if transforms.is_file() else capture.root
@@ -95,7 +111,8 @@ def check_capture(capture: Capture, read_frames: bool = True, lmax: int | None =
     if views < 2:
         raise InputError(source, f"{views} view: every texel needs samples from at least two views to be estimated")
     vertices = np.asarray(capture.mesh.vertices, np.float64)
-    points = surface_points(vertices, np.asarray(capture.mesh.faces))
+    points, normals = _surface_points_and_normals(vertices, np.asarray(capture.mesh.faces),
+                                                  np.asarray(capture.mesh.normals, np.float64))
     centre = 0.5 * (vertices.min(axis=0) + vertices.max(axis=0))
     radius = float(np.max(np.linalg.norm(vertices - centre, axis=1)))
     cameras = [frame.camera for frame in capture.frames]
@@ -118,6 +135,19 @@ def check_capture(capture: Capture, read_frames: bool = True, lmax: int | None =
     check.figures["pixels"] = float(pixels)
     if pixels < MIN_PIXELS:
         raise InputError(source, f"the mesh spans {pixels:.2g} pixels in the closest view: cameras far too far (units?)")
+    counts = _views_per_point(capture, points, normals)
+    check.figures["views_per_point"] = {"median": float(np.median(counts)), "most": int(counts.max())}
+    if lmax is not None and (lmax + 1) ** 2 > MAX_UNKNOWNS_PER_VIEW * max(int(counts.max()), 1):
+        highest = int(np.sqrt(MAX_UNKNOWNS_PER_VIEW * max(int(counts.max()), 1))) - 1
+        raise InputError(source, f"--lmax {lmax} fits (lmax+1)^2 = {(lmax + 1) ** 2} SH coefficients per texel, but "
+                                 f"at most {counts.max()} views see any point of the mesh: choose --lmax {highest} or "
+                                 "lower, or take more views")
+    duplicates = _duplicate_poses(cameras)
+    check.figures["duplicate_poses"] = len(duplicates)
+    if duplicates:
+        first, second = duplicates[0]
+        check.warnings.append(f"{len(duplicates)} frame(s) repeat an earlier frame's camera exactly (first: frame "
+                              f"{second} = frame {first}, {capture.frames[second].image_path.name}): a copied entry?")
     check.figures["mask_overlap"] = None
     check.figures["black_frames"] = 0
     if read_frames:
@@ -154,10 +184,46 @@ def surface_points(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     (M, 3) float64
         Every k-th face's centroid and three points between it and the corners, deterministic.
     """
+    return _surface_points_and_normals(vertices, faces)[0]
+
+
+def _surface_points_and_normals(vertices: np.ndarray, faces: np.ndarray,
+                                vertex_normals: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """`surface_points` (M, 3) and the shading normals there (M, 3), from ``vertex_normals`` (or none)."""
     weights = np.array([[1 / 3, 1 / 3, 1 / 3], [2 / 3, 1 / 6, 1 / 6], [1 / 6, 2 / 3, 1 / 6], [1 / 6, 1 / 6, 2 / 3]])
     count = min(CHECK_VERTICES // len(weights), len(faces))
-    picked = vertices[faces[np.linspace(0, len(faces) - 1, count).astype(np.int64)]]  # (count, 3, 3)
-    return np.einsum("wk,fkc->fwc", weights, picked).reshape(-1, 3)
+    picked = faces[np.linspace(0, len(faces) - 1, count).astype(np.int64)]  # (count, 3)
+    points = np.einsum("wk,fkc->fwc", weights, vertices[picked]).reshape(-1, 3)
+    if vertex_normals is None:
+        return points, np.zeros_like(points)
+    normals = np.einsum("wk,fkc->fwc", weights, vertex_normals[picked]).reshape(-1, 3)
+    return points, normals / np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-300)
+
+
+def _views_per_point(capture: Capture, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """How many views see each point (M,): in front of the camera, inside its image, facing it."""
+    counts = np.zeros(len(points), np.int64)
+    for frame in capture.frames:
+        camera = frame.camera
+        pixels, depth = camera.project(points)
+        inside = (depth > 0) & (pixels[:, 0] >= 0) & (pixels[:, 0] < camera.width) & (pixels[:, 1] >= 0) & (
+            pixels[:, 1] < camera.height)
+        facing = np.sum(normals * (camera.center - points), axis=1) > 0
+        counts += inside & facing
+    return counts
+
+
+def _duplicate_poses(cameras: list) -> list[tuple[int, int]]:
+    """(earlier, later) index pairs of frames with exactly the same camera."""
+    first_of, pairs = {}, []
+    for index, camera in enumerate(cameras):
+        key = (np.asarray(camera.camera_to_world).tobytes(), camera.fx, camera.fy, camera.cx, camera.cy,
+               camera.width, camera.height)
+        if key in first_of:
+            pairs.append((first_of[key], index))
+        else:
+            first_of[key] = index
+    return pairs
 
 
 def _aggregated(caught: list, views: int) -> list[str]:
@@ -176,14 +242,19 @@ def _aggregated(caught: list, views: int) -> list[str]:
 
 
 def _check_frames(capture: Capture, points: np.ndarray, check: CaptureCheck) -> None:
-    """Black frames and the masks' overlap with the projected mesh."""
-    black, overlaps = [], []
+    """Black frames, exposure, LDR data in HDR files, and the masks' overlap with the projected mesh."""
+    black, overlaps, levels, ldr = [], [], [], []
     for index, frame in enumerate(capture.frames):
-        if not float(np.max(capture.image(index))) > BLACK:
+        image = capture.image(index)
+        mask = capture.mask(index)
+        if not float(np.max(image)) > BLACK:
             black.append(frame.image_path)
+        object_pixels = image[mask] if mask.any() else image.reshape(-1, 3)
+        levels.append(float(np.median(object_pixels.mean(axis=1))))
+        if frame.image_path.suffix.lower() in HDR_SUFFIXES and _looks_ldr(image):
+            ldr.append(frame.image_path)
         if frame.mask_path is None:
             continue
-        mask = capture.mask(index)
         pixels, depth = frame.camera.project(points)
         inside = (depth > 0) & (pixels[:, 0] >= 0) & (pixels[:, 0] < mask.shape[1]) & (pixels[:, 1] >= 0) & (
             pixels[:, 1] < mask.shape[0])
@@ -191,6 +262,12 @@ def _check_frames(capture: Capture, points: np.ndarray, check: CaptureCheck) -> 
             columns = pixels[inside, 0].astype(np.int64)
             rows = pixels[inside, 1].astype(np.int64)
             overlaps.append(float(np.mean(mask[rows, columns])))
+    _check_exposure(capture, np.array(levels), check)
+    check.figures["ldr_frames"] = len(ldr)
+    if ldr:
+        check.warnings.append(f"{len(ldr)} of {len(capture.frames)} HDR frames hold LDR data (values clipped at 1.0 "
+                              f"or on 1/255 steps; first: {ldr[0]}): sRGB-encoded or clipped images bias the "
+                              "estimate, give linear HDR radiance")
     check.figures["black_frames"] = len(black)
     if len(black) == len(capture.frames):
         raise InputError(black[0], f"every frame is black ({len(black)} of {len(black)}): nothing to estimate from")
@@ -204,3 +281,31 @@ def _check_frames(capture: Capture, points: np.ndarray, check: CaptureCheck) -> 
                              f"only {overlap:.0%} of the mesh's projected points fall inside the masks (an aligned "
                              "capture has nearly all): the mesh is not aligned with the cameras (another frame, "
                              "scale or axes?)")
+
+
+def _looks_ldr(image: np.ndarray) -> bool:
+    """Whether an HDR file's pixels (H, W, 3) are LDR data: on 8-bit steps, or clipped at 1.0."""
+    lit = image[image.max(axis=2) > BLACK]
+    if lit.size == 0 or float(lit.max()) > 1.0 + 1e-6:
+        return False
+    steps = lit * 255.0
+    if np.mean(np.abs(steps - np.round(steps)) < 1e-3) > 0.99:
+        return True
+    return float(np.mean(lit.max(axis=1) >= 1.0 - 1e-6)) > CLIPPED_SHARE
+
+
+def _check_exposure(capture: Capture, levels: np.ndarray, check: CaptureCheck) -> None:
+    """Frames whose median object radiance is far from the frames' median: exposed differently."""
+    reference = float(np.median(levels))
+    if not reference > 0.0:
+        check.figures["exposure_range"] = None
+        return
+    ratio = levels / reference
+    check.figures["exposure_range"] = [float(ratio.min()), float(ratio.max())]
+    odd = np.flatnonzero((ratio > EXPOSURE_FACTOR) | ((ratio < 1.0 / EXPOSURE_FACTOR) & (levels > BLACK)))
+    if odd.size:
+        worst = int(odd[np.argmax(np.abs(np.log(np.maximum(ratio[odd], 1e-30))))])
+        check.warnings.append(
+            f"{odd.size} of {len(levels)} frames are exposed unlike the others (median object radiance "
+            f"{ratio[worst]:.3g}x the frames' median in {capture.frames[worst].image_path.name}): every frame must "
+            "be in the same radiometric units (merge brackets to one exposure scale)")
