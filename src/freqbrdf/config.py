@@ -356,6 +356,13 @@ class Config:
     """The whole-surface estimate (on by default)."""
     seed: int = 0
     """Seed of every random choice a fit makes, so that a fit is reproducible."""
+    device: Literal["auto", "cpu", "cuda"] = "auto"
+    """Where the SH least squares, the global search and the entropy run: "cpu" (the reference), "cuda" (the
+    ``[gpu]`` extra and an NVIDIA GPU) or "auto" (CUDA where both are present, else the CPU; `freqbrdf.devices`).
+    The backends agree to rounding. docs/measurements.md#the-gpu-backend"""
+
+    def __post_init__(self):
+        _check_choices(self)
 
     def replace(self, **sections) -> "Config":
         """Copy the configuration with whole sections or top-level fields replaced.
@@ -378,7 +385,7 @@ class Config:
         Returns
         -------
         dict
-            Section name to a dict of its fields, and ``seed``.
+            Section name to a dict of its fields, ``seed`` and ``device``.
         """
         return dataclasses.asdict(self)
 

@@ -193,7 +193,8 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
 
     start = time.perf_counter()
     uncertainty = (angular.result() if angular else
-                   entropy_map(observations, config.uncertainty, estimate_config=config.estimate))
+                   entropy_map(observations, config.uncertainty, estimate_config=config.estimate,
+                               device=config.device))
     whole = config.surface.enabled and config.estimate.method == "global"
     if not whole:  # the whole-surface posterior gives the roughness std (below)
         uncertainty.roughness_std = roughness_std(observations, estimate, config)

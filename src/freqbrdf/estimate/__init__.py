@@ -32,7 +32,8 @@ import numpy as np
 
 from freqbrdf import texels
 from freqbrdf.config import Config, EstimateConfig
-from freqbrdf.estimate._search_kernels import CURVATURE_STEP, FITTED_PARAMETERS, MIN_SAMPLES, scattering_stride
+from freqbrdf.estimate._global_kernels import scattering_stride
+from freqbrdf.estimate._search_kernels import CURVATURE_STEP, FITTED_PARAMETERS, MIN_SAMPLES
 from freqbrdf.estimate.paper import estimate_paper
 from freqbrdf.estimate.search import (
     EstimatorResult,
@@ -273,7 +274,7 @@ def hypothesis_moments(observations: Observations, roughness: np.ndarray, config
     roughness : (R,) float64
         The hypotheses' roughness.
     config : Config, optional
-        The estimator's settings.
+        The estimator's settings; ``device`` where the search's probes run.
 
     Returns
     -------
@@ -288,7 +289,7 @@ def hypothesis_moments(observations: Observations, roughness: np.ndarray, config
     moments = np.zeros((observations.n_texels, len(roughness), 3, 8))
     n_texels = observations.n_texels
     run_search_kernel(observations, settings, observations.mirrored_coeffs, roughness, moments, False,
-                      np.zeros((n_texels, 5)), np.zeros(n_texels), np.zeros(n_texels))
+                      np.zeros((n_texels, 5)), np.zeros(n_texels), np.zeros(n_texels), device=config.device)
     return moments
 
 

@@ -24,7 +24,9 @@ minimum near that median replaces it, unless the texel's own data reject it by a
 likelihood-ratio test at 95 %.
 
 This module builds the kernels' records (`freqbrdf.estimate._records`) from the observations and
-runs the kernels (`freqbrdf.estimate._search_kernels`, `freqbrdf.estimate._loss_kernels`).
+runs the kernels (`freqbrdf.estimate._global_kernels` and the pieces in
+`freqbrdf.estimate._search_kernels`, `freqbrdf.estimate._loss_kernels`) on the CPU, or their CUDA
+port (`freqbrdf.estimate._cuda_kernels`) where ``Config.device`` resolves to CUDA.
 """
 
 from __future__ import annotations
@@ -38,6 +40,8 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 
 from freqbrdf.config import Config, EstimateConfig, FitConfig
+from freqbrdf.devices import resolve_device
+from freqbrdf.estimate._global_kernels import global_search_kernel
 from freqbrdf.estimate._loss_kernels import squared_residual_kernel
 from freqbrdf.estimate._records import (
     EnvironmentLight,
@@ -50,7 +54,7 @@ from freqbrdf.estimate._records import (
     SearchSettings,
     ShRecurrence,
 )
-from freqbrdf.estimate._search_kernels import MIN_SAMPLES, global_search_kernel
+from freqbrdf.estimate._search_kernels import MIN_SAMPLES
 from freqbrdf.model import brdf
 from freqbrdf.model.light import (
     environment_azimuthal,
@@ -158,7 +162,8 @@ def estimate_global(observations: Observations, config: Config, reporter: Report
         for pass_index in range(n_passes):
             tick = time.perf_counter()
             if pass_index > 0:
-                light = shadowed_light_coeffs(observations, brdf.alpha_from_roughness(shadow_roughness), config.fit)
+                light = shadowed_light_coeffs(observations, brdf.alpha_from_roughness(shadow_roughness), config.fit,
+                                              config.device)
             timings["light"] += time.perf_counter() - tick
             tick = time.perf_counter()
             if pass_index == 0 and hypotheses is not None:  # pass 0's light is the one hypotheses are scored in
@@ -166,11 +171,11 @@ def estimate_global(observations: Observations, config: Config, reporter: Report
                     moments = np.zeros((rows.stop - rows.start, len(hypotheses.roughness), 3, 8))
                     run_search_kernel(observations.select(rows), settings, light[rows], hypotheses.roughness,
                                       moments, True, params[rows], loss[rows], curvature[rows],
-                                      labels=(labels[0][rows], labels[1][rows]))
+                                      labels=(labels[0][rows], labels[1][rows]), device=config.device)
                     hypotheses.consume(rows, moments)
             else:
                 run_search_kernel(observations, settings, light, np.zeros(0), np.zeros((0, 0, 3, 8)), True, params,
-                                  loss, curvature, labels=labels)
+                                  loss, curvature, labels=labels, device=config.device)
             timings["search"] += time.perf_counter() - tick
             residual = params[:, 3] - shadow_roughness
             next_roughness = params[:, 3].copy()
@@ -189,7 +194,7 @@ def estimate_global(observations: Observations, config: Config, reporter: Report
                               for column in (3, 4)], axis=1)  # (N, 2) roughness, metallic
         candidate = np.where(np.isnan(candidate), params[:, 3:5], candidate)
         run_search_kernel(observations, settings, light, np.zeros(0), np.zeros((0, 0, 3, 8)), False, params, loss,
-                          curvature, candidate, labels=labels)
+                          curvature, candidate, labels=labels, device=config.device)
         timings["vote"] = time.perf_counter() - tick
     timings["total"] = sum(timings.values())
     return EstimatorResult(params, loss, estimated, "global", timings, curvature, *labels)
@@ -199,7 +204,7 @@ def run_search_kernel(observations: Observations, settings: EstimateConfig, ligh
                       hypothesis_roughness: np.ndarray, hypothesis_moments: np.ndarray, search: bool,
                       params: np.ndarray, loss: np.ndarray, curvature: np.ndarray,
                       candidate: np.ndarray = np.zeros((0, 2)),
-                      labels: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+                      labels: tuple[np.ndarray, np.ndarray] | None = None, device: str = "auto") -> None:
     """Run the search kernel on the observations.
 
     Parameters
@@ -227,12 +232,18 @@ def run_search_kernel(observations: Observations, settings: EstimateConfig, ligh
         Receive the loss and base colour as a dielectric and as a metal at the estimated roughness
         (`MaterialEstimate.label_loss`, ``label_base_color``): after a search, and where the
         neighbour vote moves a texel's roughness.
+    device : {"auto", "cpu", "cuda"}, optional
+        Where the search runs (`freqbrdf.devices.resolve_device`); the backends agree to rounding
+        (docs/measurements.md).
     """
     tangent, environment, prefiltered = _light_inputs(observations, settings)
     hypothesis_roughness = np.ascontiguousarray(hypothesis_roughness, dtype=np.float64)
     node_rows = (_node_rows(hypothesis_roughness, settings.roughness_grid) if search and len(hypothesis_roughness)
                  else np.full(0, -1, dtype=np.int64))
-    global_search_kernel(
+    kernel = global_search_kernel
+    if resolve_device(device) == "cuda":
+        from freqbrdf.estimate._cuda_kernels import global_search_on_cuda as kernel
+    kernel(
         _samples(observations, tangent), np.ascontiguousarray(light, dtype=np.float32),
         ShRecurrence(observations.lmax, *sh._legendre_tables(observations.lmax)), _model_options(observations, settings),
         _model_tables(settings), environment, prefiltered,
@@ -397,7 +408,8 @@ def lambert_scale(observations: Observations) -> np.ndarray:
     return observations.irradiance.astype(np.float64) / np.pi
 
 
-def shadowed_light_coeffs(observations: Observations, alpha: np.ndarray, fit: FitConfig) -> np.ndarray:
+def shadowed_light_coeffs(observations: Observations, alpha: np.ndarray, fit: FitConfig,
+                          device: str = "auto") -> np.ndarray:
     """Fit the mirrored light shadowed by G1 (appendix eq. 6).
 
     Parameters
@@ -408,6 +420,8 @@ def shadowed_light_coeffs(observations: Observations, alpha: np.ndarray, fit: Fi
         The GGX width per texel.
     fit : FitConfig
         The SH fit's settings.
+    device : {"auto", "cpu", "cuda"}, optional
+        Where the fit runs (`freqbrdf.sphere.harmonics.fit_sh`).
 
     Returns
     -------
@@ -417,7 +431,7 @@ def shadowed_light_coeffs(observations: Observations, alpha: np.ndarray, fit: Fi
     light = brdf.shadowed_light(observations.mirrored, observations.view_direction[..., 2], alpha)
     return sh.fit_sh(
         observations.view_direction, observations.weight, light.astype(np.float32), observations.lmax,
-        fit.reg_lambda, fit.regulariser, fit.scale_lambda_with_weight,
+        fit.reg_lambda, fit.regulariser, fit.scale_lambda_with_weight, device,
     ).coeffs
 
 

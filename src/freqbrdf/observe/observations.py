@@ -281,7 +281,7 @@ class Observations:
         signals[..., CONSTANT] = 1.0
         settings = config.fit
         fit = sh.fit_sh(self.view_direction, weight, signals, self.lmax, settings.reg_lambda,
-                        settings.regulariser, settings.scale_lambda_with_weight)
+                        settings.regulariser, settings.scale_lambda_with_weight, config.device)
         return replace(
             self, weight=weight, visible=self.visible & keep,
             observed_coeffs=fit.coeffs[:, OBSERVED], mirrored_coeffs=fit.coeffs[:, MIRRORED],
@@ -393,7 +393,8 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
         The posed images, their masks, the mesh and the environment map.
     config : Config
         ``config.texels.texture_res`` sets T when ``texels`` is None; ``config.fit`` the degree
-        l*, the regulariser, the band limit and alpha's attenuation threshold.
+        l*, the regulariser, the band limit and alpha's attenuation threshold; ``config.device``
+        where the SH fits run.
     reporter : Reporter
         Progress of the views and of the fits.
     texels : Texels or None
@@ -488,7 +489,7 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
     with reporter.stage("fitting SH spectra", 1) as advance:
         fit = sh.fit_sh(
             view_direction, weight, signals, config.fit.lmax, config.fit.reg_lambda,
-            config.fit.regulariser, config.fit.scale_lambda_with_weight,
+            config.fit.regulariser, config.fit.scale_lambda_with_weight, config.device,
         )
         advance(1)
     timings["fits"] = time.perf_counter() - tick

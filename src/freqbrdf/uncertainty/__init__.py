@@ -76,7 +76,7 @@ __all__ = [
 
 def entropy_map(
     observations: Observations, config: UncertaintyConfig = UncertaintyConfig(), return_likelihood: bool = True,
-    estimate_config: EstimateConfig = EstimateConfig(),
+    estimate_config: EstimateConfig = EstimateConfig(), device: str = "auto",
 ) -> Uncertainty:
     """Compute the uncertainty map of a capture's observations in ``config.mode``.
 
@@ -91,6 +91,8 @@ def entropy_map(
     estimate_config : EstimateConfig
         The estimator's model, with which the ``angular`` mode scores the hypotheses
         (`entropy_angular`); unused by the spectral modes.
+    device : {"auto", "cpu", "cuda"}
+        Where the entropy is computed (`freqbrdf.devices.resolve_device`).
 
     Returns
     -------
@@ -98,7 +100,8 @@ def entropy_map(
         Of the N texels; its roughness_std is not computed (`roughness_std`).
     """
     if config.mode == "angular":
-        return entropy_angular(observations, Config(uncertainty=config, estimate=estimate_config), return_likelihood)
+        return entropy_angular(observations, Config(uncertainty=config, estimate=estimate_config, device=device),
+                               return_likelihood)
     return entropy_from_spectra(
         observations.mirrored_spectrum,
         observations.observed_spectrum,
@@ -108,6 +111,7 @@ def entropy_map(
         fit_status=observations.fit_status,
         config=config,
         return_likelihood=return_likelihood,
+        device=device,
     )
 
 

@@ -331,23 +331,52 @@ def _grid_entropy_worker(worker, n_workers, spectra, options, outputs):
     A function of its own, so that numba's parallel passes see a small loop (on the whole body
     they take most of the kernel's compile time).
     """
-    light, observed, scale, row_filter, alphas = spectra
-    amplitude, per_light_power, merge_zero, residual_dof, want_likelihood = options
-    entropy, channel, best_alpha, best_ks, likelihood = outputs
-    n_texels, n_channels, n_degrees = light.shape
-    n_scales = scale.shape[1]
+    scratch = grid_entropy_scratch(spectra, options)
+    n_blocks = (spectra.light.shape[0] + _LANES - 1) // _LANES
+    for block in range(worker, n_blocks, n_workers):
+        grid_entropy_block(block, spectra, options, outputs, scratch)
+
+
+class GridScratch(NamedTuple):
+    """One worker's scratch of the spectral kernel (`grid_entropy_scratch`): [..., lane] arrays."""
+
+    specular: np.ndarray
+    steps32: np.ndarray
+    filter_sq: np.ndarray
+    light_lanes: np.ndarray
+    observed_lanes: np.ndarray
+    light_sq: np.ndarray
+    light_observed: np.ndarray
+    constant: np.ndarray
+    light_dc: np.ndarray
+    observed_dc: np.ndarray
+    to_temperature: np.ndarray
+    quad: np.ndarray
+    linear: np.ndarray
+    lowest: np.ndarray
+    sums: np.ndarray
+    rows: np.ndarray
+    cell: np.ndarray
+    cell_sums: np.ndarray
+    weights: np.ndarray
+    channel_sums: np.ndarray
+    choice: np.ndarray
+    light_power: np.ndarray
+
+
+@numba.njit(cache=True, error_model="numpy", fastmath={"contract", "reassoc", "nsz", "arcp"})
+def grid_entropy_scratch(spectra, options):
+    """Allocate one worker's `GridScratch` for `grid_entropy_block`, with the grid's steps and filter."""
+    light, row_filter = spectra.light, spectra.row_filter
+    amplitude, want_likelihood = options.amplitude, options.want_likelihood
+    n_channels, n_degrees = light.shape[1], light.shape[2]
     resolution = row_filter.shape[0]
     last = resolution - 1
-    inverse_last = 1.0 / last
-    n_zero = 1 if merge_zero else resolution  # how many hypotheses the k = 0 column counts as
-    log_hypotheses = math.log(resolution * (resolution - 1) + n_zero)
-    clamped_weight = _exp_neg(np.float32(CUTOFF))  # a cell beyond CUTOFF, as the cell loop weighs it
     specular = np.arange(resolution) / last  # k_j
     steps = specular if amplitude else specular * specular  # t_j
     steps32 = steps.astype(np.float32)
     filter_sq = row_filter * row_filter
     stored = resolution if want_likelihood else 1  # likelihood grids are kept only when returned
-    n_blocks = (n_texels + _LANES - 1) // _LANES
     # Per-lane scratch, one array per quantity so that each loop over lanes reads and writes
     # few arrays (LLVM's run-time overlap checks stay within its limits and the loops vectorise).
     # The block's inputs, read once per texel in memory order: [channel, degree, lane].
@@ -374,174 +403,199 @@ def _grid_entropy_worker(worker, n_workers, spectra, options, outputs):
     channel_sums = np.empty((n_channels, 2, _LANES))  # Z and the k = 0 weight per channel
     choice = np.empty((4, _LANES))  # lowest entropy, its channel, arg-max row and column
     light_power = np.ones(_LANES)
-    for block in range(worker, n_blocks, n_workers):
-        start = block * _LANES
-        n_lanes = _smaller(_LANES, n_texels - start)
-        if n_lanes < _LANES:  # padding lanes hold zeros and are computed like the others
-            light_lanes[:] = 0.0
-            observed_lanes[:] = 0.0
-        for k in range(n_lanes):
-            for c in range(n_channels):
-                for l in range(n_degrees):
-                    light_lanes[c, l, k] = light[start + k, c, l]
-                    observed_lanes[c, l, k] = observed[start + k, c, l]
-        choice[0] = 2.0
-        if per_light_power:
-            light_power[:] = 0.0
-            for c in range(n_channels):
-                for l in range(n_degrees):
-                    for k in range(_LANES):
-                        light_power[k] += light_lanes[c, l, k]
-            for k in range(_LANES):
-                light_power[k] = light_power[k] / n_channels
+    return GridScratch(
+        specular, steps32, filter_sq, light_lanes, observed_lanes, light_sq, light_observed, constant, light_dc,
+        observed_dc, to_temperature, quad, linear, lowest, sums, rows, cell, cell_sums, weights, channel_sums,
+        choice, light_power,
+    )
+
+
+@numba.njit(cache=True, error_model="numpy", fastmath={"contract", "reassoc", "nsz", "arcp"})
+def grid_entropy_block(block, spectra, options, outputs, scratch):
+    """Do `grid_entropy_kernel`'s work for texels block * _LANES, ... (one block of lanes), with a `GridScratch`."""
+    light, observed, scale, row_filter, alphas = spectra
+    amplitude, per_light_power, merge_zero, residual_dof, want_likelihood = options
+    entropy, channel, best_alpha, best_ks, likelihood = outputs
+    n_texels, n_channels, n_degrees = light.shape
+    n_scales = scale.shape[1]
+    resolution = row_filter.shape[0]
+    last = resolution - 1
+    inverse_last = 1.0 / last
+    n_zero = 1 if merge_zero else resolution  # how many hypotheses the k = 0 column counts as
+    log_hypotheses = math.log(resolution * (resolution - 1) + n_zero)
+    clamped_weight = _exp_neg(np.float32(CUTOFF))  # a cell beyond CUTOFF, as the cell loop weighs it
+    (
+        specular, steps32, filter_sq, light_lanes, observed_lanes, light_sq, light_observed, constant, light_dc,
+        observed_dc, to_temperature, quad, linear, lowest, sums, rows, cell, cell_sums, weights, channel_sums,
+        choice, light_power,
+    ) = scratch
+    start = block * _LANES
+    n_lanes = _smaller(_LANES, n_texels - start)
+    if n_lanes < _LANES:  # padding lanes hold zeros and are computed like the others
+        light_lanes[:] = 0.0
+        observed_lanes[:] = 0.0
+    for k in range(n_lanes):
         for c in range(n_channels):
-            # 1. Moments.
+            for l in range(n_degrees):
+                light_lanes[c, l, k] = light[start + k, c, l]
+                observed_lanes[c, l, k] = observed[start + k, c, l]
+    choice[0] = 2.0
+    if per_light_power:
+        light_power[:] = 0.0
+        for c in range(n_channels):
+            for l in range(n_degrees):
+                for k in range(_LANES):
+                    light_power[k] += light_lanes[c, l, k]
+        for k in range(_LANES):
+            light_power[k] = light_power[k] / n_channels
+    for c in range(n_channels):
+        # 1. Moments.
+        for k in range(_LANES):
+            light_dc[k] = math.sqrt(_larger(light_lanes[c, 0, k], 0.0))
+            observed_dc[k] = math.sqrt(_larger(observed_lanes[c, 0, k], 0.0))
+            constant[k] = 0.0
+        for l in range(1, n_degrees):
+            if amplitude:  # a_l^2 = S_refl(l), a_l b_l = sqrt(S_refl(l) S_out(l)), b_l^2 = S_out(l)
+                for k in range(_LANES):
+                    light_value = _larger(light_lanes[c, l, k], 0.0)
+                    observed_value = _larger(observed_lanes[c, l, k], 0.0)
+                    light_sq[l, k] = light_value
+                    light_observed[l, k] = math.sqrt(light_value * observed_value)
+                    constant[k] += observed_value
+            else:
+                for k in range(_LANES):
+                    light_value = _larger(light_lanes[c, l, k], 0.0)
+                    observed_value = _larger(observed_lanes[c, l, k], 0.0)
+                    light_sq[l, k] = light_value * light_value
+                    light_observed[l, k] = light_value * observed_value
+                    constant[k] += observed_value * observed_value
+        # 2. Rows. The k = 0 column (misfit C in any row) and earlier rows win ties.
+        for k in range(_LANES):
+            lowest[0, k] = constant[k]
+            lowest[1, k] = 0.0
+            lowest[2, k] = 0.0
+        for i in range(resolution):
             for k in range(_LANES):
-                light_dc[k] = math.sqrt(_larger(light_lanes[c, 0, k], 0.0))
-                observed_dc[k] = math.sqrt(_larger(observed_lanes[c, 0, k], 0.0))
-                constant[k] = 0.0
-            for l in range(1, n_degrees):
-                if amplitude:  # a_l^2 = S_refl(l), a_l b_l = sqrt(S_refl(l) S_out(l)), b_l^2 = S_out(l)
-                    for k in range(_LANES):
-                        light_value = _larger(light_lanes[c, l, k], 0.0)
-                        observed_value = _larger(observed_lanes[c, l, k], 0.0)
-                        light_sq[l, k] = light_value
-                        light_observed[l, k] = math.sqrt(light_value * observed_value)
-                        constant[k] += observed_value
-                else:
-                    for k in range(_LANES):
-                        light_value = _larger(light_lanes[c, l, k], 0.0)
-                        observed_value = _larger(observed_lanes[c, l, k], 0.0)
-                        light_sq[l, k] = light_value * light_value
-                        light_observed[l, k] = light_value * observed_value
-                        constant[k] += observed_value * observed_value
-            # 2. Rows. The k = 0 column (misfit C in any row) and earlier rows win ties.
+                quad[k] = filter_sq[i, 1] * light_sq[1, k]
+                linear[k] = row_filter[i, 1] * light_observed[1, k]
+            for l in range(2, n_degrees):
+                for k in range(_LANES):
+                    quad[k] += filter_sq[i, l] * light_sq[l, k]
+                    linear[k] += row_filter[i, l] * light_observed[l, k]
             for k in range(_LANES):
-                lowest[0, k] = constant[k]
-                lowest[1, k] = 0.0
-                lowest[2, k] = 0.0
+                a = quad[k]
+                x = linear[k]
+                specular_dc = light_dc[k]
+                # Continuous minimiser of C - 2 X t + A t^2 + max(t a_0 - b_0, 0)^2: X / A, or
+                # (X + a_0 b_0) / (A + a_0^2) where X / A would exceed the DC bound b_0 / a_0.
+                numerator = x
+                denominator = a
+                if amplitude and x * specular_dc > observed_dc[k] * a:
+                    numerator += specular_dc * observed_dc[k]
+                    denominator += specular_dc * specular_dc
+                target = numerator / (denominator if denominator > 0.0 else 1.0)  # no light: 0
+                index = target * last if amplitude else math.sqrt(_larger(target, 0.0)) * last
+                left = np.float64(_smaller(_larger(math.floor(index), 1.0), last))
+                right = _smaller(left + 1.0, last)
+                left_t = left * inverse_last
+                right_t = right * inverse_last
+                if not amplitude:
+                    left_t *= left_t
+                    right_t *= right_t
+                left_misfit = constant[k] + left_t * (a * left_t - 2.0 * x)
+                right_misfit = constant[k] + right_t * (a * right_t - 2.0 * x)
+                if amplitude:
+                    left_misfit += _larger(left_t * specular_dc - observed_dc[k], 0.0) ** 2
+                    right_misfit += _larger(right_t * specular_dc - observed_dc[k], 0.0) ** 2
+                take_right = right_misfit < left_misfit
+                best_misfit = right_misfit if take_right else left_misfit
+                rows[i, 0, k] = a
+                rows[i, 1, k] = x
+                rows[i, 2, k] = right_t if take_right else left_t
+                rows[i, 3, k] = best_misfit
+                rows[i, 4, k] = specular_dc
+                if best_misfit < lowest[0, k]:
+                    lowest[0, k] = best_misfit
+                    lowest[1, k] = i
+                    lowest[2, k] = right if take_right else left
+        # 3. Cells. Temperature per lane, the k = 0 column, then row by row.
+        for k in range(_LANES):
+            temperature = scale[start + k, _smaller(c, n_scales - 1)] if k < n_lanes else 0.0
+            temperature = temperature / light_power[k] if light_power[k] > 0.0 else 0.0
+            if residual_dof > 0.0 and temperature > 0.0:
+                # Noise variance = the stated floor + the best hypothesis's residual per
+                # degree of freedom: a texel no hypothesis explains is not sure of any.
+                temperature = 1.0 / (1.0 / temperature + 2.0 * _larger(lowest[0, k], 0.0) / residual_dof)
+            to_temperature[k] = temperature
+            zero_distance = _smaller((constant[k] - lowest[0, k]) * temperature, CUTOFF)
+            zero_weight = np.float64(_exp_neg(np.float32(zero_distance)))
+            channel_sums[c, 1, k] = zero_weight
+            sums[0, k] = n_zero * zero_weight
+            sums[1, k] = n_zero * zero_weight * zero_distance
+        for i in range(resolution):
+            # Lanes whose row minimum D_i lies within CUTOFF, counted as a float sum: a select
+            # (min) reduction would not vectorise without assuming no NaNs.
+            within = 0.0
+            for k in range(_LANES):
+                temperature = to_temperature[k]
+                offset = (rows[i, 3, k] - lowest[0, k]) * temperature
+                within += 1.0 if offset < CUTOFF else 0.0
+                best_t = rows[i, 2, k]
+                excess = _larger(best_t * rows[i, 4, k] - observed_dc[k], 0.0)
+                excess = excess if amplitude else 0.0
+                # misfit(t) - misfit(t_b) = (t - t_b) (A (t - t_b) + 2 (A t_b - X)), plus the DC excess
+                cell[0, k] = best_t
+                cell[1, k] = rows[i, 0, k] * temperature
+                cell[2, k] = 2.0 * (rows[i, 0, k] * best_t - rows[i, 1, k]) * temperature
+                cell[3, k] = offset - excess * excess * temperature
+                if amplitude:
+                    root_temperature = math.sqrt(temperature)
+                    cell[4, k] = rows[i, 4, k] * root_temperature
+                    cell[5, k] = observed_dc[k] * root_temperature
+            row_weights = weights[c, i if want_likelihood else 0]
+            if within == 0.0:  # every cell of this row is beyond CUTOFF in every lane
+                cell_sums[0] = last * clamped_weight
+                cell_sums[1] = last * clamped_weight * np.float32(CUTOFF)
+                row_weights[:] = clamped_weight
+            else:
+                cell_sums[:] = 0.0
+                for j in range(1, resolution):
+                    t = steps32[j]
+                    for k in range(_LANES):
+                        delta = t - cell[0, k]
+                        excess = _larger(t * cell[4, k] - cell[5, k], np.float32(0.0))  # the DC bound
+                        distance = delta * (cell[1, k] * delta + cell[2, k]) + cell[3, k] + excess * excess
+                        distance = _smaller(_larger(distance, np.float32(0.0)), np.float32(CUTOFF))
+                        w = _exp_neg(distance)
+                        cell_sums[0, k] += w
+                        cell_sums[1, k] += w * distance
+                        row_weights[j, k] = w
+            for k in range(_LANES):
+                sums[0, k] += cell_sums[0, k]
+                sums[1, k] += cell_sums[1, k]
+        # Entropy; the channel with the lowest one wins (earlier channels win ties).
+        for k in range(_LANES):
+            total = sums[0, k]
+            value = (_log(total) + sums[1, k] / total) / log_hypotheses
+            value = _smaller(_larger(value, 0.0), 1.0)
+            channel_sums[c, 0, k] = total
+            if value < choice[0, k]:
+                choice[0, k] = value
+                choice[1, k] = c
+                choice[2, k] = lowest[1, k]
+                choice[3, k] = lowest[2, k]
+    for k in range(n_lanes):
+        texel = start + k
+        c = np.int64(choice[1, k])
+        entropy[texel] = choice[0, k]
+        channel[texel] = c
+        column = np.int64(choice[3, k])
+        best_alpha[texel] = alphas[np.int64(choice[2, k])] if column > 0 else np.nan  # k = 0: no lobe
+        best_ks[texel] = specular[column]
+        if want_likelihood:
+            inverse_total = 1.0 / channel_sums[c, 0, k]
+            zero_share = channel_sums[c, 1, k] * n_zero / resolution * inverse_total
             for i in range(resolution):
-                for k in range(_LANES):
-                    quad[k] = filter_sq[i, 1] * light_sq[1, k]
-                    linear[k] = row_filter[i, 1] * light_observed[1, k]
-                for l in range(2, n_degrees):
-                    for k in range(_LANES):
-                        quad[k] += filter_sq[i, l] * light_sq[l, k]
-                        linear[k] += row_filter[i, l] * light_observed[l, k]
-                for k in range(_LANES):
-                    a = quad[k]
-                    x = linear[k]
-                    specular_dc = light_dc[k]
-                    # Continuous minimiser of C - 2 X t + A t^2 + max(t a_0 - b_0, 0)^2: X / A, or
-                    # (X + a_0 b_0) / (A + a_0^2) where X / A would exceed the DC bound b_0 / a_0.
-                    numerator = x
-                    denominator = a
-                    if amplitude and x * specular_dc > observed_dc[k] * a:
-                        numerator += specular_dc * observed_dc[k]
-                        denominator += specular_dc * specular_dc
-                    target = numerator / (denominator if denominator > 0.0 else 1.0)  # no light: 0
-                    index = target * last if amplitude else math.sqrt(_larger(target, 0.0)) * last
-                    left = np.float64(_smaller(_larger(math.floor(index), 1.0), last))
-                    right = _smaller(left + 1.0, last)
-                    left_t = left * inverse_last
-                    right_t = right * inverse_last
-                    if not amplitude:
-                        left_t *= left_t
-                        right_t *= right_t
-                    left_misfit = constant[k] + left_t * (a * left_t - 2.0 * x)
-                    right_misfit = constant[k] + right_t * (a * right_t - 2.0 * x)
-                    if amplitude:
-                        left_misfit += _larger(left_t * specular_dc - observed_dc[k], 0.0) ** 2
-                        right_misfit += _larger(right_t * specular_dc - observed_dc[k], 0.0) ** 2
-                    take_right = right_misfit < left_misfit
-                    best_misfit = right_misfit if take_right else left_misfit
-                    rows[i, 0, k] = a
-                    rows[i, 1, k] = x
-                    rows[i, 2, k] = right_t if take_right else left_t
-                    rows[i, 3, k] = best_misfit
-                    rows[i, 4, k] = specular_dc
-                    if best_misfit < lowest[0, k]:
-                        lowest[0, k] = best_misfit
-                        lowest[1, k] = i
-                        lowest[2, k] = right if take_right else left
-            # 3. Cells. Temperature per lane, the k = 0 column, then row by row.
-            for k in range(_LANES):
-                temperature = scale[start + k, _smaller(c, n_scales - 1)] if k < n_lanes else 0.0
-                temperature = temperature / light_power[k] if light_power[k] > 0.0 else 0.0
-                if residual_dof > 0.0 and temperature > 0.0:
-                    # Noise variance = the stated floor + the best hypothesis's residual per
-                    # degree of freedom: a texel no hypothesis explains is not sure of any.
-                    temperature = 1.0 / (1.0 / temperature + 2.0 * _larger(lowest[0, k], 0.0) / residual_dof)
-                to_temperature[k] = temperature
-                zero_distance = _smaller((constant[k] - lowest[0, k]) * temperature, CUTOFF)
-                zero_weight = np.float64(_exp_neg(np.float32(zero_distance)))
-                channel_sums[c, 1, k] = zero_weight
-                sums[0, k] = n_zero * zero_weight
-                sums[1, k] = n_zero * zero_weight * zero_distance
-            for i in range(resolution):
-                # Lanes whose row minimum D_i lies within CUTOFF, counted as a float sum: a select
-                # (min) reduction would not vectorise without assuming no NaNs.
-                within = 0.0
-                for k in range(_LANES):
-                    temperature = to_temperature[k]
-                    offset = (rows[i, 3, k] - lowest[0, k]) * temperature
-                    within += 1.0 if offset < CUTOFF else 0.0
-                    best_t = rows[i, 2, k]
-                    excess = _larger(best_t * rows[i, 4, k] - observed_dc[k], 0.0)
-                    excess = excess if amplitude else 0.0
-                    # misfit(t) - misfit(t_b) = (t - t_b) (A (t - t_b) + 2 (A t_b - X)), plus the DC excess
-                    cell[0, k] = best_t
-                    cell[1, k] = rows[i, 0, k] * temperature
-                    cell[2, k] = 2.0 * (rows[i, 0, k] * best_t - rows[i, 1, k]) * temperature
-                    cell[3, k] = offset - excess * excess * temperature
-                    if amplitude:
-                        root_temperature = math.sqrt(temperature)
-                        cell[4, k] = rows[i, 4, k] * root_temperature
-                        cell[5, k] = observed_dc[k] * root_temperature
-                row_weights = weights[c, i if want_likelihood else 0]
-                if within == 0.0:  # every cell of this row is beyond CUTOFF in every lane
-                    cell_sums[0] = last * clamped_weight
-                    cell_sums[1] = last * clamped_weight * np.float32(CUTOFF)
-                    row_weights[:] = clamped_weight
-                else:
-                    cell_sums[:] = 0.0
-                    for j in range(1, resolution):
-                        t = steps32[j]
-                        for k in range(_LANES):
-                            delta = t - cell[0, k]
-                            excess = _larger(t * cell[4, k] - cell[5, k], np.float32(0.0))  # the DC bound
-                            distance = delta * (cell[1, k] * delta + cell[2, k]) + cell[3, k] + excess * excess
-                            distance = _smaller(_larger(distance, np.float32(0.0)), np.float32(CUTOFF))
-                            w = _exp_neg(distance)
-                            cell_sums[0, k] += w
-                            cell_sums[1, k] += w * distance
-                            row_weights[j, k] = w
-                for k in range(_LANES):
-                    sums[0, k] += cell_sums[0, k]
-                    sums[1, k] += cell_sums[1, k]
-            # Entropy; the channel with the lowest one wins (earlier channels win ties).
-            for k in range(_LANES):
-                total = sums[0, k]
-                value = (_log(total) + sums[1, k] / total) / log_hypotheses
-                value = _smaller(_larger(value, 0.0), 1.0)
-                channel_sums[c, 0, k] = total
-                if value < choice[0, k]:
-                    choice[0, k] = value
-                    choice[1, k] = c
-                    choice[2, k] = lowest[1, k]
-                    choice[3, k] = lowest[2, k]
-        for k in range(n_lanes):
-            texel = start + k
-            c = np.int64(choice[1, k])
-            entropy[texel] = choice[0, k]
-            channel[texel] = c
-            column = np.int64(choice[3, k])
-            best_alpha[texel] = alphas[np.int64(choice[2, k])] if column > 0 else np.nan  # k = 0: no lobe
-            best_ks[texel] = specular[column]
-            if want_likelihood:
-                inverse_total = 1.0 / channel_sums[c, 0, k]
-                zero_share = channel_sums[c, 1, k] * n_zero / resolution * inverse_total
-                for i in range(resolution):
-                    likelihood[texel, i, 0] = zero_share
-                    for j in range(1, resolution):
-                        likelihood[texel, i, j] = weights[c, i, j, k] * inverse_total
+                likelihood[texel, i, 0] = zero_share
+                for j in range(1, resolution):
+                    likelihood[texel, i, j] = weights[c, i, j, k] * inverse_total

@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from freqbrdf.config import Config, UncertaintyConfig
+from freqbrdf.devices import resolve_device
 from freqbrdf.estimate import HYPOTHESIS_BLOCK, HypothesisRecorder, hypothesis_moments, texel_blocks
 from freqbrdf.sphere import harmonics as sh
 from freqbrdf.uncertainty._kernels import EntropyOutputs, MomentInputs, moment_entropy_kernel
@@ -50,7 +51,7 @@ def entropy_angular(observations: Observations, config: Config = Config(),
     observations : Observations
         The texels' samples (N texels).
     config : Config
-        ``uncertainty`` (its grid, noise level and flags) and ``estimate`` (the model).
+        ``uncertainty`` (its grid, noise level and flags), ``estimate`` (the model) and ``device``.
     return_likelihood : bool
         Whether to keep the (N, R, R) likelihood.
 
@@ -68,6 +69,7 @@ def entropy_angular(observations: Observations, config: Config = Config(),
 def entropy_from_moments(
     moments: np.ndarray, weight: np.ndarray, mirrored: np.ndarray, n_samples: np.ndarray, *,
     config: UncertaintyConfig = UncertaintyConfig(mode="angular"), return_likelihood: bool = True,
+    device: str = "auto",
 ) -> Uncertainty:
     """Score the angular mode's grid from its hypotheses' moments alone.
 
@@ -88,6 +90,8 @@ def entropy_from_moments(
         Mode "angular"; its noise level and ``ambiguous_entropy``.
     return_likelihood : bool
         Whether to keep the (N, R, R) likelihood.
+    device : {"auto", "cpu", "cuda"}
+        Where the grid is scored (`freqbrdf.devices.resolve_device`).
 
     Returns
     -------
@@ -113,7 +117,7 @@ def entropy_from_moments(
         n_samples=n_samples, alphas=grid.alpha, specular=grid.specular, noise_level=float(config.noise_level),
         want_likelihood=bool(return_likelihood),
     )
-    moment_entropy_kernel(inputs, outputs)
+    _score_moments(inputs, outputs, device)
     return uncertainty_of_grid(np.asarray(n_samples) == 0, outputs.entropy, outputs.channel, outputs.best_alpha,
                                outputs.best_ks, outputs.likelihood if return_likelihood else None, None, 0, None,
                                grid, config)
@@ -210,7 +214,7 @@ class AngularEntropy:
             best_ks=self.best_ks[rows],
             likelihood=self.likelihood[rows] if want_likelihood else np.empty((0, 0, 0), np.float32),
         )
-        moment_entropy_kernel(inputs, outputs)
+        _score_moments(inputs, outputs, self.config.device)
         self.seconds += time.perf_counter() - start
 
     def result(self) -> Uncertainty:
@@ -226,3 +230,13 @@ class AngularEntropy:
                                    self.best_ks, self.likelihood, observations.n_samples,
                                    sh.num_coeffs(observations.lmax), observations.alpha_bound, self.grid,
                                    self.config.uncertainty)
+
+
+def _score_moments(inputs: MomentInputs, outputs: EntropyOutputs, device: str) -> None:
+    """Run the angular mode's kernel on the device that ``device`` resolves to."""
+    if resolve_device(device) == "cuda":
+        from freqbrdf.uncertainty._cuda_kernels import moment_entropy_on_cuda
+
+        moment_entropy_on_cuda(inputs, outputs)
+    else:
+        moment_entropy_kernel(inputs, outputs)

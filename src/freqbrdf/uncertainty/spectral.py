@@ -28,6 +28,7 @@ import numba
 import numpy as np
 
 from freqbrdf.config import UncertaintyConfig
+from freqbrdf.devices import resolve_device
 from freqbrdf.model import brdf
 from freqbrdf.sphere import harmonics as sh
 from freqbrdf.uncertainty._kernels import EntropyOutputs, SpectraInputs, SpectralOptions, grid_entropy_kernel
@@ -85,6 +86,7 @@ def entropy_from_spectra(
     fit_status: np.ndarray | None = None,
     config: UncertaintyConfig = UncertaintyConfig(),
     return_likelihood: bool = True,
+    device: str = "auto",
 ) -> Uncertainty:
     """Score the hypothesis grid against power spectra (the calibrated or the paper mode).
 
@@ -112,6 +114,9 @@ def entropy_from_spectra(
         Mode "calibrated" or "paper", the grid, the noise model or temperature, the flags.
     return_likelihood : bool
         Whether to keep the (N, R, R) likelihood.
+    device : {"auto", "cpu", "cuda"}
+        Where the grid is scored (`freqbrdf.devices.resolve_device`); the backends agree to
+        rounding (docs/measurements.md).
 
     Returns
     -------
@@ -161,7 +166,12 @@ def entropy_from_spectra(
     )
     options = SpectralOptions(amplitude=not paper, per_light_power=not paper, merge_zero=not paper,
                               residual_dof=residual_dof, want_likelihood=bool(return_likelihood))
-    grid_entropy_kernel(spectra, options, numba.get_num_threads(), outputs)
+    if resolve_device(device) == "cuda":
+        from freqbrdf.uncertainty._cuda_kernels import grid_entropy_on_cuda
+
+        grid_entropy_on_cuda(spectra, options, outputs)
+    else:
+        grid_entropy_kernel(spectra, options, numba.get_num_threads(), outputs)
 
     status = np.zeros(n_texels, np.uint8) if fit_status is None else np.asarray(fit_status)
     return uncertainty_of_grid(status == sh.FIT_EMPTY, outputs.entropy, outputs.channel, outputs.best_alpha,
