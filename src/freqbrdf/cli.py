@@ -284,8 +284,12 @@ def observe(
 
 def _config(preset: str, texture_res: int | None = None, lmax: int | None = None, *,
             estimator: str | None = None, model: str | None = None,
-            entropy: str | None = None):
-    """Build the preset's Config with the options the user gave (None: keep the preset's value)."""
+            entropy: str | None = None, device: str = "auto", quiet: bool = True):
+    """Build the preset's Config with the options the user gave (None: keep the preset's value).
+
+    The device is resolved here (summary.json records the backend that ran) and, unless quiet,
+    said once on stderr.
+    """
     import dataclasses
 
     from freqbrdf.config import PRESETS
@@ -303,7 +307,15 @@ def _config(preset: str, texture_res: int | None = None, lmax: int | None = None
     if estimate.method == "global" and estimate.forward_model != "angular":  # checked before any work
         raise typer.BadParameter(f"--model {estimate.forward_model} is a forward model of the paper's estimator: "
                                  "add --estimator paper (the global estimator searches the angular model)")
-    return config.replace(texels=texels, fit=fit_settings, estimate=estimate,
+    from freqbrdf.devices import describe_device, resolve_device
+
+    try:
+        backend = resolve_device(device)
+    except ValueError as err:
+        raise typer.BadParameter(str(err)) from err
+    if not quiet:
+        err_console.print(f"backend: {escape(describe_device(device))}", highlight=False, soft_wrap=True)
+    return config.replace(texels=texels, fit=fit_settings, estimate=estimate, device=backend,
                           uncertainty=dataclasses.replace(config.uncertainty, **uncertainty_changes))
 
 
@@ -335,6 +347,8 @@ def _estimation_res(value: str, texture_res: int):
     return int(value)
 
 
+DEVICE_HELP = ("Where the SH fits, the search and the entropy run: cpu, cuda (pip install 'freqbrdf[gpu]' and an "
+               "NVIDIA GPU) or auto (cuda when both are there, else cpu).")
 ENTROPY_HELP = ("Entropy mode: calibrated (from the spectra, fast; what next-views predicts and what "
                 "inpainting is tuned on), paper (the published recipe, to compare with it) or angular (the "
                 "estimator's model on the samples: agrees with a path tracer; little extra time inside fit). "
@@ -380,6 +394,7 @@ def fit(
         False, "--split-half", help="With --per-texel: add to roughness_std the scatter between two more "
         "estimates, from the even and from the odd views alone: it ranks the roughness errors better, for a large "
         "share of the fit's time again (docs/measurements.md#the-roughness-std)."),
+    device: str = typer.Option("auto", "--device", help=DEVICE_HELP),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars or messages."),
     json_output: bool = typer.Option(False, "--json", help="Print summary.json to stdout."),
 ) -> None:
@@ -392,7 +407,8 @@ def fit(
     from freqbrdf.outputs.fit_folder import check_output_folder
     from freqbrdf.progress import Reporter
 
-    config = _config(preset, texture_res, lmax, estimator=estimator, model=model, entropy=entropy)
+    config = _config(preset, texture_res, lmax, estimator=estimator, model=model, entropy=entropy, device=device,
+                     quiet=quiet or json_output)
     if per_texel:
         config = config.replace(surface=dataclasses.replace(config.surface, enabled=False))
     if split_half:
@@ -445,6 +461,7 @@ def uncertainty(
     preset: str = typer.Option("default", help="default (calibrated entropy), fast (as default here) or paper."),
     entropy: str = typer.Option(None, help=ENTROPY_HELP),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars or messages."),
+    device: str = typer.Option("auto", "--device", help=DEVICE_HELP),
     json_output: bool = typer.Option(False, "--json", help="Print the summary as JSON to stdout."),
 ) -> None:
     """Compute the entropy map without a material estimate (so no roughness std): entropy, flags, summary."""
@@ -459,7 +476,7 @@ def uncertainty(
     from freqbrdf.uncertainty import entropy_map
     from freqbrdf.uncertainty import summary as uncertainty_summary
 
-    config = _config(preset, texture_res, lmax, entropy=entropy)
+    config = _config(preset, texture_res, lmax, entropy=entropy, device=device, quiet=quiet or json_output)
     loaded, _ = _checked(capture, quiet or json_output, config.fit.lmax)
     check_output_folder(out, {"the capture": loaded.root.resolve()})
     start = time.perf_counter()
@@ -469,7 +486,8 @@ def uncertainty(
     estimation_res = observations.texture_res
     observe_seconds = time.perf_counter() - start
     start = time.perf_counter()
-    result = entropy_map(observations, config.uncertainty, return_likelihood=False, estimate_config=config.estimate)
+    result = entropy_map(observations, config.uncertainty, return_likelihood=False, estimate_config=config.estimate,
+                         device=config.device)
     if fine is not None:
         observations, result = pipeline.uncertainty_to_texels(observations, result, fine, config.texels.dilation_px)
     seconds = time.perf_counter() - start
