@@ -22,6 +22,7 @@ PACKAGES = (
     "freqbrdf.sphere", "freqbrdf.model", "freqbrdf.capture", "freqbrdf.texels", "freqbrdf.render",
     "freqbrdf.observe", "freqbrdf.estimate", "freqbrdf.uncertainty", "freqbrdf.applications",
     "freqbrdf.outputs", "freqbrdf.pipeline", "freqbrdf.batch", "freqbrdf.synthetic", "freqbrdf.config",
+    "freqbrdf.devices",
 )
 
 
