@@ -413,7 +413,7 @@ def search_texel(t, samples, light, recurrence, options, tables, environment_lig
         # samples do not take over, and search again.
         for _ in range(robust_passes):
             best_f = _roughness_objective(best_r, objective)
-            best_state[:] = state
+            _keep_state(state, best_state)
             _residual_magnitudes(n, values, filtered, diffuse_factor, scale, best_state, residual)
             weighted_residual = weight_sum = 0.0
             for s in range(n):

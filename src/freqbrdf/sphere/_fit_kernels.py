@@ -163,9 +163,9 @@ def texel_normal_equations(t, directions, weights, values, lmax, diag, rec_a, re
         w = np.float64(weights[t, v])
         usable = w > 0.0
         for axis in range(3):
-            usable = usable and np.isfinite(directions[t, v, axis])
+            usable = usable and math.isfinite(directions[t, v, axis])
         for c in range(n_channels):
-            usable = usable and np.isfinite(values[t, v, c])
+            usable = usable and math.isfinite(values[t, v, c])
         if not usable:
             continue
         for axis in range(3):
