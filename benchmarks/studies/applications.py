@@ -1,7 +1,9 @@
-"""The applications of the uncertainty (issue #8), measured on Mitsuba-rendered captures.
+"""The inpainting application of the uncertainty (issue #8), measured on Mitsuba-rendered captures.
 
-    python benchmarks/studies/applications.py [--applications guidance,inpaint]
-        [--scenes bunny_forest,...] [--texture-res 128] [--pool 100] [--random-seeds 3] [--sparse-views 20]
+    python benchmarks/studies/applications.py [--applications inpaint]
+        [--scenes bunny_forest,...] [--texture-res 128] [--pool 100] [--sparse-views 20]
+
+Capture guidance is measured by studies/guidance.py (issue #28).
 
 Re-measuring after a change to the entropy, the estimator or an application is this one line (the
 renders are cached).
@@ -13,21 +15,6 @@ Scenes (scenes.APPLICATION_SCENES): bundled meshes, materials and environment ma
 once by Mitsuba as a pool of ``--pool`` views evenly spread (Fibonacci) over the whole sphere
 around the object, 128 x 128 pixels at 16 spp, with 8 relighting views under two other maps,
 cached in benchmarks/.cache/applications_<scene>_<pool> (scenes.application_capture).
-
-guidance: every strategy starts from the same 10 farthest-point views of the pool and grows to 40,
-10 views a round, at equal budgets:
-- entropy-guided: `guidance.select_views` on the views taken so far (the fit's own observations),
-  10 picks per round chosen before their photographs are "taken" (committed with the expected
-  radiance), then the real photographs are used for the next round and the fits; once with
-  every remaining view competing ("guided") and once per other ``--guidance-spreads`` value,
-  where only the (1 - spread) of them farthest from the views taken so far compete;
-- random: uniformly from the rest of the pool, mean of ``--random-seeds`` seeds;
-- farthest-point: the pool view farthest (in angle) from all taken so far.
-Each subset is fitted with `pipeline.fit` (our defaults, T = --texture-res). Texture error is
-measured against the ground truth on every texel some pool view samples (so that texels a
-strategy leaves unseen count, with the exported fill), entropy as the mean over all atlas texels
-(unobserved ones count 1). The paired test (Wilcoxon signed-rank, scipy) pairs each guided variant's
-error with each baseline's over all (scene, budget in 20/30/40) cells.
 
 inpaint works on one fit per scene of its first ``--sparse-views`` farthest-point views (sparse,
 so that uncertain texels are common), errors measured per texel against the ground truth: masks from the flags (the command's default) and from entropy thresholds; per mask
@@ -44,7 +31,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import hashlib
-import itertools
 import json
 import subprocess
 import sys
@@ -53,28 +39,22 @@ from pathlib import Path
 
 import numpy as np
 
-from freqbrdf.applications import guidance
 from freqbrdf.applications.candidates import farthest_point_views, view_directions
 from freqbrdf.applications.inpaint import biharmonic_fill, inpaint_maps, inpaint_mask
 from freqbrdf.capture.layouts import Capture, load
 from freqbrdf.config import Config, TexelConfig, UncertaintyConfig
 from freqbrdf.fileio import atomic_path, write_json
 from freqbrdf.model.materials import MaterialMaps, resize
-from freqbrdf.observe.observations import observe
 from freqbrdf.outputs.relight import RelightSettings
 from freqbrdf.outputs.relight import evaluate as relight_evaluate
 from freqbrdf.pipeline import FitResult, fit
-from freqbrdf.uncertainty import FLAG_UNOBSERVED
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/: _common and scenes
 from _common import RESULTS_DIR as RESULTS
 from _common import machine
 from scenes import APPLICATION_SCENES, APPLICATION_TEST_VIEWS, application_capture
 
-APPLICATIONS = ("guidance", "inpaint")
-INITIAL_VIEWS = 10
-STEP_VIEWS = 10
-FINAL_VIEWS = 40
+APPLICATIONS = ("inpaint",)
 
 
 def scene_capture(name: str, pool: int) -> Capture:
@@ -103,162 +83,6 @@ def source_state() -> dict:
 def with_views(capture: Capture, views: list[int]) -> Capture:
     return dataclasses.replace(capture, frames=tuple(capture.frames[view] for view in views))
 
-
-# --------------------------------------------------------------------------------------------
-# Capture guidance
-
-
-def guidance_scene(name: str, args) -> dict:
-    pool = scene_capture(name, args.pool)
-    config = Config(texels=TexelConfig(texture_res=args.texture_res))
-    cameras = [frame.camera for frame in pool.frames]
-    directions = view_directions(pool, cameras)
-    # Texels some pool view samples: where every strategy could have looked.
-    coverable = observe(pool, config).n_samples > 0
-    truth = resize(pool.ground_truth, args.texture_res)
-    initial = farthest_point_views(directions, INITIAL_VIEWS)
-
-    def score(views: list[int]) -> tuple[dict, object]:
-        result = fit(with_views(pool, views), config)
-        index = result.observations.texel_index[coverable]
-        maps = result.maps
-        unobserved = (result.uncertainty.flags & FLAG_UNOBSERVED) != 0
-        colour_error = maps.base_color.reshape(-1, 3)[index] - truth.base_color.reshape(-1, 3)[index]
-        row = {
-            "views": len(views),
-            "roughness_mae": float(np.mean(np.abs(maps.roughness.ravel()[index] - truth.roughness.ravel()[index]))),
-            "base_color_mae": float(np.mean(np.abs(colour_error))),
-            "metallic_mae": float(np.mean(np.abs(maps.metallic.ravel()[index] - truth.metallic.ravel()[index]))),
-            "entropy_mean": float(np.mean(result.uncertainty.entropy)),
-            "observed_fraction": float(np.mean(~unobserved)),
-            "fit_seconds": result.timings["total"],
-        }
-        return row, result
-
-    start_row, start_fit = score(initial)
-    curves: dict[str, list] = {}
-    pick_seconds: dict[str, list[float]] = {}
-    for spread in args.guidance_spreads:
-        strategy = guided_name(spread)
-        views, current = list(initial), start_fit
-        curves[strategy], pick_seconds[strategy] = [start_row], []
-        while len(views) < FINAL_VIEWS:
-            remaining = [view for view in range(len(cameras)) if view not in views]
-            picks = guidance.select_views(with_views(pool, views), [cameras[view] for view in remaining], STEP_VIEWS,
-                                          config, observations=current.observations, max_texels=args.max_texels,
-                                          spread=spread)
-            pick_seconds[strategy] += [pick.seconds for pick in picks]
-            views += [remaining[pick.candidate] for pick in picks]
-            row, current = score(views)
-            row["expected_entropy_of_subset"] = picks[-1].expected_entropy
-            curves[strategy].append(row)
-            print(f"[{name}] {strategy} {len(views)}: {json.dumps(row)}", flush=True)
-
-    views = list(initial)
-    curves["farthest_point"] = [start_row]
-    while len(views) < FINAL_VIEWS:
-        views += farthest_point_views(directions, STEP_VIEWS, chosen=views)
-        curves["farthest_point"].append(score(views)[0])
-        print(f"[{name}] farthest-point {len(views)}: {json.dumps(curves['farthest_point'][-1])}", flush=True)
-
-    random_runs = []
-    for seed in range(args.random_seeds):
-        rng = np.random.default_rng(seed)
-        order = rng.permutation([view for view in range(len(cameras)) if view not in initial])
-        run = [start_row]
-        for count in range(INITIAL_VIEWS + STEP_VIEWS, FINAL_VIEWS + 1, STEP_VIEWS):
-            run.append(score(initial + list(order[:count - INITIAL_VIEWS]))[0])
-        random_runs.append(run)
-        print(f"[{name}] random seed {seed}: {json.dumps(run[-1])}", flush=True)
-    curves["random"] = [
-        {key: float(np.mean([run[step][key] for run in random_runs])) for key in start_row}
-        for step in range(len(random_runs[0]))
-    ]
-    return {
-        "settings": dataclasses.asdict(dataclasses.replace(APPLICATION_SCENES[name], views=args.pool,
-                                                           cameras="sphere")),
-        "coverable_texels": int(coverable.sum()),
-        "curves": curves,
-        "random_runs": random_runs,
-        "seconds_per_pick": {
-            strategy: {"mean": float(np.mean(seconds)), "median": float(np.median(seconds))}
-            for strategy, seconds in pick_seconds.items()
-        },
-        "candidates_per_pick": f"{args.pool - FINAL_VIEWS + 1}..{args.pool - INITIAL_VIEWS} (times 1 - spread)",
-    }
-
-
-def guided_name(spread: float) -> str:
-    """The curve of entropy-guided selection with this ``spread``."""
-    return "guided" if spread == 0 else f"guided_spread{spread:g}"
-
-
-def paired_tests(scenes: dict) -> dict:
-    """Each guided variant vs each baseline over all (scene, budget > initial) cells, per metric."""
-    from scipy.stats import wilcoxon
-
-    tests = {}
-    strategies = [name for name in next(iter(scenes.values()))["curves"] if name.startswith("guided")]
-    for strategy, baseline in itertools.product(strategies, ("random", "farthest_point")):
-        for metric in ("roughness_mae", "base_color_mae", "metallic_mae", "entropy_mean"):
-            guided = [row[metric] for scene in scenes.values() for row in scene["curves"][strategy][1:]]
-            other = [row[metric] for scene in scenes.values() for row in scene["curves"][baseline][1:]]
-            difference = np.array(guided) - np.array(other)
-            result = wilcoxon(guided, other) if np.any(difference != 0) else None
-            tests[f"{metric}: {strategy} vs {baseline}"] = {
-                "pairs": len(difference),
-                "guided_lower": int(np.sum(difference < 0)),
-                "mean_difference": float(difference.mean()),
-                "wilcoxon_p": None if result is None else float(result.pvalue),
-            }
-    return tests
-
-
-def plot_guidance(scenes: dict, path: Path) -> None:
-    from matplotlib.figure import Figure
-
-    metrics = (("roughness_mae", "roughness MAE"), ("base_color_mae", "base colour MAE"), ("entropy_mean", "mean entropy"))
-    figure = Figure(figsize=(3.6 * len(scenes), 3.0 * len(metrics)), dpi=100, layout="constrained")
-    axes = figure.subplots(len(metrics), len(scenes), squeeze=False)
-    styles = {"random": ("C0", "random (mean)"), "farthest_point": ("C2", "farthest-point")}
-    guided = [name for name in next(iter(scenes.values()))["curves"] if name.startswith("guided")]
-    styles.update({name: (colour, name.replace("guided", "entropy-guided").replace("_", ", "))
-                   for name, colour in zip(guided, ("C3", "C1", "C4", "C5"))})
-    for column, (name, scene) in enumerate(scenes.items()):
-        for row, (metric, label) in enumerate(metrics):
-            ax = axes[row, column]
-            for strategy, (colour, legend) in styles.items():
-                curve = scene["curves"][strategy]
-                ax.plot([r["views"] for r in curve], [r[metric] for r in curve], "o-", color=colour, label=legend)
-            for run in scene["random_runs"]:
-                ax.plot([r["views"] for r in run], [r[metric] for r in run], color="C0", alpha=0.25, linewidth=0.8)
-            ax.set_xlabel("views")
-            ax.set_ylabel(label)
-            if row == 0:
-                ax.set_title(name)
-    axes[0, 0].legend(fontsize=8)
-    with atomic_path(path) as tmp:
-        figure.savefig(tmp, format="png")
-
-
-def guidance_benchmark(args) -> dict:
-    scenes = {}
-    for name in args.scenes:
-        scenes[name] = guidance_scene(name, args)
-    results = {
-        "application": "capture guidance (issue #8)",
-        **machine(),
-        "texture_res": args.texture_res,
-        "max_texels": args.max_texels,
-        "spreads": args.guidance_spreads,
-        "pool": args.pool,
-        "random_seeds": args.random_seeds,
-        "views": list(range(INITIAL_VIEWS, FINAL_VIEWS + 1, STEP_VIEWS)),
-        "scenes": scenes,
-        "paired_tests": paired_tests(scenes),
-    }
-    plot_guidance(scenes, RESULTS / "applications_guidance.png")
-    return results
 
 # --------------------------------------------------------------------------------------------
 # Inpainting: one sparse fit per scene (the first --sparse-views farthest-point views
@@ -396,11 +220,6 @@ def main(argv=None) -> int:
     parser.add_argument("--scenes", default=",".join(APPLICATION_SCENES))
     parser.add_argument("--texture-res", type=int, default=128)
     parser.add_argument("--pool", type=int, default=100)
-    parser.add_argument("--random-seeds", type=int, default=3)
-    parser.add_argument("--max-texels", type=int, default=guidance.MAX_TEXELS)
-    parser.add_argument("--guidance-spreads", default=f"0,{guidance.SPREAD:g}",
-                        help="guided variants: each pick competes among the (1 - spread) of the candidates "
-                             "farthest from the views (0: all compete)")
     parser.add_argument("--sparse-views", type=int, default=20, help="views of the inpaint fits")
     parser.add_argument("--inpaint-entropies", default="0.3", help="entropy thresholds besides the flags")
     parser.add_argument("--entropy", default="calibrated", choices=("calibrated", "paper", "angular"),
@@ -408,12 +227,9 @@ def main(argv=None) -> int:
                              "saved as applications_<application>_<mode>.{json,png}")
     args = parser.parse_args(argv)
     args.suffix = "" if args.entropy == "calibrated" else f"_{args.entropy}"
-    if args.entropy == "angular" and "guidance" in args.applications.split(","):
-        parser.error("guidance predicts spectra: --entropy angular measures inpaint only")
     args.scenes = args.scenes.split(",")
-    args.guidance_spreads = [float(value) for value in args.guidance_spreads.split(",") if value]
     args.inpaint_entropies = [float(value) for value in args.inpaint_entropies.split(",") if value]
-    runners = {"guidance": guidance_benchmark, "inpaint": inpaint_benchmark}
+    runners = {"inpaint": inpaint_benchmark}
     RESULTS.mkdir(exist_ok=True)
     for application in args.applications.split(","):
         start = time.perf_counter()
@@ -421,7 +237,6 @@ def main(argv=None) -> int:
         results["seconds"] = time.perf_counter() - start
         results["source"] = source_state()
         write_json(RESULTS / f"applications_{application}{args.suffix}.json", results)
-        print(json.dumps(results.get("paired_tests", {}), indent=2))
     return 0
 
 

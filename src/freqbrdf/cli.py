@@ -627,12 +627,14 @@ def next_views(
     hemisphere: bool = typer.Option(False, "--hemisphere", help="Sampled candidates above the object only (+y)."),
     budget: int = typer.Option(..., "--budget", min=1, help="How many views to choose."),
     texture_res: int = typer.Option(None, min=1, help="Texture resolution T (default 512)."),
-    max_texels: int = typer.Option(1024, min=1, help="Texels scored (a seeded random subset)."),
+    max_texels: int = typer.Option(8192, min=1, help="Texels scored (a seeded random subset)."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars or messages."),
 ) -> None:
-    """Choose the next photographs by expected entropy: ranked cameras (next_views.json) and a picture."""
+    """Choose the next photographs by the expected drop of the posterior std: next_views.json and a picture."""
     import dataclasses
     import time
+
+    import numpy as np
 
     from freqbrdf import pipeline
     from freqbrdf.applications import candidates as candidate_views
@@ -650,8 +652,12 @@ def next_views(
     else:
         cameras = candidate_views.sample_candidates(loaded, sample, hemisphere)
         source = f"{sample} sampled on the {'hemisphere' if hemisphere else 'sphere'}"
-    if budget > len(cameras):
-        raise InputError(candidates, f"--budget {budget} exceeds the {len(cameras)} candidate cameras ({source})")
+    taken = candidate_views.view_directions(loaded, [frame.camera for frame in loaded.frames])
+    competing = sum(float(np.max(taken @ direction)) < guidance.TAKEN_COSINE
+                    for direction in candidate_views.view_directions(loaded, cameras))
+    if budget > competing:
+        raise InputError(candidates, f"--budget {budget} exceeds the {competing} candidate cameras ({source}) "
+                                     "away from the views taken")
     start = time.perf_counter()
     # Scored on the texels `fit` would estimate on (observing every texel of T costs more, for
     # the same --max-texels scored).
@@ -666,8 +672,9 @@ def next_views(
         "n_candidates": len(cameras),
         "budget": budget,
         "max_texels": max_texels,
-        "mean_entropy_before": picks[0].entropy_before,
-        "picks": [{"rank": p.rank, "candidate": p.candidate, "expected_mean_entropy": p.expected_entropy,
+        "mean_std_before": picks[0].uncertainty_before,
+        "picks": [{"rank": p.rank, "candidate": p.candidate, "expected_mean_std": p.expected_uncertainty,
+                   "expected_gain": p.expected_gain, "unseen_area": p.unseen_area,
                    "texels_seen": p.texels_seen, "seconds": p.seconds} for p in picks],
         "seconds": time.perf_counter() - start,
         "settings": config.to_dict(),
@@ -676,7 +683,8 @@ def next_views(
     next_views_folder.write_next_views(out, loaded, picks, summary, cameras)
     if not quiet:
         Console().print(escape(
-            f"mean entropy {picks[0].entropy_before:.3f} -> {picks[-1].expected_entropy:.3f} (expected) with "
+            f"mean posterior std {picks[0].uncertainty_before:.4f} -> {picks[-1].expected_uncertainty:.4f} "
+            f"(expected) with "
             f"{budget} of {len(cameras)} candidates in {summary['seconds']:.1f} s; wrote {out}"
         ))
 

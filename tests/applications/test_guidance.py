@@ -1,8 +1,8 @@
 """Capture guidance (freqbrdf.applications.guidance, `freqbrdf next-views`).
 
-The incremental fit and the candidate scoring are checked against fits from scratch
-(`sh.fit_sh`) on synthetic samples; the choice of views on a small Mitsuba-rendered sphere whose
-cameras all look from above, so that its lower half is unobserved.
+The incremental state and the scores are checked against from-scratch sums on synthetic models;
+the model against the whole-surface posterior it reads, and the choice of views, on a small
+Mitsuba-rendered sphere whose cameras all look from above, so that its lower half is unseen.
 """
 
 import dataclasses
@@ -15,139 +15,89 @@ import pytest
 from freqbrdf import pipeline
 from freqbrdf.applications import guidance
 from freqbrdf.applications.candidates import (
-    CandidateSamples,
     candidate_samples,
     farthest_point_views,
     sample_candidates,
-    view_directions,
 )
 from freqbrdf.capture.camera import look_at
 from freqbrdf.capture.camera_layouts import bounding_sphere
 from freqbrdf.capture.layouts import Frame, load, write_transforms
-from freqbrdf.config import Config, FitConfig, TexelConfig
+from freqbrdf.config import Config, TexelConfig
 from freqbrdf.fileio import OUTPUT_MARKER
-from freqbrdf.model import brdf
-from freqbrdf.observe.observations import Observations
-from freqbrdf.sphere import harmonics as sh
 from freqbrdf.synthetic.synth import SynthSettings, synthesize
-from freqbrdf.uncertainty import entropy_from_spectra
-from helpers import observations_from_samples
 
 LMAX = 3
 
 
-def synthetic_observations(rng, n_texels=12, n_views=20, lmax=LMAX, sigma=0.25) -> Observations:
-    """Random samples on the upper hemisphere, some missing; texel 0 has none, texel 1 only three."""
-    directions = rng.normal(size=(n_texels, n_views, 3))
-    directions[..., 2] = np.abs(directions[..., 2]) + 0.05
-    directions /= np.linalg.norm(directions, axis=-1, keepdims=True)
-    weight = directions[..., 2] * (rng.random((n_texels, n_views)) > 0.3)
-    weight[0] = 0.0
-    weight[1, 3:] = 0.0
-    mirrored = rng.uniform(0.0, 2.0, (n_texels, n_views, 3))
-    observed = 0.3 * mirrored + rng.uniform(0.0, 0.2, (n_texels, n_views, 3))
-    return observations_from_samples(directions, weight, observed, mirrored, lmax, sigma=sigma, texture_res=4)
-
-
-def new_view(rng, texels, lmax=LMAX) -> tuple[CandidateSamples, np.ndarray]:
-    """A candidate's samples at ``texels``, and their local view directions (n, 3)."""
-    directions = rng.normal(size=(len(texels), 3))
-    directions[:, 2] = np.abs(directions[:, 2]) + 0.1
-    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
-    samples = CandidateSamples(
-        texel=np.asarray(texels), weight=directions[:, 2], basis=sh.eval_sh(directions, lmax),
-        light=rng.uniform(0.0, 2.0, (len(texels), 3)),
+def synthetic_model(rng, n_texels=40) -> guidance.UncertaintyModel:
+    """A model of n texels with random precisions and couplings; the first half without data."""
+    return guidance.UncertaintyModel(
+        rows=np.arange(n_texels), area=rng.uniform(0.5, 1.5, n_texels),
+        prior_std=np.column_stack([np.full(n_texels, 0.3), np.full(n_texels, 0.45), np.full(n_texels, 0.2)]),
+        fit_samples=np.where(np.arange(n_texels) < n_texels // 2, 0, 12),
+        roughness_precision=rng.uniform(0.5, 2.0, n_texels), roughness_coupling=rng.uniform(1.0, 3.0, n_texels),
+        roughness_scale=0.01, color_precision=rng.uniform(1.0, 4.0, (n_texels, 3)),
+        color_coupling=rng.uniform(0.5, 1.0, n_texels), color_scale=0.002,
+        metal_probability=rng.uniform(0.05, 0.95, n_texels), evidence_scale=rng.uniform(0.5, 2.0, n_texels),
+        typical_samples=8.0, few_sample_power=2.0, std_scale=1.0, sigma=0.25,
     )
-    return samples, directions
 
 
-def fit_from_scratch(observations, config, extra=None):
-    """sh.fit_sh of light, observed and 1 on the observations' samples plus, per texel, the optional
-    extra sample (texels, directions (n, 3), weights (n,), light (n, 3), observed (n, 3))."""
-    directions = observations.view_direction
-    weight = observations.weight
-    values = np.concatenate([observations.mirrored, observations.observed,
-                             np.ones(weight.shape + (1,))], axis=2)
-    if extra is not None:
-        texels, new_directions, new_weight, light, observed = extra
-        n = len(weight)
-        directions = np.concatenate([directions, np.tile([[[0.0, 0.0, 1.0]]], (n, 1, 1))], axis=1)
-        weight = np.concatenate([weight, np.zeros((n, 1))], axis=1)
-        values = np.concatenate([values, np.zeros((n, 1, 7))], axis=1)
-        directions[texels, -1] = new_directions
-        weight[texels, -1] = new_weight
-        values[texels, -1] = np.concatenate([light, observed, np.ones((len(texels), 1))], axis=1)
-    fit = config.fit
-    return sh.fit_sh(directions, weight, values, fit.lmax, fit.reg_lambda, fit.regulariser,
-                     fit.scale_lambda_with_weight).coeffs
+def synthetic_view(rng, texels) -> guidance.ViewInformation:
+    texels = np.sort(np.asarray(texels))
+    return guidance.ViewInformation(texels, rng.uniform(0.1, 1.0, len(texels)), rng.uniform(0.0, 2.0, len(texels)))
 
 
-FIT_VARIANTS = [
-    FitConfig(lmax=LMAX),
-    FitConfig(lmax=LMAX, regulariser="constant", reg_lambda=1e-3, scale_lambda_with_weight=False),
-]
+def synthetic_state(n_texels=40) -> guidance.GuidanceState:
+    """The first half unseen, the second seen by 12 views each."""
+    samples = np.where(np.arange(n_texels) < n_texels // 2, 0, 12)
+    return guidance.GuidanceState(samples.astype(np.int64), 0.8 * samples.astype(np.float64), np.zeros(n_texels))
 
 
-@pytest.mark.parametrize("fit", FIT_VARIANTS, ids=["scaled-exponential", "absolute-constant"])
-def test_incremental_update_equals_a_fit_from_scratch(fit):
+def test_incremental_updates_equal_the_state_from_scratch():
     rng = np.random.default_rng(1)
-    config = Config(fit=fit)
-    observations = synthetic_observations(rng)
-    state = guidance.initial_state(observations, config)
-    np.testing.assert_allclose(guidance.state_coeffs(state, config), fit_from_scratch(observations, config),
-                               rtol=1e-7, atol=1e-9)
+    model, state = synthetic_model(rng), synthetic_state()
+    views = [synthetic_view(rng, rng.choice(40, size, replace=False)) for size in (5, 17, 30, 1)]
+    scratch = guidance.state_with_views(state, views)
+    incremental = state.copy()
+    for view in views:
+        expected_drop = guidance.expected_uncertainty(model, incremental) - guidance.expected_uncertainty(
+            model, guidance.state_with_views(incremental, [view]))
+        assert guidance.view_gain(model, incremental, view) / model.area.sum() == pytest.approx(expected_drop, rel=1e-9)
+        guidance.add_view(incremental, view)
+    np.testing.assert_array_equal(incremental.samples, scratch.samples)
+    np.testing.assert_allclose(incremental.roughness_information, scratch.roughness_information, rtol=1e-12)
+    np.testing.assert_allclose(incremental.metal_evidence, scratch.metal_evidence, rtol=1e-12)
+    np.testing.assert_allclose(guidance.texel_std(model, incremental), guidance.texel_std(model, scratch), rtol=1e-12)
+    # The state the views started from is untouched by state_with_views.
+    np.testing.assert_array_equal(state.samples, synthetic_state().samples)
 
-    texels = np.array([0, 1, 4, 7, 11])  # the empty texel and the nearly empty one included
-    samples, directions = new_view(rng, texels)
-    observed = rng.uniform(0.0, 1.0, (len(texels), 3))
-    guidance.add_samples(state, samples, observed)
-    expected = fit_from_scratch(observations, config, (texels, directions, samples.weight, samples.light, observed))
-    np.testing.assert_allclose(guidance.state_coeffs(state, config), expected, rtol=1e-7, atol=1e-9)
-    assert state.n_samples[0] == 1 and state.n_samples[2] == observations.n_samples[2]
 
-
-@pytest.mark.parametrize("mode", ["calibrated", "paper"])
-def test_expected_entropy_of_a_known_material_equals_the_entropy_of_the_refit(mode):
-    """With the posterior on one hypothesis, the expectation is that hypothesis' simulated sample
-    added to the data and the fits redone from scratch."""
+def test_a_view_of_unseen_texels_scores_higher_than_one_of_well_observed_texels():
     rng = np.random.default_rng(2)
-    config = Config(fit=FitConfig(lmax=LMAX))
-    config = config.replace(uncertainty=dataclasses.replace(config.uncertainty, mode=mode))
-    observations = synthetic_observations(rng)
-    state = guidance.initial_state(observations, config)
-    coeffs = guidance.state_coeffs(state, config)
-    texels = np.arange(observations.n_texels)
-    samples, directions = new_view(rng, texels)
-    alpha_index, k_index = 3, 5
-    grid_res = config.uncertainty.resolution()
-    likelihood = np.zeros((len(texels), grid_res, grid_res))
-    likelihood[:, alpha_index, k_index] = 1.0
-    expected, radiance = guidance.expected_entropy(state, coeffs, likelihood, samples, observations.sigma, config)
+    model, state = synthetic_model(rng), synthetic_state()
+    well_observed = synthetic_view(rng, np.arange(20, 40))
+    unseen = synthetic_view(rng, np.arange(0, 20))
+    gain_observed = guidance.view_gain(model, state, well_observed)
+    gain_unseen = guidance.view_gain(model, state, unseen)
+    assert 0.0 < gain_observed < gain_unseen
+    # A texel becomes a data texel at MIN_SAMPLES (2) samples: one view of an unseen texel goes halfway.
+    once = guidance.state_with_views(state, [unseen])
+    twice = guidance.state_with_views(once, [unseen])
+    std_once, std_twice = guidance.texel_std(model, once), guidance.texel_std(model, twice)
+    prior = model.prior_std[:20]
+    assert np.all(std_twice[:20, 0] < prior[:, 0]) and np.all(std_twice[:20, 2] < prior[:, 2])
+    np.testing.assert_allclose(std_once[:20, [0, 2]], 0.5 * (prior[:, [0, 2]] + std_twice[:20, [0, 2]]), rtol=0.1)
 
-    # The same from scratch: the light refitted with its new sample, the hypothesis' radiance at
-    # the new direction (the lobe-filtered light plus the diffuse share of the current DC, less the
-    # lobe's share), the observed radiance refitted with it.
-    alpha, k = (alpha_index / (grid_res - 1)) ** 2, k_index / (grid_res - 1)
-    light = fit_from_scratch(observations, config, (texels, directions, samples.weight, samples.light,
-                                                    np.zeros((len(texels), 3))))[:, 0:3]
-    if mode == "paper":
-        kernel = brdf.brdf_kernel(np.array([alpha]), LMAX)[0]
-    else:
-        kernel = brdf.brdf_kernel(np.array([alpha]), LMAX, observations.sigma)[0]
-    filtered = np.einsum("tck,tk->tc", light * kernel[sh.sh_degrees(LMAX)], samples.basis)
-    current = fit_from_scratch(observations, config)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        diffuse = (current[:, 3:6, 0] - k * current[:, 0:3, 0]) / current[:, 6:7, 0]
-    diffuse = np.where(current[:, 6:7, 0] > 0, diffuse, 0.0)
-    simulated = k * filtered + np.maximum(diffuse, 0.0)
-    np.testing.assert_allclose(radiance, simulated, rtol=1e-9, atol=1e-12)
-    refit = fit_from_scratch(observations, config, (texels, directions, samples.weight, samples.light, simulated))
-    direct = entropy_from_spectra(
-        sh.power_spectrum(refit[:, 0:3]), sh.power_spectrum(refit[:, 3:6]),
-        n_samples=observations.n_samples + 1, sigma=observations.sigma,
-        config=config.uncertainty,
-    ).entropy
-    np.testing.assert_allclose(expected, direct, atol=2e-5)
+
+def test_metal_evidence_lowers_the_expected_label_std():
+    rng = np.random.default_rng(3)
+    model, state = synthetic_model(rng), synthetic_state()
+    probability = model.metal_probability
+    std = guidance.texel_std(model, state)
+    np.testing.assert_allclose(std[:, 1], np.sqrt(probability * (1.0 - probability)), rtol=1e-9)
+    stronger = guidance.state_with_views(state, [synthetic_view(rng, np.arange(40))])
+    assert np.all(guidance.texel_std(model, stronger)[:, 1] < std[:, 1])
 
 
 def test_farthest_point_views_spread_and_extend_a_chosen_set():
@@ -157,11 +107,6 @@ def test_farthest_point_views_spread_and_extend_a_chosen_set():
     assert farthest_point_views(directions, 2, chosen=[0, 2]) == [3, 4]
     with pytest.raises(ValueError):
         farthest_point_views(directions, 4, chosen=[0, 2])
-
-
-def test_regularisation_is_required():
-    with pytest.raises(ValueError, match="regularised"):
-        guidance.select_views(None, [], 1, Config(fit=FitConfig(regulariser="none")))
 
 
 # --- on a rendered capture ----------------------------------------------------------------------
@@ -187,43 +132,62 @@ def below_camera(capture):
 CONFIG = Config(texels=TexelConfig(texture_res=32))
 
 
+def near_camera(capture, degrees=4.0):
+    """A camera beside the capture's first one, ``degrees`` away (seen from the object), looking at it."""
+    centre, _ = bounding_sphere(capture.mesh.vertices)
+    template = capture.frames[0].camera
+    offset = template.center - centre
+    axis = np.cross(offset, [0.0, 1.0, 0.0])
+    axis /= np.linalg.norm(axis)
+    angle = np.radians(degrees)
+    rotated = (offset * np.cos(angle) + np.cross(axis, offset) * np.sin(angle)
+               + axis * np.dot(axis, offset) * (1.0 - np.cos(angle)))
+    return dataclasses.replace(template, camera_to_world=look_at(centre + rotated, centre))
+
+
 @pytest.mark.slow
-def test_a_view_of_the_unseen_half_beats_a_duplicate_and_lowers_the_expected_entropy(sphere_from_above):
+def test_the_model_reproduces_the_whole_surface_posterior(sphere_from_above):
     capture = sphere_from_above
-    duplicate = capture.frames[0].camera
-    candidates = [duplicate, below_camera(capture)]
+    fit = guidance.surface_fit(capture, CONFIG)
+    rows = guidance.texel_subset(fit.texels.n_texels, 10**6, 0)
+    model = guidance.uncertainty_model(capture, fit, rows, CONFIG, fit.observations.sigma)
+    texels = guidance.subset_texels(fit.texels, rows)
+    taken = guidance.view_information(capture, texels, fit, rows, [frame.camera for frame in capture.frames],
+                                      fit.observations.sigma)
+    state = guidance.initial_state(model, fit.observations.n_samples[rows], taken)
+    std = guidance.texel_std(model, state)
+    posterior = fit.posterior
+    estimated = fit.per_texel.estimated
+    assert 0 < estimated.sum() < len(estimated)  # both kinds of texel occur
+    # Roughness: the texels whose loss has a curvature are the solve's data texels (most of them).
+    curved = estimated & (np.nan_to_num(fit.per_texel.roughness_curvature) > 0)
+    assert curved.sum() > 0.8 * estimated.sum()
+    matches = np.isclose(std[curved, 0], posterior.roughness_std[curved], rtol=1e-4)
+    assert matches.mean() > 0.98, np.flatnonzero(~matches)
+    np.testing.assert_allclose(std[:, 1], posterior.metallic_std, rtol=1e-4, atol=2e-6)
+    np.testing.assert_allclose(std[estimated, 2], posterior.base_color_std[estimated].mean(axis=1), rtol=1e-4)
+    np.testing.assert_allclose(std[~estimated, 0], np.nan_to_num(posterior.roughness_std[~estimated]), rtol=1e-6)
+
+
+@pytest.mark.slow
+def test_a_view_of_the_unseen_half_beats_a_view_beside_a_taken_one(sphere_from_above):
+    capture = sphere_from_above
+    candidates = [capture.frames[0].camera, near_camera(capture), below_camera(capture)]
     picks = guidance.select_views(capture, candidates, 2, CONFIG)
-    assert [pick.candidate for pick in picks] == [1, 0]
-    first = picks[0]
-    assert first.expected_entropy < first.entropy_before - 0.05  # a whole unseen half becomes observed
+    # The taken camera itself does not compete; the unseen half comes first.
+    assert [pick.candidate for pick in picks] == [2, 1]
+    first, second = picks
+    assert first.expected_gain > second.expected_gain > 0.0
+    assert first.unseen_area > 0.2 and second.unseen_area < 0.1 * first.unseen_area
+    assert second.uncertainty_before == pytest.approx(first.expected_uncertainty, rel=1e-9)
     assert first.texels_seen > 0 and first.seconds > 0
-    # The duplicate still adds a sample (and its penalty), but far less than the new half.
-    assert picks[1].entropy_before - picks[1].expected_entropy < first.entropy_before - first.expected_entropy
-    # The same texels and the same choice when a fit's observations are passed in.
-    from freqbrdf.observe.observations import observe
-
-    again = guidance.select_views(capture, candidates, 1, CONFIG, observations=observe(capture, CONFIG))
-    assert again[0].candidate == 1
-    assert again[0].expected_entropy == pytest.approx(first.expected_entropy, abs=1e-6)
-
-
-@pytest.mark.slow
-def test_spread_lets_only_the_candidates_far_from_the_taken_views_compete(sphere_from_above):
-    capture = sphere_from_above
-    candidates = sample_candidates(capture, 8)
-    directions = view_directions(capture, candidates)
-    taken = view_directions(capture, [frame.camera for frame in capture.frames])
-    # Nearly all excluded: each pick is the candidate farthest from every view taken or picked.
-    picks = guidance.select_views(capture, candidates, 3, CONFIG, max_texels=200, spread=0.99)
-    closeness = (directions @ taken.T).max(axis=1)
-    expected = []
-    for _ in range(3):
-        index = int(np.argmin(np.where(np.isin(np.arange(8), expected), np.inf, closeness)))
-        expected.append(index)
-        closeness = np.maximum(closeness, directions @ directions[index])
-    assert [pick.candidate for pick in picks] == expected
-    with pytest.raises(ValueError, match="spread"):
-        guidance.select_views(capture, candidates, 1, CONFIG, spread=1.0)
+    # Deterministic, and the same with the fit passed in.
+    fit = guidance.surface_fit(capture, CONFIG)
+    again = guidance.select_views(capture, candidates, 2, CONFIG, fit=fit)
+    assert [(pick.candidate, pick.expected_uncertainty) for pick in again] == [
+        (pick.candidate, pick.expected_uncertainty) for pick in picks]
+    with pytest.raises(ValueError, match="exceeds"):
+        guidance.select_views(capture, candidates, 3, CONFIG, fit=fit)
 
 
 @pytest.mark.slow
@@ -270,7 +234,7 @@ def test_next_views_command_writes_ranked_cameras_that_load_as_a_capture(sphere_
                                                                           capsys):
     capture = sphere_from_above
     candidates_file = tmp_path / "candidates.json"
-    cameras = [capture.frames[0].camera, below_camera(capture)]
+    cameras = [near_camera(capture), below_camera(capture)]
     write_transforms(candidates_file, [Frame(camera, tmp_path / f"unshot_{k}.exr") for k, camera in enumerate(cameras)])
     out = tmp_path / "next"
     assert run_cli("next-views", capture.root, "--candidates", candidates_file, "--budget", 2,
@@ -280,8 +244,9 @@ def test_next_views_command_writes_ranked_cameras_that_load_as_a_capture(sphere_
     document = json.loads((out / "next_views.json").read_text())
     assert [frame["rank"] for frame in document["frames"]] == [0, 1]
     assert document["frames"][0]["candidate"] == 1
+    assert document["frames"][0]["expected_gain"] > document["frames"][1]["expected_gain"] > 0
     summary = json.loads((out / "guidance.json").read_text())
-    assert summary["picks"][0]["expected_mean_entropy"] < summary["mean_entropy_before"]
+    assert summary["picks"][0]["expected_mean_std"] < summary["mean_std_before"]
     # Scored on the texels `fit` would estimate on.
     assert summary["estimation_res"] == pipeline.estimation_resolution(capture, Config(texels=TexelConfig(32)))
     # Shoot the views (any image of the right size will do here) and load them as a capture.
@@ -292,6 +257,10 @@ def test_next_views_command_writes_ranked_cameras_that_load_as_a_capture(sphere_
     np.testing.assert_allclose(shot.frames[0].camera.camera_to_world, cameras[1].camera_to_world)
     assert shot.mesh.path.resolve() == capture.mesh.path.resolve()
     np.testing.assert_array_equal(shot.envmap.radiance, capture.envmap.radiance)
+    # The loop: the shot views join the capture, the next run proposes from what is left.
+    merged = dataclasses.replace(capture, frames=capture.frames + shot.frames)
+    picks = guidance.select_views(merged, [*cameras, *sample_candidates(capture, 6)], 1, CONFIG)
+    assert picks[0].candidate >= 2  # the views just taken do not compete again
 
     sampled = tmp_path / "sampled"
     assert run_cli("next-views", capture.root, "--sample", 8, "--budget", 3, "--out", sampled,
@@ -321,6 +290,6 @@ def test_next_views_command_rejects_bad_input_without_writing(sphere_from_above,
     assert code == 2
     error = capsys.readouterr().err
     expected = {"missing": "nowhere.json", "malformed": "malformed JSON", "both": "exactly one",
-                "neither": "exactly one", "budget": "exceeds the 1 candidate"}[problem]
+                "neither": "exactly one", "budget": "exceeds the 0 candidate"}[problem]
     assert expected in " ".join(error.split())
     assert not out.exists()

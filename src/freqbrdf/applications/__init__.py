@@ -7,11 +7,12 @@ the surface is part of the estimate itself (`freqbrdf.estimate.surface`).
 Modules
 -------
 guidance
-    Capture guidance: the next views by expected entropy (`select_views`) and the incremental
-    fits that score them (`FitState`, `expected_entropy`).
+    Capture guidance: the next views by the expected drop of the whole-surface posterior's
+    uncertainty (`select_views`), its model (`UncertaintyModel`) and incremental state
+    (`GuidanceState`, `add_view`).
 candidates
     Candidate views for guidance (`sample_candidates`, `load_candidates`,
-    `farthest_point_views`) and what each would sample (`candidate_samples`).
+    `farthest_point_views`) and what each would sample (`view_samples`, `candidate_samples`).
 next_views
     The ``next_views`` folder: the ranked cameras, a picture of them and a summary
     (`write_next_views`).
@@ -27,18 +28,26 @@ from freqbrdf.applications.candidates import (
     load_candidates,
     sample_candidates,
     view_directions,
+    view_samples,
 )
 from freqbrdf.applications.guidance import (
     MAX_TEXELS,
-    MIN_CELL_PROBABILITY,
-    SPREAD,
-    FitState,
+    GuidanceState,
     Pick,
-    add_samples,
-    expected_entropy,
+    SurfaceFit,
+    UncertaintyModel,
+    ViewInformation,
+    add_view,
+    expected_uncertainty,
     initial_state,
     select_views,
-    state_coeffs,
+    state_with_views,
+    surface_fit,
+    texel_std,
+    texel_uncertainty,
+    uncertainty_model,
+    view_gain,
+    view_information,
 )
 from freqbrdf.applications.inpaint import (
     MAP_NAMES,
@@ -65,23 +74,24 @@ __all__ = [
     "MAP_NAMES",
     "MASK_PNG",
     "MAX_TEXELS",
-    "MIN_CELL_PROBABILITY",
     "NEXT_VIEWS_FILE",
     "PICTURE_FILE",
-    "SPREAD",
     "SUMMARY_FILE",
     "CandidateSamples",
     "Fill",
-    "FitState",
+    "GuidanceState",
     "InpaintSettings",
     "Inpainted",
     "Pick",
-    "add_samples",
+    "SurfaceFit",
+    "UncertaintyModel",
+    "ViewInformation",
+    "add_view",
     "biharmonic_fill",
     "candidate_samples",
     "chart_labels",
     "diffusion_fill",
-    "expected_entropy",
+    "expected_uncertainty",
     "farthest_point_views",
     "initial_state",
     "inpaint_maps",
@@ -91,7 +101,14 @@ __all__ = [
     "plot_views",
     "sample_candidates",
     "select_views",
-    "state_coeffs",
+    "state_with_views",
+    "surface_fit",
+    "texel_std",
+    "texel_uncertainty",
+    "uncertainty_model",
     "view_directions",
+    "view_gain",
+    "view_information",
+    "view_samples",
     "write_next_views",
 ]

@@ -95,11 +95,7 @@ def candidate_samples(
     position = np.asarray(texels.position, dtype=np.float64)
     normal = np.asarray(texels.normal, dtype=np.float64)
     frame = np.stack([texels.tangent, texels.bitangent, texels.normal], axis=1)  # (n, 3, 3) rows
-    extent = float(np.linalg.norm(np.ptp(capture.mesh.vertices, axis=0)))  # the object's scale, as observe uses it
-    offset = RAY_OFFSET_TEXELS * texels.texel_size + RAY_OFFSET_OBJECT * extent
-    ray_origin = position + offset[:, None] * normal
-    occluder = Occluder(capture.mesh)
-    seen = camera_samples(cameras, position, normal, ray_origin, occluder)
+    seen = _visible(capture, texels, cameras)
     texel_of_ray = np.concatenate([rows for rows, _ in seen]).astype(np.int64)
     view_of_ray = np.concatenate([np.full(len(rows), view) for view, (rows, _) in enumerate(seen)])
     centres = np.stack([camera.center for camera in cameras])  # (C, 3)
@@ -117,6 +113,51 @@ def candidate_samples(
         CandidateSamples(texel_of_ray[take], local[take, 2], basis[take], light[take])
         for take in (slice(bounds[view], bounds[view + 1]) for view in range(len(cameras)))
     ]
+
+
+def view_samples(capture: Capture, texels: Texels,
+                 cameras: Sequence[Camera]) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Find the texels each camera would sample, their weights and mirror directions; no images needed.
+
+    Visibility as `candidate_samples` (`freqbrdf.observe.camera_samples`).
+
+    Parameters
+    ----------
+    capture : Capture
+        Its mesh (for the shadow rays).
+    texels : Texels
+        The n texels.
+    cameras : sequence of Camera
+        The cameras.
+
+    Returns
+    -------
+    list of (texel, weight, mirror)
+        Per camera: rows (m,) int64 of the texels it samples, ascending; cos(theta_o) (m,) float64;
+        the world mirror directions (m, 3) float64 of the view directions about the normals.
+    """
+    position = np.asarray(texels.position, dtype=np.float64)
+    normal = np.asarray(texels.normal, dtype=np.float64)
+    result = []
+    for camera, (rows, cos_theta) in zip(cameras, _visible(capture, texels, cameras)):
+        to_camera = camera.center[None] - position[rows]
+        to_camera /= np.linalg.norm(to_camera, axis=1, keepdims=True)
+        facing = np.einsum("mi,mi->m", to_camera, normal[rows])
+        mirror = 2.0 * facing[:, None] * normal[rows] - to_camera
+        result.append((np.asarray(rows, np.int64), np.asarray(cos_theta, np.float64), mirror))
+    return result
+
+
+def _visible(capture: Capture, texels: Texels, cameras: Sequence[Camera]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per camera, the rows of the texels it samples and their cos(theta_o) (`camera_samples`)."""
+    position = np.asarray(texels.position, dtype=np.float64)
+    normal = np.asarray(texels.normal, dtype=np.float64)
+    extent = float(np.linalg.norm(np.ptp(capture.mesh.vertices, axis=0)))  # the object's scale, as observe uses it
+    offset = RAY_OFFSET_TEXELS * texels.texel_size + RAY_OFFSET_OBJECT * extent
+    ray_origin = position + offset[:, None] * normal
+    if not len(cameras):
+        return []
+    return camera_samples(cameras, position, normal, ray_origin, Occluder(capture.mesh))
 
 
 def sample_candidates(capture: Capture, count: int, hemisphere: bool = False) -> list[Camera]:

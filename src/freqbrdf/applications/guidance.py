@@ -1,31 +1,36 @@
-"""Capture guidance: where to take the next photographs (METHOD.md §4).
+"""Capture guidance: the next photographs that most lower the whole-surface posterior's uncertainty.
 
-Greedy next-best-view by expected entropy (`select_views`). What a candidate camera would add to
-a texel is known before any photograph is taken, except the radiance itself: its view direction
-in the texel's frame, its weight cos(theta_o) x visible (`freqbrdf.observe.camera_samples`, the
-tests of `freqbrdf.observe.observe`) and the band-limited environment in the mirror direction
-(`candidate_samples`). So for every specular hypothesis psi = (alpha, k) of the uncertainty grid
-the new sample can be simulated (`expected_entropy`),
+METHOD.md §4 (capture guidance). `freqbrdf fit` returns the whole-surface estimate
+(`freqbrdf.estimate.surface`): every texel's roughness, metallic and base colour with a posterior
+std. Guidance plans for that estimate. Its objective is the area-weighted mean over the texels of
 
-    f_psi = k sum_l K(alpha, l) P_l(w_o) + D_psi,
+    U_t = std_roughness + std_metallic + mean over RGB of std_base_colour,
 
-with P_l the degree-l part of the light's SH fit at the new direction, K the lobe the entropy
-uses and D_psi the Lambertian radiance that explains the rest of the texel's fitted DC under psi.
-The candidate's expected entropy at a texel is sum_psi P(psi) H(psi), P the texel's current
-posterior and H the entropy of its fit with f_psi added; its score is the mean over the scored
-texels (those it does not see keep their entropy), and the lowest wins. Only the candidates
-farthest from the views taken or picked so far compete (``spread``, `SPREAD`): the pure
-criterion clusters views.
+all three parameters on their [0, 1] scale, and a candidate camera is worth the expected drop of
+that mean once its photograph is added (`UncertaintyModel`, `expected_uncertainty`):
 
-The fits are updated exactly and incrementally (`FitState`: rank-one updates of each texel's
-normal equations in a generalised eigenbasis). A pick is committed without a photograph: its
-sample enters the fit with the posterior-mean radiance, so the next pick already knows what this
-one will most likely reveal. The band limit sigma stays that of the capture's own views. The
-texels scored are a seeded random subset of the atlas (``max_texels``); hypotheses less likely
-than `MIN_CELL_PROBABILITY` are left out of the expectation.
+- **roughness and base colour**: the solve's variance per texel, s^2 / (P_t few(n_t) + lambda_t),
+  with the surface coupling lambda_t and the calibration s^2 of the current fit, the sample count
+  n_t (`few` down-weights texels with fewer samples than the median, as the solve does), and for
+  roughness the precision P_t proportional to the samples' roughness information
+  I_t = sum_i w_i^2 |k dL_alpha(w_r,i) / d roughness|^2: the derivative of the specular light in
+  the mirror direction with respect to roughness (lobe exp(-(alpha^2 + sigma^2) l^2) on the
+  environment's SH, sigma the band limit the capture will have once the views are added). Each
+  texel's P_t / I_t is taken from the current fit (its loss curvature over the noise);
+- **metallic**: the label's probability p moves by the expected evidence of the new samples,
+  A_t = sum_i w_i^2 |f_metal - f_dielectric|^2 / (2 noise), scaled to the fit's own log-ratios:
+  E[std] = p s(x + A) + (1 - p) s(x - A), x = logit(p), s(x) = sqrt(sigmoid(x) sigmoid(-x));
+- **coverage**: a texel no view samples (or with fewer than the estimate's minimum) keeps the
+  posterior's std of a texel without data: the prior's, as the surface solve spreads it. Seeing it
+  turns it into a data texel (each sample on the way to the minimum credited its share); that is
+  the gain of a view of unseen parts, in the same units.
 
-The candidate views and what each would sample are made in `freqbrdf.applications.candidates`;
-`freqbrdf.applications.next_views` writes the ranked cameras, a picture of them and a summary.
+What a candidate would add to each texel is known without a photograph (its visibility, view and
+mirror directions: `freqbrdf.applications.candidates.view_samples`), and it depends only on the
+current estimate, so a budget is chosen greedily (`select_views`) with exact incremental updates
+of per-texel sums (`GuidanceState`, `add_view`): no refit per candidate. The texels scored are a
+seeded random subset of the estimation texels (``max_texels``). `surface_fit` makes the fit the
+model reads (the steps of `freqbrdf.pipeline.fit` up to the whole-surface solve).
 """
 
 from __future__ import annotations
@@ -37,39 +42,29 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from freqbrdf.applications.candidates import CandidateSamples, candidate_samples, view_directions
+from freqbrdf.applications.candidates import view_directions, view_samples
 from freqbrdf.capture.camera import Camera
 from freqbrdf.capture.layouts import Capture
 from freqbrdf.config import Config
-from freqbrdf.model import brdf
+from freqbrdf.estimate import MaterialEstimate
+from freqbrdf.estimate import estimate as estimate_materials
+from freqbrdf.estimate._search_kernels import FITTED_PARAMETERS, MIN_SAMPLES
+from freqbrdf.estimate.search import lambert_scale
+from freqbrdf.estimate.surface import SurfacePosterior, apparent_albedo, metal_evidence, surface_graph, whole_surface
+from freqbrdf.model.brdf import ALPHA_MIN, alpha_from_roughness, band_limit_sigma
 from freqbrdf.observe.observations import Observations, observe
 from freqbrdf.progress import SILENT, Reporter
+from freqbrdf.sphere import envmap as envmaps
 from freqbrdf.sphere import harmonics as sh
 from freqbrdf.texels import Texels, rasterise
-from freqbrdf.uncertainty import (
-    Uncertainty,
-    cross_spectrum,
-    entropy_from_spectra,
-    hypothesis_filter,
-    hypothesis_grid,
-)
 
-MAX_TEXELS = 1024  # texels scored per candidate (a seeded random subset of the atlas)
-# Each pick is chosen among the (1 - SPREAD) of the remaining candidates farthest (in angle, seen
-# from the object) from every view taken or picked so far (0: all candidates compete). Pure
-# expected entropy clusters views; benchmarks/results/applications_guidance.json compares 0.5
-# with 0 (docs/measurements.md).
-SPREAD = 0.5
-# Hypotheses less likely than this are left out of a texel's expectation (the rest renormalised):
-# a uniform posterior keeps all of its R (R - 1) + 1 materials (57 on the default grid, R = 8), a
-# confident one a handful.
-MIN_CELL_PROBABILITY = 1e-3
-
-# Right-hand sides of the per-texel normal equations.
-LIGHT = slice(0, 3)
-OBSERVED = slice(3, 6)
-ONE = 6
-N_RHS = 7
+MAX_TEXELS = 8192  # texels scored per candidate (a seeded random subset of the estimation texels)
+LIGHT_LMAX = 16  # SH degree of the environment in the roughness information and the metal evidence
+DIELECTRIC_F0 = 0.04  # specular reflectance of a dielectric at normal incidence
+# Candidates closer than this (cosine, seen from the object) to a view taken are not proposed again.
+TAKEN_COSINE = 0.9999
+# The solve's pin of a texel without data, relative to the coupling (`freqbrdf.estimate.surface`).
+_PIN = 1e-4
 
 
 @dataclass(frozen=True)
@@ -84,10 +79,13 @@ class Pick:
         Index into the candidate list.
     camera : Camera
         The candidate camera.
-    entropy_before : float
-        Mean entropy of the scored texels before this pick.
-    expected_entropy : float
-        Their mean expected entropy once this view is added.
+    uncertainty_before : float
+        Area-weighted mean of U_t over the scored texels before this pick.
+    expected_uncertainty : float
+        The same once this view is added (the views picked before it included).
+    unseen_area : float
+        Share of the scored area without data (fewer samples than the estimate needs) that this
+        view samples.
     texels_seen : int
         Scored texels the view samples.
     seconds : float
@@ -97,54 +95,147 @@ class Pick:
     rank: int
     candidate: int
     camera: Camera
-    entropy_before: float
-    expected_entropy: float
+    uncertainty_before: float
+    expected_uncertainty: float
+    unseen_area: float
     texels_seen: int
     seconds: float
 
+    @property
+    def expected_gain(self) -> float:
+        """The expected drop of the mean uncertainty from this view."""
+        return self.uncertainty_before - self.expected_uncertainty
+
 
 @dataclass(eq=False)
-class FitState:
-    """Per-texel normal equations of the SH fits and their eigenbasis (n texels, K coefficients).
-
-    Per texel: G = sum w^2 y y^T, the right-hand sides b = sum w^2 y f (light RGB, observed RGB,
-    the constant 1) and sum w^2, which sets the penalty lambda_eff = lambda sum w^2
-    (``FitConfig.scale_lambda_with_weight``). Adding a sample is a rank-one update of G and b.
-    With the generalised eigenbasis of (G, R), R = diag(reg(l)),
-    G = R^1/2 Q diag(mu) Q^T R^1/2, the regularised inverse for any penalty s is
-    (G + s R)^-1 = B diag(1 / (mu + s)) B^T, B = R^-1/2 Q. Scoring a candidate is then
-    Sherman-Morrison on top of that, O(K^2) per texel and exact (the penalty's growth with the
-    new weight included); committing a pick re-diagonalises only the texels it sees. The fits
-    equal fits from scratch on the enlarged sample set (tests/test_guidance.py).
+class SurfaceFit:
+    """A whole-surface fit of a capture on N texels: what the uncertainty model reads.
 
     Attributes
     ----------
-    gram : (n, K, K) float64
-        G = sum_i w_i^2 y_i y_i^T (unregularised).
-    rhs : (n, K, 7) float64
-        b = sum_i w_i^2 y_i f_i: light RGB, observed RGB, constant 1.
-    weight_sq : (n,) float64
-        sum_i w_i^2.
-    n_samples : (n,) int64
-        Samples with positive weight.
-    basis : (n, K, K) float64
-        B = R^-1/2 Q.
-    eigenvalues : (n, K) float64
-        mu >= 0.
-    projected_rhs : (n, K, 7) float64
-        B^T b.
-    regulariser : (K,) float64
-        R's diagonal, reg(l) of `freqbrdf.sphere.harmonics.regulariser_weights`.
+    observations : Observations
+        The N texels' samples.
+    texels : Texels
+        The same texels on the mesh.
+    per_texel : MaterialEstimate
+        The ``global`` estimator's per-texel estimate (with its label losses and curvature).
+    estimate : MaterialEstimate
+        The whole-surface estimate.
+    posterior : SurfacePosterior
+        Its std maps and label probabilities.
     """
 
-    gram: np.ndarray
-    rhs: np.ndarray
-    weight_sq: np.ndarray
-    n_samples: np.ndarray
-    basis: np.ndarray
-    eigenvalues: np.ndarray
-    projected_rhs: np.ndarray
-    regulariser: np.ndarray
+    observations: Observations
+    texels: Texels
+    per_texel: MaterialEstimate
+    estimate: MaterialEstimate
+    posterior: SurfacePosterior
+
+
+@dataclass(frozen=True)
+class ViewInformation:
+    """What one camera adds to the m scored texels it samples.
+
+    Attributes
+    ----------
+    texel : (m,) int64
+        Rows of the scored texels, ascending.
+    roughness_information : (m,) float64
+        w^2 |k dL_alpha / d roughness|^2 summed over RGB.
+    metal_evidence : (m,) float64
+        w^2 |f_metal - f_dielectric|^2 summed over RGB.
+    """
+
+    texel: np.ndarray
+    roughness_information: np.ndarray
+    metal_evidence: np.ndarray
+
+
+@dataclass(eq=False)
+class GuidanceState:
+    """Per scored texel (n), the sums the views taken and picked so far make.
+
+    Attributes
+    ----------
+    samples : (n,) int64
+        Sample count (the fit's, plus one per picked view that sees the texel).
+    roughness_information : (n,) float64
+        Sum of the views' roughness information (`ViewInformation`).
+    metal_evidence : (n,) float64
+        Sum of the picked views' metal evidence (the fit's own is in the label probability).
+    """
+
+    samples: np.ndarray
+    roughness_information: np.ndarray
+    metal_evidence: np.ndarray
+
+    def copy(self) -> GuidanceState:
+        """Return an independent copy.
+
+        Returns
+        -------
+        GuidanceState
+            The same sums in new arrays.
+        """
+        return GuidanceState(self.samples.copy(), self.roughness_information.copy(), self.metal_evidence.copy())
+
+
+@dataclass(eq=False)
+class UncertaintyModel:
+    """The whole-surface posterior's std as a function of the samples, on n scored texels.
+
+    Attributes
+    ----------
+    rows : (n,) int64
+        Rows of the scored texels in the fit.
+    area : (n,) float64
+        Their areas (the objective's weights).
+    prior_std : (n, 3) float64
+        The posterior's std of roughness, metallic and mean base colour where a texel has no data.
+    fit_samples : (n,) int64
+        The fit's sample count per texel.
+    roughness_precision : (n,) float64
+        Roughness precision per unit of roughness information.
+    roughness_coupling : (n,) float64
+        lambda sum_j w_tj of the roughness solve (plus its pin).
+    roughness_scale : float
+        The roughness solve's calibration s^2.
+    color_precision : (n, 3) float64
+        Base-colour precision per channel before the few-sample factor.
+    color_coupling : (n,) float64
+        lambda sum_j w_tj of the base-colour solve (plus its pin).
+    color_scale : float
+        The base-colour solve's calibration s^2.
+    metal_probability : (n,) float64
+        The metal label's probability now.
+    evidence_scale : (n,) float64
+        Log-odds per unit of metal evidence.
+    typical_samples : float
+        The median sample count of the estimated texels (the few-sample factor's reference).
+    few_sample_power : float
+        The few-sample factor's exponent.
+    std_scale : float
+        The solve's std scale.
+    sigma : float
+        The band limit the views are scored with.
+    """
+
+    rows: np.ndarray
+    area: np.ndarray
+    prior_std: np.ndarray
+    fit_samples: np.ndarray
+    roughness_precision: np.ndarray
+    roughness_coupling: np.ndarray
+    roughness_scale: float
+    color_precision: np.ndarray
+    color_coupling: np.ndarray
+    color_scale: float
+    metal_probability: np.ndarray
+    evidence_scale: np.ndarray
+    typical_samples: float
+    few_sample_power: float
+    std_scale: float
+    sigma: float
 
 
 # --------------------------------------------------------------------------------------------
@@ -157,15 +248,17 @@ def select_views(
     budget: int,
     config: Config = Config(),
     *,
-    observations: Observations | None = None,
+    fit: SurfaceFit | None = None,
     max_texels: int = MAX_TEXELS,
-    spread: float = SPREAD,
     reporter: Reporter = SILENT,
 ) -> list[Pick]:
-    """Choose some of the candidate views greedily by expected entropy (module docstring).
+    """Choose some of the candidate views greedily by the expected drop of the posterior's uncertainty.
 
-    The texel subset and every tie are deterministic in ``config.seed``; ties go to the earliest
-    candidate.
+    Every pick scores each remaining candidate by the drop of the area-weighted mean U_t
+    (module docstring) that it adds on top of the views taken and picked so far, and commits the
+    best (`add_view`); all views are scored with the band limit of the capture once the whole
+    budget is added. Candidates at a view already taken (`TAKEN_COSINE`) do not compete. The texel
+    subset and every tie are deterministic in ``config.seed``; ties go to the earliest candidate.
 
     Parameters
     ----------
@@ -174,20 +267,16 @@ def select_views(
     candidates : sequence of Camera
         The cameras to choose from (`sample_candidates`, `load_candidates`).
     budget : int
-        How many to choose, 1 .. len(candidates).
+        How many to choose, 1 .. the candidates that compete.
     config : Config
-        Texture resolution T, the SH fit (it must be regularised) and the uncertainty (mode
-        ``"calibrated"`` or ``"paper"``).
-    observations : Observations or None
-        Observations of the whole capture at T (e.g. a fit's), reused when given; None observes
-        only the scored texels.
+        Texture resolution of the estimate (the fit's estimation resolution) and the fit settings.
+    fit : SurfaceFit or None
+        The capture's whole-surface fit at ``config``'s resolution, reused when given; None fits it
+        (`surface_fit`).
     max_texels : int
-        Texels scored per candidate (a seeded random subset of the atlas), >= 1.
-    spread : float
-        In [0, 1): each pick competes only among the (1 - spread) of the remaining candidates
-        farthest from the views taken or picked so far (`SPREAD`).
+        Texels scored (a seeded random subset), >= 1.
     reporter : Reporter
-        Progress of the picks.
+        Progress of the fit and the picks.
 
     Returns
     -------
@@ -197,322 +286,497 @@ def select_views(
     Raises
     ------
     ValueError
-        If ``budget`` or ``spread`` is out of range, ``max_texels`` < 1, ``observations`` are of
-        other texels, the SH fit is unregularised or the uncertainty mode is ``"angular"``.
+        If ``budget`` is out of range or ``max_texels`` < 1.
     """
-    _check_fit_settings(config)
+    taken = view_directions(capture, [frame.camera for frame in capture.frames])
+    competing = [index for index, direction in enumerate(view_directions(capture, candidates))
+                 if float(np.max(taken @ direction)) < TAKEN_COSINE] if len(candidates) else []
     if budget < 1:
         raise ValueError(f"budget must be at least 1, got {budget}")
-    if budget > len(candidates):
-        raise ValueError(f"budget {budget} exceeds the {len(candidates)} candidates")
-    if not 0.0 <= spread < 1.0:
-        raise ValueError(f"spread must lie in [0, 1), got {spread}")
-    texels = rasterise(capture.mesh, config.texels.texture_res)
-    rows = _texel_subset(texels.n_texels, max_texels, config.seed)
-    scored = _subset_texels(texels, rows)
-    if observations is None:
-        observations = observe(capture, config, reporter, texels=scored)
-    else:
-        if not np.array_equal(observations.texel_index, texels.texel_index):
-            raise ValueError("observations were made at another texture resolution or of another mesh")
-        observations = observations.select(rows)
-    lmax = observations.lmax
-    state = initial_state(observations, config)
-    samples = candidate_samples(capture, scored, candidates, observations, lmax)
-
-    directions = view_directions(capture, candidates)
-    # cos of the angle to the nearest view taken so far, per candidate
-    closeness = (directions @ view_directions(capture, [frame.camera for frame in capture.frames]).T).max(axis=1)
+    if budget > len(competing):
+        raise ValueError(f"budget {budget} exceeds the {len(competing)} candidates away from the views taken")
+    if fit is None:
+        fit = surface_fit(capture, config, reporter)
+    rows = texel_subset(fit.texels.n_texels, max_texels, config.seed)
+    sigma = band_limit_sigma(len(capture.frames) + budget)
+    model = uncertainty_model(capture, fit, rows, config, sigma)
+    texels = subset_texels(fit.texels, rows)
+    taken_information = view_information(capture, texels, fit, rows, [frame.camera for frame in capture.frames],
+                                         sigma)
+    state = initial_state(model, fit.observations.n_samples[rows], taken_information)
+    information = view_information(capture, texels, fit, rows, [candidates[index] for index in competing], sigma)
     picks: list[Pick] = []
-    remaining = list(range(len(candidates)))
+    remaining = list(range(len(competing)))
+    total_area = float(model.area.sum())
     with reporter.stage("choosing views", budget) as advance:
         for rank in range(budget):
             start = time.perf_counter()
-            coeffs = state_coeffs(state, config)
-            current = _state_uncertainty(state, coeffs, observations.sigma, config)
-            entropy = current.entropy.astype(np.float64)
-            n_competing = max(1, int(np.ceil((1.0 - spread) * len(remaining))))
-            competing = sorted(sorted(remaining, key=lambda index: closeness[index])[:n_competing])
-            best = None
-            for candidate in competing:
-                expected, radiance = expected_entropy(
-                    state, coeffs, current.likelihood, samples[candidate], observations.sigma, config
-                )
-                gain = float(np.sum(entropy[samples[candidate].texel] - expected))
-                if best is None or gain > best[1]:  # the earliest candidate wins ties
-                    best = (candidate, gain, radiance)
-            candidate, gain, radiance = best
-            add_samples(state, samples[candidate], radiance)
-            remaining.remove(candidate)
-            closeness = np.maximum(closeness, directions @ directions[candidate])
-            n_scored = len(entropy)
+            before = float(np.dot(model.area, texel_uncertainty(model, state)) / total_area)
+            gains = [view_gain(model, state, information[index]) for index in remaining]
+            best = remaining[int(np.argmax(gains))]  # the earliest wins ties
+            view = information[best]
+            unseen = state.samples[view.texel] < MIN_SAMPLES
+            add_view(state, view)
+            remaining.remove(best)
             picks.append(Pick(
-                rank=rank, candidate=candidate, camera=candidates[candidate],
-                entropy_before=float(entropy.mean()), expected_entropy=float((entropy.sum() - gain) / n_scored),
-                texels_seen=len(samples[candidate].texel), seconds=time.perf_counter() - start,
+                rank=rank, candidate=competing[best], camera=candidates[competing[best]],
+                uncertainty_before=before, expected_uncertainty=before - max(gains) / total_area,
+                unseen_area=float(model.area[view.texel[unseen]].sum() / total_area),
+                texels_seen=len(view.texel), seconds=time.perf_counter() - start,
             ))
             advance(1)
     return picks
 
 
-def initial_state(observations: Observations, config: Config = Config()) -> FitState:
-    """Build the normal equations of an Observations' fits and their eigenbasis.
+def surface_fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT) -> SurfaceFit:
+    """Fit a capture up to the whole-surface estimate, keeping what guidance reads.
+
+    The steps of `freqbrdf.pipeline.fit` at ``config.texels.texture_res`` (pass the fit's
+    estimation resolution there): observe, the ``global`` estimate, the whole-surface solve.
 
     Parameters
     ----------
-    observations : Observations
-        Its n texels' samples (mirrored environment, observed radiance, weights).
+    capture : Capture
+        The capture.
     config : Config
-        ``config.fit.regulariser`` sets R (the penalty itself is applied in `state_coeffs`).
+        The fit's settings.
+    reporter : Reporter
+        Progress.
 
     Returns
     -------
-    FitState
-        The n texels' state, diagonalised.
+    SurfaceFit
+        Its observations, texels, per-texel and whole-surface estimates and posterior.
     """
-    lmax = observations.lmax
-    weight_sq = np.square(observations.weight.astype(np.float64))  # (n, V)
-    basis = sh.eval_sh(observations.view_direction.astype(np.float64), lmax)  # (n, V, K)
-    values = np.concatenate(
-        [observations.mirrored, observations.observed, np.ones(observations.weight.shape + (1,))], axis=2
-    ).astype(np.float64)  # (n, V, 7)
-    weighted = basis * weight_sq[..., None]
-    gram = np.einsum("tvk,tvj->tkj", weighted, basis)
-    rhs = np.einsum("tvk,tvr->tkr", weighted, values)
-    n_coeffs = sh.num_coeffs(lmax)
-    state = FitState(
-        gram, rhs, weight_sq.sum(axis=1), (observations.weight > 0).sum(axis=1).astype(np.int64),
-        basis=np.zeros_like(gram), eigenvalues=np.zeros((len(gram), n_coeffs)), projected_rhs=np.zeros_like(rhs),
-        regulariser=sh.regulariser_weights(lmax, config.fit.regulariser),
-    )
-    _diagonalise(state, np.arange(len(gram)))
-    return state
+    texels = rasterise(capture.mesh, config.texels.texture_res)
+    observations = observe(capture, config, reporter, texels=texels)
+    per_texel = estimate_materials(observations, config, reporter)
+    estimate, posterior = whole_surface(observations, per_texel, texels, config)
+    return SurfaceFit(observations, texels, per_texel, estimate, posterior)
 
 
-def state_coeffs(state: FitState, config: Config) -> np.ndarray:
-    """Solve the state's regularised fits.
+# --------------------------------------------------------------------------------------------
+# The model
+
+
+def uncertainty_model(capture: Capture, fit: SurfaceFit, rows: np.ndarray, config: Config,
+                      sigma: float) -> UncertaintyModel:
+    """Build the posterior's std model on the scored texels from a whole-surface fit.
+
+    The precisions, couplings and calibrations are those of `freqbrdf.estimate.surface`'s solve
+    on this fit; the roughness precision per unit of information and the log-odds per unit of
+    evidence are each texel's measured value over what its taken views give
+    (`view_information` at the fit's band limit), the median of the estimated texels where a
+    texel has none.
 
     Parameters
     ----------
-    state : FitState
-        The n texels' normal equations.
+    capture : Capture
+        The capture fitted (its cameras and light).
+    fit : SurfaceFit
+        Its whole-surface fit (N texels).
+    rows : (n,) int64
+        The scored texels' rows in the fit.
     config : Config
-        ``config.fit``'s penalty lambda and its scaling with the total weight.
-
-    Returns
-    -------
-    (n, 7, K) float64
-        SH coefficients of the light RGB, observed RGB and the constant 1 (zeros for texels
-        without a sample).
-    """
-    penalty = _penalty(state.weight_sq, config)  # (n,)
-    inverse = _inverse(state.eigenvalues + penalty[:, None])  # (n, K)
-    return np.swapaxes(state.basis @ (state.projected_rhs * inverse[..., None]), 1, 2)
-
-
-def add_samples(state: FitState, samples: CandidateSamples, observed: np.ndarray) -> None:
-    """Commit a view: rank-one updates of the seen texels' normal equations, then re-diagonalise.
-
-    Parameters
-    ----------
-    state : FitState
-        Updated in place.
-    samples : CandidateSamples
-        The view's samples at the m texels it sees.
-    observed : (m, 3) float64
-        The radiance the view is taken to show at each of them.
-    """
-    rows = samples.texel
-    weight_sq = np.square(samples.weight)  # (n,)
-    values = np.concatenate([samples.light, observed, np.ones((len(rows), 1))], axis=1)  # (n, 7)
-    weighted = samples.basis * weight_sq[:, None]
-    state.gram[rows] += weighted[:, :, None] * samples.basis[:, None, :]
-    state.rhs[rows] += weighted[:, :, None] * values[:, None, :]
-    state.weight_sq[rows] += weight_sq
-    state.n_samples[rows] += 1
-    _diagonalise(state, rows)
-
-
-def expected_entropy(
-    state: FitState,
-    coeffs: np.ndarray,
-    likelihood: np.ndarray,
-    samples: CandidateSamples,
-    sigma: float,
-    config: Config,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Score a candidate: the expected entropy of the texels it sees, and their expected radiance.
-
-    For each hypothesis psi = (alpha, k) of the uncertainty grid the new sample is simulated,
-    f_psi = k sum_l K(alpha, l) P_l(w_o) + D_psi: P_l the degree-l part of the light's SH fit,
-    updated with the candidate's mirror sample, at the new direction; K the lobe the entropy uses
-    (`freqbrdf.uncertainty.hypothesis_filter`, band-limit compensated, in calibrated mode;
-    `freqbrdf.model.brdf.brdf_kernel` in paper mode); D_psi = max(0, (c_obs,00 - k c_light,00)
-    / c_one,00) the Lambertian radiance that explains the rest of the fitted DC (0 for a texel
-    with no sample yet). The observed fit updated with f_psi (Sherman-Morrison, `FitState`) is
-    scored by `freqbrdf.uncertainty.entropy_from_spectra` with the texel's sample count + 1; the
-    expectation is over the texel's current posterior P (the hypothesis is applied to all three
-    channels, whose minimum entropy is the texel's, as in `freqbrdf.uncertainty`), leaving out
-    hypotheses below `MIN_CELL_PROBABILITY` and renormalising.
-
-    Parameters
-    ----------
-    state : FitState
-        The n texels' fits before the sample.
-    coeffs : (n, 7, K) float64
-        Their coefficients (`state_coeffs`).
-    likelihood : (n, R, R)
-        Their current posteriors over (alpha, k).
-    samples : CandidateSamples
-        The candidate's samples at m of the n texels.
+        The fit's settings (``config.surface``).
     sigma : float
-        The capture's band limit.
-    config : Config
-        The fit's penalty and the uncertainty settings.
+        The band limit to score views with.
 
     Returns
     -------
-    expected : (m,) float64
-        Expected entropy of each texel the candidate sees.
-    radiance : (m, 3) float64
-        Posterior-mean radiance of its sample there (what `add_samples` commits).
+    UncertaintyModel
+        On the n scored texels.
     """
-    rows = samples.texel
-    lmax = sh.lmax_of(samples.basis.shape[1])
-    weight_sq = np.square(samples.weight)
-    basis, eigenvalues = state.basis[rows], state.eigenvalues[rows]  # (m, K, K), (m, K)
-    # Sherman-Morrison in the eigenbasis, with the penalty the enlarged sample set will have.
-    inverse = _inverse(eigenvalues + _penalty(state.weight_sq[rows] + weight_sq, config)[:, None])  # (m, K)
-    z = (samples.basis[:, None, :] @ basis)[:, 0]  # B^T y (matmul: einsum does not use BLAS here)
-    zeta = z * inverse  # (G + s' R)^-1 y in eigen coordinates
-    gamma = state.projected_rhs[rows] * inverse[..., None]  # (m, K, 7): current rhs, new penalty
-    gain = weight_sq / (1.0 + weight_sq * np.einsum("tk,tk->t", z, zeta))  # (m,)
-    predicted = np.einsum("tk,tkr->tr", z, gamma)  # (m, 7): y . c for each rhs before the sample
-    # Light: its new sample is known. Observed: keep the part that does not depend on the sample.
-    light_step = gain[:, None] * (samples.light - predicted[:, LIGHT])  # (m, 3)
-    light_eigen = gamma[..., LIGHT] + zeta[..., None] * light_step[:, None, :]
-    columns = np.concatenate([light_eigen, gamma[..., OBSERVED], (zeta * gain[:, None])[..., None]], axis=2)
-    updated = np.swapaxes(basis @ columns, 1, 2)  # (m, 7, K)
-    light_coeffs, observed_base, update = updated[:, 0:3], updated[:, 3:6], updated[:, 6]
-    light_spectrum = sh.power_spectrum(light_coeffs)  # (m, 3, L)
-    base_spectrum = sh.power_spectrum(observed_base)
-    base_update = cross_spectrum(observed_base, update[:, None, :])  # (m, 3, L)
-    update_power = sh.power_spectrum(update)  # (m, L)
+    settings = config.surface
+    observations, per_texel, posterior = fit.observations, fit.per_texel, fit.posterior
+    estimated = per_texel.estimated
+    counts = observations.n_samples.astype(np.float64)
+    graph = surface_graph(fit.texels.position, fit.texels.normal, np.log(apparent_albedo(observations)), estimated,
+                          settings)
+    neighbours = np.asarray(graph.sum(axis=1)).ravel()
+    dof = np.maximum(3.0 * counts - FITTED_PARAMETERS, 1.0)
+    noise = np.where(estimated, np.maximum(np.nan_to_num(per_texel.loss), 1e-12), 1.0) / dof * settings.noise_inflation
+    typical = max(float(np.median(counts[estimated])), 1.0) if estimated.any() else 1.0
+    few = np.minimum(counts / typical, 1.0) ** settings.few_sample_power
+    curvature = (np.ones(len(counts)) if per_texel.roughness_curvature is None
+                 else np.maximum(np.nan_to_num(per_texel.roughness_curvature), 0.0))
+    roughness_precision = np.where(estimated, 0.5 * curvature / noise, 0.0)  # before the few-sample factor
+    metal = posterior.metal_probability > 0.5
+    light = np.where(metal[:, None], _mean_over_views(observations, observations.mirrored), lambert_scale(observations))
+    color_precision = np.where(estimated[:, None], light ** 2 / noise[:, None], 0.0)
+    typical_noise = float(np.median(noise[estimated])) if estimated.any() else 1.0
+    unseen_color_precision = lambert_scale(observations) ** 2 / typical_noise
 
-    # The hypotheses' radiance at the new sample.
-    settings = config.uncertainty
-    grid = hypothesis_grid(settings.resolution())
-    grid_res, ks = grid.resolution, grid.specular
-    calibrated = settings.mode == "calibrated"
-    # The entropy's own lobe: filter per degree.
-    kernel = (hypothesis_filter(grid, lmax, sigma) if calibrated
-              else brdf.brdf_kernel(grid.alpha, lmax))  # (R, L)
-    light_by_degree = cross_spectrum(light_coeffs, samples.basis[:, None, :])  # (m, 3, L): the light at the sample
-    filtered = np.einsum("il,tcl->tic", kernel, light_by_degree)  # (m, R, 3)
-    current = coeffs[rows]  # (m, 7, K) before the sample
-    with np.errstate(divide="ignore", invalid="ignore"):
-        specular_dc = ks[None, :, None] * current[:, None, LIGHT, 0]  # (m, R_k, 3)
-        diffuse = np.where(
-            current[:, ONE, 0, None, None] > 0,
-            (current[:, None, OBSERVED, 0] - specular_dc) / current[:, ONE, 0, None, None],
-            0.0,
-        )  # (m, R_k, 3): the same for every alpha
-    diffuse = np.maximum(diffuse, 0.0)
-    # Cells: (alpha_i, k_j) for j >= 1, and the one k = 0 material (all alphas alike).
-    cell_alpha = np.concatenate([np.zeros(1, np.int64), np.repeat(np.arange(grid_res), grid_res - 1)])
-    cell_k = np.concatenate([np.zeros(1, np.int64), np.tile(np.arange(1, grid_res), grid_res)])
-    probability = likelihood[rows].astype(np.float64)  # (m, R, R) [alpha, k]
-    cell_probability = np.concatenate(
-        [probability[:, :, 0].sum(axis=1, keepdims=True), probability[:, cell_alpha[1:], cell_k[1:]]], axis=1
-    )  # (m, cells)
-    pair, cell = np.nonzero(cell_probability >= MIN_CELL_PROBABILITY)
-    radiance = (ks[cell_k[cell], None] * filtered[pair, cell_alpha[cell]]
-                + diffuse[pair, cell_k[cell]])  # (P, 3)
-    delta = radiance - predicted[pair, OBSERVED]  # (P, 3)
-    observed_spectrum = (  # of c + delta u, degree by degree
-        base_spectrum[pair] + 2.0 * delta[..., None] * base_update[pair]
-        + np.square(delta)[..., None] * update_power[pair, None, :]
+    def coupling(precision: np.ndarray, smoothing: float) -> tuple[np.ndarray, float]:
+        """Return the solve's lambda sum_j w_tj + pin, and lambda."""
+        with_few = precision * (few[:, None] if precision.ndim == 2 else few)
+        per_texel_mean = with_few.mean(axis=1) if with_few.ndim == 2 else with_few
+        has_data = per_texel_mean > 0
+        scale = float(np.median(per_texel_mean[has_data])) if has_data.any() else 1.0
+        strength = smoothing * scale
+        return neighbours * strength + _PIN * strength, strength
+
+    roughness_coupling, _ = coupling(roughness_precision, settings.roughness_smoothing)
+    color_coupling, _ = coupling(color_precision, settings.color_smoothing)
+    std_scale = settings.std_scale
+
+    def calibration(std: np.ndarray, precision: np.ndarray, couple: np.ndarray) -> float:
+        """s^2 of the solve: std^2 (P few + coupling) is the same for every texel with data."""
+        has_data = precision > 0
+        if not has_data.any():
+            return 1.0
+        return float(np.median((np.nan_to_num(std[has_data]) / std_scale) ** 2 * (precision[has_data] * few[has_data]
+                                                                                    + couple[has_data])))
+
+    roughness_scale = calibration(posterior.roughness_std.astype(np.float64), roughness_precision, roughness_coupling)
+    color_scale = calibration(posterior.base_color_std[:, 0].astype(np.float64), color_precision[:, 0],
+                              color_coupling)
+
+    # What the views taken give, at the fit's own band limit: the measured precision per unit.
+    fit_texels = subset_texels(fit.texels, rows)
+    taken = view_information(capture, fit_texels, fit, rows, [frame.camera for frame in capture.frames],
+                             observations.sigma)
+    information = _summed(len(rows), taken, "roughness_information")
+    evidence = _summed(len(rows), taken, "metal_evidence")
+    has_data = estimated[rows] & (information > 0) & (roughness_precision[rows] > 0)
+    per_unit = np.zeros(len(rows))
+    per_unit[has_data] = roughness_precision[rows][has_data] / information[has_data]
+    fallback = float(np.median(per_unit[has_data])) if has_data.any() else 1.0
+    per_unit = np.where(has_data, per_unit, fallback)
+
+    log_ratio, _, _ = metal_evidence(per_texel, observations.n_samples)
+    label_noise = 2.0 * noise / settings.noise_inflation  # 2 x the noise variance of the samples
+    measured = estimated[rows] & (evidence > 0)
+    ratio = np.abs(log_ratio[rows][measured]) * label_noise[rows][measured] / evidence[measured]
+    evidence_per_unit = float(np.median(ratio)) if measured.any() else 1.0
+    texel_label_noise = np.where(estimated[rows], label_noise[rows], 2.0 * typical_noise / settings.noise_inflation)
+    evidence_scale = evidence_per_unit / texel_label_noise / settings.noise_inflation
+
+    color = np.where(estimated[rows, None], color_precision[rows], unseen_color_precision[rows])
+    prior = np.column_stack([posterior.roughness_std[rows], posterior.metallic_std[rows],
+                             posterior.base_color_std[rows].mean(axis=1)]).astype(np.float64)
+    return UncertaintyModel(
+        rows=np.asarray(rows, np.int64), area=fit.texels.texel_area[rows].astype(np.float64),
+        prior_std=np.nan_to_num(prior), fit_samples=observations.n_samples[rows].astype(np.int64),
+        roughness_precision=per_unit, roughness_coupling=roughness_coupling[rows],
+        roughness_scale=roughness_scale, color_precision=color, color_coupling=color_coupling[rows],
+        color_scale=color_scale, metal_probability=posterior.metal_probability[rows].astype(np.float64),
+        evidence_scale=evidence_scale, typical_samples=typical, few_sample_power=settings.few_sample_power,
+        std_scale=std_scale, sigma=sigma,
     )
-    entropy = entropy_from_spectra(
-        light_spectrum[pair], np.maximum(observed_spectrum, 0.0),
-        n_samples=state.n_samples[rows][pair] + 1, sigma=sigma, config=settings,
-        return_likelihood=False,
-    ).entropy.astype(np.float64)
-    weights = cell_probability[pair, cell]
-    total = np.bincount(pair, weights, minlength=len(rows))
-    expected = np.bincount(pair, weights * entropy, minlength=len(rows)) / total
-    mean_radiance = np.stack(
-        [np.bincount(pair, weights * radiance[:, c], minlength=len(rows)) for c in range(3)], axis=1
-    ) / total[:, None]
-    return expected, mean_radiance
+
+
+def view_information(capture: Capture, texels: Texels, fit: SurfaceFit, rows: np.ndarray,
+                     cameras: Sequence[Camera], sigma: float) -> list[ViewInformation]:
+    """Find what each camera adds to the scored texels: roughness information and metal evidence.
+
+    At each texel the camera samples (`view_samples`: visibility as `freqbrdf.observe.observe`,
+    weight w = cos(theta_o)), the specular light in the mirror direction w_r for the texel's
+    estimated GGX width alpha is L_alpha = sum_l exp(-(alpha^2 + sigma^2) l^2) L_l(w_r), L_l the
+    degree-l part of the environment's SH (`LIGHT_LMAX`). The roughness information is
+    w^2 |k dL_alpha / d roughness|^2 with k = 0.04 (1 - m) + b m; the metal evidence
+    w^2 |b_metal L_alpha - (b_dielectric E / pi + 0.04 L_alpha)|^2, b the labels' base colours of
+    the per-texel estimate (the whole-surface one where a texel has none), E the irradiance.
+
+    Parameters
+    ----------
+    capture : Capture
+        The mesh and the light.
+    texels : Texels
+        The n scored texels (`subset_texels` of the fit's).
+    fit : SurfaceFit
+        The fit whose estimate sets alpha, k and the base colours.
+    rows : (n,) int64
+        The scored texels' rows in the fit.
+    cameras : sequence of Camera
+        The cameras.
+    sigma : float
+        The band limit.
+
+    Returns
+    -------
+    list of ViewInformation
+        One per camera, in order.
+    """
+    solved, per_texel = fit.estimate, fit.per_texel
+    roughness = np.clip(np.nan_to_num(solved.roughness[rows], nan=0.5), 0.0, 1.0)
+    metallic = np.clip(np.nan_to_num(solved.metallic[rows]), 0.0, 1.0)
+    base = np.clip(np.nan_to_num(solved.base_color[rows], nan=0.5), 0.0, 1.0)
+    specular = DIELECTRIC_F0 * (1.0 - metallic)[:, None] + base * metallic[:, None]
+    if per_texel.label_base_color is not None:
+        labels = np.nan_to_num(per_texel.label_base_color[rows], nan=0.5)
+        own = per_texel.estimated[rows, None]
+        metal_color, dielectric_color = np.where(own, labels[:, 1], base), np.where(own, labels[:, 0], base)
+    else:
+        metal_color = dielectric_color = base
+    lambert = lambert_scale(fit.observations)[rows]
+    alpha = alpha_from_roughness(roughness)
+    alpha_slope = 2.0 * np.maximum(roughness, np.sqrt(ALPHA_MIN))  # d alpha / d roughness (above the floor)
+    degrees = np.arange(LIGHT_LMAX + 1, dtype=np.float64)
+    lobe = np.exp(-(alpha[:, None] ** 2 + sigma ** 2) * degrees ** 2)  # (n, L + 1)
+    lobe_slope = -2.0 * alpha[:, None] * degrees ** 2 * lobe * alpha_slope[:, None]
+    environment = envmaps.envmap_sh(capture.envmap, LIGHT_LMAX)  # (K, 3) world
+    bounds = np.concatenate([[0], np.cumsum(2 * degrees.astype(np.int64) + 1)])[:-1]
+    result = []
+    for texel, cos_theta, mirror in view_samples(capture, texels, cameras):
+        basis = sh.eval_sh(mirror, LIGHT_LMAX)  # (m, K)
+        by_degree = np.add.reduceat(basis[:, :, None] * environment[None], bounds, axis=1)  # (m, L + 1, 3)
+        light = np.einsum("ml,mlc->mc", lobe[texel], by_degree)
+        slope = np.einsum("ml,mlc->mc", lobe_slope[texel], by_degree)
+        weight_sq = cos_theta ** 2
+        information = weight_sq * np.sum((specular[texel] * slope) ** 2, axis=1)
+        difference = metal_color[texel] * light - (dielectric_color[texel] * lambert[texel] + DIELECTRIC_F0 * light)
+        evidence = weight_sq * np.sum(difference ** 2, axis=1)
+        result.append(ViewInformation(texel, information, evidence))
+    return result
+
+
+def initial_state(model: UncertaintyModel, samples: np.ndarray,
+                  taken: Sequence[ViewInformation]) -> GuidanceState:
+    """Build the state of the views taken: their sample counts and roughness information.
+
+    Parameters
+    ----------
+    model : UncertaintyModel
+        The model (n scored texels).
+    samples : (n,) int
+        The fit's sample counts of the scored texels.
+    taken : sequence of ViewInformation
+        What the views taken give, at the band limit the picks are scored with.
+
+    Returns
+    -------
+    GuidanceState
+        No metal evidence yet (the fit's own is in the label probability).
+    """
+    n_texels = len(model.rows)
+    return GuidanceState(np.asarray(samples, np.int64).copy(), _summed(n_texels, taken, "roughness_information"),
+                         np.zeros(n_texels))
+
+
+def add_view(state: GuidanceState, view: ViewInformation) -> None:
+    """Commit a view to the state (in place): one more sample, its information and evidence.
+
+    Parameters
+    ----------
+    state : GuidanceState
+        Updated in place.
+    view : ViewInformation
+        The view's samples at the texels it sees.
+    """
+    state.samples[view.texel] += 1
+    state.roughness_information[view.texel] += view.roughness_information
+    state.metal_evidence[view.texel] += view.metal_evidence
+
+
+def state_with_views(state: GuidanceState, views: Sequence[ViewInformation]) -> GuidanceState:
+    """Return the state with all of ``views`` added at once (the from-scratch sums of `add_view`).
+
+    Parameters
+    ----------
+    state : GuidanceState
+        The views taken (not changed).
+    views : sequence of ViewInformation
+        The views to add.
+
+    Returns
+    -------
+    GuidanceState
+        A new state.
+    """
+    n_texels = len(state.samples)
+    counts = np.zeros(n_texels, np.int64)
+    for view in views:
+        counts[view.texel] += 1
+    return GuidanceState(state.samples + counts,
+                         state.roughness_information + _summed(n_texels, views, "roughness_information"),
+                         state.metal_evidence + _summed(n_texels, views, "metal_evidence"))
+
+
+def texel_std(model: UncertaintyModel, state: GuidanceState, rows: np.ndarray | slice = slice(None)) -> np.ndarray:
+    """Return the modelled posterior std of roughness, metallic and mean base colour per texel.
+
+    Parameters
+    ----------
+    model : UncertaintyModel
+        The model.
+    state : GuidanceState
+        The views taken and picked.
+    rows : (m,) int array or slice
+        The scored texels to evaluate.
+
+    Returns
+    -------
+    (m, 3) float64
+        Roughness, metallic and the mean over RGB of base-colour std.
+    """
+    samples = state.samples[rows]
+    # A texel becomes a data texel at MIN_SAMPLES samples; on the way there each sample is credited
+    # its share of that change (a texel below it has no estimate of its own and keeps the prior).
+    base = model.fit_samples[rows]
+    fraction = np.where(base >= MIN_SAMPLES, 1.0,
+                        np.clip((samples - base) / np.maximum(MIN_SAMPLES - base, 1), 0.0, 1.0))
+    samples = np.maximum(samples, MIN_SAMPLES)
+    few = np.minimum(samples / model.typical_samples, 1.0) ** model.few_sample_power
+    roughness_var = model.roughness_scale / (model.roughness_precision[rows] * state.roughness_information[rows] * few
+                                             + model.roughness_coupling[rows])
+    color_var = model.color_scale / (model.color_precision[rows] * few[:, None] + model.color_coupling[rows, None])
+    color_std = np.sqrt(color_var).mean(axis=1)
+    probability = np.clip(model.metal_probability[rows], 1e-12, 1.0 - 1e-12)
+    log_odds = np.log(probability / (1.0 - probability))
+    shift = model.evidence_scale[rows] * state.metal_evidence[rows]
+    metal_std = probability * _label_std(log_odds + shift) + (1.0 - probability) * _label_std(log_odds - shift)
+    prior = model.prior_std[rows]
+    roughness_std = prior[:, 0] + fraction * (np.sqrt(roughness_var) * model.std_scale - prior[:, 0])
+    color_std = prior[:, 2] + fraction * (color_std * model.std_scale - prior[:, 2])
+    # Metallic: the label's probability (a texel without data has its prior's), moved by new evidence.
+    return np.column_stack([roughness_std, metal_std, color_std])
+
+
+def texel_uncertainty(model: UncertaintyModel, state: GuidanceState,
+                      rows: np.ndarray | slice = slice(None)) -> np.ndarray:
+    """Return U_t = std_roughness + std_metallic + mean std_base_colour per texel.
+
+    Parameters
+    ----------
+    model : UncertaintyModel
+        The model.
+    state : GuidanceState
+        The views taken and picked.
+    rows : (m,) int array or slice
+        The scored texels to evaluate.
+
+    Returns
+    -------
+    (m,) float64
+        U_t (`texel_std` summed).
+    """
+    return texel_std(model, state, rows).sum(axis=1)
+
+
+def expected_uncertainty(model: UncertaintyModel, state: GuidanceState) -> float:
+    """Return the area-weighted mean of U_t over the scored texels.
+
+    Parameters
+    ----------
+    model : UncertaintyModel
+        The model.
+    state : GuidanceState
+        The views taken and picked.
+
+    Returns
+    -------
+    float
+        sum_t a_t U_t / sum_t a_t.
+    """
+    return float(np.dot(model.area, texel_uncertainty(model, state)) / model.area.sum())
+
+
+def view_gain(model: UncertaintyModel, state: GuidanceState, view: ViewInformation) -> float:
+    """Return the area-weighted drop of U_t (summed, not yet divided by the area) that a view adds.
+
+    Only the texels the view sees change; evaluated without changing ``state``.
+
+    Parameters
+    ----------
+    model : UncertaintyModel
+        The model.
+    state : GuidanceState
+        The views taken and picked.
+    view : ViewInformation
+        The candidate.
+
+    Returns
+    -------
+    float
+        sum over its texels of a_t (U_t now - U_t with the view).
+    """
+    rows = view.texel
+    if len(rows) == 0:
+        return 0.0
+    local = GuidanceState(state.samples[rows] + 1, state.roughness_information[rows] + view.roughness_information,
+                          state.metal_evidence[rows] + view.metal_evidence)
+    before = texel_uncertainty(model, state, rows)
+    after = texel_uncertainty(_restricted(model, rows), local)
+    return float(np.dot(model.area[rows], before - after))
 
 
 # --------------------------------------------------------------------------------------------
 # Helpers
 
 
-def _check_fit_settings(config: Config) -> None:
-    """Refuse settings guidance cannot score.
+def texel_subset(n_texels: int, max_texels: int, seed: int) -> np.ndarray:
+    """Return sorted rows of at most ``max_texels`` texels, drawn without replacement (seeded).
 
-    The eigenbasis needs a positive penalty on every coefficient; candidates are scored on
-    spectra.
+    Parameters
+    ----------
+    n_texels : int
+        Texels to draw from.
+    max_texels : int
+        How many at most, >= 1.
+    seed : int
+        The draw's seed.
+
+    Returns
+    -------
+    (n,) int64
+        Ascending rows.
     """
-    if config.fit.regulariser == "none" or config.fit.reg_lambda <= 0:
-        raise ValueError("capture guidance needs a regularised SH fit (reg_lambda > 0, a regulariser)")
-    if config.uncertainty.mode == "angular":
-        raise ValueError("capture guidance predicts spectra: use uncertainty mode 'calibrated' or 'paper'")
-
-
-def _penalty(weight_sq: np.ndarray, config: Config) -> np.ndarray:
-    """lambda_eff per texel, as `sh.fit_sh` sets it."""
-    if config.fit.scale_lambda_with_weight:
-        return config.fit.reg_lambda * weight_sq
-    return np.full_like(weight_sq, config.fit.reg_lambda)
-
-
-def _inverse(values: np.ndarray) -> np.ndarray:
-    """1 / values, 0 where values is 0 (a texel without samples and no penalty: no fit)."""
-    with np.errstate(divide="ignore"):
-        return np.where(values > 0, 1.0 / values, 0.0)
-
-
-def _diagonalise(state: FitState, rows: np.ndarray) -> None:
-    """Refresh the eigenbasis of ``rows`` from their Gram matrices and right-hand sides."""
-    inverse_sqrt = 1.0 / np.sqrt(state.regulariser)  # (K,)
-    scaled = state.gram[rows] * inverse_sqrt[None, :, None] * inverse_sqrt[None, None, :]
-    eigenvalues, vectors = np.linalg.eigh(scaled)
-    basis = vectors * inverse_sqrt[None, :, None]
-    state.basis[rows] = basis
-    state.eigenvalues[rows] = np.maximum(eigenvalues, 0.0)  # G is positive semi-definite
-    state.projected_rhs[rows] = np.swapaxes(basis, 1, 2) @ state.rhs[rows]
-
-
-def _state_uncertainty(state: FitState, coeffs: np.ndarray, sigma: float, config: Config) -> Uncertainty:
-    """Return the uncertainty (with likelihoods) of the state's fits, as `uncertainty.entropy_map` gives it."""
-    n_coeffs = len(state.regulariser)
-    status = np.where(state.n_samples == 0, sh.FIT_EMPTY,
-                      np.where(state.n_samples < n_coeffs, sh.FIT_UNDERDETERMINED, sh.FIT_OK)).astype(np.uint8)
-    observed, light = coeffs[:, OBSERVED], coeffs[:, LIGHT]
-    return entropy_from_spectra(
-        sh.power_spectrum(light), sh.power_spectrum(observed),
-        n_samples=state.n_samples, sigma=sigma, fit_status=status, config=config.uncertainty,
-    )
-
-
-def _texel_subset(n_texels: int, max_texels: int, seed: int) -> np.ndarray:
-    """Sorted rows of at most ``max_texels`` texels, drawn without replacement (seeded)."""
     if max_texels < 1:
         raise ValueError(f"max_texels must be at least 1, got {max_texels}")
     if n_texels <= max_texels:
-        return np.arange(n_texels)
-    return np.sort(np.random.default_rng(seed).choice(n_texels, max_texels, replace=False))
+        return np.arange(n_texels, dtype=np.int64)
+    return np.sort(np.random.default_rng(seed).choice(n_texels, max_texels, replace=False)).astype(np.int64)
 
 
-def _subset_texels(texels: Texels, rows: np.ndarray) -> Texels:
-    """Return the texels of ``rows`` only (the mask keeps just them)."""
+def subset_texels(texels: Texels, rows: np.ndarray) -> Texels:
+    """Return the texels of ``rows`` only (the mask keeps just them).
+
+    Parameters
+    ----------
+    texels : Texels
+        N texels.
+    rows : (n,) int64
+        Rows to keep.
+
+    Returns
+    -------
+    Texels
+        n texels.
+    """
     mask = np.zeros(texels.texture_res * texels.texture_res, dtype=bool)
     mask[texels.texel_index[rows]] = True
     names = ("texel_index", "face_id", "barycentric", "position", "normal", "tangent", "bitangent", "texel_area",
              "snapped")
     per_texel = {name: getattr(texels, name)[rows] for name in names}
     return dataclasses.replace(texels, mask=mask.reshape(texels.mask.shape), **per_texel)
+
+
+def _restricted(model: UncertaintyModel, rows: np.ndarray) -> UncertaintyModel:
+    """Return the model on ``rows`` only (per-texel arrays taken, the rest shared)."""
+    per_texel = ("rows", "area", "prior_std", "fit_samples", "roughness_precision", "roughness_coupling", "color_precision",
+                 "color_coupling", "metal_probability", "evidence_scale")
+    return dataclasses.replace(model, **{name: getattr(model, name)[rows] for name in per_texel})
+
+
+def _summed(n_texels: int, views: Sequence[ViewInformation], name: str) -> np.ndarray:
+    """(n,) float64: the views' ``name`` summed per texel, view by view in order."""
+    total = np.zeros(n_texels)
+    for view in views:
+        total[view.texel] += getattr(view, name)
+    return total
+
+
+def _label_std(log_odds: np.ndarray) -> np.ndarray:
+    """sqrt(q (1 - q)), q = sigmoid(log_odds): the std of a label of that probability."""
+    decay = np.exp(-0.5 * np.abs(log_odds))
+    return decay / (1.0 + decay * decay)
+
+
+def _mean_over_views(observations: Observations, values: np.ndarray) -> np.ndarray:
+    """(N, 3) float64: the weighted mean of (N, V, 3) values over each texel's samples (0 without any)."""
+    weight = observations.weight.astype(np.float64)
+    total = weight.sum(axis=1)
+    summed = np.einsum("nv,nvc->nc", weight, values, dtype=np.float64)
+    return np.where(total[:, None] > 0, summed / np.maximum(total, 1e-30)[:, None], 0.0)
+

@@ -62,8 +62,8 @@ def write_next_views(out_dir: str | Path, capture: Capture, picks: Sequence[Pick
     envmap_scale = float(capture.envmap.radiance.sum() / stored.sum()) if stored.sum() > 0 else 1.0
     with atomic_directory(out_dir) as folder:
         frames = [Frame(pick.camera, folder / "images" / f"next_{pick.rank:03d}.exr") for pick in picks]
-        fields = [{"rank": pick.rank, "candidate": pick.candidate,
-                   "expected_mean_entropy": pick.expected_entropy} for pick in picks]
+        fields = [{"rank": pick.rank, "candidate": pick.candidate, "expected_mean_std": pick.expected_uncertainty,
+                   "expected_gain": pick.expected_gain, "unseen_area": pick.unseen_area} for pick in picks]
         write_transforms(folder / NEXT_VIEWS_FILE, frames, mesh=capture.mesh.path, envmap=capture.envmap_path,
                          envmap_to_world=capture.envmap.to_world, envmap_scale=envmap_scale, frame_fields=fields)
         plot_views(folder / PICTURE_FILE, capture, picks, candidates)
@@ -75,7 +75,8 @@ def plot_views(path: str | Path, capture: Capture, picks: Sequence[Pick], candid
     """Draw a 3D picture of the views: the mesh, the capture's cameras, the candidates and the picks.
 
     The capture's cameras are grey frusta, the candidates dots, the picks coloured frusta
-    numbered by rank. World +y is drawn up.
+    numbered by rank, each labelled with its expected gain: the drop of the mean posterior std and
+    the share of the area without data it covers. World +y is drawn up.
 
     Parameters
     ----------
@@ -115,7 +116,7 @@ def plot_views(path: str | Path, capture: Capture, picks: Sequence[Pick], candid
     for index, camera in enumerate(cameras):
         _draw_frustum(axes, drawn, camera, depth, "0.4", "capture views" if index == 0 else None, 0.8)
     for pick, colour in zip(picks, colours):
-        label = f"{pick.rank + 1}: H -> {pick.expected_entropy:.3f}"
+        label = f"{pick.rank + 1}: std -{pick.expected_gain:.4f}, unseen -{pick.unseen_area:.1%}"
         _draw_frustum(axes, drawn, pick.camera, depth, colour, label, 2.5)
         axes.text(*drawn(pick.camera.center), str(pick.rank + 1), color=colour, fontsize=11, weight="bold")
     extent = max(np.linalg.norm(camera.center - centre) for camera in cameras + [p.camera for p in picks])
@@ -124,7 +125,7 @@ def plot_views(path: str | Path, capture: Capture, picks: Sequence[Pick], candid
     axes.set_box_aspect((1, 1, 1))
     axes.set_axis_off()
     axes.legend(loc="upper left", fontsize=8)
-    axes.set_title("next views by expected entropy (1 = first)")
+    axes.set_title("next views by the expected drop of the mean posterior std (1 = first)")
     with atomic_path(path) as tmp:
         figure.savefig(tmp, format="png")
 

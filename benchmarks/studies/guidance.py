@@ -1,0 +1,318 @@
+"""Capture guidance against farthest-point, random and the previous entropy picker (issue #28).
+
+    python benchmarks/studies/guidance.py [--scenes a,b] [--texture-res 256] [--random-seeds 5]
+        [--spearman-candidates 20] [--name guidance] [--merge part1,part2]
+
+Scenes (``SCENES``, from scenes.WHOLE_SURFACE_SCENES): the bunny with metal islands under the
+overcast map (cameras all around), the dragon with metal and dielectric cells under the low sun
+of "sunset" (all around), the sphere with smooth gradients in the "lobby" (upper hemisphere),
+the dragon with a photo texture under the raised sun, cameras on one side only. Each is rendered
+once by Mitsuba (path traced) as a pool of ``POOL`` views of the scene's camera layout, ``RENDER``
+(pixels, spp), with relighting views under two other maps, cached in benchmarks/.cache/.
+
+Every method starts from the same ``START`` farthest-point views of the pool and grows to
+``FINAL`` views, ``STEP`` a round, choosing among the rest of the pool (the candidates):
+- ``uncertainty``: `freqbrdf.applications.guidance.select_views` (the package's guidance) on the
+  views so far, ``STEP`` picks a round, then their photographs are taken (the pool's renders);
+- ``entropy``: the previous picker (studies/_entropy_guidance.py), the same rounds;
+- ``farthest_point``: the pool view farthest (in angle) from all taken so far;
+- ``random``: uniformly from the rest of the pool, ``--random-seeds`` seeds.
+Each view set is fitted by `freqbrdf.pipeline.fit` (defaults, whole-surface estimate, T =
+``--texture-res``) and scored against the ground truth: roughness, metallic and base-colour MAE on
+the texels some pool view samples (where any method could look), relighting PSNR-H over the test
+views (`freqbrdf.outputs.relight.evaluate`, ``RELIGHT``). Paired tests (Wilcoxon signed-rank)
+pair the guidance with each baseline over all scene x budget cells after the start.
+
+Prediction check: from the start views, for ``--spearman-candidates`` candidates spread over the
+pool, the guidance's predicted mean uncertainty (area-weighted std of roughness + metallic + mean
+base colour over its scored texels) after adding the candidate, against the same quantity of the
+whole-surface posterior refitted with its photograph; Spearman's rho across candidates, per scene.
+Per round, the prediction after the round's picks against the refit's.
+
+Writes benchmarks/results/guidance.{json,png} (``--name``); parts run side by side (``--scenes``
+and ``--name``) are merged with ``--merge``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from freqbrdf.applications import guidance
+from freqbrdf.applications.candidates import farthest_point_views, view_directions
+from freqbrdf.capture.layouts import Capture, load
+from freqbrdf.config import Config, TexelConfig
+from freqbrdf.fileio import atomic_path, write_json
+from freqbrdf.model.brdf import band_limit_sigma
+from freqbrdf.model.materials import resize
+from freqbrdf.observe.observations import observe
+from freqbrdf.outputs.relight import RelightSettings
+from freqbrdf.outputs.relight import evaluate as relight_evaluate
+from freqbrdf.pipeline import fit
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/: _common and scenes
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # the previous picker
+import _entropy_guidance as entropy_guidance  # noqa: E402
+
+from _common import RESULTS_DIR as RESULTS  # noqa: E402
+from _common import machine  # noqa: E402
+from scenes import whole_surface_capture  # noqa: E402
+
+SCENES = ("bunny_islands_overcast", "dragon_cells_sunset", "sphere_gradients_lobby", "dragon_photo_side")
+POOL = 110
+RENDER = {"views": POOL, "resolution": 128, "spp": 16, "texture_res": 512, "test_views": 4}
+START = 8
+STEP = 8
+FINAL = 40
+RELIGHT = RelightSettings(spp=16, lpips=False)
+METHODS = ("uncertainty", "entropy", "farthest_point", "random")
+METRICS = ("roughness_mae", "metallic_mae", "base_color_mae", "psnr_hdr")
+
+
+def with_views(capture: Capture, views: list[int]) -> Capture:
+    return dataclasses.replace(capture, frames=tuple(capture.frames[view] for view in views))
+
+
+def scene_run(name: str, args) -> dict:
+    pool = load(whole_surface_capture(name, RENDER))
+    config = Config(texels=TexelConfig(texture_res=args.texture_res))
+    cameras = [frame.camera for frame in pool.frames]
+    directions = view_directions(pool, cameras)
+    coverable = observe(pool, config).n_samples > 0
+    truth = resize(pool.ground_truth, args.texture_res)
+    start = farthest_point_views(directions, START)
+
+    def score(views: list[int]) -> dict:
+        result = fit(with_views(pool, views), config)
+        index = result.observations.texel_index[coverable]
+        maps = result.maps
+        relit = relight_evaluate(with_views(pool, views), maps, settings=RELIGHT).relighting
+        return {
+            "views": len(views),
+            "roughness_mae": float(np.mean(np.abs(maps.roughness.ravel()[index] - truth.roughness.ravel()[index]))),
+            "metallic_mae": float(np.mean(np.abs(maps.metallic.ravel()[index] - truth.metallic.ravel()[index]))),
+            "base_color_mae": float(np.mean(np.abs(maps.base_color.reshape(-1, 3)[index]
+                                                   - truth.base_color.reshape(-1, 3)[index]))),
+            "psnr_hdr": float(relit["psnr_hdr"]),
+        }
+
+    def log(method: str, row: dict) -> None:
+        print(f"[{name}] {method} {json.dumps(row)}", flush=True)
+
+    start_row = score(start)
+    log("start", start_row)
+    curves: dict[str, list] = {}
+    seconds_per_pick: dict[str, list[float]] = {"uncertainty": [], "entropy": []}
+    rounds = []
+    for method in ("uncertainty", "entropy"):
+        views, curves[method] = list(start), [start_row]
+        while len(views) < FINAL:
+            remaining = [view for view in range(len(cameras)) if view not in views]
+            taken = with_views(pool, views)
+            candidates = [cameras[view] for view in remaining]
+            if method == "uncertainty":
+                surface = guidance.surface_fit(taken, config)
+                picks = guidance.select_views(taken, candidates, STEP, config, fit=surface,
+                                              max_texels=args.max_texels)
+            else:
+                picks = entropy_guidance.select_views(taken, candidates, STEP, config,
+                                                      max_texels=args.entropy_max_texels)
+            seconds_per_pick[method] += [pick.seconds for pick in picks]
+            views += [remaining[pick.candidate] for pick in picks]
+            row = score(views)
+            if method == "uncertainty":
+                rounds.append({"views": len(views), "predicted": picks[-1].expected_uncertainty,
+                               "before": picks[0].uncertainty_before,
+                               "measured": measured_uncertainty(with_views(pool, views), config, args)})
+            curves[method].append(row)
+            log(method, row)
+    views = list(start)
+    curves["farthest_point"] = [start_row]
+    while len(views) < FINAL:
+        views += farthest_point_views(directions, STEP, chosen=views)
+        curves["farthest_point"].append(score(views))
+        log("farthest_point", curves["farthest_point"][-1])
+    random_runs = []
+    for seed in range(args.random_seeds):
+        order = np.random.default_rng(seed).permutation([view for view in range(len(cameras)) if view not in start])
+        run = [start_row]
+        for count in range(START + STEP, FINAL + 1, STEP):
+            run.append(score(start + [int(view) for view in order[:count - START]]))
+        random_runs.append(run)
+        log(f"random seed {seed}", run[-1])
+    curves["random"] = [{key: float(np.mean([run[step][key] for run in random_runs])) for key in start_row}
+                        for step in range(len(random_runs[0]))]
+    random_std = [{key: float(np.std([run[step][key] for run in random_runs], ddof=1)) for key in METRICS}
+                  for step in range(len(random_runs[0]))]
+    return {
+        "capture": whole_surface_capture(name, RENDER).name,
+        "coverable_texels": int(coverable.sum()),
+        "start_views": start,
+        "curves": curves,
+        "random_runs": random_runs,
+        "random_std": random_std,
+        "seconds_per_pick": {method: float(np.median(seconds)) for method, seconds in seconds_per_pick.items()},
+        "rounds": rounds,
+        "prediction": prediction_check(pool, start, config, args, name),
+    }
+
+
+def measured_uncertainty(capture: Capture, config: Config, args, rows: np.ndarray | None = None) -> float:
+    """The refitted posterior's area-weighted mean std (roughness + metallic + mean base colour)."""
+    surface = guidance.surface_fit(capture, config)
+    if rows is None:
+        rows = guidance.texel_subset(surface.texels.n_texels, args.max_texels, config.seed)
+    posterior = surface.posterior
+    total = (posterior.roughness_std[rows].astype(np.float64) + posterior.metallic_std[rows]
+             + posterior.base_color_std[rows].mean(axis=1))
+    area = surface.texels.texel_area[rows]
+    return float(np.dot(area, np.nan_to_num(total)) / area.sum())
+
+
+def prediction_check(pool: Capture, start: list[int], config: Config, args, name: str) -> dict:
+    """Predicted vs refitted uncertainty after adding one candidate to the start views."""
+    from scipy.stats import spearmanr
+
+    taken = with_views(pool, start)
+    surface = guidance.surface_fit(taken, config)
+    rows = guidance.texel_subset(surface.texels.n_texels, args.max_texels, config.seed)
+    model = guidance.uncertainty_model(taken, surface, rows, config, band_limit_sigma(START + 1))
+    texels = guidance.subset_texels(surface.texels, rows)
+    taken_views = guidance.view_information(taken, texels, surface, rows, [frame.camera for frame in taken.frames],
+                                            model.sigma)
+    state = guidance.initial_state(model, surface.observations.n_samples[rows], taken_views)
+    before = guidance.expected_uncertainty(model, state)
+    remaining = [view for view in range(len(pool.frames)) if view not in start]
+    chosen = remaining[::max(1, len(remaining) // args.spearman_candidates)][:args.spearman_candidates]
+    information = guidance.view_information(taken, texels, surface, rows, [pool.frames[v].camera for v in chosen],
+                                            model.sigma)
+    predicted = [before - guidance.view_gain(model, state, view) / model.area.sum() for view in information]
+    measured = [measured_uncertainty(with_views(pool, start + [view]), config, args, rows) for view in chosen]
+    measured_before = measured_uncertainty(taken, config, args, rows)
+    rho = float(spearmanr(predicted, measured).statistic)
+    rho_drop = float(spearmanr(before - np.array(predicted), measured_before - np.array(measured)).statistic)
+    print(f"[{name}] prediction: spearman {rho:.3f}", flush=True)
+    return {"candidates": chosen, "predicted": predicted, "measured": measured, "predicted_before": before,
+            "measured_before": measured_before, "spearman": rho, "spearman_of_drops": rho_drop}
+
+
+def paired_tests(scenes: dict) -> dict:
+    """The guidance vs each baseline over all (scene, budget > start) cells, per metric."""
+    from scipy.stats import wilcoxon
+
+    tests = {}
+    for baseline in ("farthest_point", "random", "entropy"):
+        for metric in METRICS:
+            ours = np.array([row[metric] for scene in scenes.values() for row in scene["curves"]["uncertainty"][1:]])
+            other = np.array([row[metric] for scene in scenes.values() for row in scene["curves"][baseline][1:]])
+            better = ours > other if metric == "psnr_hdr" else ours < other
+            difference = ours - other
+            result = wilcoxon(ours, other) if np.any(difference != 0) else None
+            tests[f"{metric}: uncertainty vs {baseline}"] = {
+                "pairs": len(difference), "uncertainty_better": int(better.sum()),
+                "mean_difference": float(difference.mean()),
+                "wilcoxon_p": None if result is None else float(result.pvalue),
+            }
+    return tests
+
+
+def cells_within_random_spread(scenes: dict) -> dict:
+    """Per metric, the cells where the guidance is worse than farthest-point by more than random's std."""
+    worse = {}
+    for metric in METRICS:
+        sign = -1.0 if metric == "psnr_hdr" else 1.0
+        worse[metric] = [
+            {"scene": name, "views": ours["views"], "excess": sign * (ours[metric] - other[metric]),
+             "random_std": spread[metric]}
+            for name, scene in scenes.items()
+            for ours, other, spread in zip(scene["curves"]["uncertainty"][1:], scene["curves"]["farthest_point"][1:],
+                                           scene["random_std"][1:])
+            if sign * (ours[metric] - other[metric]) > spread[metric]
+        ]
+    return worse
+
+
+def plot(scenes: dict, path: Path) -> None:
+    from matplotlib.figure import Figure
+
+    labels = {"roughness_mae": "roughness MAE", "metallic_mae": "metallic MAE", "base_color_mae": "base colour MAE",
+              "psnr_hdr": "relighting PSNR-H (dB)"}
+    styles = {"uncertainty": ("C3", "uncertainty (new)"), "entropy": ("C1", "entropy (previous)"),
+              "farthest_point": ("C2", "farthest-point"), "random": ("C0", "random (mean)")}
+    figure = Figure(figsize=(3.4 * len(scenes), 2.6 * (len(METRICS) + 1)), dpi=90, layout="constrained")
+    axes = figure.subplots(len(METRICS) + 1, len(scenes), squeeze=False)
+    for column, (name, scene) in enumerate(scenes.items()):
+        for row, metric in enumerate(METRICS):
+            ax = axes[row, column]
+            for method, (colour, legend) in styles.items():
+                curve = scene["curves"][method]
+                ax.plot([r["views"] for r in curve], [r[metric] for r in curve], "o-", color=colour, label=legend,
+                        markersize=3)
+            for run in scene["random_runs"]:
+                ax.plot([r["views"] for r in run], [r[metric] for r in run], color="C0", alpha=0.2, linewidth=0.7)
+            ax.set_ylabel(labels[metric], fontsize=8)
+            if row == 0:
+                ax.set_title(name, fontsize=9)
+        ax = axes[len(METRICS), column]
+        check = scene["prediction"]
+        ax.scatter(check["predicted"], check["measured"], s=10, color="C3")
+        ax.set_xlabel("predicted mean std", fontsize=8)
+        ax.set_ylabel("refitted mean std", fontsize=8)
+        ax.set_title(f"Spearman {check['spearman']:.2f}", fontsize=8)
+    axes[0, 0].legend(fontsize=7)
+    with atomic_path(path) as tmp:
+        figure.savefig(tmp, format="png")
+
+
+def summarise(scenes: dict, args, seconds: float) -> dict:
+    return {
+        "study": "capture guidance (issue #28)", **machine(), "texture_res": args.texture_res,
+        "max_texels": args.max_texels, "entropy_max_texels": args.entropy_max_texels, "pool": POOL,
+        "render": RENDER, "relight": dataclasses.asdict(RELIGHT), "start": START, "step": STEP, "final": FINAL,
+        "random_seeds": args.random_seeds, "scenes": scenes, "paired_tests": paired_tests(scenes),
+        "worse_than_farthest_point_by_more_than_random_std": cells_within_random_spread(scenes),
+        "seconds": seconds,
+    }
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--scenes", default=",".join(SCENES))
+    parser.add_argument("--texture-res", type=int, default=256)
+    parser.add_argument("--random-seeds", type=int, default=5)
+    parser.add_argument("--max-texels", type=int, default=guidance.MAX_TEXELS)
+    parser.add_argument("--entropy-max-texels", type=int, default=entropy_guidance.MAX_TEXELS,
+                        help="texels the previous picker scores (its own default)")
+    parser.add_argument("--spearman-candidates", type=int, default=20)
+    parser.add_argument("--name", default="guidance", help="results file name (parts of a run: see --merge)")
+    parser.add_argument("--merge", default="", help="comma-separated results files of parts to merge into --name")
+    args = parser.parse_args(argv)
+    started = time.perf_counter()
+    RESULTS.mkdir(exist_ok=True)
+    if args.merge:
+        scenes, seconds = {}, 0.0
+        for part in args.merge.split(","):
+            loaded = json.loads((RESULTS / f"{part}.json").read_text())
+            scenes.update(loaded["scenes"])
+            seconds += loaded["seconds"]
+        results = summarise(scenes, args, seconds)
+        write_json(RESULTS / f"{args.name}.json", results)
+        plot(scenes, RESULTS / f"{args.name}.png")
+    scenes = {}
+    for name in args.scenes.split(",") if not args.merge else []:
+        scenes[name] = scene_run(name, args)
+        results = summarise(scenes, args, time.perf_counter() - started)
+        write_json(RESULTS / f"{args.name}.json", results)
+        plot(scenes, RESULTS / f"{args.name}.png")
+    print(json.dumps(results["paired_tests"], indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
