@@ -170,10 +170,10 @@ def _global_search_chunk(chunk, samples, light, recurrence, options, tables, env
     A function of its own, so that numba's parallel passes see a small loop (on the whole body they
     take much of the kernel's compile time).
     """
-    scratch = new_search_scratch(samples.weight.shape[1], recurrence.lmax, tables, environment_light,
-                                 prefiltered_light, settings, hypotheses)
+    scratch = _new_search_scratch_inline(samples.weight.shape[1], recurrence.lmax, tables, environment_light,
+                                         prefiltered_light, settings, hypotheses)
     for t in range(chunk * _SEARCH_CHUNK, min((chunk + 1) * _SEARCH_CHUNK, samples.weight.shape[0])):
-        search_texel(t, samples, light, recurrence, options, tables, environment_light, prefiltered_light, settings,
+        _search_texel_inline(t, samples, light, recurrence, options, tables, environment_light, prefiltered_light, settings,
                      hypotheses, candidate, estimates, scratch)
 
 
@@ -451,3 +451,9 @@ def search_texel(t, samples, light, recurrence, options, tables, environment_lig
     if label_loss.shape[0] > 0:
         _record_labels(best_r, objective, quadratics, label_state, total_weight, label_loss[t],
                        label_base_color[t])
+
+
+# The CPU chunk's copies of `new_search_scratch` and `search_texel`, inlined into it (numba IR), so that
+# LLVM sees the scratch arrays as the chunk's own allocations, of known shapes, as in one function.
+_new_search_scratch_inline = numba.njit(cache=True, inline="always")(new_search_scratch.py_func)
+_search_texel_inline = numba.njit(fastmath=True, cache=True, inline="always")(search_texel.py_func)

@@ -102,14 +102,15 @@ def _fit_worker(
     n_channels = values.shape[2]
     n_coeffs = reg.shape[0]
     n_groups = (n_texels + lanes - 1) // lanes
-    scratch = fit_scratch(n_views, n_coeffs, n_channels, lanes)
+    scratch = _fit_scratch_inline(n_views, n_coeffs, n_channels, lanes)
     for group in range(worker, n_groups, n_workers):
         first = group * lanes
         n_lanes = min(lanes, n_texels - first)
         for lane in range(lanes):
-            texel_normal_equations(first + lane if lane < n_lanes else -1, directions, weights, values, lmax, diag,
-                                   rec_a, rec_b, reg, reg_lambda, scale_by_weight, lane, scratch, n_samples)
-        solve_lanes(first, n_lanes, scratch, coeffs, n_samples, solved)
+            _texel_normal_equations_inline(first + lane if lane < n_lanes else -1, directions, weights, values,
+                                           lmax, diag, rec_a, rec_b, reg, reg_lambda, scale_by_weight, lane, scratch,
+                                           n_samples)
+        _solve_lanes_inline(first, n_lanes, scratch, coeffs, n_samples, solved)
 
 
 class FitScratch(NamedTuple):
@@ -254,3 +255,12 @@ def solve_lanes(first, n_lanes, scratch, coeffs, n_samples, solved):
         for c in range(n_channels):
             for k in range(n_coeffs):
                 coeffs[first + lane, c, k] = solution[k, c, lane]
+
+
+# The CPU worker's copies of `fit_scratch`, `texel_normal_equations` and `solve_lanes`, inlined into it
+# (numba IR), so that LLVM sees the scratch arrays as the worker's own allocations, of known shapes, as
+# in one function.
+_fit_scratch_inline = numba.njit(cache=True, inline="always")(fit_scratch.py_func)
+_texel_normal_equations_inline = numba.njit(fastmath=_FAST_FINITE_MATH, cache=True,
+                                            inline="always")(texel_normal_equations.py_func)
+_solve_lanes_inline = numba.njit(fastmath=_FAST_FINITE_MATH, cache=True, inline="always")(solve_lanes.py_func)

@@ -331,10 +331,10 @@ def _grid_entropy_worker(worker, n_workers, spectra, options, outputs):
     A function of its own, so that numba's parallel passes see a small loop (on the whole body
     they take most of the kernel's compile time).
     """
-    scratch = grid_entropy_scratch(spectra, options)
+    scratch = _grid_entropy_scratch_inline(spectra, options)
     n_blocks = (spectra.light.shape[0] + _LANES - 1) // _LANES
     for block in range(worker, n_blocks, n_workers):
-        grid_entropy_block(block, spectra, options, outputs, scratch)
+        _grid_entropy_block_inline(block, spectra, options, outputs, scratch)
 
 
 class GridScratch(NamedTuple):
@@ -599,3 +599,12 @@ def grid_entropy_block(block, spectra, options, outputs, scratch):
                 likelihood[texel, i, 0] = zero_share
                 for j in range(1, resolution):
                     likelihood[texel, i, j] = weights[c, i, j, k] * inverse_total
+
+
+# The CPU worker's copies of `grid_entropy_scratch` and `grid_entropy_block`, inlined into it (numba IR),
+# so that LLVM sees the scratch arrays as the worker's own allocations, of known shapes, and vectorises
+# the loops over lanes as in one function.
+_grid_entropy_scratch_inline = numba.njit(cache=True, error_model="numpy", inline="always",
+                                          fastmath={"contract", "reassoc", "nsz", "arcp"})(grid_entropy_scratch.py_func)
+_grid_entropy_block_inline = numba.njit(cache=True, error_model="numpy", inline="always",
+                                        fastmath={"contract", "reassoc", "nsz", "arcp"})(grid_entropy_block.py_func)
