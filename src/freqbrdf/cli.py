@@ -12,6 +12,7 @@ from __future__ import annotations
 import atexit
 import gc
 import os
+import signal
 import sys
 
 import typer
@@ -68,18 +69,31 @@ def _checked(capture: str, quiet: bool, lmax: int):
 
     Its warnings are printed once, one line per kind (none with ``quiet``), and returned with it
     (``fit`` records them in summary.json); the data warnings the later stages would raise again
-    are silenced.
+    are silenced. When numba starts compiling kernels, that is said.
     """
     import warnings
 
     from freqbrdf.images import CaptureDataWarning
 
+    if not quiet:
+        _announce_compilation()
     loaded, _, lines = _load_and_check(capture, lmax)
     if not quiet:
         for line in lines:
             err_console.print(f"[yellow]warning:[/yellow] {escape(line)}", highlight=False, soft_wrap=True)
     warnings.filterwarnings("ignore", category=CaptureDataWarning)  # said once, above
     return loaded, lines
+
+
+def _announce_compilation() -> None:
+    """Say so when numba starts compiling kernels (its cache is empty or stale), once."""
+    from freqbrdf.jit import on_first_compilation
+
+    if os.environ.get(RERUN_VARIABLE):
+        return  # the fresh process of `_results_from_cache`: said already
+    on_first_compilation(lambda: err_console.print(
+        "numba is compiling its kernels on first use (up to about a minute, once: later runs load them from its "
+        "cache)", highlight=False))
 
 
 def _load_and_check(capture: str, lmax: int | None):
@@ -732,6 +746,7 @@ def batch(
         elif not quiet:
             err_console.print(f"interrupted: completed captures kept; run again to go on "
                               f"({escape(str(Path(out) / BATCH_FILE))})", highlight=False, soft_wrap=True)
+        _state["interrupt_said"] = True
         raise typer.Exit(128 + interrupted.signal_number) from None
     except KeyboardInterrupt:  # before any capture started
         raise typer.Exit(130) from None
@@ -741,13 +756,38 @@ def batch(
         raise typer.Exit(1)
 
 
+def _terminate(signal_number: int, frame) -> None:
+    """Stop on SIGTERM as on Ctrl-C: unwinding removes the outputs in progress."""
+    raise SystemExit(128 + signal_number)
+
+
 def main() -> None:
     """Run the command line: bad input is one line and exit code 2, a refused write or no memory exit code 1.
 
-    ``--debug`` shows the traceback instead.
+    ``--debug`` shows the traceback instead. Ctrl-C is exit code 130 and SIGTERM 143, each after the
+    outputs in progress are removed (the previous ones stay as they were).
     """
+    signal.signal(signal.SIGTERM, _terminate)
     try:
-        app()
+        code = app(standalone_mode=False)  # typer's own error panels replaced by one line below
+        sys.exit(code if isinstance(code, int) else 0)
+    except typer.TyperException as err:  # a misspelt command or option, a value out of range
+        if _state["debug"]:
+            raise
+        context = getattr(err, "ctx", None)
+        if type(err).__name__ == "NoArgsIsHelpError":  # a bare command group: its help
+            err.show()
+            sys.exit(err.exit_code)
+        see = "" if context is None else f" (see {escape(context.command_path)} --help)"
+        err_console.print(f"[red]error:[/red] {escape(err.format_message())}{see}", highlight=False, soft_wrap=True)
+        sys.exit(err.exit_code)
+    except typer.Abort:  # end of input at a prompt
+        sys.exit(130)
+    except SystemExit as stop:
+        if stop.code in (130, 143) and not _state.get("interrupt_said"):  # typer makes Ctrl-C exit 130
+            err_console.print("interrupted: the outputs in progress were removed, earlier ones are unchanged",
+                              highlight=False)
+        raise
     except InputError as err:
         if _state["debug"]:
             raise
