@@ -298,11 +298,10 @@ def observe(
 
 def _config(preset: str, texture_res: int | None = None, lmax: int | None = None, *,
             estimator: str | None = None, model: str | None = None,
-            entropy: str | None = None, device: str = "auto", quiet: bool = True):
+            entropy: str | None = None, device: str = "auto"):
     """Build the preset's Config with the options the user gave (None: keep the preset's value).
 
-    The device is resolved here (summary.json records the backend that ran) and, unless quiet,
-    said once on stderr.
+    The device is resolved here, before any work (summary.json records the backend that ran).
     """
     import dataclasses
 
@@ -321,16 +320,22 @@ def _config(preset: str, texture_res: int | None = None, lmax: int | None = None
     if estimate.method == "global" and estimate.forward_model != "angular":  # checked before any work
         raise typer.BadParameter(f"--model {estimate.forward_model} is a forward model of the paper's estimator: "
                                  "add --estimator paper (the global estimator searches the angular model)")
-    from freqbrdf.devices import describe_device, resolve_device
+    from freqbrdf.devices import resolve_device
 
     try:
         backend = resolve_device(device)
     except ValueError as err:
         raise typer.BadParameter(str(err)) from err
-    if not quiet:
-        err_console.print(f"backend: {escape(describe_device(device))}", highlight=False, soft_wrap=True)
     return config.replace(texels=texels, fit=fit_settings, estimate=estimate, device=backend,
                           uncertainty=dataclasses.replace(config.uncertainty, **uncertainty_changes))
+
+
+def _say_backend(device: str, quiet: bool) -> None:
+    """Say once on stderr which backend the hot stages run on (``--device``), unless quiet."""
+    from freqbrdf.devices import describe_device
+
+    if not quiet:
+        err_console.print(f"backend: {escape(describe_device(device))}", highlight=False, soft_wrap=True)
 
 
 def _choices(settings, options: dict[str, tuple[str, str | None]]) -> dict:
@@ -421,8 +426,7 @@ def fit(
     from freqbrdf.outputs.fit_folder import check_output_folder
     from freqbrdf.progress import Reporter
 
-    config = _config(preset, texture_res, lmax, estimator=estimator, model=model, entropy=entropy, device=device,
-                     quiet=quiet or json_output)
+    config = _config(preset, texture_res, lmax, estimator=estimator, model=model, entropy=entropy, device=device)
     if per_texel:
         config = config.replace(surface=dataclasses.replace(config.surface, enabled=False))
     if split_half:
@@ -439,6 +443,7 @@ def fit(
     reporter = Reporter(enabled=not (quiet or json_output))
     loaded, capture_warnings = _checked(capture, quiet or json_output, config.fit.lmax)
     check_output_folder(out, {"the capture": loaded.root.resolve()})  # before minutes of work
+    _say_backend(device, quiet or json_output)
     result = pipeline.fit(loaded, config, reporter)
     result.warnings = capture_warnings
     _results_from_cache(quiet or json_output)
@@ -490,9 +495,10 @@ def uncertainty(
     from freqbrdf.uncertainty import entropy_map
     from freqbrdf.uncertainty import summary as uncertainty_summary
 
-    config = _config(preset, texture_res, lmax, entropy=entropy, device=device, quiet=quiet or json_output)
+    config = _config(preset, texture_res, lmax, entropy=entropy, device=device)
     loaded, _ = _checked(capture, quiet or json_output, config.fit.lmax)
     check_output_folder(out, {"the capture": loaded.root.resolve()})
+    _say_backend(device, quiet or json_output)
     start = time.perf_counter()
     # On the texels `fit` would estimate on, so that the two entropy maps agree.
     observations, fine = pipeline.observe_on_estimation_texels(
