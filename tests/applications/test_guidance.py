@@ -35,23 +35,32 @@ def synthetic_model(rng, n_texels=40) -> guidance.UncertaintyModel:
         rows=np.arange(n_texels), area=rng.uniform(0.5, 1.5, n_texels),
         prior_std=np.column_stack([np.full(n_texels, 0.3), np.full(n_texels, 0.45), np.full(n_texels, 0.2)]),
         fit_samples=np.where(np.arange(n_texels) < n_texels // 2, 0, 12),
-        roughness_precision=rng.uniform(0.5, 2.0, n_texels), roughness_coupling=rng.uniform(1.0, 3.0, n_texels),
-        roughness_scale=0.01, color_precision=rng.uniform(1.0, 4.0, (n_texels, 3)),
-        color_coupling=rng.uniform(0.5, 1.0, n_texels), color_scale=0.002,
-        metal_probability=rng.uniform(0.05, 0.95, n_texels), evidence_scale=rng.uniform(0.5, 2.0, n_texels),
+        roughness_precision=np.where(np.arange(n_texels) < n_texels // 2, 0.0, rng.uniform(0.5, 2.0, n_texels)),
+        roughness_per_unit=0.1, base_information=np.zeros(n_texels), roughness_coupling=rng.uniform(1.0, 3.0, n_texels),
+        roughness_scale=0.01, roughness_level=0.5, color_precision=rng.uniform(1.0, 4.0, (n_texels, 3)),
+        color_coupling=rng.uniform(0.5, 1.0, n_texels), color_scale=0.002, color_level=2.0,
+        metal_probability=rng.uniform(0.05, 0.95, n_texels), evidence_scale=rng.uniform(0.5, 2.0, n_texels), taken_evidence=rng.uniform(0.0, 3.0, n_texels),
         typical_samples=8.0, few_sample_power=2.0, std_scale=1.0, sigma=0.25,
     )
 
 
+def random_fisher(rng, n_texels, n_samples) -> np.ndarray:
+    """(n, 6) Fisher entries of ``n_samples`` random samples per texel (3 channels each)."""
+    jacobian = rng.normal(size=(n_texels, n_samples * 3, 3))
+    full = np.einsum("nsi,nsj->nij", jacobian, jacobian)
+    return np.stack([full[:, i, j] for i, j in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))], axis=1)
+
+
 def synthetic_view(rng, texels) -> guidance.ViewInformation:
     texels = np.sort(np.asarray(texels))
-    return guidance.ViewInformation(texels, rng.uniform(0.1, 1.0, len(texels)), rng.uniform(0.0, 2.0, len(texels)))
+    return guidance.ViewInformation(texels, random_fisher(rng, len(texels), 1), rng.uniform(0.0, 2.0, len(texels)))
 
 
 def synthetic_state(n_texels=40) -> guidance.GuidanceState:
     """The first half unseen, the second seen by 12 views each."""
     samples = np.where(np.arange(n_texels) < n_texels // 2, 0, 12)
-    return guidance.GuidanceState(samples.astype(np.int64), 0.8 * samples.astype(np.float64), np.zeros(n_texels))
+    fisher = random_fisher(np.random.default_rng(0), n_texels, 12) * (samples > 0)[:, None]
+    return guidance.GuidanceState(samples.astype(np.int64), fisher, np.zeros(n_texels))
 
 
 def test_incremental_updates_equal_the_state_from_scratch():
@@ -63,14 +72,30 @@ def test_incremental_updates_equal_the_state_from_scratch():
     for view in views:
         expected_drop = guidance.expected_uncertainty(model, incremental) - guidance.expected_uncertainty(
             model, guidance.state_with_views(incremental, [view]))
-        assert guidance.view_gain(model, incremental, view) / model.area.sum() == pytest.approx(expected_drop, rel=1e-9)
+        assert guidance.view_gain(model, incremental, view) == pytest.approx(expected_drop, rel=1e-12)
         guidance.add_view(incremental, view)
     np.testing.assert_array_equal(incremental.samples, scratch.samples)
-    np.testing.assert_allclose(incremental.roughness_information, scratch.roughness_information, rtol=1e-12)
+    np.testing.assert_allclose(incremental.fisher, scratch.fisher, rtol=1e-12)
     np.testing.assert_allclose(incremental.metal_evidence, scratch.metal_evidence, rtol=1e-12)
     np.testing.assert_allclose(guidance.texel_std(model, incremental), guidance.texel_std(model, scratch), rtol=1e-12)
     # The state the views started from is untouched by state_with_views.
     np.testing.assert_array_equal(state.samples, synthetic_state().samples)
+
+
+def test_roughness_information_is_what_the_scales_cannot_explain():
+    """The Schur complement of the nuisance block: equal to inverting the full 3 x 3 matrix, and 0
+    for samples whose roughness derivative is a mix of the scales' derivatives."""
+    rng = np.random.default_rng(4)
+    fisher = random_fisher(rng, 5, 4)
+    full = np.zeros((5, 3, 3))
+    for entry, (i, j) in enumerate(((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))):
+        full[:, i, j] = full[:, j, i] = fisher[:, entry]
+    np.testing.assert_allclose(guidance.roughness_information(fisher), 1.0 / np.linalg.inv(full)[:, 0, 0], rtol=1e-5)
+    scales = rng.normal(size=(30, 2))
+    jacobian = np.column_stack([scales @ [0.3, -1.2], scales])  # d f / d roughness explained by k and d
+    collinear = jacobian.T @ jacobian
+    entries = np.array([[collinear[i, j] for i, j in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))]])
+    assert guidance.roughness_information(entries)[0] < 1e-5 * collinear[0, 0]
 
 
 def test_a_view_of_unseen_texels_scores_higher_than_one_of_well_observed_texels():

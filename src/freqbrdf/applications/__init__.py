@@ -10,6 +10,9 @@ guidance
     Capture guidance: the next views by the expected drop of the whole-surface posterior's
     uncertainty (`select_views`), its model (`UncertaintyModel`) and incremental state
     (`GuidanceState`, `add_view`).
+information
+    What a candidate view would tell the estimate before it is taken: Fisher information on
+    roughness (`roughness_information`) and metal evidence (`view_information`).
 candidates
     Candidate views for guidance (`sample_candidates`, `load_candidates`,
     `farthest_point_views`) and what each would sample (`view_samples`, `candidate_samples`).
@@ -36,7 +39,6 @@ from freqbrdf.applications.guidance import (
     Pick,
     SurfaceFit,
     UncertaintyModel,
-    ViewInformation,
     add_view,
     expected_uncertainty,
     initial_state,
@@ -47,6 +49,12 @@ from freqbrdf.applications.guidance import (
     texel_uncertainty,
     uncertainty_model,
     view_gain,
+)
+from freqbrdf.applications.information import (
+    FISHER_ENTRIES,
+    LIGHT_LMAX,
+    ViewInformation,
+    roughness_information,
     view_information,
 )
 from freqbrdf.applications.inpaint import (
@@ -71,6 +79,8 @@ from freqbrdf.applications.next_views import (
 )
 
 __all__ = [
+    "FISHER_ENTRIES",
+    "LIGHT_LMAX",
     "MAP_NAMES",
     "MASK_PNG",
     "MAX_TEXELS",
@@ -99,6 +109,7 @@ __all__ = [
     "load_candidates",
     "load_diffusion_fill",
     "plot_views",
+    "roughness_information",
     "sample_candidates",
     "select_views",
     "state_with_views",

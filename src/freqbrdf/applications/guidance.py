@@ -12,14 +12,17 @@ that mean once its photograph is added (`UncertaintyModel`, `expected_uncertaint
 - **roughness and base colour**: the solve's variance per texel, s^2 / (P_t few(n_t) + lambda_t),
   with the surface coupling lambda_t and the calibration s^2 of the current fit, the sample count
   n_t (`few` down-weights texels with fewer samples than the median, as the solve does), and for
-  roughness the precision P_t proportional to the samples' roughness information
-  I_t = sum_i w_i^2 |k dL_alpha(w_r,i) / d roughness|^2: the derivative of the specular light in
-  the mirror direction with respect to roughness (lobe exp(-(alpha^2 + sigma^2) l^2) on the
-  environment's SH, sigma the band limit the capture will have once the views are added). Each
-  texel's P_t / I_t is taken from the current fit (its loss curvature over the noise);
-- **metallic**: the label's probability p moves by the expected evidence of the new samples,
-  A_t = sum_i w_i^2 |f_metal - f_dielectric|^2 / (2 noise), scaled to the fit's own log-ratios:
-  E[std] = p s(x + A) + (1 - p) s(x - A), x = logit(p), s(x) = sqrt(sigmoid(x) sigmoid(-x));
+  roughness the precision P_t proportional to the samples' roughness information I_t: the
+  Fisher information on roughness of f = k spec L_alpha(w_r) + d diffuse E / pi once the scales
+  k and d are fitted too (`roughness_information`), L_alpha the specular light in the mirror
+  direction (lobe exp(-(alpha^2 + sigma^2) l^2) on the environment's SH, sigma the band limit the
+  capture will have once the views are added). Each texel's P_t / I_t is taken from the current
+  fit (its loss curvature over the noise);
+- **metallic**: the label's log-odds x = logit(p) move by A as the evidence
+  E = sum_i w_i^2 |f_metal - f_dielectric|^2 of the samples grows: the fit's own log-ratio per
+  square root of its evidence (misfit adds up like noise) times the growth of sqrt(E), towards
+  the label that turns out true: E[std] = p s(x + A) + (1 - p) s(x - A),
+  s(x) = sqrt(sigmoid(x) sigmoid(-x));
 - **coverage**: a texel no view samples (or with fewer than the estimate's minimum) keeps the
   posterior's std of a texel without data: the prior's, as the surface solve spreads it. Seeing it
   turns it into a data texel (each sample on the way to the minimum credited its share); that is
@@ -42,7 +45,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from freqbrdf.applications.candidates import view_directions, view_samples
+from freqbrdf.applications.candidates import view_directions
+from freqbrdf.applications.information import FISHER_ENTRIES, ViewInformation, roughness_information, view_information
 from freqbrdf.capture.camera import Camera
 from freqbrdf.capture.layouts import Capture
 from freqbrdf.config import Config
@@ -51,16 +55,12 @@ from freqbrdf.estimate import estimate as estimate_materials
 from freqbrdf.estimate._search_kernels import FITTED_PARAMETERS, MIN_SAMPLES
 from freqbrdf.estimate.search import lambert_scale
 from freqbrdf.estimate.surface import SurfacePosterior, apparent_albedo, metal_evidence, surface_graph, whole_surface
-from freqbrdf.model.brdf import ALPHA_MIN, alpha_from_roughness, band_limit_sigma
+from freqbrdf.model.brdf import band_limit_sigma
 from freqbrdf.observe.observations import Observations, observe
 from freqbrdf.progress import SILENT, Reporter
-from freqbrdf.sphere import envmap as envmaps
-from freqbrdf.sphere import harmonics as sh
 from freqbrdf.texels import Texels, rasterise
 
 MAX_TEXELS = 8192  # texels scored per candidate (a seeded random subset of the estimation texels)
-LIGHT_LMAX = 16  # SH degree of the environment in the roughness information and the metal evidence
-DIELECTRIC_F0 = 0.04  # specular reflectance of a dielectric at normal incidence
 # Candidates closer than this (cosine, seen from the object) to a view taken are not proposed again.
 TAKEN_COSINE = 0.9999
 # The solve's pin of a texel without data, relative to the coupling (`freqbrdf.estimate.surface`).
@@ -132,25 +132,6 @@ class SurfaceFit:
     posterior: SurfacePosterior
 
 
-@dataclass(frozen=True)
-class ViewInformation:
-    """What one camera adds to the m scored texels it samples.
-
-    Attributes
-    ----------
-    texel : (m,) int64
-        Rows of the scored texels, ascending.
-    roughness_information : (m,) float64
-        w^2 |k dL_alpha / d roughness|^2 summed over RGB.
-    metal_evidence : (m,) float64
-        w^2 |f_metal - f_dielectric|^2 summed over RGB.
-    """
-
-    texel: np.ndarray
-    roughness_information: np.ndarray
-    metal_evidence: np.ndarray
-
-
 @dataclass(eq=False)
 class GuidanceState:
     """Per scored texel (n), the sums the views taken and picked so far make.
@@ -159,14 +140,14 @@ class GuidanceState:
     ----------
     samples : (n,) int64
         Sample count (the fit's, plus one per picked view that sees the texel).
-    roughness_information : (n,) float64
-        Sum of the views' roughness information (`ViewInformation`).
+    fisher : (n, 6) float64
+        Sum of the views' Fisher information (`ViewInformation`).
     metal_evidence : (n,) float64
         Sum of the picked views' metal evidence (the fit's own is in the label probability).
     """
 
     samples: np.ndarray
-    roughness_information: np.ndarray
+    fisher: np.ndarray
     metal_evidence: np.ndarray
 
     def copy(self) -> GuidanceState:
@@ -177,7 +158,7 @@ class GuidanceState:
         GuidanceState
             The same sums in new arrays.
         """
-        return GuidanceState(self.samples.copy(), self.roughness_information.copy(), self.metal_evidence.copy())
+        return GuidanceState(self.samples.copy(), self.fisher.copy(), self.metal_evidence.copy())
 
 
 @dataclass(eq=False)
@@ -195,21 +176,34 @@ class UncertaintyModel:
     fit_samples : (n,) int64
         The fit's sample count per texel.
     roughness_precision : (n,) float64
-        Roughness precision per unit of roughness information.
+        The fit's roughness precision (its loss curvature over the noise; 0 without one).
+    roughness_per_unit : float
+        Roughness precision per unit of new roughness information: the median over the estimated
+        texels of their precision over their taken views' information.
+    base_information : (n,) float64
+        The taken views' roughness information at the scoring band limit.
     roughness_coupling : (n,) float64
         lambda sum_j w_tj of the roughness solve (plus its pin).
     roughness_scale : float
         The roughness solve's calibration s^2.
+    roughness_level : float
+        The median over the fit's data texels of P few: the solve's coupling and calibration
+        scale with it.
     color_precision : (n, 3) float64
         Base-colour precision per channel before the few-sample factor.
     color_coupling : (n,) float64
         lambda sum_j w_tj of the base-colour solve (plus its pin).
     color_scale : float
         The base-colour solve's calibration s^2.
+    color_level : float
+        As ``roughness_level``, of the mean over RGB.
     metal_probability : (n,) float64
         The metal label's probability now.
     evidence_scale : (n,) float64
-        Log-odds per unit of metal evidence.
+        The texel's log-ratio (as the solve weighs it) over the square root of its taken views'
+        evidence (the median over the estimated texels where it has none).
+    taken_evidence : (n,) float64
+        The taken views' metal evidence.
     typical_samples : float
         The median sample count of the estimated texels (the few-sample factor's reference).
     few_sample_power : float
@@ -225,13 +219,18 @@ class UncertaintyModel:
     prior_std: np.ndarray
     fit_samples: np.ndarray
     roughness_precision: np.ndarray
+    roughness_per_unit: float
+    base_information: np.ndarray
     roughness_coupling: np.ndarray
     roughness_scale: float
+    roughness_level: float
     color_precision: np.ndarray
     color_coupling: np.ndarray
     color_scale: float
+    color_level: float
     metal_probability: np.ndarray
     evidence_scale: np.ndarray
+    taken_evidence: np.ndarray
     typical_samples: float
     few_sample_power: float
     std_scale: float
@@ -311,8 +310,8 @@ def select_views(
     with reporter.stage("choosing views", budget) as advance:
         for rank in range(budget):
             start = time.perf_counter()
-            before = float(np.dot(model.area, texel_uncertainty(model, state)) / total_area)
-            gains = [view_gain(model, state, information[index]) for index in remaining]
+            before = expected_uncertainty(model, state)
+            gains = [view_gain(model, state, information[index], before) for index in remaining]
             best = remaining[int(np.argmax(gains))]  # the earliest wins ties
             view = information[best]
             unseen = state.samples[view.texel] < MIN_SAMPLES
@@ -320,7 +319,7 @@ def select_views(
             remaining.remove(best)
             picks.append(Pick(
                 rank=rank, candidate=competing[best], camera=candidates[competing[best]],
-                uncertainty_before=before, expected_uncertainty=before - max(gains) / total_area,
+                uncertainty_before=before, expected_uncertainty=before - max(gains),
                 unseen_area=float(model.area[view.texel[unseen]].sum() / total_area),
                 texels_seen=len(view.texel), seconds=time.perf_counter() - start,
             ))
@@ -436,104 +435,50 @@ def uncertainty_model(capture: Capture, fit: SurfaceFit, rows: np.ndarray, confi
     fit_texels = subset_texels(fit.texels, rows)
     taken = view_information(capture, fit_texels, fit, rows, [frame.camera for frame in capture.frames],
                              observations.sigma)
-    information = _summed(len(rows), taken, "roughness_information")
+    information = roughness_information(_summed(len(rows), taken, "fisher"))
     evidence = _summed(len(rows), taken, "metal_evidence")
     has_data = estimated[rows] & (information > 0) & (roughness_precision[rows] > 0)
-    per_unit = np.zeros(len(rows))
-    per_unit[has_data] = roughness_precision[rows][has_data] / information[has_data]
-    fallback = float(np.median(per_unit[has_data])) if has_data.any() else 1.0
-    per_unit = np.where(has_data, per_unit, fallback)
+    per_unit = float(np.median(roughness_precision[rows][has_data] / information[has_data])) if has_data.any() else 1.0
+    base_information = information if sigma == observations.sigma else roughness_information(_summed(
+        len(rows), view_information(capture, fit_texels, fit, rows, [frame.camera for frame in capture.frames],
+                                    sigma), "fisher"))
 
+
+    # The metal label: the texel's log-ratio (as the solve weighs it) per unit of its views' evidence.
     log_ratio, _, _ = metal_evidence(per_texel, observations.n_samples)
-    label_noise = 2.0 * noise / settings.noise_inflation  # 2 x the noise variance of the samples
+    weighed = np.abs(log_ratio[rows]) / settings.noise_inflation
     measured = estimated[rows] & (evidence > 0)
-    ratio = np.abs(log_ratio[rows][measured]) * label_noise[rows][measured] / evidence[measured]
-    evidence_per_unit = float(np.median(ratio)) if measured.any() else 1.0
-    texel_label_noise = np.where(estimated[rows], label_noise[rows], 2.0 * typical_noise / settings.noise_inflation)
-    evidence_scale = evidence_per_unit / texel_label_noise / settings.noise_inflation
+    evidence_scale = np.zeros(len(rows))
+    evidence_scale[measured] = weighed[measured] / np.sqrt(evidence[measured])
+    evidence_scale[~measured] = float(np.median(evidence_scale[measured])) if measured.any() else 0.0
 
+    # The solve's coupling is a multiple of its data texels' median P, and its calibration s^2, the
+    # mean of P (estimate - solution)^2, grows with P where the scatter is the model's, not noise:
+    # both follow the median precision (a view that adds to every texel alike changes no std).
     color = np.where(estimated[rows, None], color_precision[rows], unseen_color_precision[rows])
+    # The same means as `texel_std` takes them, at the fit's own samples (so its factors are 1 there).
+    counted = (observations.n_samples[rows] >= MIN_SAMPLES) & (roughness_precision[rows] > 0)
+    roughness_level = float(np.median((roughness_precision[rows] * few[rows])[counted])) if counted.any() else 1.0
+    color_level = float(np.median((color * few[rows, None]).mean(axis=1)[counted])) if counted.any() else 1.0
+
     prior = np.column_stack([posterior.roughness_std[rows], posterior.metallic_std[rows],
                              posterior.base_color_std[rows].mean(axis=1)]).astype(np.float64)
     return UncertaintyModel(
         rows=np.asarray(rows, np.int64), area=fit.texels.texel_area[rows].astype(np.float64),
         prior_std=np.nan_to_num(prior), fit_samples=observations.n_samples[rows].astype(np.int64),
-        roughness_precision=per_unit, roughness_coupling=roughness_coupling[rows],
-        roughness_scale=roughness_scale, color_precision=color, color_coupling=color_coupling[rows],
-        color_scale=color_scale, metal_probability=posterior.metal_probability[rows].astype(np.float64),
-        evidence_scale=evidence_scale, typical_samples=typical, few_sample_power=settings.few_sample_power,
+        roughness_precision=roughness_precision[rows], roughness_per_unit=per_unit, base_information=base_information,
+        roughness_coupling=roughness_coupling[rows],
+        roughness_scale=roughness_scale, roughness_level=roughness_level,
+        color_precision=color, color_coupling=color_coupling[rows], color_scale=color_scale,
+        color_level=color_level, metal_probability=posterior.metal_probability[rows].astype(np.float64),
+        evidence_scale=evidence_scale, taken_evidence=evidence, typical_samples=typical, few_sample_power=settings.few_sample_power,
         std_scale=std_scale, sigma=sigma,
     )
 
 
-def view_information(capture: Capture, texels: Texels, fit: SurfaceFit, rows: np.ndarray,
-                     cameras: Sequence[Camera], sigma: float) -> list[ViewInformation]:
-    """Find what each camera adds to the scored texels: roughness information and metal evidence.
-
-    At each texel the camera samples (`view_samples`: visibility as `freqbrdf.observe.observe`,
-    weight w = cos(theta_o)), the specular light in the mirror direction w_r for the texel's
-    estimated GGX width alpha is L_alpha = sum_l exp(-(alpha^2 + sigma^2) l^2) L_l(w_r), L_l the
-    degree-l part of the environment's SH (`LIGHT_LMAX`). The roughness information is
-    w^2 |k dL_alpha / d roughness|^2 with k = 0.04 (1 - m) + b m; the metal evidence
-    w^2 |b_metal L_alpha - (b_dielectric E / pi + 0.04 L_alpha)|^2, b the labels' base colours of
-    the per-texel estimate (the whole-surface one where a texel has none), E the irradiance.
-
-    Parameters
-    ----------
-    capture : Capture
-        The mesh and the light.
-    texels : Texels
-        The n scored texels (`subset_texels` of the fit's).
-    fit : SurfaceFit
-        The fit whose estimate sets alpha, k and the base colours.
-    rows : (n,) int64
-        The scored texels' rows in the fit.
-    cameras : sequence of Camera
-        The cameras.
-    sigma : float
-        The band limit.
-
-    Returns
-    -------
-    list of ViewInformation
-        One per camera, in order.
-    """
-    solved, per_texel = fit.estimate, fit.per_texel
-    roughness = np.clip(np.nan_to_num(solved.roughness[rows], nan=0.5), 0.0, 1.0)
-    metallic = np.clip(np.nan_to_num(solved.metallic[rows]), 0.0, 1.0)
-    base = np.clip(np.nan_to_num(solved.base_color[rows], nan=0.5), 0.0, 1.0)
-    specular = DIELECTRIC_F0 * (1.0 - metallic)[:, None] + base * metallic[:, None]
-    if per_texel.label_base_color is not None:
-        labels = np.nan_to_num(per_texel.label_base_color[rows], nan=0.5)
-        own = per_texel.estimated[rows, None]
-        metal_color, dielectric_color = np.where(own, labels[:, 1], base), np.where(own, labels[:, 0], base)
-    else:
-        metal_color = dielectric_color = base
-    lambert = lambert_scale(fit.observations)[rows]
-    alpha = alpha_from_roughness(roughness)
-    alpha_slope = 2.0 * np.maximum(roughness, np.sqrt(ALPHA_MIN))  # d alpha / d roughness (above the floor)
-    degrees = np.arange(LIGHT_LMAX + 1, dtype=np.float64)
-    lobe = np.exp(-(alpha[:, None] ** 2 + sigma ** 2) * degrees ** 2)  # (n, L + 1)
-    lobe_slope = -2.0 * alpha[:, None] * degrees ** 2 * lobe * alpha_slope[:, None]
-    environment = envmaps.envmap_sh(capture.envmap, LIGHT_LMAX)  # (K, 3) world
-    bounds = np.concatenate([[0], np.cumsum(2 * degrees.astype(np.int64) + 1)])[:-1]
-    result = []
-    for texel, cos_theta, mirror in view_samples(capture, texels, cameras):
-        basis = sh.eval_sh(mirror, LIGHT_LMAX)  # (m, K)
-        by_degree = np.add.reduceat(basis[:, :, None] * environment[None], bounds, axis=1)  # (m, L + 1, 3)
-        light = np.einsum("ml,mlc->mc", lobe[texel], by_degree)
-        slope = np.einsum("ml,mlc->mc", lobe_slope[texel], by_degree)
-        weight_sq = cos_theta ** 2
-        information = weight_sq * np.sum((specular[texel] * slope) ** 2, axis=1)
-        difference = metal_color[texel] * light - (dielectric_color[texel] * lambert[texel] + DIELECTRIC_F0 * light)
-        evidence = weight_sq * np.sum(difference ** 2, axis=1)
-        result.append(ViewInformation(texel, information, evidence))
-    return result
-
-
 def initial_state(model: UncertaintyModel, samples: np.ndarray,
                   taken: Sequence[ViewInformation]) -> GuidanceState:
-    """Build the state of the views taken: their sample counts and roughness information.
+    """Build the state of the views taken: their sample counts and Fisher information.
 
     Parameters
     ----------
@@ -550,7 +495,7 @@ def initial_state(model: UncertaintyModel, samples: np.ndarray,
         No metal evidence yet (the fit's own is in the label probability).
     """
     n_texels = len(model.rows)
-    return GuidanceState(np.asarray(samples, np.int64).copy(), _summed(n_texels, taken, "roughness_information"),
+    return GuidanceState(np.asarray(samples, np.int64).copy(), _summed(n_texels, taken, "fisher"),
                          np.zeros(n_texels))
 
 
@@ -565,7 +510,7 @@ def add_view(state: GuidanceState, view: ViewInformation) -> None:
         The view's samples at the texels it sees.
     """
     state.samples[view.texel] += 1
-    state.roughness_information[view.texel] += view.roughness_information
+    state.fisher[view.texel] += view.fisher
     state.metal_evidence[view.texel] += view.metal_evidence
 
 
@@ -589,69 +534,81 @@ def state_with_views(state: GuidanceState, views: Sequence[ViewInformation]) -> 
     for view in views:
         counts[view.texel] += 1
     return GuidanceState(state.samples + counts,
-                         state.roughness_information + _summed(n_texels, views, "roughness_information"),
+                         state.fisher + _summed(n_texels, views, "fisher"),
                          state.metal_evidence + _summed(n_texels, views, "metal_evidence"))
 
 
-def texel_std(model: UncertaintyModel, state: GuidanceState, rows: np.ndarray | slice = slice(None)) -> np.ndarray:
+def texel_std(model: UncertaintyModel, state: GuidanceState) -> np.ndarray:
     """Return the modelled posterior std of roughness, metallic and mean base colour per texel.
+
+    Each texel's precision follows its samples (module docstring); the solve's calibration and
+    coupling follow the median precision (`UncertaintyModel.roughness_level`): a view that adds to
+    every texel alike changes little, one that adds where the precision lags does.
 
     Parameters
     ----------
     model : UncertaintyModel
-        The model.
+        The model (n scored texels).
     state : GuidanceState
         The views taken and picked.
-    rows : (m,) int array or slice
-        The scored texels to evaluate.
 
     Returns
     -------
-    (m, 3) float64
+    (n, 3) float64
         Roughness, metallic and the mean over RGB of base-colour std.
     """
-    samples = state.samples[rows]
+    samples = state.samples
     # A texel becomes a data texel at MIN_SAMPLES samples; on the way there each sample is credited
     # its share of that change (a texel below it has no estimate of its own and keeps the prior).
-    base = model.fit_samples[rows]
+    base = model.fit_samples
     fraction = np.where(base >= MIN_SAMPLES, 1.0,
                         np.clip((samples - base) / np.maximum(MIN_SAMPLES - base, 1), 0.0, 1.0))
-    samples = np.maximum(samples, MIN_SAMPLES)
-    few = np.minimum(samples / model.typical_samples, 1.0) ** model.few_sample_power
-    roughness_var = model.roughness_scale / (model.roughness_precision[rows] * state.roughness_information[rows] * few
-                                             + model.roughness_coupling[rows])
-    color_var = model.color_scale / (model.color_precision[rows] * few[:, None] + model.color_coupling[rows, None])
-    color_std = np.sqrt(color_var).mean(axis=1)
-    probability = np.clip(model.metal_probability[rows], 1e-12, 1.0 - 1e-12)
+    few = np.minimum(np.maximum(samples, MIN_SAMPLES) / model.typical_samples, 1.0) ** model.few_sample_power
+    added = np.maximum(roughness_information(state.fisher) - model.base_information, 0.0)
+    roughness_precision = (model.roughness_precision + model.roughness_per_unit * added) * few
+    color_precision = model.color_precision * few[:, None]
+    data = (fraction >= 1.0) & (roughness_precision > 0)
+    roughness_level = _level(roughness_precision, data, model.roughness_level)
+    color_level = _level(color_precision.mean(axis=1), data, model.color_level)
+    roughness_var = (model.roughness_scale * roughness_level
+                     / (roughness_precision + model.roughness_coupling * roughness_level))
+    color_var = model.color_scale * color_level / (color_precision + model.color_coupling[:, None] * color_level)
+    probability = np.clip(model.metal_probability, 1e-12, 1.0 - 1e-12)
     log_odds = np.log(probability / (1.0 - probability))
-    shift = model.evidence_scale[rows] * state.metal_evidence[rows]
+    # A label's log-ratio grows like the square root of the evidence (an ambiguous texel's
+    # difference of losses is mostly misfit, which adds up like noise).
+    shift = model.evidence_scale * (np.sqrt(model.taken_evidence + state.metal_evidence)
+                                    - np.sqrt(model.taken_evidence))
     metal_std = probability * _label_std(log_odds + shift) + (1.0 - probability) * _label_std(log_odds - shift)
-    prior = model.prior_std[rows]
+    prior = model.prior_std
     roughness_std = prior[:, 0] + fraction * (np.sqrt(roughness_var) * model.std_scale - prior[:, 0])
-    color_std = prior[:, 2] + fraction * (color_std * model.std_scale - prior[:, 2])
-    # Metallic: the label's probability (a texel without data has its prior's), moved by new evidence.
+    color_std = prior[:, 2] + fraction * (np.sqrt(color_var).mean(axis=1) * model.std_scale - prior[:, 2])
     return np.column_stack([roughness_std, metal_std, color_std])
 
 
-def texel_uncertainty(model: UncertaintyModel, state: GuidanceState,
-                      rows: np.ndarray | slice = slice(None)) -> np.ndarray:
+def _level(precision: np.ndarray, data: np.ndarray, fit_level: float) -> float:
+    """Return the median precision of the data texels over the fit's (1 without either)."""
+    if not data.any() or fit_level <= 0:
+        return 1.0
+    return float(np.median(precision[data])) / fit_level
+
+
+def texel_uncertainty(model: UncertaintyModel, state: GuidanceState) -> np.ndarray:
     """Return U_t = std_roughness + std_metallic + mean std_base_colour per texel.
 
     Parameters
     ----------
     model : UncertaintyModel
-        The model.
+        The model (n scored texels).
     state : GuidanceState
         The views taken and picked.
-    rows : (m,) int array or slice
-        The scored texels to evaluate.
 
     Returns
     -------
-    (m,) float64
+    (n,) float64
         U_t (`texel_std` summed).
     """
-    return texel_std(model, state, rows).sum(axis=1)
+    return texel_std(model, state).sum(axis=1)
 
 
 def expected_uncertainty(model: UncertaintyModel, state: GuidanceState) -> float:
@@ -672,10 +629,9 @@ def expected_uncertainty(model: UncertaintyModel, state: GuidanceState) -> float
     return float(np.dot(model.area, texel_uncertainty(model, state)) / model.area.sum())
 
 
-def view_gain(model: UncertaintyModel, state: GuidanceState, view: ViewInformation) -> float:
-    """Return the area-weighted drop of U_t (summed, not yet divided by the area) that a view adds.
-
-    Only the texels the view sees change; evaluated without changing ``state``.
+def view_gain(model: UncertaintyModel, state: GuidanceState, view: ViewInformation,
+              before: float | None = None) -> float:
+    """Return the drop of the area-weighted mean U_t that a view adds; ``state`` is not changed.
 
     Parameters
     ----------
@@ -685,20 +641,17 @@ def view_gain(model: UncertaintyModel, state: GuidanceState, view: ViewInformati
         The views taken and picked.
     view : ViewInformation
         The candidate.
+    before : float or None
+        `expected_uncertainty` of ``state``, when known.
 
     Returns
     -------
     float
-        sum over its texels of a_t (U_t now - U_t with the view).
+        expected_uncertainty(state) - expected_uncertainty(state with the view).
     """
-    rows = view.texel
-    if len(rows) == 0:
-        return 0.0
-    local = GuidanceState(state.samples[rows] + 1, state.roughness_information[rows] + view.roughness_information,
-                          state.metal_evidence[rows] + view.metal_evidence)
-    before = texel_uncertainty(model, state, rows)
-    after = texel_uncertainty(_restricted(model, rows), local)
-    return float(np.dot(model.area[rows], before - after))
+    if before is None:
+        before = expected_uncertainty(model, state)
+    return before - expected_uncertainty(model, state_with_views(state, [view]))
 
 
 # --------------------------------------------------------------------------------------------
@@ -752,16 +705,10 @@ def subset_texels(texels: Texels, rows: np.ndarray) -> Texels:
     return dataclasses.replace(texels, mask=mask.reshape(texels.mask.shape), **per_texel)
 
 
-def _restricted(model: UncertaintyModel, rows: np.ndarray) -> UncertaintyModel:
-    """Return the model on ``rows`` only (per-texel arrays taken, the rest shared)."""
-    per_texel = ("rows", "area", "prior_std", "fit_samples", "roughness_precision", "roughness_coupling", "color_precision",
-                 "color_coupling", "metal_probability", "evidence_scale")
-    return dataclasses.replace(model, **{name: getattr(model, name)[rows] for name in per_texel})
-
-
 def _summed(n_texels: int, views: Sequence[ViewInformation], name: str) -> np.ndarray:
-    """(n,) float64: the views' ``name`` summed per texel, view by view in order."""
-    total = np.zeros(n_texels)
+    """(n, ...) float64: the views' ``name`` summed per texel, view by view in order."""
+    shape = getattr(views[0], name).shape[1:] if len(views) else (FISHER_ENTRIES,) if name == "fisher" else ()
+    total = np.zeros((n_texels, *shape))
     for view in views:
         total[view.texel] += getattr(view, name)
     return total
