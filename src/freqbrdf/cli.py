@@ -228,6 +228,7 @@ def synth(
     test_envmaps: str = typer.Option("2", help="Test maps: names/paths 'A,B', or a count K."),
     test_views: int = typer.Option(8, help="Number of test (relighting) views."),
     format: str = typer.Option("ours", help="ours, or orb (the Stanford-ORB layout)."),
+    quiet: bool = typer.Option(False, "--quiet", help="No progress bars or messages."),
 ) -> None:
     """Render a synthetic capture of a known object with Mitsuba 3 (with ground truth)."""
     from freqbrdf.synthetic.synth import (  # imported here: it loads Mitsuba
@@ -241,8 +242,9 @@ def synth(
         test_envmaps=int(test_envmaps) if test_envmaps.isdigit() else tuple(test_envmaps.split(",")),
         test_views=test_views, format=format,
     )
-    path = synthesize(out, settings)
-    Console().print(f"capture written to {escape(str(path))}")
+    path = synthesize(out, settings, progress=not quiet)
+    if not quiet:
+        Console().print(f"capture written to {escape(str(path))}")
 
 
 @app.command()
