@@ -433,8 +433,11 @@ def _test_light(source: Path, index: int, keys: dict, light: tuple[Path, np.ndar
         envmap_path, envmap_to_world, envmap_scale = light
         return dict(envmap_path=envmap_path, envmap_to_world=envmap_to_world, envmap_scale=envmap_scale)
     where = f"frame {index}: "
+    envmap_path = source.parent / string_key(source, where, keys, "envmap")
+    if not envmap_path.is_file():  # read only when that view is relit: said now, before any work
+        raise InputError(envmap_path, f"environment map of frame {index} in {source.name} does not exist")
     return dict(
-        envmap_path=source.parent / string_key(source, where, keys, "envmap"),
+        envmap_path=envmap_path,
         envmap_to_world=check_rigid(keys.get("envmap_to_world", np.eye(4)), source, f"{where}envmap_to_world"),
         envmap_scale=_number(source, where, "envmap_scale", keys.get("envmap_scale", 1.0)),
     )
