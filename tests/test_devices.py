@@ -98,7 +98,11 @@ def test_the_cli_refuses_cuda_without_a_device_before_any_work(monkeypatch, run_
     assert "no CUDA device" in capsys.readouterr().err
 
 
-def test_the_cli_says_the_backend_once(monkeypatch, run_cli, capsys, tmp_path):
+def test_the_cli_says_the_backend_in_one_line_unless_quiet(monkeypatch, capsys):
+    from freqbrdf import cli
+
     monkeypatch.setattr(devices, "cuda_status", lambda: _status(False))
-    run_cli("fit", str(tmp_path), "--out", str(tmp_path / "fit"), "--device", "auto")  # fails later: no capture
-    assert capsys.readouterr().err.count("backend: cpu (auto: no CUDA device)") == 1
+    cli._say_backend("auto", quiet=False)
+    assert capsys.readouterr().err == "backend: cpu (auto: no CUDA device)\n"
+    cli._say_backend("auto", quiet=True)
+    assert capsys.readouterr().err == ""
