@@ -33,11 +33,11 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("pipeline",),
     ("batch",),
     ("synthetic",),  # scene and material generators, synth and the demo: never on the fit path
-    ("cli",),
+    ("cli_options", "cli"),
 )
 RANK = {name: rank for rank, names in enumerate(LAYERS) for name in names}
 STAGE_PACKAGES = ("capture", "texels", "render", "observe", "estimate", "uncertainty", "applications",
-                  "outputs", "pipeline", "batch", "synthetic", "cli")
+                  "outputs", "pipeline", "batch", "synthetic", "cli_options", "cli")
 MITSUBA_MODULES = ("mitsuba", "drjit")
 
 

@@ -20,6 +20,7 @@ from rich.console import Console
 from rich.markup import escape
 
 from freqbrdf import __version__
+from freqbrdf.cli_options import DEVICE_HELP, ENTROPY_HELP, config_from_options, estimation_res_from_option
 from freqbrdf.errors import InputError
 
 app = typer.Typer(
@@ -64,12 +65,13 @@ def _container_folder(value: str | None) -> str | None:
     return value
 
 
-def _checked(capture: str, quiet: bool, lmax: int):
+def _checked(capture: str, quiet: bool, lmax: int, out: str | None = None):
     """Load a capture and check it before any work (`freqbrdf.capture.checks`, for SH degree ``lmax``).
 
     Its warnings are printed once, one line per kind (none with ``quiet``), and returned with it
     (``fit`` records them in summary.json); the data warnings the later stages would raise again
-    are silenced. When numba starts compiling kernels, that is said.
+    are silenced. When numba starts compiling kernels, that is said. ``out`` (the command's output
+    folder) must not be the capture's folder or hold it: refused here, before the work.
     """
     import warnings
 
@@ -78,6 +80,10 @@ def _checked(capture: str, quiet: bool, lmax: int):
     if not quiet:
         _announce_compilation()
     loaded, _, lines = _load_and_check(capture, lmax)
+    if out is not None:
+        from freqbrdf.outputs.fit_folder import check_output_folder
+
+        check_output_folder(out, {"the capture": loaded.root.resolve()})
     if not quiet:
         for line in lines:
             err_console.print(f"[yellow]warning:[/yellow] {escape(line)}", highlight=False, soft_wrap=True)
@@ -271,8 +277,9 @@ def observe(
     from freqbrdf.observe.observations import observe as observe_capture
     from freqbrdf.progress import Reporter
 
-    config = _config("default", texture_res, lmax)
-    observations = observe_capture(_checked(capture, quiet, config.fit.lmax)[0], config, Reporter(enabled=not quiet))
+    config = config_from_options("default", texture_res, lmax)
+    observations = observe_capture(_checked(capture, quiet, config.fit.lmax, out)[0], config,
+                                   Reporter(enabled=not quiet))
     _results_from_cache(quiet)
     folder = Path(out)
     observations.save(folder / "observations.npz")
@@ -298,82 +305,12 @@ def observe(
         )
 
 
-def _config(preset: str, texture_res: int | None = None, lmax: int | None = None, *,
-            estimator: str | None = None, model: str | None = None,
-            entropy: str | None = None, device: str = "auto"):
-    """Build the preset's Config with the options the user gave (None: keep the preset's value).
-
-    The device is resolved here, before any work (summary.json records the backend that ran).
-    """
-    import dataclasses
-
-    from freqbrdf.config import PRESETS
-    from freqbrdf.config import preset as named_preset
-
-    if preset not in PRESETS:
-        raise typer.BadParameter(f"unknown preset {preset!r}; choose one of {', '.join(PRESETS)}")
-    config = named_preset(preset)
-    texels = dataclasses.replace(config.texels, **({} if texture_res is None else {"texture_res": texture_res}))
-    fit_settings = dataclasses.replace(config.fit, **({} if lmax is None else {"lmax": lmax}))
-    estimate_changes = _choices(config.estimate, {"method": ("estimator", estimator),
-                                                  "forward_model": ("model", model)})
-    uncertainty_changes = _choices(config.uncertainty, {"mode": ("entropy mode", entropy)})
-    estimate = dataclasses.replace(config.estimate, **estimate_changes)
-    if estimate.method == "global" and estimate.forward_model != "angular":  # checked before any work
-        raise typer.BadParameter(f"--model {estimate.forward_model} is a forward model of the paper's estimator: "
-                                 "add --estimator paper (the global estimator searches the angular model)")
-    from freqbrdf.devices import resolve_device
-
-    try:
-        backend = resolve_device(device)
-    except ValueError as err:
-        raise typer.BadParameter(str(err)) from err
-    return config.replace(texels=texels, fit=fit_settings, estimate=estimate, device=backend,
-                          uncertainty=dataclasses.replace(config.uncertainty, **uncertainty_changes))
-
-
 def _say_backend(device: str, quiet: bool) -> None:
     """Say once on stderr which backend the hot stages run on (``--device``), unless quiet."""
     from freqbrdf.devices import describe_device
 
     if not quiet:
         err_console.print(f"backend: {escape(describe_device(device))}", highlight=False, soft_wrap=True)
-
-
-def _choices(settings, options: dict[str, tuple[str, str | None]]) -> dict:
-    """Return the changes to ``settings`` that the given options make, each checked against the field's choices.
-
-    ``options`` maps a field to (the option's name, its value or None if not given); the choices are
-    `freqbrdf.config.choices`'.
-    """
-    from freqbrdf.config import choices
-
-    allowed = choices(type(settings))
-    changes = {}
-    for name, (label, value) in options.items():
-        if value is not None:
-            if value not in allowed[name]:
-                raise typer.BadParameter(f"unknown {label} {value!r}; choose {', '.join(allowed[name])}")
-            changes[name] = value
-    return changes
-
-
-def _estimation_res(value: str, texture_res: int):
-    """Parse --estimation-res as TexelConfig.estimation_res: "pixel", "coarse", "full" or a number from 1 to T."""
-    if value in ("pixel", "coarse", "full"):
-        return value
-    if not value.isdigit() or not 1 <= int(value) <= texture_res:
-        raise typer.BadParameter(f"--estimation-res must be pixel, coarse, full or a number from 1 to the "
-                                 f"texture resolution {texture_res}, got {value!r}")
-    return int(value)
-
-
-DEVICE_HELP = ("Where the SH fits, the search and the entropy run: cpu, cuda (pip install 'freqbrdf[gpu]' and an "
-               "NVIDIA GPU) or auto (cuda when both are there, else cpu).")
-ENTROPY_HELP = ("Entropy mode: calibrated (from the spectra, fast; what next-views predicts and what "
-                "inpainting is tuned on), paper (the published recipe, to compare with it) or angular (the "
-                "estimator's model on the samples: agrees with a path tracer; little extra time inside fit). "
-                "Default: the preset's. Figures: docs/measurements.md#the-entropy.")
 
 
 def _print_json(document: dict) -> None:
@@ -425,10 +362,9 @@ def fit(
     from pathlib import Path
 
     from freqbrdf import pipeline
-    from freqbrdf.outputs.fit_folder import check_output_folder
     from freqbrdf.progress import Reporter
 
-    config = _config(preset, texture_res, lmax, estimator=estimator, model=model, entropy=entropy, device=device)
+    config = config_from_options(preset, texture_res, lmax, estimator=estimator, model=model, entropy=entropy, device=device)
     if per_texel:
         config = config.replace(surface=dataclasses.replace(config.surface, enabled=False))
     if split_half:
@@ -437,14 +373,13 @@ def fit(
                                      "whole-surface estimate has its own roughness std)")
         config = config.replace(uncertainty=dataclasses.replace(config.uncertainty, split_half=True))
     if estimation_res is not None:
-        config = config.replace(texels=dataclasses.replace(config.texels, estimation_res=_estimation_res(
+        config = config.replace(texels=dataclasses.replace(config.texels, estimation_res=estimation_res_from_option(
             estimation_res, config.texels.texture_res)))
     # The flag only takes away from what the preset sets.
     config = config.replace(estimate=dataclasses.replace(
         config.estimate, neighbour_vote=config.estimate.neighbour_vote and neighbour_vote))
     reporter = Reporter(enabled=not (quiet or json_output))
-    loaded, capture_warnings = _checked(capture, quiet or json_output, config.fit.lmax)
-    check_output_folder(out, {"the capture": loaded.root.resolve()})  # before minutes of work
+    loaded, capture_warnings = _checked(capture, quiet or json_output, config.fit.lmax, out)
     _say_backend(device, quiet or json_output)
     result = pipeline.fit(loaded, config, reporter)
     result.warnings = capture_warnings
@@ -492,14 +427,12 @@ def uncertainty(
     from freqbrdf.fileio import atomic_directory, write_json
     from freqbrdf.images import write_png
     from freqbrdf.outputs import export
-    from freqbrdf.outputs.fit_folder import check_output_folder
     from freqbrdf.progress import Reporter
     from freqbrdf.uncertainty import entropy_map
     from freqbrdf.uncertainty import summary as uncertainty_summary
 
-    config = _config(preset, texture_res, lmax, entropy=entropy, device=device)
-    loaded, _ = _checked(capture, quiet or json_output, config.fit.lmax)
-    check_output_folder(out, {"the capture": loaded.root.resolve()})
+    config = config_from_options(preset, texture_res, lmax, entropy=entropy, device=device)
+    loaded, _ = _checked(capture, quiet or json_output, config.fit.lmax, out)
     _say_backend(device, quiet or json_output)
     start = time.perf_counter()
     # On the texels `fit` would estimate on, so that the two entropy maps agree.
@@ -666,8 +599,8 @@ def next_views(
 
     if (candidates is None) == (sample is None):
         raise typer.BadParameter("give exactly one of --candidates FILE and --sample N")
-    config = _config("default", texture_res)
-    loaded, _ = _checked(capture, quiet, config.fit.lmax)
+    config = config_from_options("default", texture_res)
+    loaded, _ = _checked(capture, quiet, config.fit.lmax, out)
     if candidates is not None:
         cameras = candidate_views.load_candidates(candidates, loaded)
         source = candidates

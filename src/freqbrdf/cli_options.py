@@ -1,0 +1,80 @@
+"""The command line's options turned into a `freqbrdf.config.Config`, each checked before any work.
+
+A preset (`freqbrdf.config.PRESETS`) with the options a user gave on top; an unknown name or a
+combination that cannot work is a `typer.BadParameter`, one line and exit code 2 (METHOD.md §6 for
+what the settings mean). The help texts shared by several commands live here too.
+"""
+
+from __future__ import annotations
+
+import typer
+
+
+def config_from_options(preset: str, texture_res: int | None = None, lmax: int | None = None, *,
+            estimator: str | None = None, model: str | None = None,
+            entropy: str | None = None, device: str = "auto"):
+    """Build the preset's Config with the options the user gave (None: keep the preset's value).
+
+    The device is resolved here, before any work (summary.json records the backend that ran).
+    """
+    import dataclasses
+
+    from freqbrdf.config import PRESETS
+    from freqbrdf.config import preset as named_preset
+
+    if preset not in PRESETS:
+        raise typer.BadParameter(f"unknown preset {preset!r}; choose one of {', '.join(PRESETS)}")
+    config = named_preset(preset)
+    texels = dataclasses.replace(config.texels, **({} if texture_res is None else {"texture_res": texture_res}))
+    fit_settings = dataclasses.replace(config.fit, **({} if lmax is None else {"lmax": lmax}))
+    estimate_changes = option_choices(config.estimate, {"method": ("estimator", estimator),
+                                                  "forward_model": ("model", model)})
+    uncertainty_changes = option_choices(config.uncertainty, {"mode": ("entropy mode", entropy)})
+    estimate = dataclasses.replace(config.estimate, **estimate_changes)
+    if estimate.method == "global" and estimate.forward_model != "angular":  # checked before any work
+        raise typer.BadParameter(f"--model {estimate.forward_model} is a forward model of the paper's estimator: "
+                                 "add --estimator paper (the global estimator searches the angular model)")
+    from freqbrdf.devices import resolve_device
+
+    try:
+        backend = resolve_device(device)
+    except ValueError as err:
+        raise typer.BadParameter(str(err)) from err
+    return config.replace(texels=texels, fit=fit_settings, estimate=estimate, device=backend,
+                          uncertainty=dataclasses.replace(config.uncertainty, **uncertainty_changes))
+
+
+def option_choices(settings, options: dict[str, tuple[str, str | None]]) -> dict:
+    """Return the changes to ``settings`` that the given options make, each checked against the field's choices.
+
+    ``options`` maps a field to (the option's name, its value or None if not given); the choices are
+    `freqbrdf.config.choices`'.
+    """
+    from freqbrdf.config import choices
+
+    allowed = choices(type(settings))
+    changes = {}
+    for name, (label, value) in options.items():
+        if value is not None:
+            if value not in allowed[name]:
+                raise typer.BadParameter(f"unknown {label} {value!r}; choose {', '.join(allowed[name])}")
+            changes[name] = value
+    return changes
+
+
+def estimation_res_from_option(value: str, texture_res: int):
+    """Parse --estimation-res as TexelConfig.estimation_res: "pixel", "coarse", "full" or a number from 1 to T."""
+    if value in ("pixel", "coarse", "full"):
+        return value
+    if not value.isdigit() or not 1 <= int(value) <= texture_res:
+        raise typer.BadParameter(f"--estimation-res must be pixel, coarse, full or a number from 1 to the "
+                                 f"texture resolution {texture_res}, got {value!r}")
+    return int(value)
+
+
+DEVICE_HELP = ("Where the SH fits, the search and the entropy run: cpu, cuda (pip install 'freqbrdf[gpu]' and an "
+               "NVIDIA GPU) or auto (cuda when both are there, else cpu).")
+ENTROPY_HELP = ("Entropy mode: calibrated (from the spectra, fast; what next-views predicts and what "
+                "inpainting is tuned on), paper (the published recipe, to compare with it) or angular (the "
+                "estimator's model on the samples: agrees with a path tracer; little extra time inside fit). "
+                "Default: the preset's. Figures: docs/measurements.md#the-entropy.")
