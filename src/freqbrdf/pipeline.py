@@ -192,17 +192,22 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
     timings["estimate"] = time.perf_counter() - start - (angular.seconds if angular else 0.0)
 
     start = time.perf_counter()
-    uncertainty = (angular.result() if angular else
-                   entropy_map(observations, config.uncertainty, estimate_config=config.estimate,
-                               device=config.device))
     whole = config.surface.enabled and config.estimate.method == "global"
-    if not whole:  # the whole-surface posterior gives the roughness std (below)
-        uncertainty.roughness_std = roughness_std(observations, estimate, config)
+    with reporter.stage("entropy", 1) as advance:
+        uncertainty = (angular.result() if angular else
+                       entropy_map(observations, config.uncertainty, estimate_config=config.estimate,
+                                   device=config.device))
+        if not whole:  # the whole-surface posterior gives the roughness std (below)
+            uncertainty.roughness_std = roughness_std(observations, estimate, config)
+        advance(1)
     timings["uncertainty"] = time.perf_counter() - start + (angular.seconds if angular else 0.0)
 
     if whole:
         start = time.perf_counter()
-        estimate, posterior = whole_surface(observations, estimate, rasterise(capture.mesh, estimation_res), config)
+        with reporter.stage("whole-surface solve", 1) as advance:
+            estimate, posterior = whole_surface(observations, estimate, rasterise(capture.mesh, estimation_res),
+                                                config)
+            advance(1)
         uncertainty.roughness_std = posterior.roughness_std
         uncertainty.metallic_std = posterior.metallic_std
         uncertainty.base_color_std = posterior.base_color_std

@@ -80,6 +80,8 @@ if TYPE_CHECKING:
 
 # Texels per block when expanding the light by degree: bounds the (block, V, K) SH basis.
 _PROJECTION_BLOCK = 8192
+# Texels per call of the search kernel: the progress bar's step.
+SEARCH_BLOCK = 8192
 # Roughness nodes (0, PREFILTER_STEP, ..., 1) of the degrees the environment light leaves out.
 _HIGH_NODES = round(1.0 / PREFILTER_STEP) + 1
 # The last prefiltered stack: `angular_loss` and `hypothesis_moments` run many times on the same
@@ -158,7 +160,9 @@ def estimate_global(observations: Observations, config: Config, reporter: Report
     # The split-sum albedo holds the shadowing: the light is never re-fitted.
     split_sum = uses_split_sum(settings)
     n_passes = 1 + (settings.shadowing_refreshes if settings.shadowing and not split_sum else 0)
-    with reporter.stage("estimating (global)", n_passes) as advance:
+    # In blocks of texels, so that the bar moves; each texel's search is its own, whatever the blocks.
+    blocks = list(texel_blocks(n_texels, SEARCH_BLOCK)) if hypotheses is None else [slice(0, n_texels)]
+    with reporter.stage("estimating (global)", n_passes * len(blocks) + settings.neighbour_vote) as advance:
         for pass_index in range(n_passes):
             tick = time.perf_counter()
             if pass_index > 0:
@@ -174,8 +178,11 @@ def estimate_global(observations: Observations, config: Config, reporter: Report
                                       labels=(labels[0][rows], labels[1][rows]), device=config.device)
                     hypotheses.consume(rows, moments)
             else:
-                run_search_kernel(observations, settings, light, np.zeros(0), np.zeros((0, 0, 3, 8)), True, params,
-                                  loss, curvature, labels=labels, device=config.device)
+                for rows in blocks:
+                    run_search_kernel(observations.select(rows), settings, light[rows], np.zeros(0),
+                                      np.zeros((0, 0, 3, 8)), True, params[rows], loss[rows], curvature[rows],
+                                      labels=(labels[0][rows], labels[1][rows]), device=config.device)
+                    advance(1)
             timings["search"] += time.perf_counter() - tick
             residual = params[:, 3] - shadow_roughness
             next_roughness = params[:, 3].copy()
@@ -187,15 +194,17 @@ def estimate_global(observations: Observations, config: Config, reporter: Report
                 next_roughness[usable] = np.where((secant >= 0.0) & (secant <= 1.0), secant, next_roughness[usable])
             previous_roughness, previous_residual = shadow_roughness, residual
             shadow_roughness = next_roughness
+            if pass_index == 0 and hypotheses is not None:
+                advance(1)
+        if settings.neighbour_vote:
+            tick = time.perf_counter()
+            candidate = np.stack([neighbour_median(observations, np.where(estimated, params[:, column], np.nan))
+                                  for column in (3, 4)], axis=1)  # (N, 2) roughness, metallic
+            candidate = np.where(np.isnan(candidate), params[:, 3:5], candidate)
+            run_search_kernel(observations, settings, light, np.zeros(0), np.zeros((0, 0, 3, 8)), False, params,
+                              loss, curvature, candidate, labels=labels, device=config.device)
+            timings["vote"] = time.perf_counter() - tick
             advance(1)
-    if settings.neighbour_vote:
-        tick = time.perf_counter()
-        candidate = np.stack([neighbour_median(observations, np.where(estimated, params[:, column], np.nan))
-                              for column in (3, 4)], axis=1)  # (N, 2) roughness, metallic
-        candidate = np.where(np.isnan(candidate), params[:, 3:5], candidate)
-        run_search_kernel(observations, settings, light, np.zeros(0), np.zeros((0, 0, 3, 8)), False, params, loss,
-                          curvature, candidate, labels=labels, device=config.device)
-        timings["vote"] = time.perf_counter() - tick
     timings["total"] = sum(timings.values())
     return EstimatorResult(params, loss, estimated, "global", timings, curvature, *labels)
 

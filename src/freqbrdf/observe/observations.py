@@ -64,6 +64,8 @@ VIEWS_PER_BATCH = 16
 IMAGE_BYTES_PER_BATCH = 512 << 20
 # Samples whose mirrored environment is looked up together (24 bytes of direction, 12 of radiance each).
 MIRROR_SAMPLES_PER_BATCH = 1 << 21
+# Texels per call of the SH fit: the progress bar's step.
+FIT_BLOCK = 16384
 
 # Channel layout of the fitted signals.
 OBSERVED = slice(0, 3)
@@ -486,12 +488,18 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
     timings["irradiance"] = time.perf_counter() - tick
 
     tick = time.perf_counter()
-    with reporter.stage("fitting SH spectra", 1) as advance:
-        fit = sh.fit_sh(
-            view_direction, weight, signals, config.fit.lmax, config.fit.reg_lambda,
-            config.fit.regulariser, config.fit.scale_lambda_with_weight, config.device,
-        )
-        advance(1)
+    # In blocks of texels, so that the bar moves; each texel's fit is its own, whatever the blocks.
+    blocks = [slice(start, start + FIT_BLOCK) for start in range(0, max(len(weight), 1), FIT_BLOCK)]
+    with reporter.stage("fitting SH spectra", len(blocks)) as advance:
+        parts = []
+        for rows in blocks:
+            parts.append(sh.fit_sh(
+                view_direction[rows], weight[rows], signals[rows], config.fit.lmax, config.fit.reg_lambda,
+                config.fit.regulariser, config.fit.scale_lambda_with_weight, config.device,
+            ))
+            advance(1)
+    fit = parts[0] if len(parts) == 1 else sh.SHFit(*(np.concatenate([getattr(part, name) for part in parts])
+                                                       for name in ("coeffs", "n_samples", "status")))
     timings["fits"] = time.perf_counter() - tick
 
     n_samples = fit.n_samples
