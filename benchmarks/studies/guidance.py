@@ -27,7 +27,10 @@ Prediction check: from the start views, for ``--spearman-candidates`` candidates
 pool, the guidance's predicted mean uncertainty (area-weighted std of roughness + metallic + mean
 base colour over its scored texels) after adding the candidate, against the same quantity of the
 whole-surface posterior refitted with its photograph; Spearman's rho across candidates, per scene.
-Per round, the prediction after the round's picks against the refit's.
+Per round, the prediction after the round's picks against the refit's. Every fit also records the
+posterior's mean std over the coverable texels (``posterior_std``): within a cell, Spearman's rho
+between it and each error over the view sets says whether lowering the posterior std can lower
+the error at all (``posterior_std_against_error``).
 
 Writes benchmarks/results/guidance.{json,png} (``--name``); parts run side by side (``--scenes``
 and ``--name``) are merged with ``--merge``.
@@ -55,6 +58,7 @@ from freqbrdf.observe.observations import observe
 from freqbrdf.outputs.relight import RelightSettings
 from freqbrdf.outputs.relight import evaluate as relight_evaluate
 from freqbrdf.pipeline import fit
+from freqbrdf.texels import rasterise
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/: _common and scenes
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # the previous picker
@@ -86,6 +90,7 @@ def scene_run(name: str, args) -> dict:
     directions = view_directions(pool, cameras)
     coverable = observe(pool, config).n_samples > 0
     truth = resize(pool.ground_truth, args.texture_res)
+    area = rasterise(pool.mesh, args.texture_res).texel_area
     start = farthest_point_views(directions, START)
 
     def score(views: list[int]) -> dict:
@@ -93,6 +98,9 @@ def scene_run(name: str, args) -> dict:
         index = result.observations.texel_index[coverable]
         maps = result.maps
         relit = relight_evaluate(with_views(pool, views), maps, settings=RELIGHT).relighting
+        uncertainty = result.uncertainty
+        std = np.nan_to_num(uncertainty.roughness_std + uncertainty.metallic_std
+                            + uncertainty.base_color_std.mean(axis=1))[coverable]
         return {
             "views": len(views),
             "roughness_mae": float(np.mean(np.abs(maps.roughness.ravel()[index] - truth.roughness.ravel()[index]))),
@@ -100,6 +108,7 @@ def scene_run(name: str, args) -> dict:
             "base_color_mae": float(np.mean(np.abs(maps.base_color.reshape(-1, 3)[index]
                                                    - truth.base_color.reshape(-1, 3)[index]))),
             "psnr_hdr": float(relit["psnr_hdr"]),
+            "posterior_std": float(np.dot(area[coverable], std) / area[coverable].sum()),
         }
 
     def log(method: str, row: dict) -> None:
@@ -222,6 +231,27 @@ def paired_tests(scenes: dict) -> dict:
     return tests
 
 
+def std_against_error(scenes: dict) -> dict:
+    """Does the refitted posterior's std rank the view sets of one cell by their error?
+
+    Per scene and budget, Spearman's rho between the posterior's mean std and each error over the
+    view sets of that cell (every method and random seed); the mean over the cells.
+    """
+    from scipy.stats import spearmanr
+
+    result = {}
+    for metric in METRICS:
+        rhos = []
+        for scene in scenes.values():
+            for step in range(1, len(scene["curves"]["uncertainty"])):
+                rows = [scene["curves"][method][step] for method in ("uncertainty", "entropy", "farthest_point")]
+                rows += [run[step] for run in scene["random_runs"]]
+                rho = spearmanr([row["posterior_std"] for row in rows], [row[metric] for row in rows]).statistic
+                rhos.append(float(rho) if np.isfinite(rho) else 0.0)
+        result[metric] = {"mean_rho": float(np.mean(rhos)), "cells": rhos}
+    return result
+
+
 def cells_within_random_spread(scenes: dict) -> dict:
     """Per metric, the cells where the guidance is worse than farthest-point by more than random's std."""
     worse = {}
@@ -277,6 +307,7 @@ def summarise(scenes: dict, args, seconds: float) -> dict:
         "render": RENDER, "relight": dataclasses.asdict(RELIGHT), "start": START, "step": STEP, "final": FINAL,
         "random_seeds": args.random_seeds, "scenes": scenes, "paired_tests": paired_tests(scenes),
         "worse_than_farthest_point_by_more_than_random_std": cells_within_random_spread(scenes),
+        "posterior_std_against_error": std_against_error(scenes),
         "seconds": seconds,
     }
 

@@ -9,9 +9,9 @@ model and what every candidate samples; then each pick, as `Pick.seconds` report
 every remaining candidate and committing the best). Kernels are compiled by an untimed run first.
 
     python benchmarks/timing/bench_guidance.py [--texture-res 512] [--candidates 100] [--budget 10]
-        [--max-texels N]
+        [--max-texels N] [--estimation-res full] [--name bench_guidance]
 
-Saves benchmarks/results/bench_guidance.json.
+Saves benchmarks/results/<name>.json.
 """
 
 from __future__ import annotations
@@ -44,6 +44,9 @@ def main(argv=None) -> int:
     parser.add_argument("--start", type=int, default=8)
     parser.add_argument("--budget", type=int, default=10)
     parser.add_argument("--max-texels", type=int, default=guidance.MAX_TEXELS)
+    parser.add_argument("--estimation-res", default=None,
+                        help="TexelConfig.estimation_res (default: fit's; 'full' estimates on every texel of T)")
+    parser.add_argument("--name", default="bench_guidance")
     args = parser.parse_args(argv)
     pool = load(whole_surface_capture(SCENE, RENDER))
     directions = view_directions(pool, [frame.camera for frame in pool.frames])
@@ -51,6 +54,8 @@ def main(argv=None) -> int:
     taken = dataclasses.replace(pool, frames=tuple(pool.frames[view] for view in start))
     candidates = [frame.camera for view, frame in enumerate(pool.frames) if view not in start][:args.candidates]
     config = Config(texels=TexelConfig(texture_res=args.texture_res))
+    if args.estimation_res is not None:
+        config = config.replace(texels=dataclasses.replace(config.texels, estimation_res=args.estimation_res))
     estimation_res = pipeline.estimation_resolution(taken, config)
     config = config.replace(texels=dataclasses.replace(config.texels, texture_res=estimation_res))
 
@@ -72,7 +77,7 @@ def main(argv=None) -> int:
         "setup_seconds": select_seconds - sum(pick_seconds), "pick_seconds": pick_seconds,
         "pick_seconds_median": statistics.median(pick_seconds), "pick_seconds_max": max(pick_seconds),
     }
-    save_results("bench_guidance", results)
+    save_results(args.name, results)
     print(f"T = {args.texture_res} (estimation {estimation_res}, {fit.texels.n_texels} texels), "
           f"{len(candidates)} candidates, {args.max_texels} texels scored: fit {fit_seconds:.1f} s, "
           f"setup {results['setup_seconds']:.1f} s, per pick median {results['pick_seconds_median']:.3f} s, "
