@@ -261,6 +261,7 @@ def observe(
     ),
     texture_res: int = typer.Option(512, min=1, help="Texture resolution T (maps are T x T)."),
     lmax: int = typer.Option(5, min=0, help="Degree l* of the per-texel SH fits."),
+    device: str = typer.Option("auto", "--device", help=DEVICE_HELP),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
 ) -> None:
     """Observe a capture: per-texel samples and SH spectra (observations.npz), coverage and visibility maps.
@@ -277,9 +278,10 @@ def observe(
     from freqbrdf.observe.observations import observe as observe_capture
     from freqbrdf.progress import Reporter
 
-    config = config_from_options("default", texture_res, lmax)
-    observations = observe_capture(_checked(capture, quiet, config.fit.lmax, out)[0], config,
-                                   Reporter(enabled=not quiet))
+    config = config_from_options("default", texture_res, lmax, device=device)
+    loaded, _ = _checked(capture, quiet, config.fit.lmax, out)
+    _say_backend(device, quiet)
+    observations = observe_capture(loaded, config, Reporter(enabled=not quiet))
     _results_from_cache(quiet)
     folder = Path(out)
     observations.save(folder / "observations.npz")
