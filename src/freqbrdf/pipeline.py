@@ -154,7 +154,8 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
     where those are coarser than T, the results are then taken to the T x T texels (`to_texels`).
     With ``config.surface.enabled`` (the default) the ``global`` estimate becomes the whole-surface
     estimate after the uncertainty (`freqbrdf.estimate.surface`, METHOD.md §4), whose posterior
-    gives the roughness, metallic and base-colour std.
+    gives the metallic and base-colour std, and the roughness std where it is wider than the
+    spread of the texel's own estimate (`freqbrdf.uncertainty.roughness_std`).
 
     Parameters
     ----------
@@ -197,8 +198,7 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
         uncertainty = (angular.result() if angular else
                        entropy_map(observations, config.uncertainty, estimate_config=config.estimate,
                                    device=config.device))
-        if not whole:  # the whole-surface posterior gives the roughness std (below)
-            uncertainty.roughness_std = roughness_std(observations, estimate, config)
+        uncertainty.roughness_std = roughness_std(observations, estimate, config)  # the texel's own spread
         advance(1)
     timings["uncertainty"] = time.perf_counter() - start + (angular.seconds if angular else 0.0)
 
@@ -208,7 +208,12 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
             estimate, posterior = whole_surface(observations, estimate, rasterise(capture.mesh, estimation_res),
                                                 config)
             advance(1)
-        uncertainty.roughness_std = posterior.roughness_std
+        # The posterior credits a texel with its neighbours' precision as if their errors were
+        # independent; the systematic errors neighbours share make it far too narrow, so a texel's
+        # roughness std is never below the spread of its own samples' estimate.
+        own = uncertainty.roughness_std
+        uncertainty.roughness_std = np.where(np.isfinite(own), np.maximum(own, posterior.roughness_std),
+                                             posterior.roughness_std).astype(np.float32)
         uncertainty.metallic_std = posterior.metallic_std
         uncertainty.base_color_std = posterior.base_color_std
         timings["surface"] = time.perf_counter() - start

@@ -23,6 +23,8 @@ METHOD.md §4, done inside the estimate):
 4. **Posterior std** of roughness, metallic and base colour: the label's probability, and each
    texel's precision in the solve with its neighbours', scaled by how far the per-texel
    estimates scatter about the solution, growing with the distance from the texels with data.
+   The fit reports a roughness std no narrower than the spread of the texel's own estimate
+   (`freqbrdf.pipeline.fit`): neighbours share the model's errors, which their precision ignores.
 
 Deterministic: fixed iteration counts, no random choice, single-threaded sparse products.
 """
