@@ -154,8 +154,9 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
     where those are coarser than T, the results are then taken to the T x T texels (`to_texels`).
     With ``config.surface.enabled`` (the default) the ``global`` estimate becomes the whole-surface
     estimate after the uncertainty (`freqbrdf.estimate.surface`, METHOD.md §4), whose posterior
-    gives the metallic and base-colour std, and the roughness std where it is wider than the
-    spread of the texel's own estimate (`freqbrdf.uncertainty.roughness_std`).
+    gives the metallic std, the roughness std where it is wider than the spread of the texel's own
+    estimate (`freqbrdf.uncertainty.roughness_std`), and the base-colour std with the distance of
+    the texel's own estimate from the solution added in quadrature.
 
     Parameters
     ----------
@@ -204,18 +205,22 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
 
     if whole:
         start = time.perf_counter()
+        own_base_color = estimate.base_color
         with reporter.stage("whole-surface solve", 1) as advance:
             estimate, posterior = whole_surface(observations, estimate, rasterise(capture.mesh, estimation_res),
                                                 config)
             advance(1)
         # The posterior credits a texel with its neighbours' precision as if their errors were
-        # independent; the systematic errors neighbours share make it far too narrow, so a texel's
-        # roughness std is never below the spread of its own samples' estimate.
+        # independent; the systematic errors neighbours share make it far too narrow. So a texel's
+        # roughness std is never below the spread of its own samples' estimate, and its base
+        # colour's adds how far its own estimate lies from the solution.
         own = uncertainty.roughness_std
         uncertainty.roughness_std = np.where(np.isfinite(own), np.maximum(own, posterior.roughness_std),
                                              posterior.roughness_std).astype(np.float32)
         uncertainty.metallic_std = posterior.metallic_std
-        uncertainty.base_color_std = posterior.base_color_std
+        disagreement = np.nan_to_num(np.asarray(own_base_color, np.float64) - estimate.base_color)
+        uncertainty.base_color_std = np.sqrt(np.asarray(posterior.base_color_std, np.float64) ** 2
+                                             + disagreement ** 2).astype(np.float32)
         timings["surface"] = time.perf_counter() - start
         timings.update({f"surface.{step}": seconds for step, seconds in posterior.timings.items()})
 
