@@ -116,7 +116,7 @@ def plot_views(path: str | Path, capture: Capture, picks: Sequence[Pick], candid
     for index, camera in enumerate(cameras):
         _draw_frustum(axes, drawn, camera, depth, "0.4", "capture views" if index == 0 else None, 0.8)
     for pick, colour in zip(picks, colours):
-        label = f"{pick.rank + 1}: std -{pick.expected_gain:.4f}, unseen -{pick.unseen_area:.1%}"
+        label = f"{pick.rank + 1}: std -{pick.expected_gain:.4f}, unseen area seen {pick.unseen_area:.1%}"
         _draw_frustum(axes, drawn, pick.camera, depth, colour, label, 2.5)
         axes.text(*drawn(pick.camera.center), str(pick.rank + 1), color=colour, fontsize=11, weight="bold")
     extent = max(np.linalg.norm(camera.center - centre) for camera in cameras + [p.camera for p in picks])
