@@ -253,7 +253,8 @@ def test_ctrl_c_keeps_finished_captures(cluster, captures, tmp_path):
     manifest = write_csv(tmp_path / "m.csv", ["name,capture,texture_res,evaluate,report",
                                               f"a,{captures / 'bunny'},32,false,false",
                                               f"b,{captures / 'sphere'},32,false,false"])
-    env = {**os.environ, TEST_HOOKS_VARIABLE: json.dumps({"sleep_s": {"b": 120}})}
+    # b sleeps far longer than a may take on a loaded machine, so that Ctrl-C always finds it running.
+    env = {**os.environ, TEST_HOOKS_VARIABLE: json.dumps({"sleep_s": {"b": 900}})}
     command = subprocess.Popen([sys.executable, "-m", "freqbrdf.cli", "batch", str(manifest), "--out", str(out),
                                 "--workers", "1", "--quiet"], env=env, start_new_session=True,
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
