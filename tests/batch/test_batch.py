@@ -255,9 +255,11 @@ def test_ctrl_c_keeps_finished_captures(cluster, captures, tmp_path):
                                               f"b,{captures / 'sphere'},32,false,false"])
     # b sleeps far longer than a may take on a loaded machine, so that Ctrl-C always finds it running.
     env = {**os.environ, TEST_HOOKS_VARIABLE: json.dumps({"sleep_s": {"b": 900}})}
+    # SIGINT as a terminal leaves it (a test run started in the background inherits it ignored).
     command = subprocess.Popen([sys.executable, "-m", "freqbrdf.cli", "batch", str(manifest), "--out", str(out),
                                 "--workers", "1", "--quiet"], env=env, start_new_session=True,
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         deadline = time.monotonic() + 400  # Ray's start and a's fit, on a machine other jobs may share
         while not (out / "a" / batch.ENTRY_FILE).is_file() and command.poll() is None:
