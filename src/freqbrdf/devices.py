@@ -65,6 +65,8 @@ def cuda_status() -> CudaStatus:
     """
     extra = importlib.util.find_spec("numba_cuda") is not None
     simulator = os.environ.get("NUMBA_ENABLE_CUDASIM", "0") not in ("", "0")
+    if not (extra or simulator):  # no kernels to run: the driver is not probed (a quarter second)
+        return CudaStatus(False, False, False, "numba-cuda (the [gpu] extra) is not installed")
     try:
         from numba import cuda
 

@@ -285,8 +285,10 @@ def _check_frames(capture: Capture, points: np.ndarray, check: CaptureCheck) -> 
 
 def _looks_ldr(image: np.ndarray) -> bool:
     """Whether an HDR file's pixels (H, W, 3) are LDR data: on 8-bit steps, or clipped at 1.0."""
+    if float(image.max()) > 1.0 + 1e-6:  # HDR data goes above 1 somewhere
+        return False
     lit = image[image.max(axis=2) > BLACK]
-    if lit.size == 0 or float(lit.max()) > 1.0 + 1e-6:
+    if lit.size == 0:
         return False
     steps = lit * 255.0
     if np.mean(np.abs(steps - np.round(steps)) < 1e-3) > 0.99:
