@@ -257,6 +257,19 @@ def _snapshot(folder: Path) -> dict:
             for path in sorted(folder.rglob("*"))}
 
 
+def prepare_case(case: Case, good_capture: Path, fitted: Path, folder: Path) -> tuple[list[str], dict]:
+    """Lay out one case in ``folder`` (the capture, broken, and a fit of it): its command line and snapshot."""
+    capture = folder / "capture"
+    shutil.copytree(good_capture, capture)
+    shutil.copytree(fitted, folder / "fit")
+    fit_summary = json.loads((folder / "fit" / "summary.json").read_text())
+    fit_summary["capture"] = str(capture)
+    (folder / "fit" / "summary.json").write_text(json.dumps(fit_summary))
+    case.breaking(capture)
+    fill = {"capture": str(capture), "out": str(folder / "out"), "tmp": str(folder)}
+    return [argument.format(**fill) for argument in case.arguments], fill
+
+
 def test_the_corpus_is_large_and_its_names_unique():
     assert len(CASES) >= 60 and len({case.name for case in CASES}) == len(CASES)
 
@@ -264,17 +277,10 @@ def test_the_corpus_is_large_and_its_names_unique():
 @pytest.mark.parametrize("case", CASES, ids=[case.name for case in CASES])
 def test_a_broken_input_is_one_line_and_its_exit_code_and_nothing_is_written_or_removed(
         case, good_capture, fitted, tmp_path, run_cli, capsys, monkeypatch):
-    capture = tmp_path / "capture"
-    shutil.copytree(good_capture, capture)
-    shutil.copytree(fitted, tmp_path / "fit")
-    fit_summary = json.loads((tmp_path / "fit" / "summary.json").read_text())
-    fit_summary["capture"] = str(capture)
-    (tmp_path / "fit" / "summary.json").write_text(json.dumps(fit_summary))
-    case.breaking(capture)
+    arguments, fill = prepare_case(case, good_capture, fitted, tmp_path)
     monkeypatch.chdir(tmp_path)
     before = _snapshot(tmp_path)
-    fill = {"capture": str(capture), "out": str(tmp_path / "out"), "tmp": str(tmp_path)}
-    code = run_cli(*(argument.format(**fill) for argument in case.arguments))
+    code = run_cli(*arguments)
     captured = capsys.readouterr()
     lines = captured.err.strip().splitlines()
     assert code == case.code, captured.err

@@ -48,16 +48,8 @@ def run_case(corpus, case, good: Path, fitted: Path, source: Path, scratch: Path
     if work.exists():
         shutil.rmtree(work)
     work.mkdir()
-    capture = work / "capture"
-    shutil.copytree(good, capture)
-    shutil.copytree(fitted, work / "fit")
-    summary = json.loads((work / "fit" / "summary.json").read_text())
-    summary["capture"] = str(capture)
-    (work / "fit" / "summary.json").write_text(json.dumps(summary))
-    case.breaking(capture)
+    arguments, _ = corpus.prepare_case(case, good, fitted, work)
     before = corpus._snapshot(work)
-    fill = {"capture": str(capture), "out": str(work / "out"), "tmp": str(work)}
-    arguments = [argument.format(**fill) for argument in case.arguments]
     env = {**os.environ, "PYTHONPATH": str(source), "FREQBRDF_RERUN": "1"}
     try:
         done = subprocess.run([sys.executable, "-m", "freqbrdf.cli", *arguments], cwd=work, env=env,
