@@ -15,7 +15,6 @@ photograph (the posterior-mean radiance); the band limit stays that of the captu
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -23,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from freqbrdf.applications.candidates import CandidateSamples, candidate_samples, view_directions
+from freqbrdf.applications.guidance import subset_texels, texel_subset
 from freqbrdf.capture.camera import Camera
 from freqbrdf.capture.layouts import Capture
 from freqbrdf.config import Config
@@ -30,7 +30,7 @@ from freqbrdf.model import brdf
 from freqbrdf.observe.observations import Observations, observe
 from freqbrdf.progress import SILENT, Reporter
 from freqbrdf.sphere import harmonics as sh
-from freqbrdf.texels import Texels, rasterise
+from freqbrdf.texels import rasterise
 from freqbrdf.uncertainty import (
     Uncertainty,
     cross_spectrum,
@@ -193,8 +193,8 @@ def select_views(
     if not 0.0 <= spread < 1.0:
         raise ValueError(f"spread must lie in [0, 1), got {spread}")
     texels = rasterise(capture.mesh, config.texels.texture_res)
-    rows = _texel_subset(texels.n_texels, max_texels, config.seed)
-    scored = _subset_texels(texels, rows)
+    rows = texel_subset(texels.n_texels, max_texels, config.seed)
+    scored = subset_texels(texels, rows)
     if observations is None:
         observations = observe(capture, config, reporter, texels=scored)
     else:
@@ -482,22 +482,3 @@ def _state_uncertainty(state: FitState, coeffs: np.ndarray, sigma: float, config
         sh.power_spectrum(light), sh.power_spectrum(observed),
         n_samples=state.n_samples, sigma=sigma, fit_status=status, config=config.uncertainty,
     )
-
-
-def _texel_subset(n_texels: int, max_texels: int, seed: int) -> np.ndarray:
-    """Sorted rows of at most ``max_texels`` texels, drawn without replacement (seeded)."""
-    if max_texels < 1:
-        raise ValueError(f"max_texels must be at least 1, got {max_texels}")
-    if n_texels <= max_texels:
-        return np.arange(n_texels)
-    return np.sort(np.random.default_rng(seed).choice(n_texels, max_texels, replace=False))
-
-
-def _subset_texels(texels: Texels, rows: np.ndarray) -> Texels:
-    """Return the texels of ``rows`` only (the mask keeps just them)."""
-    mask = np.zeros(texels.texture_res * texels.texture_res, dtype=bool)
-    mask[texels.texel_index[rows]] = True
-    names = ("texel_index", "face_id", "barycentric", "position", "normal", "tangent", "bitangent", "texel_area",
-             "snapped")
-    per_texel = {name: getattr(texels, name)[rows] for name in names}
-    return dataclasses.replace(texels, mask=mask.reshape(texels.mask.shape), **per_texel)

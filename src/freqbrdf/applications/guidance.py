@@ -52,9 +52,17 @@ from freqbrdf.capture.layouts import Capture
 from freqbrdf.config import Config
 from freqbrdf.estimate import MaterialEstimate
 from freqbrdf.estimate import estimate as estimate_materials
-from freqbrdf.estimate._search_kernels import FITTED_PARAMETERS, MIN_SAMPLES
+from freqbrdf.estimate._search_kernels import MIN_SAMPLES
 from freqbrdf.estimate.search import lambert_scale
-from freqbrdf.estimate.surface import SurfacePosterior, apparent_albedo, metal_evidence, surface_graph, whole_surface
+from freqbrdf.estimate.surface import (
+    PRIOR_PRECISION,
+    SurfacePosterior,
+    apparent_albedo,
+    data_precision,
+    metal_evidence,
+    surface_graph,
+    whole_surface,
+)
 from freqbrdf.model.brdf import band_limit_sigma
 from freqbrdf.observe.observations import Observations, observe
 from freqbrdf.progress import SILENT, Reporter
@@ -63,8 +71,6 @@ from freqbrdf.texels import Texels, rasterise
 MAX_TEXELS = 8192  # texels scored per candidate (a seeded random subset of the estimation texels)
 # Candidates closer than this (cosine, seen from the object) to a view taken are not proposed again.
 TAKEN_COSINE = 0.9999
-# The solve's pin of a texel without data, relative to the coupling (`freqbrdf.estimate.surface`).
-_PIN = 1e-4
 
 
 @dataclass(frozen=True)
@@ -389,20 +395,12 @@ def uncertainty_model(capture: Capture, fit: SurfaceFit, rows: np.ndarray, confi
     settings = config.surface
     observations, per_texel, posterior = fit.observations, fit.per_texel, fit.posterior
     estimated = per_texel.estimated
-    counts = observations.n_samples.astype(np.float64)
     graph = surface_graph(fit.texels.position, fit.texels.normal, np.log(apparent_albedo(observations)), estimated,
                           settings)
     neighbours = np.asarray(graph.sum(axis=1)).ravel()
-    dof = np.maximum(3.0 * counts - FITTED_PARAMETERS, 1.0)
-    noise = np.where(estimated, np.maximum(np.nan_to_num(per_texel.loss), 1e-12), 1.0) / dof * settings.noise_inflation
-    typical = max(float(np.median(counts[estimated])), 1.0) if estimated.any() else 1.0
-    few = np.minimum(counts / typical, 1.0) ** settings.few_sample_power
-    curvature = (np.ones(len(counts)) if per_texel.roughness_curvature is None
-                 else np.maximum(np.nan_to_num(per_texel.roughness_curvature), 0.0))
-    roughness_precision = np.where(estimated, 0.5 * curvature / noise, 0.0)  # before the few-sample factor
-    metal = posterior.metal_probability > 0.5
-    light = np.where(metal[:, None], _mean_over_views(observations, observations.mirrored), lambert_scale(observations))
-    color_precision = np.where(estimated[:, None], light ** 2 / noise[:, None], 0.0)
+    data = data_precision(observations, per_texel, posterior.metal_probability > 0.5, settings)
+    noise, few, typical = data.noise, data.few, data.typical_samples
+    roughness_precision, color_precision = data.roughness, data.color  # before the few-sample factor
     typical_noise = float(np.median(noise[estimated])) if estimated.any() else 1.0
     unseen_color_precision = lambert_scale(observations) ** 2 / typical_noise
 
@@ -413,7 +411,7 @@ def uncertainty_model(capture: Capture, fit: SurfaceFit, rows: np.ndarray, confi
         has_data = per_texel_mean > 0
         scale = float(np.median(per_texel_mean[has_data])) if has_data.any() else 1.0
         strength = smoothing * scale
-        return neighbours * strength + _PIN * strength, strength
+        return neighbours * strength + PRIOR_PRECISION * strength, strength
 
     roughness_coupling, _ = coupling(roughness_precision, settings.roughness_smoothing)
     color_coupling, _ = coupling(color_precision, settings.color_smoothing)
@@ -719,11 +717,4 @@ def _label_std(log_odds: np.ndarray) -> np.ndarray:
     decay = np.exp(-0.5 * np.abs(log_odds))
     return decay / (1.0 + decay * decay)
 
-
-def _mean_over_views(observations: Observations, values: np.ndarray) -> np.ndarray:
-    """(N, 3) float64: the weighted mean of (N, V, 3) values over each texel's samples (0 without any)."""
-    weight = observations.weight.astype(np.float64)
-    total = weight.sum(axis=1)
-    summed = np.einsum("nv,nvc->nc", weight, values, dtype=np.float64)
-    return np.where(total[:, None] > 0, summed / np.maximum(total, 1e-30)[:, None], 0.0)
 

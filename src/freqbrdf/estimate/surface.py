@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 from scipy import sparse
@@ -50,8 +50,8 @@ if TYPE_CHECKING:
     from freqbrdf.observe.observations import Observations
     from freqbrdf.texels import Texels
 
-__all__ = ["SurfacePosterior", "metal_evidence", "metal_posterior", "smooth_on_surface", "surface_graph",
-           "whole_surface"]
+__all__ = ["DataPrecision", "SurfacePosterior", "data_precision", "mean_over_views", "metal_evidence",
+           "metal_posterior", "smooth_on_surface", "surface_graph", "whole_surface"]
 
 # Apparent albedo floor (log space): keeps black texels' logarithm finite.
 _ALBEDO_FLOOR = 1e-3
@@ -61,7 +61,7 @@ _REACH = 3.0
 _MIN_NORMAL_COSINE = 0.3
 # The precision that pins a texel without data to the mean of the estimated texels, relative to
 # the coupling: only decides components of the graph that no estimated texel reaches.
-_PRIOR_PRECISION = 1e-4
+PRIOR_PRECISION = 1e-4
 
 
 @dataclass(eq=False)
@@ -149,21 +149,9 @@ def whole_surface(observations: Observations, estimate: MaterialEstimate, texels
     timings["labels"] = time.perf_counter() - start
 
     start = time.perf_counter()
-    dof = np.maximum(3.0 * observations.n_samples - FITTED_PARAMETERS, 1.0)
-    noise = np.where(estimated, np.maximum(np.nan_to_num(estimate.loss), 1e-12), 1.0) / dof * settings.noise_inflation
-    curvature = (np.ones(estimate.n_texels) if estimate.roughness_curvature is None
-                 else np.nan_to_num(estimate.roughness_curvature))
-    roughness_precision = np.where(estimated, 0.5 * np.maximum(curvature, 0.0) / noise, 0.0)
-    # d loss / d b per channel: the diffuse term's light for a dielectric, the mirrored light's for a metal.
-    mirrored = _mean_over_views(observations, observations.mirrored)
-    light = np.where(metal[:, None], mirrored, lambert_scale(observations))
-    color_precision = np.where(estimated[:, None], light.astype(np.float64) ** 2 / noise[:, None], 0.0)
-    # Few samples are mostly grazing or edge samples, whose errors are the model's, not noise: weaker.
-    counts = observations.n_samples.astype(np.float64)
-    typical = max(float(np.median(counts[estimated])), 1.0) if estimated.any() else 1.0
-    few = np.minimum(counts / typical, 1.0) ** settings.few_sample_power
-    roughness_precision *= few
-    color_precision *= few[:, None]
+    data = data_precision(observations, estimate, metal, settings)
+    roughness_precision = data.roughness * data.few
+    color_precision = data.color * data.few[:, None]
     roughness, roughness_spread = smooth_on_surface(params[:, 3:4], roughness_precision[:, None], graph,
                                                     settings.roughness_smoothing, settings.roughness_huber, settings)
     color, color_spread = smooth_on_surface(params[:, :3], color_precision, graph, settings.color_smoothing,
@@ -186,6 +174,70 @@ def whole_surface(observations: Observations, estimate: MaterialEstimate, texels
     return solved, posterior
 
 
+class DataPrecision(NamedTuple):
+    """What each texel's own samples say in the surface solve (N texels; `data_precision`).
+
+    Attributes
+    ----------
+    roughness : (N,) float64
+        The roughness's precision, 0.5 curvature / noise (0 without an estimate).
+    color : (N, 3) float64
+        Each base-colour channel's precision, light^2 / noise (0 without an estimate).
+    noise : (N,) float64
+        The loss's noise variance per residual, inflated (1 without an estimate).
+    few : (N,) float64
+        The weight of few samples, (samples / median samples)^few_sample_power, at most 1; the
+        solve multiplies both precisions by it.
+    typical_samples : float
+        That median: the samples of the estimated texels (at least 1).
+    """
+
+    roughness: np.ndarray
+    color: np.ndarray
+    noise: np.ndarray
+    few: np.ndarray
+    typical_samples: float
+
+
+def data_precision(observations: Observations, estimate: MaterialEstimate, metal: np.ndarray,
+                   settings: SurfaceConfig) -> DataPrecision:
+    """Return the precision of each texel's own roughness and base colour (the solve's data term).
+
+    The noise is the per-texel loss over its degrees of freedom, inflated by
+    ``settings.noise_inflation`` (the model's own misfit is not independent noise); the base
+    colour's derivative is the diffuse term's light for a dielectric, the mirrored light's for a
+    metal. Few samples are mostly grazing or edge samples, whose errors are the model's: weaker.
+
+    Parameters
+    ----------
+    observations : Observations
+        The texels' samples (N texels).
+    estimate : MaterialEstimate
+        The per-texel estimate of those texels.
+    metal : (N,) bool
+        The texels' metal label.
+    settings : SurfaceConfig
+        ``noise_inflation`` and ``few_sample_power``.
+
+    Returns
+    -------
+    DataPrecision
+        The precisions before the few-sample weight, the noise, and that weight.
+    """
+    estimated = estimate.estimated
+    dof = np.maximum(3.0 * observations.n_samples - FITTED_PARAMETERS, 1.0)
+    noise = np.where(estimated, np.maximum(np.nan_to_num(estimate.loss), 1e-12), 1.0) / dof * settings.noise_inflation
+    curvature = (np.ones(estimate.n_texels) if estimate.roughness_curvature is None
+                 else np.nan_to_num(estimate.roughness_curvature))
+    roughness = np.where(estimated, 0.5 * np.maximum(curvature, 0.0) / noise, 0.0)
+    light = np.where(metal[:, None], mean_over_views(observations, observations.mirrored), lambert_scale(observations))
+    color = np.where(estimated[:, None], light.astype(np.float64) ** 2 / noise[:, None], 0.0)
+    counts = observations.n_samples.astype(np.float64)
+    typical = max(float(np.median(counts[estimated])), 1.0) if estimated.any() else 1.0
+    few = np.minimum(counts / typical, 1.0) ** settings.few_sample_power
+    return DataPrecision(roughness, color, noise, few, typical)
+
+
 def apparent_albedo(observations: Observations) -> np.ndarray:
     """Return each texel's mean observed radiance over its irradiance / pi.
 
@@ -199,13 +251,26 @@ def apparent_albedo(observations: Observations) -> np.ndarray:
     (N, 3) float64
         The apparent albedo, at least ``_ALBEDO_FLOOR``; the floor where a texel has no sample.
     """
-    radiance = _mean_over_views(observations, observations.observed)
+    radiance = mean_over_views(observations, observations.observed)
     irradiance = np.maximum(lambert_scale(observations), 1e-12)
     return np.maximum(radiance / irradiance, _ALBEDO_FLOOR)
 
 
-def _mean_over_views(observations: Observations, values: np.ndarray) -> np.ndarray:
-    """(N, 3) float64: the weighted mean of (N, V, 3) values over each texel's samples (0 without any)."""
+def mean_over_views(observations: Observations, values: np.ndarray) -> np.ndarray:
+    """Return the weighted mean of per-sample values over each texel's samples.
+
+    Parameters
+    ----------
+    observations : Observations
+        The texels' samples (N texels, V views): their weights.
+    values : (N, V, 3) array
+        A value per sample, e.g. ``observations.observed``.
+
+    Returns
+    -------
+    (N, 3) float64
+        The mean; 0 for a texel without samples.
+    """
     weight = observations.weight.astype(np.float64)
     total = weight.sum(axis=1)
     summed = np.einsum("nv,nvc->nc", weight, values, dtype=np.float64)
@@ -383,7 +448,7 @@ def smooth_on_surface(values: np.ndarray, precision: np.ndarray, graph: sparse.c
     scale = float(np.median(precision[has_data].mean(axis=1)))
     coupling = smoothing * scale
     mean = (precision * values).sum(axis=0) / np.maximum(precision.sum(axis=0), 1e-300)
-    pin = _PRIOR_PRECISION * coupling
+    pin = PRIOR_PRECISION * coupling
     target = np.where(precision > 0, values, mean)
     diagonal_data = precision + pin
     solution = target.copy()
