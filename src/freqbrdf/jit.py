@@ -41,6 +41,7 @@ class _FirstCompilation(event.Listener):
     def __init__(self, callback: Callable[[], None]):
         self.callback = callback
         self.called = False
+        self.registered = False
 
     def on_start(self, compile_event) -> None:
         function = getattr(compile_event.data.get("dispatcher"), "py_func", None)
@@ -62,6 +63,14 @@ def on_first_compilation(callback: Callable[[], None]) -> None:
     Parameters
     ----------
     callback : callable () -> None
-        What to do, e.g. print a line.
+        What to do, e.g. print a line. A later call replaces it, while no compilation has been seen.
     """
-    event.register("numba:compile", _FirstCompilation(callback))
+    if _LISTENER.called:
+        return
+    _LISTENER.callback = callback
+    if not _LISTENER.registered:  # one listener per process, however many commands run in it
+        event.register("numba:compile", _LISTENER)
+        _LISTENER.registered = True
+
+
+_LISTENER = _FirstCompilation(lambda: None)
