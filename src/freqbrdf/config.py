@@ -1,7 +1,7 @@
 """One typed configuration with one set of defaults, and named presets.
 
 Every stage reads its settings from here; the command line only overrides fields. Each settings
-class follows a stage of METHOD.md §3: `TexelConfig` (§3.1), `FitConfig` (§3.3-3.4),
+class follows a stage of METHOD.md §3: `TexelConfig` (§3.1), `ObserveConfig` (§3.2, §3.5), `FitConfig` (§3.3-3.4),
 `EstimateConfig` (§3.6-3.7), `UncertaintyConfig` (§3.8), `SurfaceConfig` (§4). Each field's
 docstring says what it is, why its default, and where docs/measurements.md has the figures.
 `preset` names the configurations a user chooses between: ``default``, ``fast`` and ``paper``
@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 __all__ = [
-    "Config", "EstimateConfig", "FitConfig", "PRESETS", "RegulariserKind", "SPECTRAL_GRID_RES",
+    "Config", "EstimateConfig", "FitConfig", "ObserveConfig", "PRESETS", "RegulariserKind", "SPECTRAL_GRID_RES",
     "SurfaceConfig", "TexelConfig", "UncertaintyConfig", "choices", "preset",
 ]
 
@@ -114,6 +114,16 @@ class FitConfig:
     def __post_init__(self):
         _check_choices(self)
         _require(self, "attenuation_threshold", 0.0 < self.attenuation_threshold < 1.0, "(0, 1)")
+
+
+@dataclass(frozen=True)
+class ObserveConfig:
+    """The texels' samples and the light they receive (METHOD.md §3.2, §3.5)."""
+
+    environment_occlusion: bool = True
+    """Correct the irradiance for the object hiding its own environment: shadow rays to the map's compact lights and
+    cosine rays that see the object's observed radiance instead (`freqbrdf.observe.occlusion`; beyond the paper).
+    docs/measurements.md#environment-occlusion"""
 
 
 SPECTRAL_GRID_RES = 8
@@ -346,6 +356,8 @@ class Config:
 
     texels: TexelConfig = field(default_factory=TexelConfig)
     """The texels: resolution, dilation, estimation resolution."""
+    observe: ObserveConfig = field(default_factory=ObserveConfig)
+    """The samples and their light."""
     fit: FitConfig = field(default_factory=FitConfig)
     """The per-texel SH fits."""
     uncertainty: UncertaintyConfig = field(default_factory=UncertaintyConfig)
@@ -425,6 +437,7 @@ def preset(name: str = "default") -> Config:
     if name == "paper":
         return Config(
             texels=TexelConfig(estimation_res="full"),  # the prototype estimates every texel of T
+            observe=ObserveConfig(environment_occlusion=False),  # and assumes an unoccluded environment
             fit=FitConfig(reg_lambda=1e-3, scale_lambda_with_weight=False),
             uncertainty=UncertaintyConfig(mode="paper", grid_res=8, temperature=1e-5),
             estimate=EstimateConfig(method="paper"),

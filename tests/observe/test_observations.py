@@ -27,7 +27,7 @@ from freqbrdf.assets import envmap_path
 from freqbrdf.capture.layouts import load
 from freqbrdf.capture.mesh import Mesh
 from freqbrdf.cli import main
-from freqbrdf.config import Config, FitConfig, TexelConfig
+from freqbrdf.config import Config, FitConfig, ObserveConfig, TexelConfig
 from freqbrdf.errors import InputError
 from freqbrdf.images import write_exr
 from freqbrdf.model.materials import MaterialMaps, save_material_maps
@@ -399,3 +399,11 @@ def test_ray_tests_leave_the_floating_point_environment_as_they_found_it():
         return environment.raw[0:2], int.from_bytes(environment.raw[28:32], "little") & ~0x3F
 
     assert modes(after) == modes(before)
+
+
+def test_environment_occlusion_changes_nothing_on_a_convex_mesh(lambertian_sphere):
+    capture, observations = lambertian_sphere
+    plain = observe(capture, Config(texels=TexelConfig(texture_res=TEXTURE_RES),
+                                    observe=ObserveConfig(environment_occlusion=False)))
+    assert np.array_equal(plain.irradiance, observations.irradiance)
+    assert observations.timings["occlusion"] < observations.timings["total"]

@@ -13,6 +13,10 @@ observations
     `texel_alpha_bound`.
 irradiance
     `texel_irradiance`: the irradiance at the normals from the environment's SH.
+occlusion
+    `occluded_irradiance`: that irradiance corrected where the object hides its own environment
+    (shadow rays to the map's `compact_lights`, cosine rays that see the object's observed
+    radiance); `self_occluding` tells the meshes that cannot.
 maps
     The coverage and visibility maps of an `Observations` (`write_maps`).
 visibility
@@ -28,14 +32,19 @@ from freqbrdf.observe.observations import (
     observe,
     texel_alpha_bound,
 )
+from freqbrdf.observe.occlusion import CompactLights, compact_lights, occluded_irradiance, self_occluding
 from freqbrdf.observe.visibility import camera_samples
 
 __all__ = [
+    "CompactLights",
     "RAY_OFFSET_OBJECT",
     "RAY_OFFSET_TEXELS",
     "Observations",
     "camera_samples",
+    "compact_lights",
+    "occluded_irradiance",
     "observe",
+    "self_occluding",
     "texel_alpha_bound",
     "texel_irradiance",
     "write_maps",

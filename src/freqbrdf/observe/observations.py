@@ -18,8 +18,9 @@ seven signals on the same samples: observed RGB, mirrored environment RGB and th
 low-passed with exp(-(sigma l)^2), sigma = 1/floor(sqrt(V)) for V views, before it is looked up,
 and the BRDF kernel divides that blur back out (`freqbrdf.model.brdf.brdf_kernel`). Irradiance
 (§3.5) comes from the environment's SH with the clamped-cosine kernel
-(`freqbrdf.observe.irradiance.texel_irradiance`). The numba kernels of the stage are in
-`freqbrdf.observe._kernels`; `freqbrdf.observe.maps.write_maps` draws an `Observations`' coverage
+(`freqbrdf.observe.irradiance.texel_irradiance`), corrected where the object hides its own
+environment (`freqbrdf.observe.occlusion`, ``ObserveConfig.environment_occlusion``). The numba
+kernels of the stage are in `freqbrdf.observe._kernels`; `freqbrdf.observe.maps.write_maps` draws an `Observations`' coverage
 and visibility in texture space, for people.
 """
 
@@ -47,6 +48,7 @@ from freqbrdf.observe._kernels import (
     _unpack_samples,
 )
 from freqbrdf.observe.irradiance import texel_irradiance
+from freqbrdf.observe.occlusion import occluded_irradiance, self_occluding
 from freqbrdf.progress import SILENT, Reporter
 from freqbrdf.render.occluder import RAYS_PER_BATCH, Occluder
 from freqbrdf.sphere import envmap as envmaps
@@ -73,7 +75,7 @@ MIRRORED = slice(3, 6)
 CONSTANT = 6
 N_SIGNALS = 7
 
-STAGES = ("raster", "projection", "visibility", "images", "irradiance", "fits")
+STAGES = ("raster", "projection", "visibility", "images", "irradiance", "occlusion", "fits")
 # The array fields of Observations that are not per texel.
 _SHARED_ARRAYS = ("environment_coeffs", "environment_radiance", "environment_rotation")
 # Per texel and view (N, V, ...).
@@ -486,6 +488,15 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
     tick = time.perf_counter()
     irradiance = texel_irradiance(capture.envmap, normal)
     timings["irradiance"] = time.perf_counter() - tick
+
+    tick = time.perf_counter()
+    if config.observe.environment_occlusion and self_occluding(capture.mesh.vertices, capture.mesh.faces):
+        total = weight.sum(axis=1)
+        surface_radiance = np.einsum("nv,nvc->nc", weight, signals[..., OBSERVED], dtype=np.float64) / np.maximum(
+            total, 1e-30)[:, None]
+        irradiance = occluded_irradiance(occluder, capture.envmap, irradiance, ray_origin, frame, surface_radiance,
+                                         total > 0, texels.texel_size)
+    timings["occlusion"] = time.perf_counter() - tick
 
     tick = time.perf_counter()
     # In blocks of texels, so that the bar moves; each texel's fit is its own, whatever the blocks.

@@ -80,3 +80,30 @@ class Occluder:
                     ray.maxt = mi.Float(np.asarray(max_distance, np.float32)[rays])
                 hits[rays] = np.asarray(self._scene.ray_test(ray), dtype=bool)
         return hits
+
+    def hit_distances_rows(self, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
+        """Return how far each ray travels before it hits the mesh, rays given as rows.
+
+        Rays are traced in batches of RAYS_PER_BATCH.
+
+        Parameters
+        ----------
+        origins : (3, M) float32, C-contiguous
+            Ray origins in world space, one row per coordinate.
+        directions : (3, M) float32, C-contiguous
+            Unit ray directions, one row per coordinate.
+
+        Returns
+        -------
+        (M,) float32
+            The distance to the first hit; inf where the ray leaves the mesh.
+        """
+        mi = self._mitsuba
+        distances = np.full(origins.shape[1], np.inf, dtype=np.float32)
+        with restored_floating_point():
+            for first in range(0, origins.shape[1], RAYS_PER_BATCH):
+                rays = slice(first, first + RAYS_PER_BATCH)
+                ray = mi.Ray3f(mi.Point3f(*(mi.Float(row[rays]) for row in origins)),
+                               mi.Vector3f(*(mi.Float(row[rays]) for row in directions)))
+                distances[rays] = np.asarray(self._scene.ray_intersect_preliminary(ray).t, dtype=np.float32)
+        return distances

@@ -1,0 +1,111 @@
+"""The environment's occlusion by the object itself (freqbrdf.observe.occlusion)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from freqbrdf.assets import mesh_path
+from freqbrdf.capture.mesh import Mesh, load_mesh, plane_mesh, uv_sphere_mesh
+from freqbrdf.observe.occlusion import compact_lights, cosine_directions, occluded_irradiance, self_occluding
+from freqbrdf.render.occluder import Occluder
+from freqbrdf.sphere.envmap import Envmap, local_directions
+
+HEIGHT, WIDTH = 64, 128
+SUN_ROW, SUN_COLUMN = 11, 40  # about 31 degrees from the map's pole (world +y with an identity to_world)
+
+
+def sun_map(sun: float = 2000.0, sky: float = 1.0) -> Envmap:
+    radiance = np.full((HEIGHT, WIDTH, 3), sky, np.float32)
+    radiance[SUN_ROW:SUN_ROW + 2, SUN_COLUMN:SUN_COLUMN + 2] = sun
+    return Envmap(radiance)
+
+
+def map_energy(radiance: np.ndarray) -> np.ndarray:
+    """(3,) radiance x solid angle summed over a lat-long map (rows on the poles)."""
+    height, width = radiance.shape[:2]
+    polar = math.pi * np.arange(height) / (height - 1)
+    half = 0.5 * math.pi / (height - 1)
+    band = np.cos(np.clip(polar - half, 0, math.pi)) - np.cos(np.clip(polar + half, 0, math.pi))
+    return np.einsum("h,hwc->c", band * 2 * math.pi / width, radiance.astype(np.float64))
+
+
+def test_compact_lights_finds_the_sun_and_keeps_the_energy():
+    envmap = sun_map()
+    lights = compact_lights(envmap)
+    assert lights.direction.shape == (1, 3)
+    polar = math.pi * (SUN_ROW + 0.5) / (HEIGHT - 1)
+    azimuth = 2 * math.pi * (SUN_COLUMN + 1.0) / WIDTH
+    expected = local_directions(np.array([polar]), np.array([azimuth]))[0, 0]
+    assert math.degrees(math.acos(np.clip(lights.direction[0] @ expected, -1, 1))) < 2.0
+    # The lights and the rest hold the map's energy (the rest is area-averaged to fewer rows).
+    total = lights.power[0] + map_energy(lights.rest.radiance)
+    np.testing.assert_allclose(total, map_energy(envmap.radiance), rtol=0.02)
+    assert lights.rest.radiance.max() < 100.0  # the sun has left the rest
+
+
+def test_a_map_without_bright_spots_has_no_compact_lights():
+    lights = compact_lights(sun_map(sun=3.0))
+    assert lights.direction.shape == (0, 3)
+    np.testing.assert_allclose(map_energy(lights.rest.radiance), map_energy(sun_map(sun=3.0).radiance), rtol=0.02)
+
+
+@pytest.mark.parametrize(("mesh", "expected"), [
+    (plane_mesh(), False), (uv_sphere_mesh(), False), (load_mesh(mesh_path("bunny")), True)])
+def test_self_occluding_tells_convex_and_flat_meshes_from_the_rest(mesh, expected):
+    assert self_occluding(mesh.vertices, mesh.faces) is expected
+
+
+def test_cosine_directions_are_cosine_distributed():
+    directions = cosine_directions(4096)
+    np.testing.assert_allclose(np.linalg.norm(directions, axis=1), 1.0, atol=1e-12)
+    # E[cos] under the cosine density is 2/3; the mean of the rays' cosines approaches it.
+    assert abs(directions[:, 2].mean() - 2 / 3) < 1e-3
+
+
+def floor_and_roof() -> Mesh:
+    """A floor y = 0 over x, z in [-1, 1] and a roof at y = 0.05 over x in [-1, -0.4]."""
+    vertices = np.array([[-1, 0, -1], [1, 0, -1], [1, 0, 1], [-1, 0, 1],
+                         [-1, 0.05, -1], [-0.4, 0.05, -1], [-0.4, 0.05, 1], [-1, 0.05, 1]], np.float64)
+    faces = np.array([[0, 2, 1], [0, 3, 2], [4, 5, 6], [4, 6, 7]])
+    return Mesh(vertices=vertices, faces=faces, normals=np.tile([0.0, 1.0, 0.0], (len(vertices), 1)),
+                uv=np.zeros((len(vertices), 2)))
+
+
+def test_occluded_irradiance_loses_the_sun_under_a_roof_and_nothing_in_the_open():
+    envmap = sun_map()
+    mesh = floor_and_roof()
+    occluder = Occluder(mesh)
+    position = np.array([[-0.7, 1e-3, 0.0], [0.9, 1e-3, 0.0]])  # under the roof, in the open
+    frame = np.tile(np.array([[1.0, 0, 0], [0, 0, 1.0], [0, 1.0, 0]]), (2, 1, 1))  # rows t, b, n = +y
+    unoccluded = np.full((2, 3), 10.0)
+    shown = np.zeros((2, 3))
+    corrected = occluded_irradiance(occluder, envmap, unoccluded, position, frame, shown, np.zeros(2, bool),
+                                    np.ones(2))
+    sun = compact_lights(envmap)
+    sun_share = sun.power[0] * (sun.direction[0] @ [0.0, 1.0, 0.0])
+    assert np.array_equal(corrected[1], unoccluded[1].astype(np.float32))  # nothing blocked: unchanged
+    assert np.all(corrected[0] <= unoccluded[0] - sun_share + 1e-3)  # the sun is gone, and more
+
+    # What the object shows in the blocked directions comes back: a bright roof lights the texel.
+    bright = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    lit_position = np.vstack([position, [[-0.7, 0.049, 0.0]]])
+    lit_frame = np.concatenate([frame, frame[:1]])
+    shows = np.vstack([bright, [[5.0, 5.0, 5.0]]])
+    observed = np.array([False, False, True])
+    brighter = occluded_irradiance(occluder, envmap, np.full((3, 3), 10.0), lit_position, lit_frame, shows, observed,
+                                   np.full(3, 0.1))
+    assert np.all(brighter[0] > corrected[0] + 5.0)
+
+
+def test_occluded_irradiance_is_deterministic():
+    envmap = sun_map()
+    occluder = Occluder(floor_and_roof())
+    rng = np.random.default_rng(0)
+    position = np.column_stack([rng.uniform(-1, 1, 50), np.full(50, 1e-3), rng.uniform(-1, 1, 50)])
+    frame = np.tile(np.array([[1.0, 0, 0], [0, 0, 1.0], [0, 1.0, 0]]), (50, 1, 1))
+    arguments = (occluder, envmap, np.full((50, 3), 10.0), position, frame, np.ones((50, 3)), np.ones(50, bool),
+                 np.full(50, 0.05))
+    assert np.array_equal(occluded_irradiance(*arguments), occluded_irradiance(*arguments))
