@@ -47,7 +47,7 @@ from pathlib import Path
 
 import numpy as np
 
-from freqbrdf.applications import guidance
+from freqbrdf.applications import _diversity, guidance
 from freqbrdf.applications.candidates import farthest_point_views, view_directions
 from freqbrdf.capture.layouts import Capture, load
 from freqbrdf.config import Config, TexelConfig
@@ -88,7 +88,12 @@ def scene_run(name: str, args) -> dict:
     config = Config(texels=TexelConfig(texture_res=args.texture_res))
     cameras = [frame.camera for frame in pool.frames]
     directions = view_directions(pool, cameras)
-    coverable = observe(pool, config).n_samples > 0
+    pooled = observe(pool, config)
+    coverable = pooled.n_samples > 0
+    if args.misfit:
+        misfit = misfit_correlation(pool, config, pooled)
+        print(f"[{name}] misfit correlation {json.dumps(misfit)}", flush=True)
+        return {"misfit_correlation": misfit}
     truth = resize(pool.ground_truth, args.texture_res)
     area = rasterise(pool.mesh, args.texture_res).texel_area
     start = farthest_point_views(directions, START)
@@ -118,8 +123,17 @@ def scene_run(name: str, args) -> dict:
     log("start", start_row)
     curves: dict[str, list] = {}
     seconds_per_pick: dict[str, list[float]] = {"uncertainty": [], "entropy": []}
-    rounds = []
-    for method in ("uncertainty", "entropy"):
+    rounds, decided = [], []
+    baseline = json.loads((RESULTS / f"{args.baselines}.json").read_text())["scenes"][name] if args.baselines else None
+    if baseline is not None:
+        if not all(np.isclose(baseline["curves"]["farthest_point"][0][metric], start_row[metric], rtol=1e-5, atol=0)
+                   for metric in METRICS):
+            raise SystemExit(f"[{name}] the start views' fit differs from {args.baselines}'s: rerun every method")
+        for method in METHODS:
+            if method not in args.methods:
+                curves[method] = baseline["curves"][method]
+        seconds_per_pick["entropy"] = [baseline["seconds_per_pick"]["entropy"]]
+    for method in [method for method in ("uncertainty", "entropy") if method in args.methods]:
         views, curves[method] = list(start), [start_row]
         while len(views) < FINAL:
             remaining = [view for view in range(len(cameras)) if view not in views]
@@ -135,20 +149,23 @@ def scene_run(name: str, args) -> dict:
             seconds_per_pick[method] += [pick.seconds for pick in picks]
             views += [remaining[pick.candidate] for pick in picks]
             row = score(views)
-            if method == "uncertainty":
+            if method == "uncertainty" and args.spearman_candidates:
                 rounds.append({"views": len(views), "predicted": picks[-1].expected_uncertainty,
                                "before": picks[0].uncertainty_before,
                                "measured": measured_uncertainty(with_views(pool, views), config, args)})
             curves[method].append(row)
             log(method, row)
+            if method == "uncertainty":
+                decided.append(sum(pick.decided_by == "spread" for pick in picks))
     views = list(start)
-    curves["farthest_point"] = [start_row]
-    while len(views) < FINAL:
+    if "farthest_point" in args.methods:
+        curves["farthest_point"] = [start_row]
+    while len(views) < FINAL and "farthest_point" in args.methods:
         views += farthest_point_views(directions, STEP, chosen=views)
         curves["farthest_point"].append(score(views))
         log("farthest_point", curves["farthest_point"][-1])
-    random_runs = []
-    for seed in range(args.random_seeds):
+    random_runs = baseline["random_runs"] if baseline is not None and "random" not in args.methods else []
+    for seed in range(args.random_seeds) if "random" in args.methods else []:
         order = np.random.default_rng(seed).permutation([view for view in range(len(cameras)) if view not in start])
         run = [start_row]
         for count in range(START + STEP, FINAL + 1, STEP):
@@ -168,24 +185,91 @@ def scene_run(name: str, args) -> dict:
         "random_std": random_std,
         "seconds_per_pick": {method: float(np.median(seconds)) for method, seconds in seconds_per_pick.items()},
         "rounds": rounds,
-        "prediction": prediction_check(pool, start, config, args, name),
+        "picks_decided_by_spread": decided,
+        "prediction": prediction_check(pool, start, config, args, name) if args.spearman_candidates else None,
     }
 
 
-def measured_uncertainty(capture: Capture, config: Config, args, rows: np.ndarray | None = None) -> float:
-    """The refitted posterior's area-weighted mean std (roughness + metallic + mean base colour)."""
+def misfit_correlation(pool: Capture, config: Config, observations) -> dict:
+    """How alike the model's misfit is between two samples of a texel, against their angle.
+
+    The per-texel ``global`` estimate of the whole pool predicts each sample (METHOD.md's angular
+    model, `predict_angular`); the residuals (summed over RGB), scaled to unit mean square per
+    texel, are multiplied pairwise within each texel and averaged in bins of the angle between the
+    two view directions. ``rho_0`` and ``width``: rho_0 exp((cos - 1) / w^2) fitted to the bins.
+    """
+    from freqbrdf.estimate import estimate as estimate_materials
+    from freqbrdf.estimate import model_light
+    from freqbrdf.model.brdf import PrincipledParams, microfacet_from_principled, predict_angular
+
+    per_texel = estimate_materials(observations, config)
+    rows = np.flatnonzero(per_texel.estimated & (observations.n_samples >= 12))
+    rows = np.sort(np.random.default_rng(0).choice(rows, min(len(rows), 4000), replace=False))
+    roughness = per_texel.roughness[rows].astype(np.float64)
+    params = PrincipledParams(per_texel.base_color[rows].astype(np.float64), roughness,
+                              per_texel.metallic[rows].astype(np.float64))
+    sub = dataclasses.replace(observations, mirrored_coeffs=observations.mirrored_coeffs[rows],
+                              mirrored=observations.mirrored[rows], weight=observations.weight[rows],
+                              view_direction=observations.view_direction[rows], irradiance=observations.irradiance[rows],
+                              observed=observations.observed[rows], visible=observations.visible[rows],
+                              n_samples=observations.n_samples[rows])
+    predicted = predict_angular(microfacet_from_principled(params), sub.view_direction.astype(np.float64),
+                                np.asarray(model_light(sub, roughness, config), np.float64), sub.irradiance,
+                                sigma=observations.sigma)
+    residual = (sub.observed - predicted).sum(axis=2) * sub.weight  # (n, V)
+    edges = np.radians(np.arange(0, 181, 10))
+    products, counts = np.zeros(len(edges) - 1), np.zeros(len(edges) - 1)
+    for row in range(len(rows)):
+        seen = np.flatnonzero(sub.weight[row] > 0)
+        values = residual[row, seen]
+        values = values / np.sqrt(np.mean(values ** 2) + 1e-30)
+        cosine = np.clip(sub.view_direction[row, seen] @ sub.view_direction[row, seen].T, -1.0, 1.0)
+        upper = np.triu_indices(len(seen), 1)
+        angle = np.arccos(cosine[upper])
+        bins = np.clip(np.digitize(angle, edges) - 1, 0, len(edges) - 2)
+        np.add.at(products, bins, np.outer(values, values)[upper])
+        np.add.at(counts, bins, 1)
+    correlation = np.where(counts > 0, products / np.maximum(counts, 1), np.nan)
+    centres = 0.5 * (edges[1:] + edges[:-1])
+    # log rho = log rho_0 + (cos - 1) / w^2 by least squares, bins below 90 degrees with a positive correlation
+    usable = (counts > 100) & (correlation > 0) & (centres < np.pi / 2)
+    slope, intercept = np.polyfit(np.cos(centres[usable]) - 1.0, np.log(correlation[usable]), 1)
+    width = float(1.0 / np.sqrt(slope)) if slope > 0 else float("nan")
+    return {"texels": len(rows), "degrees": np.degrees(centres).tolist(), "correlation": correlation.tolist(),
+            "pairs": counts.astype(int).tolist(), "width": width,
+            "rho_0": float(np.exp(intercept))}
+
+
+def measured_uncertainty(capture: Capture, config: Config, args, rows: np.ndarray | None = None,
+                         held: tuple[float, float] | None = None) -> float | tuple[float, float, tuple[float, float]]:
+    """The refitted posterior's area-weighted mean std (roughness + metallic + mean base colour).
+
+    With ``held`` (the roughness and base-colour calibrations s^2 of another fit), also the same
+    mean with the refit's calibrations replaced by those, and the refit's own calibrations.
+    """
     surface = guidance.surface_fit(capture, config)
     if rows is None:
         rows = guidance.texel_subset(surface.texels.n_texels, args.max_texels, config.seed)
     posterior = surface.posterior
-    total = (posterior.roughness_std[rows].astype(np.float64) + posterior.metallic_std[rows]
-             + posterior.base_color_std[rows].mean(axis=1))
+    parts = [posterior.roughness_std[rows].astype(np.float64), posterior.metallic_std[rows].astype(np.float64),
+             posterior.base_color_std[rows].mean(axis=1).astype(np.float64)]
     area = surface.texels.texel_area[rows]
-    return float(np.dot(area, np.nan_to_num(total)) / area.sum())
+    mean = float(np.dot(area, np.nan_to_num(sum(parts))) / area.sum())
+    if held is None:
+        return mean
+    model = guidance.uncertainty_model(capture, surface, rows, config, surface.observations.sigma)
+    own = (model.roughness_scale, model.color_scale)
+    rescaled = parts[0] * np.sqrt(held[0] / own[0]) + parts[1] + parts[2] * np.sqrt(held[1] / own[1])
+    return mean, float(np.dot(area, np.nan_to_num(rescaled)) / area.sum()), own
 
 
 def prediction_check(pool: Capture, start: list[int], config: Config, args, name: str) -> dict:
-    """Predicted vs refitted uncertainty after adding one candidate to the start views."""
+    """Predicted vs refitted uncertainty after adding one candidate to the start views.
+
+    The candidates are scored as `select_views` scores its first pick (the spread discount
+    included). ``measured_held``: the refits with the start fit's calibrations s^2, which the
+    prediction keeps up to the change of the median precision.
+    """
     from scipy.stats import spearmanr
 
     taken = with_views(pool, start)
@@ -199,16 +283,26 @@ def prediction_check(pool: Capture, start: list[int], config: Config, args, name
     before = guidance.expected_uncertainty(model, state)
     remaining = [view for view in range(len(pool.frames)) if view not in start]
     chosen = remaining[::max(1, len(remaining) // args.spearman_candidates)][:args.spearman_candidates]
-    information = guidance.view_information(taken, texels, surface, rows, [pool.frames[v].camera for v in chosen],
-                                            model.sigma)
-    predicted = [before - guidance.view_gain(model, state, view) / model.area.sum() for view in information]
-    measured = [measured_uncertainty(with_views(pool, start + [view]), config, args, rows) for view in chosen]
+    cameras = [pool.frames[view].camera for view in chosen]
+    information = guidance.view_information(taken, texels, surface, rows, cameras, model.sigma)
+    spread = _diversity.Spread(len(rows), view_directions(taken, [frame.camera for frame in taken.frames]),
+                               view_directions(taken, cameras), [view.texel for view in taken_views])
+    predicted = [before - guidance.view_gain(model, state, guidance._discounted(view, spread.discount(k, view.texel)))
+                 for k, view in enumerate(information)]
+    start_model = guidance.uncertainty_model(taken, surface, rows, config, surface.observations.sigma)
+    held = (start_model.roughness_scale, start_model.color_scale)
+    refits = [measured_uncertainty(with_views(pool, start + [view]), config, args, rows, held) for view in chosen]
+    measured = [refit[0] for refit in refits]
+    measured_held = [refit[1] for refit in refits]
     measured_before = measured_uncertainty(taken, config, args, rows)
     rho = float(spearmanr(predicted, measured).statistic)
+    rho_held = float(spearmanr(predicted, measured_held).statistic)
     rho_drop = float(spearmanr(before - np.array(predicted), measured_before - np.array(measured)).statistic)
-    print(f"[{name}] prediction: spearman {rho:.3f}", flush=True)
-    return {"candidates": chosen, "predicted": predicted, "measured": measured, "predicted_before": before,
-            "measured_before": measured_before, "spearman": rho, "spearman_of_drops": rho_drop}
+    print(f"[{name}] prediction: spearman {rho:.3f}, calibration held {rho_held:.3f}", flush=True)
+    return {"candidates": chosen, "predicted": predicted, "measured": measured, "measured_held": measured_held,
+            "calibrations": {"start": held, "refits": [refit[2] for refit in refits]},
+            "predicted_before": before, "measured_before": measured_before, "spearman": rho,
+            "spearman_calibration_held": rho_held, "spearman_of_drops": rho_drop}
 
 
 def paired_tests(scenes: dict) -> dict:
@@ -291,10 +385,14 @@ def plot(scenes: dict, path: Path) -> None:
                 ax.set_title(name, fontsize=9)
         ax = axes[len(METRICS), column]
         check = scene["prediction"]
-        ax.scatter(check["predicted"], check["measured"], s=10, color="C3")
+        if check is None:
+            continue
+        ax.scatter(check["predicted"], check["measured"], s=10, color="C3", label="refitted")
+        ax.scatter(check["predicted"], check["measured_held"], s=10, color="0.5", label="calibration held")
         ax.set_xlabel("predicted mean std", fontsize=8)
         ax.set_ylabel("refitted mean std", fontsize=8)
-        ax.set_title(f"Spearman {check['spearman']:.2f}", fontsize=8)
+        ax.set_title(f"Spearman {check['spearman']:.2f}, held {check['spearman_calibration_held']:.2f}", fontsize=8)
+        ax.legend(fontsize=6)
     axes[0, 0].legend(fontsize=7)
     with atomic_path(path) as tmp:
         figure.savefig(tmp, format="png")
@@ -305,7 +403,9 @@ def summarise(scenes: dict, args, seconds: float) -> dict:
         "study": "capture guidance (issue #28)", **machine(), "texture_res": args.texture_res,
         "max_texels": args.max_texels, "entropy_max_texels": args.entropy_max_texels, "pool": POOL,
         "render": RENDER, "relight": dataclasses.asdict(RELIGHT), "start": START, "step": STEP, "final": FINAL,
-        "random_seeds": args.random_seeds, "scenes": scenes, "paired_tests": paired_tests(scenes),
+        "random_seeds": args.random_seeds, "methods_run": args.methods, "baselines_from": args.baselines or None,
+        "misfit_correlation": _diversity.MISFIT_CORRELATION, "misfit_width": _diversity.MISFIT_WIDTH,
+        "refit_noise": _diversity.REFIT_NOISE, "scenes": scenes, "paired_tests": paired_tests(scenes),
         "worse_than_farthest_point_by_more_than_random_std": cells_within_random_spread(scenes),
         "posterior_std_against_error": std_against_error(scenes),
         "seconds": seconds,
@@ -321,9 +421,22 @@ def main(argv=None) -> int:
     parser.add_argument("--entropy-max-texels", type=int, default=entropy_guidance.MAX_TEXELS,
                         help="texels the previous picker scores (its own default)")
     parser.add_argument("--spearman-candidates", type=int, default=20)
+    parser.add_argument("--methods", default=",".join(METHODS),
+                        help="methods to run; the others' curves come from --baselines")
+    parser.add_argument("--baselines", default="", help="results file (name) to take the methods not run from")
+    parser.add_argument("--misfit-correlation", type=float, default=_diversity.MISFIT_CORRELATION,
+                        help="rho_0 of the guidance's kernel on view directions")
+    parser.add_argument("--misfit-width", type=float, default=_diversity.MISFIT_WIDTH,
+                        help="w of the guidance's kernel on view directions (0: no discount)")
+    parser.add_argument("--refit-noise", type=float, default=_diversity.REFIT_NOISE,
+                        help="the guidance's tie band, relative to the mean std (0: the best gain only)")
+    parser.add_argument("--misfit", action="store_true", help="only the misfit's correlation between views")
     parser.add_argument("--name", default="guidance", help="results file name (parts of a run: see --merge)")
     parser.add_argument("--merge", default="", help="comma-separated results files of parts to merge into --name")
     args = parser.parse_args(argv)
+    args.methods = args.methods.split(",")
+    _diversity.MISFIT_CORRELATION = args.misfit_correlation
+    _diversity.MISFIT_WIDTH, _diversity.REFIT_NOISE = args.misfit_width, args.refit_noise
     started = time.perf_counter()
     RESULTS.mkdir(exist_ok=True)
     if args.merge:
@@ -338,6 +451,9 @@ def main(argv=None) -> int:
     scenes = {}
     for name in args.scenes.split(",") if not args.merge else []:
         scenes[name] = scene_run(name, args)
+        if args.misfit:
+            results = {"scenes": scenes, "paired_tests": {}}
+            continue
         results = summarise(scenes, args, time.perf_counter() - started)
         write_json(RESULTS / f"{args.name}.json", results)
         plot(scenes, RESULTS / f"{args.name}.png")

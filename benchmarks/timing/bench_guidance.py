@@ -6,7 +6,7 @@ farthest-point views are the views taken, ``--candidates`` of the rest are the c
 separately: the whole-surface fit guidance reads (`guidance.surface_fit`, at the estimation
 resolution `fit` uses), and `guidance.select_views` with that fit (its setup: the uncertainty
 model and what every candidate samples; then each pick, as `Pick.seconds` reports it: scoring
-every remaining candidate and committing the best). Kernels are compiled by an untimed run first.
+every remaining candidate and committing one). Kernels are compiled by an untimed run first.
 
     python benchmarks/timing/bench_guidance.py [--texture-res 512] [--candidates 100] [--budget 10]
         [--max-texels N] [--estimation-res full] [--name bench_guidance]

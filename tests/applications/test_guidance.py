@@ -14,6 +14,7 @@ import pytest
 
 from freqbrdf import pipeline
 from freqbrdf.applications import guidance
+from freqbrdf.applications._diversity import REFIT_NOISE, Spread
 from freqbrdf.applications.candidates import (
     candidate_samples,
     farthest_point_views,
@@ -126,6 +127,32 @@ def test_metal_evidence_lowers_the_expected_label_std():
     assert np.all(guidance.texel_std(model, stronger)[:, 1] < std[:, 1])
 
 
+def test_a_sample_beside_the_views_taken_counts_less_than_one_from_a_new_side():
+    taken = np.array([[0.0, 0.0, 1.0]])
+    beside = np.array([0.0, 0.1, 1.0]) / np.linalg.norm([0.0, 0.1, 1.0])
+    candidates = np.array([beside, [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+    spread = Spread(5, taken, candidates, [np.array([0, 1, 2])])
+    seen, unseen = np.array([0, 1, 2]), np.array([3, 4])
+    assert np.all(spread.discount(0, seen) < spread.discount(1, seen))
+    assert np.all(spread.discount(1, seen) < spread.discount(2, seen))
+    np.testing.assert_array_equal(spread.discount(0, unseen), 1.0)  # no sample of those texels yet
+    before = spread.discount(1, seen)
+    spread.add(0, np.array([0, 1]))  # picked: its samples now correlate with later ones
+    after = spread.discount(1, seen)
+    assert np.all(after[:2] < before[:2]) and after[2] == before[2]
+
+
+def test_candidates_within_a_refits_scatter_are_decided_by_their_spread():
+    taken = np.array([[0.0, 0.0, 1.0]])
+    candidates = np.array([[0.0, 0.6, 0.8], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+    spread = Spread(3, taken, candidates, [np.arange(3)])
+    band = REFIT_NOISE * 1.0
+    # The best gain by more than the band wins; within it, the view farthest from those taken.
+    assert spread.choose(np.array([1.0, 1.0 - 2 * band, 0.0]), [0, 1, 2], 1.0) == (0, False)
+    assert spread.choose(np.array([1.0, 1.0 - 0.5 * band, 0.0]), [0, 1, 2], 1.0) == (1, True)
+    assert spread.choose(np.array([1.0, 1.0 - 0.5 * band, 1.0 - 0.9 * band]), [0, 1, 2], 1.0) == (2, True)
+
+
 def test_farthest_point_views_spread_and_extend_a_chosen_set():
     directions = np.array([[0, 0, 1], [0, 0.1, 0.995], [0, 0, -1], [1, 0, 0], [-1, 0, 0]], float)
     directions /= np.linalg.norm(directions, axis=1, keepdims=True)
@@ -202,6 +229,7 @@ def test_a_view_of_the_unseen_half_beats_a_view_beside_a_taken_one(sphere_from_a
     picks = guidance.select_views(capture, candidates, 2, CONFIG)
     # The taken camera itself does not compete; the unseen half comes first.
     assert [pick.candidate for pick in picks] == [2, 1]
+    assert picks[0].decided_by == "gain"
     first, second = picks
     assert first.expected_gain > second.expected_gain > 0.0
     assert first.unseen_area > 0.2 and second.unseen_area < 0.1 * first.unseen_area
@@ -270,6 +298,7 @@ def test_next_views_command_writes_ranked_cameras_that_load_as_a_capture(sphere_
     document = json.loads((out / "next_views.json").read_text())
     assert [frame["rank"] for frame in document["frames"]] == [0, 1]
     assert document["frames"][0]["candidate"] == 1
+    assert document["frames"][0]["decided_by"] == "gain"  # the unseen half: far above a refit's scatter
     assert document["frames"][0]["expected_gain"] > document["frames"][1]["expected_gain"] > 0
     summary = json.loads((out / "guidance.json").read_text())
     assert summary["picks"][0]["expected_mean_std"] < summary["mean_std_before"]

@@ -31,7 +31,12 @@ that mean once its photograph is added (`UncertaintyModel`, `expected_uncertaint
 What a candidate would add to each texel is known without a photograph (its visibility, view and
 mirror directions: `freqbrdf.applications.candidates.view_samples`), and it depends only on the
 current estimate, so a budget is chosen greedily (`select_views`) with exact incremental updates
-of per-texel sums (`GuidanceState`, `add_view`): no refit per candidate. The texels scored are a
+of per-texel sums (`GuidanceState`, `add_view`): no refit per candidate. The model's misfit is
+correlated between samples from nearby view directions, so a candidate's information and
+evidence at a texel count only its effective share of a sample, less the closer it is to the
+views already sampling the texel; and where the candidates' gains differ by less than a refit's
+own scatter, the view farthest from those taken and picked is chosen
+(`freqbrdf.applications._diversity`). The texels scored are a
 seeded random subset of the estimation texels (``max_texels``). `surface_fit` makes the fit the
 model reads (the steps of `freqbrdf.pipeline.fit` up to the whole-surface solve).
 """
@@ -45,6 +50,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from freqbrdf.applications._diversity import Spread
 from freqbrdf.applications.candidates import view_directions
 from freqbrdf.applications.information import FISHER_ENTRIES, ViewInformation, roughness_information, view_information
 from freqbrdf.capture.camera import Camera
@@ -94,6 +100,9 @@ class Pick:
         view samples.
     texels_seen : int
         Scored texels the view samples.
+    decided_by : str
+        "gain": the best expected gain; "spread": one of the candidates whose gains are within a
+        refit's own scatter of the best, the farthest from the views taken and picked.
     seconds : float
         Time spent scoring every remaining candidate and committing this one.
     """
@@ -105,6 +114,7 @@ class Pick:
     expected_uncertainty: float
     unseen_area: float
     texels_seen: int
+    decided_by: str
     seconds: float
 
     @property
@@ -260,9 +270,11 @@ def select_views(
     """Choose some of the candidate views greedily by the expected drop of the posterior's uncertainty.
 
     Every pick scores each remaining candidate by the drop of the area-weighted mean U_t
-    (module docstring) that it adds on top of the views taken and picked so far, and commits the
-    best (`add_view`); all views are scored with the band limit of the capture once the whole
-    budget is added. Candidates at a view already taken (`TAKEN_COSINE`) do not compete. The texel
+    (module docstring) that it adds on top of the views taken and picked so far, its samples
+    counted by their effective share (`Spread.discount`), and commits one (`add_view`): the best,
+    or where other candidates come within a refit's scatter of it, the one of those farthest from
+    the views taken and picked (`Spread.choose`, ``Pick.decided_by``). All views are scored with
+    the band limit of the capture once the whole budget is added. Candidates at a view already taken (`TAKEN_COSINE`) do not compete. The texel
     subset and every tie are deterministic in ``config.seed``; ties go to the earliest candidate.
 
     Parameters
@@ -294,8 +306,9 @@ def select_views(
         If ``budget`` is out of range or ``max_texels`` < 1.
     """
     taken = view_directions(capture, [frame.camera for frame in capture.frames])
-    competing = [index for index, direction in enumerate(view_directions(capture, candidates))
-                 if float(np.max(taken @ direction)) < TAKEN_COSINE] if len(candidates) else []
+    directions = view_directions(capture, candidates) if len(candidates) else np.zeros((0, 3))
+    competing = [index for index, direction in enumerate(directions)
+                 if float(np.max(taken @ direction)) < TAKEN_COSINE]
     if budget < 1:
         raise ValueError(f"budget must be at least 1, got {budget}")
     if budget > len(competing):
@@ -310,6 +323,7 @@ def select_views(
                                          sigma)
     state = initial_state(model, fit.observations.n_samples[rows], taken_information)
     information = view_information(capture, texels, fit, rows, [candidates[index] for index in competing], sigma)
+    spread = Spread(len(rows), taken, directions[competing], [view.texel for view in taken_information])
     picks: list[Pick] = []
     remaining = list(range(len(competing)))
     total_area = float(model.area.sum())
@@ -317,17 +331,21 @@ def select_views(
         for rank in range(budget):
             start = time.perf_counter()
             before = expected_uncertainty(model, state)
-            gains = [view_gain(model, state, information[index], before) for index in remaining]
-            best = remaining[int(np.argmax(gains))]  # the earliest wins ties
-            view = information[best]
+            effective = [_discounted(information[index], spread.discount(index, information[index].texel))
+                         for index in remaining]
+            gains = np.array([view_gain(model, state, view, before) for view in effective])
+            position, by_spread = spread.choose(gains, remaining, before)
+            best, view = remaining[position], effective[position]
             unseen = state.samples[view.texel] < MIN_SAMPLES
             add_view(state, view)
+            spread.add(best, view.texel)
             remaining.remove(best)
             picks.append(Pick(
                 rank=rank, candidate=competing[best], camera=candidates[competing[best]],
-                uncertainty_before=before, expected_uncertainty=before - max(gains),
+                uncertainty_before=before, expected_uncertainty=before - float(gains[position]),
                 unseen_area=float(model.area[view.texel[unseen]].sum() / total_area),
-                texels_seen=len(view.texel), seconds=time.perf_counter() - start,
+                texels_seen=len(view.texel), decided_by="spread" if by_spread else "gain",
+                seconds=time.perf_counter() - start,
             ))
             advance(1)
     return picks
@@ -710,6 +728,11 @@ def _summed(n_texels: int, views: Sequence[ViewInformation], name: str) -> np.nd
     for view in views:
         total[view.texel] += getattr(view, name)
     return total
+
+
+def _discounted(view: ViewInformation, share: np.ndarray) -> ViewInformation:
+    """Return the view with its information and evidence scaled by each texel's effective share of a sample."""
+    return ViewInformation(view.texel, view.fisher * share[:, None], view.metal_evidence * share)
 
 
 def _label_std(log_odds: np.ndarray) -> np.ndarray:

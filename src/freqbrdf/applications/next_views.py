@@ -63,7 +63,8 @@ def write_next_views(out_dir: str | Path, capture: Capture, picks: Sequence[Pick
     with atomic_directory(out_dir) as folder:
         frames = [Frame(pick.camera, folder / "images" / f"next_{pick.rank:03d}.exr") for pick in picks]
         fields = [{"rank": pick.rank, "candidate": pick.candidate, "expected_mean_std": pick.expected_uncertainty,
-                   "expected_gain": pick.expected_gain, "unseen_area": pick.unseen_area} for pick in picks]
+                   "expected_gain": pick.expected_gain, "unseen_area": pick.unseen_area,
+                   "decided_by": pick.decided_by} for pick in picks]
         write_transforms(folder / NEXT_VIEWS_FILE, frames, mesh=capture.mesh.path, envmap=capture.envmap_path,
                          envmap_to_world=capture.envmap.to_world, envmap_scale=envmap_scale, frame_fields=fields)
         plot_views(folder / PICTURE_FILE, capture, picks, candidates)
@@ -76,7 +77,8 @@ def plot_views(path: str | Path, capture: Capture, picks: Sequence[Pick], candid
 
     The capture's cameras are grey frusta, the candidates dots, the picks coloured frusta
     numbered by rank, each labelled with its expected gain: the drop of the mean posterior std and
-    the share of the area without data it covers. World +y is drawn up.
+    the share of the area without data it covers, and whether the spread of views decided it
+    (``Pick.decided_by``). World +y is drawn up.
 
     Parameters
     ----------
@@ -116,7 +118,8 @@ def plot_views(path: str | Path, capture: Capture, picks: Sequence[Pick], candid
     for index, camera in enumerate(cameras):
         _draw_frustum(axes, drawn, camera, depth, "0.4", "capture views" if index == 0 else None, 0.8)
     for pick, colour in zip(picks, colours):
-        label = f"{pick.rank + 1}: std -{pick.expected_gain:.4f}, unseen area seen {pick.unseen_area:.1%}"
+        label = (f"{pick.rank + 1}: std -{pick.expected_gain:.4f}, unseen area seen {pick.unseen_area:.1%}"
+                 + (" (spread: gains within a refit's scatter)" if pick.decided_by == "spread" else ""))
         _draw_frustum(axes, drawn, pick.camera, depth, colour, label, 2.5)
         axes.text(*drawn(pick.camera.center), str(pick.rank + 1), color=colour, fontsize=11, weight="bold")
     extent = max(np.linalg.norm(camera.center - centre) for camera in cameras + [p.camera for p in picks])
