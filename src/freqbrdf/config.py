@@ -318,6 +318,10 @@ class SurfaceConfig:
     """Nearest texels on the mesh (3D, across seams) each texel is coupled to."""
     appearance_width: float = 0.25
     """Width of the appearance affinity, in log apparent albedo: neighbours this different weigh exp(-1/2)."""
+    lookalikes: int = 8
+    """Texels of like appearance anywhere on the surface each texel shares its metal label and base colour with."""
+    lookalike_width: float = 0.05
+    """Width of the look-alike affinity, in log apparent albedo (and half the roughness and metallic, for colour)."""
     noise_inflation: float = 10.0
     """How much the model's misfit exceeds independent noise: divides the samples' evidence."""
     metal_prior: float = 0.4

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from freqbrdf.config import Config, SurfaceConfig, TexelConfig
-from freqbrdf.estimate.surface import metal_posterior, smooth_on_surface, surface_graph
+from freqbrdf.estimate.surface import lookalike_graph, metal_posterior, smooth_on_surface, surface_graph
 from freqbrdf.synthetic.synth import SynthSettings, synthesize
 
 SETTINGS = SurfaceConfig()
@@ -64,6 +64,31 @@ def test_metal_needs_evidence_and_a_metal_island_keeps_its_edge():
     assert np.all(probability[island] > 0.95) and np.all(probability[~island] < 0.5)
     # No evidence at all: the prior's dielectric.
     assert np.all(metal_posterior(np.zeros(side * side), observed, graph, SETTINGS) < 0.5)
+
+
+def test_lookalikes_join_alike_texels_far_apart_and_only_them():
+    # Two alike patches at opposite corners of a grid, unlike the rest; one texel unobserved.
+    position, normal = grid(16)
+    patch_a = (position[:, 0] < 3) & (position[:, 1] < 3)
+    patch_b = (position[:, 0] > 12) & (position[:, 1] > 12)
+    appearance = np.where((patch_a | patch_b)[:, None], 1.0, np.linspace(-2.0, -1.0, 256)[:, None])
+    observed = np.ones(256, bool)
+    observed[0] = False
+    graph = lookalike_graph(appearance, observed, observed, SETTINGS)
+    assert (graph != graph.T).nnz == 0 and graph.diagonal().sum() == 0
+    coo = graph.tocoo()
+    strong = coo.data > 0.1
+    joined = set(zip(coo.row[strong].tolist(), coo.col[strong].tolist()))
+    assert any(patch_a[i] and patch_b[j] for i, j in joined), "alike patches far apart are not joined"
+    assert not any((patch_a | patch_b)[i] != (patch_a | patch_b)[j] for i, j in joined), "unlike texels joined"
+    assert graph[0].nnz == 0  # an unobserved texel has no appearance to match
+    # The label crosses over: a patch without evidence of its own takes its look-alike's.
+    log_ratio = np.where(patch_b, 30.0, np.where(patch_a, 0.0, -5.0))
+    alone = metal_posterior(log_ratio, observed, surface_graph(position, normal, appearance, observed, SETTINGS),
+                            SETTINGS)
+    shared = metal_posterior(log_ratio, observed, surface_graph(position, normal, appearance, observed, SETTINGS)
+                             .maximum(graph).tocsr(), SETTINGS)
+    assert np.all(alone[patch_a & observed] < 0.5) and np.all(shared[patch_a & observed] > 0.5)
 
 
 def test_a_texel_without_samples_takes_its_neighbours_label():

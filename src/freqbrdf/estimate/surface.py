@@ -7,7 +7,9 @@ METHOD.md §4, done inside the estimate):
 
 1. **The surface graph** (`surface_graph`): each texel's nearest texels on the mesh, in 3D and so
    across UV seams, weighted by the likeness of their apparent albedo (the mean observed radiance
-   over the irradiance / pi), so that material edges survive.
+   over the irradiance / pi), so that material edges survive; and its look-alikes
+   (`lookalike_graph`): the confident texels anywhere on the surface that look most like it, with
+   which it shares its metal label and (alike in its own roughness and metallic too) its base colour.
 2. **The metal label** (`metal_evidence`, `metal_posterior`): the search scores each texel's
    samples as a dielectric (m = 0) and as a metal (m = 1), base colour re-fitted at its roughness
    (`MaterialEstimate.label_loss`); their loss difference over the noise variance, deflated by
@@ -50,8 +52,8 @@ if TYPE_CHECKING:
     from freqbrdf.observe.observations import Observations
     from freqbrdf.texels import Texels
 
-__all__ = ["DataPrecision", "SurfacePosterior", "data_precision", "mean_over_views", "metal_evidence",
-           "metal_posterior", "smooth_on_surface", "surface_graph", "whole_surface"]
+__all__ = ["DataPrecision", "SurfacePosterior", "data_precision", "lookalike_graph", "mean_over_views",
+           "metal_evidence", "metal_posterior", "smooth_on_surface", "surface_graph", "whole_surface"]
 
 # Apparent albedo floor (log space): keeps black texels' logarithm finite.
 _ALBEDO_FLOOR = 1e-3
@@ -59,6 +61,11 @@ _ALBEDO_FLOOR = 1e-3
 _REACH = 3.0
 # Neighbours whose normals differ by more than this cosine are not neighbours (the two sides of a thin part).
 _MIN_NORMAL_COSINE = 0.3
+# A look-alike edge weighs this much against a neighbour of the same appearance on the mesh (1).
+_LOOKALIKE_WEIGHT = 0.5
+# The texels' own roughness and metallic, times this, join the appearance the base colour's
+# look-alikes are found by: a difference of 0.1 in them counts as 0.05 in log albedo.
+_LOOKALIKE_MATERIAL_SCALE = 0.5
 # The precision that pins a texel without data to the mean of the estimated texels, relative to
 # the coupling: only decides components of the graph that no estimated texel reaches.
 PRIOR_PRECISION = 1e-4
@@ -126,7 +133,18 @@ def whole_surface(observations: Observations, estimate: MaterialEstimate, texels
     start = time.perf_counter()
     estimated = estimate.estimated.copy()
     albedo = apparent_albedo(observations)
-    graph = surface_graph(texels.position, texels.normal, np.log(albedo), estimated, settings)
+    appearance = np.log(albedo)
+    graph = surface_graph(texels.position, texels.normal, appearance, estimated, settings)
+    # Look-alikes anywhere on the surface share the metal label (by appearance) and the base colour
+    # (by appearance and the texels' own roughness and metallic: alike colour, other material);
+    # roughness is shared along the surface only (alike colours often differ in roughness).
+    counts = observations.n_samples
+    confident = estimated & (counts >= np.median(counts[estimated]) if estimated.any() else estimated)
+    label_graph = graph.maximum(lookalike_graph(appearance, estimated, confident, settings)).tocsr()
+    own_material = _LOOKALIKE_MATERIAL_SCALE * np.nan_to_num(
+        np.column_stack([estimate.roughness, estimate.metallic]))
+    color_graph = graph.maximum(lookalike_graph(np.column_stack([appearance, own_material]), estimated, confident,
+                                                 settings)).tocsr()
     timings["graph"] = time.perf_counter() - start
 
     start = time.perf_counter()
@@ -134,7 +152,7 @@ def whole_surface(observations: Observations, estimate: MaterialEstimate, texels
     timings["evidence"] = time.perf_counter() - start
 
     start = time.perf_counter()
-    probability = metal_posterior(log_ratio / settings.noise_inflation, estimated, graph, settings)
+    probability = metal_posterior(log_ratio / settings.noise_inflation, estimated, label_graph, settings)
     metal = probability > 0.5
     params = np.where(metal[:, None], labelled[1], labelled[0])  # (N, 5): base colour, roughness, metallic
     own = np.nan_to_num(np.concatenate([estimate.base_color, estimate.roughness[:, None], estimate.metallic[:, None]],
@@ -154,7 +172,7 @@ def whole_surface(observations: Observations, estimate: MaterialEstimate, texels
     color_precision = data.color * data.few[:, None]
     roughness, roughness_spread = smooth_on_surface(params[:, 3:4], roughness_precision[:, None], graph,
                                                     settings.roughness_smoothing, settings.roughness_huber, settings)
-    color, color_spread = smooth_on_surface(params[:, :3], color_precision, graph, settings.color_smoothing,
+    color, color_spread = smooth_on_surface(params[:, :3], color_precision, color_graph, settings.color_smoothing,
                                             settings.color_huber, settings)
     timings["smooth"] = time.perf_counter() - start
 
@@ -315,6 +333,42 @@ def surface_graph(position: np.ndarray, normal: np.ndarray, appearance: np.ndarr
     difference = np.sum((appearance[rows] - appearance[cols]) ** 2, axis=1)
     weight = np.where(both, np.exp(-difference / (2.0 * settings.appearance_width ** 2)), 1.0)
     graph = sparse.coo_matrix((weight, (rows, cols)), shape=(n_texels, n_texels)).tocsr()
+    return graph.maximum(graph.T).tocsr()
+
+
+def lookalike_graph(appearance: np.ndarray, observed: np.ndarray, confident: np.ndarray,
+                    settings: SurfaceConfig) -> sparse.csr_matrix:
+    """Tie each observed texel to the confident texels that look most like it, anywhere on the surface.
+
+    Parameters
+    ----------
+    appearance : (N, C) array
+        What a texel looks like (e.g. the log apparent albedo); compared only between observed texels.
+    observed : (N,) bool
+        Texels whose appearance is known: each gets edges.
+    confident : (N,) bool
+        The texels it may be tied to (observed, with many samples).
+    settings : SurfaceConfig
+        ``lookalikes`` (edges per texel) and ``lookalike_width``.
+
+    Returns
+    -------
+    (N, N) scipy.sparse.csr_matrix of float64
+        Symmetric weights ``_LOOKALIKE_WEIGHT`` x exp(-|a_i - a_j|^2 / (2 width^2)), no self-loops;
+        empty when there are too few confident texels.
+    """
+    n_texels = len(appearance)
+    k = settings.lookalikes
+    sources, targets = np.flatnonzero(observed), np.flatnonzero(confident)
+    if k < 1 or len(targets) <= k or not len(sources):
+        return sparse.csr_matrix((n_texels, n_texels))
+    appearance = np.asarray(appearance, np.float64)
+    distance, index = cKDTree(appearance[targets]).query(appearance[sources], k=k + 1)
+    rows = np.repeat(sources, k + 1)
+    cols = targets[index.reshape(-1)]
+    weight = _LOOKALIKE_WEIGHT * np.exp(-distance.reshape(-1) ** 2 / (2.0 * settings.lookalike_width ** 2))
+    keep = rows != cols
+    graph = sparse.coo_matrix((weight[keep], (rows[keep], cols[keep])), shape=(n_texels, n_texels)).tocsr()
     return graph.maximum(graph.T).tocsr()
 
 
