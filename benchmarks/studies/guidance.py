@@ -1,7 +1,8 @@
 """Capture guidance against farthest-point, random and the previous entropy picker (issue #28).
 
     python benchmarks/studies/guidance.py [--scenes a,b] [--texture-res 256] [--random-seeds 5]
-        [--spearman-candidates 20] [--name guidance] [--merge part1,part2]
+        [--spearman-candidates 20] [--misfit] [--methods m1,m2 --baselines guidance]
+        [--misfit-width W --refit-noise F] [--name guidance] [--merge part1,part2]
 
 Scenes (``SCENES``, from scenes.WHOLE_SURFACE_SCENES): the bunny with metal islands under the
 overcast map (cameras all around), the dragon with metal and dielectric cells under the low sun
@@ -32,8 +33,16 @@ posterior's mean std over the coverable texels (``posterior_std``): within a cel
 between it and each error over the view sets says whether lowering the posterior std can lower
 the error at all (``posterior_std_against_error``).
 
+Misfit check (``--misfit``): how the residuals of per-texel estimates of the whole pool
+correlate between two samples of a texel, against the angle between their view directions
+(`misfit_correlation`), which sets the width of the guidance's kernel
+(`freqbrdf.applications._diversity`); ``--misfit-width`` (0: no discount) and ``--refit-noise``
+(0: the best gain only) replace its constants for a run (variants). ``--methods`` runs only some methods and takes the others' curves from the
+results file ``--baselines`` (refused unless the start views' fit gives the same errors).
+
 Writes benchmarks/results/guidance.{json,png} (``--name``); parts run side by side (``--scenes``
-and ``--name``) are merged with ``--merge``.
+and ``--name``) are merged with ``--merge``. A run with ``--spearman-candidates 0`` skips the
+prediction checks.
 """
 
 from __future__ import annotations
@@ -90,10 +99,8 @@ def scene_run(name: str, args) -> dict:
     directions = view_directions(pool, cameras)
     pooled = observe(pool, config)
     coverable = pooled.n_samples > 0
-    if args.misfit:
-        misfit = misfit_correlation(pool, config, pooled)
-        print(f"[{name}] misfit correlation {json.dumps(misfit)}", flush=True)
-        return {"misfit_correlation": misfit}
+    misfit = misfit_correlation(pool, config, pooled) if args.misfit else None
+    print(f"[{name}] misfit correlation {json.dumps(misfit)}", flush=True)
     truth = resize(pool.ground_truth, args.texture_res)
     area = rasterise(pool.mesh, args.texture_res).texel_area
     start = farthest_point_views(directions, START)
@@ -186,6 +193,7 @@ def scene_run(name: str, args) -> dict:
         "seconds_per_pick": {method: float(np.median(seconds)) for method, seconds in seconds_per_pick.items()},
         "rounds": rounds,
         "picks_decided_by_spread": decided,
+        "misfit_correlation": misfit,
         "prediction": prediction_check(pool, start, config, args, name) if args.spearman_candidates else None,
     }
 
@@ -404,8 +412,7 @@ def summarise(scenes: dict, args, seconds: float) -> dict:
         "max_texels": args.max_texels, "entropy_max_texels": args.entropy_max_texels, "pool": POOL,
         "render": RENDER, "relight": dataclasses.asdict(RELIGHT), "start": START, "step": STEP, "final": FINAL,
         "random_seeds": args.random_seeds, "methods_run": args.methods, "baselines_from": args.baselines or None,
-        "misfit_correlation": _diversity.MISFIT_CORRELATION, "misfit_width": _diversity.MISFIT_WIDTH,
-        "refit_noise": _diversity.REFIT_NOISE, "scenes": scenes, "paired_tests": paired_tests(scenes),
+        "spread": {"width": _diversity.MISFIT_WIDTH, "refit_noise": _diversity.REFIT_NOISE}, "scenes": scenes, "paired_tests": paired_tests(scenes),
         "worse_than_farthest_point_by_more_than_random_std": cells_within_random_spread(scenes),
         "posterior_std_against_error": std_against_error(scenes),
         "seconds": seconds,
@@ -424,18 +431,15 @@ def main(argv=None) -> int:
     parser.add_argument("--methods", default=",".join(METHODS),
                         help="methods to run; the others' curves come from --baselines")
     parser.add_argument("--baselines", default="", help="results file (name) to take the methods not run from")
-    parser.add_argument("--misfit-correlation", type=float, default=_diversity.MISFIT_CORRELATION,
-                        help="rho_0 of the guidance's kernel on view directions")
     parser.add_argument("--misfit-width", type=float, default=_diversity.MISFIT_WIDTH,
                         help="w of the guidance's kernel on view directions (0: no discount)")
     parser.add_argument("--refit-noise", type=float, default=_diversity.REFIT_NOISE,
                         help="the guidance's tie band, relative to the mean std (0: the best gain only)")
-    parser.add_argument("--misfit", action="store_true", help="only the misfit's correlation between views")
+    parser.add_argument("--misfit", action="store_true", help="also measure the misfit's correlation between views")
     parser.add_argument("--name", default="guidance", help="results file name (parts of a run: see --merge)")
     parser.add_argument("--merge", default="", help="comma-separated results files of parts to merge into --name")
     args = parser.parse_args(argv)
     args.methods = args.methods.split(",")
-    _diversity.MISFIT_CORRELATION = args.misfit_correlation
     _diversity.MISFIT_WIDTH, _diversity.REFIT_NOISE = args.misfit_width, args.refit_noise
     started = time.perf_counter()
     RESULTS.mkdir(exist_ok=True)
@@ -451,9 +455,6 @@ def main(argv=None) -> int:
     scenes = {}
     for name in args.scenes.split(",") if not args.merge else []:
         scenes[name] = scene_run(name, args)
-        if args.misfit:
-            results = {"scenes": scenes, "paired_tests": {}}
-            continue
         results = summarise(scenes, args, time.perf_counter() - started)
         write_json(RESULTS / f"{args.name}.json", results)
         plot(scenes, RESULTS / f"{args.name}.png")

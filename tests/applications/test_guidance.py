@@ -146,7 +146,7 @@ def test_candidates_within_a_refits_scatter_are_decided_by_their_spread():
     taken = np.array([[0.0, 0.0, 1.0]])
     candidates = np.array([[0.0, 0.6, 0.8], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
     spread = Spread(3, taken, candidates, [np.arange(3)])
-    band = REFIT_NOISE * 1.0
+    band = np.sqrt(2.0) * REFIT_NOISE  # the scatter of the difference of two refits, at a mean std of 1
     # The best gain by more than the band wins; within it, the view farthest from those taken.
     assert spread.choose(np.array([1.0, 1.0 - 2 * band, 0.0]), [0, 1, 2], 1.0) == (0, False)
     assert spread.choose(np.array([1.0, 1.0 - 0.5 * band, 0.0]), [0, 1, 2], 1.0) == (1, True)

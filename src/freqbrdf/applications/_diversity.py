@@ -4,22 +4,22 @@ What is left of a texel's error once it is seen from several sides is mostly the
 not noise, and the misfit of two samples is alike when their view directions are close. A
 sample from direction c then tells a texel about as much as one independent sample over the
 number of samples it is correlated with: the effective-sample count of a Gaussian process whose
-covariance between view directions a and b is
+correlation of the misfit between view directions a and b is
 
-    rho(a, b) = rho_0 exp((a . b - 1) / w^2),    rho_0 = `MISFIT_CORRELATION`, w = `MISFIT_WIDTH`,
+    rho(a, b) = exp((a . b - 1) / w^2),    w = `MISFIT_WIDTH`,
 
 to first order, 1 / (1 + sum_j rho(c, j)) of a sample, the sum over the views already sampling the
-texel (`Spread.discount`). rho_0 and w are fitted to the correlation of the residuals of
-per-texel estimates between pairs of their samples, against the angle between them
-(``benchmarks/studies/guidance.py --misfit``). The directions are the views' directions from the object's centre
+texel (`Spread.discount`). w is the width of the correlation of per-texel residuals between two
+samples of a texel against the angle between them (``benchmarks/studies/guidance.py --misfit``,
+fitted as rho_0 rho(a, b), rho_0 < 1 the misfit's share of the residuals). The directions are the views' directions from the object's centre
 (`freqbrdf.applications.candidates.view_directions`), so the kernel is one matrix between the
 views taken and the candidates, and a texel's sum over its views is kept per candidate and
 updated as views are picked (`Spread.add`).
 
-Where the candidates' expected gains differ by less than what a refit moves on its own
-(`REFIT_NOISE` of the current mean std), the model cannot tell them apart; among those the
-guidance takes the view farthest (in angle) from every view taken and picked, as farthest-point
-sampling would (`Spread.choose`).
+Where the candidates' expected gains differ by less than the scatter of the difference of two
+refits (sqrt(2) `REFIT_NOISE` of the current mean std), the model cannot tell them apart; among
+those the guidance takes the view farthest (in angle) from every view taken and picked, as
+farthest-point sampling would (`Spread.choose`).
 """
 
 from __future__ import annotations
@@ -28,8 +28,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-MISFIT_CORRELATION = 1.0  # rho_0: the residuals' correlation between two samples from one direction
-MISFIT_WIDTH = 0.3  # w of the kernel on view directions (radians, roughly)
+MISFIT_WIDTH = 0.6  # w of the misfit's correlation between view directions
 REFIT_NOISE = 0.012  # a refit's own scatter of the mean std, relative to it
 
 
@@ -60,7 +59,7 @@ class Spread:
         cosine = self.candidates @ direction
         self.closeness = np.maximum(self.closeness, cosine)
         if MISFIT_WIDTH > 0:
-            self.density[texel] += MISFIT_CORRELATION * np.exp((cosine - 1.0) / MISFIT_WIDTH ** 2)[None]
+            self.density[texel] += np.exp((cosine - 1.0) / MISFIT_WIDTH ** 2)[None]
 
     def add(self, candidate: int, texel: np.ndarray) -> None:
         """Commit a picked candidate: its samples now correlate with the later ones (in place).
@@ -94,8 +93,9 @@ class Spread:
     def choose(self, gains: np.ndarray, columns: Sequence[int], uncertainty: float) -> tuple[int, bool]:
         """Return the position in ``gains`` of the view to pick, and whether the spread decided it.
 
-        The candidates whose gain is within ``REFIT_NOISE * uncertainty`` of the best compete; of
-        those, the one farthest from the views taken and picked wins (the earliest on ties).
+        The candidates whose gain is within ``sqrt(2) * REFIT_NOISE * uncertainty`` of the best
+        compete; of those, the one farthest from the views taken and picked wins (the earliest on
+        ties).
 
         Parameters
         ----------
@@ -113,6 +113,6 @@ class Spread:
         """
         gains = np.asarray(gains, np.float64)
         best = int(np.argmax(gains))
-        close = np.flatnonzero(gains >= gains[best] - REFIT_NOISE * uncertainty)
+        close = np.flatnonzero(gains >= gains[best] - np.sqrt(2.0) * REFIT_NOISE * uncertainty)
         chosen = int(close[np.argmin(self.closeness[np.asarray(columns)[close]])])
         return chosen, chosen != best
