@@ -328,7 +328,7 @@ class SurfaceConfig:
     """Prior probability that a texel is metal: a texel is metal only with evidence."""
     label_coupling: float = 0.5
     """Ising coupling of a texel's metal label to each alike neighbour's."""
-    mixed_evidence: float = 5.0
+    mixed_evidence: float = 2.0
     """Log-likelihood a texel's samples must lose by its label's pure metallic (0 or 1) to keep its own metallic."""
     label_iterations: int = 30
     """Damped mean-field sweeps of the metal labels."""
