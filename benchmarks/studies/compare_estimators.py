@@ -161,10 +161,16 @@ def cpu_seconds(seconds: dict) -> str:
     return f"{seconds['observe_cpu'] + seconds['estimate_cpu']:.1f}"
 
 
+def _set(settings: dict | None) -> dict:
+    """Settings as recorded, tuples as lists, without the fields left at None (so that a field
+    added to SynthSettings since, at its None default, keeps the earlier rows)."""
+    return {key: value for key, value in (settings or {}).items() if value is not None}
+
+
 def merged(previous: dict, scene: str, data: dict) -> dict:
     """The scene's new rows over the rows of an earlier run of the same capture and settings."""
     earlier = previous.get("scenes", {}).get(scene)
-    if not earlier or earlier.get("settings") != json.loads(json.dumps(data["settings"])):  # tuples as lists
+    if not earlier or _set(earlier.get("settings")) != _set(json.loads(json.dumps(data["settings"]))):
         return data
     return {**data, "methods": {**earlier["methods"], **data["methods"]}}
 
