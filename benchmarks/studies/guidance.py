@@ -41,7 +41,8 @@ correlate between two samples of a texel, against the angle between their view d
 results file ``--baselines`` (refused unless the start views' fit gives the same errors).
 
 Writes benchmarks/results/guidance.{json,png} (``--name``); parts run side by side (``--scenes``
-and ``--name``) are merged with ``--merge``. A run with ``--spearman-candidates 0`` skips the
+and ``--name``) are merged with ``--merge``, and ``--held-out`` adds a run on scenes the
+guidance's constants were not chosen on (``held_out``, its own paired tests). A run with ``--spearman-candidates 0`` skips the
 prediction checks.
 """
 
@@ -318,7 +319,8 @@ def paired_tests(scenes: dict) -> dict:
     from scipy.stats import wilcoxon
 
     tests = {}
-    for baseline in ("farthest_point", "random", "entropy"):
+    for baseline in [method for method in ("farthest_point", "random", "entropy")
+                     if all(method in scene["curves"] for scene in scenes.values())]:
         for metric in METRICS:
             ours = np.array([row[metric] for scene in scenes.values() for row in scene["curves"]["uncertainty"][1:]])
             other = np.array([row[metric] for scene in scenes.values() for row in scene["curves"][baseline][1:]])
@@ -346,7 +348,8 @@ def std_against_error(scenes: dict) -> dict:
         rhos = []
         for scene in scenes.values():
             for step in range(1, len(scene["curves"]["uncertainty"])):
-                rows = [scene["curves"][method][step] for method in ("uncertainty", "entropy", "farthest_point")]
+                rows = [scene["curves"][method][step] for method in ("uncertainty", "entropy", "farthest_point")
+                        if method in scene["curves"]]
                 rows += [run[step] for run in scene["random_runs"]]
                 rho = spearmanr([row["posterior_std"] for row in rows], [row[metric] for row in rows]).statistic
                 rhos.append(float(rho) if np.isfinite(rho) else 0.0)
@@ -383,6 +386,8 @@ def plot(scenes: dict, path: Path) -> None:
         for row, metric in enumerate(METRICS):
             ax = axes[row, column]
             for method, (colour, legend) in styles.items():
+                if method not in scene["curves"]:
+                    continue
                 curve = scene["curves"][method]
                 ax.plot([r["views"] for r in curve], [r[metric] for r in curve], "o-", color=colour, label=legend,
                         markersize=3)
@@ -394,6 +399,7 @@ def plot(scenes: dict, path: Path) -> None:
         ax = axes[len(METRICS), column]
         check = scene["prediction"]
         if check is None:
+            ax.set_axis_off()
             continue
         ax.scatter(check["predicted"], check["measured"], s=10, color="C3", label="refitted")
         ax.scatter(check["predicted"], check["measured_held"], s=10, color="0.5", label="calibration held")
@@ -414,7 +420,8 @@ def summarise(scenes: dict, args, seconds: float) -> dict:
         "random_seeds": args.random_seeds, "methods_run": args.methods, "baselines_from": args.baselines or None,
         "spread": {"width": _diversity.MISFIT_WIDTH, "refit_noise": _diversity.REFIT_NOISE}, "scenes": scenes, "paired_tests": paired_tests(scenes),
         "worse_than_farthest_point_by_more_than_random_std": cells_within_random_spread(scenes),
-        "posterior_std_against_error": std_against_error(scenes),
+        # Only where every method was fitted by this run (the std maps' definition may have changed since).
+        "posterior_std_against_error": std_against_error(scenes) if not args.baselines else None,
         "seconds": seconds,
     }
 
@@ -438,6 +445,8 @@ def main(argv=None) -> int:
     parser.add_argument("--misfit", action="store_true", help="also measure the misfit's correlation between views")
     parser.add_argument("--name", default="guidance", help="results file name (parts of a run: see --merge)")
     parser.add_argument("--merge", default="", help="comma-separated results files of parts to merge into --name")
+    parser.add_argument("--held-out", default="", help="with --merge: a results file of scenes the guidance's "
+                        "constants were not chosen on, kept apart with its own paired tests")
     args = parser.parse_args(argv)
     args.methods = args.methods.split(",")
     _diversity.MISFIT_WIDTH, _diversity.REFIT_NOISE = args.misfit_width, args.refit_noise
@@ -450,8 +459,15 @@ def main(argv=None) -> int:
             scenes.update(loaded["scenes"])
             seconds += loaded["seconds"]
         results = summarise(scenes, args, seconds)
+        drawn = dict(scenes)
+        if args.held_out:
+            held = json.loads((RESULTS / f"{args.held_out}.json").read_text())
+            results["held_out"] = {"scenes": held["scenes"], "paired_tests": paired_tests(held["scenes"]),
+                                   "worse_than_farthest_point_by_more_than_random_std":
+                                       cells_within_random_spread(held["scenes"]), "seconds": held["seconds"]}
+            drawn.update({f"{name} (held out)": scene for name, scene in held["scenes"].items()})
         write_json(RESULTS / f"{args.name}.json", results)
-        plot(scenes, RESULTS / f"{args.name}.png")
+        plot(drawn, RESULTS / f"{args.name}.png")
     scenes = {}
     for name in args.scenes.split(",") if not args.merge else []:
         scenes[name] = scene_run(name, args)

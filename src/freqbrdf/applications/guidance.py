@@ -61,10 +61,12 @@ from freqbrdf.estimate import estimate as estimate_materials
 from freqbrdf.estimate._search_kernels import MIN_SAMPLES
 from freqbrdf.estimate.search import lambert_scale
 from freqbrdf.estimate.surface import (
+    _LOOKALIKE_MATERIAL_SCALE,
     PRIOR_PRECISION,
     SurfacePosterior,
     apparent_albedo,
     data_precision,
+    lookalike_graph,
     metal_evidence,
     surface_graph,
     whole_surface,
@@ -413,26 +415,34 @@ def uncertainty_model(capture: Capture, fit: SurfaceFit, rows: np.ndarray, confi
     settings = config.surface
     observations, per_texel, posterior = fit.observations, fit.per_texel, fit.posterior
     estimated = per_texel.estimated
-    graph = surface_graph(fit.texels.position, fit.texels.normal, np.log(apparent_albedo(observations)), estimated,
-                          settings)
+    appearance = np.log(apparent_albedo(observations))
+    graph = surface_graph(fit.texels.position, fit.texels.normal, appearance, estimated, settings)
+    # The base colour is also shared with look-alikes anywhere on the surface, as the solve does.
+    counts = observations.n_samples
+    confident = estimated & (counts >= np.median(counts[estimated])) if estimated.any() else estimated
+    own_material = _LOOKALIKE_MATERIAL_SCALE * np.nan_to_num(np.column_stack([per_texel.roughness,
+                                                                              per_texel.metallic]))
+    color_graph = graph.maximum(lookalike_graph(np.column_stack([appearance, own_material]), estimated, confident,
+                                                settings))
     neighbours = np.asarray(graph.sum(axis=1)).ravel()
+    color_neighbours = np.asarray(color_graph.sum(axis=1)).ravel()
     data = data_precision(observations, per_texel, posterior.metal_probability > 0.5, settings)
     noise, few, typical = data.noise, data.few, data.typical_samples
     roughness_precision, color_precision = data.roughness, data.color  # before the few-sample factor
     typical_noise = float(np.median(noise[estimated])) if estimated.any() else 1.0
     unseen_color_precision = lambert_scale(observations) ** 2 / typical_noise
 
-    def coupling(precision: np.ndarray, smoothing: float) -> tuple[np.ndarray, float]:
+    def coupling(precision: np.ndarray, smoothing: float, degree: np.ndarray) -> tuple[np.ndarray, float]:
         """Return the solve's lambda sum_j w_tj + pin, and lambda."""
         with_few = precision * (few[:, None] if precision.ndim == 2 else few)
         per_texel_mean = with_few.mean(axis=1) if with_few.ndim == 2 else with_few
         has_data = per_texel_mean > 0
         scale = float(np.median(per_texel_mean[has_data])) if has_data.any() else 1.0
         strength = smoothing * scale
-        return neighbours * strength + PRIOR_PRECISION * strength, strength
+        return degree * strength + PRIOR_PRECISION * strength, strength
 
-    roughness_coupling, _ = coupling(roughness_precision, settings.roughness_smoothing)
-    color_coupling, _ = coupling(color_precision, settings.color_smoothing)
+    roughness_coupling, _ = coupling(roughness_precision, settings.roughness_smoothing, neighbours)
+    color_coupling, _ = coupling(color_precision, settings.color_smoothing, color_neighbours)
     std_scale = settings.std_scale
 
     def calibration(std: np.ndarray, precision: np.ndarray, couple: np.ndarray) -> float:
