@@ -1,9 +1,10 @@
 """numba kernels of the whole-surface solve (`freqbrdf.estimate.surface`).
 
 The Huber re-weighting of the graph's edges and a Jacobi-preconditioned conjugate-gradient solve
-of (diag(d_c) + D - W) x_c = b_c for every channel c at once, on the graph in CSR form. Dot
-products are summed per block of `BLOCK` rows in parallel, then over the blocks in order, so that
-the result does not depend on the number of threads.
+of (diag(d_c) + D - W) x_c = b_c for every channel c at once, on the graph in CSR form. One
+thread: an iteration is a few sparse passes, and on a shared machine threads that wait for each
+other at every pass cost far more than they save (docs/measurements.md#speed). Dot products are
+summed per block of `BLOCK` rows, then over the blocks in order.
 """
 
 from __future__ import annotations
@@ -15,14 +16,14 @@ import numpy as np
 BLOCK = 4096
 
 
-@numba.njit(parallel=True, cache=True)
+@numba.njit(cache=True)
 def huber_weights(indptr, indices, weights, x, huber, coupling, robust, degree):
     """Write robust[k] = coupling w_k min(1, huber / |x_i - x_j|) per edge k = (i, j) and each row's sum.
 
     ``x`` (N, C): the difference is the Euclidean norm over the channels.
     """
     n_rows, n_channels = x.shape
-    for i in numba.prange(n_rows):
+    for i in range(n_rows):
         total = 0.0
         for k in range(indptr[i], indptr[i + 1]):
             j = indices[k]
@@ -37,11 +38,11 @@ def huber_weights(indptr, indices, weights, x, huber, coupling, robust, degree):
         degree[i] = total
 
 
-@numba.njit(parallel=True, cache=True)
+@numba.njit(cache=True)
 def _apply(indptr, indices, robust, degree, diagonal, x, out):
     """Write (diag(diagonal) + D - W) x into out, per channel."""
     n_rows, n_channels = x.shape
-    for i in numba.prange(n_rows):
+    for i in range(n_rows):
         for c in range(n_channels):
             value = (diagonal[i, c] + degree[i]) * x[i, c]
             for k in range(indptr[i], indptr[i + 1]):
@@ -49,12 +50,12 @@ def _apply(indptr, indices, robust, degree, diagonal, x, out):
             out[i, c] = value
 
 
-@numba.njit(parallel=True, cache=True)
+@numba.njit(cache=True)
 def _block_dots(a, b, partial):
     """partial[block, c] = sum over the block's rows of a[:, c] b[:, c]."""
     n_rows, n_channels = a.shape
     n_blocks = partial.shape[0]
-    for block in numba.prange(n_blocks):
+    for block in range(n_blocks):
         for c in range(n_channels):
             total = 0.0
             for i in range(block * BLOCK, min((block + 1) * BLOCK, n_rows)):
@@ -73,21 +74,21 @@ def _dots(a, b, partial, out):
         out[c] = total
 
 
-@numba.njit(parallel=True, cache=True)
+@numba.njit(cache=True)
 def _update(x, residual, direction, ad, step, inverse, z):
     """Step: x += step d, r -= step A d, z = M^-1 r (one step per channel)."""
     n_rows, n_channels = x.shape
-    for i in numba.prange(n_rows):
+    for i in range(n_rows):
         for c in range(n_channels):
             x[i, c] += step[c] * direction[i, c]
             residual[i, c] -= step[c] * ad[i, c]
             z[i, c] = inverse[i, c] * residual[i, c]
 
 
-@numba.njit(parallel=True, cache=True)
+@numba.njit(cache=True)
 def _new_direction(direction, z, beta):
     n_rows, n_channels = direction.shape
-    for i in numba.prange(n_rows):
+    for i in range(n_rows):
         for c in range(n_channels):
             direction[i, c] = z[i, c] + beta[c] * direction[i, c]
 

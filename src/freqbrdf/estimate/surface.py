@@ -52,8 +52,8 @@ if TYPE_CHECKING:
     from freqbrdf.observe.observations import Observations
     from freqbrdf.texels import Texels
 
-__all__ = ["DataPrecision", "SurfacePosterior", "data_precision", "lookalike_graph", "mean_over_views",
-           "metal_evidence", "metal_posterior", "smooth_on_surface", "surface_graph", "whole_surface"]
+__all__ = ["DataPrecision", "SurfaceGraphs", "SurfacePosterior", "data_precision", "lookalike_graph", "mean_over_views",
+           "metal_evidence", "metal_posterior", "smooth_on_surface", "surface_graph", "surface_graphs", "whole_surface"]
 
 # Apparent albedo floor (log space): keeps black texels' logarithm finite.
 _ALBEDO_FLOOR = 1e-3
@@ -133,18 +133,8 @@ def whole_surface(observations: Observations, estimate: MaterialEstimate, texels
     start = time.perf_counter()
     estimated = estimate.estimated.copy()
     albedo = apparent_albedo(observations)
-    appearance = np.log(albedo)
-    graph = surface_graph(texels.position, texels.normal, appearance, estimated, settings)
-    # Look-alikes anywhere on the surface share the metal label (by appearance) and the base colour
-    # (by appearance and the texels' own roughness and metallic: alike colour, other material);
-    # roughness is shared along the surface only (alike colours often differ in roughness).
-    counts = observations.n_samples
-    confident = estimated & (counts >= np.median(counts[estimated]) if estimated.any() else estimated)
-    label_graph = graph.maximum(lookalike_graph(appearance, estimated, confident, settings)).tocsr()
-    own_material = _LOOKALIKE_MATERIAL_SCALE * np.nan_to_num(
-        np.column_stack([estimate.roughness, estimate.metallic]))
-    color_graph = graph.maximum(lookalike_graph(np.column_stack([appearance, own_material]), estimated, confident,
-                                                 settings)).tocsr()
+    graph, label_graph, color_graph = surface_graphs(texels.position, texels.normal, np.log(albedo), estimate,
+                                                     observations.n_samples, settings)
     timings["graph"] = time.perf_counter() - start
 
     start = time.perf_counter()
@@ -334,6 +324,61 @@ def surface_graph(position: np.ndarray, normal: np.ndarray, appearance: np.ndarr
     weight = np.where(both, np.exp(-difference / (2.0 * settings.appearance_width ** 2)), 1.0)
     graph = sparse.coo_matrix((weight, (rows, cols)), shape=(n_texels, n_texels)).tocsr()
     return graph.maximum(graph.T).tocsr()
+
+
+class SurfaceGraphs(NamedTuple):
+    """The three graphs of the whole-surface solve (N texels; `surface_graphs`).
+
+    Attributes
+    ----------
+    surface : (N, N) scipy.sparse.csr_matrix
+        Neighbours on the mesh (`surface_graph`): roughness is shared along it.
+    label : (N, N) scipy.sparse.csr_matrix
+        ``surface`` with look-alikes by appearance (`lookalike_graph`): the metal label's.
+    color : (N, N) scipy.sparse.csr_matrix
+        ``surface`` with look-alikes by appearance and own roughness and metallic: the base colour's.
+    """
+
+    surface: sparse.csr_matrix
+    label: sparse.csr_matrix
+    color: sparse.csr_matrix
+
+
+def surface_graphs(position: np.ndarray, normal: np.ndarray, appearance: np.ndarray, estimate: MaterialEstimate,
+                   n_samples: np.ndarray, settings: SurfaceConfig) -> SurfaceGraphs:
+    """Build the graphs the whole-surface solve shares each parameter along.
+
+    Look-alikes anywhere on the surface share the metal label (by appearance) and the base colour
+    (by appearance and the texels' own roughness and metallic: alike colour, other material);
+    roughness is shared along the surface only (alike colours often differ in roughness). The
+    look-alikes are the confident texels: estimated, with at least the median samples.
+
+    Parameters
+    ----------
+    position, normal : (N, 3) array
+        The texels' points and normals on the mesh.
+    appearance : (N, C) array
+        What a texel looks like (the log apparent albedo).
+    estimate : MaterialEstimate
+        The per-texel estimate: which texels have one, and their roughness and metallic.
+    n_samples : (N,) int
+        Each texel's samples.
+    settings : SurfaceConfig
+        The graphs' settings.
+
+    Returns
+    -------
+    SurfaceGraphs
+        The surface, label and colour graphs.
+    """
+    estimated = estimate.estimated
+    graph = surface_graph(position, normal, appearance, estimated, settings)
+    confident = estimated & (n_samples >= np.median(n_samples[estimated])) if estimated.any() else estimated
+    label = graph.maximum(lookalike_graph(appearance, estimated, confident, settings)).tocsr()
+    own_material = _LOOKALIKE_MATERIAL_SCALE * np.nan_to_num(np.column_stack([estimate.roughness, estimate.metallic]))
+    color = graph.maximum(lookalike_graph(np.column_stack([appearance, own_material]), estimated, confident,
+                                          settings)).tocsr()
+    return SurfaceGraphs(graph, label, color)
 
 
 def lookalike_graph(appearance: np.ndarray, observed: np.ndarray, confident: np.ndarray,
