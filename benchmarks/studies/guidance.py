@@ -37,13 +37,14 @@ Misfit check (``--misfit``): how the residuals of per-texel estimates of the who
 correlate between two samples of a texel, against the angle between their view directions
 (`misfit_correlation`), which sets the width of the guidance's kernel
 (`freqbrdf.applications._diversity`); ``--misfit-width`` (0: no discount) and ``--refit-noise``
-(0: the best gain only) replace its constants for a run (variants). ``--methods`` runs only some methods and takes the others' curves from the
-results file ``--baselines`` (refused unless the start views' fit gives the same errors).
+(0: the best gain only) replace its constants for a run (variants). ``--methods`` runs only some
+methods and takes the others' curves from the results file ``--baselines`` (refused unless the
+start views' fit gives the same errors).
 
 Writes benchmarks/results/guidance.{json,png} (``--name``); parts run side by side (``--scenes``
 and ``--name``) are merged with ``--merge``, and ``--held-out`` adds a run on scenes the
-guidance's constants were not chosen on (``held_out``, its own paired tests). A run with ``--spearman-candidates 0`` skips the
-prediction checks.
+guidance's constants were not chosen on (``held_out``, its own paired tests). A run with
+``--spearman-candidates 0`` skips the prediction checks.
 """
 
 from __future__ import annotations
@@ -418,7 +419,8 @@ def summarise(scenes: dict, args, seconds: float) -> dict:
         "max_texels": args.max_texels, "entropy_max_texels": args.entropy_max_texels, "pool": POOL,
         "render": RENDER, "relight": dataclasses.asdict(RELIGHT), "start": START, "step": STEP, "final": FINAL,
         "random_seeds": args.random_seeds, "methods_run": args.methods, "baselines_from": args.baselines or None,
-        "spread": {"width": _diversity.MISFIT_WIDTH, "refit_noise": _diversity.REFIT_NOISE}, "scenes": scenes, "paired_tests": paired_tests(scenes),
+        "spread": {"width": _diversity.MISFIT_WIDTH, "refit_noise": _diversity.REFIT_NOISE},
+        "scenes": scenes, "paired_tests": paired_tests(scenes),
         "worse_than_farthest_point_by_more_than_random_std": cells_within_random_spread(scenes),
         # Only where every method was fitted by this run (the std maps' definition may have changed since).
         "posterior_std_against_error": std_against_error(scenes) if not args.baselines else None,

@@ -11,7 +11,8 @@ correlation of the misfit between view directions a and b is
 to first order, 1 / (1 + sum_j rho(c, j)) of a sample, the sum over the views already sampling the
 texel (`Spread.discount`). w is the width of the correlation of per-texel residuals between two
 samples of a texel against the angle between them (``benchmarks/studies/guidance.py --misfit``,
-fitted as rho_0 rho(a, b), rho_0 < 1 the misfit's share of the residuals). The directions are the views' directions from the object's centre
+fitted as rho_0 rho(a, b), rho_0 < 1 the misfit's share of the residuals). The directions are
+the views' directions from the object's centre
 (`freqbrdf.applications.candidates.view_directions`), so the kernel is one matrix between the
 views taken and the candidates, and a texel's sum over its views is kept per candidate and
 updated as views are picked (`Spread.add`).

@@ -36,8 +36,8 @@ correlated between samples from nearby view directions, so a candidate's informa
 evidence at a texel count only its effective share of a sample, less the closer it is to the
 views already sampling the texel; and where the candidates' gains differ by less than a refit's
 own scatter, the view farthest from those taken and picked is chosen
-(`freqbrdf.applications._diversity`). The texels scored are a
-seeded random subset of the estimation texels (``max_texels``). `surface_fit` makes the fit the
+(`freqbrdf.applications._diversity`). The texels scored are a seeded random subset of the
+estimation texels (``max_texels``). `surface_fit` makes the fit the
 model reads (the steps of `freqbrdf.pipeline.fit` up to the whole-surface solve).
 """
 
@@ -276,8 +276,9 @@ def select_views(
     counted by their effective share (`Spread.discount`), and commits one (`add_view`): the best,
     or where other candidates come within a refit's scatter of it, the one of those farthest from
     the views taken and picked (`Spread.choose`, ``Pick.decided_by``). All views are scored with
-    the band limit of the capture once the whole budget is added. Candidates at a view already taken (`TAKEN_COSINE`) do not compete. The texel
-    subset and every tie are deterministic in ``config.seed``; ties go to the earliest candidate.
+    the band limit of the capture once the whole budget is added. Candidates at a view already
+    taken (`TAKEN_COSINE`) do not compete. The texel subset and every tie are deterministic in
+    ``config.seed``; ties go to the earliest candidate.
 
     Parameters
     ----------
