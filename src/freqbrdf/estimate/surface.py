@@ -24,7 +24,8 @@ METHOD.md §4, done inside the estimate):
    sees have no data term: their values come from the solve alone, along the surface.
 4. **Posterior std** of roughness, metallic and base colour: the label's probability, and each
    texel's precision in the solve with its neighbours', scaled by how far the per-texel
-   estimates scatter about the solution, growing with the distance from the texels with data.
+   estimates scatter about the solution, growing with the distance from the texels with data;
+   the base colour's also holds the label's doubt (a mixture of the two labels' base colours).
    The fit reports a roughness std no narrower than the spread of the texel's own estimate
    (`freqbrdf.pipeline.fit`): neighbours share the model's errors, which their precision ignores.
 
@@ -82,7 +83,7 @@ class SurfacePosterior:
     roughness_std, metallic_std : (N,) float32
         Posterior standard deviations of roughness and metallic.
     base_color_std : (N, 3) float32
-        Posterior standard deviation of each base-colour channel.
+        Posterior standard deviation of each base-colour channel, the metal label's doubt included.
     inferred : (N,) bool
         Texels whose values come from the surface alone (no estimate of their own).
     timings : dict of str to float
@@ -171,11 +172,15 @@ def whole_surface(observations: Observations, estimate: MaterialEstimate, texels
         base_color=np.clip(color, 0.0, 1.0), roughness=np.clip(roughness[:, 0], 0.0, 1.0),
         metallic=params[:, 4].copy(),
     )
+    # The base colour's posterior is a mixture over the label: its variance adds p (1 - p) times the
+    # squared difference of the two labels' base colours (the law of total variance).
+    label_variance = probability * (1.0 - probability)
     posterior = SurfacePosterior(
         metal_probability=probability,
         roughness_std=roughness_spread[:, 0].astype(np.float32),
-        metallic_std=np.sqrt(probability * (1.0 - probability)).astype(np.float32),
-        base_color_std=color_spread.astype(np.float32),
+        metallic_std=np.sqrt(label_variance).astype(np.float32),
+        base_color_std=np.sqrt(color_spread ** 2 + label_variance[:, None]
+                               * (labelled[1][:, :3] - labelled[0][:, :3]) ** 2).astype(np.float32),
         inferred=~estimated,
         timings=timings,
     )
