@@ -69,16 +69,9 @@ class Occluder:
         (M,) bool
             True where the ray hits the mesh before ``max_distance``.
         """
-        mi = self._mitsuba
         hits = np.zeros(origins.shape[1], dtype=bool)
-        with restored_floating_point():
-            for first in range(0, origins.shape[1], RAYS_PER_BATCH):
-                rays = slice(first, first + RAYS_PER_BATCH)
-                ray = mi.Ray3f(mi.Point3f(*(mi.Float(row[rays]) for row in origins)),
-                               mi.Vector3f(*(mi.Float(row[rays]) for row in directions)))
-                if max_distance is not None:
-                    ray.maxt = mi.Float(np.asarray(max_distance, np.float32)[rays])
-                hits[rays] = np.asarray(self._scene.ray_test(ray), dtype=bool)
+        for rays, ray in self._batches(origins, directions, max_distance):
+            hits[rays] = np.asarray(self._scene.ray_test(ray), dtype=bool)
         return hits
 
     def hit_distances_rows(self, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
@@ -98,12 +91,19 @@ class Occluder:
         (M,) float32
             The distance to the first hit; inf where the ray leaves the mesh.
         """
-        mi = self._mitsuba
         distances = np.full(origins.shape[1], np.inf, dtype=np.float32)
+        for rays, ray in self._batches(origins, directions):
+            distances[rays] = np.asarray(self._scene.ray_intersect_preliminary(ray).t, dtype=np.float32)
+        return distances
+
+    def _batches(self, origins: np.ndarray, directions: np.ndarray, max_distance: np.ndarray | None = None):
+        """Yield (slice, Mitsuba Ray3f) per batch of RAYS_PER_BATCH rays given as rows, in Mitsuba's floating point."""
+        mi = self._mitsuba
         with restored_floating_point():
             for first in range(0, origins.shape[1], RAYS_PER_BATCH):
                 rays = slice(first, first + RAYS_PER_BATCH)
                 ray = mi.Ray3f(mi.Point3f(*(mi.Float(row[rays]) for row in origins)),
                                mi.Vector3f(*(mi.Float(row[rays]) for row in directions)))
-                distances[rays] = np.asarray(self._scene.ray_intersect_preliminary(ray).t, dtype=np.float32)
-        return distances
+                if max_distance is not None:
+                    ray.maxt = mi.Float(np.asarray(max_distance, np.float32)[rays])
+                yield rays, ray
