@@ -40,7 +40,8 @@ def synthetic_model(rng, n_texels=40) -> guidance.UncertaintyModel:
         roughness_per_unit=0.1, base_information=np.zeros(n_texels), roughness_coupling=rng.uniform(1.0, 3.0, n_texels),
         roughness_scale=0.01, roughness_level=0.5, color_precision=rng.uniform(1.0, 4.0, (n_texels, 3)),
         color_coupling=rng.uniform(0.5, 1.0, n_texels), color_scale=0.002, color_level=2.0,
-        metal_probability=rng.uniform(0.05, 0.95, n_texels), evidence_scale=rng.uniform(0.5, 2.0, n_texels),
+        metal_probability=rng.uniform(0.05, 0.95, n_texels), label_color_difference=rng.uniform(-0.5, 0.5, (n_texels, 3)),
+        evidence_scale=rng.uniform(0.5, 2.0, n_texels),
         taken_evidence=rng.uniform(0.0, 3.0, n_texels),
         typical_samples=8.0, few_sample_power=2.0, std_scale=1.0, sigma=0.25,
     )

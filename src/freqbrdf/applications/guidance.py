@@ -217,6 +217,8 @@ class UncertaintyModel:
         As ``roughness_level``, of the mean over RGB.
     metal_probability : (n,) float64
         The metal label's probability now.
+    label_color_difference : (n, 3) float64
+        The base colour as a metal minus as a dielectric: the label's doubt in the base-colour std.
     evidence_scale : (n,) float64
         The texel's log-ratio (as the solve weighs it) over the square root of its taken views'
         evidence (the median over the estimated texels where it has none).
@@ -247,6 +249,7 @@ class UncertaintyModel:
     color_scale: float
     color_level: float
     metal_probability: np.ndarray
+    label_color_difference: np.ndarray
     evidence_scale: np.ndarray
     taken_evidence: np.ndarray
     typical_samples: float
@@ -455,8 +458,13 @@ def uncertainty_model(capture: Capture, fit: SurfaceFit, rows: np.ndarray, confi
                                                                                     + couple[has_data])))
 
     roughness_scale = calibration(posterior.roughness_std.astype(np.float64), roughness_precision, roughness_coupling)
-    color_scale = calibration(posterior.base_color_std[:, 0].astype(np.float64), color_precision[:, 0],
-                              color_coupling)
+    # The base-colour std holds the label's doubt beside the solve's spread: calibrate on the spread.
+    _, _, labelled = metal_evidence(per_texel, observations.n_samples)
+    label_difference = labelled[1][:, :3] - labelled[0][:, :3]
+    label_variance = posterior.metal_probability * (1.0 - posterior.metal_probability)
+    color_spread = np.sqrt(np.maximum(posterior.base_color_std[:, 0].astype(np.float64) ** 2
+                                      - label_variance * label_difference[:, 0] ** 2, 0.0))
+    color_scale = calibration(color_spread, color_precision[:, 0], color_coupling)
 
     # What the views taken give, at the fit's own band limit: the measured precision per unit.
     fit_texels = subset_texels(fit.texels, rows)
@@ -498,6 +506,7 @@ def uncertainty_model(capture: Capture, fit: SurfaceFit, rows: np.ndarray, confi
         roughness_scale=roughness_scale, roughness_level=roughness_level,
         color_precision=color, color_coupling=color_coupling[rows], color_scale=color_scale,
         color_level=color_level, metal_probability=posterior.metal_probability[rows].astype(np.float64),
+        label_color_difference=label_difference[rows],
         evidence_scale=evidence_scale, taken_evidence=evidence, typical_samples=typical, few_sample_power=settings.few_sample_power,
         std_scale=std_scale, sigma=sigma,
     )
@@ -609,7 +618,9 @@ def texel_std(model: UncertaintyModel, state: GuidanceState) -> np.ndarray:
     metal_std = probability * _label_std(log_odds + shift) + (1.0 - probability) * _label_std(log_odds - shift)
     prior = model.prior_std
     roughness_std = prior[:, 0] + fraction * (np.sqrt(roughness_var) * model.std_scale - prior[:, 0])
-    color_std = prior[:, 2] + fraction * (np.sqrt(color_var).mean(axis=1) * model.std_scale - prior[:, 2])
+    # The base colour's posterior is a mixture over the label (`freqbrdf.estimate.surface`).
+    color_rgb = np.sqrt(color_var * model.std_scale ** 2 + (metal_std[:, None] * model.label_color_difference) ** 2)
+    color_std = prior[:, 2] + fraction * (color_rgb.mean(axis=1) - prior[:, 2])
     return np.column_stack([roughness_std, metal_std, color_std])
 
 
