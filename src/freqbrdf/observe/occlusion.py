@@ -21,6 +21,7 @@ Deterministic: fixed ray sets, each texel's turned by a fixed angle of its index
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from scipy import ndimage
@@ -47,7 +48,7 @@ _CONVEX_TOLERANCE = 1e-6
 _LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
 
 
-class CompactLights:
+class CompactLights(NamedTuple):
     """A map split into directional lights and the rest (`compact_lights`).
 
     Attributes
@@ -60,10 +61,9 @@ class CompactLights:
         The map without the lights, area-averaged to ``REST_HEIGHT`` rows.
     """
 
-    def __init__(self, direction: np.ndarray, power: np.ndarray, rest: envmaps.Envmap):
-        self.direction = direction
-        self.power = power
-        self.rest = rest
+    direction: np.ndarray
+    power: np.ndarray
+    rest: envmaps.Envmap
 
 
 def _pixel_solid_angles(height: int, width: int) -> np.ndarray:
