@@ -51,7 +51,7 @@ def test_the_fit_and_the_search_advance_per_block_and_the_blocks_change_nothing(
     search_total, search_done = reporter.stages["estimating (global)"]
     assert fit_total == fit_done == -(-n_texels // 100) > 1
     assert search_total == search_done >= -(-n_texels // 150) > 1
-    for stage in ("observing views", "entropy", "whole-surface solve"):
+    for stage in ("observing views", "tracing the object's shadows", "entropy", "whole-surface solve"):
         assert reporter.stages[stage][0] == reporter.stages[stage][1] >= 1, stage
     for name in ("base_color", "roughness", "metallic"):
         np.testing.assert_array_equal(getattr(blocked.maps, name), getattr(whole.maps, name), err_msg=name)

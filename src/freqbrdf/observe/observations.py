@@ -491,11 +491,13 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
 
     tick = time.perf_counter()
     if config.observe.environment_occlusion and self_occluding(capture.mesh.vertices, capture.mesh.faces):
-        total = weight.sum(axis=1)
-        surface_radiance = np.einsum("nv,nvc->nc", weight, signals[..., OBSERVED], dtype=np.float64) / np.maximum(
-            total, 1e-30)[:, None]
-        irradiance = occluded_irradiance(occluder, capture.envmap, irradiance, ray_origin, frame, surface_radiance,
-                                         total > 0, texels.texel_size)
+        with reporter.stage("tracing the object's shadows", 1) as advance:
+            total = weight.sum(axis=1)
+            surface_radiance = np.einsum("nv,nvc->nc", weight, signals[..., OBSERVED],
+                                         dtype=np.float64) / np.maximum(total, 1e-30)[:, None]
+            irradiance = occluded_irradiance(occluder, capture.envmap, irradiance, ray_origin, frame,
+                                             surface_radiance, total > 0, texels.texel_size)
+            advance(1)
     timings["occlusion"] = time.perf_counter() - tick
 
     tick = time.perf_counter()
