@@ -9,7 +9,13 @@ import pytest
 
 from freqbrdf.assets import mesh_path
 from freqbrdf.capture.mesh import Mesh, load_mesh, plane_mesh, uv_sphere_mesh
-from freqbrdf.observe.occlusion import compact_lights, cosine_directions, occluded_irradiance, self_occluding
+from freqbrdf.observe.occlusion import (
+    compact_lights,
+    cosine_directions,
+    occluded_irradiance,
+    occlusion_steps,
+    self_occluding,
+)
 from freqbrdf.render.occluder import Occluder
 from freqbrdf.sphere.envmap import Envmap, local_directions
 
@@ -109,3 +115,14 @@ def test_occluded_irradiance_is_deterministic():
     arguments = (occluder, envmap, np.full((50, 3), 10.0), position, frame, np.ones((50, 3)), np.ones(50, bool),
                  np.full(50, 0.05))
     assert np.array_equal(occluded_irradiance(*arguments), occluded_irradiance(*arguments))
+
+
+def test_occluded_irradiance_reports_every_step():
+    envmap = sun_map()
+    occluder = Occluder(floor_and_roof())
+    position = np.column_stack([np.linspace(-0.9, 0.9, 7), np.full(7, 1e-3), np.zeros(7)])
+    frame = np.tile(np.array([[1.0, 0, 0], [0, 0, 1.0], [0, 1.0, 0]]), (7, 1, 1))
+    steps = []
+    occluded_irradiance(occluder, envmap, np.full((7, 3), 10.0), position, frame, np.ones((7, 3)), np.ones(7, bool),
+                        np.full(7, 0.05), steps.append)
+    assert sum(steps) == occlusion_steps(7) == 2

@@ -48,7 +48,7 @@ from freqbrdf.observe._kernels import (
     _unpack_samples,
 )
 from freqbrdf.observe.irradiance import texel_irradiance
-from freqbrdf.observe.occlusion import occluded_irradiance, self_occluding
+from freqbrdf.observe.occlusion import occluded_irradiance, occlusion_steps, self_occluding
 from freqbrdf.progress import SILENT, Reporter
 from freqbrdf.render.occluder import RAYS_PER_BATCH, Occluder
 from freqbrdf.sphere import envmap as envmaps
@@ -491,13 +491,12 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
 
     tick = time.perf_counter()
     if config.observe.environment_occlusion and self_occluding(capture.mesh.vertices, capture.mesh.faces):
-        with reporter.stage("tracing the object's shadows", 1) as advance:
+        with reporter.stage("tracing the object's shadows", occlusion_steps(n_texels)) as advance:
             total = weight.sum(axis=1)
             surface_radiance = np.einsum("nv,nvc->nc", weight, signals[..., OBSERVED],
                                          dtype=np.float64) / np.maximum(total, 1e-30)[:, None]
             irradiance = occluded_irradiance(occluder, capture.envmap, irradiance, ray_origin, frame,
-                                             surface_radiance, total > 0, texels.texel_size)
-            advance(1)
+                                             surface_radiance, total > 0, texels.texel_size, advance)
     timings["occlusion"] = time.perf_counter() - tick
 
     tick = time.perf_counter()

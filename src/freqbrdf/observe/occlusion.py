@@ -30,7 +30,7 @@ from scipy.spatial import ConvexHull, QhullError, cKDTree
 from freqbrdf.render.occluder import RAYS_PER_BATCH, Occluder
 from freqbrdf.sphere import envmap as envmaps
 
-__all__ = ["CompactLights", "compact_lights", "occluded_irradiance", "self_occluding"]
+__all__ = ["CompactLights", "compact_lights", "occluded_irradiance", "occlusion_steps", "self_occluding"]
 
 # A pixel belongs to a compact light where its luminance exceeds this many times the map's mean.
 LIGHT_BRIGHTNESS = 16.0
@@ -178,9 +178,25 @@ def cosine_directions(n_rays: int) -> np.ndarray:
     return np.stack([radius * np.cos(azimuth), radius * np.sin(azimuth), np.sqrt(1.0 - radius ** 2)], axis=1)
 
 
+def occlusion_steps(n_texels: int) -> int:
+    """Count the steps `occluded_irradiance` reports for n texels.
+
+    Parameters
+    ----------
+    n_texels : int
+        The texels corrected.
+
+    Returns
+    -------
+    int
+        One for the lights, then one per batch of texels' rays.
+    """
+    return 1 + -(-n_texels // max(1, RAYS_PER_BATCH // RAYS))
+
+
 def occluded_irradiance(occluder: Occluder, envmap: envmaps.Envmap, irradiance: np.ndarray, ray_origin: np.ndarray,
                         frame: np.ndarray, surface_radiance: np.ndarray, observed: np.ndarray,
-                        texel_size: np.ndarray) -> np.ndarray:
+                        texel_size: np.ndarray, advance=None) -> np.ndarray:
     """Correct each texel's unoccluded irradiance for what the object blocks and shows instead.
 
     Parameters
@@ -201,6 +217,8 @@ def occluded_irradiance(occluder: Occluder, envmap: envmaps.Envmap, irradiance: 
         Texels whose ``surface_radiance`` is known.
     texel_size : (N,) array
         Each texel's world size.
+    advance : callable, optional
+        Called with 1 after the lights and after each batch of texels (`occlusion_steps` in all).
 
     Returns
     -------
@@ -211,6 +229,8 @@ def occluded_irradiance(occluder: Occluder, envmap: envmaps.Envmap, irradiance: 
     normal = np.asarray(frame[:, 2], np.float64)
     corrected = np.asarray(irradiance, np.float64).copy()
     if n_texels == 0:
+        if advance is not None:
+            advance(1)
         return corrected.astype(np.float32)
     origins_rows = np.ascontiguousarray(np.asarray(ray_origin, np.float32).T)
     lights = compact_lights(envmap)
@@ -222,6 +242,8 @@ def occluded_irradiance(occluder: Occluder, envmap: envmaps.Envmap, irradiance: 
         towards = np.ascontiguousarray(np.broadcast_to(direction.astype(np.float32)[:, None], (3, len(lit))))
         blocked = lit[occluder.hits_rows(np.ascontiguousarray(origins_rows[:, lit]), towards)]
         corrected[blocked] -= facing[blocked, None] * power
+    if advance is not None:
+        advance(1)
 
     # The rest of the map: cosine rays, each blocked one trading the rest's radiance for the surface's.
     surface = np.asarray(surface_radiance, np.float64)
@@ -244,6 +266,8 @@ def occluded_irradiance(occluder: Occluder, envmap: envmaps.Envmap, irradiance: 
         distance = occluder.hit_distances_rows(origins, np.ascontiguousarray(directions.T, np.float32))
         rays = np.flatnonzero(np.isfinite(distance))
         if not len(rays):
+            if advance is not None:
+                advance(1)
             continue
         lost = envmaps.lookup(lights.rest, directions[rays]).astype(np.float64)  # (hits, 3)
         gained = np.broadcast_to(mean_shown, lost.shape)
@@ -256,4 +280,6 @@ def occluded_irradiance(occluder: Occluder, envmap: envmaps.Envmap, irradiance: 
         for channel in range(3):
             corrected[texels, channel] += np.bincount(owner, weights=change[:, channel],
                                                       minlength=texels.stop - texels.start)
+        if advance is not None:
+            advance(1)
     return np.maximum(corrected, 0.0).astype(np.float32)
