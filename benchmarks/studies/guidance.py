@@ -139,9 +139,10 @@ def scene_run(name: str, args) -> dict:
                    for metric in METRICS):
             raise SystemExit(f"[{name}] the start views' fit differs from {args.baselines}'s: rerun every method")
         for method in METHODS:
-            if method not in args.methods:
+            if method not in args.methods and method in baseline["curves"]:
                 curves[method] = baseline["curves"][method]
-        seconds_per_pick["entropy"] = [baseline["seconds_per_pick"]["entropy"]]
+        if "entropy" not in args.methods and baseline["seconds_per_pick"].get("entropy") is not None:
+            seconds_per_pick["entropy"] = [baseline["seconds_per_pick"]["entropy"]]
     for method in [method for method in ("uncertainty", "entropy") if method in args.methods]:
         views, curves[method] = list(start), [start_row]
         while len(views) < FINAL:
