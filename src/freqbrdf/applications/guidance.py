@@ -61,14 +61,12 @@ from freqbrdf.estimate import estimate as estimate_materials
 from freqbrdf.estimate._search_kernels import MIN_SAMPLES
 from freqbrdf.estimate.search import lambert_scale
 from freqbrdf.estimate.surface import (
-    _LOOKALIKE_MATERIAL_SCALE,
     PRIOR_PRECISION,
     SurfacePosterior,
     apparent_albedo,
     data_precision,
-    lookalike_graph,
     metal_evidence,
-    surface_graph,
+    surface_graphs,
     whole_surface,
 )
 from freqbrdf.model.brdf import band_limit_sigma
@@ -419,15 +417,10 @@ def uncertainty_model(capture: Capture, fit: SurfaceFit, rows: np.ndarray, confi
     settings = config.surface
     observations, per_texel, posterior = fit.observations, fit.per_texel, fit.posterior
     estimated = per_texel.estimated
-    appearance = np.log(apparent_albedo(observations))
-    graph = surface_graph(fit.texels.position, fit.texels.normal, appearance, estimated, settings)
-    # The base colour is also shared with look-alikes anywhere on the surface, as the solve does.
-    counts = observations.n_samples
-    confident = estimated & (counts >= np.median(counts[estimated])) if estimated.any() else estimated
-    own_material = _LOOKALIKE_MATERIAL_SCALE * np.nan_to_num(np.column_stack([per_texel.roughness,
-                                                                              per_texel.metallic]))
-    color_graph = graph.maximum(lookalike_graph(np.column_stack([appearance, own_material]), estimated, confident,
-                                                settings))
+    # The solve's own graphs: roughness along the surface, the base colour with its look-alikes too.
+    graph, _, color_graph = surface_graphs(fit.texels.position, fit.texels.normal,
+                                           np.log(apparent_albedo(observations)), per_texel,
+                                           observations.n_samples, settings)
     neighbours = np.asarray(graph.sum(axis=1)).ravel()
     color_neighbours = np.asarray(color_graph.sum(axis=1)).ravel()
     data = data_precision(observations, per_texel, posterior.metal_probability > 0.5, settings)
