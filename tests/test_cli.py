@@ -63,7 +63,8 @@ def test_fit_and_evaluate_commands(run_cli, tiny_capture, tmp_path, monkeypatch,
 
     shared_dir = tmp_path / "per_texel"
     assert run_cli("fit", tiny_capture, "--out", shared_dir, "--texture-res", 32, "--per-texel",
-                   "--no-neighbour-vote", "--split-half", "--estimation-res", 16, "--quiet") == 0
+                   "--no-neighbour-vote", "--split-half", "--estimation-res", 16, "--no-environment-occlusion",
+                   "--quiet") == 0
     assert capsys.readouterr().out == ""
     shared_summary = json.loads((shared_dir / "summary.json").read_text())
     assert not shared_summary["settings"]["surface"]["enabled"] and "surface" not in shared_summary["timings"]
@@ -77,11 +78,14 @@ def test_fit_and_evaluate_commands(run_cli, tiny_capture, tmp_path, monkeypatch,
     assert not summary["settings"]["uncertainty"]["split_half"]
     # The default fit's:
     assert default_settings["neighbour_vote"]
+    assert summary["settings"]["observe"]["environment_occlusion"]
+    assert not shared_summary["settings"]["observe"]["environment_occlusion"]
 
     paper_dir = tmp_path / "paper"
     assert run_cli("fit", tiny_capture, "--out", paper_dir, "--texture-res", 16,
                    "--preset", "paper", "--estimator", "paper", "--model", "spectrum", "--quiet") == 0
     paper_summary = json.loads((paper_dir / "summary.json").read_text())
+    assert not paper_summary["settings"]["observe"]["environment_occlusion"]  # the paper's unoccluded light
     assert paper_summary["estimate"]["method"] == "paper/spectrum"
     assert paper_summary["settings"]["estimate"]["forward_model"] == "spectrum"
     assert paper_summary["settings"]["uncertainty"]["mode"] == "paper"

@@ -20,7 +20,13 @@ from rich.console import Console
 from rich.markup import escape
 
 from freqbrdf import __version__
-from freqbrdf.cli_options import DEVICE_HELP, ENTROPY_HELP, config_from_options, estimation_res_from_option
+from freqbrdf.cli_options import (
+    DEVICE_HELP,
+    ENTROPY_HELP,
+    OCCLUSION_HELP,
+    config_from_options,
+    estimation_res_from_option,
+)
 from freqbrdf.errors import InputError
 
 app = typer.Typer(
@@ -261,6 +267,7 @@ def observe(
     ),
     texture_res: int = typer.Option(512, min=1, help="Texture resolution T (maps are T x T)."),
     lmax: int = typer.Option(5, min=0, help="Degree l* of the per-texel SH fits."),
+    occlusion: bool = typer.Option(None, "--environment-occlusion/--no-environment-occlusion", help=OCCLUSION_HELP),
     device: str = typer.Option("auto", "--device", help=DEVICE_HELP),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
 ) -> None:
@@ -278,7 +285,7 @@ def observe(
     from freqbrdf.observe.observations import observe as observe_capture
     from freqbrdf.progress import Reporter
 
-    config = config_from_options("default", texture_res, lmax, device=device)
+    config = config_from_options("default", texture_res, lmax, device=device, environment_occlusion=occlusion)
     loaded, _ = _checked(capture, quiet, config.fit.lmax, out)
     _say_backend(device, quiet)
     observations = observe_capture(loaded, config, Reporter(enabled=not quiet))
@@ -354,6 +361,7 @@ def fit(
         False, "--split-half", help="With --per-texel: add to roughness_std the scatter between two more "
         "estimates, from the even and from the odd views alone: it ranks the roughness errors better, for a large "
         "share of the fit's time again (docs/measurements.md#the-roughness-std)."),
+    occlusion: bool = typer.Option(None, "--environment-occlusion/--no-environment-occlusion", help=OCCLUSION_HELP),
     device: str = typer.Option("auto", "--device", help=DEVICE_HELP),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars or messages."),
     json_output: bool = typer.Option(False, "--json", help="Print summary.json to stdout."),
@@ -366,7 +374,8 @@ def fit(
     from freqbrdf import pipeline
     from freqbrdf.progress import Reporter
 
-    config = config_from_options(preset, texture_res, lmax, estimator=estimator, model=model, entropy=entropy, device=device)
+    config = config_from_options(preset, texture_res, lmax, estimator=estimator, model=model, entropy=entropy,
+                                 device=device, environment_occlusion=occlusion)
     if per_texel:
         config = config.replace(surface=dataclasses.replace(config.surface, enabled=False))
     if split_half:

@@ -12,7 +12,7 @@ import typer
 
 def config_from_options(preset: str, texture_res: int | None = None, lmax: int | None = None, *,
             estimator: str | None = None, model: str | None = None,
-            entropy: str | None = None, device: str = "auto"):
+            entropy: str | None = None, device: str = "auto", environment_occlusion: bool | None = None):
     """Build the preset's Config with the options the user gave (None: keep the preset's value).
 
     The device is resolved here, before any work (summary.json records the backend that ran).
@@ -40,7 +40,9 @@ def config_from_options(preset: str, texture_res: int | None = None, lmax: int |
         backend = resolve_device(device)
     except ValueError as err:
         raise typer.BadParameter(str(err)) from err
-    return config.replace(texels=texels, fit=fit_settings, estimate=estimate, device=backend,
+    observe_settings = dataclasses.replace(
+        config.observe, **({} if environment_occlusion is None else {"environment_occlusion": environment_occlusion}))
+    return config.replace(texels=texels, fit=fit_settings, estimate=estimate, device=backend, observe=observe_settings,
                           uncertainty=dataclasses.replace(config.uncertainty, **uncertainty_changes))
 
 
@@ -72,7 +74,10 @@ def estimation_res_from_option(value: str, texture_res: int):
     return int(value)
 
 
-DEVICE_HELP = ("Where the SH fits, the search and the entropy run: cpu, cuda (pip install 'freqbrdf[gpu]' and an "
+OCCLUSION_HELP = ("Correct the light each texel receives where the object hides its own environment (shadow rays "
+                  "to the sun and lamps, cosine rays that see the object itself). Default: the preset's (on; paper: "
+                  "off). docs/measurements.md#environment-occlusion")
+DEVICE_HELP = ("Where the SH fits, the search and the entropy run: cpu, cuda (pip install 'freqbrdf\\[gpu]' and an "
                "NVIDIA GPU) or auto (cuda when both are there, else cpu).")
 ENTROPY_HELP = ("Entropy mode: calibrated (from the spectra, fast; what next-views predicts and what "
                 "inpainting is tuned on), paper (the published recipe, to compare with it) or angular (the "
