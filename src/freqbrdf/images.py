@@ -38,6 +38,8 @@ class CaptureDataWarning(UserWarning):
 NEGATIVE_NOISE = 0.01
 from freqbrdf.fileio import atomic_path
 
+LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
+"""Rec. 709 luminance weights of linear RGB."""
 HDR_SUFFIXES = (".exr", ".hdr")
 LDR_SUFFIXES = (".png", ".jpg", ".jpeg")
 IMAGE_SUFFIXES = HDR_SUFFIXES + LDR_SUFFIXES

@@ -452,7 +452,7 @@ def uncertainty_model(capture: Capture, fit: SurfaceFit, rows: np.ndarray, confi
 
     roughness_scale = calibration(posterior.roughness_std.astype(np.float64), roughness_precision, roughness_coupling)
     # The base-colour std holds the label's doubt beside the solve's spread: calibrate on the spread.
-    _, _, labelled = metal_evidence(per_texel, observations.n_samples)
+    log_ratio, _, labelled = metal_evidence(per_texel, observations.n_samples)
     label_difference = labelled[1][:, :3] - labelled[0][:, :3]
     label_variance = posterior.metal_probability * (1.0 - posterior.metal_probability)
     color_spread = np.sqrt(np.maximum(posterior.base_color_std[:, 0].astype(np.float64) ** 2
@@ -471,9 +471,7 @@ def uncertainty_model(capture: Capture, fit: SurfaceFit, rows: np.ndarray, confi
         len(rows), view_information(capture, fit_texels, fit, rows, [frame.camera for frame in capture.frames],
                                     sigma), "fisher"))
 
-
     # The metal label: the texel's log-ratio (as the solve weighs it) per unit of its views' evidence.
-    log_ratio, _, _ = metal_evidence(per_texel, observations.n_samples)
     weighed = np.abs(log_ratio[rows]) / settings.noise_inflation
     measured = estimated[rows] & (evidence > 0)
     evidence_scale = np.zeros(len(rows))

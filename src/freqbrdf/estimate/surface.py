@@ -47,13 +47,14 @@ from freqbrdf.config import Config, SurfaceConfig
 from freqbrdf.estimate._search_kernels import FITTED_PARAMETERS
 from freqbrdf.estimate._surface_kernels import conjugate_gradients, huber_weights
 from freqbrdf.estimate.search import lambert_scale
+from freqbrdf.observe.observations import mean_over_views
 
 if TYPE_CHECKING:
     from freqbrdf.estimate import MaterialEstimate
     from freqbrdf.observe.observations import Observations
     from freqbrdf.texels import Texels
 
-__all__ = ["DataPrecision", "SurfaceGraphs", "SurfacePosterior", "data_precision", "lookalike_graph", "mean_over_views",
+__all__ = ["DataPrecision", "SurfaceGraphs", "SurfacePosterior", "data_precision", "lookalike_graph",
            "metal_evidence", "metal_posterior", "smooth_on_surface", "surface_graph", "surface_graphs", "whole_surface"]
 
 # Apparent albedo floor (log space): keeps black texels' logarithm finite.
@@ -243,7 +244,7 @@ def data_precision(observations: Observations, estimate: MaterialEstimate, metal
     curvature = (np.ones(estimate.n_texels) if estimate.roughness_curvature is None
                  else np.nan_to_num(estimate.roughness_curvature))
     roughness = np.where(estimated, 0.5 * np.maximum(curvature, 0.0) / noise, 0.0)
-    light = np.where(metal[:, None], mean_over_views(observations, observations.mirrored), lambert_scale(observations))
+    light = np.where(metal[:, None], mean_over_views(observations.weight, observations.mirrored), lambert_scale(observations))
     color = np.where(estimated[:, None], light.astype(np.float64) ** 2 / noise[:, None], 0.0)
     counts = observations.n_samples.astype(np.float64)
     typical = max(float(np.median(counts[estimated])), 1.0) if estimated.any() else 1.0
@@ -264,30 +265,9 @@ def apparent_albedo(observations: Observations) -> np.ndarray:
     (N, 3) float64
         The apparent albedo, at least ``_ALBEDO_FLOOR``; the floor where a texel has no sample.
     """
-    radiance = mean_over_views(observations, observations.observed)
+    radiance = mean_over_views(observations.weight, observations.observed)
     irradiance = np.maximum(lambert_scale(observations), 1e-12)
     return np.maximum(radiance / irradiance, _ALBEDO_FLOOR)
-
-
-def mean_over_views(observations: Observations, values: np.ndarray) -> np.ndarray:
-    """Return the weighted mean of per-sample values over each texel's samples.
-
-    Parameters
-    ----------
-    observations : Observations
-        The texels' samples (N texels, V views): their weights.
-    values : (N, V, 3) array
-        A value per sample, e.g. ``observations.observed``.
-
-    Returns
-    -------
-    (N, 3) float64
-        The mean; 0 for a texel without samples.
-    """
-    weight = observations.weight.astype(np.float64)
-    total = weight.sum(axis=1)
-    summed = np.einsum("nv,nvc->nc", weight, values, dtype=np.float64)
-    return np.where(total[:, None] > 0, summed / np.maximum(total, 1e-30)[:, None], 0.0)
 
 
 def surface_graph(position: np.ndarray, normal: np.ndarray, appearance: np.ndarray, observed: np.ndarray,

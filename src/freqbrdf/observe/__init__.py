@@ -9,8 +9,8 @@ only when an occluder is made: importing this package does not import it.
 Modules
 -------
 observations
-    `Observations` (its samples, spectra, saving and loading), the stage `observe` and
-    `texel_alpha_bound`.
+    `Observations` (its samples, spectra, saving and loading), the stage `observe`,
+    `texel_alpha_bound` and `mean_over_views`.
 irradiance
     `texel_irradiance`: the irradiance at the normals from the environment's SH.
 occlusion
@@ -29,6 +29,7 @@ from freqbrdf.observe.observations import (
     RAY_OFFSET_OBJECT,
     RAY_OFFSET_TEXELS,
     Observations,
+    mean_over_views,
     observe,
     texel_alpha_bound,
 )
@@ -42,6 +43,7 @@ __all__ = [
     "Observations",
     "camera_samples",
     "compact_lights",
+    "mean_over_views",
     "occluded_irradiance",
     "observe",
     "self_occluding",

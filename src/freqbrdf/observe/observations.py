@@ -492,11 +492,9 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
     tick = time.perf_counter()
     if config.observe.environment_occlusion and self_occluding(capture.mesh.vertices, capture.mesh.faces):
         with reporter.stage("tracing the object's shadows", occlusion_steps(n_texels)) as advance:
-            total = weight.sum(axis=1)
-            surface_radiance = np.einsum("nv,nvc->nc", weight, signals[..., OBSERVED],
-                                         dtype=np.float64) / np.maximum(total, 1e-30)[:, None]
             irradiance = occluded_irradiance(occluder, capture.envmap, irradiance, ray_origin, frame,
-                                             surface_radiance, total > 0, texels.texel_size, advance)
+                                             mean_over_views(weight, signals[..., OBSERVED]), weight.sum(axis=1) > 0,
+                                             texels.texel_size, advance)
     timings["occlusion"] = time.perf_counter() - tick
 
     tick = time.perf_counter()
@@ -546,6 +544,27 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
 
 # ---------------------------------------------------------------------------------------------
 # Helpers
+
+
+def mean_over_views(weight: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Return the weighted mean of per-sample values over each texel's samples.
+
+    Parameters
+    ----------
+    weight : (N, V) array
+        The samples' weights (`Observations.weight`).
+    values : (N, V, 3) array
+        A value per sample, e.g. ``Observations.observed``.
+
+    Returns
+    -------
+    (N, 3) float64
+        The mean; 0 for a texel without samples.
+    """
+    weight = np.asarray(weight, np.float64)
+    total = weight.sum(axis=1)
+    summed = np.einsum("nv,nvc->nc", weight, values, dtype=np.float64)
+    return np.where(total[:, None] > 0, summed / np.maximum(total, 1e-30)[:, None], 0.0)
 
 
 def texel_alpha_bound(n_samples: np.ndarray, lmax: int, attenuation: float) -> np.ndarray:

@@ -21,12 +21,14 @@ Deterministic: fixed ray sets, each texel's turned by a fixed angle of its index
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
 from scipy import ndimage
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
+from freqbrdf.images import LUMINANCE
 from freqbrdf.render.occluder import RAYS_PER_BATCH, Occluder
 from freqbrdf.sphere import envmap as envmaps
 
@@ -45,7 +47,6 @@ _NEAREST_REACH = 8.0
 # Faces whose plane has a mesh point farther above it than this share of the mesh's extent can
 # shade a texel: the mesh is not convex.
 _CONVEX_TOLERANCE = 1e-6
-_LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
 
 
 class CompactLights(NamedTuple):
@@ -99,7 +100,7 @@ def compact_lights(envmap: envmaps.Envmap, max_lights: int = MAX_LIGHTS,
     radiance = envmap.radiance.astype(np.float64)
     height, width = radiance.shape[:2]
     solid = _pixel_solid_angles(height, width)
-    luminance = radiance @ _LUMINANCE
+    luminance = radiance @ LUMINANCE
     mean = float((luminance * solid).sum() / (4.0 * math.pi))
     level = brightness * mean
     bright = luminance > level if mean > 0 else np.zeros(luminance.shape, dtype=bool)
@@ -115,9 +116,9 @@ def compact_lights(envmap: envmaps.Envmap, max_lights: int = MAX_LIGHTS,
         energy = excess * solid[..., None]  # (H, W, 3)
         index = np.arange(1, n_regions + 1)
         power = np.stack([ndimage.sum(energy[..., c], labels, index) for c in range(3)], axis=1)  # (R, 3)
-        strength = energy @ _LUMINANCE
+        strength = energy @ LUMINANCE
         centre = np.stack([ndimage.sum(strength * world[..., c], labels, index) for c in range(3)], axis=1)
-        order = np.argsort(-(power @ _LUMINANCE), kind="stable")[:max_lights]
+        order = np.argsort(-(power @ LUMINANCE), kind="stable")[:max_lights]
         centre = centre[order]
         directions = centre / np.maximum(np.linalg.norm(centre, axis=1, keepdims=True), 1e-30)
         powers = power[order]
@@ -196,7 +197,7 @@ def occlusion_steps(n_texels: int) -> int:
 
 def occluded_irradiance(occluder: Occluder, envmap: envmaps.Envmap, irradiance: np.ndarray, ray_origin: np.ndarray,
                         frame: np.ndarray, surface_radiance: np.ndarray, observed: np.ndarray,
-                        texel_size: np.ndarray, advance=None) -> np.ndarray:
+                        texel_size: np.ndarray, advance: Callable[[int], None] = lambda steps: None) -> np.ndarray:
     """Correct each texel's unoccluded irradiance for what the object blocks and shows instead.
 
     Parameters
@@ -218,7 +219,8 @@ def occluded_irradiance(occluder: Occluder, envmap: envmaps.Envmap, irradiance: 
     texel_size : (N,) array
         Each texel's world size.
     advance : callable, optional
-        Called with 1 after the lights and after each batch of texels (`occlusion_steps` in all).
+        Called with 1 after the lights and after each batch of texels (`occlusion_steps` in all);
+        by default nothing is reported.
 
     Returns
     -------
@@ -229,8 +231,7 @@ def occluded_irradiance(occluder: Occluder, envmap: envmaps.Envmap, irradiance: 
     normal = np.asarray(frame[:, 2], np.float64)
     corrected = np.asarray(irradiance, np.float64).copy()
     if n_texels == 0:
-        if advance is not None:
-            advance(1)
+        advance(1)
         return corrected.astype(np.float32)
     origins_rows = np.ascontiguousarray(np.asarray(ray_origin, np.float32).T)
     lights = compact_lights(envmap)
@@ -242,8 +243,7 @@ def occluded_irradiance(occluder: Occluder, envmap: envmaps.Envmap, irradiance: 
         towards = np.ascontiguousarray(np.broadcast_to(direction.astype(np.float32)[:, None], (3, len(lit))))
         blocked = lit[occluder.hits_rows(np.ascontiguousarray(origins_rows[:, lit]), towards)]
         corrected[blocked] -= facing[blocked, None] * power
-    if advance is not None:
-        advance(1)
+    advance(1)
 
     # The rest of the map: cosine rays, each blocked one trading the rest's radiance for the surface's.
     surface = np.asarray(surface_radiance, np.float64)
@@ -265,21 +265,16 @@ def occluded_irradiance(occluder: Occluder, envmap: envmaps.Envmap, irradiance: 
         origins = np.repeat(origins_rows[:, texels], RAYS, axis=1)  # (3, n M)
         distance = occluder.hit_distances_rows(origins, np.ascontiguousarray(directions.T, np.float32))
         rays = np.flatnonzero(np.isfinite(distance))
-        if not len(rays):
-            if advance is not None:
-                advance(1)
-            continue
-        lost = envmaps.lookup(lights.rest, directions[rays]).astype(np.float64)  # (hits, 3)
-        gained = np.broadcast_to(mean_shown, lost.shape)
-        if tree is not None:
-            hit_points = origins[:, rays].T.astype(np.float64) + distance[rays, None] * directions[rays]
-            nearest_distance, nearest = tree.query(hit_points)
-            gained = np.where((nearest_distance <= reach)[:, None], surface[shown[nearest]], mean_shown)
-        owner = rays // RAYS
-        change = (gained - lost) * (math.pi / RAYS)
-        for channel in range(3):
-            corrected[texels, channel] += np.bincount(owner, weights=change[:, channel],
-                                                      minlength=texels.stop - texels.start)
-        if advance is not None:
-            advance(1)
+        if len(rays):
+            lost = envmaps.lookup(lights.rest, directions[rays]).astype(np.float64)  # (hits, 3)
+            gained = np.broadcast_to(mean_shown, lost.shape)
+            if tree is not None:
+                hit_points = origins[:, rays].T.astype(np.float64) + distance[rays, None] * directions[rays]
+                nearest_distance, nearest = tree.query(hit_points)
+                gained = np.where((nearest_distance <= reach)[:, None], surface[shown[nearest]], mean_shown)
+            change = (gained - lost) * (math.pi / RAYS)
+            for channel in range(3):
+                corrected[texels, channel] += np.bincount(rays // RAYS, weights=change[:, channel],
+                                                          minlength=texels.stop - texels.start)
+        advance(1)
     return np.maximum(corrected, 0.0).astype(np.float32)

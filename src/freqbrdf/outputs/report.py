@@ -30,7 +30,7 @@ from freqbrdf.capture.layouts import load as load_capture
 from freqbrdf.capture.mesh import Mesh
 from freqbrdf.errors import InputError
 from freqbrdf.fileio import atomic_directory
-from freqbrdf.images import linear_to_srgb, srgb_to_linear, write_png
+from freqbrdf.images import LUMINANCE, linear_to_srgb, srgb_to_linear, write_png
 from freqbrdf.model import brdf
 from freqbrdf.model.materials import MaterialMaps, resize
 from freqbrdf.outputs import export
@@ -431,7 +431,6 @@ def _plot_spectra(path: Path, outputs: FitOutputs, picks: dict[str, int]) -> Non
     from freqbrdf.fileio import atomic_path
 
     arrays, maps = outputs.arrays, outputs.maps
-    luminance = np.array([0.2126, 0.7152, 0.0722])
     sigma = float(arrays.get("sigma", 0.0))
     figure, axes = plt.subplots(1, len(picks), figsize=(4.2 * len(picks), 3.3), squeeze=False)
     for axis, (label, texel) in zip(axes[0], picks.items()):
@@ -449,7 +448,7 @@ def _plot_spectra(path: Path, outputs: FitOutputs, picks: dict[str, int]) -> Non
         for values, name, style in ((incoming, "incoming (mirrored env.)", "-o"),
                                     (outgoing, "outgoing (observed)", "-s"),
                                     (fitted, "fitted specular", "--^")):
-            axis.semilogy(degrees, np.maximum(luminance @ values, 1e-12), style, label=name, markersize=4)
+            axis.semilogy(degrees, np.maximum(LUMINANCE @ values, 1e-12), style, label=name, markersize=4)
         axis.set_title(f"{label}: entropy {arrays['entropy'][texel]:.2f}\nroughness {roughness:.2f}, "
                        f"metallic {metallic:.2f}, {int(arrays['n_samples'][texel])} views", fontsize=9)
         axis.set_xlabel("SH degree l")

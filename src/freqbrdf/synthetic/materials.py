@@ -14,7 +14,7 @@ from skimage.transform import resize as resize_image
 
 from freqbrdf.capture.camera_layouts import bounding_sphere
 from freqbrdf.capture.mesh import Mesh
-from freqbrdf.images import linear_to_srgb, srgb_to_linear
+from freqbrdf.images import LUMINANCE, linear_to_srgb, srgb_to_linear
 from freqbrdf.model.materials import MaterialMaps
 from freqbrdf.texels import rasterise
 
@@ -113,7 +113,7 @@ def photo_material(photo_srgb: np.ndarray, resolution: int = 512) -> MaterialMap
     base_color = 0.03 + 0.9 * linear
     display = linear_to_srgb(linear).astype(np.float64)  # (T, T, 3) sRGB of the resized image
 
-    luminance = display @ np.array([0.2126, 0.7152, 0.0722])
+    luminance = display @ LUMINANCE
     gradient = np.hypot(ndimage.sobel(luminance, axis=0), ndimage.sobel(luminance, axis=1))
     detail = ndimage.gaussian_filter(gradient, sigma=resolution / 128)
     detail = np.clip(detail / np.percentile(detail, 95), 0.0, 1.0)
