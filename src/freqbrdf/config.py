@@ -121,8 +121,9 @@ class ObserveConfig:
     """The texels' samples and the light they receive (METHOD.md §3.2, §3.5)."""
 
     environment_occlusion: bool = True
-    """Correct the irradiance for the object hiding its own environment: shadow rays to the map's compact lights and
-    cosine rays that see the object's observed radiance instead (`freqbrdf.observe.occlusion`; beyond the paper).
+    """Correct the light for the object hiding its own environment: the irradiance (shadow rays to the map's compact
+    lights, cosine rays that see the object's observed radiance instead) and the smooth lobes' light where a sample's
+    mirror direction meets the object (`freqbrdf.observe.occlusion`; beyond the paper).
     docs/measurements.md#environment-occlusion"""
 
 

@@ -51,6 +51,7 @@ def squared_residual_kernel(proj, samples, base_color, metallic, roughness, opti
     prefiltered, n_full = prefiltered_light.maps, prefiltered_light.n_full
     world_to_local, map_height, map_width = prefiltered_light.world_to_local, prefiltered_light.height, prefiltered_light.width
     n_texels, n_views = weight.shape
+    traced = samples.mirror_blocked.shape[1] > 0
     n_degrees = proj.shape[2]
     n_terms = len(LOBE_TERMS)
     for t in numba.prange(n_texels):
@@ -121,7 +122,9 @@ def squared_residual_kernel(proj, samples, base_color, metallic, roughness, opti
                 for c in range(3):
                     for term in range(distinct_terms):
                         filtered[term] = 0.0
-                        if use_prefiltered:
+                        if traced and samples.mirror_blocked[t, v]:  # the object in the mirror direction
+                            filtered[term] = samples.mirror_surface[t, v, c]
+                        elif use_prefiltered:
                             filtered[term] = prefiltered_between(nodes, c, v, lower_map, upper_map, map_frac)
                         else:
                             for degree in range(n_degrees):

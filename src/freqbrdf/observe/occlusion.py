@@ -15,6 +15,10 @@ dark. This module corrects E where the object blocks its own environment:
 
 E is the exact unoccluded irradiance minus these corrections, so nothing changes where nothing is
 blocked, and a mesh that cannot block itself (convex or flat, `self_occluding`) is not traced.
+
+The specular lobes read the environment in each sample's mirror direction; where the object lies
+there instead (`mirror_occlusion`: one ray per sample), they read what the object shows at the
+hit, found the same way.
 Deterministic: fixed ray sets, each texel's turned by a fixed angle of its index.
 """
 
@@ -32,7 +36,8 @@ from freqbrdf.images import LUMINANCE
 from freqbrdf.render.occluder import RAYS_PER_BATCH, Occluder
 from freqbrdf.sphere import envmap as envmaps
 
-__all__ = ["CompactLights", "compact_lights", "occluded_irradiance", "occlusion_steps", "self_occluding"]
+__all__ = ["CompactLights", "compact_lights", "mirror_occlusion", "occluded_irradiance", "occlusion_steps",
+           "self_occluding"]
 
 # A pixel belongs to a compact light where its luminance exceeds this many times the map's mean.
 LIGHT_BRIGHTNESS = 16.0
@@ -179,20 +184,46 @@ def cosine_directions(n_rays: int) -> np.ndarray:
     return np.stack([radius * np.cos(azimuth), radius * np.sin(azimuth), np.sqrt(1.0 - radius ** 2)], axis=1)
 
 
-def occlusion_steps(n_texels: int) -> int:
-    """Count the steps `occluded_irradiance` reports for n texels.
+def occlusion_steps(n_texels: int, n_views: int = 0) -> int:
+    """Count the steps `occluded_irradiance` and then `mirror_occlusion` report.
 
     Parameters
     ----------
     n_texels : int
         The texels corrected.
+    n_views : int, optional
+        The views whose mirror directions `mirror_occlusion` traces (0: not traced).
 
     Returns
     -------
     int
-        One for the lights, then one per batch of texels' rays.
+        One for the lights, then one per batch of texels' rays of each.
     """
-    return 1 + -(-n_texels // max(1, RAYS_PER_BATCH // RAYS))
+    mirror = -(-n_texels // max(1, RAYS_PER_BATCH // n_views)) if n_views else 0
+    return 1 + -(-n_texels // max(1, RAYS_PER_BATCH // RAYS)) + mirror
+
+
+class _SurfaceRadiance:
+    """What the object shows at points on it.
+
+    The mean observed radiance of its texel nearest each point (within ``_NEAREST_REACH`` texel
+    sizes), else the mean over its observed texels.
+    """
+
+    def __init__(self, ray_origin: np.ndarray, surface_radiance: np.ndarray, observed: np.ndarray,
+                 texel_size: np.ndarray):
+        self._surface = np.asarray(surface_radiance, np.float64)
+        self._shown = np.flatnonzero(observed)
+        self.mean = self._surface[self._shown].mean(axis=0) if len(self._shown) else np.zeros(3)
+        self._tree = cKDTree(np.asarray(ray_origin, np.float64)[self._shown]) if len(self._shown) else None
+        self._reach = _NEAREST_REACH * float(np.median(texel_size)) if len(texel_size) else 0.0
+
+    def at(self, points: np.ndarray) -> np.ndarray:
+        """(M, 3) float64 radiance at (M, 3) world points."""
+        if self._tree is None:
+            return np.broadcast_to(self.mean, (len(points), 3)).copy()
+        distance, nearest = self._tree.query(np.asarray(points, np.float64))
+        return np.where((distance <= self._reach)[:, None], self._surface[self._shown[nearest]], self.mean)
 
 
 def occluded_irradiance(occluder: Occluder, envmap: envmaps.Envmap, irradiance: np.ndarray, ray_origin: np.ndarray,
@@ -246,11 +277,7 @@ def occluded_irradiance(occluder: Occluder, envmap: envmaps.Envmap, irradiance: 
     advance(1)
 
     # The rest of the map: cosine rays, each blocked one trading the rest's radiance for the surface's.
-    surface = np.asarray(surface_radiance, np.float64)
-    shown = np.flatnonzero(observed)
-    mean_shown = surface[shown].mean(axis=0) if len(shown) else np.zeros(3)
-    tree = cKDTree(np.asarray(ray_origin, np.float64)[shown]) if len(shown) else None
-    reach = _NEAREST_REACH * float(np.median(texel_size))
+    surface = _SurfaceRadiance(ray_origin, surface_radiance, observed, texel_size)
     local = cosine_directions(RAYS)
     spin = 2.0 * math.pi * np.modf(np.arange(n_texels) * (math.sqrt(5.0) - 1.0) / 2.0)[0]
     texels_per_batch = max(1, RAYS_PER_BATCH // RAYS)
@@ -267,14 +294,74 @@ def occluded_irradiance(occluder: Occluder, envmap: envmaps.Envmap, irradiance: 
         rays = np.flatnonzero(np.isfinite(distance))
         if len(rays):
             lost = envmaps.lookup(lights.rest, directions[rays]).astype(np.float64)  # (hits, 3)
-            gained = np.broadcast_to(mean_shown, lost.shape)
-            if tree is not None:
-                hit_points = origins[:, rays].T.astype(np.float64) + distance[rays, None] * directions[rays]
-                nearest_distance, nearest = tree.query(hit_points)
-                gained = np.where((nearest_distance <= reach)[:, None], surface[shown[nearest]], mean_shown)
+            gained = surface.at(origins[:, rays].T.astype(np.float64) + distance[rays, None] * directions[rays])
             change = (gained - lost) * (math.pi / RAYS)
             for channel in range(3):
                 corrected[texels, channel] += np.bincount(rays // RAYS, weights=change[:, channel],
                                                           minlength=texels.stop - texels.start)
         advance(1)
     return np.maximum(corrected, 0.0).astype(np.float32)
+
+
+def mirror_occlusion(occluder: Occluder, ray_origin: np.ndarray, frame: np.ndarray, view_direction: np.ndarray,
+                     visible: np.ndarray, surface_radiance: np.ndarray, observed: np.ndarray, texel_size: np.ndarray,
+                     advance: Callable[[int], None] = lambda steps: None) -> tuple[np.ndarray, np.ndarray]:
+    """Find the samples whose mirror direction meets the object, and what it shows there.
+
+    One ray per visible sample from the texel's point along the view direction mirrored about its
+    normal; a hit's radiance is the mean observed radiance of the object's texel nearest the hit
+    point (as `occluded_irradiance` reads it).
+
+    Parameters
+    ----------
+    occluder : Occluder
+        The object.
+    ray_origin : (N, 3) array
+        Each texel's point, lifted off the surface along its normal.
+    frame : (N, 3, 3) array
+        Rows: each texel's tangent, bitangent and normal.
+    view_direction : (N, V, 3) array
+        w_o in each texel's frame.
+    visible : (N, V) bool
+        The samples to trace.
+    surface_radiance : (N, 3) array
+        Each texel's mean observed radiance.
+    observed : (N,) bool
+        Texels whose ``surface_radiance`` is known.
+    texel_size : (N,) array
+        Each texel's world size.
+    advance : callable, optional
+        Called with 1 after each batch of texels (see `occlusion_steps`); by default nothing.
+
+    Returns
+    -------
+    blocked : (N, V) bool
+        Visible samples whose mirror direction meets the object.
+    surface : (N, V, 3) float32
+        The radiance the object shows there; 0 where not blocked.
+    """
+    n_texels, n_views = visible.shape
+    blocked = np.zeros((n_texels, n_views), dtype=bool)
+    shown = np.zeros((n_texels, n_views, 3), dtype=np.float32)
+    if n_texels == 0 or n_views == 0:
+        return blocked, shown
+    surface = _SurfaceRadiance(ray_origin, surface_radiance, observed, texel_size)
+    texels_per_batch = max(1, RAYS_PER_BATCH // n_views)
+    for first in range(0, n_texels, texels_per_batch):
+        rows = slice(first, min(first + texels_per_batch, n_texels))
+        texel, view = np.nonzero(visible[rows])
+        texel += first
+        local = np.asarray(view_direction[texel, view], np.float64)
+        basis = np.asarray(frame[texel], np.float64)
+        # The mirror of w_o about the normal: (-x, -y, z) in the texel's frame.
+        directions = (-local[:, 0, None] * basis[:, 0] - local[:, 1, None] * basis[:, 1]
+                      + local[:, 2, None] * basis[:, 2])
+        directions /= np.maximum(np.linalg.norm(directions, axis=1, keepdims=True), 1e-12)
+        origins = np.asarray(ray_origin, np.float64)[texel]
+        distance = occluder.hit_distances_rows(np.ascontiguousarray(origins.T, np.float32),
+                                               np.ascontiguousarray(directions.T, np.float32))
+        hits = np.flatnonzero(np.isfinite(distance))
+        blocked[texel[hits], view[hits]] = True
+        shown[texel[hits], view[hits]] = surface.at(origins[hits] + distance[hits, None] * directions[hits])
+        advance(1)
+    return blocked, shown
