@@ -101,16 +101,18 @@ def test_bundled_material_sets_load_in_range_and_vary():
 
 
 def test_bundled_materials_match_their_generators():
-    """The files are what make_assets writes: the generators' output stored as half floats."""
+    """The files are what make_assets writes: the generators' output stored as half floats, to one
+    half-float step (scipy's and numpy's float64 filters round differently from one version to the
+    next, which moves a value lying near the middle of two half floats to the other one)."""
     expected = {"bands": bands_material(512), "astronaut": photo_material(skimage.data.astronaut())}
     for name, generated in expected.items():
         stored = load_material_maps(assets.material_dir(name))
         for field in ("base_color", "roughness", "metallic"):
-            np.testing.assert_array_equal(
-                getattr(stored, field),
-                getattr(generated, field).astype(np.float16).astype(np.float32),
-                err_msg=f"{name}.{field}",
-            )
+            half = getattr(generated, field).astype(np.float16)
+            difference = np.abs(getattr(stored, field) - half.astype(np.float32))
+            step = np.spacing(np.abs(half)).astype(np.float32)
+            assert np.all(difference <= step), f"{name}.{field}: {np.count_nonzero(difference > step)} texels"
+            assert np.mean(difference > 0) < 1e-3, f"{name}.{field}: {np.count_nonzero(difference)} texels differ"
 
 
 def test_bands_layout():
