@@ -21,6 +21,10 @@ Shape letters used in every docstring:
 
 __version__ = "0.2.0"
 
-from freqbrdf.errors import InputError
+from freqbrdf._numba_cache import key_cache_by_sources
+
+key_cache_by_sources()  # before any kernel is defined: numba's cache keyed by the kernels' sources
+
+from freqbrdf.errors import InputError  # noqa: E402
 
 __all__ = ["InputError", "__version__"]
