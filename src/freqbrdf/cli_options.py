@@ -75,7 +75,8 @@ def estimation_res_from_option(value: str, texture_res: int):
 
 
 OCCLUSION_HELP = ("Correct the light each texel receives where the object hides its own environment (shadow rays "
-                  "to the sun and lamps, cosine rays and each view's mirror ray that see the object itself). Default: the "
+                  "to the sun and lamps, cosine rays and rays around each view's mirror direction that see the object "
+                  "itself). Default: the "
                   "preset's (on; paper: "
                   "off). docs/measurements.md#environment-occlusion")
 DEVICE_HELP = ("Where the SH fits, the search and the entropy run: cpu, cuda (pip install 'freqbrdf\\[gpu]' and an "

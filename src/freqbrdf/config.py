@@ -123,7 +123,7 @@ class ObserveConfig:
     environment_occlusion: bool = True
     """Correct the light for the object hiding its own environment: the irradiance (shadow rays to the map's compact
     lights, cosine rays that see the object's observed radiance instead) and the smooth lobes' light where a sample's
-    mirror direction meets the object (`freqbrdf.observe.occlusion`; beyond the paper).
+    mirror lobe meets the object (`freqbrdf.observe.occlusion`; beyond the paper).
     docs/measurements.md#environment-occlusion"""
 
 

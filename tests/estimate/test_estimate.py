@@ -57,7 +57,7 @@ def synthetic_observations(
     environment_light: bool = False,
     prefiltered: bool = False,
     environment_blend: tuple[float, float] = EstimateConfig().environment_blend,
-    mirror_blocked_share: float = 0.0,
+    mirror_occluded_share: float = 0.0,
 ) -> Observations:
     """Observations of texels with known parameters, rendered by one of the global estimator's models.
 
@@ -71,9 +71,10 @@ def synthetic_observations(
     32 x 64 map (degrees up to 12) instead of the fitted light, the environment light gains the
     map's degrees above 5 (prefiltered), and the observations carry the map; the environment is
     then that map's SH. Without either, the observations carry no environment
-    (tangent None), as hand-made ones. With ``mirror_blocked_share`` > 0 ("split_sum"), that share of
-    the samples has the object in its mirror direction: their lobes' own light is a random
-    radiance the object shows (`Observations.mirror_surface`), the environment light's part stays.
+    (tangent None), as hand-made ones. With ``mirror_occluded_share`` > 0 ("split_sum"), that share of
+    the samples has the object in part of its mirror lobe (a random share of it,
+    `Observations.mirror_occluded`): that share of the lobes' own light is a random radiance the
+    object shows (`Observations.mirror_surface`), the environment light's part stays.
 
     Per texel: random view directions on the upper hemisphere (20 % missed), a light of a grey
     floor plus four sharp coloured lobes seen in the mirror directions, a random irradiance.
@@ -132,13 +133,14 @@ def synthetic_observations(
             high_light = prefiltered_light(directions, tangent, normal, high, environment_map.rotation, truth.roughness)
 
         mirror_rng = np.random.default_rng(seed + 1)
-        mirror_blocked = mirror_rng.uniform(size=(n_texels, n_views)) < mirror_blocked_share
-        mirror_surface = np.where(mirror_blocked[..., None], mirror_rng.uniform(0.2, 2.0, (n_texels, n_views, 3)), 0.0)
+        met = mirror_rng.uniform(size=(n_texels, n_views)) < mirror_occluded_share
+        mirror_occluded = np.where(met, mirror_rng.uniform(0.1, 1.0, (n_texels, n_views)), 0.0)
+        mirror_surface = np.where(met[..., None], mirror_rng.uniform(0.2, 2.0, (n_texels, n_views, 3)), 0.0)
 
         def light(term):
             fitted = own_light if prefiltered else lobe_filtered_light(
                 directions, weight, light_fit.coeffs[:, :3], LMAX, sigma, truth.roughness)
-            fitted = np.where(mirror_blocked[..., None], mirror_surface, fitted)
+            fitted = fitted + mirror_occluded[..., None] * (mirror_surface - fitted)
             if not environment_light:
                 return fitted
             return (1.0 - share) * fitted + share * (environment_filtered_light(
@@ -170,8 +172,8 @@ def synthetic_observations(
         environment_coeffs=environment.astype(np.float32) if environment_light or prefiltered else None,
         environment_radiance=environment_map.radiance if prefiltered else None,
         environment_rotation=environment_map.rotation if prefiltered else None,
-        **({"mirror_blocked": mirror_blocked & visible, "mirror_surface": mirror_surface.astype(np.float32)}
-           if mirror_blocked_share > 0 else {}),
+        **({"mirror_occluded": np.where(visible, mirror_occluded, 0.0).astype(np.float32),
+            "mirror_surface": mirror_surface.astype(np.float32)} if mirror_occluded_share > 0 else {}),
     )
 
 
@@ -303,19 +305,20 @@ def test_global_recovers_parameters_exactly_with_the_environment_light(truth):
 
 
 def test_global_reads_what_the_object_shows_where_it_blocks_the_mirror_direction(truth):
-    # A third of the samples see the object in their mirror direction: their smooth lobes read its
-    # radiance, rough ones the environment light too (blended over 0.3-0.6, as the estimator does).
+    # A third of the samples see the object in part of their mirror lobe: that share of their smooth
+    # lobes' light is its radiance, rough ones read the environment light too (blended over 0.3-0.6,
+    # as the estimator does).
     observations = synthetic_observations(truth, seed=29, model="split_sum", environment_light=True,
-                                          prefiltered=True, mirror_blocked_share=0.3)
+                                          prefiltered=True, mirror_occluded_share=0.3)
     result = estimate(observations, Config())
     _assert_recovered(result, truth, atol=1e-4)
     np.testing.assert_allclose(result.loss, angular_loss(observations, result.principled(), Config()), atol=1e-12)
     # Read as the environment there (not traced), the smooth lobes miss.
-    untraced = dataclasses.replace(observations, mirror_blocked=None, mirror_surface=None)
+    untraced = dataclasses.replace(observations, mirror_occluded=None, mirror_surface=None)
     smooth = truth.roughness < 0.45
     assert np.median(angular_loss(untraced, truth, Config())[smooth]) > 1e4 * np.median(result.loss[smooth])
     # Nothing blocked reads exactly as not traced.
-    unblocked = dataclasses.replace(observations, mirror_blocked=np.zeros_like(observations.mirror_blocked))
+    unblocked = dataclasses.replace(observations, mirror_occluded=np.zeros_like(observations.mirror_occluded))
     np.testing.assert_array_equal(angular_loss(unblocked, truth, Config()), angular_loss(untraced, truth, Config()))
 
 

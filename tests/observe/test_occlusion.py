@@ -10,6 +10,7 @@ import pytest
 from freqbrdf.assets import mesh_path
 from freqbrdf.capture.mesh import Mesh, load_mesh, plane_mesh, uv_sphere_mesh
 from freqbrdf.observe.occlusion import (
+    MIRROR_CENTRE_WEIGHT,
     compact_lights,
     cosine_directions,
     mirror_occlusion,
@@ -129,21 +130,23 @@ def test_occluded_irradiance_reports_every_step():
     assert sum(steps) == occlusion_steps(7) == 2
 
 
-def test_mirror_occlusion_finds_the_roof_in_the_mirror_direction_and_what_it_shows():
+def test_mirror_occlusion_finds_the_roof_in_the_mirror_lobe_and_what_it_shows():
     occluder = Occluder(floor_and_roof())
-    # A texel under the roof (the roof's underside is observed, showing 5) and one in the open.
+    # A texel under the roof (the roof's underside is observed, showing (5, 4, 3)) and one in the open.
     position = np.array([[-0.7, 1e-3, 0.0], [0.9, 1e-3, 0.0], [-0.7, 0.049, 0.0]])
     frame = np.tile(np.array([[1.0, 0, 0], [0, 0, 1.0], [0, 1.0, 0]]), (3, 1, 1))  # rows t, b, n = +y
-    tilted = np.array([math.sin(0.3), 0.0, math.cos(0.3)])  # 17 degrees from the normal, towards +t
-    grazing = np.array([math.sin(1.5), 0.0, math.cos(1.5)])  # its mirror leaves under the roof's edge
+    tilted = np.array([math.sin(0.3), 0.0, math.cos(0.3)])  # 17 degrees from the normal: the lobe is under the roof
+    grazing = np.array([math.sin(1.5), 0.0, math.cos(1.5)])  # 4 degrees above the floor: the roof's edge
     view_direction = np.stack([np.stack([tilted, grazing])] * 3).astype(np.float32)  # (3, 2, 3)
     visible = np.array([[True, True], [True, False], [False, False]])
     shows = np.array([[1.0, 1.0, 1.0], [1.0, 1.0, 1.0], [5.0, 4.0, 3.0]])
-    blocked, surface = mirror_occlusion(occluder, position, frame, view_direction, visible, shows,
-                                        np.array([False, True, True]), np.full(3, 0.1))
-    assert blocked.tolist() == [[True, False], [False, False], [False, False]]
-    np.testing.assert_allclose(surface[0, 0], [5.0, 4.0, 3.0])  # the roof texel nearest the hit
-    assert not surface[0, 1].any() and not surface[1].any()  # 0 where nothing is blocked
+    occluded, surface = mirror_occlusion(occluder, position, frame, view_direction, visible, shows,
+                                         np.array([False, True, True]), np.full(3, 0.1))
+    assert occluded[0, 0] == 1.0  # the whole lobe meets the roof
+    np.testing.assert_allclose(surface[0, 0], [5.0, 4.0, 3.0])  # the roof texel nearest the hits
+    # The grazing lobe's centre passes under the roof's edge; the rays of its ring tilted up meet the roof.
+    assert 0.0 < occluded[0, 1] < 1.0 - MIRROR_CENTRE_WEIGHT + 1e-6
+    assert not occluded[1].any() and not surface[1].any()  # in the open: nothing met, 0
 
 
 def test_occlusion_steps_count_the_mirror_rays_batches():

@@ -6,9 +6,10 @@ BRDF kernel, plus a diffuse term d E / pi, with R0 = 0.04 (1 - m) + b m and d = 
 ``EstimateConfig`` chooses the model's pieces: the split-sum albedo or METHOD.md's angular model
 (G1 and Schlick's Fresnel), Burley's diffuse or Lambert's, and which light a lobe reads (the
 fitted light, the environment light of rough lobes, the prefiltered light of smooth ones). Where
-a sample's mirror direction meets the object itself (`Observations.mirror_blocked`, traced by
-`freqbrdf.observe.occlusion.mirror_occlusion`), the lobe's own light is what the object shows
-there; the environment light that rough lobes blend in stays (a wide lobe reaches past it).
+a sample's mirror lobe meets the object itself (`Observations.mirror_occluded`, traced by
+`freqbrdf.observe.occlusion.mirror_occlusion`), that share of the lobe's own light is what the
+object shows there; the environment light that rough lobes blend in stays (a wide lobe reaches
+past it).
 
 Two estimators, in `ESTIMATORS`:
 

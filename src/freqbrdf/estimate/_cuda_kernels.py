@@ -67,7 +67,7 @@ def _slot_scratch(scratch, slot):
         scratch.corner[slot],
         scratch.stencil_frac[slot],
         scratch.high_filtered[slot],
-        scratch.blocked[slot],
+        scratch.occluded[slot],
         scratch.surface_light[slot],
     )
 

@@ -102,7 +102,7 @@ class SearchScratch(NamedTuple):
     corner: np.ndarray
     stencil_frac: np.ndarray
     high_filtered: np.ndarray
-    blocked: np.ndarray
+    occluded: np.ndarray
     surface_light: np.ndarray
 
 
@@ -252,8 +252,8 @@ def new_search_scratch(n_views, lmax, tables, environment_light, prefiltered_lig
     corner = np.empty((4, n_views), dtype=np.int64)
     stencil_frac = np.empty((2, n_views))
     high_filtered = np.empty(n_views)
-    # Per sample: the object in the mirror direction, and the radiance it shows there.
-    blocked = np.zeros(n_views, dtype=np.bool_)
+    # Per sample: the share of its mirror lobe on the object, and the radiance the object shows there.
+    occluded = np.zeros(n_views)
     surface_light = np.zeros((3, n_views))
     return SearchScratch(
         xyz, unit, basis, sh_scratch, packed_cos, omega, packed_proj, values, table_row, table_frac,
@@ -262,7 +262,7 @@ def new_search_scratch(n_views, lmax, tables, environment_light, prefiltered_lig
         label_state, roughness_brent, node_loss, scanned, no_rows, no_moments, local_environment,
         quadrature_world, quadrature_basis, quadrature_scratch, quadrature_values, azimuthal, environment_nodes,
         environment_cached, bitangent, prefiltered_nodes, prefiltered_cached, corner, stencil_frac,
-        high_filtered, blocked, surface_light,
+        high_filtered, occluded, surface_light,
     )
 
 
@@ -293,7 +293,7 @@ def search_texel(t, samples, light, recurrence, options, tables, environment_lig
         label_state, roughness_brent, node_loss, scanned, no_rows, no_moments, local_environment,
         quadrature_world, quadrature_basis, quadrature_scratch, quadrature_values, azimuthal, environment_nodes,
         environment_cached, bitangent, prefiltered_nodes, prefiltered_cached, corner, stencil_frac,
-        high_filtered, blocked, surface_light,
+        high_filtered, occluded, surface_light,
     ) = scratch
     probe = Probe(column, kernel, kernel_derivative, albedo, diffuse_factor, own_filtered, filtered, moments,
                   quadratics, state, environment_nodes, environment_cached, prefiltered_nodes, prefiltered_cached,
@@ -301,8 +301,8 @@ def search_texel(t, samples, light, recurrence, options, tables, environment_lig
     buffers = SearchBuffers(roughness_grid, best_state, roughness_brent, node_loss, sample_weight)
     # np.int64, np.bool_ and below: a literal constant where a variable goes (here into a record)
     # makes numba compile the callee once more for the literal's type.
-    traced = samples.mirror_blocked.shape[1] > 0
-    any_blocked = False
+    traced = samples.mirror_occluded.shape[1] > 0
+    any_occluded = False
     n = np.int64(0)
     for v in range(n_views):
         w = np.float64(weight[t, v])
@@ -315,9 +315,9 @@ def search_texel(t, samples, light, recurrence, options, tables, environment_lig
         sample_weight[n] = w
         for c in range(3):
             values[c, n] = observed[t, v, c]
-        blocked[n] = traced and samples.mirror_blocked[t, v]
-        if blocked[n]:
-            any_blocked = True
+        occluded[n] = samples.mirror_occluded[t, v] if traced else 0.0
+        if occluded[n] > 0.0:
+            any_occluded = True
             for c in range(3):
                 surface_light[c, n] = samples.mirror_surface[t, v, c]
         n += 1
@@ -366,7 +366,7 @@ def search_texel(t, samples, light, recurrence, options, tables, environment_lig
     for c in range(3):
         scale[c] = diffuse_scale[t, c]
     texel = Texel(n, packed_cos, omega, packed_proj, values, table_row, table_frac, burley_terms, diffuse_moments,
-                  squared_values, scale, azimuthal, corner, stencil_frac, blocked, surface_light, any_blocked)
+                  squared_values, scale, azimuthal, corner, stencil_frac, occluded, surface_light, any_occluded)
     objective = Objective(texel, probe, options, tables, environment_light, prefiltered_light, metallic_grid)
     for i in range(hypothesis_roughness.shape[0]):
         if not scanned[i]:

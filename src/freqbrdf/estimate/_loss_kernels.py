@@ -51,7 +51,7 @@ def squared_residual_kernel(proj, samples, base_color, metallic, roughness, opti
     prefiltered, n_full = prefiltered_light.maps, prefiltered_light.n_full
     world_to_local, map_height, map_width = prefiltered_light.world_to_local, prefiltered_light.height, prefiltered_light.width
     n_texels, n_views = weight.shape
-    traced = samples.mirror_blocked.shape[1] > 0
+    traced = samples.mirror_occluded.shape[1] > 0
     n_degrees = proj.shape[2]
     n_terms = len(LOBE_TERMS)
     for t in numba.prange(n_texels):
@@ -122,13 +122,14 @@ def squared_residual_kernel(proj, samples, base_color, metallic, roughness, opti
                 for c in range(3):
                     for term in range(distinct_terms):
                         filtered[term] = 0.0
-                        if traced and samples.mirror_blocked[t, v]:  # the object in the mirror direction
-                            filtered[term] = samples.mirror_surface[t, v, c]
-                        elif use_prefiltered:
+                        if use_prefiltered:
                             filtered[term] = prefiltered_between(nodes, c, v, lower_map, upper_map, map_frac)
                         else:
                             for degree in range(n_degrees):
                                 filtered[term] += kernel[degree] * proj[t, c, degree, v]
+                        if traced:  # the share of the mirror lobe on the object: what it shows there
+                            occluded = np.float64(samples.mirror_occluded[t, v])
+                            filtered[term] += occluded * (samples.mirror_surface[t, v, c] - filtered[term])
                         if share > 0.0:
                             lower = environment_light[0, term, c, v]
                             light = lower + node_frac * (environment_light[1, term, c, v] - lower)

@@ -22,7 +22,7 @@ class Samples(NamedTuple):
     diffuse_scale: np.ndarray  # (n, 3) float64 E / pi, the Lambertian radiance per unit albedo
     tangent: np.ndarray  # (n, 3) float32 world frame of each texel
     normal: np.ndarray  # (n, 3) float32
-    mirror_blocked: np.ndarray  # (n, V) bool the object in the mirror direction; (n, 0): not traced
+    mirror_occluded: np.ndarray  # (n, V) float32 the share of the mirror lobe on the object; (n, 0): not traced
     mirror_surface: np.ndarray  # (n, V, 3) float32 the radiance it shows there; (n, 0, 3): not traced
 
 

@@ -76,9 +76,9 @@ class Texel(NamedTuple):
     azimuthal: np.ndarray  # (V, 3, P) the environment in each sample's mirrored view frame
     corner: np.ndarray  # (4, V) int64 the prefiltered maps' lookup stencil (`mirror_stencil`)
     stencil_frac: np.ndarray  # (2, V)
-    blocked: np.ndarray  # (V,) bool the object, not the environment, in the sample's mirror direction
+    occluded: np.ndarray  # (V,) the share of the sample's mirror lobe that meets the object, not the environment
     surface_light: np.ndarray  # (3, V) the radiance the object shows there
-    any_blocked: bool  # some sample is blocked
+    any_occluded: bool  # some sample is occluded
 
 
 class Probe(NamedTuple):
@@ -136,7 +136,7 @@ def _roughness_objective(roughness, objective):
     table_row, table_frac, burley_terms = texel.table_row, texel.table_frac, texel.burley_terms
     diffuse_moments, squared_values, diffuse_scale = texel.diffuse_moments, texel.squared_values, texel.diffuse_scale
     azimuthal, corner, stencil_frac = texel.azimuthal, texel.corner, texel.stencil_frac
-    blocked, surface_light, any_blocked = texel.blocked, texel.surface_light, texel.any_blocked
+    occluded, surface_light, any_occluded = texel.occluded, texel.surface_light, texel.any_occluded
     column, kernel, kernel_derivative, albedo = probe.column, probe.kernel, probe.kernel_derivative, probe.albedo
     diffuse_factor, own_filtered, filtered = probe.diffuse_factor, probe.own_filtered, probe.filtered
     moments, quadratics, state = probe.moments, probe.quadratics, probe.state
@@ -230,10 +230,9 @@ def _roughness_objective(roughness, objective):
                 k = kernel[degree]
                 for s in range(n):
                     own_filtered[s] += k * proj[c, degree, s]
-        if own_light and any_blocked:  # the object in the mirror direction: what it shows there
+        if own_light and any_occluded:  # the object in the mirror lobe: what it shows there
             for s in range(n):
-                if blocked[s]:
-                    own_filtered[s] = surface_light[c, s]
+                own_filtered[s] += occluded[s] * (surface_light[c, s] - own_filtered[s])
         model = filtered
         for term in range(n_terms):
             if own_light:

@@ -458,13 +458,13 @@ def _node_rows(roughness: np.ndarray, roughness_grid: int) -> np.ndarray:
 
 def _samples(observations: Observations, tangent: np.ndarray, rows: slice = slice(None)) -> Samples:
     """Return the kernels' `Samples` of these rows of the observations (tangent (N, 3): `_light_inputs`)."""
-    if observations.mirror_blocked is None:  # not traced: no view's mirror direction meets the object
-        blocked = np.zeros((observations.n_texels, 0), dtype=bool)[rows]
+    if observations.mirror_occluded is None:  # not traced: no mirror lobe meets the object
+        occluded = np.zeros((observations.n_texels, 0), dtype=np.float32)[rows]
         surface = np.zeros((observations.n_texels, 0, 3), dtype=np.float32)[rows]
     else:
-        blocked, surface = observations.mirror_blocked[rows], observations.mirror_surface[rows]
+        occluded, surface = observations.mirror_occluded[rows], observations.mirror_surface[rows]
     return Samples(observations.view_direction[rows], observations.weight[rows], observations.observed[rows],
-                   lambert_scale(observations)[rows], tangent[rows], observations.normal[rows], blocked, surface)
+                   lambert_scale(observations)[rows], tangent[rows], observations.normal[rows], occluded, surface)
 
 
 def _model_options(observations: Observations, settings: EstimateConfig) -> ModelOptions:

@@ -79,7 +79,7 @@ STAGES = ("raster", "projection", "visibility", "images", "irradiance", "occlusi
 # The array fields of Observations that are not per texel.
 _SHARED_ARRAYS = ("environment_coeffs", "environment_radiance", "environment_rotation")
 # Per texel and view (N, V, ...).
-_SAMPLE_ARRAYS = ("view_direction", "observed", "mirrored", "weight", "visible", "mirror_blocked", "mirror_surface")
+_SAMPLE_ARRAYS = ("view_direction", "observed", "mirrored", "weight", "visible", "mirror_occluded", "mirror_surface")
 
 
 @dataclass(eq=False)
@@ -139,12 +139,12 @@ class Observations:
         smooth lobes read, prefiltered (``EstimateConfig.prefiltered_light``). None where unknown.
     environment_rotation : (3, 3) float64 or None
         The environment map's emitter-to-world rotation. None where unknown.
-    mirror_blocked : (N, V) bool or None
-        Samples whose mirror direction meets the object itself, not the environment
+    mirror_occluded : (N, V) float32 or None
+        The share of each sample's mirror lobe that meets the object itself, not the environment
         (`freqbrdf.observe.occlusion.mirror_occlusion`). None where not traced.
     mirror_surface : (N, V, 3) float32 or None
-        What the object shows there: the mean observed radiance of its texel nearest the hit
-        (0 where not blocked). None where not traced.
+        What the object shows there: the mean observed radiance of its texels nearest the hits
+        (0 where nothing is hit). None where not traced.
     timings : dict
         Seconds per stage of `observe` (``STAGES`` and ``"total"``).
     """
@@ -171,7 +171,7 @@ class Observations:
     environment_coeffs: np.ndarray | None = None
     environment_radiance: np.ndarray | None = None
     environment_rotation: np.ndarray | None = None
-    mirror_blocked: np.ndarray | None = None
+    mirror_occluded: np.ndarray | None = None
     mirror_surface: np.ndarray | None = None
     timings: dict = field(default_factory=dict)
 
@@ -498,14 +498,14 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
     timings["irradiance"] = time.perf_counter() - tick
 
     tick = time.perf_counter()
-    mirror_blocked = mirror_surface = None
+    mirror_occluded = mirror_surface = None
     if config.observe.environment_occlusion and self_occluding(capture.mesh.vertices, capture.mesh.faces):
         with reporter.stage("tracing the object's shadows", occlusion_steps(n_texels, n_views)) as advance:
             surface_radiance = mean_over_views(weight, signals[..., OBSERVED])
             observed = weight.sum(axis=1) > 0
             irradiance = occluded_irradiance(occluder, capture.envmap, irradiance, ray_origin, frame,
                                              surface_radiance, observed, texels.texel_size, advance)
-            mirror_blocked, mirror_surface = mirror_occlusion(occluder, ray_origin, frame, view_direction, visible,
+            mirror_occluded, mirror_surface = mirror_occlusion(occluder, ray_origin, frame, view_direction, visible,
                                                               surface_radiance, observed, texels.texel_size, advance)
     timings["occlusion"] = time.perf_counter() - tick
 
@@ -550,7 +550,7 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
         environment_coeffs=envmaps.envmap_sh(capture.envmap, config.fit.lmax).astype(np.float32),
         environment_radiance=capture.envmap.radiance,
         environment_rotation=capture.envmap.rotation.copy(),
-        mirror_blocked=mirror_blocked,
+        mirror_occluded=mirror_occluded,
         mirror_surface=mirror_surface,
         timings=timings,
     )

@@ -17,8 +17,8 @@ E is the exact unoccluded irradiance minus these corrections, so nothing changes
 blocked, and a mesh that cannot block itself (convex or flat, `self_occluding`) is not traced.
 
 The specular lobes read the environment in each sample's mirror direction; where the object lies
-there instead (`mirror_occlusion`: one ray per sample), they read what the object shows at the
-hit, found the same way.
+there instead (`mirror_occlusion`: a centre ray and a ring of rays around it per sample), that
+share of the lobe reads what the object shows at the hits, found the same way.
 Deterministic: fixed ray sets, each texel's turned by a fixed angle of its index.
 """
 
@@ -47,6 +47,12 @@ MAX_LIGHTS = 8
 RAYS = 64
 # The rest of the map is read at this height (area-averaged), about the rays' spacing.
 REST_HEIGHT = 32
+# A sample's mirror lobe: its centre ray counts this much, a ring of MIRROR_RING rays at MIRROR_CONE_DEG from
+# it the rest; 12 degrees is about the half-width of the reflected lobe at roughness 0.3 (2 alpha
+# radians), up to which a lobe reads its own light alone.
+MIRROR_CENTRE_WEIGHT = 1.0 / 3.0
+MIRROR_RING = 8
+MIRROR_CONE_DEG = 12.0
 # A hit point farther than this many texel sizes from every observed texel shows the mean radiance.
 _NEAREST_REACH = 8.0
 # Faces whose plane has a mesh point farther above it than this share of the mesh's extent can
@@ -199,7 +205,7 @@ def occlusion_steps(n_texels: int, n_views: int = 0) -> int:
     int
         One for the lights, then one per batch of texels' rays of each.
     """
-    mirror = -(-n_texels // max(1, RAYS_PER_BATCH // n_views)) if n_views else 0
+    mirror = -(-n_texels // max(1, RAYS_PER_BATCH // (n_views * (1 + MIRROR_RING)))) if n_views else 0
     return 1 + -(-n_texels // max(1, RAYS_PER_BATCH // RAYS)) + mirror
 
 
@@ -306,11 +312,13 @@ def occluded_irradiance(occluder: Occluder, envmap: envmaps.Envmap, irradiance: 
 def mirror_occlusion(occluder: Occluder, ray_origin: np.ndarray, frame: np.ndarray, view_direction: np.ndarray,
                      visible: np.ndarray, surface_radiance: np.ndarray, observed: np.ndarray, texel_size: np.ndarray,
                      advance: Callable[[int], None] = lambda steps: None) -> tuple[np.ndarray, np.ndarray]:
-    """Find the samples whose mirror direction meets the object, and what it shows there.
+    """Find how much of each sample's mirror lobe meets the object, and what the object shows there.
 
-    One ray per visible sample from the texel's point along the view direction mirrored about its
-    normal; a hit's radiance is the mean observed radiance of the object's texel nearest the hit
-    point (as `occluded_irradiance` reads it).
+    Per visible sample, rays from the texel's point: one along the view direction mirrored about
+    the normal (weight ``MIRROR_CENTRE_WEIGHT``) and ``MIRROR_RING`` on a cone of
+    ``MIRROR_CONE_DEG`` around it (the rest, shared). The weights of the rays that hit the object
+    sum to the occluded share; a hit's radiance is the mean observed radiance of the object's
+    texel nearest the hit point (as `occluded_irradiance` reads it).
 
     Parameters
     ----------
@@ -335,33 +343,49 @@ def mirror_occlusion(occluder: Occluder, ray_origin: np.ndarray, frame: np.ndarr
 
     Returns
     -------
-    blocked : (N, V) bool
-        Visible samples whose mirror direction meets the object.
+    occluded : (N, V) float32
+        The share of each sample's mirror lobe that meets the object, in [0, 1].
     surface : (N, V, 3) float32
-        The radiance the object shows there; 0 where not blocked.
+        The radiance the object shows there (the hits' weighted mean); 0 where nothing is hit.
     """
     n_texels, n_views = visible.shape
-    blocked = np.zeros((n_texels, n_views), dtype=bool)
+    occluded = np.zeros((n_texels, n_views), dtype=np.float32)
     shown = np.zeros((n_texels, n_views, 3), dtype=np.float32)
     if n_texels == 0 or n_views == 0:
-        return blocked, shown
+        return occluded, shown
     surface = _SurfaceRadiance(ray_origin, surface_radiance, observed, texel_size)
-    texels_per_batch = max(1, RAYS_PER_BATCH // n_views)
+    ring = 2.0 * math.pi * np.arange(MIRROR_RING) / MIRROR_RING
+    cone = math.radians(MIRROR_CONE_DEG)
+    # (rays, 3): the centre, then the ring, in a frame whose z is the mirror direction.
+    offsets = np.vstack([[0.0, 0.0, 1.0], np.column_stack([math.sin(cone) * np.cos(ring), math.sin(cone) * np.sin(ring),
+                                                           np.full(MIRROR_RING, math.cos(cone))])])
+    weights = np.concatenate([[MIRROR_CENTRE_WEIGHT], np.full(MIRROR_RING, (1.0 - MIRROR_CENTRE_WEIGHT) / MIRROR_RING)])
+    texels_per_batch = max(1, RAYS_PER_BATCH // (n_views * len(offsets)))
     for first in range(0, n_texels, texels_per_batch):
         rows = slice(first, min(first + texels_per_batch, n_texels))
         texel, view = np.nonzero(visible[rows])
         texel += first
         local = np.asarray(view_direction[texel, view], np.float64)
         basis = np.asarray(frame[texel], np.float64)
-        # The mirror of w_o about the normal: (-x, -y, z) in the texel's frame.
-        directions = (-local[:, 0, None] * basis[:, 0] - local[:, 1, None] * basis[:, 1]
-                      + local[:, 2, None] * basis[:, 2])
-        directions /= np.maximum(np.linalg.norm(directions, axis=1, keepdims=True), 1e-12)
+        # The mirror of w_o about the normal: (-x, -y, z) in the texel's frame; then a frame around it.
+        mirror = (-local[:, 0, None] * basis[:, 0] - local[:, 1, None] * basis[:, 1]
+                  + local[:, 2, None] * basis[:, 2])
+        mirror /= np.maximum(np.linalg.norm(mirror, axis=1, keepdims=True), 1e-12)
+        across = np.cross(mirror, np.where(np.abs(mirror[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]]))
+        across /= np.linalg.norm(across, axis=1, keepdims=True)
+        along = np.cross(mirror, across)
         origins = np.asarray(ray_origin, np.float64)[texel]
-        distance = occluder.hit_distances_rows(np.ascontiguousarray(origins.T, np.float32),
-                                               np.ascontiguousarray(directions.T, np.float32))
-        hits = np.flatnonzero(np.isfinite(distance))
-        blocked[texel[hits], view[hits]] = True
-        shown[texel[hits], view[hits]] = surface.at(origins[hits] + distance[hits, None] * directions[hits])
+        share = np.zeros(len(texel))
+        radiance = np.zeros((len(texel), 3))
+        for offset, weight in zip(offsets, weights):
+            directions = offset[0] * across + offset[1] * along + offset[2] * mirror
+            distance = occluder.hit_distances_rows(np.ascontiguousarray(origins.T, np.float32),
+                                                   np.ascontiguousarray(directions.T, np.float32))
+            hits = np.flatnonzero(np.isfinite(distance))
+            share[hits] += weight
+            radiance[hits] += weight * surface.at(origins[hits] + distance[hits, None] * directions[hits])
+        met = np.flatnonzero(share > 0)
+        occluded[texel[met], view[met]] = np.minimum(share[met], 1.0)
+        shown[texel[met], view[met]] = radiance[met] / share[met, None]
         advance(1)
-    return blocked, shown
+    return occluded, shown
