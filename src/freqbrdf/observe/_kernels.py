@@ -11,6 +11,7 @@ Private to `freqbrdf.observe.observations`, whose `observe` calls them batch by 
 - `_mirror_directions` and `_unpack_samples`: the world mirror directions r = 2 (n.v) n - v of
   the samples and the band-limited environment looked up there, written beside the radiance
   (METHOD.md §2, §3.4);
+- `_sample_offsets` (numpy): where each texel's selected samples start when packed;
 - `_initialise_signals`: the fitted signals' buffer, with the constant channel at 1 (§3.6);
 - `_sample_bilinear`, `_bilinear_stencil` and `_blend`: bilinear image samples.
 
@@ -215,3 +216,14 @@ def _sample_bilinear(image, pixels, out):  # image (H, W, C); pixels (M, 2) x, y
         row, col, row_next, col_next, fx, fy = _bilinear_stencil(pixels[k, 0], pixels[k, 1], height, width)
         for c in range(channels):
             out[k, c] = _blend(image, row, col, row_next, col_next, fx, fy, c)
+
+
+def _sample_offsets(selected: np.ndarray) -> np.ndarray:
+    """Return where each texel's selected entries start when they are packed.
+
+    selected (N, B) bool; packed row-major (texel by texel, views in order). Returns (N + 1,)
+    int64 offsets, their total at the end.
+    """
+    offsets = np.zeros(len(selected) + 1, dtype=np.int64)
+    np.cumsum(np.count_nonzero(selected, axis=1), out=offsets[1:])
+    return offsets

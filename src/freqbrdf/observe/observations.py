@@ -44,6 +44,7 @@ from freqbrdf.observe._kernels import (
     _mirror_directions,
     _project_kernel,
     _record_kernel,
+    _sample_offsets,
     _shadow_rays,
     _unpack_samples,
 )
@@ -614,17 +615,6 @@ def texel_alpha_bound(n_samples: np.ndarray, lmax: int, attenuation: float) -> n
 def _extent(vertices: np.ndarray) -> float:
     """Diagonal of the bounding box: the object's scale."""
     return float(np.linalg.norm(vertices.max(axis=0) - vertices.min(axis=0)))
-
-
-def _sample_offsets(selected: np.ndarray) -> np.ndarray:
-    """Return where each texel's selected entries start when they are packed.
-
-    selected (N, B) bool; packed row-major (texel by texel, views in order). Returns (N + 1,)
-    int64 offsets, their total at the end.
-    """
-    offsets = np.zeros(len(selected) + 1, dtype=np.int64)
-    np.cumsum(np.count_nonzero(selected, axis=1), out=offsets[1:])
-    return offsets
 
 
 def _view_batches(capture: Capture, n_texels: int) -> list[range]:

@@ -33,6 +33,7 @@ from scipy import ndimage
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from freqbrdf.images import LUMINANCE
+from freqbrdf.observe._kernels import _mirror_directions, _sample_offsets
 from freqbrdf.render.occluder import RAYS_PER_BATCH, Occluder
 from freqbrdf.sphere import envmap as envmaps
 
@@ -363,14 +364,11 @@ def mirror_occlusion(occluder: Occluder, ray_origin: np.ndarray, frame: np.ndarr
     texels_per_batch = max(1, RAYS_PER_BATCH // (n_views * len(offsets)))
     for first in range(0, n_texels, texels_per_batch):
         rows = slice(first, min(first + texels_per_batch, n_texels))
-        texel, view = np.nonzero(visible[rows])
+        texel, view = np.nonzero(visible[rows])  # the packed order of `_mirror_directions`
         texel += first
-        local = np.asarray(view_direction[texel, view], np.float64)
-        basis = np.asarray(frame[texel], np.float64)
-        # The mirror of w_o about the normal: (-x, -y, z) in the texel's frame; then a frame around it.
-        mirror = (-local[:, 0, None] * basis[:, 0] - local[:, 1, None] * basis[:, 1]
-                  + local[:, 2, None] * basis[:, 2])
-        mirror /= np.maximum(np.linalg.norm(mirror, axis=1, keepdims=True), 1e-12)
+        mirror = _mirror_directions(np.asarray(frame[rows], np.float64), view_direction[rows], visible[rows],
+                                    _sample_offsets(visible[rows]))
+        mirror /= np.maximum(np.linalg.norm(mirror, axis=1, keepdims=True), 1e-12)  # then a frame around it
         across = np.cross(mirror, np.where(np.abs(mirror[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]]))
         across /= np.linalg.norm(across, axis=1, keepdims=True)
         along = np.cross(mirror, across)
