@@ -3,6 +3,7 @@
     python benchmarks/studies/guidance.py [--scenes a,b] [--texture-res 256] [--random-seeds 5]
         [--spearman-candidates 20] [--misfit] [--methods m1,m2 --baselines guidance]
         [--misfit-width W --refit-noise F] [--name guidance] [--merge part1,part2]
+        [--prediction-only [--start 8]]
 
 Scenes (``SCENES``, from scenes.WHOLE_SURFACE_SCENES): the bunny with metal islands under the
 overcast map (cameras all around), the dragon with metal and dielectric cells under the low sun
@@ -28,7 +29,9 @@ Prediction check: from the start views, for ``--spearman-candidates`` candidates
 pool, the guidance's predicted mean uncertainty (area-weighted std of roughness + metallic + mean
 base colour over its scored texels) after adding the candidate, against the same quantity of the
 whole-surface posterior refitted with its photograph; Spearman's rho across candidates, per scene.
-Per round, the prediction after the round's picks against the refit's. Every fit also records the
+Per round, the prediction after the round's picks against the refit's. Each part of the mean
+(roughness, metallic, base colour) is compared too (``parts``); ``--prediction-only`` runs these
+checks alone (results: each scene's ``prediction``). Every fit also records the
 posterior's mean std over the coverable texels (``posterior_std``): within a cell, Spearman's rho
 between it and each error over the view sets says whether lowering the posterior std can lower
 the error at all (``posterior_std_against_error``).
@@ -252,11 +255,12 @@ def misfit_correlation(pool: Capture, config: Config, observations) -> dict:
 
 
 def measured_uncertainty(capture: Capture, config: Config, args, rows: np.ndarray | None = None,
-                         held: tuple[float, float] | None = None) -> float | tuple[float, float, tuple[float, float]]:
+                         held: tuple[float, float] | None = None) -> float | tuple:
     """The refitted posterior's area-weighted mean std (roughness + metallic + mean base colour).
 
     With ``held`` (the roughness and base-colour calibrations s^2 of another fit), also the same
-    mean with the refit's calibrations replaced by those, and the refit's own calibrations.
+    mean with the refit's calibrations replaced by those, the refit's own calibrations, and the
+    mean of each part.
     """
     surface = guidance.surface_fit(capture, config)
     if rows is None:
@@ -271,7 +275,12 @@ def measured_uncertainty(capture: Capture, config: Config, args, rows: np.ndarra
     model = guidance.uncertainty_model(capture, surface, rows, config, surface.observations.sigma)
     own = (model.roughness_scale, model.color_scale)
     rescaled = parts[0] * np.sqrt(held[0] / own[0]) + parts[1] + parts[2] * np.sqrt(held[1] / own[1])
-    return mean, float(np.dot(area, np.nan_to_num(rescaled)) / area.sum()), own
+    return mean, float(np.dot(area, np.nan_to_num(rescaled)) / area.sum()), own, area_means(area, np.column_stack(parts))
+
+
+def area_means(area: np.ndarray, std: np.ndarray) -> list[float]:
+    """The area-weighted mean of each column of ``std`` (roughness, metallic, mean base colour)."""
+    return (area @ np.nan_to_num(std) / area.sum()).tolist()
 
 
 def prediction_check(pool: Capture, start: list[int], config: Config, args, name: str) -> dict:
@@ -286,7 +295,7 @@ def prediction_check(pool: Capture, start: list[int], config: Config, args, name
     taken = with_views(pool, start)
     surface = guidance.surface_fit(taken, config)
     rows = guidance.texel_subset(surface.texels.n_texels, args.max_texels, config.seed)
-    model = guidance.uncertainty_model(taken, surface, rows, config, band_limit_sigma(START + 1))
+    model = guidance.uncertainty_model(taken, surface, rows, config, band_limit_sigma(len(start) + 1))
     texels = guidance.subset_texels(surface.texels, rows)
     taken_views = guidance.view_information(taken, texels, surface, rows, [frame.camera for frame in taken.frames],
                                             model.sigma)
@@ -298,8 +307,10 @@ def prediction_check(pool: Capture, start: list[int], config: Config, args, name
     information = guidance.view_information(taken, texels, surface, rows, cameras, model.sigma)
     spread = _diversity.Spread(len(rows), view_directions(taken, [frame.camera for frame in taken.frames]),
                                view_directions(taken, cameras), [view.texel for view in taken_views])
-    predicted = [before - guidance.view_gain(model, state, guidance._discounted(view, spread.discount(k, view.texel)))
-                 for k, view in enumerate(information)]
+    discounted = [guidance._discounted(view, spread.discount(k, view.texel)) for k, view in enumerate(information)]
+    predicted = [before - guidance.view_gain(model, state, view) for view in discounted]
+    predicted_parts = [area_means(model.area, guidance.texel_std(model, guidance.state_with_views(state, [view])))
+                       for view in discounted]
     start_model = guidance.uncertainty_model(taken, surface, rows, config, surface.observations.sigma)
     held = (start_model.roughness_scale, start_model.color_scale)
     refits = [measured_uncertainty(with_views(pool, start + [view]), config, args, rows, held) for view in chosen]
@@ -309,8 +320,14 @@ def prediction_check(pool: Capture, start: list[int], config: Config, args, name
     rho = float(spearmanr(predicted, measured).statistic)
     rho_held = float(spearmanr(predicted, measured_held).statistic)
     rho_drop = float(spearmanr(before - np.array(predicted), measured_before - np.array(measured)).statistic)
-    print(f"[{name}] prediction: spearman {rho:.3f}, calibration held {rho_held:.3f}", flush=True)
+    measured_parts = np.array([refit[3] for refit in refits])
+    parts = {part: {"predicted": np.array(predicted_parts)[:, k].tolist(), "measured": measured_parts[:, k].tolist(),
+                    "spearman": float(spearmanr(np.array(predicted_parts)[:, k], measured_parts[:, k]).statistic)}
+             for k, part in enumerate(("roughness", "metallic", "base_color"))}
+    print(f"[{name}] prediction: spearman {rho:.3f}, calibration held {rho_held:.3f}, per part "
+          + ", ".join(f"{part} {record['spearman']:.2f}" for part, record in parts.items()), flush=True)
     return {"candidates": chosen, "predicted": predicted, "measured": measured, "measured_held": measured_held,
+            "parts": parts,
             "calibrations": {"start": held, "refits": [refit[2] for refit in refits]},
             "predicted_before": before, "measured_before": measured_before, "spearman": rho,
             "spearman_calibration_held": rho_held, "spearman_of_drops": rho_drop}
@@ -429,6 +446,28 @@ def summarise(scenes: dict, args, seconds: float) -> dict:
     }
 
 
+def prediction_only(args, started: float) -> int:
+    """Run the prediction check alone on each of ``args.scenes`` (or merge parts); write <name>.json."""
+    if args.merge:
+        parts = [json.loads((RESULTS / f"{part}.json").read_text()) for part in args.merge.split(",")]
+        write_json(RESULTS / f"{args.name}.json",
+                   dict(parts[0], scenes={name: scene for part in parts for name, scene in part["scenes"].items()},
+                        seconds=sum(part["seconds"] for part in parts)))
+        return 0
+    scenes = {}
+    for name in args.scenes.split(","):
+        pool = load(whole_surface_capture(name, RENDER))
+        config = Config(texels=TexelConfig(texture_res=args.texture_res))
+        start = farthest_point_views(view_directions(pool, [frame.camera for frame in pool.frames]), args.start)
+        scenes[name] = {"start_views": start, "prediction": prediction_check(pool, start, config, args, name)}
+        write_json(RESULTS / f"{args.name}.json", {
+            "study": "capture guidance (issue #28): prediction check", **machine(), "texture_res": args.texture_res,
+            "max_texels": args.max_texels, "pool": POOL, "render": RENDER, "start": args.start,
+            "spread": {"width": _diversity.MISFIT_WIDTH, "refit_noise": _diversity.REFIT_NOISE},
+            "scenes": scenes, "seconds": time.perf_counter() - started})
+    return 0
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--scenes", default=",".join(SCENES))
@@ -450,11 +489,16 @@ def main(argv=None) -> int:
     parser.add_argument("--merge", default="", help="comma-separated results files of parts to merge into --name")
     parser.add_argument("--held-out", default="", help="with --merge: a results file of scenes the guidance's "
                         "constants were not chosen on, kept apart with its own paired tests")
+    parser.add_argument("--prediction-only", action="store_true",
+                        help="run only the prediction check of each scene (results: scenes -> prediction)")
+    parser.add_argument("--start", type=int, default=START, help="with --prediction-only: the start views")
     args = parser.parse_args(argv)
     args.methods = args.methods.split(",")
     _diversity.MISFIT_WIDTH, _diversity.REFIT_NOISE = args.misfit_width, args.refit_noise
     started = time.perf_counter()
     RESULTS.mkdir(exist_ok=True)
+    if args.prediction_only:
+        return prediction_only(args, started)
     if args.merge:
         scenes, seconds = {}, 0.0
         for part in args.merge.split(","):
