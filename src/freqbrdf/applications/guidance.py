@@ -24,7 +24,8 @@ that mean once its photograph is added (`UncertaintyModel`, `expected_uncertaint
   the label that turns out true: E[std] = p s(x + A) + (1 - p) s(x - A),
   s(x) = sqrt(sigmoid(x) sigmoid(-x));
 - **coverage**: a texel no view samples (or with fewer than the estimate's minimum) keeps the
-  posterior's std of a texel without data: the prior's, as the surface solve spreads it. Seeing it
+  posterior's std of a texel without data (growing with its distance from the data up to the
+  std of a value uniform on [0, 1]: `freqbrdf.estimate.surface.smooth_on_surface`). Seeing it
   turns it into a data texel (each sample on the way to the minimum credited its share); that is
   the gain of a view of unseen parts, in the same units.
 

@@ -47,6 +47,7 @@ from freqbrdf.config import Config, SurfaceConfig
 from freqbrdf.estimate._search_kernels import FITTED_PARAMETERS
 from freqbrdf.estimate._surface_kernels import conjugate_gradients, huber_weights
 from freqbrdf.estimate.search import lambert_scale
+from freqbrdf.model.materials import UNIFORM_VARIANCE
 from freqbrdf.observe.observations import mean_over_views
 
 if TYPE_CHECKING:
@@ -522,7 +523,8 @@ def smooth_on_surface(values: np.ndarray, precision: np.ndarray, graph: sparse.c
         s / sqrt(P_t + lambda sum_j w_ij) per texel and channel, s^2 the mean of P_t (v_t - x_t)^2
         over the texels with data (how far they scatter about the solution for their
         precision); texels without data add s^2 / lambda per hop from the nearest texel with data,
-        up to the spread of the solution over the texels with data; times ``std_scale``.
+        up to the variance of a value uniform on [0, 1] (`freqbrdf.model.materials.UNIFORM_VARIANCE`:
+        nothing known); times ``std_scale``.
     """
     values = np.nan_to_num(np.asarray(values, np.float64))
     precision = np.maximum(np.asarray(precision, np.float64), 0.0)
@@ -549,12 +551,11 @@ def smooth_on_surface(values: np.ndarray, precision: np.ndarray, graph: sparse.c
     # A texel's variance: its own and its neighbours' precision, s^2 / (P_t + lambda sum_j w_ij), s
     # from how far the texels with data scatter about the solution for their precision; a texel
     # without data adds a neighbour's s^2 / lambda per hop from the nearest texel with data (a
-    # random walk's growth), up to the spread of the material over the surface.
+    # random walk's growth), up to the variance of a value nothing is known of.
     calibration = np.mean(((values - solution) ** 2 * precision)[has_data])
     variance = calibration / (precision + degree[:, None] + pin)
     if not has_data.all():
         hops = csgraph.dijkstra(graph, unweighted=True, indices=np.flatnonzero(has_data), min_only=True)
-        spread = np.average((solution[has_data] - mean) ** 2, axis=0, weights=precision[has_data].mean(axis=1))
         variance = np.minimum(variance + calibration / coupling * np.nan_to_num(hops, posinf=np.inf)[:, None],
-                              np.maximum(spread, variance))
+                              np.maximum(UNIFORM_VARIANCE, variance))
     return solution, np.sqrt(variance) * settings.std_scale

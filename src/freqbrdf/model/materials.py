@@ -16,6 +16,8 @@ from skimage.transform import resize as resize_image
 from freqbrdf.errors import InputError
 from freqbrdf.images import REC709_CHROMATICITIES, read_image, write_exr
 
+#: The variance of a map's value uniform on [0, 1]: what is known of a material nothing of which is seen.
+UNIFORM_VARIANCE = 1.0 / 12.0
 #: The file of each map in a texture-set folder.
 MAP_FILES = {
     "base_color": "base_color.exr",

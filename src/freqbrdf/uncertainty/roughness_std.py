@@ -25,13 +25,14 @@ from freqbrdf.config import Config
 from freqbrdf.estimate import CURVATURE_STEP, FITTED_PARAMETERS, angular_loss, model_light
 from freqbrdf.estimate import estimate as estimate_materials
 from freqbrdf.model import brdf
+from freqbrdf.model.materials import UNIFORM_VARIANCE
 
 if TYPE_CHECKING:
     from freqbrdf.estimate import MaterialEstimate
     from freqbrdf.observe.observations import Observations
 
 # What a texel's roughness variance is without information: roughness uniform on [0, 1].
-PRIOR_ROUGHNESS_VARIANCE = 1.0 / 12.0
+PRIOR_ROUGHNESS_VARIANCE = UNIFORM_VARIANCE
 # Noise floor of the loss curvature's noise variance: a sample's noise std relative to the RMS of
 # the texel's observed radiance, so that a texel fitted exactly is not called certain.
 CURVATURE_NOISE_FLOOR = 0.02
