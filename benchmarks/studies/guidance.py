@@ -307,10 +307,11 @@ def prediction_check(pool: Capture, start: list[int], config: Config, args, name
     information = guidance.view_information(taken, texels, surface, rows, cameras, model.sigma)
     spread = _diversity.Spread(len(rows), view_directions(taken, [frame.camera for frame in taken.frames]),
                                view_directions(taken, cameras), [view.texel for view in taken_views])
-    discounted = [guidance._discounted(view, spread.discount(k, view.texel)) for k, view in enumerate(information)]
-    predicted = [before - guidance.view_gain(model, state, view) for view in discounted]
-    predicted_parts = [area_means(model.area, guidance.texel_std(model, guidance.state_with_views(state, [view])))
-                       for view in discounted]
+    # Each candidate's state as `select_views` scores its first pick (the spread's discount included):
+    # the parts' area means sum to its expected uncertainty.
+    predicted_parts = [area_means(model.area, guidance.texel_std(model, guidance.state_with_views(
+        state, [guidance._discounted(view, spread.discount(k, view.texel))]))) for k, view in enumerate(information)]
+    predicted = [float(sum(parts)) for parts in predicted_parts]
     start_model = guidance.uncertainty_model(taken, surface, rows, config, surface.observations.sigma)
     held = (start_model.roughness_scale, start_model.color_scale)
     refits = [measured_uncertainty(with_views(pool, start + [view]), config, args, rows, held) for view in chosen]

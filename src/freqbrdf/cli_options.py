@@ -76,9 +76,7 @@ def estimation_res_from_option(value: str, texture_res: int):
 
 OCCLUSION_HELP = ("Correct the light each texel receives where the object hides its own environment (shadow rays "
                   "to the sun and lamps, cosine rays and rays around each view's mirror direction that see the object "
-                  "itself). Default: the "
-                  "preset's (on; paper: "
-                  "off). docs/measurements.md#environment-occlusion")
+                  "itself). Default: the preset's (on; paper: off). docs/measurements.md#environment-occlusion")
 DEVICE_HELP = ("Where the SH fits, the search and the entropy run: cpu, cuda (pip install 'freqbrdf\\[gpu]' and an "
                "NVIDIA GPU) or auto (cuda when both are there, else cpu).")
 ENTROPY_HELP = ("Entropy mode: calibrated (from the spectra, fast; what next-views predicts and what "
