@@ -9,7 +9,10 @@ and start views, the view sets of farthest-point, random (seed 0) and the guidan
 (`freqbrdf.applications.guidance.select_views`, rounds of ``guidance.STEP``) at ``--budget``
 views are each fitted once and relit with ``--seeds`` render seeds: the spread of one set's
 PSNR-H over the seeds is the metric's noise, and the difference of two sets per seed says
-whether their order holds beyond it.
+whether their order holds beyond it. Each fit's roughness, metallic and base-colour MAE are
+recorded over the texels some pool view samples (as `guidance.py` scores them) and over those the
+relighting's test views show, weighted by their samples there (``errors``): where the errors
+fall says which texels the relighting judges.
 
 Writes benchmarks/results/<name>.json and prints a table; parts run side by side (``--scenes`` and
 ``--name``) are merged with ``--merge``.
@@ -30,6 +33,8 @@ from freqbrdf.applications import guidance as package_guidance
 from freqbrdf.applications.candidates import farthest_point_views, view_directions
 from freqbrdf.capture.layouts import load
 from freqbrdf.config import Config, TexelConfig
+from freqbrdf.model.materials import resize
+from freqbrdf.observe.observations import observe
 from freqbrdf.outputs.relight import evaluate
 from freqbrdf.pipeline import fit
 
@@ -58,6 +63,16 @@ def guided_views(pool, start: list[int], budget: int, config: Config) -> list[in
     return views
 
 
+def parameter_errors(maps, truth, index: np.ndarray, weights: np.ndarray | None) -> dict:
+    """Roughness, metallic and base-colour MAE over the texels ``index`` (weighted by ``weights``)."""
+    def mae(estimate, reference):
+        error = np.abs(estimate - reference)
+        return float(np.average(error.reshape(len(index), -1).mean(axis=1), weights=weights))
+    return {"roughness_mae": mae(maps.roughness.ravel()[index], truth.roughness.ravel()[index]),
+            "metallic_mae": mae(maps.metallic.ravel()[index], truth.metallic.ravel()[index]),
+            "base_color_mae": mae(maps.base_color.reshape(-1, 3)[index], truth.base_color.reshape(-1, 3)[index])}
+
+
 def scene_run(name: str, budget: int, seeds: int, texture_res: int) -> dict:
     pool = load(whole_surface_capture(name, study.RENDER))
     config = Config(texels=TexelConfig(texture_res=texture_res))
@@ -69,16 +84,24 @@ def scene_run(name: str, budget: int, seeds: int, texture_res: int) -> dict:
         "farthest_point": start + farthest_point_views(directions, budget - study.START, chosen=list(start)),
         "random": start + [int(view) for view in order[:budget - study.START]],
     }
-    psnr = {}
+    truth = resize(pool.ground_truth, texture_res)
+    pooled = observe(pool, config)
+    tested = observe(dataclasses.replace(pool, frames=pool.test_frames), config)
+    where = {"coverable": (pooled.texel_index[pooled.n_samples > 0], None),
+             "test_views": (tested.texel_index[tested.n_samples > 0], tested.n_samples[tested.n_samples > 0])}
+    psnr, errors = {}, {}
     for method, views in view_sets.items():
         taken = study.with_views(pool, views)
         maps = fit(taken, config).maps
+        errors[method] = {region: parameter_errors(maps, truth, index, weights)
+                          for region, (index, weights) in where.items()}
         psnr[method] = [float(evaluate(taken, maps, settings=dataclasses.replace(study.RELIGHT, seed=seed))
                               .relighting["psnr_hdr"]) for seed in range(seeds)]
     differences = {f"{a} - {b}": (np.array(psnr[a]) - np.array(psnr[b])).tolist() for a, b in PAIRS}
     return {
         "views": view_sets,
         "psnr_hdr": psnr,
+        "errors": errors,
         "seed_std": {method: float(np.std(values, ddof=1)) for method, values in psnr.items()},
         "differences": differences,
         "difference_mean": {pair: float(np.mean(values)) for pair, values in differences.items()},
@@ -94,6 +117,13 @@ def print_table(scenes: dict) -> None:
         cells = " ".join(f"{scene['difference_mean'][pair]:+.3f} +- {scene['difference_std'][pair]:.3f} dB".rjust(30)
                          for pair in pairs)
         print(f"{name:26s} {stds:26s} {cells}")
+    print(f"{'scene':26s} {'region':12s} " + " ".join(f"{method + ': R / M / BC MAE':>36s}"
+                                                      for method in ("guidance", "farthest_point", "random")))
+    for name, scene in scenes.items():
+        for region in ("coverable", "test_views"):
+            cells = " ".join(" / ".join(f"{scene['errors'][method][region][metric]:.4f}" for metric in study.METRICS[:3])
+                             .rjust(36) for method in ("guidance", "farthest_point", "random"))
+            print(f"{name:26s} {region:12s} {cells}")
 
 
 def main(argv=None) -> int:
