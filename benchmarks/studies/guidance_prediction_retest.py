@@ -2,6 +2,7 @@
 
     python benchmarks/studies/guidance_prediction_retest.py [--scenes a,b] [--start 8] [--seeds 2]
         [--prediction guidance_prediction] [--name guidance_prediction_retest] [--merge part1,part2]
+        [--rescore]
 
 `guidance.py --prediction-only` compares, across 20 candidates, the guidance's predicted
 uncertainty after adding a candidate with the uncertainty of the whole-surface posterior refitted
@@ -18,7 +19,8 @@ photograph's refit at about sqrt(retest rho).
 Reads the predictions and the pool's measurements from benchmarks/results/<--prediction>.json
 (refused unless its start views and candidates are these); writes
 benchmarks/results/<name>.json and prints a table; parts run side by side are merged with
-``--merge``.
+``--merge``. The photographs' refits do not depend on the guidance's model: after a rerun of the
+prediction check, ``--rescore`` recomputes the agreements from the stored refits.
 """
 
 from __future__ import annotations
@@ -89,18 +91,26 @@ def scene_run(name: str, stored: dict, args) -> dict:
                 row.append(study.measured_uncertainty(capture, config, args, None, held)[3])
                 print(f"[{name}] seed {k} view {view}: {row[-1]}", flush=True)
             retaken.append(row)
+    result = {"start_views": start, "candidates": chosen, "pool_photo_reproduced": reproduced, "retaken_parts": retaken}
+    return dict(result, **agreements(prediction, np.array(retaken)))
+
+
+def agreements(prediction: dict, retaken: np.ndarray) -> dict:
+    """Spearman's rho of the prediction and of the pool photograph's refit with each retaken one's.
+
+    ``retaken``: (seeds, candidates, 3) the retaken refits' parts; per part and of their total.
+    """
     measured = np.column_stack([prediction["parts"][part]["measured"] for part in PARTS])
     predicted = np.column_stack([prediction["parts"][part]["predicted"] for part in PARTS])
-    retaken_array = np.array(retaken)  # (seeds, candidates, 3)
-    result = {"start_views": start, "candidates": chosen, "pool_photo_reproduced": reproduced,
-              "retaken_parts": retaken_array.tolist()}
+    seeds = len(retaken)
+    result = {}
     for label, column in [("total", slice(None))] + [(part, k) for k, part in enumerate(PARTS)]:
         def value(array, column=column):
             return array[..., column].sum(axis=-1) if label == "total" else array[..., column]
-        retest = [rho(value(measured), value(retaken_array[k])) for k in range(args.seeds)]
+        retest = [rho(value(measured), value(retaken[k])) for k in range(seeds)]
         result[label] = {
             "predicted_vs_pool_photo": rho(value(predicted), value(measured)),
-            "predicted_vs_retaken": [rho(value(predicted), value(retaken_array[k])) for k in range(args.seeds)],
+            "predicted_vs_retaken": [rho(value(predicted), value(retaken[k])) for k in range(seeds)],
             "retest": retest,
             "ceiling": float(np.sqrt(max(np.mean(retest), 0.0))),
         }
@@ -125,14 +135,24 @@ def main(argv=None) -> int:
     parser.add_argument("--prediction", default="guidance_prediction", help="the prediction check's results file")
     parser.add_argument("--name", default="guidance_prediction_retest")
     parser.add_argument("--merge", default="", help="comma-separated results files of parts to merge into --name")
+    parser.add_argument("--rescore", action="store_true",
+                        help="recompute the agreements of --name's retaken refits with a rerun --prediction (no render)")
     args = parser.parse_args(argv)
     started = time.perf_counter()
+    stored = json.loads((RESULTS_DIR / f"{args.prediction}.json").read_text())
     if args.merge:
         parts = [json.loads((RESULTS_DIR / f"{part}.json").read_text()) for part in args.merge.split(",")]
         results = dict(parts[0], scenes={name: scene for part in parts for name, scene in part["scenes"].items()},
                        seconds=sum(part["seconds"] for part in parts))
+    elif args.rescore:
+        results = json.loads((RESULTS_DIR / f"{args.name}.json").read_text())
+        for name, scene in results["scenes"].items():
+            prediction = stored["scenes"][name]["prediction"]
+            if prediction["candidates"] != scene["candidates"]:
+                raise SystemExit(f"[{name}] the candidates differ from {args.prediction}'s")
+            scene.update(agreements(prediction, np.array(scene["retaken_parts"])))
+        results["prediction"] = args.prediction
     else:
-        stored = json.loads((RESULTS_DIR / f"{args.prediction}.json").read_text())
         if stored["start"] != args.start:
             raise SystemExit(f"{args.prediction} starts from {stored['start']} views, not {args.start}")
         scenes = {name: scene_run(name, stored["scenes"][name], args) for name in args.scenes.split(",")}

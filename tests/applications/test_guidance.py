@@ -128,6 +128,26 @@ def test_metal_evidence_lowers_the_expected_label_std():
     assert np.all(guidance.texel_std(model, stronger)[:, 1] < std[:, 1])
 
 
+def test_a_texel_brought_to_data_weighs_the_evidence_of_its_earlier_samples_too():
+    """Below the estimate's minimum a texel's label is the prior's and its neighbours'; once a view
+    completes its samples, all of them speak (the square root of the summed evidence), whereas a
+    data texel's label only moves by the growth of that root."""
+    rng = np.random.default_rng(5)
+    model = dataclasses.replace(synthetic_model(rng), fit_samples=np.where(np.arange(40) < 20, guidance.MIN_SAMPLES - 1, 12))
+    state = dataclasses.replace(synthetic_state(), samples=model.fit_samples.copy())
+    view = synthetic_view(rng, np.arange(40))
+    without_earlier = dataclasses.replace(model, taken_evidence=np.zeros(40))
+    after, after_without = (guidance.texel_std(m, guidance.state_with_views(state, [view]))[:, 1]
+                            for m in (model, without_earlier))
+    # Brought to data: the same label std as a texel whose earlier evidence arrives with the view.
+    np.testing.assert_allclose(after[:20], guidance.texel_std(without_earlier, guidance.state_with_views(
+        state, [dataclasses.replace(view, metal_evidence=view.metal_evidence + model.taken_evidence)]))[:20, 1],
+        rtol=1e-12)
+    assert np.all(after[:20] < after_without[:20])
+    # Data texels: earlier evidence makes the same view's evidence worth less.
+    assert np.all(after[20:] > after_without[20:])
+
+
 def test_a_sample_beside_the_views_taken_counts_less_than_one_from_a_new_side():
     taken = np.array([[0.0, 0.0, 1.0]])
     beside = np.array([0.0, 0.1, 1.0]) / np.linalg.norm([0.0, 0.1, 1.0])

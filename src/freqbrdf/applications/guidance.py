@@ -22,7 +22,8 @@ that mean once its photograph is added (`UncertaintyModel`, `expected_uncertaint
   E = sum_i w_i^2 |f_metal - f_dielectric|^2 of the samples grows: the fit's own log-ratio per
   square root of its evidence (misfit adds up like noise) times the growth of sqrt(E), towards
   the label that turns out true: E[std] = p s(x + A) + (1 - p) s(x - A),
-  s(x) = sqrt(sigmoid(x) sigmoid(-x));
+  s(x) = sqrt(sigmoid(x) sigmoid(-x)); a texel a view brings to data weighs all its samples'
+  evidence (its label was the prior's and its neighbours' until then);
 - **coverage**: a texel no view samples (or with fewer than the estimate's minimum) keeps the
   posterior's std of a texel without data (growing with its distance from the data up to the
   std of a value uniform on [0, 1]: `freqbrdf.estimate.surface.smooth_on_surface`). Seeing it
@@ -605,13 +606,18 @@ def texel_std(model: UncertaintyModel, state: GuidanceState) -> np.ndarray:
     log_odds = np.log(probability / (1.0 - probability))
     # A label's log-ratio grows like the square root of the evidence (an ambiguous texel's
     # difference of losses is mostly misfit, which adds up like noise).
-    shift = model.evidence_scale * (np.sqrt(model.taken_evidence + state.metal_evidence)
-                                    - np.sqrt(model.taken_evidence))
-    metal_std = probability * _label_std(log_odds + shift) + (1.0 - probability) * _label_std(log_odds - shift)
+    # A texel that becomes a data texel weighs all its samples' evidence, the earlier ones too (before, its
+    # label was the prior's and its neighbours'); on the way there, as the other parameters.
+    evidence = model.taken_evidence + state.metal_evidence
+    shift = model.evidence_scale * np.where(base >= MIN_SAMPLES, np.sqrt(evidence) - np.sqrt(model.taken_evidence),
+                                            np.sqrt(evidence))
+    data_metal_std = probability * _label_std(log_odds + shift) + (1.0 - probability) * _label_std(log_odds - shift)
+    label_std = _label_std(log_odds)
+    metal_std = label_std + fraction * (data_metal_std - label_std)
     prior = model.prior_std
     roughness_std = prior[:, 0] + fraction * (np.sqrt(roughness_var) * model.std_scale - prior[:, 0])
     # The base colour's posterior is a mixture over the label (`freqbrdf.estimate.surface`).
-    color_rgb = np.sqrt(color_var * model.std_scale ** 2 + (metal_std[:, None] * model.label_color_difference) ** 2)
+    color_rgb = np.sqrt(color_var * model.std_scale ** 2 + (data_metal_std[:, None] * model.label_color_difference) ** 2)
     color_std = prior[:, 2] + fraction * (color_rgb.mean(axis=1) - prior[:, 2])
     return np.column_stack([roughness_std, metal_std, color_std])
 
