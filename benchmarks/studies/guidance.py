@@ -262,20 +262,28 @@ def measured_uncertainty(capture: Capture, config: Config, args, rows: np.ndarra
     mean with the refit's calibrations replaced by those, the refit's own calibrations, and the
     mean of each part.
     """
-    surface = guidance.surface_fit(capture, config)
-    if rows is None:
-        rows = guidance.texel_subset(surface.texels.n_texels, args.max_texels, config.seed)
-    posterior = surface.posterior
-    parts = [posterior.roughness_std[rows].astype(np.float64), posterior.metallic_std[rows].astype(np.float64),
-             posterior.base_color_std[rows].mean(axis=1).astype(np.float64)]
-    area = surface.texels.texel_area[rows]
-    mean = float(np.dot(area, np.nan_to_num(sum(parts))) / area.sum())
+    surface, rows, area, parts = refitted_parts(capture, config, args, rows)
+    mean = float(np.dot(area, np.nan_to_num(parts.sum(axis=1))) / area.sum())
     if held is None:
         return mean
     model = guidance.uncertainty_model(capture, surface, rows, config, surface.observations.sigma)
     own = (model.roughness_scale, model.color_scale)
-    rescaled = parts[0] * np.sqrt(held[0] / own[0]) + parts[1] + parts[2] * np.sqrt(held[1] / own[1])
-    return mean, float(np.dot(area, np.nan_to_num(rescaled)) / area.sum()), own, area_means(area, np.column_stack(parts))
+    rescaled = parts[:, 0] * np.sqrt(held[0] / own[0]) + parts[:, 1] + parts[:, 2] * np.sqrt(held[1] / own[1])
+    return mean, float(np.dot(area, np.nan_to_num(rescaled)) / area.sum()), own, area_means(area, parts)
+
+
+def refitted_parts(capture: Capture, config: Config, args, rows: np.ndarray | None = None) -> tuple:
+    """The whole-surface refit of ``capture``, the scored rows, their areas and (n, 3) posterior std.
+
+    The std columns: roughness, metallic, mean base colour; ``rows`` None: the seeded subset.
+    """
+    surface = guidance.surface_fit(capture, config)
+    if rows is None:
+        rows = guidance.texel_subset(surface.texels.n_texels, args.max_texels, config.seed)
+    posterior = surface.posterior
+    parts = np.column_stack([posterior.roughness_std[rows], posterior.metallic_std[rows],
+                             posterior.base_color_std[rows].mean(axis=1)]).astype(np.float64)
+    return surface, rows, surface.texels.texel_area[rows], parts
 
 
 def area_means(area: np.ndarray, std: np.ndarray) -> list[float]:

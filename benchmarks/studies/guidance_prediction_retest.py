@@ -71,7 +71,6 @@ def scene_run(name: str, stored: dict, args) -> dict:
         raise SystemExit(f"[{name}] start views or candidates differ from {args.prediction}'s: rerun it")
     synth = prepare(settings)
     scene = build_scene(synth.mesh, principled_bsdf(synth.materials), synth.envmap, settings.max_depth)
-    held = tuple(prediction["calibrations"]["start"])
     retaken: list[list[list[float]]] = []  # [seed][candidate] -> parts
     with tempfile.TemporaryDirectory() as folder:
         # The re-rendering must reproduce the pool's photograph at the pool's seed.
@@ -88,7 +87,8 @@ def scene_run(name: str, stored: dict, args) -> dict:
                 write_exr(frame.image_path, photo.radiance)
                 write_png(frame.mask_path, photo.coverage)
                 capture = dataclasses.replace(pool, frames=tuple(pool.frames[v] for v in start) + (frame,))
-                row.append(study.measured_uncertainty(capture, config, args, None, held)[3])
+                _, _, area, parts = study.refitted_parts(capture, config, args)
+                row.append(study.area_means(area, parts))
                 print(f"[{name}] seed {k} view {view}: {row[-1]}", flush=True)
             retaken.append(row)
     result = {"start_views": start, "candidates": chosen, "pool_photo_reproduced": reproduced, "retaken_parts": retaken}

@@ -605,12 +605,11 @@ def texel_std(model: UncertaintyModel, state: GuidanceState) -> np.ndarray:
     probability = np.clip(model.metal_probability, 1e-12, 1.0 - 1e-12)
     log_odds = np.log(probability / (1.0 - probability))
     # A label's log-ratio grows like the square root of the evidence (an ambiguous texel's
-    # difference of losses is mostly misfit, which adds up like noise).
-    # A texel that becomes a data texel weighs all its samples' evidence, the earlier ones too (before, its
-    # label was the prior's and its neighbours'); on the way there, as the other parameters.
-    evidence = model.taken_evidence + state.metal_evidence
-    shift = model.evidence_scale * np.where(base >= MIN_SAMPLES, np.sqrt(evidence) - np.sqrt(model.taken_evidence),
-                                            np.sqrt(evidence))
+    # difference of losses is mostly misfit, which adds up like noise). A texel that becomes a data
+    # texel weighs all its samples' evidence, the earlier ones too (until then its label was the
+    # prior's and its neighbours'), credited on the way there as the other parameters are.
+    earlier = np.where(base >= MIN_SAMPLES, np.sqrt(model.taken_evidence), 0.0)
+    shift = model.evidence_scale * (np.sqrt(model.taken_evidence + state.metal_evidence) - earlier)
     data_metal_std = probability * _label_std(log_odds + shift) + (1.0 - probability) * _label_std(log_odds - shift)
     label_std = _label_std(log_odds)
     metal_std = label_std + fraction * (data_metal_std - label_std)
