@@ -1,7 +1,7 @@
 """freqbrdf: per-texel Principled BRDF maps and their uncertainty by frequency analysis.
 
 From a known mesh, posed HDR photographs and a known environment map, freqbrdf estimates base
-colour, roughness and metallic per texel and how certain each estimate is (METHOD.md). Data
+colour, roughness and metallic per texel and how certain each estimate is (docs/method.md). Data
 flows one way, one subpackage per stage::
 
     capture -> texels -> observe -> {estimate, uncertainty} -> applications -> outputs

@@ -3,7 +3,7 @@
 Each command reads a capture or a fit folder, builds its `freqbrdf.config.Config` from a preset and
 the options given, and writes one output folder, whole or not at all. Bad input is one clear line
 and exit code 2; a write the system refuses, or running out of memory, one line and exit code 1.
-The options' help texts say what each does and when to choose it; docs/measurements.md has the
+The options' help texts say what each does and when to choose it; docs/results.md has the
 figures behind the defaults.
 """
 
@@ -42,7 +42,7 @@ _state = {"debug": False}
 # keep a first run's results.
 RERUN_VARIABLE = "FREQBRDF_RERUN"
 # At exit, the interpreter's last garbage collection walks every object numba and Mitsuba made, for
-# memory the process hands back anyway (its cost: docs/measurements.md#speed). Exit callbacks run
+# memory the process hands back anyway (its cost: docs/results.md#speed). Exit callbacks run
 # before that collection, and frozen objects are not walked.
 atexit.register(gc.freeze)
 
@@ -355,12 +355,12 @@ def fit(
     estimation_res: str = typer.Option(
         None, help="Texture resolution to observe and estimate on before the maps are sampled up to T: pixel "
         "(the coarsest whose texels are no wider than a pixel of the closest view), coarse (the finest whose "
-        "texels are at least a pixel wide), full (T, METHOD.md's per-texel recipe) or a number. Default: the "
+        "texels are at least a pixel wide), full (T, the per-texel recipe of docs/method.md#texels) or a number. Default: the "
         "preset's (pixel; fast: coarse; paper: full)."),
     split_half: bool = typer.Option(
         False, "--split-half", help="With --per-texel: add to roughness_std the scatter between two more "
         "estimates, from the even and from the odd views alone: it ranks the roughness errors better, for a large "
-        "share of the fit's time again (docs/measurements.md#the-roughness-std)."),
+        "share of the fit's time again (docs/results.md#the-roughness-std)."),
     occlusion: bool = typer.Option(None, "--environment-occlusion/--no-environment-occlusion", help=OCCLUSION_HELP),
     device: str = typer.Option("auto", "--device", help=DEVICE_HELP),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars or messages."),

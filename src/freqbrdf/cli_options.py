@@ -1,7 +1,7 @@
 """The command line's options turned into a `freqbrdf.config.Config`, each checked before any work.
 
 A preset (`freqbrdf.config.PRESETS`) with the options a user gave on top; an unknown name or a
-combination that cannot work is a `typer.BadParameter`, one line and exit code 2 (METHOD.md §6 for
+combination that cannot work is a `typer.BadParameter`, one line and exit code 2 (docs/method.md#data for
 what the settings mean). The help texts shared by several commands live here too.
 """
 
@@ -76,10 +76,10 @@ def estimation_res_from_option(value: str, texture_res: int):
 
 OCCLUSION_HELP = ("Correct the light each texel receives where the object hides its own environment (shadow rays "
                   "to the sun and lamps, cosine rays and rays around each view's mirror direction that see the object "
-                  "itself). Default: the preset's (on; paper: off). docs/measurements.md#environment-occlusion")
+                  "itself). Default: the preset's (on; paper: off). docs/results.md#environment-occlusion")
 DEVICE_HELP = ("Where the SH fits, the search and the entropy run: cpu, cuda (pip install 'freqbrdf\\[gpu]' and an "
                "NVIDIA GPU) or auto (cuda when both are there, else cpu).")
 ENTROPY_HELP = ("Entropy mode: calibrated (from the spectra, fast; what next-views predicts and what "
                 "inpainting is tuned on), paper (the published recipe, to compare with it) or angular (the "
                 "estimator's model on the samples: agrees with a path tracer; little extra time inside fit). "
-                "Default: the preset's. Figures: docs/measurements.md#the-entropy.")
+                "Default: the preset's. Figures: docs/results.md#the-entropy.")

@@ -1,9 +1,9 @@
 """One typed configuration with one set of defaults, and named presets.
 
 Every stage reads its settings from here; the command line only overrides fields. Each settings
-class follows a stage of METHOD.md §3: `TexelConfig` (§3.1), `ObserveConfig` (§3.2, §3.5), `FitConfig` (§3.3-3.4),
-`EstimateConfig` (§3.6-3.7), `UncertaintyConfig` (§3.8), `SurfaceConfig` (§4). Each field's
-docstring says what it is, why its default, and where docs/measurements.md has the figures.
+class follows a stage of docs/method.md#pipeline: `TexelConfig` (docs/method.md#texels), `ObserveConfig` (docs/method.md#observations, docs/method.md#irradiance), `FitConfig` (docs/method.md#sh-fit and docs/method.md#band-limit),
+`EstimateConfig` (docs/method.md#forward-model and docs/method.md#estimation), `UncertaintyConfig` (docs/method.md#entropy), `SurfaceConfig` (docs/method.md#applications). Each field's
+docstring says what it is, why its default, and where docs/results.md has the figures.
 `preset` names the configurations a user chooses between: ``default``, ``fast`` and ``paper``
 (the authors' prototype, for comparison).
 """
@@ -68,47 +68,47 @@ def _check_choices(settings) -> None:
 
 @dataclass(frozen=True)
 class TexelConfig:
-    """The texels: texture resolution, seam dilation and the resolution estimated on (METHOD.md §3.1).
+    """The texels: texture resolution, seam dilation and the resolution estimated on (docs/method.md#texels).
 
     `pipeline.fit` observes and estimates on ``estimation_res`` texels, then takes the results to the
     T x T texels of ``texture_res`` (`pipeline.to_texels`).
     """
 
     texture_res: int = 512
-    """T: the maps are T x T; METHOD.md's 512."""
+    """T: the maps are T x T; 512 as in docs/method.md#texels."""
     dilation_px: int = 8
     """Texels the exported maps are grown across chart seams, so that filtered lookups near a seam miss the empty
     atlas."""
     estimation_res: int | Literal["pixel", "coarse", "full"] = "pixel"
     """Texels estimated on: "pixel" (coarsest no wider than a pixel of the closest view: no detail lost, and faster),
-    "coarse" (finest at least a pixel wide), "full" (T) or a number <= T. docs/measurements.md#estimation-resolution"""
+    "coarse" (finest at least a pixel wide), "full" (T) or a number <= T. docs/results.md#estimation-resolution"""
 
 
 @dataclass(frozen=True)
 class FitConfig:
-    """The weighted, degree-regularised SH least squares of each texel (METHOD.md §3.3-3.4).
+    """The weighted, degree-regularised SH least squares of each texel (docs/method.md#sh-fit and docs/method.md#band-limit).
 
     Minimises sum w^2 (Y c - f)^2 + lambda_eff sum_lm e^l c_lm^2 per texel and channel (appendix eqs. 19-20,
     App. B), then applies the views' band limit (appendix C, eq. 12).
     """
 
     lmax: int = 5
-    """l*, the degree of the per-texel fits ((l*+1)^2 = 36 coefficients); METHOD.md's default. The entropy needs
+    """l*, the degree of the per-texel fits ((l*+1)^2 = 36 coefficients); the default of docs/method.md#sh-fit. The entropy needs
     >= 1."""
     reg_lambda: float = 1.2e-4
     """lambda, relative to sum w^2 when scaled: the prototype's absolute 1e-3 at a typical capture's weight.
-    docs/measurements.md#sh-fit-and-regularisation"""
+    docs/results.md#sh-fit-and-regularisation"""
     regulariser: RegulariserKind = "exponential"
-    """The penalty's growth with the degree: e^l interpolates unseen directions smoothly ("constant", "none": METHOD.md
-    §3.3 says they give wrong BRDF estimates)."""
+    """The penalty's growth with the degree: e^l interpolates unseen directions smoothly ("constant", "none":
+    docs/method.md#sh-fit says they give wrong BRDF estimates)."""
     scale_lambda_with_weight: bool = True
     """lambda_eff = reg_lambda sum_i w_i^2, the same relative strength whatever the number of views (off: paper preset).
-    docs/measurements.md#sh-fit-and-regularisation"""
+    docs/results.md#sh-fit-and-regularisation"""
     band_limit: bool = True
     """Low-pass the light with exp(-(sigma l)^2), sigma = 1/floor(sqrt(V)), and divide it out of the BRDF kernel, as
-    the prototype does (METHOD.md §3.4)."""
+    the prototype does (docs/method.md#band-limit)."""
     attenuation_threshold: float = 0.5
-    """t in alpha' = sqrt(-ln t) / l* (appendix eq. 12), below which roughness is flagged unresolvable; METHOD.md's 0.5.
+    """t in alpha' = sqrt(-ln t) / l* (appendix eq. 12), below which roughness is flagged unresolvable; 0.5 as in docs/method.md#band-limit.
     In (0, 1)."""
 
     def __post_init__(self):
@@ -118,13 +118,13 @@ class FitConfig:
 
 @dataclass(frozen=True)
 class ObserveConfig:
-    """The texels' samples and the light they receive (METHOD.md §3.2, §3.5)."""
+    """The texels' samples and the light they receive (docs/method.md#observations, docs/method.md#irradiance)."""
 
     environment_occlusion: bool = True
     """Correct the light for the object hiding its own environment: the irradiance (shadow rays to the map's compact
     lights, cosine rays that see the object's observed radiance instead) and the smooth lobes' light where a sample's
     mirror lobe meets the object (`freqbrdf.observe.occlusion`; beyond the paper).
-    docs/measurements.md#environment-occlusion"""
+    docs/results.md#environment-occlusion"""
 
 
 SPECTRAL_GRID_RES = 8
@@ -133,7 +133,7 @@ SPECTRAL_GRID_RES = 8
 
 @dataclass(frozen=True)
 class UncertaintyConfig:
-    """The entropy of the specular hypotheses and the roughness std (METHOD.md §3.8).
+    """The entropy of the specular hypotheses and the roughness std (docs/method.md#entropy).
 
     The entropy scores an R x R grid of hypotheses (alpha_i = (i/(R-1))^2, k_j = j/(R-1)): from the SH
     spectra ("calibrated", "paper") or in the sample domain with the global estimator's model ("angular").
@@ -143,15 +143,15 @@ class UncertaintyConfig:
     # --- the entropy, every mode ---
     mode: Literal["calibrated", "paper", "angular"] = "calibrated"
     """The entropy: "calibrated" (spectra, exposure invariant, milliseconds; guidance predicts it, the applications are
-    tuned on it), "paper" (METHOD.md §3.8) or "angular" (agrees with a path tracer).
-    docs/measurements.md#the-entropy"""
+    tuned on it), "paper" (docs/method.md#entropy) or "angular" (agrees with a path tracer).
+    docs/results.md#the-entropy"""
     grid_res: int | None = None
     """R. None: the paper's 8 in the spectral modes; in angular mode the estimator's roughness nodes
     (`EstimateConfig.roughness_grid`), which its search probes anyway: then the entropy costs `pipeline.fit` little."""
 
     # --- paper mode only ---
     temperature: float = 1e-5
-    """tau of the paper's likelihood exp(-(E - min E) / tau); METHOD.md's 1e-5. Positive."""
+    """tau of the paper's likelihood exp(-(E - min E) / tau); 1e-5 as in docs/method.md#entropy. Positive."""
 
     # --- calibrated mode only ---
     noise_level: float = 0.02
@@ -159,26 +159,26 @@ class UncertaintyConfig:
     variance is noise_level^2 P K / n_samples. Positive."""
     residual_noise: bool = True
     """Add the best hypothesis's misfit per residual degree of freedom to the noise (off: a fixed noise_level): only
-    then does the entropy rank the estimate's errors at all. docs/measurements.md#the-entropy"""
+    then does the entropy rank the estimate's errors at all. docs/results.md#the-entropy"""
 
     # --- the flags ---
     ambiguous_entropy: float = 0.7
     """Texels above this entropy are flagged ambiguous (over 57^0.7 ~ 17 of 57 materials plausible): few texels, with
-    well above the others' errors. In [0, 1]. docs/measurements.md#flags"""
+    well above the others' errors. In [0, 1]. docs/results.md#flags"""
 
     # --- the roughness std (Uncertainty.roughness_std; needs the estimate); its terms add as variances ---
     roughness_window: int = 7
     """Side of the square over which the per-texel roughness estimates' scatter is taken (0: off): their own noise;
-    7 ranked the errors best of the windows measured. docs/measurements.md#the-roughness-std"""
+    7 ranked the errors best of the windows measured. docs/results.md#the-roughness-std"""
     loss_curvature: bool = True
     """Add the Laplace variance of the estimator's profiled loss around the estimate (free from the global search's
-    probes): it adds what the window misses. docs/measurements.md#the-roughness-std"""
+    probes): it adds what the window misses. docs/results.md#the-roughness-std"""
     split_half: bool = False
     """Add the scatter between estimates from the even and from the odd views alone: ranks the errors better, but costs
-    a large share of the fit again, so off (``fit --split-half``). docs/measurements.md#the-roughness-std"""
+    a large share of the fit again, so off (``fit --split-half``). docs/results.md#the-roughness-std"""
     split_half_stride: int = 2
     """With split_half, re-estimate every this many-th row and column only (the window spreads their scatter): the
-    same ranking at about a quarter of the cost (1: every texel). docs/measurements.md#the-roughness-std"""
+    same ranking at about a quarter of the cost (1: every texel). docs/results.md#the-roughness-std"""
 
     def __post_init__(self):
         _check_choices(self)
@@ -216,53 +216,53 @@ class UncertaintyConfig:
 
 @dataclass(frozen=True)
 class EstimateConfig:
-    """Per-texel base colour, roughness and metallic from the observations (METHOD.md §3.6-3.7).
+    """Per-texel base colour, roughness and metallic from the observations (docs/method.md#forward-model and docs/method.md#estimation).
 
     Two estimators: ``global`` (the default: an exhaustive roughness and metallic search with a closed-form
-    solve of the rest, after METHOD.md §3.7's note) and ``paper`` (the prototype's Adam on the L1 loss).
+    solve of the rest, after the note in docs/method.md#estimation) and ``paper`` (the prototype's Adam on the L1 loss).
     Most settings belong to one of them; the sections below say which.
     """
 
     # --- the estimator ---
     method: Literal["global", "paper"] = "global"
     """The estimator: "global" (exhaustive search: ahead of the prototype and of Mitsuba's inverse renderer on every
-    score measured) or "paper" (the prototype's Adam, for comparison). docs/measurements.md#materials-at-a-glance"""
+    score measured) or "paper" (the prototype's Adam, for comparison). docs/results.md#materials-at-a-glance"""
     forward_model: Literal["angular", "sh_coeffs", "spectrum"] = "angular"
-    """The paper estimator's forward model (METHOD.md §3.6), angular being the most accurate; global is angular only.
-    docs/measurements.md#the-paper-estimator"""
+    """The paper estimator's forward model (docs/method.md#forward-model), angular being the most accurate; global is angular only.
+    docs/results.md#the-paper-estimator"""
 
     # --- global estimator: the reflection model ---
     specular_model: Literal["split_sum", "g1"] = "split_sum"
     """The specular's view dependence: "split_sum" (R0 A + B, the GGX lobe's directional albedo: Mitsuba's model) or
-    "g1" (METHOD.md §3.6's F G1, too bright on rough lobes; paper: always). See
-    docs/measurements.md#the-reflection-model"""
+    "g1" (the F G1 of docs/method.md#forward-model, too bright on rough lobes; paper: always). See
+    docs/results.md#the-reflection-model"""
     diffuse_model: Literal["burley", "lambert"] = "burley"
-    """The diffuse: "burley" (the view-dependent principled diffuse Mitsuba renders) or "lambert" (METHOD.md's d E / pi;
-    paper: always). docs/measurements.md#the-reflection-model"""
+    """The diffuse: "burley" (the view-dependent principled diffuse Mitsuba renders) or "lambert" (the d E / pi of docs/method.md#forward-model;
+    paper: always). docs/results.md#the-reflection-model"""
     dielectric_fresnel: Literal["exact", "schlick"] = "exact"
     """With split_sum, the dielectric part's Fresnel: "exact" (eta 1.5, as Mitsuba's principled BSDF) or "schlick"
-    (too low at oblique views). docs/measurements.md#the-reflection-model"""
+    (too low at oblique views). docs/results.md#the-reflection-model"""
 
     # --- global estimator: the light the model reads (needs observations that carry the environment) ---
     environment_light: bool = True
     """Rough lobes read the environment's own SH (l <= 5) through the GGX lobe's exact response instead of the texel's
     fit of its mirrored samples: with the prefiltered light, what puts global ahead.
-    docs/measurements.md#the-environment-light"""
+    docs/results.md#the-environment-light"""
     environment_blend: tuple[float, float] = (0.3, 0.6)
     """Roughness over which the environment light's share rises from 0 to 1 (smoothstep): smooth lobes keep the
-    sharp features its l <= 5 SH lacks. docs/measurements.md#the-environment-light"""
+    sharp features its l <= 5 SH lacks. docs/results.md#the-environment-light"""
     burley_environment: bool = True
     """With burley, average Burley's view dependence over the environment's own light instead of uniform light: no
     longer too dark at grazing views, for a few % of the estimate.
-    docs/measurements.md#burley-under-the-environment-light"""
+    docs/results.md#burley-under-the-environment-light"""
     prefiltered_light: bool = True
     """Smooth lobes read the environment map prefiltered by the GGX lobe at their world mirror direction instead of the
-    texel's SH fit, which cannot hold sharp reflections. docs/measurements.md#the-prefiltered-light"""
+    texel's SH fit, which cannot hold sharp reflections. docs/results.md#the-prefiltered-light"""
 
     # --- global estimator: after the search ---
     neighbour_vote: bool = True
     """Texels over a grid cell from their 5 x 5 neighbours' median roughness (metallic) move towards it unless their
-    data reject it: it lowered every texture error measured. docs/measurements.md#the-neighbour-vote"""
+    data reject it: it lowered every texture error measured. docs/results.md#the-neighbour-vote"""
 
     # --- the "g1" specular model (the paper estimator, or global with specular_model "g1") ---
     fresnel: bool = True
@@ -275,18 +275,18 @@ class EstimateConfig:
     # --- global estimator: the search ---
     roughness_grid: int = 9
     """Roughness nodes of the first scan (uniform on [0, 1], refined by Brent): 9 x 4 matches 17 x 6 in every score,
-    in less time. docs/measurements.md#search-grids-and-the-robust-pass"""
+    in less time. docs/results.md#search-grids-and-the-robust-pass"""
     metallic_grid: int = 4
     """Metallic nodes of the profile at each roughness (refined by Brent); see roughness_grid.
-    docs/measurements.md#search-grids-and-the-robust-pass"""
+    docs/results.md#search-grids-and-the-robust-pass"""
     robust_passes: int = 1
     """Re-weighted passes towards the paper's L1 loss, which discounts what the model cannot explain (interreflections,
-    silhouettes); 0: least squares. docs/measurements.md#search-grids-and-the-robust-pass"""
+    silhouettes); 0: least squares. docs/results.md#search-grids-and-the-robust-pass"""
     shadowing_refreshes: int = 1
     """With "g1": re-fit the light shadowed at the estimate and search again (split_sum needs none).
-    docs/measurements.md#search-grids-and-the-robust-pass"""
+    docs/results.md#search-grids-and-the-robust-pass"""
 
-    # --- paper estimator only (the prototype's Adam, METHOD.md §3.7) ---
+    # --- paper estimator only (the prototype's Adam, docs/method.md#estimation) ---
     iterations: int = 100
     """Adam steps; the prototype's 100."""
     learning_rate: float = 0.02
@@ -310,7 +310,7 @@ class EstimateConfig:
 class SurfaceConfig:
     """The whole-surface estimate: the per-texel evidence weighed against a prior over the surface.
 
-    See `freqbrdf.estimate.surface`; figures in docs/measurements.md#whole-surface.
+    See `freqbrdf.estimate.surface`; figures in docs/results.md#whole-surface.
     """
 
     enabled: bool = True
@@ -353,7 +353,7 @@ class SurfaceConfig:
 
 @dataclass(frozen=True)
 class Config:
-    """All settings of a fit, one section per stage (METHOD.md §3-4).
+    """All settings of a fit, one section per stage (docs/method.md#pipeline to docs/method.md#applications).
 
     Build one with `preset`, or by replacing sections of the default:
     ``Config(texels=TexelConfig(texture_res=256))``.
@@ -376,7 +376,7 @@ class Config:
     device: Literal["auto", "cpu", "cuda"] = "auto"
     """Where the SH least squares, the global search and the entropy run: "cpu" (the reference), "cuda" (the
     ``[gpu]`` extra and an NVIDIA GPU) or "auto" (CUDA where both are present, else the CPU; `freqbrdf.devices`).
-    The backends agree to rounding. docs/measurements.md#the-gpu-backend"""
+    The backends agree to rounding. docs/results.md#the-gpu-backend"""
 
     def __post_init__(self):
         _check_choices(self)
@@ -417,7 +417,7 @@ def preset(name: str = "default") -> Config:
     the truth texel by texel but smoother, with less of the detail a rendering shows; still ahead of
     ``paper`` and of Mitsuba's inverse renderer on every score measured. ``paper`` is the authors'
     prototype: every texel of T, its absolute SH regularisation, the paper's entropy recipe and its
-    Adam estimator, for comparison. Figures: docs/measurements.md#presets.
+    Adam estimator, for comparison. Figures: docs/results.md#presets.
 
     Parameters
     ----------

@@ -1,4 +1,4 @@
-"""Where the hot stages run: the CPU (the reference) or a CUDA device (METHOD.md §3.3, §3.7, §3.8).
+"""Where the hot stages run: the CPU (the reference) or a CUDA device (docs/method.md#sh-fit, docs/method.md#estimation, docs/method.md#entropy).
 
 The SH least squares, the global search and the entropy have numba CPU kernels and, in the
 private ``_cuda_kernels`` modules beside them, CUDA kernels compiled by numba-cuda (the ``[gpu]``

@@ -5,7 +5,7 @@ top of the picture. Readers accept OpenEXR (RGB, RGBA or a single channel such a
 float), Radiance ``.hdr`` (RGBE, flat or run-length encoded) and, with a warning, 8-bit PNG/JPEG
 (decoded from sRGB). Every writer is atomic: a failed write leaves no file behind.
 
-Photographs are the posed HDR images of METHOD.md §1; environment maps are read by
+Photographs are the posed HDR images of docs/method.md#problem; environment maps are read by
 `freqbrdf.sphere.envmap` through `read_image`.
 """
 

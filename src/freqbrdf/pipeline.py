@@ -1,9 +1,9 @@
 """The whole job on one capture: texels -> observations -> estimate -> uncertainty -> textures.
 
-The pipeline of METHOD.md §3. `fit` runs the stages in memory (`FitResult`; on coarser texels than
+The pipeline of docs/method.md#pipeline. `fit` runs the stages in memory (`FitResult`; on coarser texels than
 the maps' when ``TexelConfig.estimation_res`` says so, then `to_texels`); `write_fit` writes the
 fit folder (`freqbrdf.outputs.export.write_fit_outputs`); `inpaint_fit` fills a fit's uncertain
-texels (METHOD.md §4). Reading a fit folder back and scoring it live in
+texels (docs/method.md#inpainting). Reading a fit folder back and scoring it live in
 `freqbrdf.outputs.fit_folder` and `freqbrdf.outputs.evaluate`.
 """
 
@@ -148,12 +148,12 @@ def observe_on_estimation_texels(capture: Capture, config: Config = Config(),
 
 
 def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT) -> FitResult:
-    """Observe, estimate, compute the uncertainty and make the textures (METHOD.md §3).
+    """Observe, estimate, compute the uncertainty and make the textures (docs/method.md#pipeline).
 
     The first three run on the texels of `estimation_resolution` (`observe_on_estimation_texels`);
     where those are coarser than T, the results are then taken to the T x T texels (`to_texels`).
     With ``config.surface.enabled`` (the default) the ``global`` estimate becomes the whole-surface
-    estimate after the uncertainty (`freqbrdf.estimate.surface`, METHOD.md §4), whose posterior
+    estimate after the uncertainty (`freqbrdf.estimate.surface`, docs/method.md#whole-surface-estimate), whose posterior
     gives the metallic std, the roughness std where it is wider than the spread of the texel's own
     estimate (`freqbrdf.uncertainty.roughness_std`), and the base-colour std with the distance of
     the texel's own estimate from the solution added in quadrature.
@@ -426,7 +426,7 @@ def write_fit(out_dir: str | Path, result: FitResult, config: Config = Config())
 
 def inpaint_fit(fit_dir: str | Path, out_dir: str | Path, settings: inpaint.InpaintSettings = inpaint.InpaintSettings(),
                 capture: str | Path | None = None) -> Path:
-    """Inpaint a fit folder's uncertain texels (METHOD.md §4), writing a new folder atomically.
+    """Inpaint a fit folder's uncertain texels (docs/method.md#inpainting), writing a new folder atomically.
 
     Files: the three EXR maps and their PNG previews, ``mask.png`` (white: filled texels, grey:
     the rest of the atlas), ``material.glb`` (the capture's mesh with the new maps) and

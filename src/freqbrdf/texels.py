@@ -1,4 +1,4 @@
-"""Texels: the mesh rasterised in UV space (METHOD.md §3.1), and texture helpers.
+"""Texels: the mesh rasterised in UV space (docs/method.md#texels), and texture helpers.
 
 Texel (row i, column j) of a T x T texture is centred at uv = ((j + 0.5)/T, 1 - (i + 0.5)/T), UV
 origin bottom-left (as in `freqbrdf.capture.mesh`). Internally UVs map to texel coordinates
@@ -25,7 +25,7 @@ triangles (overlapping charts) are counted in ``Texels.overlap_texels``; faces w
 Each texel's local frame (tangent, bitangent, normal) comes from the shading normal alone, by the
 branchless orthonormal basis of Duff et al. 2017 ("Building an Orthonormal Basis, Revisited"):
 deterministic, right-handed and continuous except where n_z changes sign. Downstream quantities
-are rotation invariant about n (METHOD.md §2), so no UV-aligned tangent is needed.
+are rotation invariant about n (docs/method.md#conventions), so no UV-aligned tangent is needed.
 """
 
 from __future__ import annotations
@@ -271,7 +271,7 @@ def dilate(texture: np.ndarray, mask: np.ndarray, pixels: int) -> np.ndarray:
 
     Each ring is the set of empty texels with a filled 8-neighbour; it takes the mean of those
     neighbours. Texture filtering at chart edges (bilinear, mip levels) then blends surface values
-    with plausible continuations instead of empty atlas space (METHOD.md §3.1).
+    with plausible continuations instead of empty atlas space (docs/method.md#texels).
 
     Parameters
     ----------

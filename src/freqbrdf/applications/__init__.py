@@ -1,4 +1,4 @@
-"""Applications of the uncertainty: guidance and inpainting (METHOD.md §4).
+"""Applications of the uncertainty: guidance and inpainting (docs/method.md#applications).
 
 Each reads a fit's observations, estimate and uncertainty and gives something a user acts on:
 where to photograph next, and material maps whose uncertain regions are filled. Sharing across

@@ -1,4 +1,4 @@
-"""Spread of view directions in capture guidance: misfit correlated between nearby views (METHOD.md §4).
+"""Spread of view directions in capture guidance: misfit correlated between nearby views (docs/method.md#guidance).
 
 What is left of a texel's error once it is seen from several sides is mostly the model's misfit,
 not noise, and the misfit of two samples is alike when their view directions are close. A

@@ -1,13 +1,13 @@
-"""Candidate views for capture guidance, and what each would sample (METHOD.md §3.2, §4).
+"""Candidate views for capture guidance, and what each would sample (docs/method.md#observations, docs/method.md#guidance).
 
-Capture guidance (`freqbrdf.applications.guidance.select_views`, METHOD.md §4) chooses among
+Capture guidance (`freqbrdf.applications.guidance.select_views`, docs/method.md#guidance) chooses among
 candidate cameras: spread evenly on a sphere around the object (`sample_candidates`), read from
 a transforms file (`load_candidates`), or grown farthest-point from views already chosen
 (`farthest_point_views`, on the directions of `view_directions`). Before any photograph is
 taken, `candidate_samples` finds what a candidate would add to each texel: the view direction in
 the texel's frame (its SH basis), the weight cos(theta_o) under the visibility test of
-`freqbrdf.observe.observe` (METHOD.md §3.2, `freqbrdf.observe.camera_samples`) and the
-band-limited environment in the mirror direction (METHOD.md §2, §3.4): a `CandidateSamples`.
+`freqbrdf.observe.observe` (docs/method.md#observations, `freqbrdf.observe.camera_samples`) and the
+band-limited environment in the mirror direction (docs/method.md#conventions, docs/method.md#band-limit): a `CandidateSamples`.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Capture guidance: the next photographs that most lower the whole-surface posterior's uncertainty.
 
-METHOD.md §4 (capture guidance). `freqbrdf fit` returns the whole-surface estimate
+docs/method.md#guidance (capture guidance). `freqbrdf fit` returns the whole-surface estimate
 (`freqbrdf.estimate.surface`): every texel's roughness, metallic and base colour with a posterior
 std. Guidance plans for that estimate. Its objective is the area-weighted mean over the texels of
 

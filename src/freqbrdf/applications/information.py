@@ -1,4 +1,4 @@
-"""What a candidate view would tell the whole-surface estimate, before it is taken (METHOD.md §4).
+"""What a candidate view would tell the whole-surface estimate, before it is taken (docs/method.md#guidance).
 
 Capture guidance (`freqbrdf.applications.guidance`) scores cameras by what their samples would
 add to each texel: the Fisher information on roughness (with the specular and diffuse scales as

@@ -1,4 +1,4 @@
-"""Inpainting uncertain regions of a fit's material maps (METHOD.md §4, `freqbrdf inpaint`).
+"""Inpainting uncertain regions of a fit's material maps (docs/method.md#inpainting, `freqbrdf inpaint`).
 
 **Mask** (`inpaint_mask`). Texels of the mesh's atlas that the fit cannot vouch for: by default
 those flagged UNOBSERVED (no sample) or AMBIGUOUS (entropy above the fit's

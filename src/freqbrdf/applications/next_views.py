@@ -1,7 +1,7 @@
-"""The ``next_views`` folder of capture guidance: ranked cameras, a picture, a summary (METHOD.md §4).
+"""The ``next_views`` folder of capture guidance: ranked cameras, a picture, a summary (docs/method.md#guidance).
 
 `write_next_views` writes the views `freqbrdf.applications.guidance.select_views` picked
-(METHOD.md §4) as a transforms file of the capture format (`NEXT_VIEWS_FILE`), which loads as a
+(docs/method.md#guidance) as a transforms file of the capture format (`NEXT_VIEWS_FILE`), which loads as a
 capture once the photographs are taken, together with `plot_views`' 3D picture of the mesh, the
 capture's cameras, the candidates and the picks (`PICTURE_FILE`) and a JSON summary
 (`SUMMARY_FILE`). matplotlib is imported only when a picture is drawn.

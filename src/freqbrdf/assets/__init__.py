@@ -1,6 +1,6 @@
 """Bundled data: environment maps, meshes and ground-truth material sets (see ATTRIBUTION.md).
 
-Everything here is regenerated from the package registries (METHOD.md §6) by
+Everything here is regenerated from the package registries (docs/method.md#data) by
 ``scripts/make_assets.py``.
 """
 

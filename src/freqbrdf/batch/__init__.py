@@ -2,8 +2,8 @@
 
 `run` reads a manifest (a CSV or JSON Lines file, one capture a line with optional settings, or a
 folder of captures), checks all of it before any work, and runs each capture's whole job as one
-Ray task: the pipeline of METHOD.md §3 (`freqbrdf.pipeline.fit`, `write_fit`), the scores of
-METHOD.md §5 where the capture has ground truth or test views (`freqbrdf.outputs.evaluate`) and
+Ray task: the pipeline of docs/method.md#pipeline (`freqbrdf.pipeline.fit`, `write_fit`), the scores of
+docs/method.md#evaluation where the capture has ground truth or test views (`freqbrdf.outputs.evaluate`) and
 the report (`freqbrdf.outputs.report`), into ``OUT/<name>/``, which appears complete or not at
 all. Ray starts on this machine (workers sized to its cores and memory, `default_workers`) or
 joins a cluster by its address. A capture whose inputs, settings and freqbrdf version are

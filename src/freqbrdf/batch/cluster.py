@@ -22,7 +22,7 @@ MAX_RETRIES = 2  # Ray's retries of a capture whose worker died
 FIT_THREADS = 2  # CPUs (numba threads) per capture by default: what one fit uses well
 # Memory one fit is scheduled with, as bytes at texture side T: a fixed part (the interpreter,
 # numba, Mitsuba) plus a part growing with the texels; the two sum to the peak of a T = 512 fit
-# (docs/measurements.md#batch) with a margin.
+# (docs/results.md#batch) with a margin.
 FIT_MEMORY_FIXED = int(0.75 * 2**30)
 FIT_MEMORY_AT_512 = int(0.75 * 2**30)
 

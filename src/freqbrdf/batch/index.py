@@ -2,7 +2,7 @@
 
 `write_summary` writes both, atomically, after every capture: batch.json as `freqbrdf.batch.run`
 returns the summary, index.html (`index_html`) as a table of every capture's status, seconds,
-attempts, key metrics (coverage and mean entropy; the scores of METHOD.md §5 where the capture was
+attempts, key metrics (coverage and mean entropy; the scores of docs/method.md#evaluation where the capture was
 evaluated) and error, with links to the reports.
 """
 

@@ -1,7 +1,7 @@
 """The settings of one capture of a batch: checked, made into a `Config`, hashed.
 
 A manifest line (`freqbrdf.batch.manifest`) may set any key of `SETTINGS`: the options of
-``freqbrdf fit`` of the same name (METHOD.md §3), whether to score the fit (METHOD.md §5) and
+``freqbrdf fit`` of the same name (docs/method.md#pipeline), whether to score the fit (docs/method.md#evaluation) and
 write its report, and the samples per pixel of the evaluation's relit renders. `parse_settings`
 checks and converts them from CSV text or JSON values, `capture_config` makes the `Config` that
 ``freqbrdf fit`` makes from the same options, and `settings_hash` is what a capture's outputs

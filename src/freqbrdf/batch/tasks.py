@@ -2,8 +2,8 @@
 
 `process_capture` is what each capture's Ray task runs (a function at module level, which Ray
 pickles by reference to this module): it loads the capture (`freqbrdf.capture.layouts.load`),
-hashes its inputs (`freqbrdf.batch.state`), runs the pipeline of METHOD.md §3 with the capture's
-`Config` (`freqbrdf.pipeline.fit`, `write_fit`), scores it where asked (METHOD.md §5,
+hashes its inputs (`freqbrdf.batch.state`), runs the pipeline of docs/method.md#pipeline with the capture's
+`Config` (`freqbrdf.pipeline.fit`, `write_fit`), scores it where asked (docs/method.md#evaluation,
 `freqbrdf.outputs.evaluate`), writes its report (`freqbrdf.outputs.report`) and records
 ``batch_entry.json``, all in a work folder that is renamed into ``OUT/<name>/`` when complete.
 

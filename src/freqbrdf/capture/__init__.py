@@ -1,4 +1,4 @@
-"""The capture stage: what was photographed, how, and under which light (METHOD.md §1, §2).
+"""The capture stage: what was photographed, how, and under which light (docs/method.md#problem, docs/method.md#conventions).
 
 A capture is a triangle mesh with a UV atlas, posed HDR photographs and the distant environment
 map they were taken under, optionally with relighting views and ground-truth material maps.

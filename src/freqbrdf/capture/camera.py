@@ -1,6 +1,6 @@
 """Pinhole cameras in the NeRF/Blender convention, and their reading from transforms files.
 
-Axes are OpenGL's (METHOD.md §2, "Cameras"): in camera space x points right, y up, and the
+Axes are OpenGL's (docs/method.md#conventions, "Cameras"): in camera space x points right, y up, and the
 camera looks down -z. ``camera_to_world`` maps camera space to world space and must be rigid (a
 rotation and a translation). Pixel coordinates: (0, 0) is the top-left corner of the top-left
 pixel, x runs right and y down, and the centre of pixel (row i, column j) is (j + 0.5, i + 0.5);

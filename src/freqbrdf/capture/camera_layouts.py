@@ -1,7 +1,7 @@
 """Where cameras go around an object: evenly spread or random directions on an orbit.
 
 Places the views of synthetic captures and the candidate views of capture guidance
-(METHOD.md §4, "Capture guidance"). World +y is up; cameras are square pinholes
+(docs/method.md#guidance, "Capture guidance"). World +y is up; cameras are square pinholes
 (`freqbrdf.capture.camera.Camera`) that look at the object's bounding-sphere centre.
 """
 

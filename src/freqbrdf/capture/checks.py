@@ -2,7 +2,7 @@
 
 `load` (`freqbrdf.capture.layouts`) checks that every file is there and readable; a capture can
 still be wrong in ways only the whole shows, which `check_capture` finds in about a second, before
-the minutes of a fit (the capture format: docs/capture-format.md; what a fit needs: METHOD.md §3):
+the minutes of a fit (the capture format: docs/capture-format.md; what a fit needs: docs/method.md#pipeline):
 
 - the cameras against the mesh: the mesh in front of them (OpenCV's +Z-forward axes put it behind),
   of a size they can resolve (not a mesh in millimetres before cameras a metre away, nor one a

@@ -1,8 +1,8 @@
 """Captures: posed HDR photographs of a known mesh under a known environment map.
 
-A capture is the input of METHOD.md §1 (mesh, posed HDR photographs, distant environment map),
-with cameras in the convention of §2 and, optionally, the relighting views and ground truth used
-to judge results (§5). Three layouts load into the same `Capture` (the format is described for
+A capture is the input of docs/method.md#problem (mesh, posed HDR photographs, distant environment map),
+with cameras in the convention of docs/method.md#conventions and, optionally, the relighting views and ground truth used
+to judge results (docs/method.md#evaluation). Three layouts load into the same `Capture` (the format is described for
 users in docs/capture-format.md):
 
 - ours: ``transforms.json`` in the NeRF/Blender style plus the keys ``mesh``, ``envmap``,

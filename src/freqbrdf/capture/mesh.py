@@ -1,6 +1,6 @@
 """Triangle meshes with one UV atlas: loading, atlas generation (xatlas), OBJ output.
 
-The mesh is the known geometry of METHOD.md §1; meshes without UVs get an xatlas atlas (§3.1).
+The mesh is the known geometry of docs/method.md#problem; meshes without UVs get an xatlas atlas (docs/method.md#texels).
 UV convention: origin at the bottom-left of the texture, as in OBJ (and glTF after trimesh's
 flip on import). Texel (row i, column j) of a T x T texture covers
 uv = ((j + 0.5) / T, 1 - (i + 0.5) / T); row 0 is the top row of the stored image.

@@ -1,4 +1,4 @@
-"""The Stanford-ORB benchmark's layout, read into a `Capture` (METHOD.md §1, §5).
+"""The Stanford-ORB benchmark's layout, read into a `Capture` (docs/method.md#problem, docs/method.md#evaluation).
 
 ``blender_HDR/<scene>/transforms_{train,test,novel}.json`` with
 ``ground_truth/<scene>/{env_map,mesh_blender}``: the training views are the frames, the

@@ -1,9 +1,9 @@
-"""Per-texel base colour, roughness and metallic from the observations (METHOD.md §3.6-3.7).
+"""Per-texel base colour, roughness and metallic from the observations (docs/method.md#forward-model and docs/method.md#estimation).
 
 Both estimators fit, per texel, view v and channel c, the radiance of the reflection model in
 `freqbrdf.model`: a GGX lobe of roughness r (alpha = r^2) reading the incoming light through the
 BRDF kernel, plus a diffuse term d E / pi, with R0 = 0.04 (1 - m) + b m and d = (1 - m) b.
-``EstimateConfig`` chooses the model's pieces: the split-sum albedo or METHOD.md's angular model
+``EstimateConfig`` chooses the model's pieces: the split-sum albedo or the angular model of docs/method.md#forward-model
 (G1 and Schlick's Fresnel), Burley's diffuse or Lambert's, and which light a lobe reads (the
 fitted light, the environment light of rough lobes, the prefiltered light of smooth ones). Where
 a sample's mirror lobe meets the object itself (`Observations.mirror_occluded`, traced by
@@ -19,7 +19,7 @@ Two estimators, in `ESTIMATORS`:
   the global optimum up to the grid's resolution. Robust passes then re-weight the samples
   towards an L1 loss, and a neighbour vote settles texels with two near-equal optima.
 - ``paper`` (`freqbrdf.estimate.paper`) reproduces the authors' prototype: Adam on the L1 loss of
-  METHOD.md's model over the whole texture, with texture-space total variation, for any of the
+  the model of docs/method.md#forward-model over the whole texture, with texture-space total variation, for any of the
   three forward models (angular, SH coefficients, power spectrum).
 
 Texels without a sample are left unestimated (NaN, ``estimated`` False); ``global`` also leaves
@@ -238,7 +238,7 @@ def estimate(observations: Observations, config: Config = Config(), reporter: Re
 def model_light(observations: Observations, roughness: np.ndarray, config: Config = Config()) -> np.ndarray:
     """Return the incoming light's SH fit as the estimator's model sees it at a roughness.
 
-    Shadowed by G1 for METHOD.md's model with shadowing on, else the mirrored light (the
+    Shadowed by G1 for the model of docs/method.md#forward-model with shadowing on, else the mirrored light (the
     split-sum albedo holds the shadowing). Pass it to `angular_loss` to score parameters as the
     estimator does.
 

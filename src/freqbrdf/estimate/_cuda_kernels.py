@@ -1,4 +1,4 @@
-"""The CUDA kernel of the global search (METHOD.md §3.7), for `freqbrdf.estimate.search`.
+"""The CUDA kernel of the global search (docs/method.md#estimation), for `freqbrdf.estimate.search`.
 
 One thread per texel, in a grid-stride loop: each thread runs the CPU kernel's own per-texel
 search (`freqbrdf.estimate._global_kernels.search_texel`) on a `SearchScratch` of its own, so both

@@ -1,4 +1,4 @@
-"""The global search's kernel entry points (METHOD.md §3.7): per texel, and on the CPU in parallel.
+"""The global search's kernel entry points (docs/method.md#estimation): per texel, and on the CPU in parallel.
 
 `search_texel` does one texel's whole search with the scratch of a `SearchScratch`
 (`new_search_scratch`): the CPU's `global_search_kernel` runs it texel by texel in parallel chunks,

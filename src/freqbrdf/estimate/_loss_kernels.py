@@ -1,6 +1,6 @@
 """The model's weighted squared residual of given parameters, for `freqbrdf.estimate.angular_loss`.
 
-The residual of the ``global`` estimator's model (METHOD.md §3.6) with its light, written as the
+The residual of the ``global`` estimator's model (docs/method.md#forward-model) with its light, written as the
 search kernels evaluate it (`freqbrdf.estimate._search_kernels`), per texel over its samples.
 """
 

@@ -1,4 +1,4 @@
-"""The profiled loss's minimisers, for the search kernels (METHOD.md §3.7).
+"""The profiled loss's minimisers, for the search kernels (docs/method.md#estimation).
 
 Brent's bounded minimiser in reverse communication, and the closed-form base colour with the
 metallic profiled out by a grid and safeguarded Newton.

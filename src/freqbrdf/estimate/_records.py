@@ -1,4 +1,4 @@
-"""Named records of arrays and scalars that the global search's kernels take (METHOD.md §3.7).
+"""Named records of arrays and scalars that the global search's kernels take (docs/method.md#estimation).
 
 numba compiles a kernel once per combination of its arguments' types, so each field keeps one
 type: the builders in `freqbrdf.estimate.search` convert what they store. Shapes use n texels,
@@ -41,7 +41,7 @@ class ModelOptions(NamedTuple):
     sigma: float  # the band-limit compensation of the BRDF kernel (`model.brdf.brdf_kernel`)
     fresnel: bool
     masking: bool
-    split_sum: bool  # the split-sum albedo, else METHOD.md's angular model
+    split_sum: bool  # the split-sum albedo, else the angular model of docs/method.md#forward-model
     exact_dielectric: bool  # the dielectric's own albedo E, else Schlick's 0.04 A + B
     burley: bool  # Burley's diffuse, else Lambert's
 

@@ -1,4 +1,4 @@
-"""The pieces of the global search's numba kernels (METHOD.md §3.7).
+"""The pieces of the global search's numba kernels (docs/method.md#estimation).
 
 The profiled loss of a texel at a roughness, the roughness search, the robust passes' residuals,
 the hypotheses' moments and the labels' losses; `freqbrdf.estimate._global_kernels` puts them

@@ -4,7 +4,7 @@ The Huber re-weighting of the graph's edges and a Jacobi-preconditioned conjugat
 of (diag(d_c) + D - W) x_c = b_c for every channel c at once, on the graph in CSR form. One
 thread: an iteration is a few sparse passes, and on a shared machine threads that wait for each
 other at every pass cost far more than they save
-(docs/measurements.md#the-whole-surface-estimate-the-default). Dot products are summed per block
+(docs/results.md#the-whole-surface-estimate-the-default). Dot products are summed per block
 of `BLOCK` rows, then over the blocks in order.
 """
 

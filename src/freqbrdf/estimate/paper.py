@@ -1,8 +1,8 @@
-"""The ``paper`` estimator: the authors' prototype, Adam on the L1 loss of METHOD.md's model (§3.6).
+"""The ``paper`` estimator: the authors' prototype, Adam on the L1 loss of the model of docs/method.md#forward-model.
 
 Any of the three forward models of `freqbrdf.model.brdf` (angular, SH coefficients, power
 spectrum), with analytic gradients; the loss and the total variation are averaged over the
-whole texture, as the prototype's are. METHOD.md's shadowing makes the light's SH fit depend on
+whole texture, as the prototype's are. The shadowing of docs/method.md#forward-model makes the light's SH fit depend on
 the roughness: it is refreshed every ``EstimateConfig.shadowing_refresh_every`` iterations.
 """
 

@@ -1,4 +1,4 @@
-"""The ``global`` estimator: an exhaustive search with a closed-form base colour (METHOD.md §3.7).
+"""The ``global`` estimator: an exhaustive search with a closed-form base colour (docs/method.md#estimation).
 
 It minimises the weighted squared residual sum_v w_v^2 (L(w_v) - f_v)^2 of the model in
 `freqbrdf.model`. Write L = m (b X + Y) + (1 - m) Z + (1 - m) b e D with X = A S_A, Y = B S_B,
@@ -12,7 +12,7 @@ grid's resolution. ``EstimateConfig.robust_passes`` passes of iteratively re-wei
 squares then move towards the L1 loss, weighting a sample by w / max(|r|, a tenth of the texel's
 mean |r|), so that samples the model cannot explain count less.
 
-METHOD.md's angular model shadows the light by G1 before its fit, which makes the light depend
+The angular model (docs/method.md#forward-model) shadows the light by G1 before its fit, which makes the light depend
 on the roughness: the first search uses the unshadowed light, and each of
 ``EstimateConfig.shadowing_refreshes`` refreshes re-fits it shadowed at a secant prediction of the
 fixed point r = search(light shadowed at r) and searches again. The split-sum albedo holds the
@@ -243,7 +243,7 @@ def run_search_kernel(observations: Observations, settings: EstimateConfig, ligh
         neighbour vote moves a texel's roughness.
     device : {"auto", "cpu", "cuda"}, optional
         Where the search runs (`freqbrdf.devices.resolve_device`); the backends agree to rounding
-        (docs/measurements.md).
+        (docs/results.md).
     """
     tangent, environment, prefiltered = _light_inputs(observations, settings)
     hypothesis_roughness = np.ascontiguousarray(hypothesis_roughness, dtype=np.float64)

@@ -3,7 +3,7 @@
 The per-texel search (`freqbrdf.estimate.search`) answers every texel from its own samples; where
 they cannot tell materials apart the answer is arbitrary, and texels no view sees have none. This
 stage keeps what each texel's samples say and lets the surface decide the rest (the sharing of
-METHOD.md §4, done inside the estimate):
+docs/method.md#whole-surface-estimate, done inside the estimate):
 
 1. **The surface graph** (`surface_graph`): each texel's nearest texels on the mesh, in 3D and so
    across UV seams, weighted by the likeness of their apparent albedo (the mean observed radiance

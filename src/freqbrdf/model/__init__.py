@@ -1,4 +1,4 @@
-"""What a texel reflects under a light: the reflection model of METHOD.md §2 and §3.6.
+"""What a texel reflects under a light: the reflection model of docs/method.md#conventions and docs/method.md#forward-model.
 
 Nothing here imports a stage: the estimators, the uncertainty, guidance and sharing build on it.
 

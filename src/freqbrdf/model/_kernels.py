@@ -1,6 +1,6 @@
 """numba device functions of the reflection model, shared by the estimators and the light models.
 
-The per-sample pieces of METHOD.md §3.6's model as the search kernels evaluate them: the
+The per-sample pieces of the model of docs/method.md#forward-model as the search kernels evaluate them: the
 specular albedo, the BRDF kernel and G1, Burley's factor, the environment light at a roughness
 node, the prefiltered light's lookup stencil and nodes. Arrays are written into the ``out``
 arguments; the functions compiled with `borrowing_jit` allocate nothing.
@@ -140,8 +140,8 @@ def g1_and_derivative(cos_theta, alpha):
 def specular_albedo(cos_theta, roughness, alpha, fresnel, masking, split_sum, table):
     """Return (A, B) of one sample: its specular radiance is (R0 A + B) times the filtered light.
 
-    With ``split_sum`` the table's A and B (`tables.split_sum_terms`); otherwise METHOD.md's angular
-    model, F G1 = R0 G1 (1 - F_c) + G1 F_c with F_c = (1 - cos)^5 (G1 = 1 without ``masking``).
+    With ``split_sum`` the table's A and B (`tables.split_sum_terms`); otherwise the angular
+    model of docs/method.md#forward-model, F G1 = R0 G1 (1 - F_c) + G1 F_c with F_c = (1 - cos)^5 (G1 = 1 without ``masking``).
     Without ``fresnel``, A + B and 0.
     """
     if split_sum:

@@ -1,4 +1,4 @@
-"""The reflection model in frequency space (METHOD.md §2 and §3.6, appendix A and C).
+"""The reflection model in frequency space (docs/method.md#conventions and docs/method.md#forward-model, appendix A and C).
 
 Reflection is modelled as in Ramamoorthi and Hanrahan: in the mirror parameterisation the
 specular part of the radiance leaving a texel towards w_o is the incoming light, seen in the mirror
@@ -463,7 +463,7 @@ def predict_angular(
     sigma: float = 0.0,
     basis: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Predict the radiance at the observed view directions with METHOD.md's angular model.
+    """Predict the radiance at the observed view directions with the angular model (docs/method.md#forward-model).
 
     L(w_o) = F(theta_o) G1(theta_o) [sum_lm k_l c^in_lm Y_lm(w_o)] + d E / pi.
 

@@ -1,9 +1,9 @@
-"""The light a lobe reads: the fitted, the environment and the prefiltered light (METHOD.md §3.6).
+"""The light a lobe reads: the fitted, the environment and the prefiltered light (docs/method.md#forward-model).
 
 A lobe of roughness r reads one of three lights, or a blend:
 
 - the fitted light: the per-texel SH fit of the mirrored samples (degrees <= l*), low-passed by
-  the BRDF kernel (`lobe_filtered_light`), as in METHOD.md;
+  the BRDF kernel (`lobe_filtered_light`), as in docs/method.md#forward-model;
 - the environment light of rough lobes: the environment map's own SH (world frame, degrees
   <= 5, unoccluded), read through the lobe's exact response to each harmonic
   (`environment_filtered_light`; `tables.environment_response_table`), plus the map's higher

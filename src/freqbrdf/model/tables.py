@@ -1,4 +1,4 @@
-"""The model's tables: the GGX lobe's albedo and light responses, Burley's diffuse (METHOD.md §3.6).
+"""The model's tables: the GGX lobe's albedo and light responses, Burley's diffuse (docs/method.md#forward-model).
 
 - The split-sum albedo (`split_sum_table`): per view cosine and roughness, the GGX lobe's
   directional albedo with Smith masking-shadowing integrated over the lobe, split by Fresnel

@@ -1,8 +1,8 @@
-"""The observation stage: per-texel samples of a capture and their SH spectra (METHOD.md §3.2-3.5).
+"""The observation stage: per-texel samples of a capture and their SH spectra (docs/method.md#observations to docs/method.md#irradiance).
 
 From the texels and the posed photographs to, per texel and view, the view direction in the
 texel's frame, the observed radiance, the band-limited environment in the mirror direction and
-the weight; then the irradiance and one regularised SH fit per texel (METHOD.md §2, §3.2-3.5).
+the weight; then the irradiance and one regularised SH fit per texel (docs/method.md#conventions, docs/method.md#observations to docs/method.md#irradiance).
 Mitsuba traces the shadow rays, through `freqbrdf.render.occluder.Occluder`, and is imported
 only when an occluder is made: importing this package does not import it.
 

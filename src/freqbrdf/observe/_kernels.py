@@ -1,18 +1,18 @@
-"""The numba kernels of the observation stage (METHOD.md §3.2-3.3).
+"""The numba kernels of the observation stage (docs/method.md#observations and docs/method.md#sh-fit).
 
 Private to `freqbrdf.observe.observations`, whose `observe` calls them batch by batch of views:
 
 - `_project_kernel`: each texel's pixel in each view of a batch, its cos(theta_o) and whether it
-  faces the camera inside the image (METHOD.md §3.2);
+  faces the camera inside the image (docs/method.md#observations);
 - `_shadow_rays` and `_clear_occluded`: the visibility test's segments from the offset texels to
-  the camera centres, packed texel by texel, and the samples their hits remove (METHOD.md §3.2);
+  the camera centres, packed texel by texel, and the samples their hits remove (docs/method.md#observations);
 - `_record_kernel`: the observed radiance (bilinear image samples inside the mask), the view
   direction in the texel's frame, the weight and the visibility of each sample;
 - `_mirror_directions` and `_unpack_samples`: the world mirror directions r = 2 (n.v) n - v of
   the samples and the band-limited environment looked up there, written beside the radiance
-  (METHOD.md §2, §3.4);
+  (docs/method.md#conventions, docs/method.md#band-limit);
 - `_sample_offsets` (numpy): where each texel's selected samples start when packed;
-- `_initialise_signals`: the fitted signals' buffer, with the constant channel at 1 (§3.6);
+- `_initialise_signals`: the fitted signals' buffer, with the constant channel at 1 (docs/method.md#forward-model);
 - `_sample_bilinear`, `_bilinear_stencil` and `_blend`: bilinear image samples.
 
 Compiled on first use and cached on disk (``cache=True``), so they stay at module level.
@@ -96,7 +96,7 @@ def _initialise_signals(signals, constant):
     """Set signals (N, V, C) to 0 and channel ``constant`` to 1.
 
     In parallel and in one contiguous pass, which also maps the fresh memory (faster than
-    np.zeros and a strided assignment; docs/measurements.md).
+    np.zeros and a strided assignment; docs/results.md).
     """
     for t in numba.prange(signals.shape[0]):
         for v in range(signals.shape[1]):

@@ -1,4 +1,4 @@
-"""Irradiance at the texels' normals from the environment's SH (METHOD.md §3.5).
+"""Irradiance at the texels' normals from the environment's SH (docs/method.md#irradiance).
 
 E(n) = integral of L(w) max(0, n.w) dw is the clamped-cosine kernel applied to the environment's
 spherical harmonics. Irradiance is smooth, so it is synthesised once on a lat-long grid of
@@ -16,7 +16,7 @@ from freqbrdf.sphere import harmonics as sh
 
 # Irradiance is smooth (its SH decay like l^-5/2), so it is synthesised once on a lat-long grid
 # of this height and interpolated bilinearly at the normals, rather than evaluating every SH at
-# every texel (docs/measurements.md has the error and the cost of both).
+# every texel (docs/results.md has the error and the cost of both).
 IRRADIANCE_MAP_HEIGHT = 256
 
 
@@ -26,7 +26,7 @@ def texel_irradiance(envmap: envmaps.Envmap, normals: np.ndarray) -> np.ndarray:
     The clamped-cosine kernel applied to the map's SH (`freqbrdf.sphere.envmap.irradiance`'s
     method, up to ``IRRADIANCE_LMAX`` of `freqbrdf.sphere.envmap` or what the map resolves),
     synthesised on a lat-long grid of ``IRRADIANCE_MAP_HEIGHT`` rows and read bilinearly
-    (METHOD.md §3.5).
+    (docs/method.md#irradiance).
 
     Parameters
     ----------

@@ -1,7 +1,7 @@
-"""Maps of an observation for people: coverage and visibility in texture space (METHOD.md §3.2).
+"""Maps of an observation for people: coverage and visibility in texture space (docs/method.md#observations).
 
 `write_maps` draws, per texel of an `freqbrdf.observe.observations.Observations`, how many views
-sample it and which fraction of the views facing it do (the visibility test of METHOD.md §3.2:
+sample it and which fraction of the views facing it do (the visibility test of docs/method.md#observations:
 neither hidden by the object itself nor on the mask's edge), as PNG figures with colour bars.
 matplotlib is imported only when a map is drawn.
 """

@@ -1,6 +1,6 @@
-"""Observations: from a capture to per-texel samples and their SH spectra (METHOD.md §3.2-3.5).
+"""Observations: from a capture to per-texel samples and their SH spectra (docs/method.md#observations to docs/method.md#irradiance).
 
-For every texel and view, `observe` records in the mirror parameterisation of METHOD.md §2:
+For every texel and view, `observe` records in the mirror parameterisation of docs/method.md#conventions:
 
 - the view direction w_o in the texel's local frame (t, b, n),
 - the observed radiance (the image, bilinearly sampled where the texel projects),
@@ -8,16 +8,16 @@ For every texel and view, `observe` records in the mirror parameterisation of ME
 - the weight w = max(0, cos theta_o) x visible x inside the image and its mask.
 
 Dark texels are observations like any other: only the weight decides what counts as a sample,
-and the weight depends on geometry alone, never on the radiance. Visibility (§3.2) is a shadow
+and the weight depends on geometry alone, never on the radiance. Visibility (docs/method.md#observations) is a shadow
 ray from the texel (offset along its normal by a scale-aware epsilon) to the camera centre,
 traced by `freqbrdf.render.occluder.Occluder`; the rays of several views go in one batch.
 
-Then, per texel, one weighted regularised SH fit (§3.3, `freqbrdf.sphere.harmonics.fit_sh`) of
+Then, per texel, one weighted regularised SH fit (docs/method.md#sh-fit, `freqbrdf.sphere.harmonics.fit_sh`) of
 seven signals on the same samples: observed RGB, mirrored environment RGB and the constant 1
-(whose fit carries the diffuse term through the fit, §3.6). Band limit (§3.4): the environment is
+(whose fit carries the diffuse term through the fit, docs/method.md#forward-model). Band limit (docs/method.md#band-limit): the environment is
 low-passed with exp(-(sigma l)^2), sigma = 1/floor(sqrt(V)) for V views, before it is looked up,
 and the BRDF kernel divides that blur back out (`freqbrdf.model.brdf.brdf_kernel`). Irradiance
-(§3.5) comes from the environment's SH with the clamped-cosine kernel
+(docs/method.md#irradiance) comes from the environment's SH with the clamped-cosine kernel
 (`freqbrdf.observe.irradiance.texel_irradiance`), corrected where the object hides its own
 environment (`freqbrdf.observe.occlusion`, ``ObserveConfig.environment_occlusion``). The numba
 kernels of the stage are in `freqbrdf.observe._kernels`; `freqbrdf.observe.maps.write_maps` draws an `Observations`' coverage
@@ -109,17 +109,17 @@ class Observations:
     visible : (N, V) bool
         In front of and unoccluded from the camera, inside its image and its mask.
     irradiance : (N, 3) float32
-        E = integral of L(w) max(0, n.w) dw (METHOD.md §3.5).
+        E = integral of L(w) max(0, n.w) dw (docs/method.md#irradiance).
     lmax : int
         l*, the degree of the SH fits.
     sigma : float
-        Band-limit width applied to the environment (METHOD.md §3.4); 0: none.
+        Band-limit width applied to the environment (docs/method.md#band-limit); 0: none.
     observed_coeffs : (N, 3, K) float32
         SH fit of the observed radiance.
     mirrored_coeffs : (N, 3, K) float32
         SH fit of the mirrored environment.
     constant_coeffs : (N, K) float32
-        SH fit of the constant 1 on the same samples (the diffuse response, METHOD.md §3.6).
+        SH fit of the constant 1 on the same samples (the diffuse response, docs/method.md#forward-model).
     fit_status : (N,) uint8
         ``FIT_OK``, ``FIT_UNDERDETERMINED`` or ``FIT_EMPTY`` of `freqbrdf.sphere.harmonics`.
     n_samples : (N,) int32
@@ -188,12 +188,12 @@ class Observations:
 
     @property
     def observed_spectrum(self) -> np.ndarray:
-        """(N, 3, L) power spectrum of the observed radiance (METHOD.md §2), in its coefficients' float type."""
+        """(N, 3, L) power spectrum of the observed radiance (docs/method.md#conventions), in its coefficients' float type."""
         return sh.power_spectrum(self.observed_coeffs)
 
     @property
     def mirrored_spectrum(self) -> np.ndarray:
-        """(N, 3, L) power spectrum of the mirrored environment (METHOD.md §2), in its coefficients' float type."""
+        """(N, 3, L) power spectrum of the mirrored environment (docs/method.md#conventions), in its coefficients' float type."""
         return sh.power_spectrum(self.mirrored_coeffs)
 
     def environment(self) -> envmaps.Envmap | None:
@@ -395,7 +395,7 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
             texels: Texels | None = None) -> Observations:
     """Observe every texel of a capture in every view and fit the SH spectra of its samples.
 
-    The stage of METHOD.md §3.2-3.5 (module docstring): projection, visibility, bilinear image
+    The stage of docs/method.md#observations to docs/method.md#irradiance (module docstring): projection, visibility, bilinear image
     samples, the band-limited environment in the mirror directions, the irradiance and one
     regularised SH fit per texel of the observed radiance, the mirrored environment and the
     constant 1.
@@ -583,7 +583,7 @@ def mean_over_views(weight: np.ndarray, values: np.ndarray) -> np.ndarray:
 
 
 def texel_alpha_bound(n_samples: np.ndarray, lmax: int, attenuation: float) -> np.ndarray:
-    """Return the roughness bound alpha' (appendix eq. 12, METHOD.md §3.4) of each texel.
+    """Return the roughness bound alpha' (appendix eq. 12, docs/method.md#band-limit) of each texel.
 
     alpha' = sqrt(-ln t) / l, with l the usable degree: the smaller of what the texel's n
     samples resolve (l < sqrt(n), `freqbrdf.model.brdf.resolvable_degree`) and the fit's l*

@@ -1,6 +1,6 @@
 """The object's occlusion of its own environment: the irradiance a texel actually receives.
 
-METHOD.md §3.2 leaves self-shadowing optional (beyond the paper), and §3.5's irradiance is the
+docs/method.md#observations leaves self-shadowing optional (beyond the paper), and the irradiance of docs/method.md#irradiance is the
 unoccluded E(n). Under a sun the difference is the whole light: a texel that a part of the
 object hides from the sun receives a fraction of E(n), and an estimate that assumes E(n) calls it
 dark. This module corrects E where the object blocks its own environment:

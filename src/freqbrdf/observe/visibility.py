@@ -1,8 +1,8 @@
-"""Which surface points a camera samples, before any photograph is taken (METHOD.md §3.2).
+"""Which surface points a camera samples, before any photograph is taken (docs/method.md#observations).
 
 The same tests as `freqbrdf.observe.observations.observe` (in front of the camera, inside its
 image, facing it, and an unoccluded shadow ray to its centre), for cameras that have no image
-yet: capture guidance (`freqbrdf.applications.guidance`, METHOD.md §4) scores candidate views
+yet: capture guidance (`freqbrdf.applications.guidance`, docs/method.md#guidance) scores candidate views
 with them. There is no object mask, so silhouette points may count where a photograph's mask
 would drop them.
 """

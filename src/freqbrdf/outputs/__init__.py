@@ -1,4 +1,4 @@
-"""The output stage: what a fit leaves behind, and how it is judged (METHOD.md §3.9, §5).
+"""The output stage: what a fit leaves behind, and how it is judged (docs/method.md#outputs, docs/method.md#evaluation).
 
 Modules
 -------

@@ -1,6 +1,6 @@
 """Score a fit folder against its capture: texture metrics, relighting, uncertainty quality.
 
-Implements how results are judged (METHOD.md §5): parameter recovery in texture space, relighting
+Implements how results are judged (docs/method.md#evaluation): parameter recovery in texture space, relighting
 with the Stanford-ORB protocol (`freqbrdf.outputs.relight`), and sparsification and Spearman
 correlation of the uncertainty against the per-texel errors (`freqbrdf.outputs.sparsification`).
 """

@@ -1,6 +1,6 @@
 """Outputs of a fit: hole-free textures, EXR/PNG maps, a glTF 2.0 binary and ``summary.json``.
 
-These are the outputs of METHOD.md §3.9. Per-texel estimates become T x T textures in two fill steps, so that renderers and texture
+These are the outputs of docs/method.md#outputs. Per-texel estimates become T x T textures in two fill steps, so that renderers and texture
 filtering never see holes or dark seams:
 
 1. Texels of the mesh's atlas without an estimate (no sample) take the value of the nearest
@@ -72,7 +72,7 @@ ENTROPY_COLORMAP = "viridis"
 UNESTIMATED_ROUGHNESS_STD = math.sqrt(PRIOR_ROUGHNESS_VARIANCE)
 # The PNG's range, in roughness units. The top, 0.3, is about the prior's std: brighter means no
 # better than knowing nothing; the few estimated texels above it are clipped to it (their spread
-# on the default fits: docs/measurements.md).
+# on the default fits: docs/results.md).
 ROUGHNESS_STD_RANGE = (0.0, 0.3)
 ROUGHNESS_STD_COLORMAP = "magma"  # not viridis: a different quantity and unit than the entropy
 # The metallic std's PNG range: 0.5 is a coin toss between dielectric and metal.

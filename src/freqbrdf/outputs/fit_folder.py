@@ -1,6 +1,6 @@
 """A fit folder read back: the maps, the entropy and the per-texel arrays ``freqbrdf fit`` wrote.
 
-The folder's files are listed in `freqbrdf.outputs.export.FILES` (METHOD.md §3.9).
+The folder's files are listed in `freqbrdf.outputs.export.FILES` (docs/method.md#outputs).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Image and texture metrics: Stanford-ORB's relighting protocol and parameter recovery (METHOD.md §5).
+"""Image and texture metrics: Stanford-ORB's relighting protocol and parameter recovery (docs/method.md#evaluation).
 
 The relighting scores reproduce Stanford-ORB's evaluation code (github.com/StanfordORB/Stanford-ORB:
 ``orb/utils/metrics.py`` ``calc_PSNR`` and ``erode_mask``, ``orb/utils/test.py``

@@ -1,6 +1,6 @@
 """Evaluation: relight an estimated material under the test views' lights, score it, compare maps.
 
-The relighting and parameter-recovery judgements of METHOD.md §5. For each test frame of a
+The relighting and parameter-recovery judgements of docs/method.md#evaluation. For each test frame of a
 capture (``capture.test_frames``: a camera, its own environment map and a reference photograph
 with its mask), the mesh with the estimated textures is path traced by Mitsuba
 (`freqbrdf.render.scenes.principled_bsdf`, the renderer of the synthetic captures) and scored with

@@ -1,6 +1,6 @@
 """``report.html``: one self-contained folder a person opens from disk to see a fit.
 
-It shows the outputs of METHOD.md §3.9 and, once evaluated, the judgements of §5. Sections (each omitted with a note when its inputs are missing): an interactive 3D view of
+It shows the outputs of docs/method.md#outputs and, once evaluated, the judgements of docs/method.md#evaluation. Sections (each omitted with a note when its inputs are missing): an interactive 3D view of
 ``material.glb`` with the entropy as a switchable overlay; the estimated maps beside the ground
 truth; the entropy, roughness std and flags maps; SH power spectra of a few picked texels
 (incoming = the mirrored environment, outgoing = the observations, and the fitted specular

@@ -1,6 +1,6 @@
 """Does the uncertainty mean something? Rank correlation and sparsification curves.
 
-The uncertainty-quality measures of METHOD.md §5. A per-texel uncertainty is useful when it ranks texels by their error. Two standard measures:
+The uncertainty-quality measures of docs/method.md#evaluation. A per-texel uncertainty is useful when it ranks texels by their error. Two standard measures:
 
 - Spearman's rho between uncertainty and absolute error.
 - Sparsification (Ilg et al., ECCV 2018): remove the most uncertain fraction f of the texels and

@@ -1,4 +1,4 @@
-"""Rendering with Mitsuba 3: scenes, path-traced views and ray tests (METHOD.md §2, §3.2, §5).
+"""Rendering with Mitsuba 3: scenes, path-traced views and ray tests (docs/method.md#conventions, docs/method.md#observations, docs/method.md#evaluation).
 
 The only package that imports ``mitsuba`` or ``drjit``, and only when a function needs them:
 importing it is cheap.

@@ -1,6 +1,6 @@
 """The peer baseline: Mitsuba 3 inverse rendering of the material maps from the same capture.
 
-This is what a user would otherwise run, and a baseline of every results table (METHOD.md §5,
+This is what a user would otherwise run, and a baseline of every results table (docs/method.md#evaluation,
 which also quotes its Stanford-ORB relighting scores): the Principled BSDF's base colour,
 roughness and metallic textures are optimised by gradient descent through Mitsuba's path-replay
 backpropagation integrator (``prb``), with the authors' prototype's recipe:

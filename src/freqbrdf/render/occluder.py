@@ -1,7 +1,7 @@
 """Batched ray tests against a mesh with Mitsuba: what blocks the view of a point.
 
 The observation stage casts a ray from each texel to each camera centre to test visibility, and
-optionally towards the environment for self-occlusion (METHOD.md §3.2).
+optionally towards the environment for self-occlusion (docs/method.md#observations).
 """
 
 from __future__ import annotations

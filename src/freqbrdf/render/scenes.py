@@ -1,7 +1,7 @@
 """Mitsuba 3 scenes built from our arrays, and rendering helpers.
 
 Mitsuba renders the synthetic captures and the relighting views that results are judged on
-(METHOD.md §5); its ``envmap`` convention is the one our environment maps follow (§2). Mitsuba
+(docs/method.md#evaluation); its ``envmap`` convention is the one our environment maps follow (docs/method.md#conventions). Mitsuba
 itself is imported only when a function here needs it (`mitsuba`). Scenes are Python dicts in
 Mitsuba's own style; only the mesh is built as an ``mi.Mesh`` object because its buffers come
 from our arrays. The conventions that join our data to Mitsuba's are each proved by a test in

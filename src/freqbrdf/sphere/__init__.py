@@ -1,7 +1,7 @@
 """Functions on the sphere: real spherical harmonics and distant environment lighting.
 
-The SH convention, the power spectrum and the environment-map convention of METHOD.md §2; the SH
-fits (§3.3), the band-limit filter (§3.4) and the irradiance (§3.5).
+The SH convention, the power spectrum and the environment-map convention of docs/method.md#conventions; the SH
+fits (docs/method.md#sh-fit), the band-limit filter (docs/method.md#band-limit) and the irradiance (docs/method.md#irradiance).
 
 Modules
 -------

@@ -1,4 +1,4 @@
-"""The CUDA kernel of the per-texel SH least squares (METHOD.md §3.3), for `harmonics.fit_sh`.
+"""The CUDA kernel of the per-texel SH least squares (docs/method.md#sh-fit), for `harmonics.fit_sh`.
 
 One thread per texel, in a grid-stride loop: each thread builds its texel's normal equations and
 solves them with the CPU kernel's own per-texel functions (`freqbrdf.sphere._fit_kernels`), on a

@@ -1,4 +1,4 @@
-"""The numba kernels of the per-texel SH least squares (METHOD.md §3.3), shared by both backends.
+"""The numba kernels of the per-texel SH least squares (docs/method.md#sh-fit), shared by both backends.
 
 Private to `freqbrdf.sphere.harmonics.fit_sh`. The CPU runs `_fit_kernel`, which solves ``lanes``
 texels side by side (SIMD across them); the CUDA kernel (`freqbrdf.sphere._cuda_kernels`) runs the

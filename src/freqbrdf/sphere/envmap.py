@@ -1,4 +1,4 @@
-"""Distant environment lighting in Mitsuba 3's ``envmap`` emitter convention, and its SH (METHOD.md §2).
+"""Distant environment lighting in Mitsuba 3's ``envmap`` emitter convention, and its SH (docs/method.md#conventions).
 
 Mitsuba 3.9 convention (read in src/emitters/envmap.cpp and verified against the emitter's
 ``eval`` in tests/test_envmap.py). In the emitter's local frame a direction d, the direction
@@ -31,7 +31,7 @@ from freqbrdf.sphere import sht
 
 # Degree for irradiance from SH: the clamped-cosine kernel's even coefficients decay like
 # l^(-5/2), so truncating at 20 leaves a small error (the test with a bright, sharp-edged source
-# measures the residual; docs/measurements.md).
+# measures the residual; docs/results.md).
 IRRADIANCE_LMAX = 20
 
 # Columns are the axes of the SH frame E (polar axis z_E = local +y) in emitter-local coordinates:
@@ -424,7 +424,7 @@ def _synthesis(coeffs_sh_frame: np.ndarray, height: int, width: int, out: np.nda
 
 
 def lowpass_envmap(envmap: Envmap, sigma: float) -> Envmap:
-    """Low-pass a map by exp(-(sigma l)^2) in SH (the band limit of METHOD.md §3.4).
+    """Low-pass a map by exp(-(sigma l)^2) in SH (the band limit of docs/method.md#band-limit).
 
     Degrees are kept up to where the filter falls below 1e-6 (l = 3.7 / sigma), or the map's
     own limit if lower.
@@ -545,7 +545,7 @@ def clamped_cosine_coeffs(lmax: int) -> np.ndarray:
 
 
 def irradiance(env_coeffs: np.ndarray, normals: np.ndarray) -> np.ndarray:
-    """Compute the irradiance E(n) = int L(w) max(0, n.w) dw from world-frame SH (METHOD.md §3.5).
+    """Compute the irradiance E(n) = int L(w) max(0, n.w) dw from world-frame SH (docs/method.md#irradiance).
 
     Exact for the band-limited part of L; the truncation error is that of the omitted degrees
     (use lmax >= IRRADIANCE_LMAX).

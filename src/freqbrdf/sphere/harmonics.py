@@ -1,7 +1,7 @@
 """Real spherical harmonics: evaluation, regularised fitting, spectra, filtering, rotation.
 
-The SH fits of METHOD.md §3.3 (`fit_sh`), the power spectrum of §2 (`power_spectrum`) and the
-band-limit filter of §3.4 (`gaussian_lowpass`). Convention (appendix eqs. 14-16, METHOD.md §2):
+The SH fits of docs/method.md#sh-fit (`fit_sh`), the power spectrum of docs/method.md#conventions (`power_spectrum`) and the
+band-limit filter of docs/method.md#band-limit (`gaussian_lowpass`). Convention (appendix eqs. 14-16, docs/method.md#conventions):
 polar axis +z, theta = acos(z), phi = atan2(y, x); flat index k = l*l + l + m, m = -l..l,
 K = (lmax + 1)^2 coefficients, L = lmax + 1 degrees.
 
@@ -278,7 +278,7 @@ def _power_spectrum_kernel(coeffs, out):  # (M, K), out (M, L); summed in float6
 
 
 def gaussian_lowpass(coeffs: np.ndarray, sigma: float) -> np.ndarray:
-    """Low-pass SH coefficients: multiply each degree l by exp(-(sigma l)^2) (METHOD.md §3.4).
+    """Low-pass SH coefficients: multiply each degree l by exp(-(sigma l)^2) (docs/method.md#band-limit).
 
     Parameters
     ----------
@@ -476,7 +476,7 @@ def fit_sh(
     scale_lambda_with_weight: bool = True,
     device: str = "auto",
 ) -> SHFit:
-    """Fit SH to each texel's samples by weighted, degree-regularised least squares (METHOD.md §3.3).
+    """Fit SH to each texel's samples by weighted, degree-regularised least squares (docs/method.md#sh-fit).
 
     Minimises, per texel and channel c,
 
@@ -511,7 +511,7 @@ def fit_sh(
         the solution unchanged). Otherwise lambda_eff = reg_lambda (the paper's absolute lambda).
     device : {"auto", "cpu", "cuda"}, optional
         Where the normal equations are built and solved (`freqbrdf.devices.resolve_device`); the
-        SVD fallback runs on the CPU. The backends agree to rounding (docs/measurements.md).
+        SVD fallback runs on the CPU. The backends agree to rounding (docs/results.md).
 
     Returns
     -------

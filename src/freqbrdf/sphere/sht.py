@@ -25,7 +25,7 @@ over [0, pi], computed in one of two ways:
 For a map that is not band-limited the two rules alias the degrees above lmax differently. They
 are the rules of the "CC" geometry of ducc0's analysis, which this module replaced; the second
 differs from ducc0's only where ducc0's own fine grid is too coarse for the product's degree, so
-that its quadrature aliases as well (tests/test_sht.py, docs/measurements.md).
+that its quadrature aliases as well (tests/test_sht.py, docs/results.md).
 
 `synthesis` evaluates a band-limited function at a grid's samples exactly.
 
@@ -56,7 +56,7 @@ _INV_SCALE = 2.0**-600
 
 
 # Multiply-adds of a Legendre kernel below which it runs on one thread: waking numba's other
-# threads costs more than they save on small transforms (docs/measurements.md).
+# threads costs more than they save on small transforms (docs/results.md).
 _PARALLEL_WORK = 2e8
 
 
@@ -492,7 +492,7 @@ def synthesis(coeffs: np.ndarray, height: int, width: int, phi0: float = 0.0) ->
     spectra = np.empty((n_maps, height, width // 2 + 1), np.complex128)
     spectra[..., lmax + 1:] = 0.0
     # Ring blocks whose two (columns x rings) sums take about 128 KiB, within a core's L2 cache
-    # (the fastest block size measured; docs/measurements.md).
+    # (the fastest block size measured; docs/results.md).
     block = int(np.clip(8192 // (2 * n_maps) // 8 * 8, 8, max(8, cos_theta.size)))
     starts, exponents = _order_starts(lmax, sin_theta)
     with _threads_for(n_maps * sh.num_coeffs(lmax) * cos_theta.size):

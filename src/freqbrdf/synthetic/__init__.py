@@ -1,7 +1,7 @@
 """Synthetic captures: scene and material generators, the ``synth`` job and the demo.
 
 Path-traced captures of a known object with ground-truth maps and relighting views, on which
-results are judged (METHOD.md §5). Never on the fit path: no stage imports it, only the CLI.
+results are judged (docs/method.md#evaluation). Never on the fit path: no stage imports it, only the CLI.
 
 Modules
 -------

@@ -1,8 +1,7 @@
 """``freqbrdf demo``: from nothing to a report on the bundled default capture.
 
 Renders the default synthetic capture with Mitsuba (the bunny with an image-based material under a
-bundled HDR map, 96 views, and a relighting test set under two other maps), fits it (METHOD.md
-§3), evaluates it (§5) and writes the report. The capture is cached under
+bundled HDR map, 96 views, and a relighting test set under two other maps), fits it (docs/method.md#pipeline), evaluates it (docs/method.md#evaluation) and writes the report. The capture is cached under
 ``<out>/capture-<hash of its settings>``, so a second run starts at the fit.
 """
 
@@ -27,7 +26,7 @@ from freqbrdf.synthetic.synth import SynthSettings, synthesize
 
 DEFAULT_CAPTURE = SynthSettings(
     # 96 views: each observed texel is then seen more often than the 36 coefficients of the
-    # degree-5 fits, so that few texels are underdetermined (docs/measurements.md).
+    # degree-5 fits, so that few texels are underdetermined (docs/results.md).
     mesh="bunny", envmap="forest", materials="coffee", views=96, resolution=256, spp=64,
     texture_res=512, test_envmaps=("studio", "sunset"), test_views=6,
 )

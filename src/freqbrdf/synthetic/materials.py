@@ -1,7 +1,7 @@
 """Ground-truth material maps for synthetic captures: bands, photos and materials on a surface.
 
-Synthetic captures judge parameter recovery against known maps (METHOD.md §5); the photographs
-come from ``skimage.data`` (§6). `cells_material`, `islands_material` and `gradient_material`
+Synthetic captures judge parameter recovery against known maps (docs/method.md#evaluation); the photographs
+come from ``skimage.data`` (docs/method.md#data). `cells_material`, `islands_material` and `gradient_material`
 are defined on the surface (by each texel's world position), so that their regions run on
 across UV chart seams as a real object's materials do.
 """

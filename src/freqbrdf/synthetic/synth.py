@@ -1,9 +1,9 @@
 """The ``synth`` job: a synthetic capture of a known object, path traced with Mitsuba 3.
 
 A capture is what a real acquisition would give (HDR photographs, masks, camera poses, the mesh
-and the environment map; METHOD.md §1) plus what only a synthetic one can: the ground-truth
+and the environment map; docs/method.md#problem) plus what only a synthetic one can: the ground-truth
 material maps (``gt/``) and test views under other environment maps with their reference renders,
-which results are judged on (§5). It is written in our layout or Stanford-ORB's
+which results are judged on (docs/method.md#evaluation). It is written in our layout or Stanford-ORB's
 (`freqbrdf.capture.layouts`).
 
 World axes are Mitsuba's and OBJ's: +y is up (the zenith of an environment map with identity

@@ -1,4 +1,4 @@
-"""Per-texel uncertainty of the specular parameters (METHOD.md §3.8).
+"""Per-texel uncertainty of the specular parameters (docs/method.md#entropy).
 
 Per texel and colour channel, a grid of specular hypotheses psi = (alpha_i, k_j),
 alpha_i = (i / (R-1))^2 and k_j = j / (R-1) (`hypothesis_grid`), is scored against what the
@@ -18,8 +18,8 @@ bit field per texel) that say why a texel should not be trusted, and `summary` c
 ``summary.json``. `roughness_std` (`freqbrdf.uncertainty.roughness_std`) is the posterior std of
 the estimate's roughness, which ranks the estimate's errors better than the entropy.
 
-The numba kernels are in `freqbrdf.uncertainty._kernels`. docs/measurements.md#the-entropy and
-docs/measurements.md#the-roughness-std have the figures: speed, agreement with a path tracer,
+The numba kernels are in `freqbrdf.uncertainty._kernels`. docs/results.md#the-entropy and
+docs/results.md#the-roughness-std have the figures: speed, agreement with a path tracer,
 how each map ranks the errors.
 """
 

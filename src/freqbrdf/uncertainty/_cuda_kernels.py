@@ -1,4 +1,4 @@
-"""The CUDA kernels of the entropy (METHOD.md §3.8), for `freqbrdf.uncertainty.spectral` and `.angular`.
+"""The CUDA kernels of the entropy (docs/method.md#entropy), for `freqbrdf.uncertainty.spectral` and `.angular`.
 
 Each thread runs the CPU kernels' own per-texel (or per-block) functions on scratch of its own, so
 both backends do the same arithmetic in the same order:

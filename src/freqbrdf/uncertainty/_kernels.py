@@ -1,4 +1,4 @@
-"""The numba kernels of the uncertainty stage (METHOD.md §3.8).
+"""The numba kernels of the uncertainty stage (docs/method.md#entropy).
 
 Two ways of scoring the hypothesis grid (alpha_i, k_j) per texel and channel, each fused into one
 pass that scores the cells, turns them into a likelihood and takes its normalised entropy, the
@@ -31,7 +31,7 @@ from freqbrdf.estimate import scattering_stride
 # CUTOFF: their share e^-CUTOFF of the likelihood is far below its float32 resolution.
 CUTOFF = 30.0
 _MOMENT_CHUNK = 64  # texels per parallel work item of the angular entropy: amortises the scratch arrays
-_LANES = 64  # texels side by side in the spectral kernel's SIMD loops (docs/measurements.md#the-entropy)
+_LANES = 64  # texels side by side in the spectral kernel's SIMD loops (docs/results.md#the-entropy)
 
 
 class SpectraInputs(NamedTuple):

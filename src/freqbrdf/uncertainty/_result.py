@@ -1,6 +1,6 @@
 """The hypothesis grid both entropy modes score, the `Uncertainty` they return, and its flags.
 
-The grid is METHOD.md §3.8's: R x R specular hypotheses psi = (alpha_i, k_j), alpha_i =
+The grid is that of docs/method.md#entropy: R x R specular hypotheses psi = (alpha_i, k_j), alpha_i =
 (i / (R-1))^2 (roughness i / (R-1), uniform) and k_j = j / (R-1). `uncertainty_of_grid` turns
 a kernel's per-texel outputs into an `Uncertainty`: the prior where a texel is unobserved, and
 the ``FLAG_*`` bits that say why a texel should not be trusted. Import these names from
@@ -21,7 +21,7 @@ if TYPE_CHECKING:
 
 FLAG_UNOBSERVED = 1  # no sample at all: entropy 1, uniform likelihood, no estimate
 # Fewer samples than FEW_SAMPLES_FRACTION of the SH coefficients: the fit mostly extrapolates
-# (docs/measurements.md#flags).
+# (docs/results.md#flags).
 FLAG_FEW_SAMPLES = 2
 FEW_SAMPLES_FRACTION = 0.25
 FLAG_BELOW_BOUND = 4  # the most likely alpha lies below the sampling bound alpha' (appendix eq. 12)

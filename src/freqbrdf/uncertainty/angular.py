@@ -1,4 +1,4 @@
-"""The entropy of the specular hypotheses scored on the samples (METHOD.md §3.8, angular mode).
+"""The entropy of the specular hypotheses scored on the samples (docs/method.md#entropy, angular mode).
 
 The R x R grid of `freqbrdf.uncertainty.spectral`, scored in the sample domain with the
 ``global`` estimator's own forward model instead of on spectra (``UncertaintyConfig.mode``
@@ -11,7 +11,7 @@ the misfit of the samples weighed with the calibrated mode's noise model in radi
 It costs R probes of the estimator's search per texel. Inside `pipeline.fit` the search makes
 those probes anyway and hands their moments to an `AngularEntropy` block by block
 (`estimate.HypothesisRecorder`); with the default grid (the estimator's roughness nodes) that
-costs the search no probe of its own. docs/measurements.md#angular-mode has the figures.
+costs the search no probe of its own. docs/results.md#angular-mode has the figures.
 """
 
 from __future__ import annotations

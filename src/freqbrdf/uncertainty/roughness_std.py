@@ -1,4 +1,4 @@
-"""The posterior spread of the estimated roughness itself (beyond METHOD.md §3.8).
+"""The posterior spread of the estimated roughness itself (docs/method.md#roughness-std-and-flags).
 
 The entropy scores the hypotheses against the spectra, not the estimate, and ranks the
 estimate's roughness errors poorly. `roughness_std` is the std of the estimate, the square root
@@ -9,7 +9,7 @@ of up to three variances that add (``UncertaintyConfig``):
 - ``loss_curvature``: the Laplace variance of the estimator's loss around the estimate;
 - ``split_half``: the scatter between the estimates from the even and from the odd views.
 
-docs/measurements.md#the-roughness-std has how each ranks the errors and what it costs. The
+docs/results.md#the-roughness-std has how each ranks the errors and what it costs. The
 package's ``roughness_std`` is the function, not this module: import it from
 `freqbrdf.uncertainty`.
 """

@@ -1,4 +1,4 @@
-"""The entropy of the specular hypotheses from SH power spectra (METHOD.md §3.8).
+"""The entropy of the specular hypotheses from SH power spectra (docs/method.md#entropy).
 
 Per texel and channel the R x R grid (`hypothesis_grid`) is scored against the observed
 radiance's power spectrum S_out(l), l = 1..l* (l = 0 also carries the diffuse term). Two modes:
@@ -18,7 +18,7 @@ radiance's power spectrum S_out(l), l = 1..l* (l = 0 also carries the diffuse te
 
 For fixed alpha the misfit is a quadratic in t (t = k^2 in paper mode, t = k in calibrated mode,
 plus the convex DC bound), so the grid costs O(R l* + R^2) per texel and channel
-(`freqbrdf.uncertainty._kernels.grid_entropy_kernel`). docs/measurements.md#the-entropy has the
+(`freqbrdf.uncertainty._kernels.grid_entropy_kernel`). docs/results.md#the-entropy has the
 speed and how these maps compare with a path tracer.
 """
 
@@ -116,7 +116,7 @@ def entropy_from_spectra(
         Whether to keep the (N, R, R) likelihood.
     device : {"auto", "cpu", "cuda"}
         Where the grid is scored (`freqbrdf.devices.resolve_device`); the backends agree to
-        rounding (docs/measurements.md).
+        rounding (docs/results.md).
 
     Returns
     -------
