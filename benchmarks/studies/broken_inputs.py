@@ -1,12 +1,12 @@
 """Run the corpus of broken inputs (tests/test_broken_inputs.py) through the command line of a given
 freqbrdf source tree, in fresh processes, and record each case's outcome: exit code, lines on stderr,
-a traceback or not, files written or removed. To compare versions:
+a traceback or not, files written or removed. A case is handled when it gives one line on stderr,
+the expected exit code, and writes and removes nothing.
 
-    git worktree add /tmp/before <commit>
-    python benchmarks/studies/broken_inputs.py --source /tmp/before/src --name broken_inputs_before
-    python benchmarks/studies/broken_inputs.py --name broken_inputs_after
+    python benchmarks/studies/broken_inputs.py [--source PATH/src] [--name broken_inputs]
 
-Writes benchmarks/results/<name>.json; with both files there, also broken_inputs.md (the table).
+Writes benchmarks/results/<name>.json and <name>.md (one row per case). ``--source`` runs another
+source tree (e.g. a ``git worktree`` of another version) under another ``--name``.
 """
 
 from __future__ import annotations
@@ -71,31 +71,23 @@ def run_case(corpus, case, good: Path, fitted: Path, source: Path, scratch: Path
     return outcome
 
 
-def _table(before: dict, after: dict) -> str:
-    rows = ["| case | before: exit, lines, traceback, written/removed | after: exit, lines | after: the line |",
-            "|---|---|---|---|"]
-    previous = {row["case"]: row for row in before["cases"]}
-    for row in after["cases"]:
-        old = previous.get(row["case"])
-        old_text = "n/a" if old is None else (
-            f"{old['exit_code']}, {old['stderr_lines']}{', traceback' if old['traceback'] else ''}"
-            f"{', wrote ' + str(old['written']) if old['written'] else ''}"
-            f"{', removed ' + str(old['removed']) if old['removed'] else ''}{' ✓' if old['ok'] else ''}")
+def _table(result: dict) -> str:
+    rows = ["| case | exit, lines | handled | the line |", "|---|---|---|---|"]
+    for row in result["cases"]:
         line = row["last_line"].replace("|", "\\|")
-        rows.append(f"| {row['case']} | {old_text} | {row['exit_code']}, {row['stderr_lines']}"
-                    f"{' ✓' if row['ok'] else ''} | {line} |")
-    ok_before = sum(row["ok"] for row in before["cases"])
-    ok_after = sum(row["ok"] for row in after["cases"])
-    header = (f"Broken inputs through the command line ({len(after['cases'])} cases): one line, the right exit "
-              f"code, nothing written or removed (✓) in {ok_before} cases at {before['source_commit']} and "
-              f"{ok_after} at {after['source_commit']}.\n\n")
+        extra = (f"{', traceback' if row['traceback'] else ''}{', wrote ' + str(row['written']) if row['written'] else ''}"
+                 f"{', removed ' + str(row['removed']) if row['removed'] else ''}")
+        rows.append(f"| {row['case']} | {row['exit_code']}, {row['stderr_lines']}{extra} | "
+                    f"{'✓' if row['ok'] else '✗'} | {line} |")
+    header = (f"Broken inputs through the command line: {result['ok']} of {len(result['cases'])} cases handled "
+              f"(one line, the right exit code, nothing written or removed).\n\n")
     return header + "\n".join(rows) + "\n"
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--source", type=Path, default=ROOT / "src", help="the src/ folder of the freqbrdf to run")
-    parser.add_argument("--name", default="broken_inputs_after")
+    parser.add_argument("--name", default="broken_inputs")
     arguments = parser.parse_args()
     source = arguments.source.resolve()
     commit = subprocess.run(["git", "-C", str(source), "rev-parse", "--short", "HEAD"], capture_output=True,
@@ -117,10 +109,7 @@ def main() -> None:
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / f"{arguments.name}.json").write_text(json.dumps(document, indent=2) + "\n")
     print(f"{document['ok']} of {len(cases)} cases ok at {commit}")
-    before, after = RESULTS / "broken_inputs_before.json", RESULTS / "broken_inputs_after.json"
-    if before.exists() and after.exists():
-        (RESULTS / "broken_inputs.md").write_text(_table(json.loads(before.read_text()),
-                                                         json.loads(after.read_text())))
+    (RESULTS / f"{arguments.name}.md").write_text(_table(document))
 
 
 if __name__ == "__main__":

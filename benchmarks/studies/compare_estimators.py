@@ -53,12 +53,11 @@ QUICK_ARGS = {"views": 24, "texture_res": 128, "relight_spp": 8}
 
 
 def method_config(method: str, texture_res: int) -> Config:
-    """Our default Config for `whole_surface` (the whole-surface estimate, the default since issue
-    #27); the `global*` methods are the per-texel estimate (SurfaceConfig.enabled off, the default
-    before it): `global`; `global_environment_light` without the prefiltered light
-    (smooth lobes read the per-texel fit of the mirrored light, the default before commit 8e664ea);
-    `global_fitted_light` without the environment light either (every lobe reads that fit, the
-    default before commit 235c542); `global_without_vote`:
+    """Our default Config for `whole_surface` (the whole-surface estimate); the `global*` methods
+    are the per-texel estimate (SurfaceConfig.enabled off, `fit --per-texel`): `global`;
+    `global_environment_light` without the prefiltered light (smooth lobes read the per-texel fit
+    of the mirrored light); `global_fitted_light` without the environment light either (every lobe
+    reads that fit); `global_without_vote`:
     without EstimateConfig.neighbour_vote; `global_fast`: the fast preset; the paper preset (its
     lambda, Adam, TV) for `paper_*`."""
     texels = TexelConfig(texture_res=texture_res)

@@ -1,4 +1,4 @@
-"""Capture guidance against farthest-point, random and the previous entropy picker (issue #28).
+"""Capture guidance against farthest-point and random views (issue #28).
 
     python benchmarks/studies/guidance.py [--scenes a,b] [--texture-res 256] [--random-seeds 5]
         [--spearman-candidates 20] [--misfit] [--methods m1,m2 --baselines guidance]
@@ -16,7 +16,6 @@ Every method starts from the same ``START`` farthest-point views of the pool and
 ``FINAL`` views, ``STEP`` a round, choosing among the rest of the pool (the candidates):
 - ``uncertainty``: `freqbrdf.applications.guidance.select_views` (the package's guidance) on the
   views so far, ``STEP`` picks a round, then their photographs are taken (the pool's renders);
-- ``entropy``: the previous picker (studies/_entropy_guidance.py), the same rounds;
 - ``farthest_point``: the pool view farthest (in angle) from all taken so far;
 - ``random``: uniformly from the rest of the pool, ``--random-seeds`` seeds.
 Each view set is fitted by `freqbrdf.pipeline.fit` (defaults, whole-surface estimate, T =
@@ -75,8 +74,6 @@ from freqbrdf.pipeline import fit
 from freqbrdf.texels import rasterise
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/: _common and scenes
-sys.path.insert(0, str(Path(__file__).resolve().parent))  # the previous picker
-import _entropy_guidance as entropy_guidance  # noqa: E402
 
 from _common import RESULTS_DIR as RESULTS  # noqa: E402
 from _common import machine  # noqa: E402
@@ -89,7 +86,7 @@ START = 8
 STEP = 8
 FINAL = 40
 RELIGHT = RelightSettings(spp=16, lpips=False)
-METHODS = ("uncertainty", "entropy", "farthest_point", "random")
+METHODS = ("uncertainty", "farthest_point", "random")
 METRICS = ("roughness_mae", "metallic_mae", "base_color_mae", "psnr_hdr")
 
 
@@ -134,7 +131,7 @@ def scene_run(name: str, args) -> dict:
     start_row = score(start)
     log("start", start_row)
     curves: dict[str, list] = {}
-    seconds_per_pick: dict[str, list[float]] = {"uncertainty": [], "entropy": []}
+    seconds_per_pick: dict[str, list[float]] = {"uncertainty": []}
     rounds, decided = [], []
     baseline = json.loads((RESULTS / f"{args.baselines}.json").read_text())["scenes"][name] if args.baselines else None
     if baseline is not None:
@@ -144,21 +141,15 @@ def scene_run(name: str, args) -> dict:
         for method in METHODS:
             if method not in args.methods and method in baseline["curves"]:
                 curves[method] = baseline["curves"][method]
-        if "entropy" not in args.methods and baseline["seconds_per_pick"].get("entropy") is not None:
-            seconds_per_pick["entropy"] = [baseline["seconds_per_pick"]["entropy"]]
-    for method in [method for method in ("uncertainty", "entropy") if method in args.methods]:
+    for method in [method for method in ("uncertainty",) if method in args.methods]:
         views, curves[method] = list(start), [start_row]
         while len(views) < FINAL:
             remaining = [view for view in range(len(cameras)) if view not in views]
             taken = with_views(pool, views)
             candidates = [cameras[view] for view in remaining]
-            if method == "uncertainty":
-                surface = guidance.surface_fit(taken, config)
-                picks = guidance.select_views(taken, candidates, STEP, config, fit=surface,
-                                              max_texels=args.max_texels)
-            else:
-                picks = entropy_guidance.select_views(taken, candidates, STEP, config,
-                                                      max_texels=args.entropy_max_texels)
+            surface = guidance.surface_fit(taken, config)
+            picks = guidance.select_views(taken, candidates, STEP, config, fit=surface,
+                                          max_texels=args.max_texels)
             seconds_per_pick[method] += [pick.seconds for pick in picks]
             views += [remaining[pick.candidate] for pick in picks]
             row = score(views)
@@ -207,8 +198,8 @@ def scene_run(name: str, args) -> dict:
 def misfit_correlation(pool: Capture, config: Config, observations) -> dict:
     """How alike the model's misfit is between two samples of a texel, against their angle.
 
-    The per-texel ``global`` estimate of the whole pool predicts each sample (METHOD.md's angular
-    model, `predict_angular`); the residuals (summed over RGB), scaled to unit mean square per
+    The per-texel ``global`` estimate of the whole pool predicts each sample (the angular
+    model of docs/method.md#forward-model, `predict_angular`); the residuals (summed over RGB), scaled to unit mean square per
     texel, are multiplied pairwise within each texel and averaged in bins of the angle between the
     two view directions. ``rho_0`` and ``width``: rho_0 exp((cos - 1) / w^2) fitted to the bins.
     """
@@ -347,7 +338,7 @@ def paired_tests(scenes: dict) -> dict:
     from scipy.stats import wilcoxon
 
     tests = {}
-    for baseline in [method for method in ("farthest_point", "random", "entropy")
+    for baseline in [method for method in ("farthest_point", "random")
                      if all(method in scene["curves"] for scene in scenes.values())]:
         for metric in METRICS:
             ours = np.array([row[metric] for scene in scenes.values() for row in scene["curves"]["uncertainty"][1:]])
@@ -376,7 +367,7 @@ def std_against_error(scenes: dict) -> dict:
         rhos = []
         for scene in scenes.values():
             for step in range(1, len(scene["curves"]["uncertainty"])):
-                rows = [scene["curves"][method][step] for method in ("uncertainty", "entropy", "farthest_point")
+                rows = [scene["curves"][method][step] for method in ("uncertainty", "farthest_point")
                         if method in scene["curves"]]
                 rows += [run[step] for run in scene["random_runs"]]
                 rho = spearmanr([row["posterior_std"] for row in rows], [row[metric] for row in rows]).statistic
@@ -406,7 +397,7 @@ def plot(scenes: dict, path: Path) -> None:
 
     labels = {"roughness_mae": "roughness MAE", "metallic_mae": "metallic MAE", "base_color_mae": "base colour MAE",
               "psnr_hdr": "relighting PSNR-H (dB)"}
-    styles = {"uncertainty": ("C3", "uncertainty (new)"), "entropy": ("C1", "entropy (previous)"),
+    styles = {"uncertainty": ("C3", "guidance"),
               "farthest_point": ("C2", "farthest-point"), "random": ("C0", "random (mean)")}
     figure = Figure(figsize=(3.4 * len(scenes), 2.6 * (len(METRICS) + 1)), dpi=90, layout="constrained")
     axes = figure.subplots(len(METRICS) + 1, len(scenes), squeeze=False)
@@ -443,7 +434,7 @@ def plot(scenes: dict, path: Path) -> None:
 def summarise(scenes: dict, args, seconds: float) -> dict:
     return {
         "study": "capture guidance (issue #28)", **machine(), "texture_res": args.texture_res,
-        "max_texels": args.max_texels, "entropy_max_texels": args.entropy_max_texels, "pool": POOL,
+        "max_texels": args.max_texels, "pool": POOL,
         "render": RENDER, "relight": dataclasses.asdict(RELIGHT), "start": START, "step": STEP, "final": FINAL,
         "random_seeds": args.random_seeds, "methods_run": args.methods, "baselines_from": args.baselines or None,
         "spread": {"width": _diversity.MISFIT_WIDTH, "refit_noise": _diversity.REFIT_NOISE},
@@ -483,8 +474,6 @@ def main(argv=None) -> int:
     parser.add_argument("--texture-res", type=int, default=256)
     parser.add_argument("--random-seeds", type=int, default=5)
     parser.add_argument("--max-texels", type=int, default=guidance.MAX_TEXELS)
-    parser.add_argument("--entropy-max-texels", type=int, default=entropy_guidance.MAX_TEXELS,
-                        help="texels the previous picker scores (its own default)")
     parser.add_argument("--spearman-candidates", type=int, default=20)
     parser.add_argument("--methods", default=",".join(METHODS),
                         help="methods to run; the others' curves come from --baselines")

@@ -1,7 +1,7 @@
 """How much of the guidance study's relighting differences is the relighting's own render noise.
 
     python benchmarks/studies/guidance_relight_noise.py [--scenes a,b] [--budget 16] [--seeds 4]
-        [--name guidance_relight_noise] [--merge part1,part2]
+        [--name NAME] [--merge part1,part2]
 
 `guidance.py` scores each view set's fit by one relighting (`freqbrdf.outputs.relight.evaluate`,
 16 spp, render seed 0) and compares the methods per scene x budget cell. Here, on the same pools
@@ -132,9 +132,12 @@ def main(argv=None) -> int:
     parser.add_argument("--budget", type=int, default=16)
     parser.add_argument("--seeds", type=int, default=4)
     parser.add_argument("--texture-res", type=int, default=256)
-    parser.add_argument("--name", default="guidance_relight_noise")
+    parser.add_argument("--name", default=None,
+                        help="results file stem (default: guidance_relight_noise, _<budget> for a budget other than 16)")
     parser.add_argument("--merge", default="", help="comma-separated results files of parts to merge into --name")
     args = parser.parse_args(argv)
+    if args.name is None:
+        args.name = "guidance_relight_noise" + ("" if args.budget == 16 else f"_{args.budget}")
     started = time.perf_counter()
     if args.merge:
         parts = [json.loads((RESULTS_DIR / f"{part}.json").read_text()) for part in args.merge.split(",")]

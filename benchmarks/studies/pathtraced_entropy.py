@@ -1,4 +1,4 @@
-"""The paper's check (METHOD.md §5): the hypothesis grid scored by brute force with a path tracer
+"""The paper's check (docs/method.md#evaluation): the hypothesis grid scored by brute force with a path tracer
 must rank texels like our fast SH-spectrum entropy.
 
     python benchmarks/studies/pathtraced_entropy.py [--sky gradient|flat]

@@ -2,10 +2,10 @@
 
     python benchmarks/studies/prefiltered_light.py [--scenes demo,bunny,plane] [--texture-res 128]
 
-Before commit 8e664ea smooth texels were estimated too rough (on the demo capture, with the
-model's loss at the true parameters above that at the estimate): below r = 0.3 the estimator's
-lobes read the per-texel SH fit (l* = 5) of the mirrored samples, which cannot hold a smooth
-lobe's sharp reflections. This benchmark scores these lights with the same brute-force
+With the fitted light alone, smooth texels come out too rough (on the demo capture, with the
+model's loss at the true parameters above that at the estimate): below r = 0.3 the lobes read the
+per-texel SH fit (l* = 5) of the mirrored samples, which cannot hold a smooth lobe's sharp
+reflections. This benchmark scores these lights with the same brute-force
 least-squares search (41 roughness nodes, the metallic profiled by
 `estimate._profile_kernels.profile_metallic`, no Brent, no robust pass), so that only the smooth
 lobes' light differs:
@@ -17,7 +17,7 @@ lobes' light differs:
   at each sample's world mirror direction, at roughness nodes 1/16 apart and linear between them;
 - ``prefiltered_ggx``: the same with the GGX lobe's own per-degree gains at normal incidence
   (`model.tables.ggx_lobe_gains`: heavier tails than the Gaussian), to see how much of what is left is
-  the Gaussian's shape. This one became the estimator's default in commit 8e664ea
+  the Gaussian's shape. This one is the estimator's default
   (`EstimateConfig.prefiltered_light`, built into the search kernel).
 
 Scenes: the demo capture (rendered by `make demo`) and compare_estimators.py's 64-view bunny and

@@ -78,9 +78,8 @@ from scenes import (
 )
 
 # The estimators compared, by name; each runs through `pipeline.fit` with its texture_res set to
-# the capture's T. "per_texel" is the default before issue #27 (each texel on its own samples,
-# plus the 5 x 5 neighbour vote); once the whole-surface estimate is the default, give
-# "per_texel" its ablation switch and add e.g. "whole_surface": Config().
+# the capture's T. "per_texel" is `fit --per-texel` (each texel on its own samples, plus the
+# 5 x 5 neighbour vote).
 ESTIMATORS: dict[str, Config] = {
     "per_texel": Config(surface=SurfaceConfig(enabled=False)),
     "per_texel_fast": preset("fast").replace(surface=SurfaceConfig(enabled=False)),

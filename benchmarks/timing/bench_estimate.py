@@ -7,8 +7,8 @@ The capture is studies/compare_estimators.py's (scenes.compare_capture: 64 views
 the default settings; each estimator then runs warm (kernels compiled, or loaded from numba's
 cache, on a small slice first). Scores are on the observed texels: base-colour PSNR, roughness and
 metallic MAE. Runs: ``global`` (the default: split-sum specular albedo, Burley diffuse),
-``global_method_model`` (METHOD.md's angular model, G1 masking and shadowing with one light
-refresh, Lambert diffuse: the default before commit 944fbe4) and ``paper`` (the prototype's Adam).
+``global_method_model`` (the angular model of docs/method.md#forward-model, G1 masking and
+shadowing with one light refresh, Lambert diffuse) and ``paper`` (the prototype's Adam).
 Prints the figures and saves them to benchmarks/results/bench_estimate_<scene>.json with
 os.cpu_count().
 """

@@ -7,8 +7,8 @@ benchmarks/.cache/ and reused. Timing: per stage, for the first call in the proc
 kernels loaded from their cache, Mitsuba's ray-test kernel compiled) and for a second call (warm);
 wall and CPU seconds, peak resident memory (ru_maxrss) and the load average, since the machine may
 be shared. Prints the figures and saves them to benchmarks/results/bench_observe.json. (The file's
-``environment_occlusion_accuracy`` and ``warm_with_environment_occlusion`` entries measured the
-retired ObserveConfig.environment_occlusion; docs/measurements.md, "Retired options", keeps them.)
+``environment_occlusion_accuracy`` and ``warm_with_environment_occlusion`` entries measured a
+retired form of ObserveConfig.environment_occlusion: docs/results.md#tried-and-not-kept.)
 
 ``--scene`` times only the observation of studies/compare_estimators.py's capture of that scene
 (scenes.compare_capture: 64 views at 256 x 256, T = 512; the plane is its largest case) and stores

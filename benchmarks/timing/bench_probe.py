@@ -3,7 +3,7 @@
     python benchmarks/timing/bench_probe.py [--texture-res 256] [--repeats 3]
 
 The search evaluates the profiled loss at a few tens of roughness values per texel
-(docs/measurements.md, speed section). This times the search kernel on
+(docs/results.md#speed). This times the search kernel on
 studies/compare_estimators.py's plane (scenes.compare_capture: 64 views; rendered into
 benchmarks/.cache if missing) in its hypothesis mode, with no search: once with no hypothesis
 (the per-texel preparation), once with one (the first probe at a roughness, which also fills the

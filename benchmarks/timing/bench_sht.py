@@ -1,6 +1,5 @@
 """Benchmark of the spherical-harmonic transforms of environment maps: ours (freqbrdf.sphere.sht) against
-ducc0's, which freqbrdf used before (GPL-2.0-or-later; it must be installed to run this script,
-it is not a dependency).
+ducc0's (GPL-2.0-or-later; it must be installed to run this script, it is not a dependency).
 
 On every bundled map (256 x 512, 3 channels), in one process and interleaved (ours, then ducc0,
 repeat), median wall seconds of:

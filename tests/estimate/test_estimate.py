@@ -61,7 +61,7 @@ def synthetic_observations(
 ) -> Observations:
     """Observations of texels with known parameters, rendered by one of the global estimator's models.
 
-    ``model`` "angular": brdf.predict_angular (METHOD.md §3.6, G1-shadowed light when
+    ``model`` "angular": brdf.predict_angular (docs/method.md#forward-model, G1-shadowed light when
     ``shadowing``); "split_sum": our default, m (b A S_A + B S_B) + (1 - m) E S_E with S_k the
     filtered unshadowed light read in the mirror direction (`lobe_filtered_light`), E the exact
     dielectric's albedo (Schlick's 0.04 A S_A + B S_B without ``exact_dielectric``), plus Burley's diffuse, written here with numpy
@@ -216,7 +216,7 @@ def unshadowed(truth) -> Observations:
     return synthetic_observations(truth, seed=2, shadowing=False)
 
 
-# METHOD.md's angular model (what brdf.predict_angular renders and `paper` fits), without shadowing.
+# The angular model of docs/method.md#forward-model (what brdf.predict_angular renders and `paper` fits), without shadowing.
 NO_SHADOWING = Config(estimate=EstimateConfig(specular_model="g1", diffuse_model="lambert", shadowing=False))
 PAPER_NO_SHADOWING = Config(estimate=EstimateConfig(method="paper", shadowing=False))
 
@@ -243,7 +243,7 @@ def test_global_recovers_parameters_exactly_with_the_default_model(truth):
     result = estimate(observations, Config())
     _assert_recovered(result, truth, atol=1e-4)
     assert np.all(result.loss < 1e-10)
-    # The METHOD.md model does not explain these data: it must leave a misfit and miss the truth.
+    # The angular model does not explain these data: it must leave a misfit and miss the truth.
     angular = estimate(observations, NO_SHADOWING)
     assert np.median(angular.loss) > 1e4 * np.median(result.loss)
     assert np.mean(np.abs(angular.roughness - truth.roughness)) > 0.01
