@@ -280,6 +280,20 @@ def test_report_works_in_headless_chromium(fit_folder):
                 resolve({scroll: document.scrollingElement.scrollWidth, client: document.scrollingElement.clientWidth,
                          inner: window.innerWidth}))))""")
             assert widths["inner"] == 600 and widths["scroll"] <= widths["client"], widths
+            # From 1000 to 1920 px every row fits: it wraps or its pictures scale, so neither the page
+            # nor any box inside it (the map tables' scroll boxes) scrolls sideways.
+            for width in (1000, 1280, 1400, 1920):
+                tools.call("Emulation.setDeviceMetricsOverride", width=width, height=1000, deviceScaleFactor=1,
+                           mobile=False)
+                fits = tools.evaluate("""new Promise(resolve => requestAnimationFrame(() => requestAnimationFrame(() => {
+                    const page = document.scrollingElement;
+                    const boxes = [...document.querySelectorAll('.scroll')].map(box => ({
+                        section: box.closest('section')?.id, scroll: box.scrollWidth, client: box.clientWidth}));
+                    resolve({inner: window.innerWidth, scroll: page.scrollWidth, client: page.clientWidth,
+                             wide_boxes: boxes.filter(box => box.scroll > box.client)});
+                })))""")
+                assert fits["inner"] == width and fits["scroll"] <= fits["client"], fits
+                assert fits["wide_boxes"] == [], fits
             tools.call("Runtime.evaluate", expression="0")  # flush pending events into tools.events
             problems = [
                 event["params"] for event in tools.events

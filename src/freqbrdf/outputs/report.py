@@ -505,7 +505,8 @@ h1{font-size:1.5em} h2{border-bottom:1px solid #ccc;padding-bottom:.2em}
 .scroll{max-width:100%;overflow-x:auto}
 figure{margin:0} figcaption{color:#444;font-size:.85em;max-width:256px}
 table.maps td,table.maps th{vertical-align:top}
-table.maps img{width:256px;height:256px;image-rendering:pixelated;border:1px solid #ccc}
+table.maps{width:100%} table.maps td{width:256px}
+table.maps img{width:100%;max-width:256px;height:auto;aspect-ratio:1/1;image-rendering:pixelated;border:1px solid #ccc;box-sizing:border-box}
 img.wide{max-width:100%} img.relit{max-width:720px;width:100%;display:block}
 table.relit figcaption{max-width:720px}
 .panels{display:grid;grid-template-columns:repeat(3,1fr);max-width:720px;font-size:.85em;font-weight:bold;text-align:center}
