@@ -523,6 +523,21 @@ def fit_sh(
     ValueError
         If the shapes do not match, ``reg_lambda`` < 0, ``regulariser`` or ``device`` is unknown, or
         ``device`` is "cuda" where no CUDA device answers.
+
+    Examples
+    --------
+    One texel seen from 200 directions; its radiance is 1 + z, which degree 1 holds exactly.
+
+    >>> import numpy as np
+    >>> from freqbrdf.sphere.harmonics import fit_sh
+    >>> d = np.random.default_rng(0).normal(size=(1, 200, 3))
+    >>> d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    >>> f = 1.0 + d[..., 2:3]
+    >>> fit = fit_sh(d, np.ones((1, 200)), f, lmax=2, reg_lambda=1e-6, device="cpu")
+    >>> fit.coeffs.shape, int(fit.n_samples[0])
+    ((1, 1, 9), 200)
+    >>> np.round(fit.coeffs[0, 0, :3] / np.sqrt(np.pi), 2) + 0.0  # Y_00 = 1/sqrt(4 pi), Y_10 = sqrt(3/(4 pi)) z
+    array([2.  , 0.  , 1.15])
     """
     directions = np.asarray(directions)
     weights = np.asarray(weights)
