@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import json
 import logging
@@ -12,7 +11,6 @@ import signal
 import socket
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -280,42 +278,6 @@ def test_ctrl_c_keeps_finished_captures(cluster, captures, tmp_path):
     resumed = batch.run(manifest, out)
     assert [row["status"] for row in resumed["captures"]] == ["skipped", "done"]
     assert snapshot(out / "a") == finished
-
-
-@pytest.mark.slow
-def test_cluster_by_address(captures, tmp_path):
-    """`--address` joins a cluster started apart (`ray start --head`), whose workers run the captures."""
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        port = probe.getsockname()[1]
-    temp = Path(tempfile.mkdtemp(prefix="ray", dir="/tmp"))  # short: Ray's socket paths have a length limit
-    env = {**os.environ, "RAY_AUTH_MODE": "token"}  # as Ray's later versions do by default
-    head = subprocess.Popen([str(Path(sys.executable).with_name("ray")), "start", "--head", "--port", str(port),
-                             "--num-cpus", "1", "--include-dashboard", "false", "--disable-usage-stats",
-                             "--temp-dir", str(temp)], env=env, start_new_session=True,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    try:
-        assert head.wait(timeout=120) == 0, head.stderr.read()
-        manifest = write_csv(tmp_path / "m.csv", ["name,capture,texture_res,evaluate,report",
-                                                  f"a,{captures / 'bunny'},16,false,false"])
-        done = subprocess.run([sys.executable, "-m", "freqbrdf.cli", "batch", str(manifest), "--out",
-                               str(tmp_path / "out"), "--address", f"127.0.0.1:{port}", "--json"],
-                              env=env, capture_output=True, text=True, timeout=300)
-        assert done.returncode == 0, done.stderr
-        summary = json.loads(done.stdout)
-        assert summary["engine"]["address"] == f"127.0.0.1:{port}" and summary["engine"]["threads_per_capture"] == 1
-        assert [row["status"] for row in summary["captures"]] == ["done"]
-        assert load_fit(tmp_path / "out" / "a").maps.resolution == 16
-    finally:
-        with contextlib.suppress(ProcessLookupError):
-            os.killpg(head.pid, signal.SIGKILL)  # the head's processes: its process group
-        shutil.rmtree(temp, ignore_errors=True)
-
-    # Nothing answers there any more: one line, exit code 2, at once.
-    done = subprocess.run([sys.executable, "-m", "freqbrdf.cli", "batch", str(manifest), "--out",
-                           str(tmp_path / "out2"), "--address", f"127.0.0.1:{port}"], capture_output=True,
-                          text=True, timeout=60)
-    assert done.returncode == 2 and done.stderr.startswith(f"error: no Ray cluster answers at 127.0.0.1:{port}")
 
 
 @pytest.mark.slow

@@ -6,7 +6,8 @@ Ray task: the pipeline of docs/method.md#pipeline (`freqbrdf.pipeline.fit`, `wri
 docs/method.md#evaluation where the capture has ground truth or test views (`freqbrdf.outputs.evaluate`) and
 the report (`freqbrdf.outputs.report`), into ``OUT/<name>/``, which appears complete or not at
 all. Ray starts on this machine (workers sized to its cores and memory, `default_workers`) or
-joins a cluster by its address. A capture whose inputs, settings and freqbrdf version are
+joins a cluster by its address (docs/batch.md: the head, the worker nodes, the token, and the
+captures and output folder at the same paths on every node). A capture whose inputs, settings and freqbrdf version are
 unchanged is skipped, so an interrupted batch goes on where it stopped; bad input fails that
 capture alone; a worker that dies is retried. ``OUT/batch.json`` and ``OUT/index.html`` hold
 every capture's status, seconds, attempts, error, key metrics and paths.
@@ -17,7 +18,7 @@ The modules, in the order a capture meets them:
 - `manifest`: reading and checking a manifest (`read_manifest`, `ManifestEntry`);
 - `state`: what a batch keeps in OUT between runs: the inputs' content hashes,
   ``batch_entry.json``, the up-to-date check, the rename into place and the lock;
-- `cluster`: how many captures a machine runs at once, starting or joining Ray;
+- `cluster`: how many captures a machine runs at once, starting Ray or joining a cluster;
 - `tasks`: the Ray task that makes one capture's outputs;
 - `runner`: `run`, the driver: scheduling, retries, interruption and progress;
 - `index`: writing batch.json and index.html.

@@ -4,8 +4,8 @@
 takes the batch's lock, marks each capture skipped (up to date: `freqbrdf.batch.state`) or
 pending, starts or joins Ray (`freqbrdf.batch.cluster`) and sends the pending captures as Ray
 tasks (`freqbrdf.batch.tasks.process_capture`), at most ``workers`` at once, each with its CPUs
-and memory. Ray retries a task whose worker died, at most `MAX_RETRIES` times; a capture that
-fails otherwise is recorded with its one-line error. After every capture, batch.json and
+and memory. Ray retries a task whose worker or node died, at most `MAX_RETRIES` times, on any live
+node; a capture that fails otherwise is recorded with its one-line error. After every capture, batch.json and
 index.html are rewritten (`freqbrdf.batch.index`). Ctrl-C (or SIGTERM) cancels the captures in
 flight, records them as "interrupted" and raises `BatchInterrupted`; a rerun goes on from there.
 """
@@ -32,6 +32,7 @@ from freqbrdf.batch.cluster import (
     join_cluster,
     largest_node,
     last_line,
+    parse_address,
     start_local_ray,
 )
 from freqbrdf.batch.index import INDEX_FILE, write_summary
@@ -46,8 +47,9 @@ from freqbrdf.progress import SILENT, Reporter
 STATUSES = ("done", "skipped", "failed", "interrupted")
 # Test-only fault injection, read by `run` from its environment: a JSON object with
 # "kill_first_attempt": [names] (the first attempt of each kills its own worker with SIGKILL when
-# the fit starts, as the kernel's out-of-memory killer would) and "sleep_s": {name: seconds} (the
-# capture waits that long before it starts). Unset, nothing changes.
+# the fit starts, as the kernel's out-of-memory killer would), "sleep_s": {name: seconds} (the
+# capture waits that long before it starts) and "first_attempt_sleep_s": seconds (every capture's
+# first attempt waits that long, holding it in flight). Unset, nothing changes.
 TEST_HOOKS_VARIABLE = "FREQBRDF_BATCH_TEST_HOOKS"
 
 
@@ -110,7 +112,9 @@ def run(manifest: str | Path, out: str | Path, *, workers: int | None = None, th
         The content of batch.json: ``captures`` (one dict per capture: name, capture, status
         among `STATUSES`, seconds (in its worker), wall_seconds (from its submission to Ray until
         its answer), attempts, error, metrics, paths, settings), ``counts`` per status,
-        ``engine`` (Ray's version, workers, threads), times and the freqbrdf version.
+        ``engine`` (Ray's version, address, live nodes, CPUs, workers, threads, ``cluster``: what
+        `join_cluster` joined where ``address`` is given, ``dispatch_s``: seconds from the first
+        task sent to the last answer), times and the freqbrdf version.
 
     Raises
     ------
@@ -137,15 +141,24 @@ def run(manifest: str | Path, out: str | Path, *, workers: int | None = None, th
         raise InputError(None, f"workers must be >= 1, got {workers}")
     if threads is not None and threads < 1:
         raise InputError(None, f"threads must be >= 1, got {threads}")
+    if address is not None:
+        parse_address(address)
     hooks = _test_hooks()
+    created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
     batch = _Batch(manifest, out, entries, reporter)
-    with locked(out):
-        batch.plan(force)
-        to_run = [entry for entry in entries if batch.rows[entry.name]["status"] == "pending"]
-        if to_run:
-            batch.dispatch(to_run, workers, threads, address, hooks)
-        batch.finish()
+    try:
+        with locked(out):
+            batch.plan(force)
+            to_run = [entry for entry in entries if batch.rows[entry.name]["status"] == "pending"]
+            if to_run:
+                batch.dispatch(to_run, workers, threads, address, hooks)
+            batch.finish()
+    except InputError:
+        if created:  # refused before any capture was sent (Ray or the cluster): leave no folder behind
+            with contextlib.suppress(OSError):
+                out.rmdir()
+        raise
     return batch.summary()
 
 
@@ -183,7 +196,12 @@ class _Batch:
                 "settings": full_settings(entry.settings), **fields}
 
     def plan(self, force: bool) -> None:
-        """Mark each capture skipped (up to date, unless ``force``) or pending."""
+        """Mark each capture skipped (up to date, unless ``force``) or pending.
+
+        The attempts files of earlier runs are removed: under the lock, those runs are over (a
+        driver that was killed leaves its own).
+        """
+        shutil.rmtree(self.out / WORK_FOLDER / "runs", ignore_errors=True)
         for entry in self.entries:
             recover(self.out / WORK_FOLDER / "work" / entry.name, self.out / entry.name)
             record = None if force else up_to_date(entry, self.out)
@@ -241,6 +259,7 @@ class _Batch:
         import ray
 
         owns = not ray.is_initialized()
+        cluster = None
         in_flight: dict = {}  # ObjectRef -> (entry, submitted at)
         stopped = {"signal": signal.SIGINT}
         previous = signal.getsignal(signal.SIGTERM)
@@ -254,7 +273,7 @@ class _Batch:
                     workers = min(default_workers(threads, largest, cores), len(to_run))
                 start_local_ray(workers * threads)
             elif owns:
-                join_cluster(address)
+                cluster = join_cluster(address)
 
             def terminate(number, frame):  # set after ray.init, which sets its own
                 stopped["signal"] = number
@@ -269,10 +288,14 @@ class _Batch:
             if workers is None:
                 workers = max(1, min(cpus // threads, len(to_run)))
             self.engine = {"ray": ray.__version__, "address": address or ("this machine" if owns else "existing"),
-                           "nodes": sum(1 for node in ray.nodes() if node.get("Alive")),
+                           "nodes": sum(1 for node in ray.nodes() if node.get("Alive")), "cpus": cpus,
                            "workers": workers, "threads_per_capture": threads, "max_retries": MAX_RETRIES}
+            if cluster is not None:
+                self.engine["cluster"] = cluster
+                self.display.joined(cluster, workers, threads)
             env = {"NUMBA_NUM_THREADS": str(threads), "OMP_NUM_THREADS": str(threads)}
-            check_workers(ray, {"num_cpus": threads, "runtime_env": {"env_vars": env}})
+            check_workers(ray, {"num_cpus": threads, "runtime_env": {"env_vars": env}},
+                          sorted({str(entry.capture) for entry in to_run}), str(self.out.resolve()))
             self.write()  # every capture pending
             task = ray.remote(max_retries=MAX_RETRIES, retry_exceptions=False)(process_capture)
             self._loop(ray, task, to_run, workers, threads, largest_node(ray.nodes(), "memory"), hooks, in_flight)
@@ -298,12 +321,13 @@ class _Batch:
                 "work": str((self.out / WORK_FOLDER / "work" / entry.name).resolve()),
                 "attempts": str(self._attempts_path(entry.name)),
                 "settings": entry.settings, "settings_hash": settings_hash(entry.settings),
-                "version": __version__, "hooks": hooks}
+                "version": __version__, "run": self.run_id, "hooks": hooks}
 
     def _loop(self, ray, task, to_run: list[ManifestEntry], workers: int, threads: int, memory_cap: float,
               hooks: dict, in_flight: dict) -> None:
         queue = list(reversed(to_run))
         env = {"NUMBA_NUM_THREADS": str(threads), "OMP_NUM_THREADS": str(threads)}  # as check_workers'
+        first_sent = time.perf_counter()
         while queue or in_flight:
             while queue and len(in_flight) < workers:
                 entry = queue.pop()
@@ -316,6 +340,7 @@ class _Batch:
             ready, _ = ray.wait(list(in_flight), num_returns=1, timeout=0.25)
             for ref in ready:
                 entry, submitted = in_flight.pop(ref)
+                self.engine["dispatch_s"] = time.perf_counter() - first_sent  # first task sent to this answer
                 self._finished(entry, self._result(ray, ref, entry, submitted), submitted)
             self.display.update(self._running(in_flight))
 
@@ -399,6 +424,19 @@ class _Display:
         self.group = Group(self.progress, "")
         self.live = Live(self.group, console=self.console, refresh_per_second=4, transient=False)
         self.live.start()
+
+    def joined(self, cluster: dict, workers: int, threads: int) -> None:
+        """Say which Ray cluster the batch joined, before any capture is sent."""
+        if not self.enabled:
+            return
+        from rich.markup import escape
+
+        token = f"token from {cluster['token']}" if cluster.get("token") else "no token"
+        self.console.print(escape(
+            f"joined the Ray cluster at {cluster['address']} ({cluster['head']}, {cluster['mode']}, {token}): "
+            f"{cluster['nodes']} nodes, {cluster['cpus']} CPUs; {workers} captures at once, {threads} "
+            f"thread{'s' if threads > 1 else ''} each"),
+            highlight=False, soft_wrap=True)
 
     def update(self, running: list[tuple[str, float | None]]) -> None:
         """Name the captures in flight, with their seconds since submission (None: queued)."""

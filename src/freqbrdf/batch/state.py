@@ -211,13 +211,16 @@ def publish(staging: Path, folder: Path, old: Path) -> None:
     os.replace(staging, folder)
 
 
-def record_attempt(path: Path) -> int:
+def record_attempt(path: Path, node: str | None = None) -> int:
     """Append this attempt to the capture's attempts file.
 
     Parameters
     ----------
     path : Path
-        The attempts file (one line per attempt: host, pid, time).
+        The attempts file (one line per attempt: host, pid, time and Ray's node id, ``-`` where
+        none).
+    node : str, optional
+        The Ray node the attempt runs on.
 
     Returns
     -------
@@ -226,7 +229,7 @@ def record_attempt(path: Path) -> int:
     """
     path.parent.mkdir(parents=True, exist_ok=True)
     with path.open("a", encoding="utf-8") as handle:
-        handle.write(f"{socket.gethostname()} {os.getpid()} {timestamp()}\n")
+        handle.write(f"{socket.gethostname()} {os.getpid()} {timestamp()} {node or '-'}\n")
     return count_attempts(path)
 
 

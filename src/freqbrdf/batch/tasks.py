@@ -11,7 +11,11 @@ The task runs the same code as ``freqbrdf fit``, with numba's threads set to the
 driver sets ``NUMBA_NUM_THREADS`` in the task's environment). A worker whose numba compiled
 kernels (a cold cache) makes its captures in a fresh process (`in_fresh_process`), whose kernels
 come from the cache, so that the results match every later run's (see `freqbrdf.jit`).
-`worker_facts` is the small task that checks a worker before any capture is sent.
+`worker_facts` is the small task that checks each node before any capture is sent.
+
+Ray retries a capture whose worker or node died; a retry that finds the capture already made by
+this run (``batch_entry.json`` with the run's id, the folder complete) answers with it instead of
+fitting it again (`_made_in_this_run`).
 """
 
 from __future__ import annotations
@@ -31,7 +35,15 @@ from pathlib import Path
 
 from freqbrdf import __version__
 from freqbrdf.batch.settings import capture_config, full_settings
-from freqbrdf.batch.state import ENTRY_FILE, capture_inputs, input_record, publish, record_attempt, timestamp
+from freqbrdf.batch.state import (
+    ENTRY_FILE,
+    capture_inputs,
+    input_record,
+    publish,
+    record_attempt,
+    recover,
+    timestamp,
+)
 from freqbrdf.errors import InputError
 from freqbrdf.fileio import write_json
 from freqbrdf.progress import SILENT, Reporter
@@ -60,18 +72,24 @@ def process_capture(spec: dict) -> dict:
         ``seconds`` (in this worker), and ``input_hash`` where done.
     """
     start = time.perf_counter()
-    attempt = record_attempt(Path(spec["attempts"])) if spec.get("attempts") else 1
+    node = _node_id()
+    attempt = record_attempt(Path(spec["attempts"]), node) if spec.get("attempts") else 1
     hooks = spec.get("hooks", {})
     delay = float(hooks.get("sleep_s", {}).get(spec["name"], 0.0))
+    if attempt == 1:
+        delay += float(hooks.get("first_attempt_sleep_s", 0.0))
     if delay > 0:
         time.sleep(delay)
-    spec = {**spec, "attempt": attempt, "started_at": time.time()}
-    row = {"attempts": attempt, "worker": {"host": socket.gethostname(), "pid": os.getpid()}}
+    spec = {**spec, "attempt": attempt, "started_at": time.time(), "node": node}
+    row = {"attempts": attempt, "worker": {"host": socket.gethostname(), "pid": os.getpid(), "node": node}}
     try:
         if spec["version"] != __version__:
             raise InputError(None, f"this worker has freqbrdf {__version__}, the batch {spec['version']}: install the "
                                    "same version on every node")
-        if not spec.get("child") and _compiled_here():
+        made = _made_in_this_run(spec)
+        if made is not None:
+            row.update(made)
+        elif not spec.get("child") and _compiled_here():
             row.update(in_fresh_process(spec))
         else:
             row.update(_make_outputs(spec, kill=spec["name"] in hooks.get("kill_first_attempt", ()) and attempt == 1))
@@ -85,6 +103,32 @@ def process_capture(spec: dict) -> dict:
         row["worker"]["threads"] = sys.modules["numba"].config.NUMBA_NUM_THREADS
     row["seconds"] = time.perf_counter() - start
     return row
+
+
+def _made_in_this_run(spec: dict) -> dict | None:
+    """Answer for a capture this batch run has already made, without making it again.
+
+    An attempt whose worker or node died after the capture's folder was renamed into place (or
+    while it was) leaves it complete; Ray's retry then finds it here (put back by `recover` where
+    half renamed) with this run's id in its ``batch_entry.json``.
+    """
+    if not spec.get("run"):
+        return None
+    folder = Path(spec["folder"])
+    recover(Path(spec["work"]), folder)
+    try:
+        entry = json.loads((folder / ENTRY_FILE).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    if not isinstance(entry, dict) or entry.get("run") != spec["run"] \
+            or entry.get("settings_hash") != spec["settings_hash"]:
+        return None
+    for relative, size in entry.get("outputs", {}).items():
+        path = folder / relative
+        if not path.is_file() or path.stat().st_size != size:
+            return None
+    return {"status": "done", "error": None, "metrics": entry.get("metrics"), "evaluated": entry.get("evaluated"),
+            "input_hash": entry.get("inputs", {}).get("hash"), "made_by_attempt": entry.get("attempts")}
 
 
 def _compiled_here() -> bool:
@@ -148,7 +192,8 @@ def _make_outputs(spec: dict, kill: bool = False) -> dict:
         "settings": full_settings(settings), "settings_hash": spec["settings_hash"],
         "inputs": inputs, "outputs": outputs, "evaluated": bool(evaluate), "metrics": metrics,
         "finished": timestamp(), "seconds": time.time() - spec.get("started_at", time.time()),
-        "attempts": spec.get("attempt", 1), "worker": {"host": socket.gethostname(), "pid": os.getpid()},
+        "attempts": spec.get("attempt", 1), "run": spec.get("run"),
+        "worker": {"host": socket.gethostname(), "pid": os.getpid(), "node": spec.get("node")},
     }
     write_json(staging / ENTRY_FILE, entry)
     publish(staging, folder, work / "old")
@@ -232,12 +277,31 @@ def child_main() -> None:
     print(json.dumps(row, default=str), flush=True)
 
 
-def worker_facts() -> dict:
-    """Tell what a Ray worker runs (`freqbrdf.batch.cluster.check_workers` asks).
+def worker_facts(paths: list[str] = (), out: str | None = None) -> dict:
+    """Tell what a Ray worker runs and sees (`freqbrdf.batch.cluster.check_workers` asks).
+
+    Parameters
+    ----------
+    paths : list of str
+        Paths the worker should see (the captures).
+    out : str, optional
+        A folder the worker should be able to write to (the batch's output folder).
 
     Returns
     -------
     dict
-        ``{"freqbrdf": version, "host": hostname}``.
+        ``freqbrdf`` (its version), ``host`` (hostname), ``node`` (Ray's node id), ``missing``
+        (those of ``paths`` it does not see) and ``writable`` (whether it can write to ``out``;
+        True where none is given).
     """
-    return {"freqbrdf": __version__, "host": socket.gethostname()}
+    return {"freqbrdf": __version__, "host": socket.gethostname(), "node": _node_id(),
+            "missing": [path for path in paths if not os.path.exists(path)],
+            "writable": out is None or (os.path.isdir(out) and os.access(out, os.W_OK | os.X_OK))}
+
+
+def _node_id() -> str | None:
+    """Tell the Ray node this process runs on, None outside a Ray worker."""
+    ray = sys.modules.get("ray")
+    if ray is None or not ray.is_initialized():
+        return None
+    return ray.get_runtime_context().get_node_id()
