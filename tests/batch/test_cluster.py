@@ -365,3 +365,66 @@ def test_ray_client_address_without_grpcio(ray_cluster):
     with pytest.raises(InputError, match=re.escape(f"--address ray://{ray_cluster.address} (Ray Client) needs the "
                                                    "grpcio package on this machine: pip install 'ray[client]'")):
         batch_cluster.join_cluster(f"ray://{ray_cluster.address}")
+
+
+def test_find_token_in_rays_order(tmp_path, monkeypatch):
+    """RAY_AUTH_TOKEN, else the file RAY_AUTH_TOKEN_PATH names, else ~/.ray/auth_token."""
+    for name in RAY_VARIABLES:
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setenv("HOME", str(tmp_path))
+    assert batch_cluster.find_token() is None
+    (tmp_path / ".ray").mkdir()
+    (tmp_path / ".ray" / "auth_token").write_text("home-token\n", encoding="ascii")
+    assert batch_cluster.find_token() == str(tmp_path / ".ray" / "auth_token")
+    named = tmp_path / "token"
+    named.write_text("named-token", encoding="ascii")
+    monkeypatch.setenv("RAY_AUTH_TOKEN_PATH", str(named))
+    assert batch_cluster.find_token() == str(named)
+    monkeypatch.setenv("RAY_AUTH_TOKEN", "the-token")
+    assert batch_cluster.find_token() == "RAY_AUTH_TOKEN"
+    monkeypatch.delenv("RAY_AUTH_TOKEN")
+    named.write_text("  \n", encoding="ascii")
+    with pytest.raises(InputError, match=f"^{re.escape(str(named))}: RAY_AUTH_TOKEN_PATH names this token file, "
+                                         "which is empty$"):
+        batch_cluster.find_token()
+
+
+def test_parse_address():
+    assert batch_cluster.parse_address("auto") == ("auto", None, None)
+    assert batch_cluster.parse_address("head.example:6379") == ("gcs", "head.example", 6379)
+    assert batch_cluster.parse_address("ray://10.0.0.2:10001") == ("client", "10.0.0.2", 10001)
+    assert batch_cluster.parse_address("[::1]:6379") == ("gcs", "::1", 6379)
+    for address in ("head", "head:", "head:0", "head:70000", "http://head:6379", "ray://head"):
+        with pytest.raises(InputError, match="is not auto, HOST:PORT or ray://HOST:PORT"):
+            batch_cluster.parse_address(address)
+
+
+def test_a_retry_answers_with_what_its_run_made(tmp_path):
+    """A capture made by this run (its worker died after the rename, or during it) is not made again."""
+    from freqbrdf import __version__
+    from freqbrdf.batch import tasks
+
+    out = tmp_path / "out"
+    folder, work = out / "a", out / batch.WORK_FOLDER / "work" / "a"
+    settings = {"texture_res": 16}
+    spec = {"name": "a", "capture": str(tmp_path / "nowhere"), "folder": str(folder), "work": str(work),
+            "attempts": str(out / batch.WORK_FOLDER / "runs" / "r1" / "a.attempts"), "settings": settings,
+            "settings_hash": batch.settings_hash(settings), "version": __version__, "run": "r1", "hooks": {}}
+    made = work / "new"  # left half renamed: complete in the work folder, nothing in its place
+    made.mkdir(parents=True)
+    (made / "maps.bin").write_bytes(b"abc")
+    entry = {"run": "r1", "settings_hash": spec["settings_hash"], "outputs": {"maps.bin": 3}, "attempts": 1,
+             "metrics": {"observed_fraction": 0.5}, "evaluated": False, "inputs": {"hash": "h"}}
+    (made / batch.ENTRY_FILE).write_text(json.dumps(entry), encoding="utf-8")
+    row = tasks.process_capture(spec)  # the capture does not exist: a fit would fail
+    assert row["status"] == "done" and row["attempts"] == 1 and row["made_by_attempt"] == 1, row
+    assert row["metrics"] == {"observed_fraction": 0.5} and row["input_hash"] == "h"
+    assert (folder / "maps.bin").read_bytes() == b"abc" and not made.exists()
+    # Another run's outputs, or incomplete ones, are made again (here: fail, the capture missing).
+    (folder / batch.ENTRY_FILE).write_text(json.dumps({**entry, "run": "r0"}), encoding="utf-8")
+    assert tasks._made_in_this_run(spec) is None
+    (folder / batch.ENTRY_FILE).write_text(json.dumps(entry), encoding="utf-8")
+    (folder / "maps.bin").write_bytes(b"ab")
+    assert tasks._made_in_this_run(spec) is None
+    row = tasks.process_capture(spec)
+    assert row["status"] == "failed" and row["attempts"] == 2 and "nowhere" in row["error"], row
