@@ -3,8 +3,9 @@
 The cluster is set up as Ray's documentation sets one up: a token file, then ``ray start --head``
 and ``ray start --address`` with ``RAY_AUTH_MODE=token``, each node with its own temp dir and
 ports, started in a process group of its own so that a node can be killed as a machine that dies.
-Ray puts the machine's own address in place of 127.0.0.1 (its nodes then reach each other through
-the kernel's loopback path, never the network). The batch runs as a user runs it: the command
+The nodes are joined at 127.0.0.1; Ray records the machine's own address in its place, which the
+kernel routes through its loopback device (Ray's servers listen on every interface, as on any
+cluster: the token keeps others out). The batch runs as a user runs it: the command
 line in a process of its own, with the token in a file named by ``RAY_AUTH_TOKEN_PATH`` and
 ``RAY_AUTH_MODE`` unset.
 """
