@@ -15,8 +15,8 @@ report), each way in a fresh process as a user runs it:
 
 Throughput is captures per minute over the batch's dispatch (from its first task sent to its last
 answer, ``engine.dispatch_s`` of batch.json) and over the command's whole wall time (Ray's start
-included); the steady throughput leaves out each worker's first capture, which pays the worker's
-start (imports, numba's cache): W workers over the median seconds of the other captures. What Ray adds to each capture: the time from sending its task to its answer less the
+included). Each worker's first capture pays the worker's start (imports, numba's cache): the
+median seconds in the worker of first and of later captures are recorded apart. What Ray adds to each capture: the time from sending its task to its answer less the
 time the task ran in its worker (``wall_seconds - seconds`` of batch.json: scheduling, the
 task's and the answer's transfer), hashing its inputs (which ``fit`` does not do), and Ray's own
 start and stop (``ray.init`` + ``ray.shutdown`` in a fresh process) shared among the captures of
@@ -126,12 +126,11 @@ def batch(manifest: Path, out: Path, workers: int, threads: int, address: str | 
     assert all(row["status"] == "done" for row in rows), [row["error"] for row in rows]
     added = [row["wall_seconds"] - row["seconds"] for row in rows]
     dispatch = summary["engine"]["dispatch_s"]
-    firsts, later = set(), []  # each worker's first capture pays its start (imports, numba's cache)
+    workers_seen, first, later = set(), [], []  # a worker's first capture pays its start (imports, numba's cache)
     for row in rows:
         key = (row["worker"].get("node"), row["worker"]["pid"])
-        if key in firsts:
-            later.append(row["seconds"])
-        firsts.add(key)
+        (later if key in workers_seen else first).append(row["seconds"])
+        workers_seen.add(key)
     return {
         "workers": workers, "threads": threads, "wall_s": wall, "driver_s": summary["seconds"],
         "dispatch_s": dispatch, "captures_per_minute": 60 * len(rows) / dispatch,
@@ -140,8 +139,8 @@ def batch(manifest: Path, out: Path, workers: int, threads: int, address: str | 
         "ray_added_per_capture_s": {"first": added[0], "median_of_rest": statistics.median(added[1:] or added),
                                     "all": added},
         "nodes_used": len({row["worker"].get("node") for row in rows}),
+        "first_capture_seconds_median": statistics.median(first),
         "later_capture_seconds_median": statistics.median(later) if later else None,
-        "steady_captures_per_minute": 60 * workers / statistics.median(later) if later else None,
     }
 
 
@@ -273,10 +272,6 @@ def main(argv=None) -> int:
         "scaling": {
             "local_two_over_one_worker": two / one, "cluster_two_over_one_worker": cluster_two / cluster_one,
             "local_four_over_one_worker": results["local_w4_t1"]["captures_per_minute"] / one,
-            "steady_local_two_over_one_worker": results["local_w2_t1"]["steady_captures_per_minute"]
-            / results["local_w1_t1"]["steady_captures_per_minute"],
-            "steady_cluster_two_over_one_worker": results["cluster_w2_t1"]["steady_captures_per_minute"]
-            / results["cluster_w1_t1"]["steady_captures_per_minute"],
             "control_speedup_of_two_processes": [parallel_before["speedup_of_two"], parallel_after["speedup_of_two"]],
             "target_two_over_one": 1.8,
         },
@@ -285,14 +280,14 @@ def main(argv=None) -> int:
     save_results(args.name, result)
     print(f"\n{os.cpu_count()} cores, load average {result['load_average']}")
     print(f"{'':<16} {'workers':>7} {'threads':>7} {'wall s':>8} {'dispatch s':>10} {'captures/min':>13} "
-          f"{'steady':>7}")
+          f"{'first s':>8} {'later s':>8}")
     print(f"{'loop of fit':<16} {1:>7} {'all':>7} {results['loop']['wall_s']:8.1f} {'':>10} "
           f"{results['loop']['captures_per_minute']:13.1f}")
     for key, value in results.items():
         if key != "loop":
             print(f"{key:<16} {value['workers']:>7} {value['threads']:>7} {value['wall_s']:8.1f} "
                   f"{value['dispatch_s']:10.1f} {value['captures_per_minute']:13.1f} "
-                  f"{value['steady_captures_per_minute']:7.1f}")
+                  f"{value['first_capture_seconds_median']:8.2f} {value['later_capture_seconds_median']:8.2f}")
     print(f"2 workers / 1: {two / one:.2f}x here, {cluster_two / cluster_one:.2f}x on the two-node cluster; two "
           f"control processes at once: {parallel_before['speedup_of_two']:.2f}x / {parallel_after['speedup_of_two']:.2f}x")
     print(f"per capture Ray adds {added:.3f} s and hashing {hashing_s:.3f} s: {overhead / fit_wall:.1%} of a plain "
