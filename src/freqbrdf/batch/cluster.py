@@ -19,6 +19,7 @@ import contextlib
 import os
 import re
 import socket
+import sys
 from pathlib import Path
 
 from freqbrdf import __version__
@@ -325,6 +326,20 @@ def use_token() -> str | None:
     return source
 
 
+@contextlib.contextmanager
+def _native_stderr_silenced():
+    """Send what is written to file descriptor 2 (by Ray's C++ code too) to /dev/null meanwhile."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(os.devnull, "w", encoding="ascii") as sink:
+            os.dup2(sink.fileno(), 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
 def _check_head(address: str, gcs_address: str, token: str | None) -> list:
     """Ask the cluster's head for its live nodes, at once, as the driver will connect.
 
@@ -334,8 +349,9 @@ def _check_head(address: str, gcs_address: str, token: str | None) -> list:
     from ray._raylet import InnerGcsClient
 
     try:
-        client = InnerGcsClient.standalone(gcs_address, None, int(HEAD_TIMEOUT_S * 1000))
-        nodes = client.get_all_node_info(timeout=HEAD_TIMEOUT_S)
+        with _native_stderr_silenced():  # Ray's C++ client logs each refused try; the error below says it once
+            client = InnerGcsClient.standalone(gcs_address, None, int(HEAD_TIMEOUT_S * 1000))
+            nodes = client.get_all_node_info(timeout=HEAD_TIMEOUT_S)
     except Exception as err:  # noqa: BLE001 - Ray's errors have no common type for these
         text = last_line(err)
         if type(err).__name__ == "AuthenticationError" or "Authentication" in text or "Unauthenticated" in text:

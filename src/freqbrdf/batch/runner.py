@@ -431,12 +431,14 @@ class _Display:
             return
         from rich.markup import escape
 
+        def count(number: int, noun: str) -> str:
+            return f"{number} {noun}{'' if number == 1 else 's'}"
+
         token = f"token from {cluster['token']}" if cluster.get("token") else "no token"
         self.console.print(escape(
             f"joined the Ray cluster at {cluster['address']} ({cluster['head']}, {cluster['mode']}, {token}): "
-            f"{cluster['nodes']} nodes, {cluster['cpus']} CPUs; {workers} captures at once, {threads} "
-            f"thread{'s' if threads > 1 else ''} each"),
-            highlight=False, soft_wrap=True)
+            f"{count(cluster['nodes'], 'node')}, {count(cluster['cpus'], 'CPU')}; {count(workers, 'capture')} at "
+            f"once, {count(threads, 'thread')} each"), highlight=False, soft_wrap=True)
 
     def update(self, running: list[tuple[str, float | None]]) -> None:
         """Name the captures in flight, with their seconds since submission (None: queued)."""
