@@ -85,7 +85,7 @@ def test_exr_header_carries_software_comments_and_chromaticities_and_no_time(tmp
         write_exr(tmp_path / "bad.exr", radiance, chromaticities=(0.64, 0.33))
 
 
-def test_exr_rgba_drops_alpha_and_single_odd_channel_is_grey(tmp_path):
+def test_exr_rgba_drops_alpha_and_single_grey_channel_is_grey(tmp_path):
     rng = np.random.default_rng(1)
     planes = {name: rng.random((6, 7)).astype(np.float32) for name in "RGBA"}
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
@@ -93,10 +93,25 @@ def test_exr_rgba_drops_alpha_and_single_odd_channel_is_grey(tmp_path):
         exr.write(str(tmp_path / "rgba.exr"))
     back = read_image(tmp_path / "rgba.exr")
     np.testing.assert_array_equal(back, np.stack([planes[c] for c in "RGB"], axis=2))
-    with OpenEXR.File(header, {"Z": planes["A"]}) as exr:
-        exr.write(str(tmp_path / "z.exr"))
-    np.testing.assert_array_equal(read_image(tmp_path / "z.exr")[..., 2], planes["A"])
+    with OpenEXR.File(header, {"Y": planes["A"]}) as exr:
+        exr.write(str(tmp_path / "y.exr"))
+    np.testing.assert_array_equal(read_image(tmp_path / "y.exr")[..., 2], planes["A"])
     np.testing.assert_array_equal(read_mask(tmp_path / "rgba.exr"), planes["A"] > 0.5)
+
+
+@pytest.mark.parametrize("channels", [("Z",), ("A",), ("depth.Z",), ("Z", "A")])
+def test_exr_without_colour_channels_is_refused_as_radiance(tmp_path, channels):
+    """A renderer's depth or alpha AOV saved in place of a photograph is refused, naming its channels."""
+    plane = np.random.default_rng(2).random((6, 7)).astype(np.float32)
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    with OpenEXR.File(header, {name: plane.copy() for name in channels}) as exr:
+        exr.write(str(tmp_path / "aov.exr"))
+    with pytest.raises(InputError, match="no colour channels") as caught:
+        read_image(tmp_path / "aov.exr")
+    message = str(caught.value)
+    assert "aov.exr" in message and all(name in message for name in channels) and "\n" not in message
+    if channels == ("A",):  # the same file still reads as a mask
+        np.testing.assert_array_equal(read_mask(tmp_path / "aov.exr"), plane > 0.5)
 
 
 # --- Radiance HDR ------------------------------------------------------------------------------

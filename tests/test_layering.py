@@ -27,6 +27,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("render",),  # Mitsuba: ray tests for observe, renders for outputs and synthetic captures
     ("observe",),
     ("estimate",),
+    ("calibrate",),  # exposure, white balance, the probe's turn: observes and searches coarse texels
     ("uncertainty",),  # the roughness std reads the estimate
     ("applications",),
     ("outputs",),
@@ -36,7 +37,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("cli_options", "cli"),
 )
 RANK = {name: rank for rank, names in enumerate(LAYERS) for name in names}
-STAGE_PACKAGES = ("capture", "texels", "render", "observe", "estimate", "uncertainty", "applications",
+STAGE_PACKAGES = ("capture", "texels", "render", "observe", "estimate", "calibrate", "uncertainty", "applications",
                   "outputs", "pipeline", "batch", "synthetic", "cli_options", "cli")
 MITSUBA_MODULES = ("mitsuba", "drjit")
 

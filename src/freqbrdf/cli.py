@@ -24,6 +24,7 @@ from freqbrdf.cli_options import (
     DEVICE_HELP,
     ENTROPY_HELP,
     OCCLUSION_HELP,
+    calibration_from_options,
     config_from_options,
     estimation_res_from_option,
 )
@@ -362,6 +363,16 @@ def fit(
         "estimates, from the even and from the odd views alone: it ranks the roughness errors better, for a large "
         "share of the fit's time again (docs/results.md#the-roughness-std)."),
     occlusion: bool = typer.Option(None, "--environment-occlusion/--no-environment-occlusion", help=OCCLUSION_HELP),
+    calibration: str = typer.Option(
+        "auto", "--calibration", help="What the photographs calibrate before the fit: auto (exposure and white "
+        "balance, the environment map's turn, per-frame gains where the frames disagree), gains (exposure and "
+        "white balance only) or none (the photographs and the map share one scale and frame, as given)."),
+    frame_gains: str = typer.Option(
+        None, "--frame-gains", help="A relative gain per photograph: auto (where the frames disagree beyond their "
+        "noise), on or off. Default: auto with --calibration auto, else off."),
+    drop_bad_views: bool = typer.Option(
+        False, "--drop-bad-views", help="Leave out photographs that disagree with the others by more than "
+        "calibration explains (they are named in a warning either way)."),
     device: str = typer.Option("auto", "--device", help=DEVICE_HELP),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars or messages."),
     json_output: bool = typer.Option(False, "--json", help="Print summary.json to stdout."),
@@ -389,11 +400,18 @@ def fit(
     # The flag only takes away from what the preset sets.
     config = config.replace(estimate=dataclasses.replace(
         config.estimate, neighbour_vote=config.estimate.neighbour_vote and neighbour_vote))
+    config = config.replace(calibration=calibration_from_options(config.calibration, calibration, frame_gains,
+                                                                 drop_bad_views))
     reporter = Reporter(enabled=not (quiet or json_output))
     loaded, capture_warnings = _checked(capture, quiet or json_output, config.fit.lmax, out)
     _say_backend(device, quiet or json_output)
     result = pipeline.fit(loaded, config, reporter)
-    result.warnings = capture_warnings
+    if not (quiet or json_output):
+        for line in result.warnings:
+            Console(stderr=True).print(f"[yellow]warning:[/yellow] {escape(line)}", highlight=False, soft_wrap=True)
+        if result.calibration is not None and config.calibration.enabled:
+            Console().print(escape(result.calibration.summary_line()), soft_wrap=True)
+    result.warnings = capture_warnings + result.warnings
     _results_from_cache(quiet or json_output)
     folder = pipeline.write_fit(out, result, config)
     summary = json.loads((folder / "summary.json").read_text(encoding="utf-8"))
@@ -446,7 +464,10 @@ def uncertainty(
     loaded, _ = _checked(capture, quiet or json_output, config.fit.lmax, out)
     _say_backend(device, quiet or json_output)
     start = time.perf_counter()
-    # On the texels `fit` would estimate on, so that the two entropy maps agree.
+    # Calibrated and on the texels `fit` would estimate on, so that the two entropy maps agree.
+    from freqbrdf.calibrate import calibrate
+
+    loaded, calibration = calibrate(loaded, config)
     observations, fine = pipeline.observe_on_estimation_texels(
         loaded, config, Reporter(enabled=not (quiet or json_output)))
     estimation_res = observations.texture_res
@@ -466,6 +487,7 @@ def uncertainty(
                        if stage != "total"},
                     "uncertainty": seconds},
         "settings": config.to_dict(),
+        "calibration": calibration.to_dict(),
         "estimation_res": estimation_res,
         "entropy_png": {"colormap": export.ENTROPY_COLORMAP, "range": list(export.ENTROPY_RANGE)},
         "not_computed": {"roughness_std": ROUGHNESS_STD_NEEDS_FIT},
@@ -644,6 +666,7 @@ def next_views(
                    "texels_seen": p.texels_seen, "seconds": p.seconds} for p in picks],
         "seconds": time.perf_counter() - start,
         "settings": config.to_dict(),
+        "calibration": calibration.to_dict(),
         "estimation_res": estimation_res,
     }
     next_views_folder.write_next_views(out, loaded, picks, summary, cameras)

@@ -83,3 +83,34 @@ ENTROPY_HELP = ("Entropy mode: calibrated (from the spectra, fast; what next-vie
                 "inpainting is tuned on), paper (the published recipe, to compare with it) or angular (the "
                 "estimator's model on the samples: agrees with a path tracer; little extra time inside fit). "
                 "Default: the preset's. Figures: docs/results.md#the-entropy.")
+
+
+CALIBRATION_CHOICES = ("auto", "gains", "none")
+"""The values of ``fit --calibration``."""
+
+
+def calibration_from_options(settings, calibration: str, frame_gains: str | None, drop_bad_views: bool):
+    """Build the `freqbrdf.config.CalibrationConfig` of ``fit``'s calibration options, checked before any work.
+
+    ``auto``: gains, the map's turn and per-frame gains where the frames disagree; ``gains``:
+    exposure and white balance only; ``none``: nothing. ``frame_gains`` (auto, on, off) overrides
+    the per-frame gains; None keeps what ``calibration`` implies.
+    """
+    import dataclasses
+
+    from freqbrdf.config import choices
+
+    if calibration not in CALIBRATION_CHOICES:
+        raise typer.BadParameter(f"--calibration must be one of {', '.join(CALIBRATION_CHOICES)}; got {calibration!r}")
+    allowed = choices(type(settings))["frame_gains"]
+    if frame_gains is not None and frame_gains not in allowed:
+        raise typer.BadParameter(f"--frame-gains must be one of {', '.join(allowed)}; got {frame_gains!r}")
+    chosen = {"auto": {"gains": True, "probe_rotation": True, "frame_gains": "auto"},
+              "gains": {"gains": True, "probe_rotation": False, "frame_gains": "off"},
+              "none": {"gains": False, "probe_rotation": False, "frame_gains": "off"}}[calibration]
+    if frame_gains is not None:
+        chosen["frame_gains"] = frame_gains
+    if drop_bad_views and chosen["frame_gains"] == "off":
+        raise typer.BadParameter("--drop-bad-views finds bad views by their frame gains: drop --frame-gains off "
+                                 "(or --calibration none)")
+    return dataclasses.replace(settings, drop_bad_views=drop_bad_views, **chosen)

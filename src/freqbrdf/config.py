@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 __all__ = [
-    "Config", "EstimateConfig", "FitConfig", "ObserveConfig", "PRESETS", "RegulariserKind", "SPECTRAL_GRID_RES",
+    "CalibrationConfig", "Config", "EstimateConfig", "FitConfig", "ObserveConfig", "PRESETS", "RegulariserKind", "SPECTRAL_GRID_RES",
     "SurfaceConfig", "TexelConfig", "UncertaintyConfig", "choices", "preset",
 ]
 
@@ -307,6 +307,48 @@ class EstimateConfig:
 
 
 @dataclass(frozen=True)
+class CalibrationConfig:
+    """What the photographs themselves calibrate before the fit (docs/method.md#calibration).
+
+    A real capture's light probe is shot at another exposure and white balance than the object's
+    photographs and turned into place by hand; `freqbrdf.calibrate` estimates those quantities
+    on the texels of a coarse texture and hands the fit a corrected capture.
+    """
+
+    gains: bool = True
+    """Estimate one gain per colour channel between the photographs and the environment map (exposure and white
+    balance) with the materials; off: the photographs and the map share one radiometric scale."""
+    frame_gains: Literal["auto", "on", "off"] = "auto"
+    """A relative gain per photograph (auto-exposure, other shutter speeds): "auto" applies them where the
+    photographs disagree beyond their noise, "on" always, "off" never."""
+    probe_rotation: bool = True
+    """Refine the environment map's rotation by how well it explains the photographs' reflections."""
+    probe_search_deg: float = 25.0
+    """Largest turn of the map searched, in degrees about each axis."""
+    drop_bad_views: bool = False
+    """Drop photographs that disagree with the others beyond what calibration explains (else only named in a
+    warning)."""
+    texture_res: int = 64
+    """Side of the coarse texture whose texels calibrate (a few thousand texels: milliseconds per hypothesis)."""
+    warn_gain: float = 0.10
+    """A gain farther than this (as |log gain|) from 1 is named in a warning."""
+    warn_rotation_deg: float = 3.0
+    """A map turn larger than this is named in a warning."""
+
+    def __post_init__(self):
+        _check_choices(self)
+        _require(self, "probe_search_deg", 0.0 <= self.probe_search_deg <= 90.0, "[0, 90]")
+        _require(self, "texture_res", 8 <= self.texture_res <= 1024, "[8, 1024]")
+        _require(self, "warn_gain", self.warn_gain > 0.0, "(0, inf)")
+        _require(self, "warn_rotation_deg", self.warn_rotation_deg > 0.0, "(0, inf)")
+
+    @property
+    def enabled(self) -> bool:
+        """Whether anything is calibrated."""
+        return self.gains or self.probe_rotation or self.frame_gains != "off"
+
+
+@dataclass(frozen=True)
 class SurfaceConfig:
     """The whole-surface estimate: the per-texel evidence weighed against a prior over the surface.
 
@@ -371,6 +413,8 @@ class Config:
     """The material estimator."""
     surface: SurfaceConfig = field(default_factory=SurfaceConfig)
     """The whole-surface estimate (on by default)."""
+    calibration: CalibrationConfig = field(default_factory=CalibrationConfig)
+    """What the photographs calibrate before the fit: exposure, white balance, the map's rotation (on by default)."""
     seed: int = 0
     """Seed of every random choice a fit makes, so that a fit is reproducible."""
     device: Literal["auto", "cpu", "cuda"] = "auto"
@@ -446,6 +490,7 @@ def preset(name: str = "default") -> Config:
             fit=FitConfig(reg_lambda=1e-3, scale_lambda_with_weight=False),
             uncertainty=UncertaintyConfig(mode="paper", grid_res=8, temperature=1e-5),
             estimate=EstimateConfig(method="paper"),
+            calibration=CalibrationConfig(gains=False, frame_gains="off", probe_rotation=False),  # assumes a calibrated capture
         )
     raise ValueError(f"unknown preset {name!r}; choose one of {', '.join(PRESETS)}")
 

@@ -121,7 +121,7 @@ def read_image(path: str | Path, validate: bool = False) -> np.ndarray:
         has non-finite or deeply negative pixels (how many, and where the first one is).
     """
     path = Path(path)
-    pixels, is_srgb = _read_pixels(path)  # (H, W, C)
+    pixels, is_srgb = _read_pixels(path, radiance=True)  # (H, W, C)
     channels = pixels.shape[2]
     rgb = pixels[..., :3] if channels >= 3 else np.repeat(pixels[..., :1], 3, axis=2)
     if is_srgb:
@@ -266,8 +266,12 @@ def image_has_alpha(path: str | Path) -> bool:
     return False
 
 
-def _read_pixels(path: Path) -> tuple[np.ndarray, bool]:
-    """Read all channels of the file ``(H, W, C)`` float32, and whether they are sRGB-encoded."""
+def _read_pixels(path: Path, radiance: bool = False) -> tuple[np.ndarray, bool]:
+    """Read all channels of the file ``(H, W, C)`` float32, and whether they are sRGB-encoded.
+
+    With ``radiance``, an EXR whose single channel is not a colour (depth ``Z``, alpha ``A``, an
+    AOV saved by mistake) is refused.
+    """
     suffix = path.suffix.lower()
     if suffix not in IMAGE_SUFFIXES:
         raise InputError(
@@ -278,7 +282,7 @@ def _read_pixels(path: Path) -> tuple[np.ndarray, bool]:
     if not path.is_file():
         raise InputError(path, "is not a file")
     if suffix == ".exr":
-        return _read_exr(path), False
+        return _read_exr(path, radiance), False
     if suffix == ".hdr":
         return _read_rgbe(path), False
     return _read_ldr(path), True
@@ -310,7 +314,11 @@ def _native_output_silenced() -> Iterator[None]:
 _NATIVE_OUTPUT_LOCK = threading.Lock()
 
 
-def _read_exr(path: Path) -> np.ndarray:
+# A single EXR channel read as a grey photograph must be named as a colour: luminance, grey or one primary.
+GREY_CHANNELS = ("Y", "L", "R", "G", "B", "GRAY", "GREY", "LUMINANCE")
+
+
+def _read_exr(path: Path, radiance: bool = False) -> np.ndarray:
     try:
         with _native_output_silenced(), OpenEXR.File(str(path), separate_channels=True) as exr:
             planes = {name: channel.pixels for name, channel in exr.channels().items()}
@@ -318,8 +326,12 @@ def _read_exr(path: Path) -> np.ndarray:
         raise InputError(path, f"not a readable OpenEXR file ({err})") from None
     if all(name in planes for name in "RGB"):
         names = ["R", "G", "B"] + (["A"] if "A" in planes else [])
-    elif len(planes) == 1:
+    elif len(planes) == 1 and (not radiance or next(iter(planes)).split(".")[-1].upper() in GREY_CHANNELS):
         names = list(planes)  # a single channel (Y, or any name) is a grey image
+    elif radiance:
+        raise InputError(
+            path, f"has no colour channels (needs R, G, B or one grey channel such as Y); found "
+                  f"{', '.join(sorted(planes))}")
     else:
         raise InputError(
             path, f"needs channels R, G, B or a single channel; found {', '.join(sorted(planes))}"

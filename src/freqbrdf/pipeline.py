@@ -18,6 +18,7 @@ import numpy as np
 from scipy import ndimage
 
 from freqbrdf.applications import inpaint
+from freqbrdf.calibrate import Calibration, calibrate
 from freqbrdf.capture.layouts import Capture
 from freqbrdf.config import Config
 from freqbrdf.errors import InputError
@@ -65,7 +66,11 @@ class FitResult:
         observations, estimate and uncertainty above are its, taken to the T x T texels
         (`to_texels`).
     warnings : list of str
-        What is suspicious about the capture (`freqbrdf.capture.checks`), for summary.json.
+        What is suspicious about the capture (`freqbrdf.capture.checks`, the calibration's), for
+        summary.json.
+    calibration : Calibration or None
+        What the photographs calibrated (`freqbrdf.calibrate`): the gains, the probe's turn; the
+        observations were made of the capture corrected by it.
     """
 
     capture: Capture
@@ -76,6 +81,7 @@ class FitResult:
     timings: dict[str, float] = field(default_factory=dict)
     estimation_res: int | None = None
     warnings: list[str] = field(default_factory=list)
+    calibration: Calibration | None = None
 
 
 def estimation_resolution(capture: Capture, config: Config = Config(), fine: Texels | None = None) -> int:
@@ -180,6 +186,11 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
     if config.fit.lmax < 1:  # checked before the work: the entropy compares degrees 1..l*
         raise ValueError(f"fit needs FitConfig.lmax >= 1 (the entropy compares degrees 1..l*), got {config.fit.lmax}")
     timings: dict[str, float] = {}
+    given = capture
+    start = time.perf_counter()
+    capture, calibration = calibrate(capture, config, reporter)
+    if config.calibration.enabled:
+        timings["calibrate"] = time.perf_counter() - start
     start = time.perf_counter()
     observations, fine = observe_on_estimation_texels(capture, config, reporter)
     estimation_res = observations.texture_res
@@ -224,6 +235,8 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
         timings["surface"] = time.perf_counter() - start
         timings.update({f"surface.{step}": seconds for step, seconds in posterior.timings.items()})
 
+    _widen_by_calibration(uncertainty, estimate, calibration)
+
     if fine is not None:
         start = time.perf_counter()
         observations, estimate, uncertainty = to_texels(observations, estimate, uncertainty, fine,
@@ -234,7 +247,22 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
     maps = export.material_textures(estimate, config.texels.dilation_px)
     timings["textures"] = time.perf_counter() - start
     timings["total"] = sum(seconds for stage, seconds in timings.items() if "." not in stage)
-    return FitResult(capture, observations, estimate, uncertainty, maps, timings, estimation_res)
+    return FitResult(given, observations, estimate, uncertainty, maps, timings, estimation_res,
+                     warnings=list(calibration.warnings), calibration=calibration)
+
+
+def _widen_by_calibration(uncertainty: Uncertainty, estimate: MaterialEstimate, calibration: Calibration) -> None:
+    """Add what the calibration leaves undetermined to the base colour's std (docs/method.md#calibration).
+
+    A base colour b estimated from photographs divided by a gain of log std s is off by about b s:
+    added in quadrature, per channel.
+    """
+    spread = np.nan_to_num(np.asarray(estimate.base_color, np.float64)) * calibration.gain_log_std[None, :]
+    if not np.any(spread > 0.0):
+        return
+    own = (np.zeros_like(spread) if uncertainty.base_color_std is None
+           else np.nan_to_num(np.asarray(uncertainty.base_color_std, np.float64)))
+    uncertainty.base_color_std = np.sqrt(own ** 2 + spread ** 2).astype(np.float32)
 
 
 def to_texels(observations: Observations, estimate: MaterialEstimate, uncertainty: Uncertainty, fine: Texels,
@@ -410,7 +438,8 @@ def write_fit(out_dir: str | Path, result: FitResult, config: Config = Config())
              # without their samples (`to_texels`).
              "coverage": {**export.coverage(result.observations, result.estimate),
                           "views": len(result.capture.frames)},
-             "warnings": list(result.warnings)}
+             "warnings": list(result.warnings),
+             "calibration": None if result.calibration is None else result.calibration.to_dict()}
     out = export.write_fit_outputs(
         out_dir, result.capture.mesh, result.observations, result.estimate, result.uncertainty,
         config, timings=result.timings, extra_summary=extra, maps=result.maps,

@@ -87,6 +87,9 @@ class Frame:
     mask_from_alpha : bool
         The mask is the alpha channel of ``mask_path`` (alpha > 0.5), as in NeRF-synthetic's
         RGBA images.
+    exposure : (3,) float tuple or None
+        The factor per colour channel the image is multiplied by as it is read: the calibration's
+        correction of its exposure and white balance (`freqbrdf.calibrate`); None: 1.
     """
 
     camera: Camera
@@ -96,6 +99,7 @@ class Frame:
     envmap_to_world: np.ndarray | None = None
     envmap_scale: float = 1.0
     mask_from_alpha: bool = False
+    exposure: tuple[float, float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -273,6 +277,8 @@ def read_frame_image(frame: Frame) -> np.ndarray:
     """
     image = read_image(frame.image_path, validate=True)
     _check_size(frame.image_path, image.shape[:2], frame.camera)
+    if frame.exposure is not None:
+        image = image * np.asarray(frame.exposure, dtype=np.float32)
     return image
 
 

@@ -126,7 +126,9 @@ def global_search_kernel(samples, light, recurrence, options, tables, environmen
     loss (n,) (divided by sum_v w^2) and the profiled loss's curvature in roughness (n,)
     (`MaterialEstimate.roughness_curvature`) for texels with at least `MIN_SAMPLES` samples, and
     after a search, where estimates.label_loss has rows, the loss and base colour as a dielectric
-    (m = 0) and as a metal (m = 1) at the estimated roughness; others are left untouched.
+    (m = 0) and as a metal (m = 1) at the estimated roughness, and where estimates.label_moments
+    has rows the weighted sums those losses come from (for `freqbrdf.calibrate.gains`); others are
+    left untouched.
     """
     n_chunks = (samples.weight.shape[0] + _SEARCH_CHUNK - 1) // _SEARCH_CHUNK
     # numba hands each thread a contiguous run of items: where the texels the cameras see lie in
@@ -463,6 +465,17 @@ def search_texel(t, samples, light, recurrence, options, tables, environment_lig
     if label_loss.shape[0] > 0:
         _record_labels(best_r, objective, quadratics, label_state, total_weight, label_loss[t],
                        label_base_color[t])
+        # The sums at the estimate (the probe at best_r left them in moments), then at the
+        # roughness nodes label_moments has room for, evenly on [0, 1].
+        n_slots = estimates.label_moments.shape[1]
+        for slot in range(n_slots if estimates.label_moments.shape[0] > 0 else 0):
+            if slot > 0:
+                _roughness_objective((slot - 1) / max(n_slots - 2, 1), objective)
+            for c in range(3):
+                for index in range(14):
+                    estimates.label_moments[t, slot, c, index] = moments[c, index]
+                estimates.label_moments[t, slot, c, 14] = squared_values[c]
+                estimates.label_moments[t, slot, c, 15] = scale[c]
 
 
 # The CPU chunk's copies of `new_search_scratch` and `search_texel`, inlined into it (numba IR), so that

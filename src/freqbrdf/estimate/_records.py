@@ -99,3 +99,6 @@ class Estimates(NamedTuple):
     curvature: np.ndarray  # (n,) float64
     label_loss: np.ndarray  # (n, 2) float64 the loss as a dielectric and as a metal; (0, 2): not recorded
     label_base_color: np.ndarray  # (n, 2, 3) float64 their base colours
+    label_moments: np.ndarray  # (n, S, 3, 16) float64 per channel the 14 weighted sums of `metallic_quadratics`,
+    # s_ff and the diffuse scale e, at the estimated roughness (slot 0) and at S - 1 roughness nodes evenly on
+    # [0, 1]; (0, 1, 3, 16): not recorded

@@ -213,7 +213,8 @@ def run_search_kernel(observations: Observations, settings: EstimateConfig, ligh
                       hypothesis_roughness: np.ndarray, hypothesis_moments: np.ndarray, search: bool,
                       params: np.ndarray, loss: np.ndarray, curvature: np.ndarray,
                       candidate: np.ndarray = np.zeros((0, 2)),
-                      labels: tuple[np.ndarray, np.ndarray] | None = None, device: str = "auto") -> None:
+                      labels: tuple[np.ndarray, np.ndarray] | None = None, device: str = "auto",
+                      label_moments: np.ndarray | None = None) -> None:
     """Run the search kernel on the observations.
 
     Parameters
@@ -244,6 +245,10 @@ def run_search_kernel(observations: Observations, settings: EstimateConfig, ligh
     device : {"auto", "cpu", "cuda"}, optional
         Where the search runs (`freqbrdf.devices.resolve_device`); the backends agree to rounding
         (docs/results.md).
+    label_moments : (N, S, 3, 16) float64, optional
+        With ``labels``, after a search: receives per channel the weighted sums the label losses
+        come from, at the estimated roughness and at S - 1 roughness nodes evenly on [0, 1]
+        (`Estimates.label_moments`).
     """
     tangent, environment, prefiltered = _light_inputs(observations, settings)
     hypothesis_roughness = np.ascontiguousarray(hypothesis_roughness, dtype=np.float64)
@@ -258,8 +263,45 @@ def run_search_kernel(observations: Observations, settings: EstimateConfig, ligh
         _model_tables(settings), environment, prefiltered,
         SearchSettings(settings.roughness_grid, settings.metallic_grid, settings.robust_passes, search),
         Hypotheses(hypothesis_roughness, hypothesis_moments, node_rows), candidate,
-        Estimates(params, loss, curvature, *(labels or (np.zeros((0, 2)), np.zeros((0, 2, 3))))),
+        Estimates(params, loss, curvature, *(labels or (np.zeros((0, 2)), np.zeros((0, 2, 3)))),
+                  np.zeros((0, 1, 3, 16)) if label_moments is None else label_moments),
     )
+
+
+def label_sums(observations: Observations, config: Config, roughness_nodes: int = 9) -> tuple[np.ndarray, np.ndarray]:
+    """Search every texel and return the weighted sums its pure materials' losses come from.
+
+    One search pass (no shadowing refresh, no neighbour vote) with ``config.estimate``; per texel
+    and channel the 14 weighted sums of `freqbrdf.estimate._profile_kernels.metallic_quadratics`,
+    sum w^2 f^2 and the diffuse scale e, at the estimated roughness and at ``roughness_nodes``
+    roughness values evenly on [0, 1]: with them the loss of a dielectric or a metal of any base
+    colour, at any gain of the photographs, is closed form (`freqbrdf.calibrate.gains.channel_gains`).
+
+    Parameters
+    ----------
+    observations : Observations
+        The texels' samples (N texels).
+    config : Config
+        The estimator's settings.
+    roughness_nodes : int, optional
+        S - 1, the roughness values besides the estimate (>= 2).
+
+    Returns
+    -------
+    params : (N, 5) float64
+        Base colour RGB, roughness and metallic; zero where fewer than `MIN_SAMPLES` samples.
+    sums : (N, S, 3, 16) float64
+        The sums, slot 0 at the estimated roughness, slot i > 0 at (i - 1) / (S - 2); zero where
+        fewer than `MIN_SAMPLES` samples.
+    """
+    n_texels = observations.n_texels
+    params, loss, curvature = np.zeros((n_texels, 5)), np.zeros(n_texels), np.zeros(n_texels)
+    labels = (np.zeros((n_texels, 2)), np.zeros((n_texels, 2, 3)))
+    sums = np.zeros((n_texels, 1 + max(int(roughness_nodes), 2), 3, 16))
+    run_search_kernel(observations, config.estimate, observations.mirrored_coeffs, np.zeros(0),
+                      np.zeros((0, 0, 3, 8)), True, params, loss, curvature, labels=labels, device=config.device,
+                      label_moments=sums)
+    return params, sums
 
 
 def angular_loss(

@@ -1,0 +1,130 @@
+"""Imperfections of a real capture applied to a rendered one: exposure, white balance, a turned probe,
+camera error, sensor noise, 8-bit data, per-frame exposure.
+
+`imperfect_capture` copies a capture folder (our layout: transforms.json, images/, masks/, the
+mesh, the map, gt/ and the test views linked, not copied) with the photographs and the
+transforms changed as an `Imperfection` says. The photographs are changed, not the map: the map
+is what a user's probe gives, the photographs what their camera gives. Deterministic: the same
+imperfection and seed give the same bytes.
+
+Scripts import this module after inserting benchmarks/ into sys.path (see _common.py).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from freqbrdf.images import linear_to_srgb, read_image, srgb_to_linear, write_exr
+
+
+@dataclasses.dataclass(frozen=True)
+class Imperfection:
+    """What differs from a perfectly calibrated capture (the defaults: nothing)."""
+
+    exposure: float = 1.0  # the photographs' radiance over the map's
+    white_balance: tuple[float, float, float] = (1.0, 1.0, 1.0)  # per channel, on top of exposure
+    probe_axis: tuple[float, float, float] = (0.0, 1.0, 0.0)  # the map's to_world is turned about this world axis
+    probe_deg: float = 0.0  # by this angle
+    camera_deg: float = 0.0  # every camera turned this much about a random axis
+    camera_shift: float = 0.0  # and moved this share of its distance to the origin, in a random direction
+    shot_noise: float = 0.0  # relative std of the noise at the photographs' mean object radiance
+    read_noise: float = 0.0  # std of the noise added everywhere, in radiance
+    eight_bit: bool = False  # sRGB-encoded at 8 bits, clipped at the 99th percentile of the object, read back
+    frame_exposure_spread: float = 0.0  # each photograph's exposure times exp(N(0, spread))
+    seed: int = 0
+
+    def name(self) -> str:
+        """A short name listing what is not perfect ("clean" for nothing)."""
+        parts = []
+        if self.exposure != 1.0:
+            parts.append(f"exposure{self.exposure:g}")
+        if self.white_balance != (1.0, 1.0, 1.0):
+            parts.append("wb" + "_".join(f"{value:g}" for value in self.white_balance))
+        if self.probe_deg:
+            parts.append(f"probe{self.probe_deg:g}deg_" + "_".join(f"{value:g}" for value in self.probe_axis))
+        if self.camera_deg or self.camera_shift:
+            parts.append(f"cameras{self.camera_deg:g}deg_{self.camera_shift:g}")
+        if self.shot_noise or self.read_noise:
+            parts.append(f"noise{self.shot_noise:g}_{self.read_noise:g}")
+        if self.eight_bit:
+            parts.append("8bit")
+        if self.frame_exposure_spread:
+            parts.append(f"frames{self.frame_exposure_spread:g}")
+        return "+".join(parts) or "clean"
+
+
+def _rotation(axis: np.ndarray, angle: float) -> np.ndarray:
+    axis = np.asarray(axis, np.float64) / np.linalg.norm(axis)
+    cross = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    return np.eye(3) + np.sin(angle) * cross + (1.0 - np.cos(angle)) * cross @ cross
+
+
+def _random_unit(rng: np.random.Generator) -> np.ndarray:
+    vector = rng.normal(size=3)
+    return vector / np.linalg.norm(vector)
+
+
+def imperfect_capture(source: Path, target: Path, imperfection: Imperfection) -> Path:
+    """Write ``source`` with ``imperfection`` applied into ``target`` (reused where already written).
+
+    Parameters
+    ----------
+    source : Path
+        A capture folder in our layout.
+    target : Path
+        The folder to write.
+    imperfection : Imperfection
+        What to change.
+
+    Returns
+    -------
+    Path
+        ``target``.
+    """
+    source, target = Path(source).resolve(), Path(target)
+    if (target / "transforms.json").is_file():
+        return target
+    scratch = target.with_name(target.name + ".partial")
+    shutil.rmtree(scratch, ignore_errors=True)
+    scratch.mkdir(parents=True)
+    transforms = json.loads((source / "transforms.json").read_text())
+    rng = np.random.default_rng(imperfection.seed)
+    for name in os.listdir(source):
+        if name not in ("transforms.json", "images"):
+            os.symlink(source / name, scratch / name)
+    (scratch / "images").mkdir()
+    if imperfection.probe_deg:
+        turn = np.eye(4)
+        turn[:3, :3] = _rotation(np.array(imperfection.probe_axis), np.radians(imperfection.probe_deg))
+        transforms["envmap_to_world"] = (turn @ np.array(transforms.get("envmap_to_world", np.eye(4)))).tolist()
+    gain = imperfection.exposure * np.array(imperfection.white_balance, np.float32)
+    for frame in transforms["frames"]:
+        matrix = np.array(frame["transform_matrix"], np.float64)
+        if imperfection.camera_deg:
+            matrix[:3, :3] = _rotation(_random_unit(rng), np.radians(imperfection.camera_deg)) @ matrix[:3, :3]
+        if imperfection.camera_shift:
+            matrix[:3, 3] += imperfection.camera_shift * np.linalg.norm(matrix[:3, 3]) * _random_unit(rng)
+        frame["transform_matrix"] = matrix.tolist()
+        image = read_image(source / frame["file_path"]) * gain
+        if imperfection.frame_exposure_spread:
+            image = image * np.float32(np.exp(rng.normal(0.0, imperfection.frame_exposure_spread)))
+        if imperfection.shot_noise or imperfection.read_noise:
+            level = float(np.mean(image[image.max(axis=2) > 0])) if np.any(image > 0) else 1.0
+            std = np.sqrt(imperfection.shot_noise ** 2 * level * np.maximum(image, 0.0) + imperfection.read_noise ** 2)
+            image = np.maximum(image + std * rng.normal(size=image.shape).astype(np.float32), 0.0)
+        if imperfection.eight_bit:
+            lit = image[image.max(axis=2) > 0]
+            white = float(np.percentile(lit, 99.0)) if lit.size else 1.0
+            encoded = np.round(linear_to_srgb(image / white) * 255.0) / 255.0
+            image = srgb_to_linear(encoded) * white
+        write_exr(scratch / frame["file_path"], image.astype(np.float32))
+    (scratch / "transforms.json").write_text(json.dumps(transforms, indent=1))
+    shutil.rmtree(target, ignore_errors=True)
+    scratch.rename(target)
+    return target

@@ -1,0 +1,292 @@
+"""Calibration from the photographs themselves: exposure, white balance, per-frame gains, the probe's turn.
+
+docs/method.md#calibration. A real capture's light probe is shot at another exposure and white
+balance than the object's photographs, some photographs at other shutter speeds, and the probe
+is turned into place by hand. `calibrate` estimates these on the texels of a coarse texture
+(``CalibrationConfig.texture_res``: a few thousand texels, so that every hypothesis costs
+milliseconds) and returns the capture corrected (each frame's ``exposure``, the map's rotation)
+with a `Calibration` that says what was found and how well the photographs determine it:
+
+1. the map's turn (`freqbrdf.calibrate.probe`), from how well the mirrored light explains the
+   texels' view-dependent radiance;
+2. relative gains per photograph (`freqbrdf.calibrate.gains.frame_gains`), applied where the
+   photographs disagree beyond their noise (``CalibrationConfig.frame_gains``);
+3. one gain per colour channel between the photographs and the map
+   (`freqbrdf.calibrate.gains.channel_gains`), with the materials: twice, the second time on
+   photographs corrected by the first, since the roughness the search finds depends on the gain.
+
+Sits after `freqbrdf.estimate` (it searches the coarse texels) and before the fit that uses it
+(`freqbrdf.pipeline.fit`).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from freqbrdf.calibrate.gains import GainEstimate, channel_gains, frame_gains
+from freqbrdf.calibrate.probe import ProbeRegistration, axis_angle, register_probe, rotation_about
+from freqbrdf.capture.layouts import Capture
+from freqbrdf.config import Config
+from freqbrdf.estimate import label_sums
+from freqbrdf.model import brdf
+from freqbrdf.observe.observations import Observations, observe
+from freqbrdf.progress import SILENT, Reporter
+from freqbrdf.sphere import envmap as envmaps
+from freqbrdf.sphere import harmonics as sh
+from freqbrdf.texels import rasterise
+
+__all__ = ["Calibration", "GainEstimate", "ProbeRegistration", "axis_angle", "calibrate", "channel_gains",
+           "frame_gains", "register_probe", "rotation_about"]
+
+# Height of the map the probe's turn is scored on (band-limited: its detail is well below this).
+PROBE_MAP_HEIGHT = 128
+# Passes of the channel gains (each on photographs corrected by the ones before).
+GAIN_PASSES = 2
+# Frame gains apply (with frame_gains "auto") where a frame's log gain exceeds this and this many
+# of its standard errors.
+FRAME_GAIN_MIN = 0.02
+FRAME_GAIN_SIGNIFICANCE = 4.0
+# A gain whose log std exceeds this is poorly determined by the capture (named in a warning).
+POORLY_DETERMINED = 0.15
+# A frame whose gain is beyond this factor of the others (either way) is one calibration cannot
+# trust: named in a warning, dropped with ``drop_bad_views``.
+BAD_FRAME_FACTOR = 2.0
+
+
+@dataclass
+class Calibration:
+    """What `calibrate` found.
+
+    Attributes
+    ----------
+    gain : (3,) float64
+        The photographs' radiance over the map's per colour channel (exposure x white balance);
+        the fit divides the photographs by it.
+    gain_log_std : (3,) float64
+        The std of each log gain.
+    frame_gain : (V, 3) float64 or None
+        Relative gain per photograph and channel (geometric mean 1), where applied.
+    frame_gain_measured : (V, 3) float64 or None
+        Those gains as measured, applied or not.
+    probe : ProbeRegistration or None
+        The map's turn, where searched.
+    dropped_views : list of int
+        Photographs left out (``CalibrationConfig.drop_bad_views``).
+    texels : int
+        Texels that calibrated.
+    seconds : float
+        Time taken.
+    warnings : list of str
+        What the user should know (a gain far from 1, a turned probe, a poorly determined gain).
+    """
+
+    gain: np.ndarray
+    gain_log_std: np.ndarray
+    frame_gain: np.ndarray | None = None
+    frame_gain_measured: np.ndarray | None = None
+    probe: ProbeRegistration | None = None
+    dropped_views: list[int] = field(default_factory=list)
+    texels: int = 0
+    seconds: float = 0.0
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def exposure(self) -> float:
+        """The overall gain: the geometric mean of the three."""
+        return float(np.exp(np.log(self.gain).mean()))
+
+    @property
+    def white_balance(self) -> np.ndarray:
+        """(3,) the gains over their geometric mean."""
+        return self.gain / self.exposure
+
+    def to_dict(self) -> dict:
+        """Give the calibration as plain data, as summary.json records it.
+
+        Returns
+        -------
+        dict
+            ``gain`` and ``gain_std`` (per channel; the std of the gain itself), ``exposure``,
+            ``white_balance``, ``frame_gains`` (per view, or None), ``frame_gains_applied``,
+            ``probe`` (the turn: ``angle_deg``, ``axis``, ``std_deg``, ``rotation``, ``explained``
+            before and after, ``significance``; or None), ``dropped_views``, ``texels``, ``seconds``.
+        """
+        probe = None
+        if self.probe is not None:
+            axis, _ = axis_angle(self.probe.rotation)
+            probe = {"angle_deg": self.probe.angle_deg, "axis": axis.tolist(),
+                     "std_deg": None if not np.isfinite(self.probe.std_deg) else self.probe.std_deg,
+                     "rotation": self.probe.rotation.tolist(), "explained": list(self.probe.explained),
+                     "significance": self.probe.significance}
+        measured = self.frame_gain_measured
+        return {
+            "gain": self.gain.tolist(), "gain_std": (self.gain * self.gain_log_std).tolist(),
+            "exposure": self.exposure, "white_balance": self.white_balance.tolist(),
+            "frame_gains": None if measured is None else measured.tolist(),
+            "frame_gains_applied": self.frame_gain is not None,
+            "probe": probe, "dropped_views": list(self.dropped_views), "texels": self.texels,
+            "seconds": self.seconds,
+        }
+
+    def summary_line(self) -> str:
+        """One line for the command line: the gains with their std, and the probe's turn."""
+        std = self.gain * self.gain_log_std
+        gains = ", ".join(f"{g:.3f}±{s:.3f}" for g, s in zip(self.gain, std))
+        line = f"calibration: gain (R, G, B) {gains}"
+        if self.frame_gain is not None:
+            spread = np.exp(np.abs(np.log(self.frame_gain)).max())
+            line += f"; frame gains applied (up to {spread:.2f}x)"
+        if self.probe is not None:
+            line += f"; probe turned {self.probe.angle_deg:.1f}°"
+        return line
+
+
+def _scaled(observations: Observations, divisor: np.ndarray, config: Config) -> Observations:
+    """Return the observations of photographs divided by ``divisor`` ((3,) per channel, or (V, 3) per view).
+
+    Per channel the fits scale with the samples; per view the observed radiance is fitted again.
+    """
+    divisor = np.asarray(divisor, np.float64)
+    observed = (observations.observed / (divisor if divisor.ndim == 1 else divisor[None])).astype(np.float32)
+    surface = observations.mirror_surface
+    if divisor.ndim == 1:
+        coeffs = (observations.observed_coeffs / divisor[None, :, None]).astype(np.float32)
+        if surface is not None:
+            surface = (surface / divisor).astype(np.float32)
+        return replace(observations, observed=observed, observed_coeffs=coeffs, mirror_surface=surface)
+    settings = config.fit
+    fit = sh.fit_sh(observations.view_direction, observations.weight, observed, observations.lmax,
+                    settings.reg_lambda, settings.regulariser, settings.scale_lambda_with_weight, config.device)
+    return replace(observations, observed=observed, observed_coeffs=fit.coeffs)
+
+
+def _search_config(config: Config) -> Config:
+    """Return the estimator's settings for calibration: least squares on the coarse texels."""
+    return config.replace(estimate=replace(config.estimate, robust_passes=0, neighbour_vote=False))
+
+
+def calibrate(capture: Capture, config: Config = Config(),
+              reporter: Reporter = SILENT) -> tuple[Capture, Calibration]:
+    """Estimate what the photographs say of the capture's calibration, and correct the capture.
+
+    Parameters
+    ----------
+    capture : Capture
+        The capture as given.
+    config : Config, optional
+        ``config.calibration`` says what to calibrate; the rest how the coarse texels are observed
+        and searched.
+    reporter : Reporter, optional
+        Receives progress.
+
+    Returns
+    -------
+    capture : Capture
+        The capture corrected: each frame's ``exposure`` (1 / (gain x frame gain)), the map turned,
+        bad views dropped where asked. The same object where nothing is calibrated.
+    calibration : Calibration
+        What was found.
+    """
+    settings = config.calibration
+    start = time.perf_counter()
+    calibration = Calibration(np.ones(3), np.zeros(3))
+    if not settings.enabled:
+        return capture, calibration
+    coarse_config = config.replace(texels=replace(config.texels, texture_res=settings.texture_res))
+    texels = rasterise(capture.mesh, settings.texture_res)
+    with reporter.stage("calibrating", 3) as advance:
+        observations = observe(capture, coarse_config, texels=texels)
+        advance(1)
+        if settings.probe_rotation:
+            sigma = brdf.band_limit_sigma(len(capture.frames)) if config.fit.band_limit else 0.0
+            lit = envmaps.lowpass_envmap(capture.envmap, sigma) if sigma > 0 else capture.envmap
+            # Band-limited, the map needs few pixels: a coarse copy makes each hypothesis cheap.
+            lit = envmaps.Envmap(envmaps.downsample(lit.radiance, PROBE_MAP_HEIGHT), lit.to_world)
+            frame = np.stack([texels.tangent, texels.bitangent, texels.normal], axis=1)
+            calibration.probe = register_probe(lit, frame, observations.view_direction, observations.weight,
+                                               observations.observed, settings.probe_search_deg)
+            if calibration.probe.angle_deg > 0.0:
+                capture = _turned(capture, calibration.probe.rotation)
+                observations = observe(capture, coarse_config, texels=texels)
+        advance(1)
+        if settings.frame_gains != "off":
+            measured, log_std = frame_gains(observations.view_direction, observations.weight, observations.observed,
+                                            observations.observed_coeffs, observations.lmax)
+            calibration.frame_gain_measured = measured
+            log_gain = np.log(measured)
+            significant = (np.abs(log_gain) > FRAME_GAIN_MIN) & (np.abs(log_gain) > FRAME_GAIN_SIGNIFICANCE * log_std)
+            if settings.frame_gains == "on" or significant.any():
+                calibration.frame_gain = measured
+                observations = _scaled(observations, measured, config)
+        gain, log_std, scored = np.ones(3), np.zeros(3), 0
+        if settings.gains:
+            search = _search_config(coarse_config)
+            current = observations
+            for _ in range(GAIN_PASSES):
+                params, sums = label_sums(current, search)
+                found = channel_gains(sums, params[:, 3])
+                gain, log_std, scored = gain * found.gain, found.log_std, found.texels
+                current = _scaled(observations, gain, config)
+        calibration.gain, calibration.gain_log_std, calibration.texels = gain, log_std, scored
+        advance(1)
+    calibration.warnings = _warnings(capture, calibration, settings)
+    capture = _corrected(capture, calibration, settings.drop_bad_views)
+    calibration.seconds = time.perf_counter() - start
+    return capture, calibration
+
+
+def _turned(capture: Capture, rotation: np.ndarray) -> Capture:
+    """Return the capture with its map turned by the world ``rotation`` (before its to_world)."""
+    to_world = capture.envmap.to_world.copy()
+    to_world[:3, :3] = rotation @ to_world[:3, :3]
+    return replace(capture, envmap=envmaps.Envmap(capture.envmap.radiance, to_world))
+
+
+def _corrected(capture: Capture, calibration: Calibration, drop_bad_views: bool) -> Capture:
+    """Return the capture with every frame's exposure set (and bad views dropped where asked)."""
+    frame_gain = calibration.frame_gain if calibration.frame_gain is not None else np.ones((len(capture.frames), 3))
+    frames = []
+    measured = calibration.frame_gain_measured
+    bad = (set(np.flatnonzero(np.any(np.abs(np.log(measured)) > np.log(BAD_FRAME_FACTOR), axis=1)).tolist())
+           if measured is not None else set())
+    for index, frame in enumerate(capture.frames):
+        if drop_bad_views and index in bad:
+            calibration.dropped_views.append(index)
+            continue
+        factor = 1.0 / (calibration.gain * frame_gain[index])
+        frames.append(frame if np.allclose(factor, 1.0, rtol=0, atol=0) else
+                      replace(frame, exposure=tuple(float(value) for value in factor)))
+    return replace(capture, frames=tuple(frames))
+
+
+def _warnings(capture: Capture, calibration: Calibration, settings) -> list[str]:
+    """Return the lines a user should read: a gain far from 1, a turned probe, poorly determined gains, bad views."""
+    lines = []
+    log_gain = np.log(calibration.gain)
+    if np.any(np.abs(log_gain) > settings.warn_gain):
+        lines.append(f"the photographs are {calibration.exposure:.3g}x the environment map's exposure, white balance "
+                     f"(R, G, B) {', '.join(f'{value:.3f}' for value in calibration.white_balance)}: corrected "
+                     "(calibration); shoot the probe with the photographs' settings or check envmap_scale")
+    if settings.gains and np.any(calibration.gain_log_std > POORLY_DETERMINED):
+        lines.append(f"the photographs determine the exposure poorly (std of the gains "
+                     f"{', '.join(f'{value:.0%}' for value in calibration.gain_log_std)}; few dielectric texels?): "
+                     "the base colour's std includes it")
+    probe = calibration.probe
+    if probe is not None and probe.angle_deg > settings.warn_rotation_deg:
+        axis, _ = axis_angle(probe.rotation)
+        lines.append(f"the environment map was turned {probe.angle_deg:.1f}° about "
+                     f"({', '.join(f'{value:.2f}' for value in axis)}) to match the photographs' reflections "
+                     "(calibration): check envmap_to_world")
+    measured = calibration.frame_gain_measured
+    if measured is not None:
+        worst = np.abs(np.log(measured)).max(axis=1)
+        bad = np.flatnonzero(worst > np.log(BAD_FRAME_FACTOR))
+        if bad.size:
+            names = ", ".join(capture.frames[index].image_path.name for index in bad[:5].tolist())
+            action = "dropped" if settings.drop_bad_views else "kept (--drop-bad-views leaves them out)"
+            lines.append(f"{bad.size} photographs disagree with the others by more than {BAD_FRAME_FACTOR:g}x ({names}): "
+                         f"{action}")
+    return lines

@@ -1,0 +1,234 @@
+"""Exposure and white balance: the gain per colour channel between the photographs and the map.
+
+docs/method.md#calibration. Photographs at gain g_c of the map's scale make every texel's
+radiance g_c times what the map predicts. A free base colour absorbs that for a metal, but not for
+a dielectric: its specular reflectance is fixed (F0 = 0.04), so only the right gain lets its
+diffuse and its specular agree, and a base colour cannot exceed 1. Over thousands of texels this
+fixes three numbers.
+
+`channel_gains` scores a gain by the texels' misfit as the best *pure* material (dielectric or
+metal) at their estimated roughness, in the photographs' units, relative to each texel's own
+radiance (every texel counts alike). The search records per texel and channel the weighted sums
+the two labels' losses come from (`freqbrdf.estimate.search.run_search_kernel`'s
+``label_moments``), so the misfit of any gain is closed form. The gains minimise it by
+coordinate search on a grid in log gain, refined by parabolas; their std is the sandwich
+(texels as independent units) of the misfit's curvature, and a prior of one log unit keeps a
+gain the texels do not determine (an all-metal object) near 1.
+
+`frame_gains` compares each photograph with what the other views say of the same texels (the
+texels' SH fits of the observed radiance), for captures whose frames are exposed differently.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from freqbrdf.calibrate._kernels import channel_gain_curves, texel_gain_curves
+from freqbrdf.sphere import harmonics as sh
+
+__all__ = ["GainEstimate", "channel_gains", "frame_gains"]
+
+# The prior on log gain: a photograph and its probe within a factor e of each other (1 sigma).
+PRIOR_LOG_STD = 1.0
+# Each texel's log-gain grid: a factor 4 either way, in steps of about 3.5 %.
+LOG_GAIN_GRID = np.log(2.0) * np.arange(-2.0, 2.0001, 0.05)
+# A texel's misfit floor, as a share of the texels' median misfit: a near-exact fit does not take over.
+MISFIT_FLOOR = 0.05
+# Texels estimated rougher than this do not calibrate: their lobe is not told apart from the diffuse.
+MAX_ROUGHNESS = 0.6
+# A base colour at or above this is at its bound: the loss's minimum is the bound's kink.
+BASE_BOUND = 0.98
+
+
+@dataclass
+class GainEstimate:
+    """Gains per colour channel and how well the texels determine them.
+
+    Attributes
+    ----------
+    gain : (3,) float64
+        The photographs' radiance over the map's per channel: divide the photographs by it.
+    log_std : (3,) float64
+        Std of log gain (posterior, with the prior of `PRIOR_LOG_STD`).
+    texels : int
+        Texels whose own data determine a gain (a minimum inside the grid).
+    """
+
+    gain: np.ndarray
+    log_std: np.ndarray
+    texels: int
+
+
+def _grid_minimum(values: np.ndarray, grid: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Find each row's minimum of ``values`` (n, G) on the grid.
+
+    Returns the parabola's minimiser through the best node and its neighbours, its value, its
+    curvature and whether the best node is inside the grid (with a positive curvature).
+    """
+    best = np.argmin(values, axis=1)
+    inside = (best > 0) & (best < len(grid) - 1)
+    index = np.clip(best, 1, len(grid) - 2)
+    rows = np.arange(len(values))
+    left, centre, right = values[rows, index - 1], values[rows, index], values[rows, index + 1]
+    spacing = grid[1] - grid[0]
+    curvature = (left - 2.0 * centre + right) / spacing ** 2
+    usable = inside & (curvature > 0.0)
+    shift = np.where(usable, 0.5 * spacing * (left - right) / np.where(usable, left - 2.0 * centre + right, 1.0), 0.0)
+    minimum = centre - 0.125 * np.where(usable, (left - right) ** 2 / np.where(usable, left - 2 * centre + right, 1), 0)
+    return grid[index] + shift, minimum, np.where(usable, curvature, 0.0), usable
+
+
+def channel_gains(moments: np.ndarray, roughness: np.ndarray | None = None) -> GainEstimate:
+    """Estimate the gain per colour channel from the texels' label sums.
+
+    Each texel's label (dielectric or metal) is the one that fits it best at its best gain. With
+    that label, its loss summed over the channels over `LOG_GAIN_GRID` gives the texel's own log
+    gain (the parabola through its grid minimum) and how sharply its data determine it (the
+    curvature over the misfit: an inverse variance); each channel's loss alone gives the texel's
+    log gain of that channel, taken relative to its common one (a white-balance ratio, in which
+    what the channels share cancels). The exposure is the weighted median of the texels' common
+    log gains, each channel's ratio the weighted median of theirs (normalised to a geometric mean
+    of 1). A texel says nothing where its loss has no minimum inside the grid (a metal, whose free
+    base colour takes any gain) or where its base colour sits at a bound (the minimum is then the
+    bound's kink, not the data's) or where its estimated roughness is above `MAX_ROUGHNESS` (a lobe
+    that wide is not told apart from the diffuse: rough dielectrics bias the gains). Each texel's
+    loss at a gain is its least over the roughness slots and the two labels, so that a gain is not
+    judged at a roughness found under another. The std is the weighted spread over the effective
+    number of texels, and the prior of `PRIOR_LOG_STD` keeps a gain that few texels determine near 1.
+
+    Parameters
+    ----------
+    moments : (N, S, 3, 16) float64
+        The search's label sums per texel at its estimated roughness (slot 0) and at S - 1
+        roughness nodes evenly on [0, 1] (`freqbrdf.estimate.label_sums`); texels without sums
+        are left out.
+    roughness : (N,) float64, optional
+        The texels' estimated roughness (slot 0's); None: slot 0 is not used.
+
+    Returns
+    -------
+    GainEstimate
+        The gains and their std.
+    """
+    moments = np.ascontiguousarray(moments, np.float64)
+    n_slots = moments.shape[1]
+    slot_roughness = np.empty((len(moments), n_slots))
+    slot_roughness[:, 0] = np.inf if roughness is None else roughness
+    slot_roughness[:, 1:] = np.linspace(0.0, 1.0, n_slots - 1)
+    scored = moments[:, 0, :, 14].sum(axis=1) > 0.0
+    moments, slot_roughness = moments[scored], slot_roughness[scored]
+    if len(moments) == 0:
+        return GainEstimate(np.ones(3), np.full(3, PRIOR_LOG_STD), 0)
+    grid = LOG_GAIN_GRID
+    curves = np.empty((len(moments), len(grid)))
+    choice = np.empty((len(moments), len(grid)), np.int64)
+    texel_gain_curves(moments, grid, curves, choice)
+    position, minimum, curvature, usable = _grid_minimum(curves, grid)
+    # The roughness slot and label that fit the texel best at its best gain node, and with them
+    # each channel's loss over the gains.
+    rows = np.arange(len(moments))
+    node = np.clip(np.round((position - grid[0]) / (grid[1] - grid[0])).astype(int), 0, len(grid) - 1)
+    texel_loss, texel_base = np.empty((len(moments), len(grid), 3)), np.empty((len(moments), len(grid), 3))
+    channel_gain_curves(moments, grid, np.ascontiguousarray(choice[rows, node]), texel_loss, texel_base)
+    at_best = texel_base[rows, node]  # (N, 3)
+    usable &= slot_roughness[:, 0] <= MAX_ROUGHNESS
+    usable &= np.all(at_best < BASE_BOUND, axis=1) & np.any(at_best > 0.0, axis=1)
+    if usable.sum() < 2:
+        return GainEstimate(np.ones(3), np.full(3, PRIOR_LOG_STD), 0)
+    weight = _weights(minimum, curvature, usable)
+    exposure, exposure_variance = _robust_mean(position, weight, usable)
+    ratios, ratio_variance = np.zeros(3), np.zeros(3)
+    for c in range(3):
+        channel_position, channel_minimum, channel_curvature, channel_usable = _grid_minimum(texel_loss[:, :, c], grid)
+        both = usable & channel_usable
+        if both.sum() < 2:
+            continue
+        channel_weight = _weights(channel_minimum, channel_curvature, both)
+        ratios[c], ratio_variance[c] = _robust_mean(channel_position - position, channel_weight, both)
+    ratios -= ratios.mean()
+    log_gain = exposure + ratios
+    variance = exposure_variance + ratio_variance
+    precision = 1.0 / np.maximum(variance, 1e-12) + 1.0 / PRIOR_LOG_STD ** 2
+    shrunk = log_gain / np.maximum(variance, 1e-12) / precision
+    return GainEstimate(np.exp(shrunk), 1.0 / np.sqrt(precision), int(usable.sum()))
+
+
+def _weights(minimum: np.ndarray, curvature: np.ndarray, usable: np.ndarray) -> np.ndarray:
+    """Inverse variances of texels' log gains: curvature over misfit (floored), 0 where not usable."""
+    floor = max(MISFIT_FLOOR * float(np.median(minimum[usable])), 1e-12)
+    return np.where(usable, curvature / (np.maximum(minimum, 0.0) + floor), 0.0)
+
+
+def _robust_mean(values: np.ndarray, weight: np.ndarray, usable: np.ndarray) -> tuple[float, float]:
+    """Return the weighted median of the usable values and the variance of that estimate.
+
+    The variance is the weighted spread (as 1.4826 median absolute deviations) over the effective
+    number of texels, times pi / 2 (a median's efficiency).
+    """
+    values, weight = values[usable], weight[usable]
+    centre = _weighted_median(values, weight)
+    spread = 1.4826 * _weighted_median(np.abs(values - centre), weight)
+    effective = float(np.sum(weight) ** 2 / max(np.sum(weight ** 2), 1e-300))
+    return centre, 0.5 * np.pi * spread ** 2 / max(effective, 1.0)
+
+
+def _weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
+    """Return the weighted median of values (n,) with weights (n,) >= 0."""
+    order = np.argsort(values, kind="stable")
+    cumulative = np.cumsum(weights[order])
+    return float(values[order][np.searchsorted(cumulative, 0.5 * cumulative[-1])])
+
+
+def frame_gains(view_direction: np.ndarray, weight: np.ndarray, observed: np.ndarray, observed_coeffs: np.ndarray,
+                lmax: int) -> tuple[np.ndarray, np.ndarray]:
+    """Estimate a relative gain per photograph and channel from the texels' SH fits.
+
+    A texel's SH fit of its observed radiance over all views predicts each view's sample; a
+    photograph exposed k times the others is k times its prediction at every texel it sees. The
+    weighted median of log(sample / prediction) over the texels is its log gain; the gains are
+    then taken relative to their geometric mean (the absolute scale is `channel_gains`'s).
+
+    Parameters
+    ----------
+    view_direction : (N, V, 3) float32
+        Local view directions.
+    weight : (N, V) float32
+        Sample weights (0: no sample).
+    observed : (N, V, 3) float32
+        Observed radiance.
+    observed_coeffs : (N, 3, K) float32
+        The texels' SH fits of the observed radiance, K = (lmax + 1)^2.
+    lmax : int
+        Their degree.
+
+    Returns
+    -------
+    gain : (V, 3) float64
+        Relative gain per view and channel (geometric mean 1 over the views with samples; 1 for
+        views without any).
+    log_std : (V, 3) float64
+        The std of each log gain (the spread of the texels' log ratios over the square root of
+        their count); inf without samples.
+    """
+    n_views = weight.shape[1]
+    log_gain = np.zeros((n_views, 3))
+    log_std = np.full((n_views, 3), np.inf)
+    basis = sh.eval_sh(np.asarray(view_direction, np.float64).reshape(-1, 3), lmax).reshape(
+        view_direction.shape[0], n_views, -1)  # (N, V, K)
+    predicted = np.einsum("nvk,nck->nvc", basis, np.asarray(observed_coeffs, np.float64))
+    usable = (weight > 0) & np.all(predicted > 0, axis=2) & np.all(observed > 0, axis=2)
+    for view in range(n_views):
+        rows = usable[:, view]
+        if rows.sum() < 8:
+            continue
+        ratio = np.log(observed[rows, view] / predicted[rows, view])  # (n, 3)
+        median = np.median(ratio, axis=0)
+        spread = 1.4826 * np.median(np.abs(ratio - median), axis=0)
+        log_gain[view] = median
+        log_std[view] = spread / np.sqrt(rows.sum())
+    seen = np.isfinite(log_std[:, 0])
+    if seen.any():
+        log_gain[seen] -= log_gain[seen].mean(axis=0)
+    return np.exp(log_gain), log_std
