@@ -89,28 +89,21 @@ CALIBRATION_CHOICES = ("auto", "gains", "none")
 """The values of ``fit --calibration``."""
 
 
-def calibration_from_options(settings, calibration: str, frame_gains: str | None, drop_bad_views: bool):
+def calibration_from_options(settings, calibration: str, frame_gains: bool, drop_bad_views: bool):
     """Build the `freqbrdf.config.CalibrationConfig` of ``fit``'s calibration options, checked before any work.
 
-    ``auto``: gains, the map's turn and per-frame gains where the frames disagree; ``gains``:
-    exposure and white balance only; ``none``: nothing. ``frame_gains`` (auto, on, off) overrides
-    the per-frame gains; None keeps what ``calibration`` implies.
+    ``auto``: exposure and white balance and the map's turn; ``gains``: exposure and white balance
+    only; ``none``: nothing. ``frame_gains`` adds a gain per photograph, ``drop_bad_views`` (which
+    needs it) leaves out photographs far from the others.
     """
     import dataclasses
 
-    from freqbrdf.config import choices
-
     if calibration not in CALIBRATION_CHOICES:
         raise typer.BadParameter(f"--calibration must be one of {', '.join(CALIBRATION_CHOICES)}; got {calibration!r}")
-    allowed = choices(type(settings))["frame_gains"]
-    if frame_gains is not None and frame_gains not in allowed:
-        raise typer.BadParameter(f"--frame-gains must be one of {', '.join(allowed)}; got {frame_gains!r}")
-    chosen = {"auto": {"gains": True, "probe_rotation": True, "frame_gains": "auto"},
-              "gains": {"gains": True, "probe_rotation": False, "frame_gains": "off"},
-              "none": {"gains": False, "probe_rotation": False, "frame_gains": "off"}}[calibration]
-    if frame_gains is not None:
-        chosen["frame_gains"] = frame_gains
-    if drop_bad_views and chosen["frame_gains"] == "off":
-        raise typer.BadParameter("--drop-bad-views finds bad views by their frame gains: drop --frame-gains off "
-                                 "(or --calibration none)")
-    return dataclasses.replace(settings, drop_bad_views=drop_bad_views, **chosen)
+    if drop_bad_views and not frame_gains:
+        raise typer.BadParameter("--drop-bad-views finds bad views by their gains: add --frame-gains")
+    chosen = {"auto": {"gains": True, "probe_rotation": True},
+              "gains": {"gains": True, "probe_rotation": False},
+              "none": {"gains": False, "probe_rotation": False}}[calibration]
+    return dataclasses.replace(settings, drop_bad_views=drop_bad_views, frame_gains="on" if frame_gains else "off",
+                               **chosen)

@@ -318,9 +318,10 @@ class CalibrationConfig:
     gains: bool = True
     """Estimate one gain per colour channel between the photographs and the environment map (exposure and white
     balance) with the materials; off: the photographs and the map share one radiometric scale."""
-    frame_gains: Literal["auto", "on", "off"] = "auto"
-    """A relative gain per photograph (auto-exposure, other shutter speeds): "auto" applies them where the
-    photographs disagree beyond their noise, "on" always, "off" never."""
+    frame_gains: Literal["off", "on"] = "off"
+    """A relative gain per photograph, for photographs at other shutter speeds or with auto-exposure: "on"
+    measures and applies them. Off by default: on captures exposed alike they add more error than they remove
+    (docs/results.md#calibration)."""
     probe_rotation: bool = True
     """Refine the environment map's rotation by how well it explains the photographs' reflections."""
     probe_search_deg: float = 25.0
@@ -345,7 +346,7 @@ class CalibrationConfig:
     @property
     def enabled(self) -> bool:
         """Whether anything is calibrated."""
-        return self.gains or self.probe_rotation or self.frame_gains != "off"
+        return self.gains or self.probe_rotation or self.frame_gains == "on"
 
 
 @dataclass(frozen=True)

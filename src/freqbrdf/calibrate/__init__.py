@@ -9,8 +9,8 @@ with a `Calibration` that says what was found and how well the photographs deter
 
 1. the map's turn (`freqbrdf.calibrate.probe`), from how well the mirrored light explains the
    texels' view-dependent radiance;
-2. relative gains per photograph (`freqbrdf.calibrate.gains.frame_gains`), applied where the
-   photographs disagree beyond their noise (``CalibrationConfig.frame_gains``);
+2. relative gains per photograph (`freqbrdf.calibrate.gains.frame_gains`), where asked
+   (``CalibrationConfig.frame_gains``);
 3. one gain per colour channel between the photographs and the map
    (`freqbrdf.calibrate.gains.channel_gains`), with the materials: twice, the second time on
    photographs corrected by the first, since the roughness the search finds depends on the gain.
@@ -45,10 +45,6 @@ __all__ = ["Calibration", "GainEstimate", "ProbeRegistration", "axis_angle", "ca
 PROBE_MAP_HEIGHT = 128
 # Passes of the channel gains (each on photographs corrected by the ones before).
 GAIN_PASSES = 2
-# Frame gains apply (with frame_gains "auto") where a frame's log gain exceeds this and this many
-# of its standard errors.
-FRAME_GAIN_MIN = 0.02
-FRAME_GAIN_SIGNIFICANCE = 4.0
 # A gain whose log std exceeds this is poorly determined by the capture (named in a warning).
 POORLY_DETERMINED = 0.15
 # A frame whose gain is beyond this factor of the others (either way) is one calibration cannot
@@ -68,9 +64,9 @@ class Calibration:
     gain_log_std : (3,) float64
         The std of each log gain.
     frame_gain : (V, 3) float64 or None
-        Relative gain per photograph and channel (geometric mean 1), where applied.
+        Relative gain per photograph and channel (geometric mean 1), where measured and applied.
     frame_gain_measured : (V, 3) float64 or None
-        Those gains as measured, applied or not.
+        The same, as measured.
     probe : ProbeRegistration or None
         The map's turn, where searched.
     dropped_views : list of int
@@ -212,15 +208,10 @@ def calibrate(capture: Capture, config: Config = Config(),
                 capture = _turned(capture, calibration.probe.rotation)
                 observations = observe(capture, coarse_config, texels=texels)
         advance(1)
-        if settings.frame_gains != "off":
-            measured, log_std = frame_gains(observations.view_direction, observations.weight, observations.observed,
-                                            observations.observed_coeffs, observations.lmax)
-            calibration.frame_gain_measured = measured
-            log_gain = np.log(measured)
-            significant = (np.abs(log_gain) > FRAME_GAIN_MIN) & (np.abs(log_gain) > FRAME_GAIN_SIGNIFICANCE * log_std)
-            if settings.frame_gains == "on" or significant.any():
-                calibration.frame_gain = measured
-                observations = _scaled(observations, measured, config)
+        if settings.frame_gains == "on":
+            measured, _ = frame_gains(observations.view_direction, observations.weight, observations.observed)
+            calibration.frame_gain_measured = calibration.frame_gain = measured
+            observations = _scaled(observations, measured, config)
         gain, log_std, scored = np.ones(3), np.zeros(3), 0
         if settings.gains:
             search = _search_config(coarse_config)

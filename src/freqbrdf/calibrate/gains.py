@@ -15,12 +15,14 @@ coordinate search on a grid in log gain, refined by parabolas; their std is the 
 (texels as independent units) of the misfit's curvature, and a prior of one log unit keeps a
 gain the texels do not determine (an all-metal object) near 1.
 
-`frame_gains` compares each photograph with what the other views say of the same texels (the
-texels' SH fits of the observed radiance), for captures whose frames are exposed differently.
+`frame_gains` compares each photograph with what the other views say of the same texels (a
+low-degree SH fit of the texels' radiance, left out one view at a time), for captures whose frames
+are exposed differently.
 """
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -36,6 +38,10 @@ PRIOR_LOG_STD = 1.0
 LOG_GAIN_GRID = np.log(2.0) * np.arange(-2.0, 2.0001, 0.05)
 # A texel's misfit floor, as a share of the texels' median misfit: a near-exact fit does not take over.
 MISFIT_FLOOR = 0.05
+# The per-frame gains' prediction of a sample from the texel's other views: an SH fit of this degree and
+# ridge (low: the other views must determine it).
+FRAME_GAIN_LMAX = 2
+FRAME_GAIN_RIDGE = 1e-3
 # Texels estimated rougher than this do not calibrate: their lobe is not told apart from the diffuse.
 MAX_ROUGHNESS = 0.6
 # A base colour at or above this is at its bound: the loss's minimum is the bound's kink.
@@ -181,14 +187,17 @@ def _weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
     return float(values[order][np.searchsorted(cumulative, 0.5 * cumulative[-1])])
 
 
-def frame_gains(view_direction: np.ndarray, weight: np.ndarray, observed: np.ndarray, observed_coeffs: np.ndarray,
-                lmax: int) -> tuple[np.ndarray, np.ndarray]:
-    """Estimate a relative gain per photograph and channel from the texels' SH fits.
+def frame_gains(view_direction: np.ndarray, weight: np.ndarray, observed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Estimate a relative gain per photograph and channel from what the other views predict.
 
-    A texel's SH fit of its observed radiance over all views predicts each view's sample; a
-    photograph exposed k times the others is k times its prediction at every texel it sees. The
-    weighted median of log(sample / prediction) over the texels is its log gain; the gains are
-    then taken relative to their geometric mean (the absolute scale is `channel_gains`'s).
+    Each texel's samples are fitted by a low-degree SH (degree `FRAME_GAIN_LMAX`, ridge
+    `FRAME_GAIN_RIDGE`) and each sample compared with the fit's leave-one-out prediction (the
+    residual over 1 - its leverage: the fit of the other views); a photograph exposed k times the
+    others is k times that prediction at every texel it sees. The median of log(sample /
+    prediction) over the texels is its log gain; the gains are then taken relative to their
+    geometric mean (the absolute scale is `channel_gains`'s). Only the half of the texels whose
+    samples their other views predict most consistently vote (highlights that the other views
+    miss would bias a view's ratio).
 
     Parameters
     ----------
@@ -198,10 +207,6 @@ def frame_gains(view_direction: np.ndarray, weight: np.ndarray, observed: np.nda
         Sample weights (0: no sample).
     observed : (N, V, 3) float32
         Observed radiance.
-    observed_coeffs : (N, 3, K) float32
-        The texels' SH fits of the observed radiance, K = (lmax + 1)^2.
-    lmax : int
-        Their degree.
 
     Returns
     -------
@@ -209,25 +214,45 @@ def frame_gains(view_direction: np.ndarray, weight: np.ndarray, observed: np.nda
         Relative gain per view and channel (geometric mean 1 over the views with samples; 1 for
         views without any).
     log_std : (V, 3) float64
-        The std of each log gain (the spread of the texels' log ratios over the square root of
-        their count); inf without samples.
+        The std of each log gain (the spread of the texels' log ratios, as 1.4826 median absolute
+        deviations, over the square root of their count); inf without enough samples.
     """
-    n_views = weight.shape[1]
+    n_texels, n_views = weight.shape
+    basis = sh.eval_sh(np.asarray(view_direction, np.float64).reshape(-1, 3), FRAME_GAIN_LMAX).reshape(
+        n_texels, n_views, -1)  # (N, V, K)
+    w = np.asarray(weight, np.float64)
+    gram = np.einsum("nv,nvk,nvl->nkl", w, basis, basis) + FRAME_GAIN_RIDGE * np.eye(basis.shape[2])
+    inverse = np.linalg.inv(gram)  # (N, K, K)
+    values = np.asarray(observed, np.float64)
+    coeffs = np.einsum("nkl,nv,nvl,nvc->nkc", inverse, w, basis, values)
+    fitted = np.einsum("nvk,nkc->nvc", basis, coeffs)
+    leverage = w * np.einsum("nvk,nkl,nvl->nv", basis, inverse, basis)
+    # Texels with several more samples than unknowns: the prediction is the other views'.
+    enough = (w > 0).sum(axis=1) >= 2 * basis.shape[2]
+    predicted = values - (values - fitted) / np.maximum(1.0 - leverage, 1e-3)[..., None]
+    usable = (w > 0) & enough[:, None] & (leverage < 0.9) & np.all(predicted > 0, axis=2) & np.all(values > 0, axis=2)
+    ratio_all = np.log(np.where(usable[..., None], values, 1.0) / np.where(usable[..., None], predicted, 1.0))
+    # Texels whose other views predict each view well (mostly diffuse: no highlight the others miss)
+    # carry the frames' gains; the half most consistent across their views is used.
+    grey = np.where(usable, ratio_all.mean(axis=2), np.nan)
+    with warnings.catch_warnings():  # texels without a usable sample give NaN, and are left out
+        warnings.simplefilter("ignore", RuntimeWarning)
+        centre = np.nanmedian(grey, axis=1)
+        spread = np.nanmedian(np.abs(grey - centre[:, None]), axis=1)
+    consistent = np.isfinite(spread)
+    if consistent.sum() > 1:
+        consistent &= spread <= np.median(spread[consistent])
+    usable &= consistent[:, None]
     log_gain = np.zeros((n_views, 3))
     log_std = np.full((n_views, 3), np.inf)
-    basis = sh.eval_sh(np.asarray(view_direction, np.float64).reshape(-1, 3), lmax).reshape(
-        view_direction.shape[0], n_views, -1)  # (N, V, K)
-    predicted = np.einsum("nvk,nck->nvc", basis, np.asarray(observed_coeffs, np.float64))
-    usable = (weight > 0) & np.all(predicted > 0, axis=2) & np.all(observed > 0, axis=2)
     for view in range(n_views):
         rows = usable[:, view]
         if rows.sum() < 8:
             continue
-        ratio = np.log(observed[rows, view] / predicted[rows, view])  # (n, 3)
+        ratio = np.log(values[rows, view] / predicted[rows, view])  # (n, 3)
         median = np.median(ratio, axis=0)
-        spread = 1.4826 * np.median(np.abs(ratio - median), axis=0)
         log_gain[view] = median
-        log_std[view] = spread / np.sqrt(rows.sum())
+        log_std[view] = 1.4826 * np.median(np.abs(ratio - median), axis=0) / np.sqrt(rows.sum())
     seen = np.isfinite(log_std[:, 0])
     if seen.any():
         log_gain[seen] -= log_gain[seen].mean(axis=0)

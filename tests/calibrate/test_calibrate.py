@@ -1,0 +1,116 @@
+"""Calibration from the photographs: each quantity recovered on a small Mitsuba capture with a known error.
+
+One capture (a sphere of smooth and rough dielectric and metal gradients under the lobby map,
+32 views of 96 x 96) is rendered once; the errors are applied to copies of it as a user's capture has them:
+the photographs at another exposure and white balance, one photograph at another shutter speed,
+the map turned in its transforms. Gains are compared with the clean capture's own (what the
+model calls 1 on this capture), so that the test measures the calibration, not the model.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from freqbrdf.calibrate import axis_angle, calibrate, rotation_about
+from freqbrdf.capture.layouts import load
+from freqbrdf.config import CalibrationConfig, Config, TexelConfig
+from freqbrdf.images import read_image, write_exr
+from freqbrdf.synthetic.synth import SynthSettings, synthesize
+
+CONFIG = Config(texels=TexelConfig(texture_res=64), calibration=CalibrationConfig(texture_res=64))
+
+
+@pytest.fixture(scope="module")
+def clean(tmp_path_factory) -> Path:
+    from freqbrdf.assets import mesh_path
+    from freqbrdf.capture.mesh import load_mesh
+    from freqbrdf.model.materials import save_material_maps
+    from freqbrdf.synthetic.materials import gradient_material
+
+    root = tmp_path_factory.mktemp("calibration")
+    save_material_maps(root / "materials", gradient_material(load_mesh(mesh_path("sphere")), 64, seed=0))
+    settings = SynthSettings(mesh="sphere", envmap="lobby", materials=str(root / "materials"), views=32,
+                             resolution=96, spp=8, texture_res=64, test_views=0, cameras="hemisphere")
+    return synthesize(root / "clean", settings, progress=False)
+
+
+def _copy(source: Path, target: Path, gain=(1.0, 1.0, 1.0), frame_gain: dict | None = None,
+          turn: np.ndarray | None = None) -> Path:
+    """The capture with its photographs times ``gain`` (one frame also times frame_gain[index]) and
+    its map's to_world turned by ``turn``."""
+    target.mkdir()
+    transforms = json.loads((source / "transforms.json").read_text())
+    for name in os.listdir(source):
+        if name not in ("transforms.json", "images"):
+            os.symlink(source.resolve() / name, target / name)
+    (target / "images").mkdir()
+    for index, frame in enumerate(transforms["frames"]):
+        factor = np.asarray(gain, np.float32) * np.float32((frame_gain or {}).get(index, 1.0))
+        write_exr(target / frame["file_path"], read_image(source / frame["file_path"]) * factor)
+    if turn is not None:
+        matrix = np.eye(4)
+        matrix[:3, :3] = turn
+        transforms["envmap_to_world"] = (matrix @ np.array(transforms.get("envmap_to_world", np.eye(4)))).tolist()
+    (target / "transforms.json").write_text(json.dumps(transforms))
+    return target
+
+
+@pytest.fixture(scope="module")
+def clean_calibration(clean):
+    return calibrate(load(clean), CONFIG)[1]
+
+
+def test_exposure_and_white_balance_are_recovered(clean, clean_calibration, tmp_path):
+    applied = np.array([2.0 * 1.1, 2.0, 2.0 * 0.9])
+    capture, found = calibrate(load(_copy(clean, tmp_path / "gain", gain=applied)), CONFIG)
+    # Against the clean capture's own gains: what the calibration adds, not what the model misses.
+    # The exposure is well determined; the white balance less so on a capture this small.
+    relative = found.gain / clean_calibration.gain
+    np.testing.assert_allclose(np.exp(np.log(relative).mean()), np.exp(np.log(applied).mean()), rtol=0.05)
+    np.testing.assert_allclose(relative, applied, rtol=0.10)
+    assert relative[0] > relative[1] > relative[2]  # the white balance's direction
+    # On a capture this small (32 views of 96 x 96) the model itself reads a gain within 25 % of 1.
+    np.testing.assert_allclose(clean_calibration.gain, 1.0, atol=0.25)
+    assert np.all(found.gain_log_std > 0) and np.all(found.gain_log_std < 0.1)
+    # The corrected capture's photographs are divided by the gains.
+    corrected = capture.image(0)
+    original = read_image(capture.frames[0].image_path)
+    np.testing.assert_allclose(corrected, original / found.gain.astype(np.float32), rtol=1e-5)
+    assert any("exposure" in line for line in found.warnings)
+
+
+def test_a_photograph_at_another_shutter_speed_is_found_when_asked(clean, clean_calibration, tmp_path):
+    assert clean_calibration.frame_gain is None  # off by default
+    asked = CONFIG.replace(calibration=CalibrationConfig(texture_res=64, frame_gains="on"))
+    capture, found = calibrate(load(_copy(clean, tmp_path / "frame", frame_gain={3: 1.6})), asked)
+    relative = found.frame_gain[3] / np.exp(np.log(np.delete(found.frame_gain, 3, axis=0)).mean(axis=0))
+    # Measured from the other views' prediction of each texel: most of the factor, never the wrong way.
+    assert np.all(relative > 1.25) and np.all(relative < 1.8), relative
+    assert capture.frames[3].exposure is not None
+
+
+def test_a_turned_probe_is_registered(clean, clean_calibration, tmp_path):
+    turn = rotation_about(np.array([0.0, 1.0, 0.0]), np.radians(8.0))
+    capture, found = calibrate(load(_copy(clean, tmp_path / "turned", turn=turn)), CONFIG)
+    assert clean_calibration.probe.angle_deg < 1.0
+    axis, angle = axis_angle(found.probe.rotation @ turn)  # what is left of the turn
+    assert np.degrees(angle) < 1.5, f"found {found.probe.angle_deg:.2f} deg, {np.degrees(angle):.2f} deg left"
+    np.testing.assert_allclose(capture.envmap.rotation, found.probe.rotation @ turn @ load(clean).envmap.rotation,
+                               atol=1e-9)
+
+
+def test_calibration_none_leaves_the_capture_as_given(clean):
+    given = load(clean)
+    nothing = CONFIG.replace(calibration=CalibrationConfig(gains=False, probe_rotation=False, frame_gains="off"))
+    capture, found = calibrate(given, nothing)
+    assert capture is given and np.all(found.gain == 1.0) and found.probe is None and not found.warnings
+
+
+def test_calibration_is_deterministic(clean, clean_calibration):
+    again = calibrate(load(clean), CONFIG)[1]
+    assert again.to_dict() | {"seconds": 0} == clean_calibration.to_dict() | {"seconds": 0}
