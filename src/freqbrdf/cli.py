@@ -666,7 +666,6 @@ def next_views(
                    "texels_seen": p.texels_seen, "seconds": p.seconds} for p in picks],
         "seconds": time.perf_counter() - start,
         "settings": config.to_dict(),
-        "calibration": calibration.to_dict(),
         "estimation_res": estimation_res,
     }
     next_views_folder.write_next_views(out, loaded, picks, summary, cameras)
