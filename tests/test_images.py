@@ -11,6 +11,7 @@ from freqbrdf.errors import InputError
 from freqbrdf.images import (
     REC709_CHROMATICITIES,
     CaptureDataWarning,
+    clipped_pixels,
     linear_to_srgb,
     read_image,
     read_mask,
@@ -305,3 +306,15 @@ def test_writers_create_parent_folders(tmp_path):
     write_png(tmp_path / "a" / "b" / "c.png", np.full((3, 3), 0.5))
     write_hdr(tmp_path / "d" / "e.hdr", np.ones((3, 9, 3)))
     assert (tmp_path / "a" / "b" / "c.png").is_file() and (tmp_path / "d" / "e.hdr").is_file()
+
+
+def test_clipped_pixels_mark_a_plateau_and_its_neighbours_not_an_hdr_peak():
+    rng = np.random.default_rng(3)
+    image = rng.random((20, 30, 3)).astype(np.float32) * 0.8
+    assert not clipped_pixels(image).any()  # HDR: one brightest pixel is no plateau
+    image[5:8, 10:14] = 1.0  # a blown highlight, clipped at the sensor's ceiling
+    image[0, 0, 1] = 1.0
+    found = clipped_pixels(image)
+    assert found[5:8, 10:14].all() and found[4:9, 9:15].all()  # and the taps a bilinear lookup reads
+    assert found[0, 0] and found[1, 1] and not found[12, 20]
+    assert found.sum() == 5 * 6 + 4

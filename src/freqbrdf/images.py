@@ -50,6 +50,13 @@ EXR_SOFTWARE = f"freqbrdf {__version__}"
 REC709_CHROMATICITIES = (0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, 0.3290)
 
 
+# A pixel within this share of an image's largest value sits on its ceiling; more than
+# CLIPPED_MIN_SHARE of the lit pixels there make the ceiling a clipping plateau (`clipped_pixels`).
+CLIPPED_TOLERANCE = 1e-4
+CLIPPED_MIN_SHARE = 1e-3
+CLIPPED_MIN_PIXELS = 4
+
+
 # --- sRGB transfer function (IEC 61966-2-1), the only definition in the package -------------------
 
 
@@ -176,6 +183,41 @@ def clamp_negative_noise(path: str | Path, rgb: np.ndarray) -> np.ndarray:
     warnings.warn(f"{Path(path).name}: {int(negative.any(axis=2).sum())} slightly negative pixel(s) (down to "
                   f"{deepest:.2g}) clamped to 0", CaptureDataWarning, stacklevel=2)
     return np.maximum(rgb, 0.0)
+
+
+def clipped_pixels(image: np.ndarray) -> np.ndarray:
+    """Find the pixels a sensor clipped: where a channel sits on the image's own ceiling.
+
+    A clipped photograph (8-bit data, a blown highlight) holds a plateau at its largest value;
+    such a pixel says only that the radiance was at least that, so it is no measurement. The
+    ceiling counts where `CLIPPED_MIN_SHARE` of the lit pixels, and at least `CLIPPED_MIN_PIXELS`,
+    reach it (an HDR image's single brightest pixel is no plateau); the pixels next to a clipped one are marked too, since a
+    bilinear lookup there reads it.
+
+    Parameters
+    ----------
+    image : (H, W, 3) float array
+        Linear radiance.
+
+    Returns
+    -------
+    (H, W) bool
+        True at clipped pixels and their 8 neighbours; all False where the image has no plateau.
+    """
+    image = np.asarray(image)
+    ceiling = float(image.max()) if image.size else 0.0
+    if not ceiling > 0.0:
+        return np.zeros(image.shape[:2], bool)
+    at_ceiling = np.any(image >= ceiling * (1.0 - CLIPPED_TOLERANCE), axis=2)
+    lit = np.count_nonzero(image.max(axis=2) > 0.0)
+    if np.count_nonzero(at_ceiling) < max(CLIPPED_MIN_PIXELS, CLIPPED_MIN_SHARE * lit):
+        return np.zeros(image.shape[:2], bool)
+    grown = at_ceiling.copy()
+    grown[1:] |= at_ceiling[:-1]
+    grown[:-1] |= at_ceiling[1:]
+    grown[:, 1:] |= grown[:, :-1].copy()
+    grown[:, :-1] |= grown[:, 1:].copy()
+    return grown
 
 
 def read_mask(path: str | Path) -> np.ndarray:

@@ -5,7 +5,8 @@ For every texel and view, `observe` records in the mirror parameterisation of do
 - the view direction w_o in the texel's local frame (t, b, n),
 - the observed radiance (the image, bilinearly sampled where the texel projects),
 - the environment radiance in the mirror direction r = 2 (n.v) n - v (band-limited, see below),
-- the weight w = max(0, cos theta_o) x visible x inside the image and its mask.
+- the weight w = max(0, cos theta_o) x visible x inside the image and its mask, and not clipped
+  (`freqbrdf.images.clipped_pixels`: a pixel on a clipping plateau is no measurement).
 
 Dark texels are observations like any other: only the weight decides what counts as a sample,
 and the weight depends on geometry alone, never on the radiance. Visibility (docs/method.md#observations) is a shadow
@@ -37,6 +38,7 @@ from freqbrdf.capture.layouts import Capture
 from freqbrdf.config import Config
 from freqbrdf.errors import InputError
 from freqbrdf.fileio import atomic_path
+from freqbrdf.images import clipped_pixels
 from freqbrdf.model import brdf
 from freqbrdf.observe._kernels import (
     _clear_occluded,
@@ -454,7 +456,9 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
         for batch in _view_batches(capture, n_texels):
             tick = time.perf_counter()
             images = np.stack([capture.image(view) for view in batch])  # (B, H, W, 3)
-            masks = np.stack([capture.mask(view) for view in batch]).astype(np.float32)[..., None]
+            # Clipped pixels (8-bit data, blown highlights) are no measurement: left out like the background.
+            masks = np.stack([capture.mask(view) & ~clipped_pixels(image)
+                              for view, image in zip(batch, images)]).astype(np.float32)[..., None]
             timings["images"] += time.perf_counter() - tick
 
             tick = time.perf_counter()

@@ -548,6 +548,25 @@ def _capture_name(outputs: FitOutputs) -> str:
         return path.name
 
 
+def _calibration_paragraph(summary: dict) -> str:
+    """Say what the photographs calibrated (gains with their std, the probe's turn) and the warnings, as HTML."""
+    found = summary.get("calibration")
+    lines = []
+    if found:
+        gains = ", ".join(f"{gain:.3f} ± {std:.3f}" for gain, std in zip(found["gain"], found["gain_std"]))
+        lines.append(f"Calibration: the photographs are {gains} (R, G, B) times the environment map's radiance")
+        probe = found.get("probe")
+        if probe is not None:
+            spread = "" if probe.get("std_deg") is None else f" (± {probe['std_deg']:.1f}°)"
+            lines.append(f"the map turned {probe['angle_deg']:.1f}°{spread} to match their reflections")
+        if found.get("frame_gains_applied"):
+            lines.append("a gain per photograph applied")
+    text = "; ".join(lines) + "." if lines else ""
+    warnings = "".join(f"<li>{html.escape(line)}</li>" for line in summary.get("warnings", []))
+    return (f"<p>{html.escape(text)}</p>" if text else "") + (f'<ul class="warnings">{warnings}</ul>' if warnings
+                                                               else "")
+
+
 def _page(outputs: FitOutputs, sections: list[str]) -> str:
     summary = outputs.summary
     coverage = summary.get("coverage", {})
@@ -563,6 +582,7 @@ def _page(outputs: FitOutputs, sections: list[str]) -> str:
 <p>Capture <code>{capture}</code> (relative to the fit folder); estimator <b>{html.escape(str(method))}</b>;
 {coverage.get('observed_fraction', 0):.0%} of {coverage.get('texels', '?')} texels observed,
 {_number(coverage.get('mean_views_per_observed_texel'), 1)} views per observed texel on average.</p>
+{_calibration_paragraph(summary)}
 {''.join(sections)}
 <script>{_SCRIPT}</script>
 </body></html>
