@@ -34,15 +34,15 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-import scenes  # noqa: E402
-from _common import machine, save_results  # noqa: E402
-from imperfections import Imperfection, imperfect_capture  # noqa: E402
 from whole_surface import parameter_scores, seen_texels  # noqa: E402
 
+import scenes  # noqa: E402
+from _common import machine, save_results  # noqa: E402
 from freqbrdf import pipeline  # noqa: E402
 from freqbrdf.calibrate import axis_angle, rotation_about  # noqa: E402
 from freqbrdf.capture.layouts import load  # noqa: E402
 from freqbrdf.config import CalibrationConfig, Config, TexelConfig  # noqa: E402
+from imperfections import Imperfection, imperfect_capture  # noqa: E402
 
 SCENES = ("bunny_islands_overcast", "sphere_gradients_lobby", "dragon_photo_side")
 RENDER = {"views": 32, "resolution": 192, "spp": 32, "texture_res": 256, "test_views": 4}
