@@ -203,6 +203,7 @@ def test_batch_across_two_nodes_survives_a_lost_node(ray_cluster, captures, plai
     there, after another capture finished. That capture is retried on the head; none is lost or
     fitted twice; batch.json parses whenever read; the outputs of the retried capture and of one
     finished before the kill equal a plain ``fit``'s."""
+    plain_fit(captures[0])  # numba's kernels compiled (where the cache is cold) once, before the workers load them
     out = tmp_path / "out"
     manifest = write_manifest(tmp_path / "m.csv", captures)
     environment = clean_environment(RAY_AUTH_TOKEN_PATH=str(ray_cluster.token),
@@ -266,6 +267,7 @@ def test_rerun_after_the_driver_is_killed_resumes(ray_cluster, captures, plain_f
     """The batch's own process killed with SIGKILL while a capture runs: batch.json parses, Ray
     stops that capture's worker, and a rerun (``--address auto`` through ``RAY_ADDRESS``) skips
     the finished capture and makes the other."""
+    plain_fit(captures[0])  # numba's kernels compiled (where the cache is cold) once, before the workers load them
     out = tmp_path / "out"
     manifest = write_manifest(tmp_path / "m.csv", captures[:2])
     name = captures[1].name
