@@ -45,6 +45,8 @@ __all__ = ["Calibration", "GainEstimate", "ProbeRegistration", "axis_angle", "ca
 PROBE_MAP_HEIGHT = 128
 # Passes of the channel gains (each on photographs corrected by the ones before).
 GAIN_PASSES = 2
+# The exposure and each white-balance ratio are applied where they lie this many of their std from 1.
+SIGNIFICANT_Z = 2.5
 # A gain whose log std exceeds this is poorly determined by the capture (named in a warning).
 POORLY_DETERMINED = 0.15
 # A frame whose gain is beyond this factor of the others (either way) is one calibration cannot
@@ -59,10 +61,13 @@ class Calibration:
     Attributes
     ----------
     gain : (3,) float64
-        The photographs' radiance over the map's per colour channel (exposure x white balance);
-        the fit divides the photographs by it.
+        The photographs' radiance over the map's per colour channel (exposure x white balance) as
+        applied: the fit divides the photographs by it.
     gain_log_std : (3,) float64
         The std of each log gain.
+    gain_measured : (3,) float64 or None
+        The gains as measured; the exposure and white-balance ratios the texels do not tell from
+        1 (`SIGNIFICANT_Z`) are not applied.
     frame_gain : (V, 3) float64 or None
         Relative gain per photograph and channel (geometric mean 1), where measured and applied.
     frame_gain_measured : (V, 3) float64 or None
@@ -81,6 +86,7 @@ class Calibration:
 
     gain: np.ndarray
     gain_log_std: np.ndarray
+    gain_measured: np.ndarray | None = None
     frame_gain: np.ndarray | None = None
     frame_gain_measured: np.ndarray | None = None
     probe: ProbeRegistration | None = None
@@ -105,7 +111,8 @@ class Calibration:
         Returns
         -------
         dict
-            ``gain`` and ``gain_std`` (per channel; the std of the gain itself), ``exposure``,
+            ``gain`` (applied) and ``gain_std`` (per channel; the std of the gain itself),
+            ``gain_measured``, ``exposure``,
             ``white_balance``, ``frame_gains`` (per view, or None), ``frame_gains_applied``,
             ``probe`` (the turn: ``angle_deg``, ``axis``, ``std_deg``, ``rotation``, ``explained``
             before and after, ``significance``; or None), ``dropped_views``, ``texels``, ``seconds``.
@@ -120,6 +127,7 @@ class Calibration:
         measured = self.frame_gain_measured
         return {
             "gain": self.gain.tolist(), "gain_std": (self.gain * self.gain_log_std).tolist(),
+            "gain_measured": None if self.gain_measured is None else self.gain_measured.tolist(),
             "exposure": self.exposure, "white_balance": self.white_balance.tolist(),
             "frame_gains": None if measured is None else measured.tolist(),
             "frame_gains_applied": self.frame_gain is not None,
@@ -221,12 +229,30 @@ def calibrate(capture: Capture, config: Config = Config(),
                 found = channel_gains(sums, params[:, 3])
                 gain, log_std, scored = gain * found.gain, found.log_std, found.texels
                 current = _scaled(observations, gain, config)
+            calibration.gain_measured = gain
+            gain = _significant(gain, found)
         calibration.gain, calibration.gain_log_std, calibration.texels = gain, log_std, scored
         advance(1)
     calibration.warnings = _warnings(capture, calibration, settings)
     capture = _corrected(capture, calibration, settings.drop_bad_views)
     calibration.seconds = time.perf_counter() - start
     return capture, calibration
+
+
+def _significant(gain: np.ndarray, found: GainEstimate) -> np.ndarray:
+    """Return the gains with the parts the texels do not tell from 1 set to 1.
+
+    The exposure (the gains' geometric mean) is applied where it lies `SIGNIFICANT_Z` of its std
+    from 1, each channel's white-balance ratio where it lies as far from 1: a gain the model's own
+    misfit could give on a calibrated capture is not applied.
+    """
+    log_gain = np.log(gain)
+    exposure = float(log_gain.mean())
+    ratios = log_gain - exposure
+    if abs(exposure) < SIGNIFICANT_Z * found.exposure_log_std:
+        exposure = 0.0
+    ratios = np.where(np.abs(ratios) < SIGNIFICANT_Z * found.ratio_log_std, 0.0, ratios)
+    return np.exp(exposure + ratios)
 
 
 def _turned(capture: Capture, rotation: np.ndarray) -> Capture:

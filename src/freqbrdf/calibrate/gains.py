@@ -23,7 +23,7 @@ are exposed differently.
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -60,11 +60,17 @@ class GainEstimate:
         Std of log gain (posterior, with the prior of `PRIOR_LOG_STD`).
     texels : int
         Texels whose own data determine a gain (a minimum inside the grid).
+    exposure_log_std : float
+        Std of the log of the gains' geometric mean (the exposure).
+    ratio_log_std : (3,) float64
+        Std of each channel's log ratio to it (the white balance).
     """
 
     gain: np.ndarray
     log_std: np.ndarray
     texels: int
+    exposure_log_std: float = PRIOR_LOG_STD
+    ratio_log_std: np.ndarray = field(default_factory=lambda: np.full(3, PRIOR_LOG_STD))
 
 
 def _grid_minimum(values: np.ndarray, grid: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -158,7 +164,8 @@ def channel_gains(moments: np.ndarray, roughness: np.ndarray | None = None) -> G
     variance = exposure_variance + ratio_variance
     precision = 1.0 / np.maximum(variance, 1e-12) + 1.0 / PRIOR_LOG_STD ** 2
     shrunk = log_gain / np.maximum(variance, 1e-12) / precision
-    return GainEstimate(np.exp(shrunk), 1.0 / np.sqrt(precision), int(usable.sum()))
+    return GainEstimate(np.exp(shrunk), 1.0 / np.sqrt(precision), int(usable.sum()),
+                        float(np.sqrt(exposure_variance)), np.sqrt(ratio_variance))
 
 
 def _weights(minimum: np.ndarray, curvature: np.ndarray, usable: np.ndarray) -> np.ndarray:
