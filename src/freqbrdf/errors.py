@@ -29,4 +29,13 @@ class InputError(Exception):
     def __init__(self, path: str | Path | None, problem: str):
         self.path = None if path is None else Path(path)
         self.problem = problem
-        super().__init__(problem if self.path is None else f"{self.path}: {problem}")
+        # A path may hold line breaks or other control characters (a mistyped transforms entry):
+        # written escaped, so that the message stays one line.
+        where = None if self.path is None else _one_line(str(self.path))
+        super().__init__(_one_line(problem) if where is None else f"{where}: {_one_line(problem)}")
+
+
+def _one_line(text: str) -> str:
+    """Return ``text`` with its control characters escaped (a line break becomes \\n)."""
+    return "".join(character if character.isprintable() else character.encode("unicode_escape").decode("ascii")
+                   for character in text)
