@@ -36,6 +36,6 @@ class InputError(Exception):
 
 
 def _one_line(text: str) -> str:
-    """Return ``text`` with its control characters escaped (a line break becomes \\n)."""
+    """Return ``text`` with its control characters escaped as Python writes them (a line break as backslash n)."""
     return "".join(character if character.isprintable() else character.encode("unicode_escape").decode("ascii")
                    for character in text)
