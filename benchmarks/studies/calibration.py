@@ -1,6 +1,6 @@
 """Calibration from the photographs (issue #40): a real capture's imperfections, with calibration off and on.
 
-    python benchmarks/studies/calibration.py [--scenes a,b] [--cases a,b] [--quick]
+    python benchmarks/studies/calibration.py [--scenes a,b] [--cases "a;b"] [--quick]
 
 Scenes: three of the whole-surface suite (scenes.WHOLE_SURFACE_SCENES: the bunny with metal islands
 under an overcast sky, the sphere of gradients under the lobby map, the dragon with a photographic
@@ -160,7 +160,7 @@ def markdown(results: dict) -> str:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenes", default=",".join(SCENES))
-    parser.add_argument("--cases", default=",".join(CASES))
+    parser.add_argument("--cases", default=";".join(CASES), help="case names separated by semicolons")
     parser.add_argument("--quick", action="store_true")
     args = parser.parse_args(argv)
     name = "calibration_quick" if args.quick else "calibration"
@@ -168,7 +168,7 @@ def main(argv=None) -> int:
     results = json.loads(path.read_text()) if path.is_file() else {"scenes": {}}
     results["machine"] = machine()
     for scene in args.scenes.split(","):
-        cases = list(QUICK_CASES) if args.quick else args.cases.split(",")
+        cases = list(QUICK_CASES) if args.quick else args.cases.split(";")
         results["scenes"][scene] = run_scene(scene, RENDER, cases)
         save_results(name, results)
         (path.with_suffix(".md")).write_text(markdown(results))

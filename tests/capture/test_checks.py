@@ -127,7 +127,8 @@ def test_negative_noise_is_one_warning_and_deep_negatives_are_refused(capture_co
     check = check_capture(load(capture_copy))
     assert len(check.warnings) == 1 and check.warnings[0].startswith(
         "2 of 6 frames had slightly negative pixels (HDR merge noise), clamped to 0")
-    assert run_cli("fit", capture_copy, "--out", tmp_path / "fit", "--texture-res", 8) == 0
+    # Calibration off: a capture this small (6 views of 40 x 40) has warnings of its own about its gains.
+    assert run_cli("fit", capture_copy, "--out", tmp_path / "fit", "--texture-res", 8, "--calibration", "none") == 0
     warnings_printed = [line for line in capsys.readouterr().err.splitlines() if line.startswith("warning:")]
     assert len(warnings_printed) == 1 and "slightly negative" in warnings_printed[0]
     assert json.loads((tmp_path / "fit" / "summary.json").read_text())["warnings"] == check.warnings

@@ -42,6 +42,10 @@ MISFIT_FLOOR = 0.05
 # ridge (low: the other views must determine it).
 FRAME_GAIN_LMAX = 2
 FRAME_GAIN_RIDGE = 1e-3
+# The std of the exposure and of a white-balance ratio that the model's own misfit gives on a
+# calibrated capture, added to the texels' spread (docs/results.md#calibration: the clean scenes').
+MODEL_EXPOSURE_LOG_STD = 0.06
+MODEL_RATIO_LOG_STD = 0.03
 # Texels estimated rougher than this do not calibrate: their lobe is not told apart from the diffuse.
 MAX_ROUGHNESS = 0.6
 # A base colour at or above this is at its bound: the loss's minimum is the bound's kink.
@@ -108,7 +112,7 @@ def channel_gains(moments: np.ndarray, roughness: np.ndarray | None = None) -> G
     that wide is not told apart from the diffuse: rough dielectrics bias the gains). Each texel's
     loss at a gain is its least over the roughness slots and the two labels, so that a gain is not
     judged at a roughness found under another. The std is the weighted spread over the effective
-    number of texels, and the prior of `PRIOR_LOG_STD` keeps a gain that few texels determine near 1.
+    number of texels with `MODEL_EXPOSURE_LOG_STD` (`MODEL_RATIO_LOG_STD`) added in quadrature, and the prior of `PRIOR_LOG_STD` keeps a gain that few texels determine near 1.
 
     Parameters
     ----------
@@ -161,6 +165,9 @@ def channel_gains(moments: np.ndarray, roughness: np.ndarray | None = None) -> G
         ratios[c], ratio_variance[c] = _robust_mean(channel_position - position, channel_weight, both)
     ratios -= ratios.mean()
     log_gain = exposure + ratios
+    # The texels' errors are not independent: the model's own misfit moves them together.
+    exposure_variance += MODEL_EXPOSURE_LOG_STD ** 2
+    ratio_variance = ratio_variance + MODEL_RATIO_LOG_STD ** 2
     variance = exposure_variance + ratio_variance
     precision = 1.0 / np.maximum(variance, 1e-12) + 1.0 / PRIOR_LOG_STD ** 2
     shrunk = log_gain / np.maximum(variance, 1e-12) / precision
