@@ -24,7 +24,7 @@ from freqbrdf.config import Config
 from freqbrdf.errors import InputError
 from freqbrdf.estimate import MaterialEstimate
 from freqbrdf.estimate import estimate as estimate_materials
-from freqbrdf.estimate.surface import whole_surface
+from freqbrdf.estimate.surface import merged_std, whole_surface
 from freqbrdf.fileio import atomic_directory, write_json
 from freqbrdf.images import write_png
 from freqbrdf.model.materials import MaterialMaps, save_material_maps
@@ -221,17 +221,8 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
             estimate, posterior = whole_surface(observations, estimate, rasterise(capture.mesh, estimation_res),
                                                 config)
             advance(1)
-        # The posterior credits a texel with its neighbours' precision as if their errors were
-        # independent; the systematic errors neighbours share make it far too narrow. So a texel's
-        # roughness std is never below the spread of its own samples' estimate, and its base
-        # colour's adds how far its own estimate lies from the solution.
-        own = uncertainty.roughness_std
-        uncertainty.roughness_std = np.where(np.isfinite(own), np.maximum(own, posterior.roughness_std),
-                                             posterior.roughness_std).astype(np.float32)
-        uncertainty.metallic_std = posterior.metallic_std
-        disagreement = np.nan_to_num(np.asarray(own_base_color, np.float64) - estimate.base_color)
-        uncertainty.base_color_std = np.sqrt(np.asarray(posterior.base_color_std, np.float64) ** 2
-                                             + disagreement ** 2).astype(np.float32)
+        uncertainty.roughness_std, uncertainty.metallic_std, uncertainty.base_color_std = merged_std(
+            uncertainty.roughness_std, own_base_color, estimate, posterior)
         timings["surface"] = time.perf_counter() - start
         timings.update({f"surface.{step}": seconds for step, seconds in posterior.timings.items()})
 

@@ -56,7 +56,7 @@ if TYPE_CHECKING:
     from freqbrdf.texels import Texels
 
 __all__ = ["DataPrecision", "SurfaceGraphs", "SurfacePosterior", "data_precision", "lookalike_graph",
-           "metal_evidence", "metal_posterior", "smooth_on_surface", "surface_graph", "surface_graphs", "whole_surface"]
+           "merged_std", "metal_evidence", "metal_posterior", "smooth_on_surface", "surface_graph", "surface_graphs", "whole_surface"]
 
 # Apparent albedo floor (log space): keeps black texels' logarithm finite.
 _ALBEDO_FLOOR = 1e-3
@@ -187,6 +187,44 @@ def whole_surface(observations: Observations, estimate: MaterialEstimate, texels
         timings=timings,
     )
     return solved, posterior
+
+
+def merged_std(own_roughness_std: np.ndarray | None, own_base_color: np.ndarray, estimate: MaterialEstimate,
+               posterior: SurfacePosterior) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Merge the whole-surface posterior's std with what each texel's own estimate says.
+
+    The posterior credits a texel with its neighbours' precision as if their errors were
+    independent; the systematic errors neighbours share make it far too narrow. So a texel's
+    roughness std is never below the spread of its own samples' estimate, and its base colour's
+    adds how far its own estimate lies from the solution, in quadrature. The metallic std is the
+    posterior's.
+
+    Parameters
+    ----------
+    own_roughness_std : (N,) float32 or None
+        The spread of each texel's own roughness estimate (`freqbrdf.uncertainty.roughness_std`);
+        NaN where unknown.
+    own_base_color : (N, 3) float64
+        Each texel's own base colour, before the solve; NaN where not estimated.
+    estimate : MaterialEstimate
+        The whole-surface estimate.
+    posterior : SurfacePosterior
+        Its posterior.
+
+    Returns
+    -------
+    roughness_std : (N,) float32
+    metallic_std : (N,) float32
+    base_color_std : (N, 3) float32
+    """
+    if own_roughness_std is None:
+        roughness = np.asarray(posterior.roughness_std, np.float32)
+    else:
+        roughness = np.where(np.isfinite(own_roughness_std), np.maximum(own_roughness_std, posterior.roughness_std),
+                             posterior.roughness_std).astype(np.float32)
+    disagreement = np.nan_to_num(np.asarray(own_base_color, np.float64) - estimate.base_color)
+    base_color = np.sqrt(np.asarray(posterior.base_color_std, np.float64) ** 2 + disagreement ** 2).astype(np.float32)
+    return roughness, posterior.metallic_std, base_color
 
 
 class DataPrecision(NamedTuple):
