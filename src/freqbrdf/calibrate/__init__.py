@@ -12,8 +12,9 @@ with a `Calibration` that says what was found and how well the photographs deter
 2. relative gains per photograph (`freqbrdf.calibrate.gains.frame_gains`), where asked
    (``CalibrationConfig.frame_gains``);
 3. one gain per colour channel between the photographs and the map
-   (`freqbrdf.calibrate.gains.channel_gains`), with the materials: twice, the second time on
-   photographs corrected by the first, since the roughness the search finds depends on the gain.
+   (`freqbrdf.calibrate.gains.channel_gains`), with the materials: `GAIN_PASSES` times, each on
+   photographs corrected by the passes before, since the roughness the search finds depends on
+   the gain.
 
 Sits after `freqbrdf.estimate` (it searches the coarse texels) and before the fit that uses it
 (`freqbrdf.pipeline.fit`).
@@ -44,7 +45,7 @@ __all__ = ["Calibration", "GainEstimate", "ProbeRegistration", "axis_angle", "ca
 # Height of the map the probe's turn is scored on (band-limited: its detail is well below this).
 PROBE_MAP_HEIGHT = 128
 # Passes of the channel gains (each on photographs corrected by the ones before).
-GAIN_PASSES = 2
+GAIN_PASSES = 3
 # The exposure and each white-balance ratio are applied where they lie this many of their std from 1.
 SIGNIFICANT_Z = 2.5
 # A gain whose log std exceeds this is poorly determined by the capture (named in a warning).
@@ -144,7 +145,7 @@ class Calibration:
             spread = np.exp(np.abs(np.log(self.frame_gain)).max())
             line += f"; frame gains applied (up to {spread:.2f}x)"
         if self.probe is not None:
-            line += f"; probe turned {self.probe.angle_deg:.1f}°"
+            line += f"; probe turned {self.probe.angle_deg:.1f}°" if self.probe.angle_deg > 0.0 else "; probe kept"
         return line
 
 
