@@ -12,9 +12,9 @@ with a `Calibration` that says what was found and how well the photographs deter
 2. relative gains per photograph (`freqbrdf.calibrate.gains.frame_gains`), where asked
    (``CalibrationConfig.frame_gains``);
 3. one gain per colour channel between the photographs and the map
-   (`freqbrdf.calibrate.gains.channel_gains`), with the materials: `GAIN_PASSES` times, each on
-   photographs corrected by the passes before, since the roughness the search finds depends on
-   the gain.
+   (`freqbrdf.calibrate.gains.channel_gains`), with the materials: up to `GAIN_PASSES` times,
+   each on photographs corrected by the passes before, since the roughness the search finds
+   depends on the gain.
 
 Sits after `freqbrdf.estimate` (it searches the coarse texels) and before the fit that uses it
 (`freqbrdf.pipeline.fit`).
@@ -44,7 +44,9 @@ __all__ = ["Calibration", "GainEstimate", "ProbeRegistration", "axis_angle", "ca
 
 # Height of the map the probe's turn is scored on (band-limited: its detail is well below this).
 PROBE_MAP_HEIGHT = 128
-# Passes of the channel gains (each on photographs corrected by the ones before).
+# Passes of the channel gains (each on photographs corrected by the ones before); they stop early
+# where a pass moves every gain by less than CONVERGED (in log).
+CONVERGED = 0.01
 GAIN_PASSES = 3
 # The exposure and each white-balance ratio are applied where they lie this many of their std from 1.
 SIGNIFICANT_Z = 2.5
@@ -229,6 +231,8 @@ def calibrate(capture: Capture, config: Config = Config(),
                 params, sums = label_sums(current, search)
                 found = channel_gains(sums, params[:, 3])
                 gain, log_std, scored = gain * found.gain, found.log_std, found.texels
+                if np.all(np.abs(np.log(found.gain)) < CONVERGED):
+                    break  # the roughness the search found no longer moves with the gain
                 current = _scaled(observations, gain, config)
             calibration.gain_measured = gain
             gain = _significant(gain, found)

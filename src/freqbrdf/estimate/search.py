@@ -585,8 +585,10 @@ def _prefiltered_stack(observations: Observations, n_full: int, high_degrees: in
     nodes share cache lines.
     """
     radiance = observations.environment_radiance
+    # The maps are filtered in the map's own frame (zonal filters commute with rotations): a turn
+    # of the map (`freqbrdf.calibrate`) keeps them.
     key = (hashlib.blake2b(np.ascontiguousarray(radiance).tobytes(), digest_size=16).hexdigest(), radiance.shape,
-           observations.environment_rotation.tobytes(), n_full, high_degrees)
+           n_full, high_degrees)
     if key not in _PREFILTERED_CACHE:
         envmap = observations.environment()
         maps = prefiltered_environment(envmap, n_full)
