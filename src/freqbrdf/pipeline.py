@@ -29,7 +29,7 @@ from freqbrdf.fileio import atomic_directory, write_json
 from freqbrdf.images import write_png
 from freqbrdf.model.materials import MaterialMaps, save_material_maps
 from freqbrdf.observe.observations import Observations, observe
-from freqbrdf.outputs import export
+from freqbrdf.outputs import export, gltf
 from freqbrdf.outputs.fit_folder import check_output_folder, load_fit
 from freqbrdf.progress import SILENT, Reporter
 from freqbrdf.texels import Texels, rasterise
@@ -512,7 +512,7 @@ def inpaint_fit(fit_dir: str | Path, out_dir: str | Path, settings: inpaint.Inpa
     with atomic_directory(out_dir) as folder:
         save_material_maps(folder, result.maps)
         export.write_material_previews(folder, result.maps)
-        export.write_gltf(folder / export.FILES["gltf"], mesh, result.maps)
+        gltf.write_gltf(folder / export.FILES["gltf"], mesh, result.maps)
         write_png(folder / inpaint.MASK_PNG, np.where(mask, 1.0, np.where(atlas, 0.25, 0.0)).astype(np.float32))
         write_json(folder / export.FILES["summary"], summary)
     return Path(out_dir)

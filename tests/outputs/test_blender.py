@@ -14,7 +14,7 @@ from PIL import Image
 
 from freqbrdf.capture.mesh import uv_sphere_mesh
 from freqbrdf.model.materials import MaterialMaps
-from freqbrdf.outputs import export
+from freqbrdf.outputs import gltf
 
 
 def linked_from(socket):
@@ -44,7 +44,7 @@ def test_material_glb_round_trips_through_blender(tmp_path):
         metallic=np.full((size, size), 0.2, np.float32),
     )
     glb = tmp_path / "material.glb"
-    export.write_gltf(glb, uv_sphere_mesh(32, 16), maps)
+    gltf.write_gltf(glb, uv_sphere_mesh(32, 16), maps)
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
     bpy.ops.import_scene.gltf(filepath=str(glb))

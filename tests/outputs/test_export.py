@@ -22,7 +22,7 @@ from freqbrdf.estimate import MaterialEstimate
 from freqbrdf.fileio import OUTPUT_MARKER, write_json
 from freqbrdf.images import REC709_CHROMATICITIES, read_image
 from freqbrdf.model.materials import MaterialMaps, load_material_maps
-from freqbrdf.outputs import export, report
+from freqbrdf.outputs import export, gltf, report
 from freqbrdf.texels import fill_texture, rasterise
 from freqbrdf.uncertainty import FLAG_UNOBSERVED, Uncertainty, hypothesis_grid
 
@@ -109,7 +109,7 @@ def test_gltf_follows_the_pbr_texture_and_uv_conventions(tmp_path):
         rng.random((size, size)).astype(np.float32),
         rng.random((size, size)).astype(np.float32),
     )
-    export.write_gltf(tmp_path / "material.glb", mesh, maps)
+    gltf.write_gltf(tmp_path / "material.glb", mesh, maps)
     document, binary = read_glb(tmp_path / "material.glb")
 
     material = document["materials"][0]["pbrMetallicRoughness"]
@@ -142,7 +142,7 @@ def test_gltf_names_its_parts_and_targets_its_buffer_views(tmp_path):
     mesh = uv_sphere_mesh(16, 8)
     maps = MaterialMaps(np.full((8, 8, 3), 0.25, np.float32), np.full((8, 8), 0.5, np.float32),
                         np.zeros((8, 8), np.float32))
-    export.write_gltf(tmp_path / "material.glb", mesh, maps)
+    gltf.write_gltf(tmp_path / "material.glb", mesh, maps)
     document, _ = read_glb(tmp_path / "material.glb")
     assert document["asset"] == {"version": "2.0", "generator": f"freqbrdf {__version__}"}
     assert [image["name"] for image in document["images"]] == ["base_color", "metallic_roughness"]
@@ -158,7 +158,7 @@ def test_gltf_names_its_parts_and_targets_its_buffer_views(tmp_path):
     used = [document["accessors"][index]["bufferView"] for index in [*primitive["attributes"].values(), primitive["indices"]]]
     assert len(set(used)) == len(used)
     # Deterministic: the same input gives the same bytes (no timestamp anywhere).
-    export.write_gltf(tmp_path / "again.glb", mesh, maps)
+    gltf.write_gltf(tmp_path / "again.glb", mesh, maps)
     assert (tmp_path / "again.glb").read_bytes() == (tmp_path / "material.glb").read_bytes()
 
 
@@ -194,7 +194,7 @@ def test_gltf_files_pass_the_khronos_validator_without_any_message(tmp_path):
     out = export.write_fit_outputs(tmp_path / "fit", mesh, texels, estimate, uncertainty, config)
     # The report's entropy overlay: the same writer, on the entropy colour map.
     (tmp_path / "entropy.glb").write_bytes(report._entropy_glb(mesh, read_image(out / "entropy.exr")[..., 0]))
-    (tmp_path / "plane.glb").write_bytes(export.gltf_bytes(plane_mesh(), load_material_maps(out)))
+    (tmp_path / "plane.glb").write_bytes(gltf.gltf_bytes(plane_mesh(), load_material_maps(out)))
     files = [out / "material.glb", tmp_path / "entropy.glb", tmp_path / "plane.glb"]
     reports = khronos_validator_reports(files)
     assert len(reports) == len(files)

@@ -3,7 +3,9 @@
 Modules
 -------
 export
-    Hole-free textures, EXR/PNG maps, the glTF 2.0 binary and ``summary.json`` of a fit folder.
+    Hole-free textures, EXR/PNG maps and ``summary.json`` of a fit folder.
+gltf
+    The glTF 2.0 binary of a mesh with its PBR material.
 fit_folder
     A fit folder read back (`FitOutputs`, `load_fit`).
 metrics
@@ -27,17 +29,16 @@ from freqbrdf.outputs.export import (
     entropy_description,
     entropy_texture,
     flags_picture,
-    gltf_bytes,
     material_textures,
     roughness_std_texture,
     roughness_std_values,
     to_float16,
     write_fit_outputs,
-    write_gltf,
     write_material_previews,
     write_scalar_map,
 )
 from freqbrdf.outputs.fit_folder import FitOutputs, check_output_folder, load_fit
+from freqbrdf.outputs.gltf import gltf_bytes, write_gltf
 from freqbrdf.outputs.metrics import (
     PSNRResult,
     erode_mask,

@@ -33,7 +33,7 @@ from freqbrdf.fileio import atomic_directory
 from freqbrdf.images import LUMINANCE, linear_to_srgb, srgb_to_linear, write_png
 from freqbrdf.model import brdf
 from freqbrdf.model.materials import MaterialMaps, resize
-from freqbrdf.outputs import export
+from freqbrdf.outputs import export, gltf
 from freqbrdf.outputs.fit_folder import (
     CALIBRATION_PLOT,
     EVALUATION_FOLDER,
@@ -410,7 +410,7 @@ def _entropy_glb(mesh: Mesh, entropy: np.ndarray) -> bytes:
         roughness=np.ones(entropy.shape, np.float32),
         metallic=np.zeros(entropy.shape, np.float32),
     )
-    return export.gltf_bytes(mesh, maps)
+    return gltf.gltf_bytes(mesh, maps)
 
 
 def _picture_set(folder: Path, prefix: str, maps: MaterialMaps) -> dict[str, str]:
