@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from freqbrdf.calibrate import rotation_about
 from freqbrdf.images import linear_to_srgb, read_image, srgb_to_linear, write_exr
 
 
@@ -59,15 +60,12 @@ class Imperfection:
         return "+".join(parts) or "clean"
 
 
-def _rotation(axis: np.ndarray, angle: float) -> np.ndarray:
-    axis = np.asarray(axis, np.float64) / np.linalg.norm(axis)
-    cross = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
-    return np.eye(3) + np.sin(angle) * cross + (1.0 - np.cos(angle)) * cross @ cross
+def _unit(vector: np.ndarray) -> np.ndarray:
+    return vector / np.linalg.norm(vector)
 
 
 def _random_unit(rng: np.random.Generator) -> np.ndarray:
-    vector = rng.normal(size=3)
-    return vector / np.linalg.norm(vector)
+    return _unit(rng.normal(size=3))
 
 
 def imperfect_capture(source: Path, target: Path, imperfection: Imperfection) -> Path:
@@ -101,13 +99,13 @@ def imperfect_capture(source: Path, target: Path, imperfection: Imperfection) ->
     (scratch / "images").mkdir()
     if imperfection.probe_deg:
         turn = np.eye(4)
-        turn[:3, :3] = _rotation(np.array(imperfection.probe_axis), np.radians(imperfection.probe_deg))
+        turn[:3, :3] = rotation_about(_unit(np.array(imperfection.probe_axis, np.float64)), np.radians(imperfection.probe_deg))
         transforms["envmap_to_world"] = (turn @ np.array(transforms.get("envmap_to_world", np.eye(4)))).tolist()
     gain = imperfection.exposure * np.array(imperfection.white_balance, np.float32)
     for frame in transforms["frames"]:
         matrix = np.array(frame["transform_matrix"], np.float64)
         if imperfection.camera_deg:
-            matrix[:3, :3] = _rotation(_random_unit(rng), np.radians(imperfection.camera_deg)) @ matrix[:3, :3]
+            matrix[:3, :3] = rotation_about(_random_unit(rng), np.radians(imperfection.camera_deg)) @ matrix[:3, :3]
         if imperfection.camera_shift:
             matrix[:3, 3] += imperfection.camera_shift * np.linalg.norm(matrix[:3, 3]) * _random_unit(rng)
         frame["transform_matrix"] = matrix.tolist()

@@ -73,8 +73,6 @@ class Calibration:
         1 (`SIGNIFICANT_Z`) are not applied.
     frame_gain : (V, 3) float64 or None
         Relative gain per photograph and channel (geometric mean 1), where measured and applied.
-    frame_gain_measured : (V, 3) float64 or None
-        The same, as measured.
     probe : ProbeRegistration or None
         The map's turn, where searched.
     dropped_views : list of int
@@ -91,7 +89,6 @@ class Calibration:
     gain_log_std: np.ndarray
     gain_measured: np.ndarray | None = None
     frame_gain: np.ndarray | None = None
-    frame_gain_measured: np.ndarray | None = None
     probe: ProbeRegistration | None = None
     dropped_views: list[int] = field(default_factory=list)
     texels: int = 0
@@ -116,7 +113,7 @@ class Calibration:
         dict
             ``gain`` (applied) and ``gain_std`` (per channel; the std of the gain itself),
             ``gain_measured``, ``exposure``,
-            ``white_balance``, ``frame_gains`` (per view, or None), ``frame_gains_applied``,
+            ``white_balance``, ``frame_gains`` (per view, where measured and applied, or None),
             ``probe`` (the turn: ``angle_deg``, ``axis``, ``std_deg``, ``rotation``, ``explained``
             before and after, ``significance``; or None), ``dropped_views``, ``texels``, ``seconds``.
         """
@@ -127,13 +124,11 @@ class Calibration:
                      "std_deg": None if not np.isfinite(self.probe.std_deg) else self.probe.std_deg,
                      "rotation": self.probe.rotation.tolist(), "explained": list(self.probe.explained),
                      "significance": self.probe.significance}
-        measured = self.frame_gain_measured
         return {
             "gain": self.gain.tolist(), "gain_std": (self.gain * self.gain_log_std).tolist(),
             "gain_measured": None if self.gain_measured is None else self.gain_measured.tolist(),
             "exposure": self.exposure, "white_balance": self.white_balance.tolist(),
-            "frame_gains": None if measured is None else measured.tolist(),
-            "frame_gains_applied": self.frame_gain is not None,
+            "frame_gains": None if self.frame_gain is None else self.frame_gain.tolist(),
             "probe": probe, "dropped_views": list(self.dropped_views), "texels": self.texels,
             "seconds": self.seconds,
         }
@@ -221,7 +216,7 @@ def calibrate(capture: Capture, config: Config = Config(),
         advance(1)
         if settings.frame_gains == "on":
             measured, _ = frame_gains(observations.view_direction, observations.weight, observations.observed)
-            calibration.frame_gain_measured = calibration.frame_gain = measured
+            calibration.frame_gain = measured
             observations = _scaled(observations, measured, config)
         gain, log_std, scored = np.ones(3), np.zeros(3), 0
         if settings.gains:
@@ -271,9 +266,7 @@ def _corrected(capture: Capture, calibration: Calibration, drop_bad_views: bool)
     """Return the capture with every frame's exposure set (and bad views dropped where asked)."""
     frame_gain = calibration.frame_gain if calibration.frame_gain is not None else np.ones((len(capture.frames), 3))
     frames = []
-    measured = calibration.frame_gain_measured
-    bad = (set(np.flatnonzero(np.any(np.abs(np.log(measured)) > np.log(BAD_FRAME_FACTOR), axis=1)).tolist())
-           if measured is not None else set())
+    bad = set(np.flatnonzero(np.any(np.abs(np.log(frame_gain)) > np.log(BAD_FRAME_FACTOR), axis=1)).tolist())
     for index, frame in enumerate(capture.frames):
         if drop_bad_views and index in bad:
             calibration.dropped_views.append(index)
@@ -302,7 +295,7 @@ def _warnings(capture: Capture, calibration: Calibration, settings) -> list[str]
         lines.append(f"the environment map was turned {probe.angle_deg:.1f}° about "
                      f"({', '.join(f'{value:.2f}' for value in axis)}) to match the photographs' reflections "
                      "(calibration): check envmap_to_world")
-    measured = calibration.frame_gain_measured
+    measured = calibration.frame_gain
     if measured is not None:
         worst = np.abs(np.log(measured)).max(axis=1)
         bad = np.flatnonzero(worst > np.log(BAD_FRAME_FACTOR))

@@ -6,14 +6,14 @@ a dielectric: its specular reflectance is fixed (F0 = 0.04), so only the right g
 diffuse and its specular agree, and a base colour cannot exceed 1. Over thousands of texels this
 fixes three numbers.
 
-`channel_gains` scores a gain by the texels' misfit as the best *pure* material (dielectric or
-metal) at their estimated roughness, in the photographs' units, relative to each texel's own
-radiance (every texel counts alike). The search records per texel and channel the weighted sums
-the two labels' losses come from (`freqbrdf.estimate.search.run_search_kernel`'s
-``label_moments``), so the misfit of any gain is closed form. The gains minimise it by
-coordinate search on a grid in log gain, refined by parabolas; their std is the sandwich
-(texels as independent units) of the misfit's curvature, and a prior of one log unit keeps a
-gain the texels do not determine (an all-metal object) near 1.
+`channel_gains` scores a gain per texel by its misfit as the best *pure* material (dielectric or
+metal), in the photographs' units, relative to its own radiance. The search records per texel and
+channel the weighted sums the two labels' losses come from, at the estimated roughness and at a
+grid of roughness nodes (`freqbrdf.estimate.label_sums`), so the misfit of any gain is closed form
+(`freqbrdf.calibrate._kernels`). Each texel's minimiser over a grid of log gains is its own
+estimate, weighted by its curvature over its misfit; the exposure and the white-balance ratios are
+weighted medians over the texels; their std adds the model's own misfit on calibrated captures,
+and a prior of one log unit keeps a gain the texels do not determine (an all-metal object) near 1.
 
 `frame_gains` compares each photograph with what the other views say of the same texels (a
 low-degree SH fit of the texels' radiance, left out one view at a time), for captures whose frames

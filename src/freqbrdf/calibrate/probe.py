@@ -110,7 +110,6 @@ class _Scorer:
         w = np.asarray(weight[keep], np.float64)[self.sampled]
         self.w = w
         f = np.asarray(observed[keep], np.float64)[self.sampled].mean(axis=1)  # grey
-        self.f = f
         self.sum_w = np.bincount(self.texel_of, w, self.n_texels)
         self.mean_f = np.bincount(self.texel_of, w * f, self.n_texels) / self.sum_w
         centred = f - self.mean_f[self.texel_of]

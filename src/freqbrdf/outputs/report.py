@@ -560,7 +560,7 @@ def _calibration_paragraph(summary: dict) -> str:
             spread = "" if probe.get("std_deg") is None else f" (± {probe['std_deg']:.1f}°)"
             lines.append(f"the map turned {probe['angle_deg']:.1f}°{spread} to match their reflections"
                          if probe["angle_deg"] > 0.0 else f"the map's registration kept{spread}")
-        if found.get("frame_gains_applied"):
+        if found.get("frame_gains") is not None:
             lines.append("a gain per photograph applied")
     text = "; ".join(lines) + "." if lines else ""
     warnings = "".join(f"<li>{html.escape(line)}</li>" for line in summary.get("warnings", []))
