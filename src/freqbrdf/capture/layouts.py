@@ -242,6 +242,29 @@ def load(path: str | Path) -> Capture:
     ------
     InputError
         Naming the file, for anything missing or malformed.
+
+    Examples
+    --------
+    A tiny synthetic capture (`freqbrdf.synthetic.synthesize`: six 24 x 24 views of a sphere,
+    with ground-truth maps), loaded from its folder:
+
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> from freqbrdf.capture import load
+    >>> from freqbrdf.synthetic import SynthSettings, synthesize
+    >>> work = tempfile.TemporaryDirectory()
+    >>> tiny = SynthSettings(mesh="sphere", views=6, resolution=24, spp=1, texture_res=16, test_views=0)
+    >>> folder = synthesize(Path(work.name) / "capture", tiny, progress=False)
+    >>> sorted(path.name for path in folder.iterdir())
+    ['.freqbrdf', 'envmap.exr', 'gt', 'images', 'masks', 'mesh.obj', 'transforms.json']
+    >>> capture = load(folder)
+    >>> capture.layout, len(capture.frames), len(capture.test_frames)
+    ('freqbrdf', 6, 0)
+    >>> capture.image(0).shape, capture.image(0).dtype, capture.mask(0).shape  # read on demand
+    ((24, 24, 3), dtype('float32'), (24, 24))
+    >>> capture.ground_truth.base_color.shape
+    (16, 16, 3)
+    >>> work.cleanup()
     """
     from freqbrdf.capture import stanford_orb  # it builds on this module
 
