@@ -229,6 +229,34 @@ def estimate(observations: Observations, config: Config = Config(), reporter: Re
     ------
     ValueError
         If the settings are invalid, or ``hypotheses`` are given to another method.
+
+    Examples
+    --------
+    The per-texel estimate of a tiny synthetic capture's observations (`freqbrdf.pipeline.fit`
+    adds the whole-surface estimate, which also gives values to the texels left NaN here):
+
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> import numpy as np
+    >>> from freqbrdf.capture import load
+    >>> from freqbrdf.config import Config, TexelConfig
+    >>> from freqbrdf.estimate import estimate
+    >>> from freqbrdf.observe import observe
+    >>> from freqbrdf.synthetic import SynthSettings, synthesize
+    >>> work = tempfile.TemporaryDirectory()
+    >>> tiny = SynthSettings(mesh="sphere", views=6, resolution=24, spp=1, texture_res=16, test_views=0)
+    >>> capture = load(synthesize(Path(work.name) / "capture", tiny, progress=False))
+    >>> config = Config(texels=TexelConfig(texture_res=32))
+    >>> materials = estimate(observe(capture, config), config)
+    >>> materials.method, materials.base_color.shape, materials.roughness.shape  # (N, 3), (N,)
+    ('global', (1024, 3), (1024,))
+    >>> seen = materials.estimated
+    >>> bool(np.isnan(materials.roughness[~seen]).all())  # not estimated: NaN
+    True
+    >>> roughness = materials.roughness[seen]
+    >>> bool(((0 <= roughness) & (roughness <= 1)).all())
+    True
+    >>> work.cleanup()
     """
     settings = config.estimate
     _validate(settings)

@@ -424,6 +424,31 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
     ------
     InputError
         If the capture has no frames.
+
+    Examples
+    --------
+    A tiny synthetic capture (six 24 x 24 views of a sphere) observed on 32 x 32 texels; the
+    sphere's atlas fills the texture, so N = 1024:
+
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> from freqbrdf.capture import load
+    >>> from freqbrdf.config import Config, TexelConfig
+    >>> from freqbrdf.observe import observe
+    >>> from freqbrdf.synthetic import SynthSettings, synthesize
+    >>> work = tempfile.TemporaryDirectory()
+    >>> tiny = SynthSettings(mesh="sphere", views=6, resolution=24, spp=1, texture_res=16, test_views=0)
+    >>> capture = load(synthesize(Path(work.name) / "capture", tiny, progress=False))
+    >>> observations = observe(capture, Config(texels=TexelConfig(texture_res=32)))
+    >>> observations.observed.shape, observations.observed.dtype  # (N, V, 3)
+    ((1024, 6, 3), dtype('float32'))
+    >>> observations.weight.shape, observations.irradiance.shape  # (N, V), (N, 3)
+    ((1024, 6), (1024, 3))
+    >>> observations.lmax, observations.observed_coeffs.shape  # (N, 3, K), K = (l* + 1)^2
+    (5, (1024, 3, 36))
+    >>> bool((observations.n_samples <= 6).all())  # samples per texel: at most one a view
+    True
+    >>> work.cleanup()
     """
     timings = dict.fromkeys(STAGES, 0.0)
     start = time.perf_counter()

@@ -98,6 +98,33 @@ def entropy_map(
     -------
     Uncertainty
         Of the N texels; its roughness_std is not computed (`roughness_std`).
+
+    Examples
+    --------
+    The calibrated entropy of a tiny synthetic capture's observations:
+
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> from freqbrdf.capture import load
+    >>> from freqbrdf.config import Config, TexelConfig
+    >>> from freqbrdf.observe import observe
+    >>> from freqbrdf.synthetic import SynthSettings, synthesize
+    >>> from freqbrdf.uncertainty import FLAG_UNOBSERVED, entropy_map
+    >>> work = tempfile.TemporaryDirectory()
+    >>> tiny = SynthSettings(mesh="sphere", views=6, resolution=24, spp=1, texture_res=16, test_views=0)
+    >>> capture = load(synthesize(Path(work.name) / "capture", tiny, progress=False))
+    >>> observations = observe(capture, Config(texels=TexelConfig(texture_res=32)))
+    >>> uncertainty = entropy_map(observations)
+    >>> uncertainty.mode, uncertainty.entropy.shape, uncertainty.flags.dtype  # (N,)
+    ('calibrated', (1024,), dtype('uint8'))
+    >>> uncertainty.likelihood.shape  # (N, R, R): the posterior over the hypothesis grid
+    (1024, 8, 8)
+    >>> bool(((0 <= uncertainty.entropy) & (uncertainty.entropy <= 1)).all())
+    True
+    >>> unobserved = (uncertainty.flags & FLAG_UNOBSERVED) != 0
+    >>> bool((uncertainty.entropy[unobserved] == 1).all())  # nothing seen: the most uncertain
+    True
+    >>> work.cleanup()
     """
     if config.mode == "angular":
         return entropy_angular(observations, Config(uncertainty=config, estimate=estimate_config, device=device),
