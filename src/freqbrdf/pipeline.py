@@ -182,6 +182,36 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
     ------
     ValueError
         If ``config.fit.lmax`` < 1 (the entropy compares degrees 1 .. l*).
+
+    Examples
+    --------
+    A tiny synthetic capture (six 24 x 24 views of a sphere) fitted into 32 x 32 maps, and the fit
+    folder written (`write_fit`) as ``freqbrdf fit`` writes it:
+
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> from freqbrdf import pipeline
+    >>> from freqbrdf.capture import load
+    >>> from freqbrdf.config import Config, TexelConfig
+    >>> from freqbrdf.synthetic import SynthSettings, synthesize
+    >>> work = tempfile.TemporaryDirectory()
+    >>> tiny = SynthSettings(mesh="sphere", views=6, resolution=24, spp=1, texture_res=16, test_views=0)
+    >>> capture = load(synthesize(Path(work.name) / "capture", tiny, progress=False))
+    >>> config = Config(texels=TexelConfig(texture_res=32))
+    >>> result = pipeline.fit(capture, config)
+    >>> result.maps.base_color.shape, result.maps.roughness.shape, result.maps.metallic.shape  # T x T
+    ((32, 32, 3), (32, 32), (32, 32))
+    >>> result.observations.observed.shape  # (N, V, 3): N texels, V views
+    (1024, 6, 3)
+    >>> result.uncertainty.roughness_std.shape, result.uncertainty.base_color_std.shape  # (N,), (N, 3)
+    ((1024,), (1024, 3))
+    >>> folder = pipeline.write_fit(Path(work.name) / "fit", result, config)
+    >>> sorted(path.name for path in folder.glob("*.exr"))
+    ['base_color.exr', 'base_color_std.exr', 'entropy.exr', 'metallic.exr', 'metallic_std.exr',
+     'roughness.exr', 'roughness_std.exr']
+    >>> (folder / "material.glb").is_file(), (folder / "summary.json").is_file()
+    (True, True)
+    >>> work.cleanup()
     """
     if config.fit.lmax < 1:  # checked before the work: the entropy compares degrees 1..l*
         raise ValueError(f"fit needs FitConfig.lmax >= 1 (the entropy compares degrees 1..l*), got {config.fit.lmax}")
