@@ -66,6 +66,35 @@ def evaluate_fit(fit_outputs: FitOutputs, capture: Capture, out_dir: str | Path 
     InputError
         If ``out_dir`` would replace the fit or the capture folder, or there is nothing to score:
         no test views, and ground truth in a UV layout the fit's mesh does not have.
+
+    Examples
+    --------
+    A tiny synthetic capture (with ground-truth maps and one relighting view) fitted, written,
+    read back and scored; relit with 4 samples per pixel and without LPIPS, to be quick:
+
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> from freqbrdf import pipeline
+    >>> from freqbrdf.capture import load
+    >>> from freqbrdf.config import Config, TexelConfig
+    >>> from freqbrdf.outputs import RelightSettings, evaluate_fit, load_fit
+    >>> from freqbrdf.synthetic import SynthSettings, synthesize
+    >>> work = tempfile.TemporaryDirectory()
+    >>> tiny = SynthSettings(mesh="sphere", views=6, resolution=24, spp=1, texture_res=16, test_views=1,
+    ...                      test_envmaps=1)
+    >>> capture = load(synthesize(Path(work.name) / "capture", tiny, progress=False))
+    >>> config = Config(texels=TexelConfig(texture_res=32))
+    >>> folder = pipeline.write_fit(Path(work.name) / "fit", pipeline.fit(capture, config), config)
+    >>> metrics = evaluate_fit(load_fit(folder), capture, settings=RelightSettings(spp=4, lpips=False))
+    >>> sorted(metrics["texture"])  # against the ground-truth maps
+    ['base_color_psnr', 'metallic_mae', 'roughness_mae', 'texels']
+    >>> len(metrics["views"]), sorted(metrics["relighting"])  # the test views relit (Stanford-ORB's scores)
+    (1, ['lpips', 'psnr_hdr', 'psnr_ldr', 'ssim'])
+    >>> metrics["relighting"]["lpips"] is None  # not computed
+    True
+    >>> (folder / "evaluation" / "metrics.json").is_file()
+    True
+    >>> work.cleanup()
     """
     out = Path(out_dir) if out_dir is not None else fit_outputs.folder / EVALUATION_FOLDER
     if capture.ground_truth_refused is not None and not capture.test_frames:

@@ -354,6 +354,37 @@ def write_fit_outputs(
     ------
     ValueError
         If the estimate was not made on ``source``'s texels.
+
+    Examples
+    --------
+    The per-texel estimate and entropy of a tiny synthetic capture written as a fit folder
+    (`freqbrdf.pipeline.write_fit` writes a whole `freqbrdf.pipeline.fit` this way), and read back:
+
+    >>> import json
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> from freqbrdf.capture import load
+    >>> from freqbrdf.config import Config, TexelConfig
+    >>> from freqbrdf.estimate import estimate
+    >>> from freqbrdf.observe import observe
+    >>> from freqbrdf.outputs import load_fit, write_fit_outputs
+    >>> from freqbrdf.synthetic import SynthSettings, synthesize
+    >>> from freqbrdf.uncertainty import entropy_map
+    >>> work = tempfile.TemporaryDirectory()
+    >>> tiny = SynthSettings(mesh="sphere", views=6, resolution=24, spp=1, texture_res=16, test_views=0)
+    >>> capture = load(synthesize(Path(work.name) / "capture", tiny, progress=False))
+    >>> config = Config(texels=TexelConfig(texture_res=32))
+    >>> observations = observe(capture, config)
+    >>> materials = estimate(observations, config)
+    >>> folder = write_fit_outputs(Path(work.name) / "fit", capture.mesh, observations, materials,
+    ...                            entropy_map(observations), config)
+    >>> json.loads((folder / "summary.json").read_text())["files"]
+    ['base_color.exr', 'roughness.exr', 'metallic.exr', 'base_color.png', 'roughness.png', 'metallic.png',
+     'material.glb', 'entropy.exr', 'entropy.png', 'flags.png', 'uncertainty.npz', 'spectra.npz', 'summary.json']
+    >>> fit = load_fit(folder)
+    >>> fit.maps.base_color.shape, fit.maps.roughness.shape
+    ((32, 32, 3), (32, 32))
+    >>> work.cleanup()
     """
     if not np.array_equal(source.texel_index, estimate.texel_index):
         raise ValueError("the estimate was not made on these texels (texel_index differs)")
