@@ -310,6 +310,31 @@ def select_views(
     ------
     ValueError
         If ``budget`` is out of range or ``max_texels`` < 1.
+
+    Examples
+    --------
+    Two of twelve candidate views around a tiny synthetic capture (six 24 x 24 views of a
+    sphere), scored on 32 x 32 texels (``freqbrdf next-views`` scores on the fit's estimation
+    resolution):
+
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> from freqbrdf.applications import sample_candidates, select_views
+    >>> from freqbrdf.capture import load
+    >>> from freqbrdf.config import Config, TexelConfig
+    >>> from freqbrdf.synthetic import SynthSettings, synthesize
+    >>> work = tempfile.TemporaryDirectory()
+    >>> tiny = SynthSettings(mesh="sphere", views=6, resolution=24, spp=1, texture_res=16, test_views=0)
+    >>> capture = load(synthesize(Path(work.name) / "capture", tiny, progress=False))
+    >>> candidates = sample_candidates(capture, 12)  # spread on a sphere around the object
+    >>> picks = select_views(capture, candidates, 2, Config(texels=TexelConfig(texture_res=32)))
+    >>> [pick.rank for pick in picks], len({pick.candidate for pick in picks})
+    ([0, 1], 2)
+    >>> all(pick.expected_uncertainty < pick.uncertainty_before for pick in picks)  # each lowers the mean std
+    True
+    >>> picks[0].camera.width, picks[0].camera.height  # the capture's intrinsics
+    (24, 24)
+    >>> work.cleanup()
     """
     taken = view_directions(capture, [frame.camera for frame in capture.frames])
     directions = view_directions(capture, candidates) if len(candidates) else np.zeros((0, 3))

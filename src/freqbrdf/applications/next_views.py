@@ -52,6 +52,34 @@ def write_next_views(out_dir: str | Path, capture: Capture, picks: Sequence[Pick
     -------
     Path
         ``out_dir``.
+
+    Examples
+    --------
+    The two views `select_views` picks among twelve around a tiny synthetic capture, written as
+    ``freqbrdf next-views`` writes them:
+
+    >>> import json
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> from freqbrdf.applications import sample_candidates, select_views, write_next_views
+    >>> from freqbrdf.capture import load
+    >>> from freqbrdf.config import Config, TexelConfig
+    >>> from freqbrdf.synthetic import SynthSettings, synthesize
+    >>> work = tempfile.TemporaryDirectory()
+    >>> tiny = SynthSettings(mesh="sphere", views=6, resolution=24, spp=1, texture_res=16, test_views=0)
+    >>> capture = load(synthesize(Path(work.name) / "capture", tiny, progress=False))
+    >>> candidates = sample_candidates(capture, 12)
+    >>> picks = select_views(capture, candidates, 2, Config(texels=TexelConfig(texture_res=32)))
+    >>> folder = write_next_views(Path(work.name) / "next", capture, picks, {"budget": 2}, candidates)
+    >>> sorted(path.name for path in folder.iterdir())
+    ['.freqbrdf', 'guidance.json', 'next_views.json', 'next_views.png']
+    >>> frames = json.loads((folder / "next_views.json").read_text())["frames"]
+    >>> [frame["file_path"] for frame in frames]  # where the new photographs go
+    ['images/next_000.exr', 'images/next_001.exr']
+    >>> sorted(frames[0])
+    ['candidate', 'decided_by', 'expected_gain', 'expected_mean_std', 'file_path', 'rank', 'transform_matrix',
+     'unseen_area']
+    >>> work.cleanup()
     """
     from freqbrdf.capture.layouts import Frame, write_transforms
     from freqbrdf.fileio import atomic_directory, write_json
