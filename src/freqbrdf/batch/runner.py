@@ -124,6 +124,31 @@ def run(manifest: str | Path, out: str | Path, *, workers: int | None = None, th
         writes to ``out``; before any capture is sent.
     BatchInterrupted
         On Ctrl-C or SIGTERM, after batch.json records what finished.
+
+    Examples
+    --------
+    A manifest of one tiny synthetic capture (JSON Lines: one capture a line), checked as `run`
+    checks it before any work (`read_manifest`). The run itself starts Ray and its workers, which
+    takes longer than an example should, so its two lines are shown but not run here
+    (``tests/batch`` runs batches):
+
+    >>> import json
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> from freqbrdf import batch
+    >>> from freqbrdf.synthetic import SynthSettings, synthesize
+    >>> work = tempfile.TemporaryDirectory()
+    >>> root = Path(work.name)
+    >>> tiny = SynthSettings(mesh="sphere", views=6, resolution=24, spp=1, texture_res=16, test_views=0)
+    >>> _ = synthesize(root / "captures" / "sphere", tiny, progress=False)
+    >>> line = {"name": "ball", "capture": "captures/sphere", "texture_res": 32, "report": False}
+    >>> _ = (root / "captures.jsonl").write_text(json.dumps(line))
+    >>> [(entry.name, entry.capture.name, entry.settings) for entry in batch.read_manifest(root / "captures.jsonl")]
+    [('ball', 'sphere', {'texture_res': 32, 'report': False})]
+    >>> summary = batch.run(root / "captures.jsonl", root / "out", workers=1)  # doctest: +SKIP
+    >>> summary["counts"]  # doctest: +SKIP
+    {'done': 1, 'skipped': 0, 'failed': 0, 'interrupted': 0}
+    >>> work.cleanup()
     """
     manifest, out = Path(manifest), Path(out)
     entries = read_manifest(manifest, defaults)
