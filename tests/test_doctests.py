@@ -17,8 +17,27 @@ MODULES = sorted(
 )
 
 
-def test_the_entry_points_have_examples():
-    assert "freqbrdf.sphere.harmonics" in MODULES
+# The functions a user calls first, each with an Examples section (module, function).
+ENTRY_POINTS = [
+    ("freqbrdf.capture.layouts", "load"),
+    ("freqbrdf.pipeline", "fit"),
+    ("freqbrdf.observe.observations", "observe"),
+    ("freqbrdf.estimate", "estimate"),
+    ("freqbrdf.uncertainty", "entropy_map"),
+    ("freqbrdf.applications.guidance", "select_views"),
+    ("freqbrdf.applications.next_views", "write_next_views"),
+    ("freqbrdf.outputs.export", "write_fit_outputs"),
+    ("freqbrdf.outputs.evaluate", "evaluate_fit"),
+    ("freqbrdf.batch.runner", "run"),
+    ("freqbrdf.sphere.harmonics", "fit_sh"),
+]
+
+
+@pytest.mark.parametrize("module_name, name", ENTRY_POINTS)
+def test_the_entry_points_have_examples(module_name, name):
+    assert module_name in MODULES
+    doc = getattr(importlib.import_module(module_name), name).__doc__
+    assert "\n    Examples\n    --------\n" in doc and "\n    >>> " in doc
 
 
 @pytest.mark.parametrize("name", MODULES)
