@@ -66,8 +66,11 @@ CASES = {
     "8-bit sRGB": Imperfection(eight_bit=True),
     "combined (2x, wb, 10 deg, noise)": Imperfection(exposure=2.0, white_balance=(1.1, 1.0, 0.9), probe_deg=10.0,
                                                      shot_noise=0.03, read_noise=0.003),
+    "all (2x, wb, 10 deg, cameras 0.5 deg, noise)": Imperfection(
+        exposure=2.0, white_balance=(1.1, 1.0, 0.9), probe_deg=10.0, camera_deg=0.5, camera_shift=0.005,
+        shot_noise=0.03, read_noise=0.003),
 }
-OFF = CalibrationConfig(gains=False, probe_rotation=False, frame_gains="off")
+OFF = CalibrationConfig(gains=False, cameras=False, probe_rotation=False, frame_gains="off")
 # The issue's bounds against the clean fit of the same scene, calibration on.
 BOUNDS = {"base_color_psnr": -0.5, "roughness_mae": 0.01, "metallic_mae": 0.02, "dielectric_called_metal": 0.03}
 
@@ -78,8 +81,29 @@ def scores(maps, truth, seen) -> dict:
                                         "dielectric_called_metal")}
 
 
+def camera_turns(cameras, clean) -> np.ndarray:
+    """(V,) degrees between each camera's orientation and the one the photographs were rendered with."""
+    turns = []
+    for camera, frame in zip(cameras, clean.frames):
+        _, angle = axis_angle(camera.camera_to_world[:3, :3] @ frame.camera.camera_to_world[:3, :3].T)
+        turns.append(np.degrees(angle))
+    return np.array(turns)
+
+
+def camera_errors(given, refined, clean) -> dict:
+    """The cameras' turn and shift from the rendered poses, given and refined: median and largest."""
+    found = {}
+    for label, cameras in (("given", given), ("refined", refined)):
+        turns = camera_turns(cameras, clean)
+        shifts = np.array([np.linalg.norm(camera.center - frame.camera.center) / np.linalg.norm(frame.camera.center)
+                           for camera, frame in zip(cameras, clean.frames)])
+        found[label] = {"turn_deg_median": float(np.median(turns)), "turn_deg_max": float(turns.max()),
+                        "shift_median": float(np.median(shifts))}
+    return found
+
+
 def run_case(scene: str, source: Path, name: str, imperfection: Imperfection, truth, seen, config: Config,
-             clean_gain: np.ndarray | None) -> dict:
+             clean_gain: np.ndarray | None, clean) -> dict:
     folder = imperfect_capture(source, scenes.CACHE / "calibration" / f"{source.name}_{imperfection.name()}",
                                imperfection)
     capture = load(folder)
@@ -105,9 +129,11 @@ def run_case(scene: str, source: Path, name: str, imperfection: Imperfection, tr
                             else found.probe.std_deg,
                             "left_deg": float(np.degrees(left))}
             row["warnings"] = list(result.warnings)
+            if found.cameras is not None:
+                row["cameras"] = camera_errors([frame.camera for frame in capture.frames], found.cameras.cameras, clean)
     print(f"[{scene}] {name}: off {row['off']['scores']} on {row['on']['scores']} gain "
           f"{np.round(row['gain']['found'], 3).tolist()} probe left {row['probe']['left_deg']:.2f} deg "
-          f"calibrate {row['on']['calibrate_seconds']:.2f} s", flush=True)
+          f"calibrate {row['on']['calibrate_seconds']:.2f} s cameras {row.get('cameras')}", flush=True)
     return row
 
 
@@ -120,7 +146,7 @@ def run_scene(scene: str, render: dict, cases: list[str]) -> dict:
     rows = {}
     clean_gain = None
     for name in ["clean"] + [case for case in cases if case != "clean"]:
-        rows[name] = run_case(scene, source, name, CASES[name], clean.ground_truth, seen, config, clean_gain)
+        rows[name] = run_case(scene, source, name, CASES[name], clean.ground_truth, seen, config, clean_gain, clean)
         if name == "clean":
             clean_gain = np.array(rows[name]["gain"]["found"])
     clean_on, clean_off = rows["clean"]["on"]["scores"], rows["clean"]["off"]["scores"]
@@ -141,7 +167,8 @@ def markdown(results: dict) -> str:
              "(relative error per channel).", ""]
     for scene, found in results["scenes"].items():
         lines += [f"## {scene}", "", "| case | BC dB | R MAE | M MAE | D->M | gain error (R, G, B) | probe left (deg) "
-                  "| calibrate s | fit s (on) |", "|---|---|---|---|---|---|---|---|---|"]
+                  "| cameras' turn (deg): given / refined, median (largest) | calibrate s | fit s (on) |",
+                  "|---|---|---|---|---|---|---|---|---|---|"]
         for name, row in found["cases"].items():
             off, on = row["off"]["scores"], row["on"]["scores"]
             cells = [f"{off['base_color_psnr']:.2f} / {on['base_color_psnr']:.2f}",
@@ -151,10 +178,19 @@ def markdown(results: dict) -> str:
                      ", ".join(f"{value:+.1%}" for value in row["gain"]["relative_error"]),
                      f"{row['probe']['left_deg']:.2f}" if row["probe"]["left_deg"] == row["probe"]["left_deg"]
                      else "-",
+                     _camera_cell(row.get("cameras")),
                      f"{row['on']['calibrate_seconds']:.2f}", f"{row['on']['seconds']:.1f}"]
             lines.append(f"| {name} | " + " | ".join(cells) + " |")
         lines.append("")
     return "\n".join(lines)
+
+
+def _camera_cell(cameras: dict | None) -> str:
+    if cameras is None:
+        return "-"
+    given, refined = cameras["given"], cameras["refined"]
+    return (f"{given['turn_deg_median']:.2f} ({given['turn_deg_max']:.2f}) / "
+            f"{refined['turn_deg_median']:.3f} ({refined['turn_deg_max']:.3f})")
 
 
 def main(argv=None) -> int:

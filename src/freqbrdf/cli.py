@@ -365,14 +365,15 @@ def fit(
     occlusion: bool = typer.Option(None, "--environment-occlusion/--no-environment-occlusion", help=OCCLUSION_HELP),
     calibration: str = typer.Option(
         "auto", "--calibration", help="What the photographs calibrate before the fit: auto (exposure and white "
-        "balance, the environment map's turn), gains (exposure and white balance only) or none (the photographs "
+        "balance, the cameras' poses against the masks, the environment map's turn), gains (exposure and white balance only) or none (the photographs "
         "and the map share one scale and frame, as given)."),
     frame_gains: bool = typer.Option(
         False, "--frame-gains", help="Also measure and apply a relative gain per photograph (photographs at other "
         "shutter speeds or with auto-exposure)."),
     drop_bad_views: bool = typer.Option(
-        False, "--drop-bad-views", help="With --frame-gains: leave out photographs whose gain is more than 2x the "
-        "others' (they are named in a warning either way)."),
+        False, "--drop-bad-views", help="Leave out photographs whose outline refining does not bring onto their mask "
+        "(--calibration auto) or, with --frame-gains, whose gain is more than 2x the others' (they are named in a "
+        "warning either way)."),
     device: str = typer.Option("auto", "--device", help=DEVICE_HELP),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars or messages."),
     json_output: bool = typer.Option(False, "--json", help="Print summary.json to stdout."),

@@ -92,18 +92,20 @@ CALIBRATION_CHOICES = ("auto", "gains", "none")
 def calibration_from_options(settings, calibration: str, frame_gains: bool, drop_bad_views: bool):
     """Build the `freqbrdf.config.CalibrationConfig` of ``fit``'s calibration options, checked before any work.
 
-    ``auto``: exposure and white balance and the map's turn; ``gains``: exposure and white balance
-    only; ``none``: nothing. ``frame_gains`` adds a gain per photograph, ``drop_bad_views`` (which
-    needs it) leaves out photographs far from the others.
+    ``auto``: exposure and white balance, the cameras' poses and the map's turn; ``gains``:
+    exposure and white balance only; ``none``: nothing. ``frame_gains`` adds a gain per photograph;
+    ``drop_bad_views`` leaves out photographs far from the others (by their gains, with
+    ``frame_gains``) or whose outline refining does not bring onto their mask.
     """
     import dataclasses
 
     if calibration not in CALIBRATION_CHOICES:
         raise typer.BadParameter(f"--calibration must be one of {', '.join(CALIBRATION_CHOICES)}; got {calibration!r}")
-    if drop_bad_views and not frame_gains:
-        raise typer.BadParameter("--drop-bad-views finds bad views by their gains: add --frame-gains")
-    chosen = {"auto": {"gains": True, "probe_rotation": True},
-              "gains": {"gains": True, "probe_rotation": False},
-              "none": {"gains": False, "probe_rotation": False}}[calibration]
+    if drop_bad_views and calibration != "auto" and not frame_gains:
+        raise typer.BadParameter("--drop-bad-views finds bad views by their outline (--calibration auto) or their "
+                                 "gains (--frame-gains)")
+    chosen = {"auto": {"gains": True, "cameras": True, "probe_rotation": True},
+              "gains": {"gains": True, "cameras": False, "probe_rotation": False},
+              "none": {"gains": False, "cameras": False, "probe_rotation": False}}[calibration]
     return dataclasses.replace(settings, drop_bad_views=drop_bad_views, frame_gains="on" if frame_gains else "off",
                                **chosen)

@@ -322,19 +322,23 @@ class CalibrationConfig:
     """A relative gain per photograph, for photographs at other shutter speeds or with auto-exposure: "on"
     measures and applies them. Off by default: on captures exposed alike they add more error than they remove
     (docs/results.md#calibration)."""
+    cameras: bool = True
+    """Refine each camera's pose so that the mesh's outline falls on its mask's edge (photographs with a mask)."""
     probe_rotation: bool = True
     """Refine the environment map's rotation by how well it explains the photographs' reflections."""
     probe_search_deg: float = 25.0
     """Largest turn of the map searched, in degrees about each axis."""
     drop_bad_views: bool = False
-    """Drop photographs that disagree with the others beyond what calibration explains (else only named in a
-    warning)."""
+    """Drop photographs that disagree with the others, or whose outline refining does not bring onto their mask,
+    beyond what calibration explains (else only named in a warning)."""
     texture_res: int = 64
     """Side of the coarse texture whose texels calibrate (a few thousand texels: milliseconds per hypothesis)."""
     warn_gain: float = 0.10
     """A gain farther than this (as |log gain|) from 1 is named in a warning."""
     warn_rotation_deg: float = 3.0
     """A map turn larger than this is named in a warning."""
+    warn_camera_deg: float = 0.25
+    """Cameras turned by more than this (the median over the views) are named in a warning."""
 
     def __post_init__(self):
         _check_choices(self)
@@ -342,11 +346,12 @@ class CalibrationConfig:
         _require(self, "texture_res", 8 <= self.texture_res <= 1024, "[8, 1024]")
         _require(self, "warn_gain", self.warn_gain > 0.0, "(0, inf)")
         _require(self, "warn_rotation_deg", self.warn_rotation_deg > 0.0, "(0, inf)")
+        _require(self, "warn_camera_deg", self.warn_camera_deg > 0.0, "(0, inf)")
 
     @property
     def enabled(self) -> bool:
         """Whether anything is calibrated."""
-        return self.gains or self.probe_rotation or self.frame_gains == "on"
+        return self.gains or self.cameras or self.probe_rotation or self.frame_gains == "on"
 
 
 @dataclass(frozen=True)
@@ -491,7 +496,7 @@ def preset(name: str = "default") -> Config:
             fit=FitConfig(reg_lambda=1e-3, scale_lambda_with_weight=False),
             uncertainty=UncertaintyConfig(mode="paper", grid_res=8, temperature=1e-5),
             estimate=EstimateConfig(method="paper"),
-            calibration=CalibrationConfig(gains=False, frame_gains="off", probe_rotation=False),  # assumes a calibrated capture
+            calibration=CalibrationConfig(gains=False, frame_gains="off", cameras=False, probe_rotation=False),  # assumes a calibrated capture
         )
     raise ValueError(f"unknown preset {name!r}; choose one of {', '.join(PRESETS)}")
 

@@ -220,6 +220,41 @@ def clipped_pixels(image: np.ndarray) -> np.ndarray:
     return grown
 
 
+def read_mask_coverage(path: str | Path, from_alpha: bool = False) -> np.ndarray:
+    """Read an object mask as the share of each pixel the object covers.
+
+    Parameters
+    ----------
+    path : str or Path
+        An image file of a type `read_image` reads; no sRGB decoding (masks are not radiance).
+    from_alpha : bool, optional
+        Take the alpha channel (NeRF-synthetic's RGBA frames); else the alpha channel where it is
+        not constant, otherwise the mean colour.
+
+    Returns
+    -------
+    (H, W) float32
+        Coverage in [0, 1] (of full scale for PNG/JPEG, of 1.0 for HDR files); an anti-aliased
+        mask's edge pixels lie between.
+
+    Raises
+    ------
+    InputError
+        If the type is unsupported, the file is missing or unreadable, or ``from_alpha`` and it has
+        no alpha channel.
+    """
+    pixels, _ = _read_pixels(Path(path))  # (H, W, C); no sRGB decoding: masks are not radiance
+    channels = pixels.shape[2]
+    has_alpha = channels in (2, 4)
+    if from_alpha and not has_alpha:
+        raise InputError(path, "has no alpha channel to take the object mask from")
+    if has_alpha and (from_alpha or np.ptp(pixels[..., -1]) > 0):
+        coverage = pixels[..., -1]
+    else:
+        coverage = (pixels[..., :-1] if has_alpha else pixels).mean(axis=2)
+    return np.clip(coverage, 0.0, 1.0).astype(np.float32)
+
+
 def read_mask(path: str | Path) -> np.ndarray:
     """Read an object mask.
 
@@ -239,13 +274,7 @@ def read_mask(path: str | Path) -> np.ndarray:
     InputError
         If the type is unsupported or the file is missing or unreadable.
     """
-    pixels, _ = _read_pixels(Path(path))  # (H, W, C); no sRGB decoding: masks are not radiance
-    channels = pixels.shape[2]
-    has_alpha = channels in (2, 4)
-    if has_alpha and np.ptp(pixels[..., -1]) > 0:
-        return pixels[..., -1] > 0.5
-    colour = pixels[..., :-1] if has_alpha else pixels
-    return colour.mean(axis=2) > 0.5
+    return read_mask_coverage(path) > 0.5
 
 
 def read_alpha_mask(path: str | Path) -> np.ndarray:
@@ -266,10 +295,7 @@ def read_alpha_mask(path: str | Path) -> np.ndarray:
     InputError
         If the file is unreadable or has no alpha channel.
     """
-    pixels, _ = _read_pixels(Path(path))  # (H, W, C)
-    if pixels.shape[2] not in (2, 4):
-        raise InputError(path, "has no alpha channel to take the object mask from")
-    return pixels[..., -1] > 0.5
+    return read_mask_coverage(path, from_alpha=True) > 0.5
 
 
 def image_has_alpha(path: str | Path) -> bool:

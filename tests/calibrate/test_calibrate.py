@@ -113,7 +113,7 @@ def test_a_turned_probe_is_registered(clean, clean_calibration, tmp_path):
 
 def test_calibration_none_leaves_the_capture_as_given(clean):
     given = load(clean)
-    nothing = CONFIG.replace(calibration=CalibrationConfig(gains=False, probe_rotation=False, frame_gains="off"))
+    nothing = CONFIG.replace(calibration=CalibrationConfig(gains=False, cameras=False, probe_rotation=False, frame_gains="off"))
     capture, found = calibrate(given, nothing)
     assert capture is given and np.all(found.gain == 1.0) and found.probe is None and not found.warnings
 

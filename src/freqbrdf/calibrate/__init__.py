@@ -7,11 +7,13 @@ is turned into place by hand. `calibrate` estimates these on the texels of a coa
 milliseconds) and returns the capture corrected (each frame's ``exposure``, the map's rotation)
 with a `Calibration` that says what was found and how well the photographs determine it:
 
-1. the map's turn (`freqbrdf.calibrate.probe`), from how well the mirrored light explains the
+1. each camera's pose (`freqbrdf.calibrate.cameras`), so that the mesh's outline falls on the
+   photograph's mask's edge;
+2. the map's turn (`freqbrdf.calibrate.probe`), from how well the mirrored light explains the
    texels' view-dependent radiance;
-2. relative gains per photograph (`freqbrdf.calibrate.gains.frame_gains`), where asked
+3. relative gains per photograph (`freqbrdf.calibrate.gains.frame_gains`), where asked
    (``CalibrationConfig.frame_gains``);
-3. one gain per colour channel between the photographs and the map
+4. one gain per colour channel between the photographs and the map
    (`freqbrdf.calibrate.gains.channel_gains`), with the materials: up to `GAIN_PASSES` times,
    each on photographs corrected by the passes before, since the roughness the search finds
    depends on the gain.
@@ -27,9 +29,10 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from freqbrdf.calibrate.cameras import BAD_OUTLINE_PX, CameraRefinement, refine_cameras
 from freqbrdf.calibrate.gains import GainEstimate, channel_gains, frame_gains
 from freqbrdf.calibrate.probe import ProbeRegistration, axis_angle, register_probe, rotation_about
-from freqbrdf.capture.layouts import Capture
+from freqbrdf.capture.layouts import Capture, read_frame_mask_coverage
 from freqbrdf.config import Config
 from freqbrdf.estimate import label_sums
 from freqbrdf.model import brdf
@@ -39,8 +42,9 @@ from freqbrdf.sphere import envmap as envmaps
 from freqbrdf.sphere import harmonics as sh
 from freqbrdf.texels import rasterise
 
-__all__ = ["Calibration", "GainEstimate", "ProbeRegistration", "axis_angle", "calibrate", "channel_gains",
-           "frame_gains", "register_probe", "rotation_about"]
+__all__ = ["Calibration", "CameraRefinement", "GainEstimate", "ProbeRegistration", "axis_angle", "calibrate", "channel_gains",
+           "frame_gains", "refine_cameras", "register_probe",
+           "rotation_about"]
 
 # Height of the map the probe's turn is scored on (band-limited: its detail is well below this).
 PROBE_MAP_HEIGHT = 128
@@ -75,6 +79,8 @@ class Calibration:
         Relative gain per photograph and channel (geometric mean 1), where measured and applied.
     probe : ProbeRegistration or None
         The map's turn, where searched.
+    cameras : CameraRefinement or None
+        The cameras' corrections, where refined.
     dropped_views : list of int
         Photographs left out (``CalibrationConfig.drop_bad_views``).
     texels : int
@@ -90,6 +96,7 @@ class Calibration:
     gain_measured: np.ndarray | None = None
     frame_gain: np.ndarray | None = None
     probe: ProbeRegistration | None = None
+    cameras: CameraRefinement | None = None
     dropped_views: list[int] = field(default_factory=list)
     texels: int = 0
     seconds: float = 0.0
@@ -115,7 +122,8 @@ class Calibration:
             ``gain_measured``, ``exposure``,
             ``white_balance``, ``frame_gains`` (per view, where measured and applied, or None),
             ``probe`` (the turn: ``angle_deg``, ``axis``, ``std_deg``, ``rotation``, ``explained``
-            before and after, ``significance``; or None), ``dropped_views``, ``texels``, ``seconds``.
+            before and after, ``significance``; or None), ``cameras`` (per view, see
+            `CameraRefinement.to_dict`; or None), ``dropped_views``, ``texels``, ``seconds``.
         """
         probe = None
         if self.probe is not None:
@@ -129,7 +137,8 @@ class Calibration:
             "gain_measured": None if self.gain_measured is None else self.gain_measured.tolist(),
             "exposure": self.exposure, "white_balance": self.white_balance.tolist(),
             "frame_gains": None if self.frame_gain is None else self.frame_gain.tolist(),
-            "probe": probe, "dropped_views": list(self.dropped_views), "texels": self.texels,
+            "probe": probe, "cameras": None if self.cameras is None else self.cameras.to_dict(),
+            "dropped_views": list(self.dropped_views), "texels": self.texels,
             "seconds": self.seconds,
         }
 
@@ -141,6 +150,9 @@ class Calibration:
         if self.frame_gain is not None:
             spread = np.exp(np.abs(np.log(self.frame_gain)).max())
             line += f"; frame gains applied (up to {spread:.2f}x)"
+        if self.cameras is not None and self.cameras.refined.any():
+            moved = self.cameras.turn_deg[self.cameras.refined]
+            line += f"; cameras refined (median turn {np.median(moved):.2f}°, largest {moved.max():.2f}°)"
         if self.probe is not None:
             line += f"; probe turned {self.probe.angle_deg:.1f}°" if self.probe.angle_deg > 0.0 else "; probe kept"
         return line
@@ -199,7 +211,14 @@ def calibrate(capture: Capture, config: Config = Config(),
         return capture, calibration
     coarse_config = config.replace(texels=replace(config.texels, texture_res=settings.texture_res))
     texels = rasterise(capture.mesh, settings.texture_res)
-    with reporter.stage("calibrating", 3) as advance:
+    with reporter.stage("calibrating", 4) as advance:
+        if settings.cameras:
+            calibration.cameras = refine_cameras(capture.mesh, [frame.camera for frame in capture.frames],
+                                                 (read_frame_mask_coverage(frame) for frame in capture.frames))
+            capture = replace(capture, frames=tuple(
+                frame if camera is frame.camera else replace(frame, camera=camera)
+                for frame, camera in zip(capture.frames, calibration.cameras.cameras)))
+        advance(1)
         observations = observe(capture, coarse_config, texels=texels)
         advance(1)
         if settings.probe_rotation:
@@ -267,6 +286,8 @@ def _corrected(capture: Capture, calibration: Calibration, drop_bad_views: bool)
     frame_gain = calibration.frame_gain if calibration.frame_gain is not None else np.ones((len(capture.frames), 3))
     frames = []
     bad = set(np.flatnonzero(np.any(np.abs(np.log(frame_gain)) > np.log(BAD_FRAME_FACTOR), axis=1)).tolist())
+    if calibration.cameras is not None:
+        bad |= set(calibration.cameras.bad_views.tolist())
     for index, frame in enumerate(capture.frames):
         if drop_bad_views and index in bad:
             calibration.dropped_views.append(index)
@@ -295,6 +316,18 @@ def _warnings(capture: Capture, calibration: Calibration, settings) -> list[str]
         lines.append(f"the environment map was turned {probe.angle_deg:.1f}° about "
                      f"({', '.join(f'{value:.2f}' for value in axis)}) to match the photographs' reflections "
                      "(calibration): check envmap_to_world")
+    cameras = calibration.cameras
+    if cameras is not None and cameras.refined.any():
+        moved = cameras.turn_deg[cameras.refined]
+        if np.median(moved) > settings.warn_camera_deg:
+            lines.append(f"the cameras were turned by a median {np.median(moved):.2f}° (largest {moved.max():.2f}°) "
+                         "to put the mesh's outline on the masks (calibration): check the poses")
+        bad = cameras.bad_views
+        if bad.size:
+            names = ", ".join(capture.frames[index].image_path.name for index in bad[:5].tolist())
+            action = "dropped" if settings.drop_bad_views else "kept (--drop-bad-views leaves them out)"
+            lines.append(f"{bad.size} photographs' masks do not fit the mesh's outline after refining their poses "
+                         f"(off by more than {BAD_OUTLINE_PX:g} px: {names}): {action}")
     measured = calibration.frame_gain
     if measured is not None:
         worst = np.abs(np.log(measured)).max(axis=1)

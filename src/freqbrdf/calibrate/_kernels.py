@@ -70,3 +70,69 @@ def channel_gain_curves(sums, log_gain, choice, curves, base):
                 loss, colour = _label_loss(sums[t, slot, c], label, 1.0 / gain, gain)
                 curves[t, g, c] = loss / radiance
                 base[t, g, c] = colour
+
+
+@numba.njit(fastmath=False, cache=True)
+def _inside_triangle(x, y, ax, ay, bx, by, cx, cy):
+    d0 = (bx - ax) * (y - ay) - (by - ay) * (x - ax)
+    d1 = (cx - bx) * (y - by) - (cy - by) * (x - bx)
+    d2 = (ax - cx) * (y - cy) - (ay - cy) * (x - cx)
+    return (d0 >= 0.0 and d1 >= 0.0 and d2 >= 0.0) or (d0 <= 0.0 and d1 <= 0.0 and d2 <= 0.0)
+
+
+@numba.njit(fastmath=False, cache=True)
+def _face_cells(pixels, a, b, c, height, width):
+    """Return the pixel columns and rows a projected face's bounding box meets: col0, col1, row0, row1."""
+    col0 = max(int(math.floor(min(pixels[a, 0], pixels[b, 0], pixels[c, 0]))), 0)
+    col1 = min(int(math.floor(max(pixels[a, 0], pixels[b, 0], pixels[c, 0]))), width - 1)
+    row0 = max(int(math.floor(min(pixels[a, 1], pixels[b, 1], pixels[c, 1]))), 0)
+    row1 = min(int(math.floor(max(pixels[a, 1], pixels[b, 1], pixels[c, 1]))), height - 1)
+    return col0, col1, row0, row1
+
+
+@numba.njit(fastmath=False, cache=True)
+def covered_points(queries, skip, pixels, in_front, faces, used, height, width):
+    """Whether a projected face covers each query point (exactly, not at pixel resolution).
+
+    queries (M, 2) x, y in pixels; skip (M, 2) faces not to test for each (-1: none); pixels
+    (n_vertices, 2) and in_front (n_vertices,) the projected vertices; faces (F, 3), of which
+    only the ``used`` (F,) bool are tested. Returns (M,) bool. Faces are binned into the image's
+    pixels first (faces with a vertex behind the camera are left out).
+    """
+    counts = np.zeros(height * width + 1, np.int64)
+    for f in range(faces.shape[0]):
+        a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
+        if used[f] and in_front[a] and in_front[b] and in_front[c]:
+            col0, col1, row0, row1 = _face_cells(pixels, a, b, c, height, width)
+            for row in range(row0, row1 + 1):
+                for col in range(col0, col1 + 1):
+                    counts[row * width + col + 1] += 1
+    for cell in range(height * width):
+        counts[cell + 1] += counts[cell]
+    filled = counts[:-1].copy()
+    binned = np.empty(counts[-1], np.int64)
+    for f in range(faces.shape[0]):
+        a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
+        if used[f] and in_front[a] and in_front[b] and in_front[c]:
+            col0, col1, row0, row1 = _face_cells(pixels, a, b, c, height, width)
+            for row in range(row0, row1 + 1):
+                for col in range(col0, col1 + 1):
+                    binned[filled[row * width + col]] = f
+                    filled[row * width + col] += 1
+    result = np.zeros(queries.shape[0], np.bool_)
+    for m in range(queries.shape[0]):
+        x, y = queries[m, 0], queries[m, 1]
+        col, row = int(math.floor(x)), int(math.floor(y))
+        if col < 0 or row < 0 or col >= width or row >= height:
+            continue
+        cell = row * width + col
+        for k in range(counts[cell], counts[cell + 1]):
+            f = binned[k]
+            if f == skip[m, 0] or f == skip[m, 1]:
+                continue
+            a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
+            if _inside_triangle(x, y, pixels[a, 0], pixels[a, 1], pixels[b, 0], pixels[b, 1],
+                                pixels[c, 0], pixels[c, 1]):
+                result[m] = True
+                break
+    return result

@@ -52,7 +52,7 @@ from freqbrdf.capture.camera import (
 from freqbrdf.capture.mesh import Mesh, load_mesh
 from freqbrdf.errors import InputError
 from freqbrdf.fileio import atomic_path
-from freqbrdf.images import IMAGE_SUFFIXES, image_has_alpha, read_alpha_mask, read_image, read_mask
+from freqbrdf.images import IMAGE_SUFFIXES, image_has_alpha, read_alpha_mask, read_image, read_mask, read_mask_coverage
 from freqbrdf.model.materials import MaterialMaps, load_material_maps
 from freqbrdf.sphere.envmap import Envmap, load_envmap
 
@@ -328,6 +328,31 @@ def read_frame_mask(frame: Frame) -> np.ndarray:
     mask = read_alpha_mask(frame.mask_path) if frame.mask_from_alpha else read_mask(frame.mask_path)
     _check_size(frame.mask_path, mask.shape, frame.camera)
     return mask
+
+
+def read_frame_mask_coverage(frame: Frame) -> np.ndarray:
+    """Read a frame's object mask as coverage (an anti-aliased mask's edge pixels between 0 and 1).
+
+    Parameters
+    ----------
+    frame : Frame
+        The frame.
+
+    Returns
+    -------
+    (H, W) float32
+        The share of each pixel the object covers; all 1 when the frame has none.
+
+    Raises
+    ------
+    InputError
+        If the mask cannot be read or its size is not its camera's.
+    """
+    if frame.mask_path is None:
+        return np.ones((frame.camera.height, frame.camera.width), dtype=np.float32)
+    coverage = read_mask_coverage(frame.mask_path, from_alpha=frame.mask_from_alpha)
+    _check_size(frame.mask_path, coverage.shape, frame.camera)
+    return coverage
 
 
 def _load_ours(transforms_path: Path) -> Capture:

@@ -1,0 +1,128 @@
+"""Camera refinement: poses turned and moved as structure-from-motion leaves them are brought back by the masks.
+
+A bunny (16 views of 128 x 128, its masks anti-aliased as Mitsuba renders them) is rendered once;
+copies of its transforms turn every camera 0.6 degrees about a random axis and move it 0.5 % of its
+distance. The refinement is judged against the poses the photographs were rendered with.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from freqbrdf.calibrate import calibrate, refine_cameras, rotation_about
+from freqbrdf.calibrate.cameras import MeshOutline, signed_distance
+from freqbrdf.capture.layouts import load, read_frame_mask_coverage
+from freqbrdf.config import CalibrationConfig, Config, TexelConfig
+from freqbrdf.synthetic.synth import SynthSettings, synthesize
+
+
+@pytest.fixture(scope="module")
+def bunny(tmp_path_factory) -> Path:
+    settings = SynthSettings(mesh="bunny", envmap="lobby", views=16, resolution=128, spp=4, texture_res=32,
+                             test_views=0, cameras="sphere")
+    return synthesize(tmp_path_factory.mktemp("cameras") / "clean", settings, progress=False)
+
+
+def _turned_cameras(source: Path, target: Path, degrees: float, shift: float, seed: int = 0) -> Path:
+    target.mkdir()
+    for name in os.listdir(source):
+        if name != "transforms.json":
+            os.symlink(source.resolve() / name, target / name)
+    transforms = json.loads((source / "transforms.json").read_text())
+    rng = np.random.default_rng(seed)
+    for frame in transforms["frames"]:
+        matrix = np.array(frame["transform_matrix"])
+        axis, direction = rng.normal(size=3), rng.normal(size=3)
+        matrix[:3, :3] = rotation_about(axis / np.linalg.norm(axis), np.radians(degrees)) @ matrix[:3, :3]
+        matrix[:3, 3] += shift * np.linalg.norm(matrix[:3, 3]) * direction / np.linalg.norm(direction)
+        frame["transform_matrix"] = matrix.tolist()
+    (target / "transforms.json").write_text(json.dumps(transforms))
+    return target
+
+
+def _turn_deg(cameras, truth) -> np.ndarray:
+    angles = []
+    for camera, frame in zip(cameras, truth.frames):
+        relative = camera.camera_to_world[:3, :3] @ frame.camera.camera_to_world[:3, :3].T
+        angles.append(np.degrees(np.arccos(np.clip(0.5 * (np.trace(relative) - 1.0), -1.0, 1.0))))
+    return np.array(angles)
+
+
+def test_turned_and_moved_cameras_are_brought_back(bunny, tmp_path):
+    truth = load(bunny)
+    capture = load(_turned_cameras(bunny, tmp_path / "turned", degrees=0.6, shift=0.005))
+    given = [frame.camera for frame in capture.frames]
+    found = refine_cameras(capture.mesh, given, [read_frame_mask_coverage(frame) for frame in capture.frames])
+    before, after = _turn_deg(given, truth), _turn_deg(found.cameras, truth)
+    assert np.allclose(before, 0.6)
+    assert found.refined.all()
+    assert np.median(after) < 0.15 and after.max() < 0.4, after
+    assert np.all(found.outline_after_px < 0.5 * found.outline_before_px)
+    assert not found.bad_views.size
+    moved = np.array([np.linalg.norm(c.center - f.camera.center) for c, f in zip(found.cameras, truth.frames)])
+    assert np.median(moved / np.linalg.norm([f.camera.center for f in truth.frames], axis=1)) < 0.003  # from 0.005
+
+
+def test_exact_cameras_are_kept(bunny):
+    capture = load(bunny)
+    found = refine_cameras(capture.mesh, [frame.camera for frame in capture.frames],
+                           [read_frame_mask_coverage(frame) for frame in capture.frames])
+    assert all(refined is frame.camera for refined, frame in zip(found.cameras, capture.frames))
+    assert np.all(found.turn_deg == 0.0) and np.all(found.outline_before_px < 0.3)
+
+
+def test_calibrate_reports_and_applies_the_cameras(bunny, tmp_path):
+    capture = load(_turned_cameras(bunny, tmp_path / "turned", degrees=1.0, shift=0.0, seed=1))
+    config = Config(texels=TexelConfig(texture_res=32),
+                    calibration=CalibrationConfig(texture_res=32, gains=False, probe_rotation=False))
+    corrected, found = calibrate(capture, config)
+    assert np.allclose(found.cameras.turn_deg, 1.0, atol=0.3)
+    assert all(a.camera is not b.camera for a, b in zip(corrected.frames, capture.frames))
+    assert any("cameras were turned" in line for line in found.warnings)
+    summary = found.to_dict()["cameras"]
+    assert len(summary["turn_deg"]) == 16 and summary["bad_views"] == []
+    assert "cameras refined" in found.summary_line()
+
+
+def test_a_mask_that_is_not_the_object_is_named_and_dropped_when_asked(bunny, tmp_path):
+    folder = _turned_cameras(bunny, tmp_path / "wrong", degrees=0.0, shift=0.0)
+    transforms = json.loads((folder / "transforms.json").read_text())
+    transforms["frames"][2]["mask_path"] = transforms["frames"][9]["mask_path"]  # another view's mask
+    (folder / "transforms.json").write_text(json.dumps(transforms))
+    config = Config(texels=TexelConfig(texture_res=32),
+                    calibration=CalibrationConfig(texture_res=32, gains=False, probe_rotation=False,
+                                                  drop_bad_views=True))
+    corrected, found = calibrate(load(folder), config)
+    assert 2 in found.cameras.bad_views.tolist() and 2 in found.dropped_views
+    assert len(corrected.frames) == 16 - len(found.dropped_views)
+    assert any("do not fit the mesh's outline" in line for line in found.warnings)
+
+
+def test_signed_distance_places_an_anti_aliased_edge_within_its_pixel():
+    coverage = np.zeros((8, 8))
+    coverage[:, :4] = 1.0
+    coverage[:, 4] = 0.3  # the edge 0.3 of a pixel into column 4
+    distance = signed_distance(coverage)
+    np.testing.assert_allclose(distance[:, 3], -0.5)
+    np.testing.assert_allclose(distance[:, 4], 0.2)
+    np.testing.assert_allclose(distance[:, 6], 2.5)
+    assert np.isinf(signed_distance(np.ones((4, 4)))).all()
+
+
+def test_a_cube_seen_along_an_axis_has_its_outline_on_its_side_faces():
+    import trimesh
+
+    from freqbrdf.capture.mesh import Mesh
+
+    cube = trimesh.creation.box()
+    mesh = Mesh(np.asarray(cube.vertices, float), np.asarray(cube.faces), np.asarray(cube.vertex_normals, float),
+                np.zeros((len(cube.vertices), 2)))
+    outline = MeshOutline.of(mesh)
+    assert len(outline.edge_start) == 18 and np.all(outline.face_right >= 0)  # closed: 12 faces, 18 edges
+    points = outline.contour(np.array([0.3, 0.2, 5.0]))[0]
+    assert len(points) > 0 and np.allclose(np.abs(points[:, 2]), 0.5)  # edges of the faces z = +-0.5
