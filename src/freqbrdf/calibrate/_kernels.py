@@ -90,7 +90,7 @@ def _face_cells(pixels, a, b, c, height, width):
     return col0, col1, row0, row1
 
 
-@numba.njit(fastmath=False, cache=True)
+@numba.njit(fastmath=False, cache=True, nogil=True)
 def covered_points(queries, skip, pixels, in_front, faces, used, height, width):
     """Whether a projected face covers each query point (exactly, not at pixel resolution).
 

@@ -12,8 +12,10 @@ not determine (a sphere's turn about its own centre) where the capture put it.
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 
+import numba
 import numpy as np
 from scipy import ndimage
 
@@ -45,7 +47,7 @@ RESELECT = (0, 1, 3, 6, 10)
 # A refined pose is kept where its outline's distance to the mask's edge is this many times smaller
 # than the given pose's; else the given pose is (the mask's own noise moves a camera too).
 SIGNIFICANT_RATIO = 1.25
-CONVERGED_RAD = 1e-5
+CONVERGED_RAD = 1e-4
 # Fewer outline points than this refine nothing.
 MIN_POINTS = 24
 # A view whose outline lies farther than this from its mask's edge after refinement (robust std,
@@ -387,8 +389,10 @@ def refine_cameras(mesh: Mesh, cameras: list[Camera], masks) -> CameraRefinement
     """
     outline = MeshOutline.of(mesh)
     refined_cameras, turn, shift, before, after = [], [], [], [], []
-    for camera, mask in zip(cameras, masks):
-        refined, outline_before, outline_after = refine_camera(outline, camera, mask)
+    # Views are independent: refined on threads (numpy and the kernel release the GIL), collected in order.
+    with ThreadPoolExecutor(max_workers=numba.config.NUMBA_NUM_THREADS) as pool:
+        found = list(pool.map(lambda pair: refine_camera(outline, *pair), zip(cameras, masks)))
+    for camera, (refined, outline_before, outline_after) in zip(cameras, found):
         relative = refined.camera_to_world[:3, :3] @ camera.camera_to_world[:3, :3].T
         skew = relative - relative.T
         sine = 0.5 * np.linalg.norm([skew[2, 1], skew[0, 2], skew[1, 0]])
