@@ -121,3 +121,18 @@ def test_calibration_none_leaves_the_capture_as_given(clean):
 def test_calibration_is_deterministic(clean, clean_calibration):
     again = calibrate(load(clean), CONFIG)[1]
     assert again.to_dict() | {"seconds": 0} == clean_calibration.to_dict() | {"seconds": 0}
+
+
+def test_a_flat_surface_does_not_register_the_probe():
+    from freqbrdf.calibrate import register_probe
+    from freqbrdf.sphere.envmap import Envmap
+
+    rng = np.random.default_rng(0)
+    frame = np.tile(np.eye(3), (50, 1, 1))  # every normal +z: a plane
+    view = rng.normal(size=(50, 8, 3)).astype(np.float32)
+    view[..., 2] = np.abs(view[..., 2])
+    view /= np.linalg.norm(view, axis=-1, keepdims=True)
+    envmap = Envmap(rng.random((16, 32, 3)).astype(np.float32), np.eye(4))
+    found = register_probe(envmap, frame, view, np.ones((50, 8), np.float32),
+                           rng.random((50, 8, 3)).astype(np.float32), 25.0)
+    assert found.angle_deg == 0.0 and np.array_equal(found.rotation, np.eye(3))

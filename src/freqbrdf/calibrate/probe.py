@@ -25,6 +25,11 @@ POLE_STEP_DEG = 5.0
 AXIS_STEPS = ((2.0, 5), (2.0, 3), (1.0, 2), (0.5, 2))  # (degrees, nodes per side): coarse to fine
 # The texels must prefer the turn found by this many standard errors of their mean improvement.
 MIN_SIGNIFICANCE = 3.0
+# Texels whose normals' mean has this length or more (a plane, a relief: normals within about 25°
+# of one direction) do not register the map: for them a turn mimics the model's own misfit of the
+# lobe's shape (its off-specular shift is one direction for every texel), so a calibrated plane
+# prefers a turn of a few degrees (docs/results.md#calibration).
+MAX_NORMAL_ALIGNMENT = 0.9
 
 
 @dataclass
@@ -176,10 +181,14 @@ def register_probe(envmap: envmaps.Envmap, frame: np.ndarray, view_direction: np
     Returns
     -------
     ProbeRegistration
-        The turn (identity where the texels do not prefer another beyond their spread).
+        The turn (identity where the texels do not prefer another beyond their spread, or where
+        their normals are too alike to tell a turn from the model's misfit: `MAX_NORMAL_ALIGNMENT`).
     """
-    scorer = _Scorer(envmap, frame, view_direction, weight, observed)
     identity = np.eye(3)
+    seen = (weight > 0).any(axis=1)
+    if not seen.any() or np.linalg.norm(frame[seen, 2].mean(axis=0)) >= MAX_NORMAL_ALIGNMENT:
+        return ProbeRegistration(identity, 0.0, float("inf"), (0.0, 0.0), 0.0)
+    scorer = _Scorer(envmap, frame, view_direction, weight, observed)
     if scorer.n_texels == 0 or search_deg <= 0.0 or not scorer.variance_f.sum() > 0.0:
         return ProbeRegistration(identity, 0.0, float("inf"), (0.0, 0.0), 0.0)
     total_variance = float(scorer.variance_f.sum())
