@@ -169,9 +169,9 @@ def clamp_negative_noise(path: str | Path, rgb: np.ndarray) -> np.ndarray:
     InputError
         If a pixel is more negative than that (how many, how deep, where the first one is).
     """
-    negative = rgb < 0
-    if not negative.any():
+    if not rgb.size or not rgb.min() < 0:
         return rgb
+    negative = rgb < 0
     bright = float(np.percentile(rgb, 99.9))
     deepest = float(rgb.min())
     if bright <= 0.0 or -deepest > NEGATIVE_NOISE * bright:
@@ -205,12 +205,13 @@ def clipped_pixels(image: np.ndarray) -> np.ndarray:
         True at clipped pixels and their 8 neighbours; all False where the image has no plateau.
     """
     image = np.asarray(image)
-    ceiling = float(image.max()) if image.size else 0.0
+    brightest = np.maximum(np.maximum(image[..., 0], image[..., 1]), image[..., 2])
+    ceiling = float(brightest.max()) if brightest.size else 0.0
     if not ceiling > 0.0:
         return np.zeros(image.shape[:2], bool)
-    at_ceiling = np.any(image >= ceiling * (1.0 - CLIPPED_TOLERANCE), axis=2)
-    lit = np.count_nonzero(image.max(axis=2) > 0.0)
-    if np.count_nonzero(at_ceiling) < max(CLIPPED_MIN_PIXELS, CLIPPED_MIN_SHARE * lit):
+    at_ceiling = brightest >= ceiling * (1.0 - CLIPPED_TOLERANCE)  # a channel at the ceiling
+    n_at_ceiling = np.count_nonzero(at_ceiling)
+    if n_at_ceiling < CLIPPED_MIN_PIXELS or n_at_ceiling < CLIPPED_MIN_SHARE * np.count_nonzero(brightest > 0.0):
         return np.zeros(image.shape[:2], bool)
     grown = at_ceiling.copy()
     grown[1:] |= at_ceiling[:-1]
@@ -423,6 +424,9 @@ def _read_ldr(path: Path) -> np.ndarray:
 
 
 def _check_finite_non_negative(path: Path, rgb: np.ndarray) -> None:
+    if np.isfinite(rgb.sum(dtype=np.float64)):  # one pass: a NaN or an infinity makes the sum non-finite
+        rgb[...] = clamp_negative_noise(path, rgb)
+        return
     non_finite = ~np.isfinite(rgb).all(axis=2)
     count = int(non_finite.sum())
     if count:
