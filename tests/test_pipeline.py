@@ -26,6 +26,7 @@ from freqbrdf.outputs.fit_folder import (
 from freqbrdf.outputs.relight import RelightSettings
 from freqbrdf.synthetic.synth import SynthSettings, synthesize
 from freqbrdf.uncertainty import FLAG_UNOBSERVED
+from freqbrdf.uncertainty.trust import trusted_texels
 
 TINY = SynthSettings(mesh="bunny", views=6, resolution=40, spp=4, texture_res=32, test_views=2, test_envmaps=1)
 NO_LPIPS = RelightSettings(spp=2, lpips=False)  # LPIPS is tested in test_metrics; here it would only cost seconds
@@ -129,6 +130,12 @@ def test_fit_writes_a_complete_folder_that_loads_back(tiny_capture, tmp_path, mo
     assert outputs.arrays["likelihood"].shape == (result.observations.n_texels, *result.uncertainty.likelihood.shape[1:])
     assert outputs.observed.sum() == np.count_nonzero(result.observations.n_samples)
     assert "write" in outputs.summary["timings"]
+    # The trust mask: every std at most the threshold, as the summary counts it.
+    trusted = trusted_texels(result.uncertainty, config.uncertainty.trust_std)
+    assert outputs.summary["trust"]["threshold"] == config.uncertainty.trust_std
+    assert outputs.summary["trust"]["trusted_fraction"] == pytest.approx(trusted.mean())
+    np.testing.assert_array_equal(outputs.trust, result.estimate.to_texture(trusted, fill=False).astype(bool))
+    assert trusted_texels(result.uncertainty, 1.0).sum() >= trusted.sum() >= trusted_texels(result.uncertainty, 1e-6).sum()
     scene = trimesh.load(folder / "material.glb")
     assert len(scene.geometry) == 1
 

@@ -374,6 +374,9 @@ def fit(
         False, "--drop-bad-views", help="Leave out photographs whose outline refining does not bring onto their mask "
         "(--calibration auto) or, with --frame-gains, whose gain is more than 2x the others' (they are named in a "
         "warning either way)."),
+    trust_std: float = typer.Option(
+        None, "--trust-std", min=1e-6, max=1.0, help="The largest std (roughness, metallic, the base "
+        "colour's mean over RGB) a texel may have to be trusted in trust.exr and the report (default 0.2)."),
     device: str = typer.Option("auto", "--device", help=DEVICE_HELP),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars or messages."),
     json_output: bool = typer.Option(False, "--json", help="Print summary.json to stdout."),
@@ -395,6 +398,8 @@ def fit(
             raise typer.BadParameter("--split-half scores the per-texel estimate: add --per-texel (the default "
                                      "whole-surface estimate has its own roughness std)")
         config = config.replace(uncertainty=dataclasses.replace(config.uncertainty, split_half=True))
+    if trust_std is not None:
+        config = config.replace(uncertainty=dataclasses.replace(config.uncertainty, trust_std=trust_std))
     if estimation_res is not None:
         config = config.replace(texels=dataclasses.replace(config.texels, estimation_res=estimation_res_from_option(
             estimation_res, config.texels.texture_res)))
@@ -425,7 +430,9 @@ def fit(
             f"observed, mean entropy {summary['uncertainty']['entropy_mean']:.2f}, "
             f"{result.timings['total']:.1f} s"
             + (f" (estimated on {result.estimation_res} x {result.estimation_res} texels)"
-               if result.estimation_res < coverage["texture_res"] else ""),
+               if result.estimation_res < coverage["texture_res"] else "")
+            + (f"; {summary['trust']['trusted_fraction']:.0%} of the surface trusted (every std <= "
+               f"{summary['trust']['threshold']:g}: trust.exr)" if "trust" in summary else ""),
             soft_wrap=True,  # no line break inside a path
         )
 

@@ -179,12 +179,17 @@ class UncertaintyConfig:
     split_half_stride: int = 2
     """With split_half, re-estimate every this many-th row and column only (the window spreads their scatter): the
     same ranking at about a quarter of the cost (1: every texel). docs/results.md#the-roughness-std"""
+    trust_std: float = 0.2
+    """A texel is trusted (the fit folder's trust.exr) where every std it has (roughness, metallic, the base
+    colour's mean over RGB) is at most this, in the parameters' units (a fifth of their range). In (0, 1].
+    docs/method.md#trust"""
 
     def __post_init__(self):
         _check_choices(self)
         _require(self, "noise_level", self.noise_level > 0.0, "(0, inf)")
         _require(self, "temperature", self.temperature > 0.0, "(0, inf)")
         _require(self, "ambiguous_entropy", 0.0 <= self.ambiguous_entropy <= 1.0, "[0, 1]")
+        _require(self, "trust_std", 0.0 < self.trust_std <= 1.0, "(0, 1]")
 
     def resolution(self, roughness_grid: int | None = None) -> int:
         """Give R, the side of the hypothesis grid.

@@ -208,7 +208,7 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
     >>> folder = pipeline.write_fit(Path(work.name) / "fit", result, config)
     >>> sorted(path.name for path in folder.glob("*.exr"))
     ['base_color.exr', 'base_color_std.exr', 'entropy.exr', 'metallic.exr', 'metallic_std.exr',
-     'roughness.exr', 'roughness_std.exr']
+     'roughness.exr', 'roughness_std.exr', 'trust.exr']
     >>> (folder / "material.glb").is_file(), (folder / "summary.json").is_file()
     (True, True)
     >>> work.cleanup()

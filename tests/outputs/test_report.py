@@ -66,7 +66,8 @@ def test_report_has_every_section_and_its_files(fit_folder):
     metrics = json.loads((fit_folder / "evaluation" / "metrics.json").read_text())
     assert f"Spearman &rho; {metrics['uncertainty']['roughness_std']['roughness']['spearman']:.2f}" in text
     models = (page.parent / "models.js").read_text()
-    assert models.count("data:model/gltf-binary;base64,") == 2  # material and entropy overlay
+    assert models.count("data:model/gltf-binary;base64,") == 3  # material, entropy overlay and trust mask
+    assert 'data-model="trust"' in text and 'src="trust.png"' in text
     assert "(calibrated mode, 8 x 8 hypotheses)" in text  # what the entropy scored
     assert "It says how ambiguous the light makes the material" in text  # and what that means
     # The capture named relative to the fit folder, never by its absolute path.

@@ -44,6 +44,7 @@ from freqbrdf.uncertainty import (
 from freqbrdf.uncertainty import (
     summary as uncertainty_summary,
 )
+from freqbrdf.uncertainty.trust import trust_summary, trusted_texels
 
 # Values of a texture without a single estimated texel: mid grey, mid roughness, dielectric.
 FALLBACK_BASE_COLOR = 0.5
@@ -82,6 +83,8 @@ FILES = {
     "base_color_std": "base_color_std.exr",
     "base_color_std_png": "base_color_std.png",
     "flags_png": "flags.png",
+    "trust": "trust.exr",
+    "trust_png": "trust.png",
     "gltf": "material.glb",
     "spectra": "spectra.npz",
     "uncertainty": "uncertainty.npz",
@@ -423,6 +426,11 @@ def write_fit_outputs(
                 summary["base_color_std_png"] = {"colormap": ROUGHNESS_STD_COLORMAP, "range": list(BASE_COLOR_STD_RANGE),
                                                  "of": "the mean over RGB"}
                 written += ["metallic_std", "metallic_std_png", "base_color_std", "base_color_std_png"]
+            trust = trust_summary(uncertainty, config.uncertainty.trust_std, np.ones(estimate.n_texels, bool))
+            if trust is not None:
+                jobs.append(pool.submit(_write_trust_maps, folder, uncertainty, estimate, config.uncertainty.trust_std))
+                summary["trust"] = trust
+                written += ["trust", "trust_png"]
             if uncertainty.roughness_std is not None:
                 jobs.append(pool.submit(_write_roughness_std_maps, folder, uncertainty, estimate, dilation))
                 summary["roughness_std_png"] = {"colormap": ROUGHNESS_STD_COLORMAP, "range": list(ROUGHNESS_STD_RANGE),
@@ -452,6 +460,19 @@ def _write_uncertainty_maps(folder: Path, uncertainty: Uncertainty, estimate: Ma
     write_scalar_map(folder / FILES["entropy_png"], entropy, ENTROPY_COLORMAP, ENTROPY_RANGE)
     write_png(folder / FILES["flags_png"],
               flags_picture(estimate.to_texture(uncertainty.flags, fill=0), _atlas_mask(estimate)))
+
+
+#: What trust.exr is (its ``comments``).
+TRUST_DESCRIPTION = (
+    "freqbrdf trust mask: 1 where every std of the texel (roughness, metallic, the base colour's mean over RGB) is at "
+    "most the threshold in summary.json trust.threshold, else 0 (and 0 off the atlas). Texture space: row 0 is v = 1.")
+
+
+def _write_trust_maps(folder: Path, uncertainty: Uncertainty, estimate: MaterialEstimate, threshold: float) -> None:
+    """Write trust.exr (1 trusted, 0 not or off the atlas) and trust.png (white trusted)."""
+    mask = estimate.to_texture(trusted_texels(uncertainty, threshold).astype(np.float32), fill=0.0).astype(np.float32)
+    write_scalar_map(folder / FILES["trust"], mask, description=TRUST_DESCRIPTION)
+    write_scalar_map(folder / FILES["trust_png"], mask)
 
 
 def _write_roughness_std_maps(folder: Path, uncertainty: Uncertainty, estimate: MaterialEstimate,

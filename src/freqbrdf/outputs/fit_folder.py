@@ -43,6 +43,8 @@ class FitOutputs:
         Flat indices of the mesh's texels (the order of spectra.npz and uncertainty.npz).
     arrays : dict of str to array
         The per-texel arrays of spectra.npz and uncertainty.npz, (N, ...) each.
+    trust : (T, T) bool or None
+        The trust mask (trust.exr); None for a fit without std maps.
     """
 
     folder: Path
@@ -52,6 +54,7 @@ class FitOutputs:
     observed: np.ndarray
     texel_index: np.ndarray
     arrays: dict
+    trust: np.ndarray | None = None
 
     @property
     def capture_path(self) -> Path | None:
@@ -111,8 +114,10 @@ def load_fit(fit_dir: str | Path) -> FitOutputs:
     observed = np.zeros(resolution * resolution, bool)
     if "n_samples" in arrays:
         observed[texel_index[arrays["n_samples"] > 0]] = True
+    trust_path = folder / export.FILES["trust"]
+    trust = read_image(trust_path)[..., 0] > 0.5 if trust_path.is_file() else None
     return FitOutputs(folder, summary, maps, entropy, observed.reshape(resolution, resolution),
-                      texel_index, arrays)
+                      texel_index, arrays, trust)
 
 
 def check_output_folder(out_dir: str | Path, inputs: dict[str, Path]) -> None:

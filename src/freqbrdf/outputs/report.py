@@ -46,6 +46,8 @@ from freqbrdf.outputs.relight import ERROR_COLORMAP, ERROR_RANGE
 REPORT_FOLDER = "report"
 REPORT_FILE = "report.html"
 VIEWER_SCRIPT = "model-viewer-umd.min.js"
+# Linear base colour of untrusted texels in the trust view.
+TRUST_UNTRUSTED_COLOUR = (0.8, 0.0, 0.8)
 PICKED_TEXELS = 3  # most certain, median, least certain observed texel
 COLOUR_BAR_STOPS = 11  # samples of a colour map in a colour bar's CSS gradient
 SHOWN_SECONDS = 0.005  # sub-stages that would show as 0.00 s are left out of the timings
@@ -100,13 +102,16 @@ def _viewer_section(folder: Path, outputs: FitOutputs, mesh: Mesh | None) -> str
     models = {"material": glb.read_bytes()}
     if mesh is not None and outputs.entropy is not None:
         models["entropy"] = _entropy_glb(mesh, outputs.entropy)
+    if mesh is not None and outputs.trust is not None:
+        models["trust"] = _trust_glb(mesh, outputs.maps, outputs.trust)
     shutil.copyfile(resources.files("freqbrdf") / "web" / VIEWER_SCRIPT, folder / VIEWER_SCRIPT)
     urls = {name: "data:model/gltf-binary;base64," + base64.b64encode(data).decode("ascii")
             for name, data in models.items()}
     (folder / "models.js").write_text(f"window.FREQBRDF_MODELS = {json.dumps(urls)};\n", encoding="utf-8")
     buttons = "".join(
         f'<button type="button" data-model="{name}" aria-pressed="{str(name == "material").lower()}">{label}</button>'
-        for name, label in (("material", "material"), ("entropy", "entropy overlay")) if name in models
+        for name, label in (("material", "material"), ("entropy", "entropy overlay"), ("trust", "trust mask"))
+        if name in models
     )
     if "entropy" in models:
         low, high = export.ENTROPY_RANGE
@@ -122,7 +127,7 @@ def _viewer_section(folder: Path, outputs: FitOutputs, mesh: Mesh | None) -> str
 <div class="buttons" role="group" aria-label="shown on the mesh">{buttons}</div>{overlay}{note}
 <p class="note">Drag to orbit. The material view shows the estimated maps as a glTF PBR material under
 a neutral light; the entropy overlay colours the surface by normalised entropy
-({export.ENTROPY_COLORMAP}, {export.ENTROPY_RANGE[0]:g} = certain, {export.ENTROPY_RANGE[1]:g} = uncertain).</p></section>"""
+({export.ENTROPY_COLORMAP}, {export.ENTROPY_RANGE[0]:g} = certain, {export.ENTROPY_RANGE[1]:g} = uncertain){_trust_note(outputs)}.</p></section>"""
 
 
 def _maps_section(folder: Path, outputs: FitOutputs, truth: MaterialMaps | None) -> str:
@@ -177,11 +182,13 @@ def _entropy_section(folder: Path, outputs: FitOutputs) -> str:
                               "(clipped above)." + _colour_bar(spread_map, f"{export.BASE_COLOR_STD_RANGE[0]:g}",
                                                                 f"&ge; {export.BASE_COLOR_STD_RANGE[1]:g}"),
         "flags_png": f"Flags, the first set bit: {legend}",
+        "trust_png": "Trust mask: white where every std is at most "
+                     f"{outputs.summary.get('trust', {}).get('threshold', float('nan')):g}, black elsewhere.",
     }
     captions, cells = [], []
     for key, caption in (("entropy_png", "entropy"), ("roughness_std_png", "roughness std"),
                          ("metallic_std_png", "metallic std"), ("base_color_std_png", "base colour std"),
-                         ("flags_png", "flags")):
+                         ("flags_png", "flags"), ("trust_png", "trust")):
         source = outputs.folder / export.FILES[key]
         if source.is_file():
             shutil.copyfile(source, folder / source.name)
@@ -411,6 +418,24 @@ def _entropy_glb(mesh: Mesh, entropy: np.ndarray) -> bytes:
         metallic=np.zeros(entropy.shape, np.float32),
     )
     return gltf.gltf_bytes(mesh, maps)
+
+
+def _trust_note(outputs: FitOutputs) -> str:
+    trust = outputs.summary.get("trust")
+    if outputs.trust is None or not isinstance(trust, dict):
+        return ""
+    return (f"; the trust mask shows the material where every std is at most {trust.get('threshold', float('nan')):g} "
+            f"({trust.get('trusted_fraction', float('nan')):.0%} of the surface) and magenta elsewhere")
+
+
+def _trust_glb(mesh: Mesh, maps: MaterialMaps, trust: np.ndarray) -> bytes:
+    """Colour the mesh with the material where trusted and a flat magenta where not, as glTF binary bytes."""
+    untrusted = ~trust
+    base_color = maps.base_color.copy()
+    base_color[untrusted] = TRUST_UNTRUSTED_COLOUR
+    roughness, metallic = maps.roughness.copy(), maps.metallic.copy()
+    roughness[untrusted], metallic[untrusted] = 1.0, 0.0
+    return gltf.gltf_bytes(mesh, MaterialMaps(base_color=base_color, roughness=roughness, metallic=metallic))
 
 
 def _picture_set(folder: Path, prefix: str, maps: MaterialMaps) -> dict[str, str]:
