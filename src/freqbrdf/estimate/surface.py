@@ -21,7 +21,10 @@ docs/method.md#whole-surface-estimate, done inside the estimate):
    (the loss's curvature over the noise; weaker with fewer samples than the median, which are
    mostly grazing), and an edge-preserving (Huber) coupling to its neighbours; iteratively
    re-weighted least squares solved by conjugate gradients (`_surface_kernels`). Texels no view
-   sees have no data term: their values come from the solve alone, along the surface.
+   sees have no data term: their base colour comes from the solve alone (along the surface and
+   from look-alikes); their roughness is also held by their UV chart's seen texels
+   (`chart_prior`, `uv_charts`: their mean, with one over their variance as precision), since
+   charts usually follow parts.
 4. **Posterior std** of roughness, metallic and base colour: the label's probability, and each
    texel's precision in the solve with its neighbours', scaled by how far the per-texel
    estimates scatter about the solution, growing with the distance from the texels with data;
@@ -39,7 +42,7 @@ from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
-from scipy import sparse
+from scipy import ndimage, sparse
 from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
@@ -55,8 +58,8 @@ if TYPE_CHECKING:
     from freqbrdf.observe.observations import Observations
     from freqbrdf.texels import Texels
 
-__all__ = ["DataPrecision", "SurfaceGraphs", "SurfacePosterior", "data_precision", "lookalike_graph",
-           "merged_std", "metal_evidence", "metal_posterior", "smooth_on_surface", "surface_graph", "surface_graphs", "whole_surface"]
+__all__ = ["DataPrecision", "SurfaceGraphs", "SurfacePosterior", "chart_prior", "data_precision", "lookalike_graph",
+           "merged_std", "metal_evidence", "metal_posterior", "smooth_on_surface", "surface_graph", "surface_graphs", "uv_charts", "whole_surface"]
 
 # Apparent albedo floor (log space): keeps black texels' logarithm finite.
 _ALBEDO_FLOOR = 1e-3
@@ -72,6 +75,10 @@ _LOOKALIKE_MATERIAL_SCALE = 0.5
 # The precision that pins a texel without data to the mean of the estimated texels, relative to
 # the coupling: only decides components of the graph that no estimated texel reaches.
 PRIOR_PRECISION = 1e-4
+# A UV chart with fewer texels with data than this gives its texels without data the mean of all.
+MIN_CHART_TEXELS = 8
+# The least variance of a chart's values (a uniform chart does not pin its unseen texels harder).
+CHART_VARIANCE_FLOOR = 1e-3
 
 
 @dataclass(eq=False)
@@ -163,8 +170,12 @@ def whole_surface(observations: Observations, estimate: MaterialEstimate, texels
     data = data_precision(observations, estimate, metal, settings)
     roughness_precision = data.roughness * data.few
     color_precision = data.color * data.few[:, None]
+    charts = uv_charts(texels)
     roughness, roughness_spread = smooth_on_surface(params[:, 3:4], roughness_precision[:, None], graph,
-                                                    settings.roughness_smoothing, settings.roughness_huber, settings)
+                                                    settings.roughness_smoothing, settings.roughness_huber, settings,
+                                                    charts)
+    # The base colour's texels without data lean on their look-alikes (the colour graph), not on a
+    # chart's mean, which measured worse there (docs/results.md#unseen-texels).
     color, color_spread = smooth_on_surface(params[:, :3], color_precision, color_graph, settings.color_smoothing,
                                             settings.color_huber, settings)
     timings["smooth"] = time.perf_counter() - start
@@ -289,6 +300,12 @@ def data_precision(observations: Observations, estimate: MaterialEstimate, metal
     typical = max(float(np.median(counts[estimated])), 1.0) if estimated.any() else 1.0
     few = np.minimum(counts / typical, 1.0) ** settings.few_sample_power
     return DataPrecision(roughness, color, noise, few, typical)
+
+
+def uv_charts(texels: Texels) -> np.ndarray:
+    """Return (N,) int64: each texel's UV chart, the islands of the atlas (8-connected in texture space)."""
+    labels, _ = ndimage.label(texels.mask, structure=np.ones((3, 3), bool))
+    return labels.reshape(-1)[texels.texel_index].astype(np.int64) - 1
 
 
 def apparent_albedo(observations: Observations) -> np.ndarray:
@@ -527,8 +544,47 @@ def _sigmoid(x: np.ndarray) -> np.ndarray:
     return 0.5 * (1.0 + np.tanh(0.5 * x))
 
 
+def chart_prior(values: np.ndarray, has_data: np.ndarray, charts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Give each texel its UV chart's mean and variance of the values of the texels with data.
+
+    Charts usually follow an object's parts, so a texel no view sees is most like the seen texels
+    of its own chart. A chart with fewer than `MIN_CHART_TEXELS` texels with data takes the mean
+    and variance of all of them.
+
+    Parameters
+    ----------
+    values : (N, C) float64
+        The per-texel values.
+    has_data : (N,) bool
+        The texels whose values count.
+    charts : (N,) int64
+        Each texel's chart (0, 1, ...).
+
+    Returns
+    -------
+    mean, variance : (N, C) float64
+        Per texel, its chart's; the variance at least `CHART_VARIANCE_FLOOR`.
+    """
+    n_charts = int(charts.max()) + 1 if charts.size else 0
+    counts = np.bincount(charts[has_data], minlength=n_charts).astype(np.float64)
+    data = values[has_data]
+    overall_mean, overall_variance = data.mean(axis=0), data.var(axis=0)
+    means = np.empty((n_charts, values.shape[1]))
+    variances = np.empty((n_charts, values.shape[1]))
+    for c in range(values.shape[1]):
+        sums = np.bincount(charts[has_data], data[:, c], minlength=n_charts)
+        squares = np.bincount(charts[has_data], data[:, c] ** 2, minlength=n_charts)
+        safe = np.maximum(counts, 1.0)
+        means[:, c] = sums / safe
+        variances[:, c] = np.maximum(squares / safe - means[:, c] ** 2, 0.0)
+    few = counts < MIN_CHART_TEXELS
+    means[few], variances[few] = overall_mean, overall_variance
+    return means[charts], np.maximum(variances[charts], CHART_VARIANCE_FLOOR)
+
+
 def smooth_on_surface(values: np.ndarray, precision: np.ndarray, graph: sparse.csr_matrix, smoothing: float,
-                      huber: float, settings: SurfaceConfig) -> tuple[np.ndarray, np.ndarray]:
+                      huber: float, settings: SurfaceConfig,
+                      charts: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Solve for values held by their precision and coupled to their neighbours (Huber, IRLS).
 
     Minimises sum_t P_t |x_t - v_t|^2 + lambda sum_ij w_ij rho(|x_i - x_j|), rho Huber's with
@@ -552,6 +608,11 @@ def smooth_on_surface(values: np.ndarray, precision: np.ndarray, graph: sparse.c
         Huber's threshold on neighbour differences.
     settings : SurfaceConfig
         ``smoothing_passes``, ``cg_iterations`` and ``std_scale``.
+    charts : (N,) int64, optional
+        Each texel's UV chart: a texel without data is then held by its chart's seen texels
+        (`chart_prior`: their mean, with the precision of one over their variance) besides its
+        neighbours. Its std is not narrowed by them: their spread is no measure of how far an
+        unseen texel lies from them.
 
     Returns
     -------
@@ -572,8 +633,12 @@ def smooth_on_surface(values: np.ndarray, precision: np.ndarray, graph: sparse.c
     scale = float(np.median(precision[has_data].mean(axis=1)))
     coupling = smoothing * scale
     mean = (precision * values).sum(axis=0) / np.maximum(precision.sum(axis=0), 1e-300)
-    pin = PRIOR_PRECISION * coupling
+    pin = np.full(values.shape, PRIOR_PRECISION * coupling)
     target = np.where(precision > 0, values, mean)
+    if charts is not None:
+        chart_mean, chart_variance = chart_prior(values, has_data, np.asarray(charts, np.int64))
+        no_data = ~has_data
+        target[no_data], pin[no_data] = chart_mean[no_data], 1.0 / chart_variance[no_data]
     diagonal_data = precision + pin
     solution = target.copy()
     graph = graph.tocsr()
