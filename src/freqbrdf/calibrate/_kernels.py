@@ -96,9 +96,15 @@ def covered_points(queries, skip, pixels, in_front, faces, used, height, width):
 
     queries (M, 2) x, y in pixels; skip (M, 2) faces not to test for each (-1: none); pixels
     (n_vertices, 2) and in_front (n_vertices,) the projected vertices; faces (F, 3), of which
-    only the ``used`` (F,) bool are tested. Returns (M,) bool. Faces are binned into the image's
-    pixels first (faces with a vertex behind the camera are left out).
+    only the ``used`` (F,) bool are tested. Returns (M,) bool. Faces are binned first into the
+    pixels the queries lie in (faces with a vertex behind the camera are left out).
     """
+    # Only the pixels a query lies in are binned: the faces far from every query are passed over.
+    wanted = np.zeros(height * width, np.bool_)
+    for m in range(queries.shape[0]):
+        col, row = int(math.floor(queries[m, 0])), int(math.floor(queries[m, 1]))
+        if 0 <= col < width and 0 <= row < height:
+            wanted[row * width + col] = True
     counts = np.zeros(height * width + 1, np.int64)
     for f in range(faces.shape[0]):
         a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
@@ -106,7 +112,8 @@ def covered_points(queries, skip, pixels, in_front, faces, used, height, width):
             col0, col1, row0, row1 = _face_cells(pixels, a, b, c, height, width)
             for row in range(row0, row1 + 1):
                 for col in range(col0, col1 + 1):
-                    counts[row * width + col + 1] += 1
+                    if wanted[row * width + col]:
+                        counts[row * width + col + 1] += 1
     for cell in range(height * width):
         counts[cell + 1] += counts[cell]
     filled = counts[:-1].copy()
@@ -117,8 +124,9 @@ def covered_points(queries, skip, pixels, in_front, faces, used, height, width):
             col0, col1, row0, row1 = _face_cells(pixels, a, b, c, height, width)
             for row in range(row0, row1 + 1):
                 for col in range(col0, col1 + 1):
-                    binned[filled[row * width + col]] = f
-                    filled[row * width + col] += 1
+                    if wanted[row * width + col]:
+                        binned[filled[row * width + col]] = f
+                        filled[row * width + col] += 1
     result = np.zeros(queries.shape[0], np.bool_)
     for m in range(queries.shape[0]):
         x, y = queries[m, 0], queries[m, 1]
