@@ -18,6 +18,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from scipy.stats import spearmanr
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -64,7 +65,20 @@ def run_scene(scene: str) -> dict:
             "unseen": {"trusted": errors(result.maps, capture.ground_truth, trusted & ~seen & atlas),
                        "not_trusted": errors(result.maps, capture.ground_truth, ~trusted & ~seen & atlas)}}
         print(f"[{scene}] {threshold}: {rows[str(threshold)]}", flush=True)
-    return {"capture": str(capture.root) if hasattr(capture, "root") else scene, "thresholds": rows}
+    # How each std ranks its parameter's errors on the seen texels (Spearman's rho).
+    ranking = {}
+    for name, std in (("roughness", result.uncertainty.roughness_std), ("metallic", result.uncertainty.metallic_std),
+                      ("base_color", None if result.uncertainty.base_color_std is None
+                       else result.uncertainty.base_color_std.mean(axis=1))):
+        if std is None:
+            continue
+        texture = result.estimate.to_texture(np.asarray(std, np.float64), fill=np.nan)
+        error = np.abs(getattr(result.maps, name) - getattr(capture.ground_truth, name))
+        error = error.mean(axis=-1) if error.ndim == 3 else error
+        keep = seen & np.isfinite(texture)
+        ranking[name] = float(spearmanr(texture[keep], error[keep]).statistic)
+    print(f"[{scene}] std rho {ranking}", flush=True)
+    return {"std_spearman": ranking, "capture": str(capture.root) if hasattr(capture, "root") else scene, "thresholds": rows}
 
 
 def markdown(results: dict) -> str:
@@ -86,6 +100,12 @@ def markdown(results: dict) -> str:
             lines.append(f"| {scene} | {threshold} | {row['trusted_fraction']:.0%} | {pair(row, 'roughness_mae')} | "
                          f"{pair(row, 'metallic_mae')} | {pair(row, 'base_color_mae')} | "
                          f"{pair(row, 'dielectric_called_metal', True)} |")
+    lines += ["", "Spearman's rho of each std with its parameter's absolute error, seen texels:", "",
+              "| scene | roughness | metallic | base colour |", "|---|---|---|---|"]
+    for scene, found in results["scenes"].items():
+        rho = found.get("std_spearman", {})
+        lines.append(f"| {scene} | " + " | ".join(f"{rho[key]:.2f}" if key in rho else "-"
+                                                   for key in ("roughness", "metallic", "base_color")) + " |")
     return "\n".join(lines) + "\n"
 
 

@@ -6,9 +6,17 @@ import dataclasses
 
 import numpy as np
 import pytest
+from scipy import sparse
 
 from freqbrdf.config import Config, SurfaceConfig, TexelConfig
-from freqbrdf.estimate.surface import chart_prior, lookalike_graph, metal_posterior, smooth_on_surface, surface_graph
+from freqbrdf.estimate.surface import (
+    border_variance,
+    chart_prior,
+    lookalike_graph,
+    metal_posterior,
+    smooth_on_surface,
+    surface_graph,
+)
 from freqbrdf.synthetic.synth import SynthSettings, synthesize
 
 SETTINGS = SurfaceConfig()
@@ -215,3 +223,15 @@ def test_a_texel_far_from_data_leans_to_its_charts_seen_texels():
     assert std[unseen].min() > np.median(std[~unseen])
     mean, variance = chart_prior(truth, ~unseen, charts)
     assert np.allclose(mean[unseen], 0.8) and np.allclose(mean[charts == 0], 0.2) and np.all(variance >= 1e-3)
+
+
+def test_the_metallic_std_is_widest_on_a_border_between_sure_labels():
+    # A chain of texels, sure metal on the left, sure dielectric on the right.
+    n = 10
+    rows = np.r_[np.arange(n - 1), np.arange(1, n)]
+    graph = sparse.csr_matrix((np.full(2 * (n - 1), 0.01), (rows, np.r_[np.arange(1, n), np.arange(n - 1)])),
+                              shape=(n, n))  # weak (appearance) weights: counted alike all the same
+    probability = np.where(np.arange(n) < 5, 0.999, 0.001)
+    variance = border_variance(probability, graph)
+    assert variance[4] > 0.2 and variance[5] > 0.2  # the two texels either side of the border
+    assert np.all(variance[[0, 1, 2, 7, 8, 9]] < 1e-6)

@@ -217,6 +217,9 @@ class UncertaintyModel:
         As ``roughness_level``, of the mean over RGB.
     metal_probability : (n,) float64
         The metal label's probability now.
+    border_variance : (n,) float64
+        The metallic variance of the label's disagreement over the texel's neighbourhood
+        (`freqbrdf.estimate.surface.border_variance`), held as the fit has it.
     label_color_difference : (n, 3) float64
         The base colour as a metal minus as a dielectric: the label's doubt in the base-colour std.
     evidence_scale : (n,) float64
@@ -249,6 +252,7 @@ class UncertaintyModel:
     color_scale: float
     color_level: float
     metal_probability: np.ndarray
+    border_variance: np.ndarray
     label_color_difference: np.ndarray
     evidence_scale: np.ndarray
     taken_evidence: np.ndarray
@@ -524,6 +528,8 @@ def uncertainty_model(capture: Capture, fit: SurfaceFit, rows: np.ndarray, confi
         roughness_scale=roughness_scale, roughness_level=roughness_level,
         color_precision=color, color_coupling=color_coupling[rows], color_scale=color_scale,
         color_level=color_level, metal_probability=posterior.metal_probability[rows].astype(np.float64),
+        border_variance=np.maximum(posterior.metallic_std[rows].astype(np.float64) ** 2
+                                   - posterior.metal_probability[rows] * (1.0 - posterior.metal_probability[rows]), 0.0),
         label_color_difference=label_difference[rows],
         evidence_scale=evidence_scale, taken_evidence=evidence, typical_samples=typical, few_sample_power=settings.few_sample_power,
         std_scale=std_scale, sigma=sigma,
@@ -637,7 +643,7 @@ def texel_std(model: UncertaintyModel, state: GuidanceState) -> np.ndarray:
     shift = model.evidence_scale * (np.sqrt(model.taken_evidence + state.metal_evidence) - earlier)
     data_metal_std = probability * _label_std(log_odds + shift) + (1.0 - probability) * _label_std(log_odds - shift)
     label_std = _label_std(log_odds)
-    metal_std = label_std + fraction * (data_metal_std - label_std)
+    metal_std = np.sqrt((label_std + fraction * (data_metal_std - label_std)) ** 2 + model.border_variance)
     prior = model.prior_std
     roughness_std = prior[:, 0] + fraction * (np.sqrt(roughness_var) * model.std_scale - prior[:, 0])
     # The base colour's posterior is a mixture over the label (`freqbrdf.estimate.surface`).

@@ -25,7 +25,8 @@ docs/method.md#whole-surface-estimate, done inside the estimate):
    from look-alikes); their roughness is also held by their UV chart's seen texels
    (`chart_prior`, `uv_charts`: their mean, with one over their variance as precision), since
    charts usually follow parts.
-4. **Posterior std** of roughness, metallic and base colour: the label's probability, and each
+4. **Posterior std** of roughness, metallic and base colour: the label's probability (and, for
+   the metallic, how much the labels of a texel's neighbourhood disagree: `border_variance`), and each
    texel's precision in the solve with its neighbours', scaled by how far the per-texel
    estimates scatter about the solution, growing with the distance from the texels with data;
    the base colour's also holds the label's doubt (a mixture of the two labels' base colours).
@@ -58,7 +59,7 @@ if TYPE_CHECKING:
     from freqbrdf.observe.observations import Observations
     from freqbrdf.texels import Texels
 
-__all__ = ["DataPrecision", "SurfaceGraphs", "SurfacePosterior", "chart_prior", "data_precision", "lookalike_graph",
+__all__ = ["DataPrecision", "SurfaceGraphs", "SurfacePosterior", "border_variance", "chart_prior", "data_precision", "lookalike_graph",
            "merged_std", "metal_evidence", "metal_posterior", "smooth_on_surface", "surface_graph", "surface_graphs", "uv_charts", "whole_surface"]
 
 # Apparent albedo floor (log space): keeps black texels' logarithm finite.
@@ -191,7 +192,7 @@ def whole_surface(observations: Observations, estimate: MaterialEstimate, texels
     posterior = SurfacePosterior(
         metal_probability=probability,
         roughness_std=roughness_spread[:, 0].astype(np.float32),
-        metallic_std=np.sqrt(label_variance).astype(np.float32),
+        metallic_std=np.sqrt(np.minimum(label_variance + border_variance(probability, graph), 0.25)).astype(np.float32),
         base_color_std=np.sqrt(color_spread ** 2 + label_variance[:, None]
                                * (labelled[1][:, :3] - labelled[0][:, :3]) ** 2).astype(np.float32),
         inferred=~estimated,
@@ -501,6 +502,22 @@ def metal_evidence(estimate: MaterialEstimate, n_samples: np.ndarray) -> tuple[n
     labelled = tuple(np.concatenate([np.nan_to_num(estimate.label_base_color[:, label]), roughness,
                                      np.full_like(roughness, float(label))], axis=1) for label in (0, 1))
     return log_ratio, costs, labelled
+
+
+def border_variance(probability: np.ndarray, graph: sparse.csr_matrix) -> np.ndarray:
+    """Return (N,) the variance of the metal label over each texel and its neighbours on the mesh.
+
+    A texel on a border between metal and dielectric (a soft, blended edge, or one the texture's
+    resolution cuts through) covers some of both: its metallic is uncertain by how much its
+    neighbourhood's labels disagree, however sure each label is. The neighbours are the graph's,
+    counted alike (its appearance weights would hide the very border).
+    """
+    structure = graph.tocsr(copy=True)
+    structure.data[:] = 1.0
+    count = 1.0 + np.asarray(structure.sum(axis=1)).ravel()
+    mean = (probability + structure @ probability) / count
+    second = (probability ** 2 + structure @ probability ** 2) / count
+    return np.maximum(second - mean ** 2, 0.0)
 
 
 def metal_posterior(log_ratio: np.ndarray, observed: np.ndarray, graph: sparse.csr_matrix,

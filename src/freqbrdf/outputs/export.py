@@ -486,7 +486,8 @@ def _write_roughness_std_maps(folder: Path, uncertainty: Uncertainty, estimate: 
 #: What metallic_std.exr is (its ``comments``).
 METALLIC_STD_DESCRIPTION = (
     "freqbrdf metallic std: the whole-surface posterior's standard deviation of the metallic per texel, "
-    "sqrt(p (1 - p)) for the probability p of the metal label, in [0, 0.5]. Texture space: row 0 is v = 1.")
+    "sqrt(p (1 - p) + v) for the probability p of the metal label and the variance v of p over the texel's "
+    "neighbourhood (a border between metal and dielectric), in [0, 0.5]. Texture space: row 0 is v = 1.")
 #: What base_color_std.exr is (its ``comments``).
 BASE_COLOR_STD_DESCRIPTION = (
     "freqbrdf base colour std: the whole-surface posterior's standard deviation of each linear base-colour "
