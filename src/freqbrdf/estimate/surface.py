@@ -15,7 +15,8 @@ docs/method.md#whole-surface-estimate, done inside the estimate):
    (`MaterialEstimate.label_loss`); their loss difference over the noise variance, deflated by
    ``SurfaceConfig.noise_inflation`` (the model's own misfit is not independent noise), is the
    label's log-likelihood ratio. A prior favours dielectrics (a texel is metal only with
-   evidence) and texels of like appearance share their label (mean field on the graph); a texel
+   evidence; a texel without evidence starts from its UV chart's share of metal) and texels of
+   like appearance share their label (mean field on the graph); a texel
    whose samples reject its label's pure material keeps its own, mixed, metallic.
 3. **Roughness and base colour** (`smooth_on_surface`): each texel's value held by its precision
    (the loss's curvature over the noise; weaker with fewer samples than the median, which are
@@ -80,6 +81,8 @@ PRIOR_PRECISION = 1e-4
 MIN_CHART_TEXELS = 8
 # The least variance of a chart's values (a uniform chart does not pin its unseen texels harder).
 CHART_VARIANCE_FLOOR = 1e-3
+# A chart's share of metal, as a texel without evidence's prior, is kept this far from 0 and 1.
+CHART_METAL_SHARE_BOUND = 0.02
 
 
 @dataclass(eq=False)
@@ -153,7 +156,8 @@ def whole_surface(observations: Observations, estimate: MaterialEstimate, texels
     timings["evidence"] = time.perf_counter() - start
 
     start = time.perf_counter()
-    probability = metal_posterior(log_ratio / settings.noise_inflation, estimated, label_graph, settings)
+    charts = uv_charts(texels)
+    probability = metal_posterior(log_ratio / settings.noise_inflation, estimated, label_graph, settings, charts)
     metal = probability > 0.5
     params = np.where(metal[:, None], labelled[1], labelled[0])  # (N, 5): base colour, roughness, metallic
     own = np.nan_to_num(np.concatenate([estimate.base_color, estimate.roughness[:, None], estimate.metallic[:, None]],
@@ -171,7 +175,6 @@ def whole_surface(observations: Observations, estimate: MaterialEstimate, texels
     data = data_precision(observations, estimate, metal, settings)
     roughness_precision = data.roughness * data.few
     color_precision = data.color * data.few[:, None]
-    charts = uv_charts(texels)
     roughness, roughness_spread = smooth_on_surface(params[:, 3:4], roughness_precision[:, None], graph,
                                                     settings.roughness_smoothing, settings.roughness_huber, settings,
                                                     charts)
@@ -521,7 +524,7 @@ def border_variance(probability: np.ndarray, graph: sparse.csr_matrix) -> np.nda
 
 
 def metal_posterior(log_ratio: np.ndarray, observed: np.ndarray, graph: sparse.csr_matrix,
-                    settings: SurfaceConfig) -> np.ndarray:
+                    settings: SurfaceConfig, charts: np.ndarray | None = None) -> np.ndarray:
     """Return each texel's probability of being metal: its evidence, the prior and its neighbours.
 
     Mean field on the graph's Ising model: q = sigmoid(h + J sum_j w_ij (2 q_j - 1)), h the
@@ -537,6 +540,10 @@ def metal_posterior(log_ratio: np.ndarray, observed: np.ndarray, graph: sparse.c
         `surface_graph`'s weights.
     settings : SurfaceConfig
         ``metal_prior``, ``label_coupling`` and ``label_iterations``.
+    charts : (N,) int64, optional
+        Each texel's UV chart: a texel without evidence then takes as its prior its chart's share
+        of metal among the texels with evidence (`chart_prior`), within `CHART_METAL_SHARE_BOUND`
+        of 0 and 1.
 
     Returns
     -------
@@ -545,6 +552,12 @@ def metal_posterior(log_ratio: np.ndarray, observed: np.ndarray, graph: sparse.c
     """
     prior = np.log(settings.metal_prior / (1.0 - settings.metal_prior))
     field = np.clip(np.where(observed, log_ratio, 0.0), -_MAX_LOG_RATIO, _MAX_LOG_RATIO) + prior
+    if charts is not None and observed.any():
+        # A texel without evidence takes its chart's share of metal among the texels with evidence.
+        labels = (_sigmoid(field) > 0.5).astype(np.float64)[:, None]
+        share, _ = chart_prior(labels, observed, charts)
+        share = np.clip(share[:, 0], CHART_METAL_SHARE_BOUND, 1.0 - CHART_METAL_SHARE_BOUND)
+        field = np.where(observed, field, np.log(share / (1.0 - share)))
     probability = _sigmoid(field)
     for _ in range(settings.label_iterations):
         updated = _sigmoid(field + settings.label_coupling * (graph @ (2.0 * probability - 1.0)))
