@@ -235,3 +235,16 @@ def test_the_metallic_std_is_widest_on_a_border_between_sure_labels():
     variance = border_variance(probability, graph)
     assert variance[4] > 0.2 and variance[5] > 0.2  # the two texels either side of the border
     assert np.all(variance[[0, 1, 2, 7, 8, 9]] < 1e-6)
+
+
+def test_a_label_without_evidence_starts_from_its_charts_share_of_metal():
+    # Two charts of ten texels each, no edges: the first's seen texels are metal, the second's not.
+    graph = sparse.csr_matrix((20, 20))
+    charts = np.repeat([0, 1], 10)
+    observed = np.array([True] * 9 + [False] + [True] * 9 + [False])
+    log_ratio = np.where(charts == 0, 20.0, -20.0) * observed
+    settings = dataclasses.replace(SETTINGS)
+    with_charts = metal_posterior(log_ratio, observed, graph, settings, charts)
+    alone = metal_posterior(log_ratio, observed, graph, settings)
+    assert with_charts[9] > 0.9 and with_charts[19] < 0.1  # the unseen texel of each chart follows its chart
+    assert alone[9] < 0.5  # the global prior alone: a dielectric
