@@ -6,7 +6,8 @@ Scenes: the calibration study's three path-traced captures of the whole-surface 
 192 x 192, T = 256; `studies/calibration.py`), fitted with the defaults. For each threshold on
 every std (`freqbrdf.uncertainty.trust.trusted_texels`): the share of the atlas trusted, and inside
 and outside the mask the roughness and metallic MAE, the base colour's mean absolute error and
-the dielectrics called metal, on the texels a view sees and on those none sees.
+the dielectrics called metal, on the texels a view sees and on those none sees; per std, Spearman's
+rho with its parameter's absolute error and the share of errors within one std.
 
 Writes benchmarks/results/trust.{json,md}.
 """
@@ -66,7 +67,7 @@ def run_scene(scene: str) -> dict:
                        "not_trusted": errors(result.maps, capture.ground_truth, ~trusted & ~seen & atlas)}}
         print(f"[{scene}] {threshold}: {rows[str(threshold)]}", flush=True)
     # How each std ranks its parameter's errors on the seen texels (Spearman's rho).
-    ranking = {}
+    ranking, coverage = {}, {}
     for name, std in (("roughness", result.uncertainty.roughness_std), ("metallic", result.uncertainty.metallic_std),
                       ("base_color", None if result.uncertainty.base_color_std is None
                        else result.uncertainty.base_color_std.mean(axis=1))):
@@ -77,8 +78,9 @@ def run_scene(scene: str) -> dict:
         error = error.mean(axis=-1) if error.ndim == 3 else error
         keep = seen & np.isfinite(texture)
         ranking[name] = float(spearmanr(texture[keep], error[keep]).statistic)
-    print(f"[{scene}] std rho {ranking}", flush=True)
-    return {"std_spearman": ranking, "capture": str(capture.root) if hasattr(capture, "root") else scene, "thresholds": rows}
+        coverage[name] = float(np.mean(error[keep] <= texture[keep]))
+    print(f"[{scene}] std rho {ranking} 1-sigma coverage {coverage}", flush=True)
+    return {"std_spearman": ranking, "std_coverage_1sigma": coverage, "capture": str(capture.root) if hasattr(capture, "root") else scene, "thresholds": rows}
 
 
 def markdown(results: dict) -> str:
@@ -100,11 +102,12 @@ def markdown(results: dict) -> str:
             lines.append(f"| {scene} | {threshold} | {row['trusted_fraction']:.0%} | {pair(row, 'roughness_mae')} | "
                          f"{pair(row, 'metallic_mae')} | {pair(row, 'base_color_mae')} | "
                          f"{pair(row, 'dielectric_called_metal', True)} |")
-    lines += ["", "Spearman's rho of each std with its parameter's absolute error, seen texels:", "",
-              "| scene | roughness | metallic | base colour |", "|---|---|---|---|"]
+    lines += ["", "Spearman's rho of each std with its parameter's absolute error, and the share of errors within "
+              "1 std (0.68 = calibrated), seen texels:", "",
+              "| scene | roughness | metallic | base colour (mean over RGB) |", "|---|---|---|---|"]
     for scene, found in results["scenes"].items():
-        rho = found.get("std_spearman", {})
-        lines.append(f"| {scene} | " + " | ".join(f"{rho[key]:.2f}" if key in rho else "-"
+        rho, within = found.get("std_spearman", {}), found.get("std_coverage_1sigma", {})
+        lines.append(f"| {scene} | " + " | ".join(f"{rho[key]:.2f} / {within[key]:.0%}" if key in rho else "-"
                                                    for key in ("roughness", "metallic", "base_color")) + " |")
     return "\n".join(lines) + "\n"
 
