@@ -248,8 +248,9 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
         start = time.perf_counter()
         own_base_color = estimate.base_color
         with reporter.stage("whole-surface solve", 1) as advance:
-            estimate, posterior = whole_surface(observations, estimate, rasterise(capture.mesh, estimation_res),
-                                                config)
+            texels = observations.texels if observations.texels is not None else rasterise(capture.mesh,
+                                                                                             estimation_res)
+            estimate, posterior = whole_surface(observations, estimate, texels, config)
             advance(1)
         uncertainty.roughness_std, uncertainty.metallic_std, uncertainty.base_color_std = merged_std(
             uncertainty.roughness_std, own_base_color, estimate, posterior)

@@ -287,7 +287,10 @@ def test_observations_round_trip_through_npz(checker_bunny, tmp_path):
     path = tmp_path / "observations.npz"
     observations.save(path)
     loaded = Observations.load(path)
+    assert observations.texels is not None and loaded.texels is None  # the texels are the mesh's, not saved
     for name, value in vars(observations).items():
+        if name == "texels":
+            continue
         if isinstance(value, np.ndarray):
             np.testing.assert_array_equal(getattr(loaded, name), value, err_msg=name)
             assert getattr(loaded, name).dtype == value.dtype, name

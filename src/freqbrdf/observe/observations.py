@@ -150,6 +150,10 @@ class Observations:
         (0 where nothing is hit). None where not traced.
     timings : dict
         Seconds per stage of `observe` (``STAGES`` and ``"total"``).
+    texels : Texels or None
+        The texels observed (`freqbrdf.texels.rasterise` at ``texture_res``), so that later stages
+        need not rasterise the mesh again; None where the rows are a selection of them
+        (`select`, `texel_fields`) or the observations were read from a file.
     """
 
     texture_res: int
@@ -177,6 +181,7 @@ class Observations:
     mirror_occluded: np.ndarray | None = None
     mirror_surface: np.ndarray | None = None
     timings: dict = field(default_factory=dict)
+    texels: Texels | None = field(default=None, repr=False)
 
     @property
     def n_texels(self) -> int:
@@ -231,7 +236,7 @@ class Observations:
         """
         changes = {item.name: getattr(self, item.name)[rows] for item in fields(self)
                    if isinstance(getattr(self, item.name), np.ndarray) and item.name not in _SHARED_ARRAYS}
-        return replace(self, **changes)
+        return replace(self, **changes, texels=None)
 
     def texel_fields(self, rows) -> Observations:
         """Return the per-texel fields of some of the texels, without their samples.
@@ -257,7 +262,7 @@ class Observations:
             value = getattr(self, item.name)
             if isinstance(value, np.ndarray) and item.name not in _SHARED_ARRAYS:
                 changes[item.name] = (value[:, :0] if item.name in _SAMPLE_ARRAYS else value)[rows]
-        return replace(self, **changes)
+        return replace(self, **changes, texels=None)
 
     def with_views(self, keep: np.ndarray, config: Config = Config()) -> Observations:
         """Return the Observations as if only some of the views had been captured.
@@ -348,7 +353,7 @@ class Observations:
             The file to write (replaced if it exists).
         """
         arrays = {f.name: getattr(self, f.name) for f in fields(self)
-                  if f.name != "timings" and getattr(self, f.name) is not None}
+                  if f.name not in ("timings", "texels") and getattr(self, f.name) is not None}
         arrays["timings_json"] = np.array(json.dumps(self.timings))
         with atomic_path(path) as tmp:
             with open(tmp, "wb") as handle:
@@ -379,7 +384,7 @@ class Observations:
         try:
             with np.load(path, allow_pickle=False) as data:
                 values = {f.name: data[f.name] for f in fields(cls)
-                          if f.name != "timings" and (f.name in data or f.default is not None)}
+                          if f.name not in ("timings", "texels") and (f.name in data or f.default is not None)}
                 timings = json.loads(str(data["timings_json"]))
         except (KeyError, ValueError, OSError) as err:
             raise InputError(path, f"not a freqbrdf observations file ({err})") from err
@@ -583,6 +588,7 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
         mirror_occluded=mirror_occluded,
         mirror_surface=mirror_surface,
         timings=timings,
+        texels=texels,
     )
 
 
