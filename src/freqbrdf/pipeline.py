@@ -193,10 +193,9 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
     >>> from freqbrdf import pipeline
     >>> from freqbrdf.capture import load
     >>> from freqbrdf.config import Config, TexelConfig
-    >>> from freqbrdf.synthetic import SynthSettings, synthesize
+    >>> from freqbrdf.synthetic import example_capture
     >>> work = tempfile.TemporaryDirectory()
-    >>> tiny = SynthSettings(mesh="sphere", views=6, resolution=24, spp=1, texture_res=16, test_views=0)
-    >>> capture = load(synthesize(Path(work.name) / "capture", tiny, progress=False))
+    >>> capture = load(example_capture(Path(work.name) / "capture"))
     >>> config = Config(texels=TexelConfig(texture_res=32))
     >>> result = pipeline.fit(capture, config)
     >>> result.maps.base_color.shape, result.maps.roughness.shape, result.maps.metallic.shape  # T x T

@@ -326,10 +326,9 @@ def select_views(
     >>> from freqbrdf.applications import sample_candidates, select_views
     >>> from freqbrdf.capture import load
     >>> from freqbrdf.config import Config, TexelConfig
-    >>> from freqbrdf.synthetic import SynthSettings, synthesize
+    >>> from freqbrdf.synthetic import example_capture
     >>> work = tempfile.TemporaryDirectory()
-    >>> tiny = SynthSettings(mesh="sphere", views=6, resolution=24, spp=1, texture_res=16, test_views=0)
-    >>> capture = load(synthesize(Path(work.name) / "capture", tiny, progress=False))
+    >>> capture = load(example_capture(Path(work.name) / "capture"))
     >>> candidates = sample_candidates(capture, 12)  # spread on a sphere around the object
     >>> picks = select_views(capture, candidates, 2, Config(texels=TexelConfig(texture_res=32)))
     >>> [pick.rank for pick in picks], len({pick.candidate for pick in picks})

@@ -64,10 +64,9 @@ def write_next_views(out_dir: str | Path, capture: Capture, picks: Sequence[Pick
     >>> from freqbrdf.applications import sample_candidates, select_views, write_next_views
     >>> from freqbrdf.capture import load
     >>> from freqbrdf.config import Config, TexelConfig
-    >>> from freqbrdf.synthetic import SynthSettings, synthesize
+    >>> from freqbrdf.synthetic import example_capture
     >>> work = tempfile.TemporaryDirectory()
-    >>> tiny = SynthSettings(mesh="sphere", views=6, resolution=24, spp=1, texture_res=16, test_views=0)
-    >>> capture = load(synthesize(Path(work.name) / "capture", tiny, progress=False))
+    >>> capture = load(example_capture(Path(work.name) / "capture"))
     >>> candidates = sample_candidates(capture, 12)
     >>> picks = select_views(capture, candidates, 2, Config(texels=TexelConfig(texture_res=32)))
     >>> folder = write_next_views(Path(work.name) / "next", capture, picks, {"budget": 2}, candidates)

@@ -136,11 +136,10 @@ def run(manifest: str | Path, out: str | Path, *, workers: int | None = None, th
     >>> import tempfile
     >>> from pathlib import Path
     >>> from freqbrdf import batch
-    >>> from freqbrdf.synthetic import SynthSettings, synthesize
+    >>> from freqbrdf.synthetic import example_capture
     >>> work = tempfile.TemporaryDirectory()
     >>> root = Path(work.name)
-    >>> tiny = SynthSettings(mesh="sphere", views=6, resolution=24, spp=1, texture_res=16, test_views=0)
-    >>> _ = synthesize(root / "captures" / "sphere", tiny, progress=False)
+    >>> _ = example_capture(root / "captures" / "sphere")
     >>> line = {"name": "ball", "capture": "captures/sphere", "texture_res": 32, "report": False}
     >>> _ = (root / "captures.jsonl").write_text(json.dumps(line))
     >>> [(entry.name, entry.capture.name, entry.settings) for entry in batch.read_manifest(root / "captures.jsonl")]

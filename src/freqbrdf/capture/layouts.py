@@ -52,7 +52,7 @@ from freqbrdf.capture.camera import (
 from freqbrdf.capture.mesh import Mesh, load_mesh
 from freqbrdf.errors import InputError
 from freqbrdf.fileio import atomic_path
-from freqbrdf.images import IMAGE_SUFFIXES, image_has_alpha, read_alpha_mask, read_image, read_mask, read_mask_coverage
+from freqbrdf.images import IMAGE_SUFFIXES, image_has_alpha, read_image, read_mask_coverage
 from freqbrdf.model.materials import MaterialMaps, load_material_maps
 from freqbrdf.sphere.envmap import Envmap, load_envmap
 
@@ -251,10 +251,9 @@ def load(path: str | Path) -> Capture:
     >>> import tempfile
     >>> from pathlib import Path
     >>> from freqbrdf.capture import load
-    >>> from freqbrdf.synthetic import SynthSettings, synthesize
+    >>> from freqbrdf.synthetic import example_capture
     >>> work = tempfile.TemporaryDirectory()
-    >>> tiny = SynthSettings(mesh="sphere", views=6, resolution=24, spp=1, texture_res=16, test_views=0)
-    >>> folder = synthesize(Path(work.name) / "capture", tiny, progress=False)
+    >>> folder = example_capture(Path(work.name) / "capture")
     >>> sorted(path.name for path in folder.iterdir())
     ['.freqbrdf', 'envmap.exr', 'gt', 'images', 'masks', 'mesh.obj', 'transforms.json']
     >>> capture = load(folder)
@@ -323,11 +322,7 @@ def read_frame_mask(frame: Frame) -> np.ndarray:
     InputError
         If the mask cannot be read or its size is not its camera's.
     """
-    if frame.mask_path is None:
-        return np.ones((frame.camera.height, frame.camera.width), dtype=bool)
-    mask = read_alpha_mask(frame.mask_path) if frame.mask_from_alpha else read_mask(frame.mask_path)
-    _check_size(frame.mask_path, mask.shape, frame.camera)
-    return mask
+    return read_frame_mask_coverage(frame) > 0.5
 
 
 def read_frame_mask_coverage(frame: Frame) -> np.ndarray:

@@ -242,10 +242,9 @@ def estimate(observations: Observations, config: Config = Config(), reporter: Re
     >>> from freqbrdf.config import Config, TexelConfig
     >>> from freqbrdf.estimate import estimate
     >>> from freqbrdf.observe import observe
-    >>> from freqbrdf.synthetic import SynthSettings, synthesize
+    >>> from freqbrdf.synthetic import example_capture
     >>> work = tempfile.TemporaryDirectory()
-    >>> tiny = SynthSettings(mesh="sphere", views=6, resolution=24, spp=1, texture_res=16, test_views=0)
-    >>> capture = load(synthesize(Path(work.name) / "capture", tiny, progress=False))
+    >>> capture = load(example_capture(Path(work.name) / "capture"))
     >>> config = Config(texels=TexelConfig(texture_res=32))
     >>> materials = estimate(observe(capture, config), config)
     >>> materials.method, materials.base_color.shape, materials.roughness.shape  # (N, 3), (N,)

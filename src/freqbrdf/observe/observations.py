@@ -440,10 +440,9 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
     >>> from freqbrdf.capture import load
     >>> from freqbrdf.config import Config, TexelConfig
     >>> from freqbrdf.observe import observe
-    >>> from freqbrdf.synthetic import SynthSettings, synthesize
+    >>> from freqbrdf.synthetic import example_capture
     >>> work = tempfile.TemporaryDirectory()
-    >>> tiny = SynthSettings(mesh="sphere", views=6, resolution=24, spp=1, texture_res=16, test_views=0)
-    >>> capture = load(synthesize(Path(work.name) / "capture", tiny, progress=False))
+    >>> capture = load(example_capture(Path(work.name) / "capture"))
     >>> observations = observe(capture, Config(texels=TexelConfig(texture_res=32)))
     >>> observations.observed.shape, observations.observed.dtype  # (N, V, 3)
     ((1024, 6, 3), dtype('float32'))

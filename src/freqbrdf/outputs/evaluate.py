@@ -78,11 +78,9 @@ def evaluate_fit(fit_outputs: FitOutputs, capture: Capture, out_dir: str | Path 
     >>> from freqbrdf.capture import load
     >>> from freqbrdf.config import Config, TexelConfig
     >>> from freqbrdf.outputs import RelightSettings, evaluate_fit, load_fit
-    >>> from freqbrdf.synthetic import SynthSettings, synthesize
+    >>> from freqbrdf.synthetic import example_capture
     >>> work = tempfile.TemporaryDirectory()
-    >>> tiny = SynthSettings(mesh="sphere", views=6, resolution=24, spp=1, texture_res=16, test_views=1,
-    ...                      test_envmaps=1)
-    >>> capture = load(synthesize(Path(work.name) / "capture", tiny, progress=False))
+    >>> capture = load(example_capture(Path(work.name) / "capture", test_views=1, test_envmaps=1))
     >>> config = Config(texels=TexelConfig(texture_res=32))
     >>> folder = pipeline.write_fit(Path(work.name) / "fit", pipeline.fit(capture, config), config)
     >>> metrics = evaluate_fit(load_fit(folder), capture, settings=RelightSettings(spp=4, lpips=False))

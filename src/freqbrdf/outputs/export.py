@@ -371,11 +371,10 @@ def write_fit_outputs(
     >>> from freqbrdf.estimate import estimate
     >>> from freqbrdf.observe import observe
     >>> from freqbrdf.outputs import load_fit, write_fit_outputs
-    >>> from freqbrdf.synthetic import SynthSettings, synthesize
+    >>> from freqbrdf.synthetic import example_capture
     >>> from freqbrdf.uncertainty import entropy_map
     >>> work = tempfile.TemporaryDirectory()
-    >>> tiny = SynthSettings(mesh="sphere", views=6, resolution=24, spp=1, texture_res=16, test_views=0)
-    >>> capture = load(synthesize(Path(work.name) / "capture", tiny, progress=False))
+    >>> capture = load(example_capture(Path(work.name) / "capture"))
     >>> config = Config(texels=TexelConfig(texture_res=32))
     >>> observations = observe(capture, config)
     >>> materials = estimate(observations, config)

@@ -6,7 +6,8 @@ results are judged (docs/method.md#evaluation). Never on the fit path: no stage 
 Modules
 -------
 synth
-    `synthesize`: render a capture in our layout or Stanford-ORB's from `SynthSettings`.
+    `synthesize`: render a capture in our layout or Stanford-ORB's from `SynthSettings`;
+    `example_capture`: the tiny one the documentation's examples fit.
 materials
     Ground-truth material maps: colour bands and photo-derived materials.
 demo
@@ -16,8 +17,10 @@ demo
 from freqbrdf.synthetic.demo import DEFAULT_CAPTURE, capture_folder, run_demo
 from freqbrdf.synthetic.materials import bands_material, photo_material
 from freqbrdf.synthetic.synth import (
+    EXAMPLE_SETTINGS,
     SynthScene,
     SynthSettings,
+    example_capture,
     prepare,
     resample_envmap,
     synthesize,
@@ -25,10 +28,12 @@ from freqbrdf.synthetic.synth import (
 
 __all__ = [
     "DEFAULT_CAPTURE",
+    "EXAMPLE_SETTINGS",
     "SynthScene",
     "SynthSettings",
     "bands_material",
     "capture_folder",
+    "example_capture",
     "photo_material",
     "prepare",
     "resample_envmap",

@@ -187,6 +187,29 @@ def synthesize(out: str | Path, settings: SynthSettings = SynthSettings(), progr
     return out if settings.format == "ours" else out / "blender_HDR" / ORB_SCENE
 
 
+#: The smallest capture worth fitting: six 24 x 24 views of the bundled sphere, rendered in about a
+#: second (`example_capture`).
+EXAMPLE_SETTINGS = SynthSettings(mesh="sphere", views=6, resolution=24, spp=1, texture_res=16, test_views=0)
+
+
+def example_capture(out: str | Path, **changes) -> Path:
+    """Render the tiny capture the documentation's examples fit (`EXAMPLE_SETTINGS`).
+
+    Parameters
+    ----------
+    out : str or Path
+        The capture folder to write (replaced if it exists).
+    **changes
+        `SynthSettings` fields to change, e.g. ``test_views=1``.
+
+    Returns
+    -------
+    Path
+        The capture folder.
+    """
+    return synthesize(out, replace(EXAMPLE_SETTINGS, **changes), progress=False)
+
+
 def prepare(settings: SynthSettings) -> SynthScene:
     """Validate the settings, load the assets and place the cameras, deterministically in the seed.
 

@@ -108,11 +108,10 @@ def entropy_map(
     >>> from freqbrdf.capture import load
     >>> from freqbrdf.config import Config, TexelConfig
     >>> from freqbrdf.observe import observe
-    >>> from freqbrdf.synthetic import SynthSettings, synthesize
+    >>> from freqbrdf.synthetic import example_capture
     >>> from freqbrdf.uncertainty import FLAG_UNOBSERVED, entropy_map
     >>> work = tempfile.TemporaryDirectory()
-    >>> tiny = SynthSettings(mesh="sphere", views=6, resolution=24, spp=1, texture_res=16, test_views=0)
-    >>> capture = load(synthesize(Path(work.name) / "capture", tiny, progress=False))
+    >>> capture = load(example_capture(Path(work.name) / "capture"))
     >>> observations = observe(capture, Config(texels=TexelConfig(texture_res=32)))
     >>> uncertainty = entropy_map(observations)
     >>> uncertainty.mode, uncertainty.entropy.shape, uncertainty.flags.dtype  # (N,)
