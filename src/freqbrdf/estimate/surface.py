@@ -22,10 +22,7 @@ docs/method.md#whole-surface-estimate, done inside the estimate):
    (the loss's curvature over the noise; weaker with fewer samples than the median, which are
    mostly grazing), and an edge-preserving (Huber) coupling to its neighbours; iteratively
    re-weighted least squares solved by conjugate gradients (`_surface_kernels`). Texels no view
-   sees have no data term: their base colour comes from the solve alone (along the surface and
-   from look-alikes); their roughness is also held by their UV chart's seen texels
-   (`chart_prior`, `uv_charts`: their mean, with one over their variance as precision), since
-   charts usually follow parts.
+   sees have no data term: their values come from the solve alone, along the surface.
 4. **Posterior std** of roughness, metallic and base colour: the label's probability (and, for
    the metallic, how much the labels of a texel's neighbourhood disagree: `border_variance`), and each
    texel's precision in the solve with its neighbours', scaled by how far the per-texel
@@ -79,8 +76,6 @@ _LOOKALIKE_MATERIAL_SCALE = 0.5
 PRIOR_PRECISION = 1e-4
 # A UV chart with fewer texels with data than this gives its texels without data the mean of all.
 MIN_CHART_TEXELS = 8
-# The least variance of a chart's values (a uniform chart does not pin its unseen texels harder).
-CHART_VARIANCE_FLOOR = 1e-3
 # A chart's share of metal, as a texel without evidence's prior, is kept this far from 0 and 1.
 CHART_METAL_SHARE_BOUND = 0.02
 
@@ -176,10 +171,7 @@ def whole_surface(observations: Observations, estimate: MaterialEstimate, texels
     roughness_precision = data.roughness * data.few
     color_precision = data.color * data.few[:, None]
     roughness, roughness_spread = smooth_on_surface(params[:, 3:4], roughness_precision[:, None], graph,
-                                                    settings.roughness_smoothing, settings.roughness_huber, settings,
-                                                    charts)
-    # The base colour's texels without data lean on their look-alikes (the colour graph), not on a
-    # chart's mean, which measured worse there (docs/results.md#unseen-texels).
+                                                    settings.roughness_smoothing, settings.roughness_huber, settings)
     color, color_spread = smooth_on_surface(params[:, :3], color_precision, color_graph, settings.color_smoothing,
                                             settings.color_huber, settings)
     timings["smooth"] = time.perf_counter() - start
@@ -593,7 +585,7 @@ def chart_prior(values: np.ndarray, has_data: np.ndarray, charts: np.ndarray) ->
     Returns
     -------
     mean, variance : (N, C) float64
-        Per texel, its chart's; the variance at least `CHART_VARIANCE_FLOOR`.
+        Per texel, its chart's.
     """
     n_charts = int(charts.max()) + 1 if charts.size else 0
     counts = np.bincount(charts[has_data], minlength=n_charts).astype(np.float64)
@@ -609,12 +601,11 @@ def chart_prior(values: np.ndarray, has_data: np.ndarray, charts: np.ndarray) ->
         variances[:, c] = np.maximum(squares / safe - means[:, c] ** 2, 0.0)
     few = counts < MIN_CHART_TEXELS
     means[few], variances[few] = overall_mean, overall_variance
-    return means[charts], np.maximum(variances[charts], CHART_VARIANCE_FLOOR)
+    return means[charts], variances[charts]
 
 
 def smooth_on_surface(values: np.ndarray, precision: np.ndarray, graph: sparse.csr_matrix, smoothing: float,
-                      huber: float, settings: SurfaceConfig,
-                      charts: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                      huber: float, settings: SurfaceConfig) -> tuple[np.ndarray, np.ndarray]:
     """Solve for values held by their precision and coupled to their neighbours (Huber, IRLS).
 
     Minimises sum_t P_t |x_t - v_t|^2 + lambda sum_ij w_ij rho(|x_i - x_j|), rho Huber's with
@@ -638,11 +629,6 @@ def smooth_on_surface(values: np.ndarray, precision: np.ndarray, graph: sparse.c
         Huber's threshold on neighbour differences.
     settings : SurfaceConfig
         ``smoothing_passes``, ``cg_iterations`` and ``std_scale``.
-    charts : (N,) int64, optional
-        Each texel's UV chart: a texel without data is then held by its chart's seen texels
-        (`chart_prior`: their mean, with the precision of one over their variance) besides its
-        neighbours. Its std is not narrowed by them: their spread is no measure of how far an
-        unseen texel lies from them.
 
     Returns
     -------
@@ -663,12 +649,8 @@ def smooth_on_surface(values: np.ndarray, precision: np.ndarray, graph: sparse.c
     scale = float(np.median(precision[has_data].mean(axis=1)))
     coupling = smoothing * scale
     mean = (precision * values).sum(axis=0) / np.maximum(precision.sum(axis=0), 1e-300)
-    pin = np.full(values.shape, PRIOR_PRECISION * coupling)
+    pin = PRIOR_PRECISION * coupling
     target = np.where(precision > 0, values, mean)
-    if charts is not None:
-        chart_mean, chart_variance = chart_prior(values, has_data, np.asarray(charts, np.int64))
-        no_data = ~has_data
-        target[no_data], pin[no_data] = chart_mean[no_data], 1.0 / chart_variance[no_data]
     diagonal_data = precision + pin
     solution = target.copy()
     graph = graph.tocsr()
