@@ -25,7 +25,10 @@ import functools
 import hashlib
 import json
 import os
-from collections.abc import Sequence
+import threading
+import warnings
+from collections import OrderedDict
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -278,6 +281,54 @@ def load(path: str | Path) -> Capture:
     return _load_ours(transforms_path)
 
 
+# Decoded frames kept for the next reader, up to this many bytes (least recently used out first): a
+# fit reads each photograph and mask several times (the capture check, calibration, observation).
+DECODED_CACHE_BYTES = 512 << 20
+
+
+class _DecodedFiles:
+    """Arrays decoded from files, keyed by the file's path, size and modification time, read-only.
+
+    The warnings a read raised are kept with its array and raised again on each later hit, so a
+    reader sees the same warnings whether the file was decoded for it or before.
+    """
+
+    def __init__(self, max_bytes: int):
+        self._max_bytes = max_bytes
+        self._items: OrderedDict = OrderedDict()
+        self._bytes = 0
+        self._lock = threading.Lock()
+
+    def get(self, path: Path, what: tuple, read: Callable[[], np.ndarray]) -> np.ndarray:
+        try:
+            status = path.stat()
+        except OSError:
+            return read()  # the reader names the file and the problem
+        key = (str(path.resolve()), status.st_size, status.st_mtime_ns, what)
+        with self._lock:
+            item = self._items.get(key)
+            if item is not None:
+                self._items.move_to_end(key)
+        if item is None:
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                array = read()
+            array.flags.writeable = False
+            item = (array, tuple(caught))
+            with self._lock:
+                if array.nbytes <= self._max_bytes and key not in self._items:
+                    self._items[key] = item
+                    self._bytes += array.nbytes
+                    while self._bytes > self._max_bytes:
+                        self._bytes -= self._items.popitem(last=False)[1][0].nbytes
+        for warning in item[1]:
+            warnings.warn_explicit(warning.message, warning.category, warning.filename, warning.lineno)
+        return item[0]
+
+
+_DECODED = _DecodedFiles(DECODED_CACHE_BYTES)
+
+
 def read_frame_image(frame: Frame) -> np.ndarray:
     """Read a frame's image.
 
@@ -289,7 +340,7 @@ def read_frame_image(frame: Frame) -> np.ndarray:
     Returns
     -------
     (H, W, 3) float32
-        Linear radiance.
+        Linear radiance, read-only (decoded once and shared by every reader of the frame).
 
     Raises
     ------
@@ -297,10 +348,11 @@ def read_frame_image(frame: Frame) -> np.ndarray:
         If the image cannot be read, has non-finite or negative pixels, or its size is not its
         camera's.
     """
-    image = read_image(frame.image_path, validate=True)
+    image = _DECODED.get(frame.image_path, ("image",), lambda: read_image(frame.image_path, validate=True))
     _check_size(frame.image_path, image.shape[:2], frame.camera)
     if frame.exposure is not None:
         image = image * np.asarray(frame.exposure, dtype=np.float32)
+        image.flags.writeable = False
     return image
 
 
@@ -336,7 +388,7 @@ def read_frame_mask_coverage(frame: Frame) -> np.ndarray:
     Returns
     -------
     (H, W) float32
-        The share of each pixel the object covers; all 1 when the frame has none.
+        The share of each pixel the object covers; all 1 when the frame has none; read-only.
 
     Raises
     ------
@@ -345,7 +397,8 @@ def read_frame_mask_coverage(frame: Frame) -> np.ndarray:
     """
     if frame.mask_path is None:
         return np.ones((frame.camera.height, frame.camera.width), dtype=np.float32)
-    coverage = read_mask_coverage(frame.mask_path, from_alpha=frame.mask_from_alpha)
+    coverage = _DECODED.get(frame.mask_path, ("mask", frame.mask_from_alpha),
+                            lambda: read_mask_coverage(frame.mask_path, from_alpha=frame.mask_from_alpha))
     _check_size(frame.mask_path, coverage.shape, frame.camera)
     return coverage
 

@@ -479,7 +479,9 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
     frame = np.stack([texels.tangent, texels.bitangent, texels.normal], axis=1).astype(np.float64)  # (N, 3, 3) rows
     offset = RAY_OFFSET_TEXELS * texels.texel_size + RAY_OFFSET_OBJECT * _extent(capture.mesh.vertices)
     ray_origin = (position + offset[:, None] * normal).astype(np.float32)  # (N, 3)
-    occluder = Occluder(capture.mesh)  # the object, for shadow rays
+    # A mesh that cannot hide part of itself (convex or flat) hides no facing texel from a camera:
+    # shadow rays only for the others.
+    occluder = _occluder(capture.mesh) if self_occluding(capture.mesh.vertices, capture.mesh.faces) else None
 
     with reporter.stage("observing views", n_views) as advance:
         for batch in _view_batches(capture, n_texels):
@@ -503,9 +505,10 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
             timings["projection"] += time.perf_counter() - tick
 
             tick = time.perf_counter()
-            ray_offsets = _sample_offsets(seen)
-            origins, directions, distances = _shadow_rays(ray_origin, centres, seen, ray_offsets)
-            _clear_occluded(seen, ray_offsets, occluder.hits_rows(origins, directions, distances))
+            if occluder is not None:
+                ray_offsets = _sample_offsets(seen)
+                origins, directions, distances = _shadow_rays(ray_origin, centres, seen, ray_offsets)
+                _clear_occluded(seen, ray_offsets, occluder.hits_rows(origins, directions, distances))
             timings["visibility"] += time.perf_counter() - tick
 
             tick = time.perf_counter()
@@ -533,7 +536,7 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
 
     tick = time.perf_counter()
     mirror_occluded = mirror_surface = None
-    if config.observe.environment_occlusion and self_occluding(capture.mesh.vertices, capture.mesh.faces):
+    if config.observe.environment_occlusion and occluder is not None:
         with reporter.stage("tracing the object's shadows", occlusion_steps(n_texels, n_views)) as advance:
             surface_radiance = mean_over_views(weight, signals[..., OBSERVED])
             observed = weight.sum(axis=1) > 0
@@ -593,6 +596,17 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
 
 # ---------------------------------------------------------------------------------------------
 # Helpers
+
+# The last mesh loaded for ray tests and its `Occluder`: calibration and observation trace the same
+# mesh, and building the ray-tracing scene is a share of a fit.
+_LAST_OCCLUDER: list = []
+
+
+def _occluder(mesh) -> Occluder:
+    """Return an `Occluder` of ``mesh``, the last one made when it was made for this very mesh object."""
+    if not (_LAST_OCCLUDER and _LAST_OCCLUDER[0] is mesh):
+        _LAST_OCCLUDER[:] = [mesh, Occluder(mesh)]
+    return _LAST_OCCLUDER[1]
 
 
 def mean_over_views(weight: np.ndarray, values: np.ndarray) -> np.ndarray:
