@@ -257,6 +257,10 @@ def test_to_texels_samples_the_maps_bilinearly_and_takes_the_rest_from_the_paren
         np.testing.assert_array_equal(getattr(fine_observations, name)[own], getattr(observations, name)[parent[own]])
     np.testing.assert_array_equal(fine_uncertainty.flags[own], uncertainty.flags[parent[own]])
     assert np.all(fine_observations.n_samples[~own] > 0)
+    # The SH coefficients stay with the coarse texels; their spectra come along.
+    assert fine_observations.observed_coeffs.shape == (fine.n_texels, 3, 0)
+    for name in ("observed_spectrum", "mirrored_spectrum"):
+        np.testing.assert_array_equal(getattr(fine_observations, name)[own], getattr(observations, name)[parent[own]])
     # Bilinear reproduces the affine roughness wherever the four coarse texels around a fine
     # centre are estimated texels: between the coarse centres, away from (1, 1) and (3, 3).
     y = (fine_rows + 0.5) / 2 - 0.5

@@ -311,7 +311,7 @@ def to_texels(observations: Observations, estimate: MaterialEstimate, uncertaint
     Returns
     -------
     observations : Observations
-        On the fine texels, without samples (V = 0).
+        On the fine texels, without samples (V = 0) or SH coefficients (K = 0; their spectra kept).
     estimate : MaterialEstimate
         On the fine texels; NaN where the coarse texel was not estimated.
     uncertainty : Uncertainty
@@ -369,7 +369,7 @@ def uncertainty_to_texels(observations: Observations, uncertainty: Uncertainty, 
     Returns
     -------
     observations : Observations
-        On the fine texels, without samples (`Observations.texel_fields`: V = 0); the coarse
+        On the fine texels, without samples or SH coefficients (`Observations.texel_fields`); the coarse
         ``observations`` hold them.
     uncertainty : Uncertainty
         On the fine texels.

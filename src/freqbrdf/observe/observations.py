@@ -83,6 +83,8 @@ STAGES = ("raster", "projection", "visibility", "images", "irradiance", "occlusi
 _SHARED_ARRAYS = ("environment_coeffs", "environment_radiance", "environment_rotation")
 # Per texel and view (N, V, ...).
 _SAMPLE_ARRAYS = ("view_direction", "observed", "mirrored", "weight", "visible", "mirror_occluded", "mirror_surface")
+# SH coefficients per texel (N, ..., K).
+_COEFFICIENT_ARRAYS = ("observed_coeffs", "mirrored_coeffs", "constant_coeffs")
 
 
 @dataclass(eq=False)
@@ -148,6 +150,9 @@ class Observations:
     mirror_surface : (N, V, 3) float32 or None
         What the object shows there: the mean observed radiance of its texels nearest the hits
         (0 where nothing is hit). None where not traced.
+    observed_power, mirrored_power : (N, 3, L) float32 or None
+        The power spectra of observations whose SH coefficients were left out (`texel_fields`:
+        K = 0); None where the coefficients are kept (the spectra are computed from them).
     timings : dict
         Seconds per stage of `observe` (``STAGES`` and ``"total"``).
     texels : Texels or None
@@ -180,6 +185,8 @@ class Observations:
     environment_rotation: np.ndarray | None = None
     mirror_occluded: np.ndarray | None = None
     mirror_surface: np.ndarray | None = None
+    observed_power: np.ndarray | None = None
+    mirrored_power: np.ndarray | None = None
     timings: dict = field(default_factory=dict)
     texels: Texels | None = field(default=None, repr=False)
 
@@ -196,12 +203,12 @@ class Observations:
     @property
     def observed_spectrum(self) -> np.ndarray:
         """(N, 3, L) power spectrum of the observed radiance (docs/method.md#conventions), in its coefficients' float type."""
-        return sh.power_spectrum(self.observed_coeffs)
+        return sh.power_spectrum(self.observed_coeffs) if self.observed_power is None else self.observed_power
 
     @property
     def mirrored_spectrum(self) -> np.ndarray:
         """(N, 3, L) power spectrum of the mirrored environment (docs/method.md#conventions), in its coefficients' float type."""
-        return sh.power_spectrum(self.mirrored_coeffs)
+        return sh.power_spectrum(self.mirrored_coeffs) if self.mirrored_power is None else self.mirrored_power
 
     def environment(self) -> envmaps.Envmap | None:
         """Return the environment map of the capture, unfiltered.
@@ -242,10 +249,11 @@ class Observations:
         """Return the per-texel fields of some of the texels, without their samples.
 
         Like `select`, but the per-sample arrays (view direction, observed, mirrored, weight,
-        visible) are kept with no view (V = 0); everything per texel (spectra, counts, normals)
-        is indexed. For outputs on other texels than the ones observed
-        (`freqbrdf.pipeline.to_texels`), where copying every sample would cost more than the
-        estimate.
+        visible) are kept with no view (V = 0), and the SH coefficients with no coefficient
+        (K = 0), their power spectra kept instead (``observed_power``, ``mirrored_power``);
+        everything else per texel (counts, normals, irradiance) is indexed. For outputs on other
+        texels than the ones observed (`freqbrdf.pipeline.to_texels`), where copying every
+        sample and coefficient would cost more than the estimate.
 
         Parameters
         ----------
@@ -257,11 +265,15 @@ class Observations:
         Observations
             The n texels selected, with V = 0.
         """
-        changes = {}
+        changes = {"observed_power": self.observed_spectrum, "mirrored_power": self.mirrored_spectrum}
         for item in fields(self):
-            value = getattr(self, item.name)
+            value = changes.get(item.name, getattr(self, item.name))
             if isinstance(value, np.ndarray) and item.name not in _SHARED_ARRAYS:
-                changes[item.name] = (value[:, :0] if item.name in _SAMPLE_ARRAYS else value)[rows]
+                if item.name in _SAMPLE_ARRAYS:
+                    value = value[:, :0]
+                elif item.name in _COEFFICIENT_ARRAYS:
+                    value = value[..., :0]
+                changes[item.name] = value[rows]
         return replace(self, **changes, texels=None)
 
     def with_views(self, keep: np.ndarray, config: Config = Config()) -> Observations:
