@@ -11,7 +11,11 @@ The default capture is studies/compare_estimators.py's plane (scenes.compare_cap
 256 x 256, T = 512), rendered into benchmarks/.cache/ if it is missing.
 
     python benchmarks/timing/bench_fit.py [--capture plane|bunny|PATH] [--runs 3] [--name bench_fit]
-        [--preset default|fast] [--fit-option=--entropy=angular ...]
+        [--preset default|fast] [--fit-option=--entropy=angular ...] [--baseline GIT_REF]
+
+With ``--baseline``, the package's sources at that git ref (``git archive`` into a scratch folder,
+put first on PYTHONPATH) are timed too, a run of each in turn, so that before and after meet the
+same machine; the table gives both and the ratio of their medians.
 
 A fit at T = 32 first, untimed, has numba compile (or load) the kernels. Prints a table and saves
 benchmarks/results/<name>.json. The machine may be shared: the load average is recorded per run,
@@ -61,13 +65,13 @@ def child_usage() -> tuple[float, float, int]:
     return usage.ru_utime, usage.ru_stime, usage.ru_maxrss
 
 
-def one_fit(capture: Path, out: Path, options: list[str]) -> dict:
+def one_fit(capture: Path, out: Path, options: list[str], env: dict | None = None) -> dict:
     control = control_seconds()
     load = os.getloadavg()[0]
     user_before, system_before, _ = child_usage()
     start = time.perf_counter()
     done = subprocess.run([*fit_command(), "fit", str(capture), "--out", str(out), "--quiet", *options],
-                          capture_output=True, text=True)
+                          capture_output=True, text=True, env=env)
     wall = time.perf_counter() - start
     user_after, system_after, peak_kib = child_usage()
     if done.returncode != 0:
@@ -89,15 +93,54 @@ def one_fit(capture: Path, out: Path, options: list[str]) -> dict:
     }
 
 
-def import_seconds() -> float:
+def import_seconds(env: dict | None = None) -> float:
     """Seconds to import the fit's modules in a fresh interpreter."""
     code = f"import time; start = time.perf_counter(); {FIT_IMPORTS}; print(time.perf_counter() - start)"
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env)
     return float(done.stdout.strip().splitlines()[-1])
 
 
 def spread(values: list[float]) -> dict:
     return {"min": min(values), "median": statistics.median(values), "max": max(values)}
+
+
+def baseline_sources(ref: str, scratch: Path) -> dict:
+    """Extract the package's sources at git ``ref`` under scratch; return an environment that imports them."""
+    repository = Path(__file__).resolve().parents[2]
+    folder = scratch / "baseline"
+    folder.mkdir()
+    archive = subprocess.run(["git", "-C", str(repository), "archive", ref, "src"], capture_output=True, check=True)
+    subprocess.run(["tar", "-x", "-C", str(folder)], input=archive.stdout, check=True)
+    return {**os.environ, "PYTHONPATH": str(folder / "src")}
+
+
+def summarised(runs: list[dict], imports: list[float]) -> dict:
+    """Min, median and max of the runs' wall, CPU, stages, untimed and import seconds and the control."""
+    return {
+        "runs": runs,
+        "wall_s": spread([run["wall_s"] for run in runs]),
+        "cpu_s": spread([run["cpu_s"] for run in runs]),
+        "stages_s": {stage: spread([run["stages_s"].get(stage, 0.0) for run in runs]) for stage in STAGES},
+        "untimed_s": spread([run["untimed_s"] for run in runs]),
+        "import_s": spread(imports),
+        "control_s": spread([run["control_s_before"] for run in runs]),
+        "peak_rss_mib": max(run["peak_rss_mib"] for run in runs),
+    }
+
+
+def comparison(baseline: dict, current: dict) -> str:
+    """The medians of the baseline and the current sources side by side, with their ratio."""
+    rows = [("wall", "wall_s"), ("cpu (user+sys)", "cpu_s")]
+    lines = [f"{'median seconds':<20} {'baseline':>9} {'current':>9} {'ratio':>7}"]
+    values = [(name, baseline[key]["median"], current[key]["median"]) for name, key in rows]
+    values += [(stage, baseline["stages_s"][stage]["median"], current["stages_s"][stage]["median"]) for stage in STAGES]
+    values += [("untimed", baseline["untimed_s"]["median"], current["untimed_s"]["median"]),
+               ("imports (separate)", baseline["import_s"]["median"], current["import_s"]["median"]),
+               ("peak RSS MiB", baseline["peak_rss_mib"], current["peak_rss_mib"])]
+    for name, before, after in values:
+        ratio = f"{before / after:7.2f}" if after > 0 else "      -"
+        lines.append(f"{name:<20} {before:9.2f} {after:9.2f} {ratio}")
+    return "\n".join(lines)
 
 
 def table(runs: list[dict], imports: list[float]) -> str:
@@ -123,36 +166,42 @@ def main(argv=None) -> int:
     parser.add_argument("--preset", default="default", help="the fit's --preset (default, fast)")
     parser.add_argument("--fit-option", action="append", default=[],
                         help="one more option for the fit, e.g. --fit-option=--entropy=angular (repeatable)")
+    parser.add_argument("--baseline", help="a git ref whose sources are timed too, a run of each in turn")
     args = parser.parse_args(argv)
     options = ([] if args.preset == "default" else ["--preset", args.preset]) + args.fit_option
     capture = capture_folder(args.capture)
-    runs, imports = [], []
+    trees = {"current": None}
+    runs = {"current": [], "baseline": []}
+    imports = {"current": [], "baseline": []}
     with tempfile.TemporaryDirectory(prefix="bench_fit.") as scratch:
-        # Untimed, at a small texture size: numba compiles the kernels here if its cache is cold
-        # (a run that compiles them runs again from the cache, see freqbrdf.jit), not in a timed run.
-        subprocess.run([*fit_command(), "fit", str(capture), "--out", str(Path(scratch) / "warm_up"), "--quiet",
-                        "--texture-res", "32", *options], capture_output=True, check=True)
+        if args.baseline:
+            trees = {"baseline": baseline_sources(args.baseline, Path(scratch)), "current": None}
+        for name, env in trees.items():
+            # Untimed, at a small texture size: numba compiles the kernels here if its cache is cold
+            # (a run that compiles them runs again from the cache, see freqbrdf.jit), not in a timed run.
+            subprocess.run([*fit_command(), "fit", str(capture), "--out", str(Path(scratch) / "warm_up"), "--quiet",
+                            "--texture-res", "32", *options], capture_output=True, check=True, env=env)
         for index in range(args.runs):
-            runs.append(one_fit(capture, Path(scratch) / "fit", options))
-            imports.append(import_seconds())
-            print(f"run {index + 1}: {runs[-1]['wall_s']:.2f} s wall, "
-                  f"load {runs[-1]['load_average_before']:.2f}", flush=True)
+            for name, env in trees.items():
+                runs[name].append(one_fit(capture, Path(scratch) / "fit", options, env))
+                imports[name].append(import_seconds(env))
+                print(f"run {index + 1} ({name}): {runs[name][-1]['wall_s']:.2f} s wall, "
+                      f"load {runs[name][-1]['load_average_before']:.2f}", flush=True)
     result = {
         "benchmark": "freqbrdf fit end to end, fresh process per run (issue #5)",
         **machine(),
         "capture": str(capture),
         "command": [*fit_command(), "fit", str(capture), "--out", "DIR", "--quiet", *options],
-        "runs": runs,
-        "wall_s": spread([run["wall_s"] for run in runs]),
-        "cpu_s": spread([run["cpu_s"] for run in runs]),
-        "stages_s": {stage: spread([run["stages_s"].get(stage, 0.0) for run in runs]) for stage in STAGES},
-        "untimed_s": spread([run["untimed_s"] for run in runs]),
-        "import_s": spread(imports),
-        "control_s": spread([run["control_s_before"] for run in runs]),
+        **summarised(runs["current"], imports["current"]),
         "measured": time.strftime("%Y-%m-%d %H:%M"),
     }
+    if args.baseline:
+        result["baseline"] = {"ref": args.baseline, **summarised(runs["baseline"], imports["baseline"])}
     save_results(args.name, result)
-    print(table(runs, imports))
+    print(table(runs["current"], imports["current"]))
+    if args.baseline:
+        print(f"\nbaseline {args.baseline} against the current sources, runs taken in turn:")
+        print(comparison(result["baseline"], result))
     return 0
 
 

@@ -347,7 +347,7 @@ def surface_graph(position: np.ndarray, normal: np.ndarray, appearance: np.ndarr
     k = min(settings.neighbours, max(n_texels - 1, 0))
     if k == 0:
         return sparse.csr_matrix((n_texels, n_texels))
-    distance, index = cKDTree(np.asarray(position, np.float64)).query(position, k=k + 1)
+    distance, index = cKDTree(np.asarray(position, np.float64)).query(position, k=k + 1, workers=-1)
     distance, index = distance[:, 1:], index[:, 1:]
     spacing = float(np.median(distance[:, 0])) if n_texels else 0.0
     rows = np.repeat(np.arange(n_texels), k)
@@ -445,7 +445,7 @@ def lookalike_graph(appearance: np.ndarray, observed: np.ndarray, confident: np.
     if k < 1 or len(targets) <= k or not len(sources):
         return sparse.csr_matrix((n_texels, n_texels))
     appearance = np.asarray(appearance, np.float64)
-    distance, index = cKDTree(appearance[targets]).query(appearance[sources], k=k + 1)
+    distance, index = cKDTree(appearance[targets]).query(appearance[sources], k=k + 1, workers=-1)
     rows = np.repeat(sources, k + 1)
     cols = targets[index.reshape(-1)]
     weight = _LOOKALIKE_WEIGHT * np.exp(-distance.reshape(-1) ** 2 / (2.0 * settings.lookalike_width ** 2))

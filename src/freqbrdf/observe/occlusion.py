@@ -229,7 +229,7 @@ class _SurfaceRadiance:
         """(M, 3) float64 radiance at (M, 3) world points."""
         if self._tree is None:
             return np.broadcast_to(self.mean, (len(points), 3)).copy()
-        distance, nearest = self._tree.query(np.asarray(points, np.float64))
+        distance, nearest = self._tree.query(np.asarray(points, np.float64), workers=-1)
         return np.where((distance <= self._reach)[:, None], self._surface[self._shown[nearest]], self.mean)
 
 
