@@ -624,11 +624,15 @@ def next_views(
     budget: int = typer.Option(..., "--budget", min=1, help="How many views to choose."),
     texture_res: int = typer.Option(None, min=1, help="Texture resolution T (default 512)."),
     max_texels: int = typer.Option(8192, min=1, help="Texels scored (a seeded random subset)."),
+    fit_out: str = typer.Option(
+        None, "--fit-out", help="Also write the capture's fit (as `freqbrdf fit` does, calibration included) to this "
+        "folder; the picks then reuse its observations and whole-surface solve.", callback=_output_folder),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars or messages."),
 ) -> None:
     """Choose the next photographs by the expected drop of the posterior std: next_views.json and a picture."""
     import dataclasses
     import time
+    from pathlib import Path
 
     import numpy as np
 
@@ -640,8 +644,14 @@ def next_views(
 
     if (candidates is None) == (sample is None):
         raise typer.BadParameter("give exactly one of --candidates FILE and --sample N")
+    if fit_out is not None and Path(fit_out).resolve() == Path(out).resolve():
+        raise typer.BadParameter("--fit-out must be another folder than --out")
     config = config_from_options("default", texture_res)
-    loaded, _ = _checked(capture, quiet, config.fit.lmax, out)
+    loaded, capture_warnings = _checked(capture, quiet, config.fit.lmax, out)
+    if fit_out is not None:
+        from freqbrdf.outputs.fit_folder import check_output_folder
+
+        check_output_folder(fit_out, {"the capture": loaded.root.resolve()})
     if candidates is not None:
         cameras = candidate_views.load_candidates(candidates, loaded)
         source = candidates
@@ -655,12 +665,19 @@ def next_views(
         raise InputError(candidates, f"--budget {budget} exceeds the {competing} candidate cameras ({source}) "
                                      "away from the views taken")
     start = time.perf_counter()
-    # Scored on the texels `fit` would estimate on (observing every texel of T costs more, for
-    # the same --max-texels scored).
-    estimation_res = pipeline.estimation_resolution(loaded, config)
-    scoring = config.replace(texels=dataclasses.replace(config.texels, texture_res=estimation_res))
-    picks = guidance.select_views(loaded, cameras, budget, scoring, max_texels=max_texels,
-                                  reporter=Reporter(enabled=not quiet))
+    reporter = Reporter(enabled=not quiet)
+    if fit_out is not None:  # one observation for the fit and the picks
+        result = pipeline.fit(loaded, config, reporter, keep_surface_fit=True)
+        result.warnings = capture_warnings + result.warnings
+        pipeline.write_fit(fit_out, result, config)
+        estimation_res = result.estimation_res
+        picks = pipeline.next_views(result, cameras, budget, config, max_texels=max_texels, reporter=reporter)
+    else:
+        # Scored on the texels `fit` would estimate on (observing every texel of T costs more, for
+        # the same --max-texels scored).
+        estimation_res = pipeline.estimation_resolution(loaded, config)
+        scoring = config.replace(texels=dataclasses.replace(config.texels, texture_res=estimation_res))
+        picks = guidance.select_views(loaded, cameras, budget, scoring, max_texels=max_texels, reporter=reporter)
     _results_from_cache(quiet)
     summary = {
         "capture": str(loaded.root.resolve()),
@@ -675,6 +692,7 @@ def next_views(
         "seconds": time.perf_counter() - start,
         "settings": config.to_dict(),
         "estimation_res": estimation_res,
+        **({"fit": str(Path(fit_out).resolve())} if fit_out is not None else {}),
     }
     next_views_folder.write_next_views(out, loaded, picks, summary, cameras)
     if not quiet:

@@ -17,8 +17,9 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
-from freqbrdf.applications import inpaint
+from freqbrdf.applications import guidance, inpaint
 from freqbrdf.calibrate import Calibration, calibrate
+from freqbrdf.capture.camera import Camera
 from freqbrdf.capture.layouts import Capture
 from freqbrdf.config import Config
 from freqbrdf.errors import InputError
@@ -71,6 +72,12 @@ class FitResult:
     calibration : Calibration or None
         What the photographs calibrated (`freqbrdf.calibrate`): the gains, the probe's turn; the
         observations were made of the capture corrected by it.
+    observed_capture : Capture or None
+        That corrected capture: what was observed.
+    surface_fit : SurfaceFit or None
+        With ``fit(..., keep_surface_fit=True)`` and the whole-surface estimate: the observations,
+        per-texel and whole-surface estimates and posterior on the estimation texels, which
+        `next_views` reuses; else None.
     """
 
     capture: Capture
@@ -82,6 +89,8 @@ class FitResult:
     estimation_res: int | None = None
     warnings: list[str] = field(default_factory=list)
     calibration: Calibration | None = None
+    observed_capture: Capture | None = None
+    surface_fit: guidance.SurfaceFit | None = None
 
 
 def estimation_resolution(capture: Capture, config: Config = Config(), fine: Texels | None = None) -> int:
@@ -153,7 +162,8 @@ def observe_on_estimation_texels(capture: Capture, config: Config = Config(),
     return observe(capture, coarse, reporter), rasterise(capture.mesh, texture_res) if fine is None else fine
 
 
-def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT) -> FitResult:
+def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT,
+        keep_surface_fit: bool = False) -> FitResult:
     """Observe, estimate, compute the uncertainty and make the textures (docs/method.md#pipeline).
 
     The first three run on the texels of `estimation_resolution` (`observe_on_estimation_texels`);
@@ -172,6 +182,9 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
         The settings.
     reporter : Reporter, optional
         Receives progress.
+    keep_surface_fit : bool, optional
+        Keep the whole-surface fit on the estimation texels (``FitResult.surface_fit``) for
+        `next_views`.
 
     Returns
     -------
@@ -216,6 +229,7 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
         raise ValueError(f"fit needs FitConfig.lmax >= 1 (the entropy compares degrees 1..l*), got {config.fit.lmax}")
     timings: dict[str, float] = {}
     given = capture
+    surface_fit = None
     start = time.perf_counter()
     capture, calibration = calibrate(capture, config, reporter)
     if config.calibration.enabled:
@@ -249,7 +263,10 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
         with reporter.stage("whole-surface solve", 1) as advance:
             texels = observations.texels if observations.texels is not None else rasterise(capture.mesh,
                                                                                              estimation_res)
+            per_texel = estimate
             estimate, posterior = whole_surface(observations, estimate, texels, config)
+            if keep_surface_fit:
+                surface_fit = guidance.SurfaceFit(observations, texels, per_texel, estimate, posterior)
             advance(1)
         uncertainty.roughness_std, uncertainty.metallic_std, uncertainty.base_color_std = merged_std(
             uncertainty.roughness_std, own_base_color, estimate, posterior)
@@ -269,7 +286,67 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
     timings["textures"] = time.perf_counter() - start
     timings["total"] = sum(seconds for stage, seconds in timings.items() if "." not in stage)
     return FitResult(given, observations, estimate, uncertainty, maps, timings, estimation_res,
-                     warnings=list(calibration.warnings), calibration=calibration)
+                     warnings=list(calibration.warnings), calibration=calibration, observed_capture=capture,
+                     surface_fit=surface_fit)
+
+
+def next_views(result: FitResult, candidates: list[Camera], budget: int, config: Config = Config(), *,
+               max_texels: int = guidance.MAX_TEXELS, reporter: Reporter = SILENT) -> list[guidance.Pick]:
+    """Choose the next photographs of a fitted capture, reusing the fit's observations and solve.
+
+    `freqbrdf.applications.guidance.select_views` on the capture as the fit observed it
+    (calibrated), scored on the fit's estimation texels with its whole-surface fit: nothing is
+    observed or estimated again (docs/method.md#guidance).
+
+    Parameters
+    ----------
+    result : FitResult
+        A fit made with ``keep_surface_fit=True`` (and the whole-surface estimate).
+    candidates : list of Camera
+        The cameras to choose from (`freqbrdf.applications.sample_candidates`, ``load_candidates``).
+    budget : int
+        How many to choose.
+    config : Config, optional
+        The fit's settings.
+    max_texels : int, optional
+        Texels scored (a seeded random subset).
+    reporter : Reporter, optional
+        Progress of the picks.
+
+    Returns
+    -------
+    list of Pick
+        ``budget`` picks, in the order chosen.
+
+    Raises
+    ------
+    ValueError
+        If the fit kept no whole-surface fit, or as `select_views` does.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> from freqbrdf import pipeline
+    >>> from freqbrdf.applications import sample_candidates
+    >>> from freqbrdf.capture import load
+    >>> from freqbrdf.config import Config, TexelConfig
+    >>> from freqbrdf.synthetic import example_capture
+    >>> work = tempfile.TemporaryDirectory()
+    >>> capture = load(example_capture(Path(work.name) / "capture"))
+    >>> config = Config(texels=TexelConfig(texture_res=32))
+    >>> result = pipeline.fit(capture, config, keep_surface_fit=True)
+    >>> picks = pipeline.next_views(result, sample_candidates(capture, 12), 2, config)
+    >>> [pick.rank for pick in picks]
+    [0, 1]
+    >>> work.cleanup()
+    """
+    if result.surface_fit is None or result.observed_capture is None:
+        raise ValueError("the fit kept no whole-surface fit: fit with keep_surface_fit=True and the whole-surface "
+                         "estimate")
+    scoring = config.replace(texels=replace(config.texels, texture_res=result.surface_fit.observations.texture_res))
+    return guidance.select_views(result.observed_capture, candidates, budget, scoring, fit=result.surface_fit,
+                                 max_texels=max_texels, reporter=reporter)
 
 
 def _widen_by_calibration(uncertainty: Uncertainty, estimate: MaterialEstimate, calibration: Calibration) -> None:

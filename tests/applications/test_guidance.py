@@ -370,3 +370,32 @@ def test_next_views_command_rejects_bad_input_without_writing(sphere_from_above,
                 "neither": "exactly one", "budget": "exceeds the 0 candidate"}[problem]
     assert expected in " ".join(error.split())
     assert not out.exists()
+
+
+@pytest.mark.slow
+def test_next_views_after_a_fit_reuses_its_observations(sphere_from_above, tmp_path, run_cli, monkeypatch):
+    """``next-views --fit-out`` fits and picks on one observation; the picks are `pipeline.next_views`'."""
+    capture = sphere_from_above
+    config = Config(texels=TexelConfig(32))
+    cameras = sample_candidates(capture, 8)
+    result = pipeline.fit(capture, config, keep_surface_fit=True)
+    expected = pipeline.next_views(result, cameras, 2, config, max_texels=200)
+    with pytest.raises(ValueError, match="keep_surface_fit"):
+        pipeline.next_views(pipeline.fit(capture, config), cameras, 2, config)
+
+    observed = []
+    real_observe = pipeline.observe
+    monkeypatch.setattr(pipeline, "observe", lambda *args, **kwargs: observed.append(1) or real_observe(*args, **kwargs))
+    monkeypatch.setattr(guidance, "observe", lambda *args, **kwargs: pytest.fail("guidance observed again"))
+    out, fit_out = tmp_path / "next", tmp_path / "fit"
+    assert run_cli("next-views", capture.root, "--sample", 8, "--budget", 2, "--out", out, "--fit-out", fit_out,
+                   "--texture-res", 32, "--max-texels", 200, "--quiet") == 0
+    assert len(observed) == 1  # the fit's; guidance reads it
+    assert (fit_out / "summary.json").is_file() and (fit_out / "base_color.exr").is_file()
+    summary = json.loads((out / "guidance.json").read_text())
+    assert summary["fit"] == str(fit_out.resolve())
+    assert [pick["candidate"] for pick in summary["picks"]] == [pick.candidate for pick in expected]
+    np.testing.assert_allclose([pick["expected_mean_std"] for pick in summary["picks"]],
+                               [pick.expected_uncertainty for pick in expected])
+    assert run_cli("next-views", capture.root, "--sample", 8, "--budget", 2, "--out", out, "--fit-out", out,
+                   "--quiet") == 2
