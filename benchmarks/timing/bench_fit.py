@@ -2,7 +2,7 @@
 
 Each run starts ``freqbrdf fit CAPTURE --out DIR --quiet`` in a new process and records its wall
 time (from just before the process starts until it has exited), its CPU seconds and peak resident
-memory (getrusage of the child), the load average before it, and the seconds per stage from the
+memory (wait4: the child's own), the load average before it, and the seconds per stage from the
 fit folder's summary.json. What no stage counts (``untimed``: interpreter start, imports, reading
 the capture's description, process exit) is the wall time minus the stages. The import time of
 the modules a fit needs is measured separately, also in fresh processes.
@@ -29,7 +29,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import resource
 import statistics
 import subprocess
 import sys
@@ -59,32 +58,28 @@ def capture_folder(name_or_path: str) -> Path:
     return compare_capture(name_or_path)
 
 
-def child_usage() -> tuple[float, float, int]:
-    """User and system CPU seconds of all finished children, and the largest child's peak RSS (KiB)."""
-    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return usage.ru_utime, usage.ru_stime, usage.ru_maxrss
-
-
 def one_fit(capture: Path, out: Path, options: list[str], env: dict | None = None) -> dict:
     control = control_seconds()
     load = os.getloadavg()[0]
-    user_before, system_before, _ = child_usage()
     start = time.perf_counter()
-    done = subprocess.run([*fit_command(), "fit", str(capture), "--out", str(out), "--quiet", *options],
-                          capture_output=True, text=True, env=env)
-    wall = time.perf_counter() - start
-    user_after, system_after, peak_kib = child_usage()
-    if done.returncode != 0:
-        raise SystemExit(f"freqbrdf fit failed ({done.returncode}):\n{done.stderr}")
+    with tempfile.TemporaryFile() as errors:
+        child = subprocess.Popen([*fit_command(), "fit", str(capture), "--out", str(out), "--quiet", *options],
+                                 stdout=subprocess.DEVNULL, stderr=errors, env=env)
+        # The child's own resources (wait4), not the largest of every child so far.
+        _, status, usage = os.wait4(child.pid, 0)
+        wall = time.perf_counter() - start
+        child.returncode = os.waitstatus_to_exitcode(status)
+        if child.returncode != 0:
+            errors.seek(0)
+            raise SystemExit(f"freqbrdf fit failed ({child.returncode}):\n{errors.read().decode(errors='replace')}")
     timings = json.loads((out / "summary.json").read_text(encoding="utf-8"))["timings"]
     stages = {stage: timings[stage] for stage in STAGES if stage in timings}
     return {
         "wall_s": wall,
-        "cpu_s": (user_after - user_before) + (system_after - system_before),
+        "cpu_s": usage.ru_utime + usage.ru_stime,
         # System time is mostly page faults: fresh memory is slow to map on this virtual machine.
-        "system_cpu_s": system_after - system_before,
-        # ru_maxrss of children is the largest one so far: every run is the same command.
-        "peak_rss_mib": peak_kib / 1024,
+        "system_cpu_s": usage.ru_stime,
+        "peak_rss_mib": usage.ru_maxrss / 1024,
         "load_average_before": round(load, 2),
         "control_s_before": round(control, 4),
         "stages_s": stages,
@@ -154,7 +149,7 @@ def table(runs: list[dict], imports: list[float]) -> str:
         stats = spread(values)
         lines.append(f"{name:<20} {stats['min']:7.2f} {stats['median']:7.2f} {stats['max']:7.2f}")
     loads = ", ".join(f"{run['load_average_before']:.2f}" for run in runs)
-    lines.append(f"load average before each run: {loads}; peak RSS {runs[-1]['peak_rss_mib']:.0f} MiB")
+    lines.append(f"load average before each run: {loads}; peak RSS {max(run['peak_rss_mib'] for run in runs):.0f} MiB")
     return "\n".join(lines)
 
 
