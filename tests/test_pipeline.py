@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 from types import SimpleNamespace
 
 import numpy as np
@@ -334,3 +336,18 @@ def test_fit_takes_the_angular_entropy_from_the_estimators_search(tiny_capture, 
     default = pipeline.fit(capture, config.replace(uncertainty=UncertaintyConfig()))
     np.testing.assert_array_equal(result.estimate.roughness, default.estimate.roughness)
     np.testing.assert_array_equal(result.estimate.base_color, default.estimate.base_color)
+
+
+@pytest.mark.slow
+def test_a_fit_of_a_mesh_that_cannot_hide_itself_loads_no_ray_tracer(tmp_path):
+    """A convex mesh casts no shadow rays: the fit, in a fresh interpreter, never imports Mitsuba."""
+    from freqbrdf.synthetic import example_capture
+
+    capture = example_capture(tmp_path / "capture")  # a sphere
+    code = ("import sys; from freqbrdf import pipeline; from freqbrdf.capture import load; "
+            "from freqbrdf.config import Config, TexelConfig; "
+            f"pipeline.fit(load({str(capture)!r}), Config(texels=TexelConfig(texture_res=32))); "
+            "print(sorted({name.split('.')[0] for name in sys.modules} & {'mitsuba', 'drjit'}))")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip().splitlines()[-1] == "[]"
