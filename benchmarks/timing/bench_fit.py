@@ -13,6 +13,10 @@ The default capture is studies/compare_estimators.py's plane (scenes.compare_cap
     python benchmarks/timing/bench_fit.py [--capture plane|bunny|PATH] [--runs 3] [--name bench_fit]
         [--preset default|fast] [--fit-option=--entropy=angular ...] [--baseline GIT_REF]
 
+With ``--profile``, one more fit runs under cProfile (after the timed runs, with the current
+sources): the functions that take the most time of their own (numba kernels are one call each)
+are saved with the results and printed. cProfile slows Python-level code, not the kernels.
+
 With ``--baseline``, the package's sources at that git ref (``git archive`` into a scratch folder,
 put first on PYTHONPATH) are timed too, a run of each in turn, so that before and after meet the
 same machine; the table gives both and the ratio of their medians.
@@ -109,6 +113,35 @@ def baseline_sources(ref: str, scratch: Path) -> dict:
     return {**os.environ, "PYTHONPATH": str(folder / "src")}
 
 
+PROFILE_ROWS = 25
+
+
+def profile_summary(capture: Path, out: Path, options: list[str], scratch: Path) -> dict:
+    """Fit once under cProfile; return the seconds of the functions that take most time of their own."""
+    import pstats
+
+    path = scratch / "fit.prof"
+    subprocess.run([sys.executable, "-m", "cProfile", "-o", str(path), "-m", "freqbrdf.cli", "fit", str(capture),
+                    "--out", str(out), "--quiet", *options], capture_output=True, check=True)
+    statistics_ = pstats.Stats(str(path))
+    total = statistics_.total_tt
+    root = str(Path(__file__).resolve().parents[2])
+    rows = []
+    for (filename, line, function), (_, calls, own, cumulative, _) in statistics_.stats.items():
+        rows.append({"function": f"{filename.replace(root + '/', '')}:{line}({function})", "calls": calls,
+                     "own_s": own, "cumulative_s": cumulative})
+    rows.sort(key=lambda row: -row["own_s"])
+    return {"profiled_wall_s": total, "top_by_own_time": rows[:PROFILE_ROWS]}
+
+
+def profile_table(profile: dict) -> str:
+    lines = [f"cProfile of one fit ({profile['profiled_wall_s']:.2f} s profiled): own seconds, share, calls"]
+    for row in profile["top_by_own_time"]:
+        share = row["own_s"] / profile["profiled_wall_s"]
+        lines.append(f"{row['own_s']:7.2f} {share:6.1%} {row['calls']:6d}  {row['function'][-90:]}")
+    return "\n".join(lines)
+
+
 def summarised(runs: list[dict], imports: list[float]) -> dict:
     """Min, median and max of the runs' wall, CPU, stages, untimed and import seconds and the control."""
     return {
@@ -162,6 +195,7 @@ def main(argv=None) -> int:
     parser.add_argument("--fit-option", action="append", default=[],
                         help="one more option for the fit, e.g. --fit-option=--entropy=angular (repeatable)")
     parser.add_argument("--baseline", help="a git ref whose sources are timed too, a run of each in turn")
+    parser.add_argument("--profile", action="store_true", help="one more fit under cProfile, summarised")
     args = parser.parse_args(argv)
     options = ([] if args.preset == "default" else ["--preset", args.preset]) + args.fit_option
     capture = capture_folder(args.capture)
@@ -182,6 +216,7 @@ def main(argv=None) -> int:
                 imports[name].append(import_seconds(env))
                 print(f"run {index + 1} ({name}): {runs[name][-1]['wall_s']:.2f} s wall, "
                       f"load {runs[name][-1]['load_average_before']:.2f}", flush=True)
+        profile = profile_summary(capture, Path(scratch) / "profiled", options, Path(scratch)) if args.profile else None
     result = {
         "benchmark": "freqbrdf fit end to end, fresh process per run (issue #5)",
         **machine(),
@@ -192,8 +227,12 @@ def main(argv=None) -> int:
     }
     if args.baseline:
         result["baseline"] = {"ref": args.baseline, **summarised(runs["baseline"], imports["baseline"])}
+    if profile is not None:
+        result["profile"] = profile
     save_results(args.name, result)
     print(table(runs["current"], imports["current"]))
+    if profile is not None:
+        print("\n" + profile_table(profile))
     if args.baseline:
         print(f"\nbaseline {args.baseline} against the current sources, runs taken in turn:")
         print(comparison(result["baseline"], result))
