@@ -7,7 +7,8 @@ scenes.WHOLE_SURFACE_QUICK_RENDER) and the calibration study's three (32 views o
 T = 256), each fitted with the defaults. On the atlas texels no view sees: base-colour PSNR,
 roughness and metallic MAE of the fit, and of the fit with those texels filled with the mean of
 its confident seen texels of the same UV chart (`whole_surface.chart_mean_fill`, as the
-whole-surface study's baseline).
+whole-surface study's baseline), and of the two blended per texel by inverse variance: the fit's
+std against the spread of those chart texels (`chart_blend`; the metallic blended, then rounded).
 
 Writes benchmarks/results/<name>.{json,md}.
 """
@@ -18,21 +19,59 @@ import argparse
 import sys
 from pathlib import Path
 
+import numpy as np
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from whole_surface import chart_mean_fill, chart_texture, parameter_scores, seen_texels  # noqa: E402
+from whole_surface import chart_mean_fill, chart_texture, parameter_scores, seen_texels, std_textures  # noqa: E402
 
 import scenes  # noqa: E402
 from _common import machine, save_results  # noqa: E402
 from freqbrdf import pipeline  # noqa: E402
 from freqbrdf.capture.layouts import load  # noqa: E402
 from freqbrdf.config import Config, TexelConfig  # noqa: E402
+from freqbrdf.model.materials import MaterialMaps  # noqa: E402
 
 CALIBRATION_RENDER = {"views": 32, "resolution": 192, "spp": 32, "texture_res": 256, "test_views": 4}
 CAPTURES = [(name, scenes.WHOLE_SURFACE_QUICK_RENDER) for name in scenes.WHOLE_SURFACE_SCENES] + [
     (name, CALIBRATION_RENDER) for name in ("sphere_gradients_lobby", "dragon_photo_side")]
 KEYS = ("base_color_psnr", "roughness_mae", "metallic_mae")
+
+
+def chart_blend(maps: MaterialMaps, stds: dict, confident: np.ndarray, unseen: np.ndarray,
+                chart: np.ndarray) -> MaterialMaps:
+    """The maps with every unseen texel the inverse-variance blend of its value and its chart's mean.
+
+    The fit's value weighs 1 / std^2 (its std map); the chart's mean of its confident texels weighs
+    1 / their variance (of all confident texels where the chart has fewer than two).
+    """
+    blended = MaterialMaps(maps.base_color.copy(), maps.roughness.copy(), maps.metallic.copy())
+    if not confident.any():
+        return blended
+    labels = chart[confident]
+    n_charts = int(chart.max()) + 1
+    counts = np.bincount(labels, minlength=n_charts).astype(np.float64)
+    for name in ("base_color", "roughness", "metallic"):
+        texture = getattr(blended, name)
+        values = getattr(maps, name)[confident].astype(np.float64).reshape(len(labels), -1)  # (n, C)
+        sums = np.stack([np.bincount(labels, values[:, c], minlength=n_charts) for c in range(values.shape[1])], 1)
+        squares = np.stack([np.bincount(labels, values[:, c] ** 2, minlength=n_charts)
+                            for c in range(values.shape[1])], 1)
+        enough = counts[:, None] > 1
+        means = np.where(enough, sums / np.maximum(counts[:, None], 1), values.mean(axis=0))
+        variances = np.where(enough, squares / np.maximum(counts[:, None], 1) - means ** 2, values.var(axis=0))
+        variances = np.maximum(variances, 1e-6)[chart[unseen]]  # (u, C)
+        own = getattr(maps, name)[unseen].astype(np.float64).reshape(len(variances), -1)
+        std = stds.get(name)
+        own_variance = (np.full_like(own, np.inf) if std is None else
+                        np.nan_to_num(std[unseen].astype(np.float64).reshape(len(variances), -1) ** 2, nan=np.inf))
+        weight = variances / (variances + np.maximum(own_variance, 1e-12))  # the fit's share
+        value = weight * own + (1.0 - weight) * means[chart[unseen]]
+        if name == "metallic":
+            value = np.round(value)
+        texture[unseen] = value.reshape(texture[unseen].shape).astype(np.float32)
+    return blended
 
 
 def run_capture(name: str, render: dict) -> dict | None:
@@ -51,16 +90,20 @@ def run_capture(name: str, render: dict) -> dict | None:
         & (observations.n_samples > 0), fill=False).astype(bool) & seen
     fit = parameter_scores(result.maps, capture.ground_truth, unseen)
     fill = parameter_scores(chart_mean_fill(result.maps, confident, unseen, chart), capture.ground_truth, unseen)
+    blend = parameter_scores(chart_blend(result.maps, std_textures(result), confident, unseen, chart),
+                             capture.ground_truth, unseen)
     return {"unseen_texels": int(unseen.sum()), "fit": {key: fit[key] for key in KEYS},
-            "chart_mean": {key: fill[key] for key in KEYS}}
+            "chart_mean": {key: fill[key] for key in KEYS}, "blend": {key: blend[key] for key in KEYS}}
 
 
 def markdown(results: dict) -> str:
     lines = ["# Unseen texels: the fit against its chart-mean fill", "",
-             "`benchmarks/studies/unseen_fill.py`; on the atlas texels no view sees, fit / chart-mean fill.", "",
+             "`benchmarks/studies/unseen_fill.py`; on the atlas texels no view sees, fit / chart-mean fill / "
+             "their inverse-variance blend.", "",
              "| capture | unseen texels | BC dB | R MAE | M MAE |", "|---|---|---|---|---|"]
     for name, row in results["captures"].items():
-        cells = [f"{row['fit'][key]:.3f} / {row['chart_mean'][key]:.3f}" for key in KEYS]
+        cells = [f"{row['fit'][key]:.3f} / {row['chart_mean'][key]:.3f}"
+                 + (f" / {row['blend'][key]:.3f}" if "blend" in row else "") for key in KEYS]
         lines.append(f"| {name} | {row['unseen_texels']} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
