@@ -13,6 +13,7 @@ from freqbrdf.observe.occlusion import (
     MIRROR_CENTRE_WEIGHT,
     compact_lights,
     cosine_directions,
+    may_be_hidden,
     mirror_occlusion,
     occluded_irradiance,
     occlusion_steps,
@@ -157,3 +158,46 @@ def test_occlusion_steps_count_the_mirror_rays_batches():
     mirror_occlusion(occluder, position, frame, np.tile(np.array([0.0, 0.0, 1.0], np.float32), (7, 4, 1)),
                      np.ones((7, 4), bool), np.ones((7, 3)), np.ones(7, bool), np.full(7, 0.05), steps.append)
     assert sum(steps) == occlusion_steps(7, 4) - occlusion_steps(7) == 1
+
+
+def test_rays_not_traced_from_texels_above_the_whole_mesh_are_the_rays_that_would_miss():
+    """`may_be_hidden` is conservative: the bunny's texels it clears meet nothing upwards, and skipping them
+    changes neither the irradiance nor the mirror occlusion."""
+    mesh = load_mesh(mesh_path("bunny"))
+    rng = np.random.default_rng(3)
+    faces = rng.choice(len(mesh.faces), 400, replace=False)
+    corners = mesh.vertices[mesh.faces[faces]]
+    normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    origin = corners.mean(axis=1) + 1e-3 * normal
+    hidden = may_be_hidden(origin, normal, mesh.vertices)
+    assert 0 < hidden.sum() < len(hidden)  # concave: some texels see the mesh above them, others not
+    occluder = Occluder(mesh)
+    clear = np.flatnonzero(~hidden)
+    directions = rng.normal(size=(len(clear), 32, 3))
+    directions /= np.linalg.norm(directions, axis=2, keepdims=True)
+    directions *= np.sign(np.einsum("trc,tc->tr", directions, normal[clear]))[..., None]  # upwards
+    assert not occluder.hits(np.repeat(origin[clear], 32, axis=0), directions.reshape(-1, 3)).any()
+    # A floor under a roof: the floor's texels may be hidden, the roof's top ones not.
+    roofed = floor_and_roof()
+    points = np.array([[-0.7, 1e-3, 0.0], [0.0, 0.06, 0.0]])
+    np.testing.assert_array_equal(may_be_hidden(points, np.array([[0.0, 1.0, 0.0]] * 2), roofed.vertices),
+                                  [True, False])
+
+    tangent = np.cross(normal, [0.0, 0.0, 1.0])
+    tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
+    frame = np.stack([tangent, np.cross(normal, tangent), normal], axis=1)
+    envmap, shown = sun_map(), rng.uniform(0.0, 1.0, (len(origin), 3))
+    observed, size = np.ones(len(origin), bool), np.full(len(origin), 0.01)
+    irradiance = np.full((len(origin), 3), 10.0)
+    np.testing.assert_array_equal(
+        occluded_irradiance(occluder, envmap, irradiance, origin, frame, shown, observed, size, hidden=hidden),
+        occluded_irradiance(occluder, envmap, irradiance, origin, frame, shown, observed, size))
+    view = rng.normal(size=(len(origin), 6, 3))
+    view[..., 2] = np.abs(view[..., 2])
+    view /= np.linalg.norm(view, axis=2, keepdims=True)
+    visible = rng.random((len(origin), 6)) < 0.7
+    for traced, full in zip(
+            mirror_occlusion(occluder, origin, frame, view, visible, shown, observed, size, hidden=hidden),
+            mirror_occlusion(occluder, origin, frame, view, visible, shown, observed, size)):
+        np.testing.assert_array_equal(traced, full)

@@ -51,7 +51,13 @@ from freqbrdf.observe._kernels import (
     _unpack_samples,
 )
 from freqbrdf.observe.irradiance import texel_irradiance
-from freqbrdf.observe.occlusion import mirror_occlusion, occluded_irradiance, occlusion_steps, self_occluding
+from freqbrdf.observe.occlusion import (
+    may_be_hidden,
+    mirror_occlusion,
+    occluded_irradiance,
+    occlusion_steps,
+    self_occluding,
+)
 from freqbrdf.progress import SILENT, Reporter
 from freqbrdf.render.occluder import RAYS_PER_BATCH, Occluder
 from freqbrdf.sphere import envmap as envmaps
@@ -552,10 +558,13 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
         with reporter.stage("tracing the object's shadows", occlusion_steps(n_texels, n_views)) as advance:
             surface_radiance = mean_over_views(weight, signals[..., OBSERVED])
             observed = weight.sum(axis=1) > 0
+            # Rays that leave upwards from a texel above all of the mesh meet nothing: not traced.
+            hidden = may_be_hidden(ray_origin, normal, capture.mesh.vertices)
             irradiance = occluded_irradiance(occluder, capture.envmap, irradiance, ray_origin, frame,
-                                             surface_radiance, observed, texels.texel_size, advance)
+                                             surface_radiance, observed, texels.texel_size, advance, hidden)
             mirror_occluded, mirror_surface = mirror_occlusion(occluder, ray_origin, frame, view_direction, visible,
-                                                              surface_radiance, observed, texels.texel_size, advance)
+                                                              surface_radiance, observed, texels.texel_size, advance,
+                                                              hidden)
     timings["occlusion"] = time.perf_counter() - tick
 
     tick = time.perf_counter()

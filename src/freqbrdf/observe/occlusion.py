@@ -37,8 +37,8 @@ from freqbrdf.observe._kernels import _mirror_directions, _sample_offsets
 from freqbrdf.render.occluder import RAYS_PER_BATCH, Occluder
 from freqbrdf.sphere import envmap as envmaps
 
-__all__ = ["CompactLights", "compact_lights", "mirror_occlusion", "occluded_irradiance", "occlusion_steps",
-           "self_occluding"]
+__all__ = ["CompactLights", "compact_lights", "may_be_hidden", "mirror_occlusion", "occluded_irradiance",
+           "occlusion_steps", "self_occluding"]
 
 # A pixel belongs to a compact light where its luminance exceeds this many times the map's mean.
 LIGHT_BRIGHTNESS = 16.0
@@ -178,6 +178,45 @@ def self_occluding(vertices: np.ndarray, faces: np.ndarray) -> bool:
     return False
 
 
+def may_be_hidden(ray_origin: np.ndarray, normal: np.ndarray, vertices: np.ndarray) -> np.ndarray:
+    """Tell the texels from which a ray leaving upwards (d.n >= 0) can meet the mesh.
+
+    Where every vertex of the mesh lies below the plane through the texel's ray origin across its
+    normal, so does the whole mesh (its triangles are made of them), and a ray that does not go
+    down never meets it: such a ray need not be traced. The highest vertex over that plane is a
+    vertex of the convex hull; vertices within the mesh's convexity tolerance of the plane count
+    as above it.
+
+    Parameters
+    ----------
+    ray_origin : (N, 3) array
+        Each texel's point, lifted off the surface along its normal.
+    normal : (N, 3) array
+        Each texel's unit normal.
+    vertices : (P, 3) array
+        The mesh's vertices.
+
+    Returns
+    -------
+    (N,) bool
+        True where some of the mesh may lie above the texel's plane.
+    """
+    vertices = np.asarray(vertices, np.float64)
+    try:
+        candidates = vertices[ConvexHull(vertices).vertices]
+    except (QhullError, ValueError):  # flat or degenerate: every vertex is a candidate
+        candidates = vertices
+    margin = _CONVEX_TOLERANCE * float(np.linalg.norm(np.ptp(vertices, axis=0)))
+    normal = np.asarray(normal, np.float64)
+    level = np.einsum("nc,nc->n", normal, np.asarray(ray_origin, np.float64))
+    hidden = np.empty(len(normal), dtype=bool)
+    texels_per_chunk = max(1, (1 << 22) // max(len(candidates), 1))
+    for first in range(0, len(normal), texels_per_chunk):
+        rows = slice(first, first + texels_per_chunk)
+        hidden[rows] = (normal[rows] @ candidates.T).max(axis=1, initial=-np.inf) > level[rows] - margin
+    return hidden
+
+
 def cosine_directions(n_rays: int) -> np.ndarray:
     """(n_rays, 3) cosine-distributed local directions (z up), evenly spread.
 
@@ -235,7 +274,8 @@ class _SurfaceRadiance:
 
 def occluded_irradiance(occluder: Occluder, envmap: envmaps.Envmap, irradiance: np.ndarray, ray_origin: np.ndarray,
                         frame: np.ndarray, surface_radiance: np.ndarray, observed: np.ndarray,
-                        texel_size: np.ndarray, advance: Callable[[int], None] = lambda steps: None) -> np.ndarray:
+                        texel_size: np.ndarray, advance: Callable[[int], None] = lambda steps: None,
+                        hidden: np.ndarray | None = None) -> np.ndarray:
     """Correct each texel's unoccluded irradiance for what the object blocks and shows instead.
 
     Parameters
@@ -259,6 +299,9 @@ def occluded_irradiance(occluder: Occluder, envmap: envmaps.Envmap, irradiance: 
     advance : callable, optional
         Called with 1 after the lights and after each batch of texels (`occlusion_steps` in all);
         by default nothing is reported.
+    hidden : (N,) bool, optional
+        `may_be_hidden`: only these texels' rays are traced (every ray here leaves upwards); by
+        default every texel's.
 
     Returns
     -------
@@ -272,10 +315,11 @@ def occluded_irradiance(occluder: Occluder, envmap: envmaps.Envmap, irradiance: 
         advance(1)
         return corrected.astype(np.float32)
     origins_rows = np.ascontiguousarray(np.asarray(ray_origin, np.float32).T)
+    hidden = np.ones(n_texels, dtype=bool) if hidden is None else np.asarray(hidden, dtype=bool)
     lights = compact_lights(envmap)
     for direction, power in zip(lights.direction, lights.power):
         facing = normal @ direction
-        lit = np.flatnonzero(facing > 0)
+        lit = np.flatnonzero((facing > 0) & hidden)
         if not len(lit):
             continue
         towards = np.ascontiguousarray(np.broadcast_to(direction.astype(np.float32)[:, None], (3, len(lit))))
@@ -297,7 +341,11 @@ def occluded_irradiance(occluder: Occluder, envmap: envmaps.Envmap, irradiance: 
         directions = (along_tangent[..., None] * basis[:, None, 0] + along_bitangent[..., None] * basis[:, None, 1]
                       + local[None, :, 2, None] * basis[:, None, 2]).reshape(-1, 3)  # (n M, 3)
         origins = np.repeat(origins_rows[:, texels], RAYS, axis=1)  # (3, n M)
-        distance = occluder.hit_distances_rows(origins, np.ascontiguousarray(directions.T, np.float32))
+        traced = np.flatnonzero(np.repeat(hidden[texels], RAYS))
+        distance = np.full(len(directions), np.inf, np.float32)
+        if len(traced):
+            distance[traced] = occluder.hit_distances_rows(np.ascontiguousarray(origins[:, traced]),
+                                                           np.ascontiguousarray(directions[traced].T, np.float32))
         rays = np.flatnonzero(np.isfinite(distance))
         if len(rays):
             lost = envmaps.lookup(lights.rest, directions[rays]).astype(np.float64)  # (hits, 3)
@@ -312,7 +360,8 @@ def occluded_irradiance(occluder: Occluder, envmap: envmaps.Envmap, irradiance: 
 
 def mirror_occlusion(occluder: Occluder, ray_origin: np.ndarray, frame: np.ndarray, view_direction: np.ndarray,
                      visible: np.ndarray, surface_radiance: np.ndarray, observed: np.ndarray, texel_size: np.ndarray,
-                     advance: Callable[[int], None] = lambda steps: None) -> tuple[np.ndarray, np.ndarray]:
+                     advance: Callable[[int], None] = lambda steps: None,
+                     hidden: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Find how much of each sample's mirror lobe meets the object, and what the object shows there.
 
     Per visible sample, rays from the texel's point: one along the view direction mirrored about
@@ -341,6 +390,8 @@ def mirror_occlusion(occluder: Occluder, ray_origin: np.ndarray, frame: np.ndarr
         Each texel's world size.
     advance : callable, optional
         Called with 1 after each batch of texels (see `occlusion_steps`); by default nothing.
+    hidden : (N,) bool, optional
+        `may_be_hidden`: elsewhere only the rays that go down are traced; by default every ray.
 
     Returns
     -------
@@ -355,6 +406,8 @@ def mirror_occlusion(occluder: Occluder, ray_origin: np.ndarray, frame: np.ndarr
     if n_texels == 0 or n_views == 0:
         return occluded, shown
     surface = _SurfaceRadiance(ray_origin, surface_radiance, observed, texel_size)
+    hidden = np.ones(n_texels, dtype=bool) if hidden is None else np.asarray(hidden, dtype=bool)
+    normal = np.asarray(frame[:, 2], np.float64)
     ring = 2.0 * math.pi * np.arange(MIRROR_RING) / MIRROR_RING
     cone = math.radians(MIRROR_CONE_DEG)
     # (rays, 3): the centre, then the ring, in a frame whose z is the mirror direction.
@@ -377,8 +430,11 @@ def mirror_occlusion(occluder: Occluder, ray_origin: np.ndarray, frame: np.ndarr
         radiance = np.zeros((len(texel), 3))
         for offset, weight in zip(offsets, weights):
             directions = offset[0] * across + offset[1] * along + offset[2] * mirror
-            distance = occluder.hit_distances_rows(np.ascontiguousarray(origins.T, np.float32),
-                                                   np.ascontiguousarray(directions.T, np.float32))
+            traced = np.flatnonzero(hidden[texel] | (np.einsum("rc,rc->r", directions, normal[texel]) < 0.0))
+            distance = np.full(len(texel), np.inf, np.float32)
+            if len(traced):
+                distance[traced] = occluder.hit_distances_rows(np.ascontiguousarray(origins[traced].T, np.float32),
+                                                               np.ascontiguousarray(directions[traced].T, np.float32))
             hits = np.flatnonzero(np.isfinite(distance))
             share[hits] += weight
             radiance[hits] += weight * surface.at(origins[hits] + distance[hits, None] * directions[hits])
