@@ -96,14 +96,26 @@ def _dots(a, b, partial, out):
 
 
 @numba.njit(cache=True)
-def _update(x, residual, direction, ad, step, inverse, z):
-    """Step: x += step d, r -= step A d, z = M^-1 r (one step per channel)."""
+def _update_dots(x, residual, direction, ad, step, inverse, z, partial, out):
+    """Step x += step d, r -= step A d, z = M^-1 r (one step per channel), and out[c] = sum_i r[i, c] z[i, c].
+
+    The sums as `_dots` makes them (per block of rows, then over the blocks in order), in the same pass.
+    """
     n_rows, n_channels = x.shape
-    for i in range(n_rows):
+    for block in range(partial.shape[0]):
         for c in range(n_channels):
-            x[i, c] += step[c] * direction[i, c]
-            residual[i, c] -= step[c] * ad[i, c]
-            z[i, c] = inverse[i, c] * residual[i, c]
+            partial[block, c] = 0.0
+        for i in range(block * BLOCK, min((block + 1) * BLOCK, n_rows)):
+            for c in range(n_channels):
+                x[i, c] += step[c] * direction[i, c]
+                residual[i, c] -= step[c] * ad[i, c]
+                z[i, c] = inverse[i, c] * residual[i, c]
+                partial[block, c] += residual[i, c] * z[i, c]
+    for c in range(n_channels):
+        total = 0.0
+        for block in range(partial.shape[0]):
+            total += partial[block, c]
+        out[c] = total
 
 
 @numba.njit(cache=True)
@@ -159,8 +171,7 @@ def conjugate_gradients(indptr, indices, robust, degree, diagonal, rhs, x, itera
         _dots(direction, ad, partial, curvature)
         for c in range(n_channels):
             step[c] = rz[c] / max(curvature[c], 1e-300) if rz[c] > 0.0 else 0.0
-        _update(x, residual, direction, ad, step, inverse, z)
-        _dots(residual, z, partial, rz_next)
+        _update_dots(x, residual, direction, ad, step, inverse, z, partial, rz_next)
         for c in range(n_channels):
             beta[c] = rz_next[c] / max(rz[c], 1e-300) if rz[c] > 0.0 else 0.0
             rz[c] = rz_next[c]

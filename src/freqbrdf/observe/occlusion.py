@@ -333,7 +333,11 @@ def occluded_irradiance(occluder: Occluder, envmap: envmaps.Envmap, irradiance: 
     spin = 2.0 * math.pi * np.modf(np.arange(n_texels) * (math.sqrt(5.0) - 1.0) / 2.0)[0]
     texels_per_batch = max(1, RAYS_PER_BATCH // RAYS)
     for first in range(0, n_texels, texels_per_batch):
-        texels = slice(first, min(first + texels_per_batch, n_texels))
+        # Only the texels some of the mesh may hide: every ray here leaves upwards.
+        texels = first + np.flatnonzero(hidden[first:first + texels_per_batch])
+        if not len(texels):
+            advance(1)
+            continue
         cos_spin, sin_spin = np.cos(spin[texels])[:, None], np.sin(spin[texels])[:, None]
         along_tangent = local[None, :, 0] * cos_spin - local[None, :, 1] * sin_spin  # (n, M)
         along_bitangent = local[None, :, 0] * sin_spin + local[None, :, 1] * cos_spin
@@ -341,11 +345,7 @@ def occluded_irradiance(occluder: Occluder, envmap: envmaps.Envmap, irradiance: 
         directions = (along_tangent[..., None] * basis[:, None, 0] + along_bitangent[..., None] * basis[:, None, 1]
                       + local[None, :, 2, None] * basis[:, None, 2]).reshape(-1, 3)  # (n M, 3)
         origins = np.repeat(origins_rows[:, texels], RAYS, axis=1)  # (3, n M)
-        traced = np.flatnonzero(np.repeat(hidden[texels], RAYS))
-        distance = np.full(len(directions), np.inf, np.float32)
-        if len(traced):
-            distance[traced] = occluder.hit_distances_rows(np.ascontiguousarray(origins[:, traced]),
-                                                           np.ascontiguousarray(directions[traced].T, np.float32))
+        distance = occluder.hit_distances_rows(origins, np.ascontiguousarray(directions.T, np.float32))
         rays = np.flatnonzero(np.isfinite(distance))
         if len(rays):
             lost = envmaps.lookup(lights.rest, directions[rays]).astype(np.float64)  # (hits, 3)
@@ -353,7 +353,7 @@ def occluded_irradiance(occluder: Occluder, envmap: envmaps.Envmap, irradiance: 
             change = (gained - lost) * (math.pi / RAYS)
             for channel in range(3):
                 corrected[texels, channel] += np.bincount(rays // RAYS, weights=change[:, channel],
-                                                          minlength=texels.stop - texels.start)
+                                                          minlength=len(texels))
         advance(1)
     return np.maximum(corrected, 0.0).astype(np.float32)
 
