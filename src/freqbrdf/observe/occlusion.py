@@ -54,6 +54,9 @@ REST_HEIGHT = 32
 MIRROR_CENTRE_WEIGHT = 1.0 / 3.0
 MIRROR_RING = 8
 MIRROR_CONE_DEG = 12.0
+# A mirror lobe whose centre rises less than its cone's half-angle (plus this, in sine) above the
+# texel's horizon may dip below it: traced even from a texel above the whole mesh.
+_LOBE_MARGIN = 1e-6
 # A hit point farther than this many texel sizes from every observed texel shows the mean radiance.
 _NEAREST_REACH = 8.0
 # Faces whose plane has a mesh point farther above it than this share of the mesh's extent can
@@ -391,7 +394,8 @@ def mirror_occlusion(occluder: Occluder, ray_origin: np.ndarray, frame: np.ndarr
     advance : callable, optional
         Called with 1 after each batch of texels (see `occlusion_steps`); by default nothing.
     hidden : (N,) bool, optional
-        `may_be_hidden`: elsewhere only the rays that go down are traced; by default every ray.
+        `may_be_hidden`: elsewhere only the samples whose lobe may dip below the texel's horizon
+        are traced; by default every sample.
 
     Returns
     -------
@@ -422,6 +426,9 @@ def mirror_occlusion(occluder: Occluder, ray_origin: np.ndarray, frame: np.ndarr
         mirror = _mirror_directions(np.asarray(frame[rows], np.float64), view_direction[rows], visible[rows],
                                     _sample_offsets(visible[rows]))
         mirror /= np.maximum(np.linalg.norm(mirror, axis=1, keepdims=True), 1e-12)  # then a frame around it
+        # A lobe whose every ray leaves upwards from a texel above the whole mesh meets nothing.
+        traced = hidden[texel] | (np.einsum("rc,rc->r", mirror, normal[texel]) < math.sin(cone) + _LOBE_MARGIN)
+        texel, view, mirror = texel[traced], view[traced], mirror[traced]
         across = np.cross(mirror, np.where(np.abs(mirror[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]]))
         across /= np.linalg.norm(across, axis=1, keepdims=True)
         along = np.cross(mirror, across)
@@ -430,11 +437,8 @@ def mirror_occlusion(occluder: Occluder, ray_origin: np.ndarray, frame: np.ndarr
         radiance = np.zeros((len(texel), 3))
         for offset, weight in zip(offsets, weights):
             directions = offset[0] * across + offset[1] * along + offset[2] * mirror
-            traced = np.flatnonzero(hidden[texel] | (np.einsum("rc,rc->r", directions, normal[texel]) < 0.0))
-            distance = np.full(len(texel), np.inf, np.float32)
-            if len(traced):
-                distance[traced] = occluder.hit_distances_rows(np.ascontiguousarray(origins[traced].T, np.float32),
-                                                               np.ascontiguousarray(directions[traced].T, np.float32))
+            distance = occluder.hit_distances_rows(np.ascontiguousarray(origins.T, np.float32),
+                                                   np.ascontiguousarray(directions.T, np.float32))
             hits = np.flatnonzero(np.isfinite(distance))
             share[hits] += weight
             radiance[hits] += weight * surface.at(origins[hits] + distance[hits, None] * directions[hits])
