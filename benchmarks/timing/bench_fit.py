@@ -33,6 +33,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import statistics
 import subprocess
 import sys
@@ -103,13 +104,24 @@ def spread(values: list[float]) -> dict:
     return {"min": min(values), "median": statistics.median(values), "max": max(values)}
 
 
-def baseline_sources(ref: str, scratch: Path) -> dict:
-    """Extract the package's sources at git ``ref`` under scratch; return an environment that imports them."""
+def baseline_sources(ref: str) -> dict:
+    """Extract the package's sources at git ``ref``; return an environment that imports them.
+
+    Kept in benchmarks/.cache/baseline_sources/<commit>/, so that numba's cache of that tree's
+    kernels (beside its sources) serves the next comparison with the same commit.
+    """
     repository = Path(__file__).resolve().parents[2]
-    folder = scratch / "baseline"
-    folder.mkdir()
-    archive = subprocess.run(["git", "-C", str(repository), "archive", ref, "src"], capture_output=True, check=True)
-    subprocess.run(["tar", "-x", "-C", str(folder)], input=archive.stdout, check=True)
+    commit = subprocess.run(["git", "-C", str(repository), "rev-parse", ref], capture_output=True, text=True,
+                            check=True).stdout.strip()
+    folder = repository / "benchmarks" / ".cache" / "baseline_sources" / commit
+    if not (folder / "src").is_dir():
+        partial = folder.with_name(commit + ".partial")
+        shutil.rmtree(partial, ignore_errors=True)
+        partial.mkdir(parents=True)
+        archive = subprocess.run(["git", "-C", str(repository), "archive", commit, "src"], capture_output=True,
+                                 check=True)
+        subprocess.run(["tar", "-x", "-C", str(partial)], input=archive.stdout, check=True)
+        partial.rename(folder)
     return {**os.environ, "PYTHONPATH": str(folder / "src")}
 
 
@@ -204,7 +216,7 @@ def main(argv=None) -> int:
     imports = {"current": [], "baseline": []}
     with tempfile.TemporaryDirectory(prefix="bench_fit.") as scratch:
         if args.baseline:
-            trees = {"baseline": baseline_sources(args.baseline, Path(scratch)), "current": None}
+            trees = {"baseline": baseline_sources(args.baseline), "current": None}
         for name, env in trees.items():
             # Untimed, at a small texture size: numba compiles the kernels here if its cache is cold
             # (a run that compiles them runs again from the cache, see freqbrdf.jit), not in a timed run.
