@@ -17,7 +17,7 @@ With ``--profile``, one more fit runs under cProfile (after the timed runs, with
 sources): the functions that take the most time of their own (numba kernels are one call each)
 are saved with the results and printed. cProfile slows Python-level code, not the kernels.
 
-With ``--baseline``, the package's sources at that git ref (``git archive`` into a scratch folder,
+With ``--baseline``, the package's sources at that git ref (``git archive`` into benchmarks/.cache,
 put first on PYTHONPATH) are timed too, a run of each in turn, so that before and after meet the
 same machine; the table gives both and the ratio of their medians.
 
