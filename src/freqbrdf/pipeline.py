@@ -20,7 +20,7 @@ from scipy import ndimage
 from freqbrdf.applications import guidance, inpaint
 from freqbrdf.calibrate import Calibration, calibrate
 from freqbrdf.capture.camera import Camera
-from freqbrdf.capture.layouts import Capture
+from freqbrdf.capture.layouts import Capture, release_decoded_frames
 from freqbrdf.config import Config
 from freqbrdf.errors import InputError
 from freqbrdf.estimate import MaterialEstimate
@@ -236,6 +236,7 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
         timings["calibrate"] = time.perf_counter() - start
     start = time.perf_counter()
     observations, fine = observe_on_estimation_texels(capture, config, reporter)
+    release_decoded_frames()  # every reader of the photographs is done
     estimation_res = observations.texture_res
     timings["observe"] = time.perf_counter() - start
     timings.update({f"observe.{stage}": seconds for stage, seconds in observations.timings.items()

@@ -13,6 +13,7 @@ from freqbrdf.capture.camera import Camera, look_at
 from freqbrdf.capture.layouts import (
     Frame,
     load,
+    release_decoded_frames,
     write_transforms,
 )
 from freqbrdf.capture.mesh import Mesh, plane_mesh, save_obj, uv_sphere_mesh
@@ -459,3 +460,37 @@ def test_cli_bad_input_is_one_line_and_exit_code_2(tmp_path):
         f"error: {tmp_path / 'transforms.json'}: frame 1: transform_matrix is singular "
         "(its 3x3 part has determinant 0)"
     )
+
+
+def test_a_frame_is_decoded_once_for_every_reader_until_it_changes_or_is_released(tmp_path, monkeypatch):
+    """The capture check, calibration and observation read each photograph: one decode, warnings kept."""
+    import dataclasses
+    import warnings
+
+    from freqbrdf.capture import layouts
+    from freqbrdf.images import CaptureDataWarning
+
+    frames, images, _ = write_capture(tmp_path)
+    capture = load(tmp_path)
+    decoded = []
+    real = layouts.read_image
+    monkeypatch.setattr(layouts, "read_image", lambda *args, **kwargs: decoded.append(args[0]) or real(*args, **kwargs))
+    first, second = capture.image(0), capture.image(0)
+    assert first is second and not first.flags.writeable and len(decoded) == 1
+    np.testing.assert_array_equal(first, images[0])
+    write_exr(frames[0].image_path, images[0] * 2.0)  # changed on disk: decoded again
+    np.testing.assert_array_equal(capture.image(0), images[0] * 2.0)
+    assert len(decoded) == 2
+    release_decoded_frames()
+    capture.image(0)
+    assert len(decoded) == 3
+    # A warning the decode raised is raised again for every later reader.
+    png = tmp_path / "frame_8bit.png"
+    write_png(png, np.full((SIZE, SIZE, 3), 0.5))
+    eight_bit = dataclasses.replace(capture.frames[1], image_path=png)
+    for _ in range(2):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            layouts.read_frame_image(eight_bit)
+        assert any(issubclass(warning.category, CaptureDataWarning) for warning in caught)
+    release_decoded_frames()

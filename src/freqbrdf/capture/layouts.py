@@ -282,12 +282,13 @@ def load(path: str | Path) -> Capture:
 
 
 # Decoded frames kept for the next reader, up to this many bytes (least recently used out first): a
-# fit reads each photograph and mask several times (the capture check, calibration, observation).
-DECODED_CACHE_BYTES = 512 << 20
+# fit reads each photograph and mask several times (the capture check, calibration, observation),
+# then lets them go (`release_decoded_frames`).
+DECODED_CACHE_BYTES = 256 << 20
 
 
 class _DecodedFiles:
-    """Arrays decoded from files, keyed by the file's path, size and modification time, read-only.
+    """Arrays decoded from files, keyed by the file's path, inode, size and modification time, read-only.
 
     The warnings a read raised are kept with its array and raised again on each later hit, so a
     reader sees the same warnings whether the file was decoded for it or before.
@@ -299,12 +300,17 @@ class _DecodedFiles:
         self._bytes = 0
         self._lock = threading.Lock()
 
+    def clear(self) -> None:
+        with self._lock:
+            self._items.clear()
+            self._bytes = 0
+
     def get(self, path: Path, what: tuple, read: Callable[[], np.ndarray]) -> np.ndarray:
         try:
             status = path.stat()
         except OSError:
             return read()  # the reader names the file and the problem
-        key = (str(path.resolve()), status.st_size, status.st_mtime_ns, what)
+        key = (str(path.resolve()), status.st_ino, status.st_size, status.st_mtime_ns, what)
         with self._lock:
             item = self._items.get(key)
             if item is not None:
@@ -327,6 +333,11 @@ class _DecodedFiles:
 
 
 _DECODED = _DecodedFiles(DECODED_CACHE_BYTES)
+
+
+def release_decoded_frames() -> None:
+    """Forget the decoded photographs and masks kept for later readers (their memory goes)."""
+    _DECODED.clear()
 
 
 def read_frame_image(frame: Frame) -> np.ndarray:
