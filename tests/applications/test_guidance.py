@@ -381,7 +381,7 @@ def test_next_views_after_a_fit_reuses_its_observations(sphere_from_above, tmp_p
     result = pipeline.fit(capture, config, keep_surface_fit=True)
     expected = pipeline.next_views(result, cameras, 2, config, max_texels=200)
     with pytest.raises(ValueError, match="keep_surface_fit"):
-        pipeline.next_views(pipeline.fit(capture, config), cameras, 2, config)
+        pipeline.next_views(dataclasses.replace(result, surface_fit=None), cameras, 2, config)
 
     observed = []
     real_observe = pipeline.observe
