@@ -41,6 +41,7 @@ from freqbrdf.uncertainty import (
     entropy_map,
     roughness_std,
 )
+from freqbrdf.uncertainty.heldout import StdCalibration, calibrate_std
 
 
 @dataclass(eq=False)
@@ -71,6 +72,9 @@ class FitResult:
     calibration : Calibration or None
         What the photographs calibrated (`freqbrdf.calibrate`): the gains, the probe's turn; the
         observations were made of the capture corrected by it.
+    std_calibration : StdCalibration or None
+        How the held-out views scaled the std maps (`freqbrdf.uncertainty.heldout.calibrate_std`);
+        None where ``UncertaintyConfig.heldout_folds`` is 0.
     """
 
     capture: Capture
@@ -82,6 +86,7 @@ class FitResult:
     estimation_res: int | None = None
     warnings: list[str] = field(default_factory=list)
     calibration: Calibration | None = None
+    std_calibration: StdCalibration | None = None
 
 
 def estimation_resolution(capture: Capture, config: Config = Config(), fine: Texels | None = None) -> int:
@@ -257,6 +262,11 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
         timings.update({f"surface.{step}": seconds for step, seconds in posterior.timings.items()})
 
     _widen_by_calibration(uncertainty, estimate, calibration)
+    std_calibration = None
+    if config.uncertainty.heldout_folds:  # docs/method.md#held-out-std-calibration
+        start = time.perf_counter()
+        std_calibration = calibrate_std(observations, uncertainty, config, estimate)
+        timings["std_calibration"] = time.perf_counter() - start
 
     if fine is not None:
         start = time.perf_counter()
@@ -269,7 +279,7 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
     timings["textures"] = time.perf_counter() - start
     timings["total"] = sum(seconds for stage, seconds in timings.items() if "." not in stage)
     return FitResult(given, observations, estimate, uncertainty, maps, timings, estimation_res,
-                     warnings=list(calibration.warnings), calibration=calibration)
+                     warnings=list(calibration.warnings), calibration=calibration, std_calibration=std_calibration)
 
 
 def _widen_by_calibration(uncertainty: Uncertainty, estimate: MaterialEstimate, calibration: Calibration) -> None:
@@ -460,7 +470,8 @@ def write_fit(out_dir: str | Path, result: FitResult, config: Config = Config())
              "coverage": {**export.coverage(result.observations, result.estimate),
                           "views": len(result.capture.frames)},
              "warnings": list(result.warnings),
-             "calibration": None if result.calibration is None else result.calibration.to_dict()}
+             "calibration": None if result.calibration is None else result.calibration.to_dict(),
+             "std_calibration": None if result.std_calibration is None else result.std_calibration.to_dict()}
     out = export.write_fit_outputs(
         out_dir, result.capture.mesh, result.observations, result.estimate, result.uncertainty,
         config, timings=result.timings, extra_summary=extra, maps=result.maps,

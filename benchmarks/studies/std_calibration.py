@@ -1,0 +1,118 @@
+"""Each capture calibrates its own std (issue #42 item 1): the std maps against the errors, before and after.
+
+    python benchmarks/studies/std_calibration.py [--scenes a,b]
+
+Scenes: the calibration study's three path-traced captures of the whole-surface suite (32 views of
+192 x 192, T = 256; `studies/calibration.py`), fitted with the defaults, whose held-out std
+calibration is on (`freqbrdf.uncertainty.heldout`). Per std (roughness, metallic, the base
+colour's mean over RGB), on the texels a view sees: Spearman's rho with its parameter's absolute
+error and the shares of errors within 1 and 2 std, for the std as modelled ("before": the
+calibrated std divided by its factor), scaled by the held-out folds alone ("folds") and by the
+folds and the misfit ("after", what the fit writes). Also the factors, the held-out coverage and
+the calibration's share of the fit's time.
+
+Writes benchmarks/results/std_calibration.{json,md}.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+from scipy.stats import spearmanr
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from calibration import RENDER, SCENES, TEXTURE_RES  # noqa: E402
+from whole_surface import seen_texels  # noqa: E402
+
+import scenes  # noqa: E402
+from _common import machine, save_results  # noqa: E402
+from freqbrdf import pipeline  # noqa: E402
+from freqbrdf.capture.layouts import load  # noqa: E402
+from freqbrdf.config import Config, TexelConfig  # noqa: E402
+
+STDS = ("roughness", "metallic", "base_color")
+VARIANTS = ("before", "folds", "after")
+
+
+def scores(std: np.ndarray, error: np.ndarray) -> dict:
+    """Spearman's rho and the 1- and 2-std coverage of (n,) std against (n,) absolute error."""
+    return {"rho": float(spearmanr(std, error).statistic), "within_1": float(np.mean(error <= std)),
+            "within_2": float(np.mean(error <= 2.0 * std)), "texels": int(len(std))}
+
+
+def run_scene(scene: str) -> dict:
+    capture = load(scenes.whole_surface_capture(scene, RENDER))
+    config = Config(texels=TexelConfig(texture_res=TEXTURE_RES))
+    result = pipeline.fit(capture, config)
+    found = result.std_calibration
+    seen = seen_texels(capture, TEXTURE_RES)
+    rows = {}
+    for name in STDS:
+        std = getattr(result.uncertainty, f"{name}_std")
+        if std is None:
+            continue
+        std = np.asarray(std, np.float64)
+        std = std.mean(axis=1) if std.ndim == 2 else std
+        texture = result.estimate.to_texture(std, fill=np.nan)
+        error = np.abs(getattr(result.maps, name) - getattr(capture.ground_truth, name))
+        error = error.mean(axis=-1) if error.ndim == 3 else error
+        keep = seen & np.isfinite(texture)
+        factor = found.factors.get(name, 1.0)
+        before = texture[keep] / factor
+        rows[name] = {"before": scores(before, error[keep]),
+                      "folds": scores(before * found.fold_factors.get(name, 1.0), error[keep]),
+                      "after": scores(texture[keep], error[keep])}
+        print(f"[{scene}] {name}: {rows[name]}", flush=True)
+    fit_seconds = result.timings["total"] - result.timings.get("std_calibration", 0.0)
+    return {"stds": rows, "calibration": found.to_dict(), "fit_seconds": fit_seconds,
+            "calibration_seconds": result.timings.get("std_calibration", 0.0),
+            "cost_share": result.timings.get("std_calibration", 0.0) / fit_seconds}
+
+
+def markdown(results: dict) -> str:
+    lines = ["# Held-out std calibration", "",
+             "`benchmarks/studies/std_calibration.py`: per std, Spearman's rho with its parameter's absolute error "
+             "and the shares of errors within 1 and 2 std (0.68 and 0.95 = calibrated), on the texels a view sees; "
+             "before: the std as modelled; folds: scaled by the held-out folds alone; after: by the folds and the "
+             "capture's misfit (what the fit writes).", "",
+             "| scene | std | rho | 1 std before / folds / after | 2 std before / folds / after |",
+             "|---|---|---|---|---|"]
+    for scene, found in results["scenes"].items():
+        for name, row in found["stds"].items():
+            lines.append(f"| {scene} | {name} | {row['after']['rho']:.2f} | "
+                         + " / ".join(f"{row[v]['within_1']:.0%}" for v in VARIANTS) + " | "
+                         + " / ".join(f"{row[v]['within_2']:.0%}" for v in VARIANTS) + " |")
+    lines += ["", "| scene | factors (roughness, base colour) | fold factors (R, M, BC) | misfit / scale | "
+              "held-out 1-std coverage before -> after (R, BC) | texels x folds | cost (share of the fit) |",
+              "|---|---|---|---|---|---|---|"]
+    for scene, found in results["scenes"].items():
+        c = found["calibration"]
+        fold = ", ".join(f"{c['fold_factors'].get(k, float('nan')):.2f}" for k in STDS)
+        held = ", ".join(f"{c['coverage_before'][k]:.0%} -> {c['coverage_after'][k]:.0%}" for k in c["factors"])
+        lines.append(f"| {scene} | {c['factors'].get('roughness', 1):.2f}, {c['factors'].get('base_color', 1):.2f} | "
+                     f"{fold} | {c['misfit']:.4f} / {c['misfit_scale']:.2f} | {held} | {c['texels']} x {c['folds']} | "
+                     f"{found['calibration_seconds']:.1f} s of {found['fit_seconds']:.1f} s "
+                     f"({found['cost_share']:.0%}) |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scenes", default=",".join(SCENES))
+    args = parser.parse_args(argv)
+    results = {"machine": machine(), "scenes": {}}
+    for scene in args.scenes.split(","):
+        results["scenes"][scene] = run_scene(scene)
+    save_results("std_calibration", results)
+    path = Path(__file__).resolve().parents[1] / "results" / "std_calibration.md"
+    path.write_text(markdown(results))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
