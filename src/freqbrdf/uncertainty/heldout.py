@@ -7,11 +7,14 @@ the texels the views see, the views are split into K folds, each fold is held ou
 (`Observations.with_views`) and the texels are estimated again from the views kept. The
 deviations of those estimates from the estimate of all views, scaled for the views held out
 (jackknife), are samples of the estimate's error from the samples' noise; the share of them a
-std covers says how much it must be scaled to cover 68 %. What the held-out views cannot see,
-the error of a forward model that does not explain the samples (interreflection, a light that
-is not the environment map), is read from the texels' misfit: where the capture's median misfit
-is above what a capture the model explains leaves (``UncertaintyConfig.heldout_misfit_reference``),
-the factor grows with the square root of their ratio.
+std covers says how far it must be scaled to cover 68 % of them. What the held-out views cannot
+see, the error of a forward model that does not explain the samples (interreflection, a light
+that is not the environment map), is read from the texels' misfit: where the capture's median
+misfit is above what a capture the model explains leaves
+(``UncertaintyConfig.heldout_misfit_reference``), the factor grows with the square root of their
+ratio. The std is only ever widened by it (a factor of at least 1): an error every view shares
+(a roughness that fits the samples as well as the true one) moves no fold and need not raise the
+misfit, so folds that agree better than the std says do not show the std too wide.
 
 Roughness and base colour are calibrated; the metallic std is reported only (its errors are
 labels, mostly exactly right, which a scale cannot calibrate).
@@ -39,8 +42,7 @@ __all__ = ["CALIBRATED", "COVERAGE", "FACTOR_RANGE", "StdCalibration", "calibrat
 COVERAGE = 0.68
 # The std maps the calibration scales.
 CALIBRATED = ("roughness", "base_color")
-# The factors are kept within this range: folds that agree exactly (a noise-free capture) say
-# nothing of what else is wrong, and a handful of texels no more.
+# The factors are kept within this range: a handful of texels says little.
 FACTOR_RANGE = (0.125, 8.0)
 
 
@@ -55,7 +57,8 @@ class StdCalibration:
     texels : int
         The texels re-estimated per fold.
     factors : dict of str to float
-        Per calibrated std ("roughness", "base_color"): the factor it was multiplied by.
+        Per calibrated std ("roughness", "base_color"): the factor it was multiplied by,
+        max(1, fold factor x misfit_scale) within `FACTOR_RANGE`.
     fold_factors : dict of str to float
         Per std (also "metallic"): the factor the held-out folds alone ask for.
     misfit : float
@@ -221,7 +224,7 @@ def calibrate_std(observations: Observations, uncertainty: Uncertainty, config: 
         result.coverage_before[name] = float(np.mean(ratio <= 1.0))
         if name not in CALIBRATED:
             continue
-        factor = float(np.clip(fold_factor * misfit_scale, *FACTOR_RANGE))
+        factor = float(np.clip(max(1.0, fold_factor * misfit_scale), *FACTOR_RANGE))
         result.factors[name] = factor
         result.coverage_after[name] = float(np.mean(ratio <= factor))
         scaled = (np.asarray(getattr(uncertainty, f"{name}_std"), np.float64) * factor).astype(np.float32)
