@@ -130,6 +130,13 @@ def test_fit_writes_a_complete_folder_that_loads_back(tiny_capture, tmp_path, mo
     assert outputs.arrays["likelihood"].shape == (result.observations.n_texels, *result.uncertainty.likelihood.shape[1:])
     assert outputs.observed.sum() == np.count_nonzero(result.observations.n_samples)
     assert "write" in outputs.summary["timings"]
+    # The held-out std calibration (on by default): its factors and coverage in summary.json.
+    calibration = outputs.summary["std_calibration"]
+    assert calibration == json.loads(json.dumps(result.std_calibration.to_dict()))
+    assert calibration["folds"] == config.uncertainty.heldout_folds and calibration["texels"] > 0
+    assert set(calibration["factors"]) == {"roughness", "base_color"}
+    assert all(np.isfinite(factor) and factor >= 1.0 for factor in calibration["factors"].values())
+    assert "std_calibration" in result.timings
     # The trust mask: every std at most the threshold, as the summary counts it.
     trusted = trusted_texels(result.uncertainty, config.uncertainty.trust_std)
     assert outputs.summary["trust"]["threshold"] == config.uncertainty.trust_std

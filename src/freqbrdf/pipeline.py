@@ -167,7 +167,10 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
     estimate after the uncertainty (`freqbrdf.estimate.surface`, docs/method.md#whole-surface-estimate), whose posterior
     gives the metallic std, the roughness std where it is wider than the spread of the texel's own
     estimate (`freqbrdf.uncertainty.roughness_std`), and the base-colour std with the distance of
-    the texel's own estimate from the solution added in quadrature.
+    the texel's own estimate from the solution added in quadrature. With
+    ``config.uncertainty.heldout_folds`` (the default) the roughness and base-colour std maps are
+    then calibrated on the capture's held-out views (`freqbrdf.uncertainty.heldout.calibrate_std`,
+    docs/method.md#held-out-std-calibration; ``FitResult.std_calibration``).
 
     Parameters
     ----------
