@@ -72,6 +72,13 @@ class StdCalibration:
         The same within the calibrated std.
     seconds : float
         Time taken.
+    rows : (M,) int64 or None
+        The texels re-estimated (rows of the observations); not in `to_dict`.
+    deviations : dict of str to (K, M) float64
+        Per std, the jackknife deviations d_tk of docs/method.md#held-out-std-calibration (the base
+        colour's mean over RGB; NaN where a fold left a texel unestimated); not in `to_dict`.
+    relative_misfit : (M,) float64 or None
+        Each texel's relative misfit under the estimate of all views; not in `to_dict`.
     """
 
     folds: int
@@ -83,6 +90,9 @@ class StdCalibration:
     coverage_before: dict[str, float] = field(default_factory=dict)
     coverage_after: dict[str, float] = field(default_factory=dict)
     seconds: float = 0.0
+    rows: np.ndarray | None = field(default=None, repr=False)
+    deviations: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
+    relative_misfit: np.ndarray | None = field(default=None, repr=False)
 
     def to_dict(self) -> dict:
         """Return the calibration as JSON-ready values (``summary.json``'s ``std_calibration``).
@@ -202,10 +212,12 @@ def calibrate_std(observations: Observations, uncertainty: Uncertainty, config: 
     # Deviations of the held-out estimates from the whole, scaled by sqrt(K - 1): for errors
     # from the samples' noise each has the whole estimate's variance.
     jackknife = np.sqrt(folds - 1.0)
-    misfit = float(np.nanmedian(_relative_misfit(part, whole.loss))) if np.any(np.isfinite(whole.loss)) else np.nan
+    relative_misfit = _relative_misfit(part, whole.loss)
+    misfit = float(np.nanmedian(relative_misfit)) if np.any(np.isfinite(relative_misfit)) else np.nan
     reference = settings.heldout_misfit_reference
     misfit_scale = float(np.sqrt(max(1.0, misfit / reference))) if np.isfinite(misfit) else 1.0
-    result = StdCalibration(folds=folds, texels=len(rows), misfit=misfit, misfit_scale=misfit_scale)
+    result = StdCalibration(folds=folds, texels=len(rows), misfit=misfit, misfit_scale=misfit_scale, rows=rows,
+                            relative_misfit=relative_misfit)
     for name in ("roughness", "metallic", "base_color"):
         std = _std_of(uncertainty, name)
         if std is None:
@@ -215,6 +227,7 @@ def calibrate_std(observations: Observations, uncertainty: Uncertainty, config: 
         deviation = np.stack([np.abs(_value_of(found, name) - centre) for found in fold_estimates]) * jackknife
         if deviation.ndim == 3:
             deviation = deviation.mean(axis=2)
+        result.deviations[name] = deviation
         usable = np.isfinite(deviation) & np.isfinite(std)[None, :] & (std > 0.0)[None, :]
         if not usable.any():
             continue
