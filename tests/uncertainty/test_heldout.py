@@ -106,10 +106,15 @@ def test_calibration_is_deterministic_bit_for_bit(noisy):
     assert first.texels == second.texels <= 60
     for name in ("factors", "fold_factors", "coverage_before", "coverage_after"):
         assert getattr(first, name) == getattr(second, name)
+    for name in ("roughness", "metallic", "base_color"):
+        assert first.deviations[name].shape == (3, first.texels)
+        np.testing.assert_array_equal(first.deviations[name], second.deviations[name])
+    np.testing.assert_array_equal(first.rows, second.rows)
     np.testing.assert_array_equal(one.roughness_std, other.roughness_std)
     np.testing.assert_array_equal(one.base_color_std, other.base_color_std)
     summary = first.to_dict()
     assert summary["folds"] == 3 and set(summary["factors"]) == {"roughness", "base_color"}
+    assert not {"rows", "deviations", "relative_misfit"} & set(summary)  # per-texel arrays stay out of summary.json
 
 
 def test_off_or_too_few_views_leaves_the_std_unchanged(noisy):
