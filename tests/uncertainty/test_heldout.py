@@ -134,6 +134,7 @@ def test_heldout_texels_are_spread_evenly_over_the_seen_texels(noisy):
     seen = np.flatnonzero((observations.n_samples > 0) & found.estimated)
     assert len(rows) <= 40 and np.all(np.isin(rows, seen)) and np.all(np.diff(rows) > 0)
     assert len(heldout_texels(observations, found, 10_000)) == len(seen)
+    assert len(heldout_texels(observations, None, 10_000)) == np.count_nonzero(observations.n_samples > 0)
 
 
 @pytest.mark.parametrize("changes", [{"heldout_folds": 1}, {"heldout_folds": -2}, {"heldout_texels": 0},

@@ -112,15 +112,15 @@ class StdCalibration:
             "coverage_after", "seconds")}
 
 
-def heldout_texels(observations: Observations, estimate: MaterialEstimate, count: int) -> np.ndarray:
+def heldout_texels(observations: Observations, estimate: MaterialEstimate | None, count: int) -> np.ndarray:
     """Choose the texels the folds re-estimate: at most ``count``, spread evenly over those seen.
 
     Parameters
     ----------
     observations : Observations
         The capture's observations (N texels).
-    estimate : MaterialEstimate
-        Their estimate (N texels).
+    estimate : MaterialEstimate or None
+        Their estimate (N texels): only its estimated texels are chosen; None: any with samples.
     count : int
         The most texels to choose.
 
@@ -130,7 +130,10 @@ def heldout_texels(observations: Observations, estimate: MaterialEstimate, count
         Rows of the texels chosen, ascending: estimated texels with samples, every
         ceil(n / count)-th of the n there are in row order.
     """
-    seen = np.flatnonzero((observations.n_samples > 0) & np.asarray(estimate.estimated, bool))
+    seen = observations.n_samples > 0
+    if estimate is not None:
+        seen &= np.asarray(estimate.estimated, bool)
+    seen = np.flatnonzero(seen)
     if count < 1 or len(seen) == 0:
         return np.zeros(0, np.int64)
     step = int(np.ceil(len(seen) / count))
@@ -193,11 +196,7 @@ def calibrate_std(observations: Observations, uncertainty: Uncertainty, config: 
         return None
     start = time.perf_counter()
     folds = min(folds, observations.n_views)
-    if estimate is None:
-        rows = np.flatnonzero(observations.n_samples > 0)
-        rows = rows[::max(1, int(np.ceil(len(rows) / max(settings.heldout_texels, 1))))]
-    else:
-        rows = heldout_texels(observations, estimate, settings.heldout_texels)
+    rows = heldout_texels(observations, estimate, settings.heldout_texels)
     if len(rows) == 0:
         return None
     part = observations.select(rows)
