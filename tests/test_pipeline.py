@@ -167,6 +167,24 @@ def test_fit_writes_a_complete_folder_that_loads_back(tiny_capture, tmp_path, mo
 
 
 @pytest.mark.slow
+def test_the_held_out_std_calibration_is_deterministic_and_only_widens(tiny_capture):
+    """Two fits of one capture calibrate the std maps bit for bit alike; the calibration only widens them."""
+    config = Config(texels=TexelConfig(texture_res=16))
+    first, second = pipeline.fit(load(tiny_capture), config), pipeline.fit(load(tiny_capture), config)
+    assert first.std_calibration.to_dict() | {"seconds": 0} == second.std_calibration.to_dict() | {"seconds": 0}
+    for name in ("roughness_std", "metallic_std", "base_color_std"):
+        np.testing.assert_array_equal(getattr(first.uncertainty, name), getattr(second.uncertainty, name))
+    off = pipeline.fit(load(tiny_capture), config.replace(uncertainty=UncertaintyConfig(heldout_folds=0)))
+    assert off.std_calibration is None and "std_calibration" not in off.timings
+    np.testing.assert_array_equal(off.uncertainty.metallic_std, first.uncertainty.metallic_std)
+    for name in ("roughness", "base_color"):
+        factor = first.std_calibration.factors[name]
+        assert factor >= 1.0
+        np.testing.assert_allclose(getattr(first.uncertainty, f"{name}_std"),
+                                   getattr(off.uncertainty, f"{name}_std") * factor, rtol=1e-6)
+
+
+@pytest.mark.slow
 def test_outputs_never_replace_their_inputs(tiny_capture, tmp_path):
     config = Config(texels=TexelConfig(texture_res=8))
     capture = load(tiny_capture)
