@@ -64,7 +64,7 @@ def test_fit_and_evaluate_commands(run_cli, tiny_capture, tmp_path, monkeypatch,
     shared_dir = tmp_path / "per_texel"
     assert run_cli("fit", tiny_capture, "--out", shared_dir, "--texture-res", 32, "--per-texel",
                    "--no-neighbour-vote", "--split-half", "--estimation-res", 16, "--no-environment-occlusion",
-                   "--quiet") == 0
+                   "--no-calibrate-std", "--quiet") == 0
     assert capsys.readouterr().out == ""
     shared_summary = json.loads((shared_dir / "summary.json").read_text())
     assert not shared_summary["settings"]["surface"]["enabled"] and "surface" not in shared_summary["timings"]
@@ -76,6 +76,9 @@ def test_fit_and_evaluate_commands(run_cli, tiny_capture, tmp_path, monkeypatch,
     assert shared_summary["estimation_res"] == 16 and summary["estimation_res"] == 32  # "pixel" keeps T here
     assert shared_summary["coverage"]["texture_res"] == 32
     assert not summary["settings"]["uncertainty"]["split_half"]
+    # The held-out std calibration: on by default, off with --no-calibrate-std.
+    assert summary["std_calibration"]["folds"] == summary["settings"]["uncertainty"]["heldout_folds"] == 4
+    assert shared_summary["std_calibration"] is None and shared_summary["settings"]["uncertainty"]["heldout_folds"] == 0
     # The default fit's:
     assert default_settings["neighbour_vote"]
     assert summary["settings"]["observe"]["environment_occlusion"]

@@ -132,6 +132,13 @@ def test_fit_writes_a_complete_folder_that_loads_back(tiny_capture, tmp_path, mo
     assert outputs.arrays["likelihood"].shape == (result.observations.n_texels, *result.uncertainty.likelihood.shape[1:])
     assert outputs.observed.sum() == np.count_nonzero(result.observations.n_samples)
     assert "write" in outputs.summary["timings"]
+    # The held-out std calibration (on by default): its factors and coverage in summary.json.
+    calibration = outputs.summary["std_calibration"]
+    assert calibration == json.loads(json.dumps(result.std_calibration.to_dict()))
+    assert calibration["folds"] == config.uncertainty.heldout_folds and calibration["texels"] > 0
+    assert set(calibration["factors"]) == {"roughness", "base_color"}
+    assert all(np.isfinite(factor) and factor >= 1.0 for factor in calibration["factors"].values())
+    assert "std_calibration" in result.timings
     # The trust mask: every std at most the threshold, as the summary counts it.
     trusted = trusted_texels(result.uncertainty, config.uncertainty.trust_std)
     assert outputs.summary["trust"]["threshold"] == config.uncertainty.trust_std
@@ -159,6 +166,24 @@ def test_fit_writes_a_complete_folder_that_loads_back(tiny_capture, tmp_path, mo
         evaluate_fit(outputs, load(tiny_capture), settings=NO_LPIPS)
     assert (evaluation / "metrics.json").read_bytes() == before
     assert [p.name for p in folder.iterdir() if p.name.startswith(".")] == [OUTPUT_MARKER]  # no temporary left
+
+
+@pytest.mark.slow
+def test_the_held_out_std_calibration_is_deterministic_and_only_widens(tiny_capture):
+    """Two fits of one capture calibrate the std maps bit for bit alike; the calibration only widens them."""
+    config = Config(texels=TexelConfig(texture_res=16))
+    first, second = pipeline.fit(load(tiny_capture), config), pipeline.fit(load(tiny_capture), config)
+    assert first.std_calibration.to_dict() | {"seconds": 0} == second.std_calibration.to_dict() | {"seconds": 0}
+    for name in ("roughness_std", "metallic_std", "base_color_std"):
+        np.testing.assert_array_equal(getattr(first.uncertainty, name), getattr(second.uncertainty, name))
+    off = pipeline.fit(load(tiny_capture), config.replace(uncertainty=UncertaintyConfig(heldout_folds=0)))
+    assert off.std_calibration is None and "std_calibration" not in off.timings
+    np.testing.assert_array_equal(off.uncertainty.metallic_std, first.uncertainty.metallic_std)
+    for name in ("roughness", "base_color"):
+        factor = first.std_calibration.factors[name]
+        assert factor >= 1.0
+        np.testing.assert_allclose(getattr(first.uncertainty, f"{name}_std"),
+                                   getattr(off.uncertainty, f"{name}_std") * factor, rtol=1e-6)
 
 
 @pytest.mark.slow

@@ -374,6 +374,10 @@ def fit(
         False, "--drop-bad-views", help="Leave out photographs whose outline refining does not bring onto their mask "
         "(--calibration auto) or, with --frame-gains, whose gain is more than 2x the others' (they are named in a "
         "warning either way)."),
+    calibrate_std: bool = typer.Option(
+        True, "--calibrate-std/--no-calibrate-std", help="Widen the roughness and base-colour std maps where views "
+        "held out of the fit (4 folds, up to 2000 texels) and the samples' misfit show them too narrow for this "
+        "capture (docs/method.md#held-out-std-calibration)."),
     trust_std: float = typer.Option(
         None, "--trust-std", min=1e-6, max=1.0, help="The largest std (roughness, metallic, the base "
         "colour's mean over RGB) a texel may have to be trusted in trust.exr and the report (default 0.2)."),
@@ -400,6 +404,8 @@ def fit(
         config = config.replace(uncertainty=dataclasses.replace(config.uncertainty, split_half=True))
     if trust_std is not None:
         config = config.replace(uncertainty=dataclasses.replace(config.uncertainty, trust_std=trust_std))
+    if not calibrate_std:
+        config = config.replace(uncertainty=dataclasses.replace(config.uncertainty, heldout_folds=0))
     if estimation_res is not None:
         config = config.replace(texels=dataclasses.replace(config.texels, estimation_res=estimation_res_from_option(
             estimation_res, config.texels.texture_res)))

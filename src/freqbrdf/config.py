@@ -184,8 +184,22 @@ class UncertaintyConfig:
     colour's mean over RGB) is at most this, in the parameters' units (a fifth of their range). In (0, 1].
     docs/method.md#trust"""
 
+    # --- each capture calibrates its own std (freqbrdf.uncertainty.heldout, docs/method.md#held-out-std-calibration) ---
+    heldout_folds: int = 4
+    """K: the views are split into K folds, each held out in turn, to scale the roughness and base-colour std maps so
+    that one std covers 68 % of the held-out deviations (0: off, the std maps as modelled). 0 or >= 2."""
+    heldout_texels: int = 2000
+    """The most texels (spread evenly over those seen) estimated again per fold: the calibration's cost. >= 1."""
+    heldout_misfit_reference: float = 0.005
+    """The median relative misfit (a texel's mean squared residual over its mean squared radiance) of a capture the
+    forward model explains; above it the factors grow with sqrt(misfit / reference). Positive.
+    docs/results.md#held-out-std-calibration"""
+
     def __post_init__(self):
         _check_choices(self)
+        _require(self, "heldout_folds", self.heldout_folds == 0 or self.heldout_folds >= 2, "0 or [2, inf)")
+        _require(self, "heldout_texels", self.heldout_texels >= 1, "[1, inf)")
+        _require(self, "heldout_misfit_reference", self.heldout_misfit_reference > 0.0, "(0, inf)")
         _require(self, "noise_level", self.noise_level > 0.0, "(0, inf)")
         _require(self, "temperature", self.temperature > 0.0, "(0, inf)")
         _require(self, "ambiguous_entropy", 0.0 <= self.ambiguous_entropy <= 1.0, "[0, 1]")

@@ -42,6 +42,7 @@ from freqbrdf.uncertainty import (
     entropy_map,
     roughness_std,
 )
+from freqbrdf.uncertainty.heldout import StdCalibration, calibrate_std
 
 
 @dataclass(eq=False)
@@ -72,6 +73,9 @@ class FitResult:
     calibration : Calibration or None
         What the photographs calibrated (`freqbrdf.calibrate`): the gains, the probe's turn; the
         observations were made of the capture corrected by it.
+    std_calibration : StdCalibration or None
+        How the held-out views scaled the std maps (`freqbrdf.uncertainty.heldout.calibrate_std`);
+        None where ``UncertaintyConfig.heldout_folds`` is 0.
     observed_capture : Capture or None
         That corrected capture: what was observed.
     surface_fit : SurfaceFit or None
@@ -89,6 +93,7 @@ class FitResult:
     estimation_res: int | None = None
     warnings: list[str] = field(default_factory=list)
     calibration: Calibration | None = None
+    std_calibration: StdCalibration | None = None
     observed_capture: Capture | None = None
     surface_fit: guidance.SurfaceFit | None = None
 
@@ -172,7 +177,10 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
     estimate after the uncertainty (`freqbrdf.estimate.surface`, docs/method.md#whole-surface-estimate), whose posterior
     gives the metallic std, the roughness std where it is wider than the spread of the texel's own
     estimate (`freqbrdf.uncertainty.roughness_std`), and the base-colour std with the distance of
-    the texel's own estimate from the solution added in quadrature.
+    the texel's own estimate from the solution added in quadrature. With
+    ``config.uncertainty.heldout_folds`` (the default) the roughness and base-colour std maps are
+    then calibrated on the capture's held-out views (`freqbrdf.uncertainty.heldout.calibrate_std`,
+    docs/method.md#held-out-std-calibration; ``FitResult.std_calibration``).
 
     Parameters
     ----------
@@ -275,6 +283,11 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
         timings.update({f"surface.{step}": seconds for step, seconds in posterior.timings.items()})
 
     _widen_by_calibration(uncertainty, estimate, calibration)
+    std_calibration = None
+    if config.uncertainty.heldout_folds:  # docs/method.md#held-out-std-calibration
+        start = time.perf_counter()
+        std_calibration = calibrate_std(observations, uncertainty, config, estimate)
+        timings["std_calibration"] = time.perf_counter() - start
 
     if fine is not None:
         start = time.perf_counter()
@@ -287,8 +300,8 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
     timings["textures"] = time.perf_counter() - start
     timings["total"] = sum(seconds for stage, seconds in timings.items() if "." not in stage)
     return FitResult(given, observations, estimate, uncertainty, maps, timings, estimation_res,
-                     warnings=list(calibration.warnings), calibration=calibration, observed_capture=capture,
-                     surface_fit=surface_fit)
+                     warnings=list(calibration.warnings), calibration=calibration, std_calibration=std_calibration,
+                     observed_capture=capture, surface_fit=surface_fit)
 
 
 def next_views(result: FitResult, candidates: list[Camera], budget: int, config: Config = Config(), *,
@@ -538,7 +551,8 @@ def write_fit(out_dir: str | Path, result: FitResult, config: Config = Config())
              "coverage": {**export.coverage(result.observations, result.estimate),
                           "views": len(result.capture.frames)},
              "warnings": list(result.warnings),
-             "calibration": None if result.calibration is None else result.calibration.to_dict()}
+             "calibration": None if result.calibration is None else result.calibration.to_dict(),
+             "std_calibration": None if result.std_calibration is None else result.std_calibration.to_dict()}
     out = export.write_fit_outputs(
         out_dir, result.capture.mesh, result.observations, result.estimate, result.uncertainty,
         config, timings=result.timings, extra_summary=extra, maps=result.maps,

@@ -32,7 +32,7 @@ from freqbrdf.config import Config, TexelConfig
 from freqbrdf.outputs.evaluate import evaluate_fit
 from freqbrdf.outputs.fit_folder import load_fit
 from freqbrdf.outputs.relight import RelightSettings
-from freqbrdf.outputs.report import REPORT_FILE, _timing_rows, write_report
+from freqbrdf.outputs.report import REPORT_FILE, _std_calibration_sentence, _timing_rows, write_report
 from freqbrdf.synthetic import demo
 from freqbrdf.synthetic.synth import SynthSettings, synthesize
 
@@ -81,9 +81,21 @@ def test_report_has_every_section_and_its_files(fit_folder):
     figures = re.findall(r"<figure>(.*?)</figure>", text, flags=re.S)
     assert len(re.findall(r"<img ", text)) == sum(figure.count("<img ") for figure in figures)
     assert all(re.search(r"<figcaption>[^<]+", figure) for figure in figures)
+    # The held-out std calibration, as summary.json records it.
+    assert "Std calibration: 4 folds of held-out views" in text
     # Timings: "write" before "total", the total last.
     stages = re.findall(r"<tr class=\"(?:stage|sub)\"><td>([^<]+)</td>", text)
     assert stages[-2:] == ["write", "total"]
+
+
+def test_std_calibration_sentence_names_the_factors_and_the_held_out_coverage():
+    found = {"folds": 4, "texels": 120, "factors": {"roughness": 1.0, "base_color": 2.5},
+             "coverage_before": {"roughness": 0.8, "base_color": 0.4},
+             "coverage_after": {"roughness": 0.8, "base_color": 0.7}}
+    assert _std_calibration_sentence(found) == (
+        "Std calibration: 4 folds of held-out views on 120 texels scaled the std maps by roughness × 1.00, "
+        "base colour × 2.50 (held-out deviations within one std: 80% → 80%, 40% → 70%).")
+    assert _std_calibration_sentence(None) == "" and _std_calibration_sentence({"factors": {}}) == ""
 
 
 def test_timing_rows_leave_out_zero_sub_stages_and_end_with_write_and_total():

@@ -588,9 +588,22 @@ def _calibration_paragraph(summary: dict) -> str:
         if found.get("frame_gains") is not None:
             lines.append("a gain per photograph applied")
     text = "; ".join(lines) + "." if lines else ""
+    text = " ".join(part for part in (text, _std_calibration_sentence(summary.get("std_calibration"))) if part)
     warnings = "".join(f"<li>{html.escape(line)}</li>" for line in summary.get("warnings", []))
     return (f"<p>{html.escape(text)}</p>" if text else "") + (f'<ul class="warnings">{warnings}</ul>' if warnings
                                                                else "")
+
+
+def _std_calibration_sentence(found: dict | None) -> str:
+    """Say how the held-out views scaled the std maps (docs/method.md#held-out-std-calibration); "" if not done."""
+    if not found or not found.get("factors"):
+        return ""
+    names = {"roughness": "roughness", "base_color": "base colour"}
+    factors = ", ".join(f"{names.get(name, name)} × {factor:.2f}" for name, factor in found["factors"].items())
+    after = ", ".join(f"{found['coverage_before'].get(name, float('nan')):.0%} → {share:.0%}"
+                      for name, share in found.get("coverage_after", {}).items())
+    return (f"Std calibration: {found['folds']} folds of held-out views on {found['texels']} texels scaled the std "
+            f"maps by {factors} (held-out deviations within one std: {after}).")
 
 
 def _page(outputs: FitOutputs, sections: list[str]) -> str:
