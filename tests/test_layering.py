@@ -34,11 +34,11 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("pipeline",),
     ("batch",),
     ("synthetic",),  # scene and material generators, synth and the demo: never on the fit path
-    ("cli_options", "cli"),
+    ("cli_options", "cli_run", "cli"),
 )
 RANK = {name: rank for rank, names in enumerate(LAYERS) for name in names}
 STAGE_PACKAGES = ("capture", "texels", "render", "observe", "estimate", "calibrate", "uncertainty", "applications",
-                  "outputs", "pipeline", "batch", "synthetic", "cli_options", "cli")
+                  "outputs", "pipeline", "batch", "synthetic", "cli_options", "cli_run", "cli")
 MITSUBA_MODULES = ("mitsuba", "drjit")
 
 
