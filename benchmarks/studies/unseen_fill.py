@@ -31,6 +31,7 @@ from _common import machine, save_results  # noqa: E402
 from freqbrdf import pipeline  # noqa: E402
 from freqbrdf.capture.layouts import load  # noqa: E402
 from freqbrdf.config import Config, TexelConfig  # noqa: E402
+from freqbrdf.estimate.surface import chart_prior  # noqa: E402
 from freqbrdf.model.materials import MaterialMaps  # noqa: E402
 
 CALIBRATION_RENDER = {"views": 32, "resolution": 192, "spp": 32, "texture_res": 256, "test_views": 4}
@@ -43,34 +44,29 @@ def chart_blend(maps: MaterialMaps, stds: dict, confident: np.ndarray, unseen: n
                 chart: np.ndarray) -> MaterialMaps:
     """The maps with every unseen texel the inverse-variance blend of its value and its chart's mean.
 
-    The fit's value weighs 1 / std^2 (its std map); the chart's mean of its confident texels weighs
-    1 / their variance (of all confident texels where the chart has fewer than two).
+    The fit's value weighs 1 / std^2 (its std map); its chart's mean of the confident texels weighs
+    1 / their variance (`freqbrdf.estimate.surface.chart_prior`: all confident texels' where the
+    chart has too few).
     """
     blended = MaterialMaps(maps.base_color.copy(), maps.roughness.copy(), maps.metallic.copy())
     if not confident.any():
         return blended
-    labels = chart[confident]
-    n_charts = int(chart.max()) + 1
-    counts = np.bincount(labels, minlength=n_charts).astype(np.float64)
+    covered = chart >= 0
     for name in ("base_color", "roughness", "metallic"):
         texture = getattr(blended, name)
-        values = getattr(maps, name)[confident].astype(np.float64).reshape(len(labels), -1)  # (n, C)
-        sums = np.stack([np.bincount(labels, values[:, c], minlength=n_charts) for c in range(values.shape[1])], 1)
-        squares = np.stack([np.bincount(labels, values[:, c] ** 2, minlength=n_charts)
-                            for c in range(values.shape[1])], 1)
-        enough = counts[:, None] > 1
-        means = np.where(enough, sums / np.maximum(counts[:, None], 1), values.mean(axis=0))
-        variances = np.where(enough, squares / np.maximum(counts[:, None], 1) - means ** 2, values.var(axis=0))
-        variances = np.maximum(variances, 1e-6)[chart[unseen]]  # (u, C)
-        own = getattr(maps, name)[unseen].astype(np.float64).reshape(len(variances), -1)
+        values = getattr(maps, name)[covered].astype(np.float64).reshape(int(covered.sum()), -1)  # (n, C)
+        mean, variance = chart_prior(values, confident[covered], chart[covered])
+        rows = unseen[covered]
+        own = values[rows]
         std = stds.get(name)
         own_variance = (np.full_like(own, np.inf) if std is None else
-                        np.nan_to_num(std[unseen].astype(np.float64).reshape(len(variances), -1) ** 2, nan=np.inf))
-        weight = variances / (variances + np.maximum(own_variance, 1e-12))  # the fit's share
-        value = weight * own + (1.0 - weight) * means[chart[unseen]]
+                        np.nan_to_num(std[covered].astype(np.float64).reshape(-1, own.shape[1])[rows] ** 2, nan=np.inf))
+        chart_variance = np.maximum(variance[rows], 1e-6)
+        weight = chart_variance / (chart_variance + np.maximum(own_variance, 1e-12))  # the fit's share
+        value = weight * own + (1.0 - weight) * mean[rows]
         if name == "metallic":
             value = np.round(value)
-        texture[unseen] = value.reshape(texture[unseen].shape).astype(np.float32)
+        texture[unseen & covered] = value.reshape(texture[unseen & covered].shape).astype(np.float32)
     return blended
 
 
