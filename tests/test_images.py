@@ -11,7 +11,7 @@ from freqbrdf.errors import InputError
 from freqbrdf.images import (
     REC709_CHROMATICITIES,
     CaptureDataWarning,
-    clipped_pixels,
+    clipped_channels,
     linear_to_srgb,
     read_image,
     read_mask,
@@ -308,13 +308,13 @@ def test_writers_create_parent_folders(tmp_path):
     assert (tmp_path / "a" / "b" / "c.png").is_file() and (tmp_path / "d" / "e.hdr").is_file()
 
 
-def test_clipped_pixels_mark_a_plateau_and_its_neighbours_not_an_hdr_peak():
+def test_clipped_channels_mark_each_channels_plateau_not_an_hdr_peak():
     rng = np.random.default_rng(3)
     image = rng.random((20, 30, 3)).astype(np.float32) * 0.8
-    assert not clipped_pixels(image).any()  # HDR: one brightest pixel is no plateau
-    image[5:8, 10:14] = 1.0  # a blown highlight, clipped at the sensor's ceiling
-    image[0, 0, 1] = 1.0
-    found = clipped_pixels(image)
-    assert found[5:8, 10:14].all() and found[4:9, 9:15].all()  # and the taps a bilinear lookup reads
-    assert found[0, 0] and found[1, 1] and not found[12, 20]
-    assert found.sum() == 5 * 6 + 4
+    assert not clipped_channels(image).any()  # HDR: one brightest pixel is no plateau
+    image[5:8, 10:14, 0] = 1.0  # a blown highlight, red clipped at the sensor's ceiling
+    image[0, 0, 0] = 1.0
+    image[2:4, 2:4, 2] = 0.9  # blue clipped lower: white balance applied after the sensor
+    found = clipped_channels(image)
+    assert found[5:8, 10:14, 0].all() and found[0, 0, 0] and found[2:4, 2:4, 2].all()
+    assert found[..., 0].sum() == 13 and found[..., 2].sum() == 4 and not found[..., 1].any()

@@ -50,8 +50,8 @@ EXR_SOFTWARE = f"freqbrdf {__version__}"
 REC709_CHROMATICITIES = (0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, 0.3290)
 
 
-# A pixel within this share of an image's largest value sits on its ceiling; more than
-# CLIPPED_MIN_SHARE of the lit pixels there make the ceiling a clipping plateau (`clipped_pixels`).
+# A channel within this share of its largest value in an image sits on its ceiling; more than
+# CLIPPED_MIN_SHARE of the lit pixels there make the ceiling a clipping plateau (`clipped_channels`).
 CLIPPED_TOLERANCE = 1e-4
 CLIPPED_MIN_SHARE = 1e-3
 CLIPPED_MIN_PIXELS = 4
@@ -185,14 +185,15 @@ def clamp_negative_noise(path: str | Path, rgb: np.ndarray) -> np.ndarray:
     return np.maximum(rgb, 0.0)
 
 
-def clipped_pixels(image: np.ndarray) -> np.ndarray:
-    """Find the pixels a sensor clipped: where a channel sits on the image's own ceiling.
+def clipped_channels(image: np.ndarray) -> np.ndarray:
+    """Find the channels a sensor clipped: where a channel sits on its own ceiling.
 
-    A clipped photograph (8-bit data, a blown highlight) holds a plateau at its largest value;
-    such a pixel says only that the radiance was at least that, so it is no measurement. The
-    ceiling counts where `CLIPPED_MIN_SHARE` of the lit pixels, and at least `CLIPPED_MIN_PIXELS`,
-    reach it (an HDR image's single brightest pixel is no plateau); the pixels next to a clipped one are marked too, since a
-    bilinear lookup there reads it.
+    A clipped photograph (8-bit data, a blown highlight) holds a plateau at a channel's largest
+    value; such a value says only that the radiance was at least that: a censored measurement
+    (docs/method.md#censored-samples). A channel's ceiling counts where `CLIPPED_MIN_SHARE` of the
+    lit pixels, and at least `CLIPPED_MIN_PIXELS`, reach it (an HDR image's single brightest pixel
+    is no plateau). Each channel has its own ceiling: white balance applied after the sensor
+    clipped scales them apart.
 
     Parameters
     ----------
@@ -201,24 +202,22 @@ def clipped_pixels(image: np.ndarray) -> np.ndarray:
 
     Returns
     -------
-    (H, W) bool
-        True at clipped pixels and their 8 neighbours; all False where the image has no plateau.
+    (H, W, 3) bool
+        True where a channel is on its clipping plateau; all False where the image has none.
     """
     image = np.asarray(image)
-    brightest = np.maximum(np.maximum(image[..., 0], image[..., 1]), image[..., 2])
-    ceiling = float(brightest.max()) if brightest.size else 0.0
-    if not ceiling > 0.0:
-        return np.zeros(image.shape[:2], bool)
-    at_ceiling = brightest >= ceiling * (1.0 - CLIPPED_TOLERANCE)  # a channel at the ceiling
-    n_at_ceiling = np.count_nonzero(at_ceiling)
-    if n_at_ceiling < CLIPPED_MIN_PIXELS or n_at_ceiling < CLIPPED_MIN_SHARE * np.count_nonzero(brightest > 0.0):
-        return np.zeros(image.shape[:2], bool)
-    grown = at_ceiling.copy()
-    grown[1:] |= at_ceiling[:-1]
-    grown[:-1] |= at_ceiling[1:]
-    grown[:, 1:] |= grown[:, :-1].copy()
-    grown[:, :-1] |= grown[:, 1:].copy()
-    return grown
+    clipped = np.zeros(image.shape, bool)
+    n_lit = np.count_nonzero(image.max(axis=2) > 0.0)
+    for channel in range(image.shape[2]):
+        values = image[..., channel]
+        ceiling = float(values.max()) if values.size else 0.0
+        if not ceiling > 0.0:
+            continue
+        at_ceiling = values >= ceiling * (1.0 - CLIPPED_TOLERANCE)
+        n_at_ceiling = np.count_nonzero(at_ceiling)
+        if n_at_ceiling >= CLIPPED_MIN_PIXELS and n_at_ceiling >= CLIPPED_MIN_SHARE * n_lit:
+            clipped[..., channel] = at_ceiling
+    return clipped
 
 
 def read_mask_coverage(path: str | Path, from_alpha: bool = False) -> np.ndarray:

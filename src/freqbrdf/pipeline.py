@@ -25,6 +25,7 @@ from freqbrdf.config import Config
 from freqbrdf.errors import InputError
 from freqbrdf.estimate import MaterialEstimate
 from freqbrdf.estimate import estimate as estimate_materials
+from freqbrdf.estimate.censored import impute_censored
 from freqbrdf.estimate.surface import merged_std, whole_surface
 from freqbrdf.fileio import atomic_directory, write_json
 from freqbrdf.images import write_png
@@ -180,7 +181,10 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
     the texel's own estimate from the solution added in quadrature. With
     ``config.uncertainty.heldout_folds`` (the default) the roughness and base-colour std maps are
     then calibrated on the capture's held-out views (`freqbrdf.uncertainty.heldout.calibrate_std`,
-    docs/method.md#held-out-std-calibration; ``FitResult.std_calibration``).
+    docs/method.md#held-out-std-calibration; ``FitResult.std_calibration``). Where photographs
+    clip, a first estimate on the exact samples fills the censored channels
+    (`freqbrdf.estimate.censored.impute_censored`, docs/method.md#censored-samples) before the estimate
+    that reads every sample (``timings["censored"]``).
 
     Parameters
     ----------
@@ -250,6 +254,19 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
     timings.update({f"observe.{stage}": seconds for stage, seconds in observations.timings.items()
                     if stage != "total"})  # "observe" is the total
 
+    whole = config.surface.enabled and config.estimate.method == "global"
+    texels = observations.texels if observations.texels is not None or not whole else rasterise(capture.mesh,
+                                                                                                  estimation_res)
+    if observations.censored_weight is not None:  # clipped photographs: docs/method.md#censored-samples
+        start = time.perf_counter()
+        with reporter.stage("censored samples", 1) as advance:
+            first = estimate_materials(observations, config)
+            if whole:
+                first, _ = whole_surface(observations, first, texels, config)
+            observations = impute_censored(observations, first.principled(), config)
+            advance(1)
+        timings["censored"] = time.perf_counter() - start
+
     # The angular entropy's hypotheses are probed by the estimator's search anyway: scored on the way.
     angular = AngularEntropy(observations, config) if AngularEntropy.recorded_by_search(config) else None
     start = time.perf_counter()
@@ -257,7 +274,6 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
     timings["estimate"] = time.perf_counter() - start - (angular.seconds if angular else 0.0)
 
     start = time.perf_counter()
-    whole = config.surface.enabled and config.estimate.method == "global"
     with reporter.stage("entropy", 1) as advance:
         uncertainty = (angular.result() if angular else
                        entropy_map(observations, config.uncertainty, estimate_config=config.estimate,
@@ -270,8 +286,6 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
         start = time.perf_counter()
         own_base_color = estimate.base_color
         with reporter.stage("whole-surface solve", 1) as advance:
-            texels = observations.texels if observations.texels is not None else rasterise(capture.mesh,
-                                                                                             estimation_res)
             per_texel = estimate
             estimate, posterior = whole_surface(observations, estimate, texels, config)
             if keep_surface_fit:

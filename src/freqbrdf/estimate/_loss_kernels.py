@@ -28,8 +28,11 @@ from freqbrdf.model.tables import DIELECTRIC_PLANE, LOBE_TERMS, table_lookup
 
 @numba.njit(parallel=True, fastmath=True, cache=True)
 def squared_residual_kernel(proj, samples, base_color, metallic, roughness, options, tables, environment, azimuthal,
-                            prefiltered_light, out):
+                            prefiltered_light, out, predicted):
     """Write each texel's weighted mean squared residual, sum_v,c w^2 (L - f)^2 / sum_v w^2 (numba, parallel).
+
+    Where predicted (n, V, 3) has views (else (n, 0, 3)), also the model's radiance L of every
+    sample with a positive weight.
 
     proj (n, 3, l*+1, V) is `model.light.mirror_projections` of the fitted light; base_color (n, 3),
     metallic and roughness (n,) the parameters; out (n,) receives the loss (0 without samples). The
@@ -52,6 +55,7 @@ def squared_residual_kernel(proj, samples, base_color, metallic, roughness, opti
     world_to_local, map_height, map_width = prefiltered_light.world_to_local, prefiltered_light.height, prefiltered_light.width
     n_texels, n_views = weight.shape
     traced = samples.mirror_occluded.shape[1] > 0
+    predicting = predicted.shape[1] > 0
     n_degrees = proj.shape[2]
     n_terms = len(LOBE_TERMS)
     for t in numba.prange(n_texels):
@@ -146,5 +150,7 @@ def squared_residual_kernel(proj, samples, base_color, metallic, roughness, opti
                     residual = (m * (b * x + y) + (1.0 - m) * z
                                 + (1.0 - m) * b * diffuse_scale[t, c] * diffuse_factor - observed[t, v, c])
                     total += w * w * residual * residual
+                    if predicting:
+                        predicted[t, v, c] = residual + observed[t, v, c]
                 weight_sq += w * w
         out[t] = total / weight_sq if weight_sq > 0.0 else 0.0

@@ -329,9 +329,41 @@ def angular_loss(
         sum_v,c w_v^2 (L_c(w_v) - f_v,c)^2 / sum_v w_v^2 (`MaterialEstimate.loss`); NaN for texels
         without samples.
     """
+    loss, _ = _model_residuals(observations, params, config, light_coeffs, predict=False)
+    return np.where(observations.n_samples > 0, loss, np.nan)
+
+
+def predict_samples(observations: Observations, params: brdf.PrincipledParams, config: Config = Config()) -> np.ndarray:
+    """Return the radiance the ``global`` model predicts at every sample of positive weight.
+
+    Parameters
+    ----------
+    observations : Observations
+        The texels' samples (N texels, V views).
+    params : brdf.PrincipledParams
+        Base colour (N, 3), roughness and metallic (N,).
+    config : Config, optional
+        The model's settings (``config.estimate``); the light is the unshadowed mirrored light.
+
+    Returns
+    -------
+    (N, V, 3) float32
+        L_c(w_v) per sample; NaN where the weight is 0.
+    """
+    _, predicted = _model_residuals(observations, params, config, None, predict=True)
+    return predicted
+
+
+def _model_residuals(observations: Observations, params: brdf.PrincipledParams, config: Config,
+                     light_coeffs: np.ndarray | None, predict: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Return the model's weighted mean squared residual (N,) and radiance (N, V, 3).
+
+    The radiance is NaN where not predicted, and (N, 0, 3) unless ``predict``.
+    """
     settings = config.estimate
     light = observations.mirrored_coeffs if light_coeffs is None else light_coeffs
     loss = np.empty(observations.n_texels)
+    predicted = np.full((observations.n_texels, observations.n_views if predict else 0, 3), np.nan, np.float32)
     base_color = np.asarray(params.base_color, dtype=np.float64)
     metallic = np.asarray(params.metallic, dtype=np.float64)
     tangent, environment, prefiltered = _light_inputs(observations, settings)
@@ -350,9 +382,9 @@ def angular_loss(
         squared_residual_kernel(
             fitted, _samples(observations, tangent, rows), base_color[rows], metallic[rows],
             np.asarray(params.roughness, dtype=np.float64)[rows], options, tables, environment, azimuthal,
-            prefiltered, loss[rows],
+            prefiltered, loss[rows], predicted[rows],
         )
-    return np.where(observations.n_samples > 0, loss, np.nan)
+    return loss, predicted
 
 
 def texel_blocks(n_texels: int, size: int = _PROJECTION_BLOCK) -> Iterator[slice]:

@@ -7,7 +7,8 @@ Private to `freqbrdf.observe.observations`, whose `observe` calls them batch by 
 - `_shadow_rays` and `_clear_occluded`: the visibility test's segments from the offset texels to
   the camera centres, packed texel by texel, and the samples their hits remove (docs/method.md#observations);
 - `_record_kernel`: the observed radiance (bilinear image samples inside the mask), the view
-  direction in the texel's frame, the weight and the visibility of each sample;
+  direction in the texel's frame, the weight and the visibility of each sample, and which of its
+  channels a clipped pixel censors;
 - `_mirror_directions` and `_unpack_samples`: the world mirror directions r = 2 (n.v) n - v of
   the samples and the band-limited environment looked up there, written beside the radiance
   (docs/method.md#conventions, docs/method.md#band-limit);
@@ -154,16 +155,19 @@ def _project_kernel(position, normal, camera_to_world, intrinsics, width, height
 
 
 @numba.njit(parallel=True, cache=True)
-def _record_kernel(seen, images, masks, pixels, cos_theta, position, frame, centres, first_view, signals,
-                   view_direction, weight, visible):
+def _record_kernel(seen, images, masks, ceilings, pixels, cos_theta, position, frame, centres, first_view, signals,
+                   view_direction, weight, visible, censored, censored_weight):
     """Record the samples of a batch of B views, texel by texel (contiguous writes).
 
     seen (N, B): facing and unoccluded; images (B, H, W, 3), masks (B, H, W, 1) in [0, 1], both
     sampled bilinearly; a sample counts where the mask is 1 at all four neighbours. For counted
     samples writes the observed radiance, local view direction, weight and visibility into columns
-    first_view + b of the (N, V, ...) outputs.
+    first_view + b of the (N, V, ...) outputs. ceilings (B, H, W, 3) is 1 where a channel is
+    clipped (or has no rows: none is): a sample whose lookup reads a clipped pixel in a channel is
+    censored there (censored (N, V, 3) True) and keeps weight 0, its weight in censored_weight (N, V).
     """
     height, width = images.shape[1], images.shape[2]
+    clipping = ceilings.shape[1] > 0
     for t in numba.prange(seen.shape[0]):
         for b in range(seen.shape[1]):
             if not seen[t, b]:
@@ -183,8 +187,19 @@ def _record_kernel(seen, images, masks, pixels, cos_theta, position, frame, cent
             dz *= inverse_distance
             for axis in range(3):
                 view_direction[t, view, axis] = frame[t, axis, 0] * dx + frame[t, axis, 1] * dy + frame[t, axis, 2] * dz
-            weight[t, view] = cos_theta[t, b]
             visible[t, view] = True
+            any_censored = False
+            if clipping:
+                for c in range(3):
+                    # Any tap on the plateau: the blend of a lower bound and exact values is a lower bound.
+                    if (ceilings[b, row, col, c] + ceilings[b, row, col_next, c] + ceilings[b, row_next, col, c]
+                            + ceilings[b, row_next, col_next, c]) > 0.0:
+                        censored[t, view, c] = True
+                        any_censored = True
+            if any_censored:
+                censored_weight[t, view] = cos_theta[t, b]
+            else:
+                weight[t, view] = cos_theta[t, b]
 
 
 @numba.njit(inline="always")

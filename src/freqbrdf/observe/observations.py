@@ -5,8 +5,10 @@ For every texel and view, `observe` records in the mirror parameterisation of do
 - the view direction w_o in the texel's local frame (t, b, n),
 - the observed radiance (the image, bilinearly sampled where the texel projects),
 - the environment radiance in the mirror direction r = 2 (n.v) n - v (band-limited, see below),
-- the weight w = max(0, cos theta_o) x visible x inside the image and its mask, and not clipped
-  (`freqbrdf.images.clipped_pixels`: a pixel on a clipping plateau is no measurement).
+- the weight w = max(0, cos theta_o) x visible x inside the image and its mask,
+- which channels of a sample a clipped pixel censors (`freqbrdf.images.clipped_channels`: a
+  value on a clipping plateau is a lower bound, docs/method.md#censored-samples); such a sample
+  keeps weight 0 until `freqbrdf.estimate.censored.impute_censored` fills its censored channels.
 
 Dark texels are observations like any other: only the weight decides what counts as a sample,
 and the weight depends on geometry alone, never on the radiance. Visibility (docs/method.md#observations) is a shadow
@@ -38,7 +40,7 @@ from freqbrdf.capture.layouts import Capture
 from freqbrdf.config import Config
 from freqbrdf.errors import InputError
 from freqbrdf.fileio import atomic_path
-from freqbrdf.images import clipped_pixels
+from freqbrdf.images import clipped_channels
 from freqbrdf.model import brdf
 from freqbrdf.observe._kernels import (
     _clear_occluded,
@@ -88,7 +90,8 @@ STAGES = ("raster", "projection", "visibility", "images", "irradiance", "occlusi
 # The array fields of Observations that are not per texel.
 _SHARED_ARRAYS = ("environment_coeffs", "environment_radiance", "environment_rotation")
 # Per texel and view (N, V, ...).
-_SAMPLE_ARRAYS = ("view_direction", "observed", "mirrored", "weight", "visible", "mirror_occluded", "mirror_surface")
+_SAMPLE_ARRAYS = ("view_direction", "observed", "mirrored", "weight", "visible", "mirror_occluded", "mirror_surface",
+                  "censored", "censored_weight")
 # SH coefficients per texel (N, ..., K).
 _COEFFICIENT_ARRAYS = ("observed_coeffs", "mirrored_coeffs", "constant_coeffs")
 
@@ -156,6 +159,13 @@ class Observations:
     mirror_surface : (N, V, 3) float32 or None
         What the object shows there: the mean observed radiance of its texels nearest the hits
         (0 where nothing is hit). None where not traced.
+    censored : (N, V, 3) bool or None
+        The channels of each sample read from a clipped pixel: ``observed`` holds a lower bound
+        there (docs/method.md#censored-samples). None where no photograph is clipped.
+    censored_weight : (N, V) float32 or None
+        The weight of the samples with a censored channel, which ``weight`` holds at 0 until
+        `freqbrdf.estimate.censored.impute_censored` fills those channels (it then moves them
+        into ``weight`` and sets this to None). None where no photograph is clipped.
     observed_power, mirrored_power : (N, 3, L) float32 or None
         The power spectra of observations whose SH coefficients were left out (`texel_fields`:
         K = 0); None where the coefficients are kept (the spectra are computed from them).
@@ -191,6 +201,8 @@ class Observations:
     environment_rotation: np.ndarray | None = None
     mirror_occluded: np.ndarray | None = None
     mirror_surface: np.ndarray | None = None
+    censored: np.ndarray | None = None
+    censored_weight: np.ndarray | None = None
     observed_power: np.ndarray | None = None
     mirrored_power: np.ndarray | None = None
     timings: dict = field(default_factory=dict)
@@ -320,8 +332,10 @@ class Observations:
         settings = config.fit
         fit = sh.fit_sh(self.view_direction, weight, signals, self.lmax, settings.reg_lambda,
                         settings.regulariser, settings.scale_lambda_with_weight, config.device)
+        censored_weight = None if self.censored_weight is None else np.where(keep, self.censored_weight, 0.0).astype(
+            np.float32)
         return replace(
-            self, weight=weight, visible=self.visible & keep,
+            self, weight=weight, visible=self.visible & keep, censored_weight=censored_weight,
             observed_coeffs=fit.coeffs[:, OBSERVED], mirrored_coeffs=fit.coeffs[:, MIRRORED],
             constant_coeffs=fit.coeffs[:, CONSTANT], fit_status=fit.status, n_samples=fit.n_samples,
             alpha_bound=texel_alpha_bound(fit.n_samples, self.lmax, settings.attenuation_threshold),
@@ -491,6 +505,9 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
     weight = np.zeros((n_texels, n_views), dtype=np.float32)
     visible = np.zeros((n_texels, n_views), dtype=bool)
     n_facing = np.zeros(n_texels, dtype=np.int32)
+    # Made at the first clipped photograph (most captures have none).
+    censored, censored_weight = np.zeros((0, 0, 3), dtype=bool), np.zeros((0, 0), dtype=np.float32)
+    no_ceilings = np.zeros((0, 0, 0, 3), dtype=np.float32)
 
     position = np.ascontiguousarray(texels.position, dtype=np.float64)
     normal = np.ascontiguousarray(texels.normal, dtype=np.float64)
@@ -505,9 +522,16 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
         for batch in _view_batches(capture, n_texels):
             tick = time.perf_counter()
             images = np.stack([capture.image(view) for view in batch])  # (B, H, W, 3)
-            # Clipped pixels (8-bit data, blown highlights) are no measurement: left out like the background.
-            masks = np.stack([capture.mask(view) & ~clipped_pixels(image)
-                              for view, image in zip(batch, images)]).astype(np.float32)[..., None]
+            masks = np.stack([capture.mask(view) for view in batch]).astype(np.float32)[..., None]
+            # Clipped channels (8-bit data, blown highlights) are lower bounds: censored samples.
+            ceilings = np.stack([clipped_channels(image) for image in images])
+            if ceilings.any():
+                if censored.shape[0] == 0:
+                    censored = np.zeros((n_texels, n_views, 3), dtype=bool)
+                    censored_weight = np.zeros((n_texels, n_views), dtype=np.float32)
+                ceilings = ceilings.astype(np.float32)
+            else:
+                ceilings = no_ceilings
             timings["images"] += time.perf_counter() - tick
 
             tick = time.perf_counter()
@@ -530,8 +554,8 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
             timings["visibility"] += time.perf_counter() - tick
 
             tick = time.perf_counter()
-            _record_kernel(seen, images, masks, pixels, cos_theta, position, frame, centres, batch.start, signals,
-                           view_direction, weight, visible)
+            _record_kernel(seen, images, masks, ceilings, pixels, cos_theta, position, frame, centres, batch.start,
+                           signals, view_direction, weight, visible, censored, censored_weight)
             timings["projection"] += time.perf_counter() - tick
             advance(len(batch))
 
@@ -610,6 +634,8 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
         environment_rotation=capture.envmap.rotation.copy(),
         mirror_occluded=mirror_occluded,
         mirror_surface=mirror_surface,
+        censored=censored if len(censored) else None,
+        censored_weight=censored_weight if len(censored_weight) else None,
         timings=timings,
         texels=texels,
     )
