@@ -12,6 +12,7 @@ import json
 import os
 import platform
 import statistics
+import subprocess
 import sys
 import time
 import tracemalloc
@@ -74,6 +75,17 @@ def machine() -> dict:
         "machine": platform.processor() or platform.machine(),
         "load_average": round(os.getloadavg()[0], 2),
     }
+
+
+def source_commit() -> str:
+    """The commit the sources were checked out at ("" outside a git checkout), with "+" where they differ from it."""
+    root = Path(__file__).resolve().parents[1]
+    found = subprocess.run(["git", "-C", str(root), "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
+    if found.returncode != 0:
+        return ""
+    changed = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--", "src"], capture_output=True,
+                             text=True).stdout.strip()
+    return found.stdout.strip() + ("+" if changed else "")
 
 
 def save_results(name: str, result: dict) -> Path:

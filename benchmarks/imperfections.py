@@ -37,6 +37,7 @@ class Imperfection:
     shot_noise: float = 0.0  # relative std of the noise at the photographs' mean object radiance
     read_noise: float = 0.0  # std of the noise added everywhere, in radiance
     eight_bit: bool = False  # sRGB-encoded at 8 bits, clipped at the 99th percentile of the object, read back
+    highlight_clip: float = 0.0  # > 0: HDR values clipped at this quantile of the object's (a sensor's full well)
     frame_exposure_spread: float = 0.0  # each photograph's exposure times exp(N(0, spread))
     seed: int = 0
 
@@ -55,6 +56,8 @@ class Imperfection:
             parts.append(f"noise{self.shot_noise:g}_{self.read_noise:g}")
         if self.eight_bit:
             parts.append("8bit")
+        if self.highlight_clip:
+            parts.append(f"clip{self.highlight_clip:g}")
         if self.frame_exposure_spread:
             parts.append(f"frames{self.frame_exposure_spread:g}")
         return "+".join(parts) or "clean"
@@ -116,6 +119,9 @@ def imperfect_capture(source: Path, target: Path, imperfection: Imperfection) ->
             level = float(np.mean(image[image.max(axis=2) > 0])) if np.any(image > 0) else 1.0
             std = np.sqrt(imperfection.shot_noise ** 2 * level * np.maximum(image, 0.0) + imperfection.read_noise ** 2)
             image = np.maximum(image + std * rng.normal(size=image.shape).astype(np.float32), 0.0)
+        if imperfection.highlight_clip:
+            lit = image[image.max(axis=2) > 0]
+            image = np.minimum(image, float(np.quantile(lit, imperfection.highlight_clip)) if lit.size else np.inf)
         if imperfection.eight_bit:
             lit = image[image.max(axis=2) > 0]
             white = float(np.percentile(lit, 99.0)) if lit.size else 1.0

@@ -9,7 +9,7 @@ T = 256. Each case (`CASES`) copies the clean capture with imperfections applied
 to it as a user's camera and probe have them (`imperfections.imperfect_capture`): exposure 0.25-4x,
 white balance +-20 % per channel, the map turned 5-20 degrees about the up axis and 10 about
 another, cameras turned 0.5-1 degree and moved 0.5-1 % of their distance, sensor noise, 8-bit
-clipped sRGB data, and several at once. Each copy is fitted by `freqbrdf.pipeline.fit` with the
+clipped sRGB data, HDR data clipped in its highlights, and several at once. Each copy is fitted by `freqbrdf.pipeline.fit` with the
 default settings (T = 256) with calibration off (``CalibrationConfig`` all off) and on (the
 default), and scored on the texels a view sees: base-colour PSNR, roughness and metallic MAE,
 dielectrics called metal; the calibration's gains against the applied ones (relative to the
@@ -37,7 +37,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from whole_surface import parameter_scores, seen_texels  # noqa: E402
 
 import scenes  # noqa: E402
-from _common import machine, save_results  # noqa: E402
+from _common import machine, save_results, source_commit  # noqa: E402
 from freqbrdf import pipeline  # noqa: E402
 from freqbrdf.calibrate import axis_angle, rotation_about  # noqa: E402
 from freqbrdf.capture.layouts import load  # noqa: E402
@@ -64,6 +64,7 @@ CASES = {
     "cameras 1 deg, 1 %": Imperfection(camera_deg=1.0, camera_shift=0.01),
     "noise (3 % shot, 0.003 read)": Imperfection(shot_noise=0.03, read_noise=0.003),
     "8-bit sRGB": Imperfection(eight_bit=True),
+    "highlights clipped (HDR at the 97th percentile)": Imperfection(highlight_clip=0.97),
     "combined (2x, wb, 10 deg, noise)": Imperfection(exposure=2.0, white_balance=(1.1, 1.0, 0.9), probe_deg=10.0,
                                                      shot_noise=0.03, read_noise=0.003),
     "all (2x, wb, 10 deg, cameras 0.5 deg, noise)": Imperfection(
@@ -137,16 +138,17 @@ def run_case(scene: str, source: Path, name: str, imperfection: Imperfection, tr
     return row
 
 
-def run_scene(scene: str, render: dict, cases: list[str]) -> dict:
+def run_scene(scene: str, render: dict, cases: list[str], earlier: dict | None = None, commit: str = "") -> dict:
     source = scenes.whole_surface_capture(scene, render)
     clean = load(source)
     seen = seen_texels(clean, TEXTURE_RES)
     config = Config(texels=TexelConfig(texture_res=TEXTURE_RES))
     pipeline.fit(clean, config)  # numba's first calls, outside the timings
-    rows = {}
+    rows = dict(earlier or {})  # the cases not run this time are kept, each with the commit that ran it
     clean_gain = None
     for name in ["clean"] + [case for case in cases if case != "clean"]:
         rows[name] = run_case(scene, source, name, CASES[name], clean.ground_truth, seen, config, clean_gain, clean)
+        rows[name]["commit"] = commit
         if name == "clean":
             clean_gain = np.array(rows[name]["gain"]["found"])
     clean_on, clean_off = rows["clean"]["on"]["scores"], rows["clean"]["off"]["scores"]
@@ -205,7 +207,8 @@ def main(argv=None) -> int:
     results["machine"] = machine()
     for scene in args.scenes.split(","):
         cases = list(QUICK_CASES) if args.quick else args.cases.split(";")
-        results["scenes"][scene] = run_scene(scene, RENDER, cases)
+        earlier = results["scenes"].get(scene, {}).get("cases")
+        results["scenes"][scene] = run_scene(scene, RENDER, cases, earlier, source_commit())
         save_results(name, results)
         (path.with_suffix(".md")).write_text(markdown(results))
     return 0
