@@ -8,8 +8,8 @@ calibration is on (`freqbrdf.uncertainty.heldout`). Per std (roughness, metallic
 colour's mean over RGB), on the texels a view sees: Spearman's rho with its parameter's absolute
 error and the shares of errors within 1 and 2 std, for the std as modelled ("before": the
 calibrated std divided by its factor), scaled by fold factor x misfit scale also where that is
-below 1 ("two-sided", the rule measured against the fit's), and as the fit writes it ("after":
-only widened). Also the factor the truth would ask for (the 68th percentile of error / std
+below 1 ("two-sided"), and as the fit writes it ("after": two-sided where each fold keeps
+``UncertaintyConfig.heldout_narrow_views`` views, else only widened). Also the factor the truth would ask for (the 68th percentile of error / std
 before), the factors, the held-out coverage and the calibration's share of the fit's time.
 
 With --quick, the whole-surface suite's six scenes at its quick render instead (12 views of
@@ -122,7 +122,8 @@ def markdown(results: dict) -> str:
              "`benchmarks/studies/std_calibration.py`: per std, Spearman's rho with its parameter's absolute error "
              "and the shares of errors within 1 and 2 std (0.68 and 0.95 = calibrated), on the texels a view sees; "
              "before: the std as modelled; two-sided: times fold factor x misfit scale, also below 1; after: "
-             "as the fit writes it, only widened (max(1, fold factor x misfit scale)).", "",
+             "as the fit writes it (two-sided where each fold keeps UncertaintyConfig.heldout_narrow_views views, "
+             "else only widened: max(1, fold factor x misfit scale)).", "",
              "| scene | std | rho | 1 std before / two-sided / after | 2 std before / two-sided / after | "
              "factor the truth asks for |", "|---|---|---|---|---|---|"]
     for scene, found in results["scenes"].items():

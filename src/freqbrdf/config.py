@@ -194,9 +194,13 @@ class UncertaintyConfig:
     """The median relative misfit (a texel's mean squared residual over its mean squared radiance) of a capture the
     forward model explains; above it the factors grow with sqrt(misfit / reference). Positive.
     docs/results.md#held-out-std-calibration"""
+    heldout_narrow_views: int = 24
+    """The views each fold must keep for the calibration to narrow a std (a factor below 1); with fewer the folds
+    share too few views to show an over-wide std, and it only widens. >= 1. docs/results.md#held-out-std-calibration"""
 
     def __post_init__(self):
         _check_choices(self)
+        _require(self, "heldout_narrow_views", self.heldout_narrow_views >= 1, "[1, inf)")
         _require(self, "heldout_folds", self.heldout_folds == 0 or self.heldout_folds >= 2, "0 or [2, inf)")
         _require(self, "heldout_texels", self.heldout_texels >= 1, "[1, inf)")
         _require(self, "heldout_misfit_reference", self.heldout_misfit_reference > 0.0, "(0, inf)")

@@ -77,8 +77,28 @@ def test_a_too_narrow_std_is_widened_toward_68_percent_and_a_wide_one_is_kept(no
 
     wide = uncertainty_with(observations.n_texels, 3.0 * scale["roughness"], 0.1, 3.0 * scale["base_color"])
     kept = calibrate_std(observations, wide, config, found)
-    assert kept.factors == {"roughness": 1.0, "base_color": 1.0}  # folds never narrow the std
+    # 18 views per fold, fewer than heldout_narrow_views: the folds never narrow the std.
+    assert kept.factors == {"roughness": 1.0, "base_color": 1.0}
     np.testing.assert_array_equal(wide.roughness_std, np.float32(3.0 * scale["roughness"]))
+
+
+def test_folds_that_keep_enough_views_narrow_a_wide_std_toward_68_percent(noisy):
+    observations, _, found = noisy
+    probe = calibrate_std(observations, uncertainty_with(observations.n_texels, 0.01, 0.1, 0.01),
+                          config_with(heldout_folds=4), found)
+    scale = {name: 0.01 * probe.fold_factors[name] for name in ("roughness", "base_color")}
+    wide = uncertainty_with(observations.n_texels, 3.0 * scale["roughness"], 0.1, 3.0 * scale["base_color"])
+    # 24 views in 4 folds: each fold keeps 18.
+    for narrow_views, narrows in ((19, False), (18, True)):
+        found_factors = calibrate_std(observations, dataclasses.replace(wide), config_with(
+            heldout_folds=4, heldout_narrow_views=narrow_views), found)
+        for name in ("roughness", "base_color"):
+            factor = found_factors.factors[name]
+            if narrows:
+                assert factor == pytest.approx(1.0 / 3.0, rel=0.02)
+                assert abs(found_factors.coverage_after[name] - COVERAGE) < 0.05
+            else:
+                assert factor == 1.0
 
 
 def test_the_misfit_above_its_reference_widens_the_factors(noisy):

@@ -219,19 +219,19 @@ def calibrate(capture: Capture, config: Config = Config(),
                 frame if camera is frame.camera else replace(frame, camera=camera)
                 for frame, camera in zip(capture.frames, calibration.cameras.cameras)))
         advance(1)
-        observations = observe(capture, coarse_config, texels=texels)
+        texel_frame = np.stack([texels.tangent, texels.bitangent, texels.normal], axis=1)
+        observations, frame = _exact_texels(observe(capture, coarse_config, texels=texels), texel_frame)
         advance(1)
         if settings.probe_rotation:
             sigma = brdf.band_limit_sigma(len(capture.frames)) if config.fit.band_limit else 0.0
             lit = envmaps.lowpass_envmap(capture.envmap, sigma) if sigma > 0 else capture.envmap
             # Band-limited, the map needs few pixels: a coarse copy makes each hypothesis cheap.
             lit = envmaps.Envmap(envmaps.downsample(lit.radiance, PROBE_MAP_HEIGHT), lit.to_world)
-            frame = np.stack([texels.tangent, texels.bitangent, texels.normal], axis=1)
             calibration.probe = register_probe(lit, frame, observations.view_direction, observations.weight,
                                                observations.observed, settings.probe_search_deg)
             if calibration.probe.angle_deg > 0.0:
                 capture = _turned(capture, calibration.probe.rotation)
-                observations = observe(capture, coarse_config, texels=texels)
+                observations, _ = _exact_texels(observe(capture, coarse_config, texels=texels), texel_frame)
         advance(1)
         if settings.frame_gains == "on":
             measured, _ = frame_gains(observations.view_direction, observations.weight, observations.observed)
@@ -256,6 +256,22 @@ def calibrate(capture: Capture, config: Config = Config(),
     capture = _corrected(capture, calibration, settings.drop_bad_views)
     calibration.seconds = time.perf_counter() - start
     return capture, calibration
+
+
+def _exact_texels(observations: Observations, frame: np.ndarray) -> tuple[Observations, np.ndarray]:
+    """Return the observations and (N, 3, 3) frames of the texels without a censored sample.
+
+    A texel with a clipped channel in some view (docs/method.md#censored-samples) has lost its
+    brightest samples, its highlights: what is left understates its specular, which biases the
+    gains and the probe's turn. Calibration reads the other texels (all of them where none is, or
+    where every texel is censored).
+    """
+    if observations.censored_weight is None:
+        return observations, frame
+    exact = ~(observations.censored_weight > 0.0).any(axis=1)
+    if not exact.any():
+        return observations, frame
+    return observations.select(exact), frame[exact]
 
 
 def _significant(gain: np.ndarray, found: GainEstimate) -> np.ndarray:

@@ -12,9 +12,11 @@ see, the error of a forward model that does not explain the samples (interreflec
 that is not the environment map), is read from the texels' misfit: where the capture's median
 misfit is above what a capture the model explains leaves
 (``UncertaintyConfig.heldout_misfit_reference``), the factor grows with the square root of their
-ratio. The std is only ever widened by it (a factor of at least 1): an error every view shares
-(a roughness that fits the samples as well as the true one) moves no fold and need not raise the
-misfit, so folds that agree better than the std says do not show the std too wide.
+ratio. Where each fold keeps fewer than ``UncertaintyConfig.heldout_narrow_views`` views, the std
+is only widened (a factor of at least 1): an error those views share (a roughness that fits them
+as well as the true one) moves no fold and need not raise the misfit, so folds that agree better
+than the std says do not show the std too wide. With more views per fold the factor also narrows
+an over-wide std.
 
 Roughness and base colour are calibrated; the metallic std is reported only (its errors are
 labels, mostly exactly right, which a scale cannot calibrate).
@@ -58,7 +60,8 @@ class StdCalibration:
         The texels re-estimated per fold.
     factors : dict of str to float
         Per calibrated std ("roughness", "base_color"): the factor it was multiplied by,
-        max(1, fold factor x misfit_scale) within `FACTOR_RANGE`.
+        fold factor x misfit_scale within `FACTOR_RANGE`, at least 1 where the folds keep fewer
+        than ``UncertaintyConfig.heldout_narrow_views`` views.
     fold_factors : dict of str to float
         Per std (also "metallic"): the factor the held-out folds alone ask for.
     misfit : float
@@ -211,6 +214,8 @@ def calibrate_std(observations: Observations, uncertainty: Uncertainty, config: 
     # Deviations of the held-out estimates from the whole, scaled by sqrt(K - 1): for errors
     # from the samples' noise each has the whole estimate's variance.
     jackknife = np.sqrt(folds - 1.0)
+    # Folds that keep many views may narrow the std; with few, an error the views share moves no fold.
+    narrow = observations.n_views - -(-observations.n_views // folds) >= settings.heldout_narrow_views
     relative_misfit = _relative_misfit(part, whole.loss)
     misfit = float(np.nanmedian(relative_misfit)) if np.any(np.isfinite(relative_misfit)) else np.nan
     reference = settings.heldout_misfit_reference
@@ -236,7 +241,8 @@ def calibrate_std(observations: Observations, uncertainty: Uncertainty, config: 
         result.coverage_before[name] = float(np.mean(ratio <= 1.0))
         if name not in CALIBRATED:
             continue
-        factor = float(np.clip(max(1.0, fold_factor * misfit_scale), *FACTOR_RANGE))
+        factor = float(np.clip(fold_factor * misfit_scale if narrow else max(1.0, fold_factor * misfit_scale),
+                               *FACTOR_RANGE))
         result.factors[name] = factor
         result.coverage_after[name] = float(np.mean(ratio <= factor))
         scaled = (np.asarray(getattr(uncertainty, f"{name}_std"), np.float64) * factor).astype(np.float32)
