@@ -40,9 +40,10 @@ def clean(tmp_path_factory) -> Path:
 
 
 def _copy(source: Path, target: Path, gain=(1.0, 1.0, 1.0), frame_gain: dict | None = None,
-          turn: np.ndarray | None = None) -> Path:
-    """The capture with its photographs times ``gain`` (one frame also times frame_gain[index]) and
-    its map's to_world turned by ``turn``."""
+          turn: np.ndarray | None = None, clip_quantile: float | None = None) -> Path:
+    """The capture with its photographs times ``gain`` (one frame also times frame_gain[index]),
+    clipped at the ``clip_quantile`` of each photograph's object values (blown highlights), and its
+    map's to_world turned by ``turn``."""
     target.mkdir()
     transforms = json.loads((source / "transforms.json").read_text())
     for name in os.listdir(source):
@@ -51,7 +52,10 @@ def _copy(source: Path, target: Path, gain=(1.0, 1.0, 1.0), frame_gain: dict | N
     (target / "images").mkdir()
     for index, frame in enumerate(transforms["frames"]):
         factor = np.asarray(gain, np.float32) * np.float32((frame_gain or {}).get(index, 1.0))
-        write_exr(target / frame["file_path"], read_image(source / frame["file_path"]) * factor)
+        image = read_image(source / frame["file_path"]) * factor
+        if clip_quantile is not None:
+            image = np.minimum(image, np.quantile(image[image.max(axis=2) > 0], clip_quantile))
+        write_exr(target / frame["file_path"], image)
     if turn is not None:
         matrix = np.eye(4)
         matrix[:3, :3] = turn
@@ -109,6 +113,18 @@ def test_a_turned_probe_is_registered(clean, clean_calibration, tmp_path):
     assert np.degrees(angle) < 1.5, f"found {found.probe.angle_deg:.2f} deg, {np.degrees(angle):.2f} deg left"
     np.testing.assert_allclose(capture.envmap.rotation, found.probe.rotation @ turn @ load(clean).envmap.rotation,
                                atol=1e-9)
+
+
+def test_clipped_highlights_neither_turn_the_probe_nor_move_the_gains(clean, clean_calibration, tmp_path):
+    # Highlights clipped (censored samples, docs/method.md#censored-samples): the texels that keep
+    # only their dimmer views would prefer a turn and a lower gain if read as measurements.
+    capture, found = calibrate(load(_copy(clean, tmp_path / "clipped", clip_quantile=0.95)), CONFIG)
+    assert found.probe.angle_deg < 1.0
+    # The gains read only the texels without a censored sample (fewer: a wider std) and stay within
+    # that std of the clean capture's.
+    assert found.texels < clean_calibration.texels
+    spread = np.hypot(found.gain_log_std, clean_calibration.gain_log_std)
+    assert np.all(np.abs(np.log(found.gain_measured / clean_calibration.gain_measured)) < 2.0 * spread)
 
 
 def test_calibration_none_leaves_the_capture_as_given(clean):

@@ -220,18 +220,19 @@ def calibrate(capture: Capture, config: Config = Config(),
                 for frame, camera in zip(capture.frames, calibration.cameras.cameras)))
         advance(1)
         texel_frame = np.stack([texels.tangent, texels.bitangent, texels.normal], axis=1)
-        observations, frame = _exact_texels(observe(capture, coarse_config, texels=texels), texel_frame)
+        every = observe(capture, coarse_config, texels=texels)
+        observations = _exact_texels(every)
         advance(1)
         if settings.probe_rotation:
             sigma = brdf.band_limit_sigma(len(capture.frames)) if config.fit.band_limit else 0.0
             lit = envmaps.lowpass_envmap(capture.envmap, sigma) if sigma > 0 else capture.envmap
             # Band-limited, the map needs few pixels: a coarse copy makes each hypothesis cheap.
             lit = envmaps.Envmap(envmaps.downsample(lit.radiance, PROBE_MAP_HEIGHT), lit.to_world)
-            calibration.probe = register_probe(lit, frame, observations.view_direction, observations.weight,
-                                               observations.observed, settings.probe_search_deg)
+            calibration.probe = register_probe(lit, texel_frame, every.view_direction, every.weight, every.observed,
+                                               settings.probe_search_deg, every.censored_weight)
             if calibration.probe.angle_deg > 0.0:
                 capture = _turned(capture, calibration.probe.rotation)
-                observations, _ = _exact_texels(observe(capture, coarse_config, texels=texels), texel_frame)
+                observations = _exact_texels(observe(capture, coarse_config, texels=texels))
         advance(1)
         if settings.frame_gains == "on":
             measured, _ = frame_gains(observations.view_direction, observations.weight, observations.observed)
@@ -258,20 +259,17 @@ def calibrate(capture: Capture, config: Config = Config(),
     return capture, calibration
 
 
-def _exact_texels(observations: Observations, frame: np.ndarray) -> tuple[Observations, np.ndarray]:
-    """Return the observations and (N, 3, 3) frames of the texels without a censored sample.
+def _exact_texels(observations: Observations) -> Observations:
+    """Return the observations of the texels without a censored sample, for the gains.
 
     A texel with a clipped channel in some view (docs/method.md#censored-samples) has lost its
     brightest samples, its highlights: what is left understates its specular, which biases the
-    gains and the probe's turn. Calibration reads the other texels (all of them where none is, or
-    where every texel is censored).
+    gains. They read the other texels (all of them where none is, or where every texel is censored).
     """
     if observations.censored_weight is None:
-        return observations, frame
+        return observations
     exact = ~(observations.censored_weight > 0.0).any(axis=1)
-    if not exact.any():
-        return observations, frame
-    return observations.select(exact), frame[exact]
+    return observations.select(exact) if exact.any() else observations
 
 
 def _significant(gain: np.ndarray, found: GainEstimate) -> np.ndarray:

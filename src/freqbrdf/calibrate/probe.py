@@ -92,7 +92,7 @@ class _Scorer:
     """The share of view-dependent radiance the mirrored light explains, per texel, for a turn of the map."""
 
     def __init__(self, envmap: envmaps.Envmap, frame: np.ndarray, view_direction: np.ndarray, weight: np.ndarray,
-                 observed: np.ndarray):
+                 observed: np.ndarray, censored_weight: np.ndarray | None = None):
         sampled = weight > 0
         counts = sampled.sum(axis=1)
         keep = counts >= 4
@@ -120,20 +120,43 @@ class _Scorer:
         centred = f - self.mean_f[self.texel_of]
         self.centred_f = centred
         self.variance_f = np.bincount(self.texel_of, w * centred * centred, self.n_texels)
+        # Censored samples (docs/method.md#censored-samples) of the texels scored: lower bounds.
+        self.n_exact = len(self.directions)
+        self.censored_of = np.zeros(0, np.int64)
+        if censored_weight is not None:
+            held = np.asarray(censored_weight[keep]) > 0
+            frames = np.repeat(np.asarray(frame[keep], np.float64), held.sum(axis=1), axis=0)
+            local = np.asarray(view_direction[keep], np.float64)[held]
+            self.directions = np.concatenate([self.directions,
+                                              np.einsum("mi,mij->mj", local * np.array([-1.0, -1.0, 1.0]), frames)])
+            self.censored_of = np.repeat(np.arange(self.n_texels), held.sum(axis=1))
+            self.censored_w = np.asarray(censored_weight[keep], np.float64)[held]
+            self.censored_f = np.asarray(observed[keep], np.float64)[held].mean(axis=1)
 
     def unexplained(self, rotation: np.ndarray) -> np.ndarray:
-        """(n,) per texel the weighted residual of f on [1, L] with the map turned by ``rotation``."""
+        """(n,) per texel the weighted residual of f on [1, L] with the map turned by ``rotation``.
+
+        A censored sample adds its shortfall below its lower bound, where the texel's fit predicts less.
+        """
         to_world = self.envmap.to_world.copy()
         to_world[:3, :3] = rotation @ to_world[:3, :3]
         light = envmaps.lookup(envmaps.Envmap(self.envmap.radiance, to_world), self.directions)
         light = np.asarray(light, np.float64).mean(axis=1)
+        light, censored_light = light[:self.n_exact], light[self.n_exact:]
         texel, w = self.texel_of, self.w
         mean_l = np.bincount(texel, w * light, self.n_texels) / self.sum_w
         centred_l = light - mean_l[texel]
         covariance = np.bincount(texel, w * centred_l * self.centred_f, self.n_texels)
         variance_l = np.bincount(texel, w * centred_l * centred_l, self.n_texels)
         explained = np.where(variance_l > 1e-30, covariance ** 2 / np.maximum(variance_l, 1e-30), 0.0)
-        return np.maximum(self.variance_f - explained, 0.0)
+        residual = np.maximum(self.variance_f - explained, 0.0)
+        if len(self.censored_of):
+            slope = np.where(variance_l > 1e-30, covariance / np.maximum(variance_l, 1e-30), 0.0)
+            of = self.censored_of
+            predicted = self.mean_f[of] + slope[of] * (censored_light - mean_l[of])
+            shortfall = np.maximum(self.censored_f - predicted, 0.0)
+            residual = residual + np.bincount(of, self.censored_w * shortfall * shortfall, self.n_texels)
+        return residual
 
     def total(self, rotation: np.ndarray) -> float:
         return float(self.unexplained(rotation).sum())
@@ -160,7 +183,8 @@ def _significance(before: np.ndarray, after: np.ndarray) -> float:
 
 
 def register_probe(envmap: envmaps.Envmap, frame: np.ndarray, view_direction: np.ndarray, weight: np.ndarray,
-                   observed: np.ndarray, search_deg: float) -> ProbeRegistration:
+                   observed: np.ndarray, search_deg: float,
+                   censored_weight: np.ndarray | None = None) -> ProbeRegistration:
     """Find the turn of the environment map that best explains the texels' reflections.
 
     Parameters
@@ -177,6 +201,9 @@ def register_probe(envmap: envmaps.Envmap, frame: np.ndarray, view_direction: np
         Their observed radiance.
     search_deg : float
         The largest turn searched about the map's pole; 0: none.
+    censored_weight : (N, V) float32, optional
+        The weights of censored samples (`Observations.censored_weight`), whose ``observed`` is a
+        lower bound: a turn that predicts less there is charged the shortfall.
 
     Returns
     -------
@@ -188,7 +215,7 @@ def register_probe(envmap: envmaps.Envmap, frame: np.ndarray, view_direction: np
     seen = (weight > 0).any(axis=1)
     if not seen.any() or np.linalg.norm(frame[seen, 2].mean(axis=0)) >= MAX_NORMAL_ALIGNMENT:
         return ProbeRegistration(identity, 0.0, float("inf"), (0.0, 0.0), 0.0)
-    scorer = _Scorer(envmap, frame, view_direction, weight, observed)
+    scorer = _Scorer(envmap, frame, view_direction, weight, observed, censored_weight)
     if scorer.n_texels == 0 or search_deg <= 0.0 or not scorer.variance_f.sum() > 0.0:
         return ProbeRegistration(identity, 0.0, float("inf"), (0.0, 0.0), 0.0)
     total_variance = float(scorer.variance_f.sum())
