@@ -260,9 +260,11 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
     if observations.censored_weight is not None:  # clipped photographs: docs/method.md#censored-samples
         start = time.perf_counter()
         with reporter.stage("censored samples", 1) as advance:
-            first = estimate_materials(observations, config)
+            # Least squares without the neighbour vote: only the censored channels read this estimate.
+            first_config = config.replace(estimate=replace(config.estimate, robust_passes=0, neighbour_vote=False))
+            first = estimate_materials(observations, first_config)
             if whole:
-                first, _ = whole_surface(observations, first, texels, config)
+                first, _ = whole_surface(observations, first, texels, first_config)
             observations = impute_censored(observations, first.principled(), config)
             advance(1)
         timings["censored"] = time.perf_counter() - start
