@@ -45,6 +45,9 @@ from freqbrdf.uncertainty import (
 )
 from freqbrdf.uncertainty.heldout import StdCalibration, calibrate_std
 
+# A fit whose photographs clip this share of the samples says so (a warning in summary.json and on the command line).
+CENSORED_NOTE_FRACTION = 0.01
+
 
 @dataclass(eq=False)
 class FitResult:
@@ -83,6 +86,9 @@ class FitResult:
         With ``fit(..., keep_surface_fit=True)`` and the whole-surface estimate: the observations,
         per-texel and whole-surface estimates and posterior on the estimation texels, which
         `next_views` reuses; else None.
+    censored_fraction : float
+        The share of the samples with a clipped channel, read as lower bounds
+        (docs/method.md#censored-samples); summary.json's ``coverage``.
     """
 
     capture: Capture
@@ -97,6 +103,7 @@ class FitResult:
     std_calibration: StdCalibration | None = None
     observed_capture: Capture | None = None
     surface_fit: guidance.SurfaceFit | None = None
+    censored_fraction: float = 0.0
 
 
 def estimation_resolution(capture: Capture, config: Config = Config(), fine: Texels | None = None) -> int:
@@ -257,8 +264,14 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
     whole = config.surface.enabled and config.estimate.method == "global"
     texels = observations.texels if observations.texels is not None or not whole else rasterise(capture.mesh,
                                                                                                   estimation_res)
+    censored_fraction, notes = 0.0, []
     if observations.censored_weight is not None:  # clipped photographs: docs/method.md#censored-samples
         start = time.perf_counter()
+        n_censored = int(np.count_nonzero(observations.censored_weight))
+        censored_fraction = n_censored / max(n_censored + int(np.count_nonzero(observations.weight)), 1)
+        if censored_fraction >= CENSORED_NOTE_FRACTION:
+            notes.append(f"{censored_fraction:.1%} of the samples are clipped in a channel (8-bit photographs or blown "
+                         "highlights): read as lower bounds; HDR photographs measure them")
         with reporter.stage("censored samples", 1) as advance:
             # Least squares without the neighbour vote: only the censored channels read this estimate.
             first_config = config.replace(estimate=replace(config.estimate, robust_passes=0, neighbour_vote=False))
@@ -316,8 +329,9 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
     timings["textures"] = time.perf_counter() - start
     timings["total"] = sum(seconds for stage, seconds in timings.items() if "." not in stage)
     return FitResult(given, observations, estimate, uncertainty, maps, timings, estimation_res,
-                     warnings=list(calibration.warnings), calibration=calibration, std_calibration=std_calibration,
-                     observed_capture=capture, surface_fit=surface_fit)
+                     warnings=list(calibration.warnings) + notes, calibration=calibration,
+                     std_calibration=std_calibration, observed_capture=capture, surface_fit=surface_fit,
+                     censored_fraction=censored_fraction)
 
 
 def next_views(result: FitResult, candidates: list[Camera], budget: int, config: Config = Config(), *,
@@ -565,7 +579,7 @@ def write_fit(out_dir: str | Path, result: FitResult, config: Config = Config())
              # The views of the capture, also where the observations were taken to finer texels
              # without their samples (`to_texels`).
              "coverage": {**export.coverage(result.observations, result.estimate),
-                          "views": len(result.capture.frames)},
+                          "views": len(result.capture.frames), "censored_fraction": result.censored_fraction},
              "warnings": list(result.warnings),
              "calibration": None if result.calibration is None else result.calibration.to_dict(),
              "std_calibration": None if result.std_calibration is None else result.std_calibration.to_dict()}
