@@ -47,7 +47,7 @@ from scenes import COMPARE_SCENES, compare_capture
 
 # The modules a fit imports (cli imports the rest inside the command).
 FIT_IMPORTS = "import freqbrdf.cli, freqbrdf.pipeline, freqbrdf.capture.layouts"
-STAGES = ("calibrate", "observe", "estimate", "uncertainty", "surface", "std_calibration", "upsample", "textures", "write")
+STAGES = ("calibrate", "observe", "censored", "estimate", "uncertainty", "surface", "std_calibration", "upsample", "textures", "write")
 
 
 def fit_command() -> list[str]:
