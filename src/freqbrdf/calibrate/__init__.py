@@ -51,7 +51,7 @@ PROBE_MAP_HEIGHT = 128
 # Passes of the channel gains (each on photographs corrected by the ones before); they stop early
 # where a pass moves every gain by less than CONVERGED (in log).
 CONVERGED = 0.01
-GAIN_PASSES = 3
+GAIN_PASSES = 5
 # The exposure and each white-balance ratio are applied where they lie this many of their std from 1.
 SIGNIFICANT_Z = 2.5
 # A gain whose log std exceeds this is poorly determined by the capture (named in a warning).
