@@ -1,6 +1,6 @@
 """What calibration costs a fit: ``freqbrdf fit`` with ``--calibration none`` and with the default, in pairs.
 
-Each pair runs both commands in fresh processes (`bench_fit.one_fit`), the order alternating, so
+Each pair runs both commands in fresh processes (`bench_fit.fits_in_turn`), the order alternating, so
 that the machine's drift falls on both alike; the ratio of the medians is the cost. The capture is
 studies/calibration.py's dragon (32 views of 192 x 192, a concave mesh: the occlusion rays run),
 fitted at T = 512 (the fit's default), rendered into benchmarks/.cache/ if it is missing.
@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
@@ -22,7 +21,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/: _common and scenes
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_fit import fit_command, one_fit, spread  # noqa: E402
+from bench_fit import cost_in_turn, fit_command, fits_in_turn, spread  # noqa: E402
 
 from _common import machine, save_results  # noqa: E402
 from scenes import whole_surface_capture  # noqa: E402
@@ -38,18 +37,10 @@ def main(argv=None) -> int:
     parser.add_argument("--capture", default=None, help="a capture folder (default: the dragon of the study)")
     args = parser.parse_args(argv)
     capture = Path(args.capture) if args.capture else whole_surface_capture(SCENE, RENDER)
-    runs = {name: [] for name in SETTINGS}
     with tempfile.TemporaryDirectory(prefix="bench_calibration.") as scratch:
-        for options in SETTINGS.values():  # numba's kernels compiled or loaded, untimed
-            subprocess.run([*fit_command(), "fit", str(capture), "--out", str(Path(scratch) / "warm_up"), "--quiet",
-                            "--texture-res", "32", *options], capture_output=True, check=True)
-        for pair in range(args.pairs):
-            order = list(SETTINGS) if pair % 2 == 0 else list(reversed(SETTINGS))
-            for name in order:
-                runs[name].append(one_fit(capture, Path(scratch) / name, SETTINGS[name]))
-                print(f"pair {pair + 1} {name}: {runs[name][-1]['wall_s']:.2f} s wall, calibrate "
-                      f"{runs[name][-1]['stages_s'].get('calibrate', 0.0):.2f} s", flush=True)
-    wall = {name: spread([run["wall_s"] for run in found]) for name, found in runs.items()}
+        runs = fits_in_turn({name: (capture, options) for name, options in SETTINGS.items()}, args.pairs,
+                            Path(scratch), "calibrate")
+    cost = cost_in_turn(runs, "off", "on")
     result = {
         "benchmark": "fit with calibration off and on, fresh process per run, T = 512",
         **machine(),
@@ -57,13 +48,12 @@ def main(argv=None) -> int:
         "commands": {name: [*fit_command(), "fit", str(capture), "--out", "DIR", "--quiet", *options]
                      for name, options in SETTINGS.items()},
         "runs": runs,
-        "wall_s": wall,
+        **cost,
         "calibrate_s": spread([run["stages_s"].get("calibrate", 0.0) for run in runs["on"]]),
-        "cost_ratio_median": wall["on"]["median"] / wall["off"]["median"],
-        "pair_ratios": [on["wall_s"] / off["wall_s"] for on, off in zip(runs["on"], runs["off"])],
         "measured": time.strftime("%Y-%m-%d %H:%M"),
     }
     save_results("bench_calibration", result)
+    wall = cost["wall_s"]
     print(f"wall median off {wall['off']['median']:.2f} s, on {wall['on']['median']:.2f} s: "
           f"x{result['cost_ratio_median']:.3f} (pairs {', '.join(f'{r:.3f}' for r in result['pair_ratios'])}); "
           f"calibrate median {statistics.median(run['stages_s'].get('calibrate', 0.0) for run in runs['on']):.2f} s")

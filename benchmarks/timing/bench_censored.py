@@ -3,7 +3,7 @@
 An 8-bit copy clips a share of the samples; the fit then estimates once more to fill those
 censored channels in (docs/method.md#censored-samples). Each pair fits the HDR capture and its
 8-bit copy (`benchmarks/imperfections.py`, as studies/calibration.py makes it) in fresh processes
-(`bench_fit.one_fit`), the order alternating, at T = 256 as the study fits them; the ratio of the
+(`bench_fit.fits_in_turn`), the order alternating, at T = 256 as the study fits them; the ratio of the
 medians is the cost. The capture is studies/calibration.py's bunny (32 views of 192 x 192).
 
     python benchmarks/timing/bench_censored.py [--pairs 3]
@@ -14,7 +14,6 @@ Prints a table and saves benchmarks/results/bench_censored.json.
 from __future__ import annotations
 
 import argparse
-import subprocess
 import sys
 import tempfile
 import time
@@ -22,7 +21,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/: _common and scenes
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_fit import fit_command, one_fit, spread  # noqa: E402
+from bench_fit import cost_in_turn, fit_command, fits_in_turn, spread  # noqa: E402
 
 import scenes  # noqa: E402
 from _common import machine, save_results  # noqa: E402
@@ -41,31 +40,22 @@ def main(argv=None) -> int:
     imperfection = Imperfection(eight_bit=True)
     captures = {"hdr": source, "8-bit": imperfect_capture(
         source, scenes.CACHE / "calibration" / f"{source.name}_{imperfection.name()}", imperfection)}
-    runs = {name: [] for name in captures}
     with tempfile.TemporaryDirectory(prefix="bench_censored.") as scratch:
-        for name, capture in captures.items():  # numba's kernels compiled or loaded, untimed
-            subprocess.run([*fit_command(), "fit", str(capture), "--out", str(Path(scratch) / f"warm_{name}"),
-                            "--quiet", "--texture-res", "32"], capture_output=True, check=True)
-        for pair in range(args.pairs):
-            order = list(captures) if pair % 2 == 0 else list(reversed(captures))
-            for name in order:
-                runs[name].append(one_fit(captures[name], Path(scratch) / name, OPTIONS))
-                print(f"pair {pair + 1} {name}: {runs[name][-1]['wall_s']:.2f} s wall, censored "
-                      f"{runs[name][-1]['stages_s'].get('censored', 0.0):.2f} s", flush=True)
-    wall = {name: spread([run["wall_s"] for run in found]) for name, found in runs.items()}
+        runs = fits_in_turn({name: (capture, OPTIONS) for name, capture in captures.items()}, args.pairs,
+                            Path(scratch), "censored")
+    cost = cost_in_turn(runs, "hdr", "8-bit")
     result = {
         "benchmark": "fit of an HDR capture and of its 8-bit copy (censored samples), fresh process per run, T = 256",
         **machine(),
         "captures": {name: str(capture) for name, capture in captures.items()},
         "commands": [*fit_command(), "fit", "CAPTURE", "--out", "DIR", "--quiet", *OPTIONS],
         "runs": runs,
-        "wall_s": wall,
-        "censored_s": spread([run["stages_s"].get("censored", 0.0) for run in runs["8-bit"]]),
-        "cost_ratio_median": wall["8-bit"]["median"] / wall["hdr"]["median"],
-        "pair_ratios": [clipped["wall_s"] / hdr["wall_s"] for clipped, hdr in zip(runs["8-bit"], runs["hdr"])],
+        **cost,
+        "censored_s": spread([run["summary_timings_s"].get("censored", 0.0) for run in runs["8-bit"]]),
         "measured": time.strftime("%Y-%m-%d %H:%M"),
     }
     save_results("bench_censored", result)
+    wall = cost["wall_s"]
     print(f"wall median HDR {wall['hdr']['median']:.2f} s, 8-bit {wall['8-bit']['median']:.2f} s: "
           f"x{result['cost_ratio_median']:.3f} (pairs {', '.join(f'{r:.3f}' for r in result['pair_ratios'])})")
     return 0

@@ -104,6 +104,32 @@ def spread(values: list[float]) -> dict:
     return {"min": min(values), "median": statistics.median(values), "max": max(values)}
 
 
+def fits_in_turn(jobs: dict[str, tuple[Path, list[str]]], pairs: int, scratch: Path, stage: str) -> dict[str, list]:
+    """Fit each job (capture, options) once per round in fresh processes (`one_fit`), the order
+    alternating between rounds so that the machine's drift falls on all alike, after one untimed
+    warm-up each (numba's kernels compiled or loaded); print ``stage``'s seconds of each run."""
+    for name, (capture, options) in jobs.items():
+        subprocess.run([*fit_command(), "fit", str(capture), "--out", str(scratch / f"warm_{name}"), "--quiet",
+                        *options, "--texture-res", "32"], capture_output=True, check=True)
+    runs = {name: [] for name in jobs}
+    for round_index in range(pairs):
+        order = list(jobs) if round_index % 2 == 0 else list(reversed(jobs))
+        for name in order:
+            capture, options = jobs[name]
+            runs[name].append(one_fit(capture, scratch / name, options))
+            print(f"round {round_index + 1} {name}: {runs[name][-1]['wall_s']:.2f} s wall, {stage} "
+                  f"{runs[name][-1]['summary_timings_s'].get(stage, 0.0):.2f} s", flush=True)
+    return runs
+
+
+def cost_in_turn(runs: dict[str, list], base: str, other: str) -> dict:
+    """The wall time of each job's runs and the cost of ``other`` over ``base``: the ratio of the
+    medians and each round's ratio."""
+    wall = {name: spread([run["wall_s"] for run in found]) for name, found in runs.items()}
+    return {"wall_s": wall, "cost_ratio_median": wall[other]["median"] / wall[base]["median"],
+            "pair_ratios": [a["wall_s"] / b["wall_s"] for a, b in zip(runs[other], runs[base])]}
+
+
 def baseline_sources(ref: str) -> dict:
     """Extract the package's sources at git ``ref``; return an environment that imports them.
 
