@@ -264,7 +264,7 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
     whole = config.surface.enabled and config.estimate.method == "global"
     texels = observations.texels if observations.texels is not None or not whole else rasterise(capture.mesh,
                                                                                                   estimation_res)
-    censored_fraction, notes = 0.0, []
+    censored_fraction, notes, censored_first = 0.0, [], None
     if observations.censored_weight is not None:  # clipped photographs: docs/method.md#censored-samples
         start = time.perf_counter()
         n_censored = int(np.count_nonzero(observations.censored_weight))
@@ -279,6 +279,7 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
             if whole:
                 first, _ = whole_surface(observations, first, texels, first_config)
             observations = impute_censored(observations, first.principled(), config)
+            censored_first = (np.asarray(observations.censored).any(axis=(1, 2)), first.base_color)
             advance(1)
         timings["censored"] = time.perf_counter() - start
 
@@ -312,6 +313,8 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
         timings.update({f"surface.{step}": seconds for step, seconds in posterior.timings.items()})
 
     _widen_by_calibration(uncertainty, estimate, calibration)
+    if censored_first is not None:
+        _widen_by_censoring(uncertainty, estimate, *censored_first)
     std_calibration = None
     if config.uncertainty.heldout_folds:  # docs/method.md#held-out-std-calibration
         start = time.perf_counter()
@@ -391,6 +394,19 @@ def next_views(result: FitResult, candidates: list[Camera], budget: int, config:
     scoring = config.replace(texels=replace(config.texels, texture_res=result.surface_fit.observations.texture_res))
     return guidance.select_views(result.observed_capture, candidates, budget, scoring, fit=result.surface_fit,
                                  max_texels=max_texels, reporter=reporter)
+
+
+def _widen_by_censoring(uncertainty: Uncertainty, estimate: MaterialEstimate, rows: np.ndarray,
+                        first_base_color: np.ndarray) -> None:
+    """Add how far filling the censored channels moved the base colour to its std (docs/method.md#censored-samples).
+
+    A texel with a censored sample reads values its first estimate filled in; the distance from that
+    estimate's base colour (N, 3) to the final one is added in quadrature to the std of the ``rows``
+    (N,) bool with a censored sample, per channel.
+    """
+    move = np.nan_to_num(np.asarray(first_base_color, np.float64) - estimate.base_color)
+    widened = np.sqrt(np.asarray(uncertainty.base_color_std, np.float64) ** 2 + move ** 2)
+    uncertainty.base_color_std = np.where(rows[:, None], widened, uncertainty.base_color_std).astype(np.float32)
 
 
 def _widen_by_calibration(uncertainty: Uncertainty, estimate: MaterialEstimate, calibration: Calibration) -> None:
