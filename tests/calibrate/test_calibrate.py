@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from freqbrdf.calibrate import axis_angle, calibrate, rotation_about
+from freqbrdf.calibrate import POORLY_DETERMINED, axis_angle, calibrate, rotation_about
 from freqbrdf.capture.layouts import load
 from freqbrdf.config import CalibrationConfig, Config, TexelConfig
 from freqbrdf.images import read_image, write_exr
@@ -78,8 +78,8 @@ def test_exposure_and_white_balance_are_recovered(clean, clean_calibration, tmp_
     np.testing.assert_allclose(np.exp(np.log(relative).mean()), np.exp(np.log(applied).mean()), rtol=0.05)
     np.testing.assert_allclose(relative, applied, rtol=0.10)
     assert relative[0] > relative[1] > relative[2]  # the white balance's direction
-    # On a capture this small (32 views of 96 x 96) the model itself reads a gain within 25 % of 1.
-    np.testing.assert_allclose(clean_calibration.gain_measured, 1.0, atol=0.25)
+    # On a capture this small (32 views of 96 x 96) the model itself reads a gain within 30 % of 1.
+    np.testing.assert_allclose(clean_calibration.gain_measured, 1.0, atol=0.3)
     # Applied where the texels tell it from 1: the exposure surely; each white-balance ratio is
     # applied as measured or, within its noise of 1, left at 1.
     applied_exposure = np.exp(np.log(found.gain).mean())
@@ -87,7 +87,7 @@ def test_exposure_and_white_balance_are_recovered(clean, clean_calibration, tmp_
     ratio, measured_ratio = found.gain / applied_exposure, found.gain_measured / np.exp(
         np.log(found.gain_measured).mean())
     assert np.all(np.isclose(ratio, measured_ratio, rtol=0.02) | np.isclose(ratio, 1.0, rtol=0.02))
-    assert np.all(found.gain_log_std > 0) and np.all(found.gain_log_std < 0.1)
+    assert np.all(found.gain_log_std > 0) and np.all(found.gain_log_std < POORLY_DETERMINED)  # well determined
     # The corrected capture's photographs are divided by the gains.
     corrected = capture.image(0)
     original = read_image(capture.frames[0].image_path)
