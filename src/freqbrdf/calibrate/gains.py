@@ -34,11 +34,10 @@ __all__ = ["GainEstimate", "channel_gains", "frame_gains"]
 
 # The prior on log gain: a photograph and its probe within a factor e of each other (1 sigma).
 PRIOR_LOG_STD = 1.0
-# Each texel's log-gain grid: 2.5 stops either way, in steps of about 3.5 %. A texel whose minimum
-# lies on the grid's edge says nothing: a narrower grid drops the texels whose own gain lies far out
-# on one side and biases the median, a wider one lets in texels whose minimum is the model's misfit
+# Each texel's log-gain grid: a factor 4 either way, in steps of about 3.5 %. A texel whose minimum
+# lies on the grid's edge says nothing; wider grids let in texels whose minimum is the model's misfit
 # (docs/results.md#calibration).
-LOG_GAIN_GRID = np.log(2.0) * np.arange(-2.5, 2.5001, 0.05)
+LOG_GAIN_GRID = np.log(2.0) * np.arange(-2.0, 2.0001, 0.05)
 # A texel's misfit floor, as a share of the texels' median misfit: a near-exact fit does not take over.
 MISFIT_FLOOR = 0.05
 # The per-frame gains' prediction of a sample from the texel's other views: an SH fit of this degree and
