@@ -19,8 +19,14 @@ import numpy as np
 from freqbrdf.config import Config
 from freqbrdf.estimate.search import predict_samples
 from freqbrdf.model import brdf
-from freqbrdf.observe.observations import CONSTANT, MIRRORED, N_SIGNALS, OBSERVED, Observations, texel_alpha_bound
-from freqbrdf.sphere import harmonics as sh
+from freqbrdf.observe.observations import (
+    CONSTANT,
+    MIRRORED,
+    OBSERVED,
+    Observations,
+    fit_signals,
+    texel_alpha_bound,
+)
 
 __all__ = ["impute_censored"]
 
@@ -58,13 +64,8 @@ def impute_censored(observations: Observations, params: brdf.PrincipledParams, c
     predicted = predict_samples(counted, selected, config)
     observed = np.where(part.censored, np.fmax(part.observed, predicted), part.observed).astype(np.float32)
 
-    signals = np.empty((len(rows), observations.n_views, N_SIGNALS), dtype=np.float32)
-    signals[..., OBSERVED] = observed
-    signals[..., MIRRORED] = part.mirrored
-    signals[..., CONSTANT] = 1.0
+    fit = fit_signals(part.view_direction, weight, observed, part.mirrored, observations.lmax, config)
     settings = config.fit
-    fit = sh.fit_sh(part.view_direction, weight, signals, observations.lmax, settings.reg_lambda, settings.regulariser,
-                    settings.scale_lambda_with_weight, config.device)
 
     changes = {"observed": observations.observed.copy(), "weight": observations.weight.copy(),
                "observed_coeffs": observations.observed_coeffs.copy(),

@@ -325,13 +325,8 @@ class Observations:
         if keep.shape != (self.n_views,):
             raise ValueError(f"keep must be ({self.n_views},) bool, got shape {keep.shape}")
         weight = np.where(keep, self.weight, 0.0).astype(np.float32)
-        signals = np.empty((self.n_texels, self.n_views, N_SIGNALS), dtype=np.float32)
-        signals[..., OBSERVED] = self.observed
-        signals[..., MIRRORED] = self.mirrored
-        signals[..., CONSTANT] = 1.0
+        fit = fit_signals(self.view_direction, weight, self.observed, self.mirrored, self.lmax, config)
         settings = config.fit
-        fit = sh.fit_sh(self.view_direction, weight, signals, self.lmax, settings.reg_lambda,
-                        settings.regulariser, settings.scale_lambda_with_weight, config.device)
         censored_weight = None if self.censored_weight is None else np.where(keep, self.censored_weight, 0.0).astype(
             np.float32)
         return replace(
@@ -654,6 +649,40 @@ def _occluder(mesh) -> Occluder:
     if not (_LAST_OCCLUDER and _LAST_OCCLUDER[0] is mesh):
         _LAST_OCCLUDER[:] = [mesh, Occluder(mesh)]
     return _LAST_OCCLUDER[1]
+
+
+def fit_signals(view_direction: np.ndarray, weight: np.ndarray, observed: np.ndarray, mirrored: np.ndarray,
+                lmax: int, config: Config) -> sh.SHFit:
+    """Fit the SH spectra of samples again, as `observe` fits them.
+
+    The signals are observed RGB, mirrored RGB and the constant 1 (`OBSERVED`, `MIRRORED`,
+    `CONSTANT` of the coefficients).
+
+    Parameters
+    ----------
+    view_direction : (N, V, 3) float32
+        Local view directions.
+    weight : (N, V) float32
+        The samples' weights.
+    observed, mirrored : (N, V, 3) float32
+        Observed radiance and mirrored environment.
+    lmax : int
+        The degree.
+    config : Config
+        ``config.fit``'s regulariser; ``config.device``.
+
+    Returns
+    -------
+    sh.SHFit
+        Coefficients (N, 7, K), sample counts and fit status.
+    """
+    signals = np.empty((*weight.shape, N_SIGNALS), dtype=np.float32)
+    signals[..., OBSERVED] = observed
+    signals[..., MIRRORED] = mirrored
+    signals[..., CONSTANT] = 1.0
+    settings = config.fit
+    return sh.fit_sh(view_direction, weight, signals, lmax, settings.reg_lambda, settings.regulariser,
+                     settings.scale_lambda_with_weight, config.device)
 
 
 def mean_over_views(weight: np.ndarray, values: np.ndarray) -> np.ndarray:
