@@ -11,6 +11,7 @@ from freqbrdf.assets import mesh_path
 from freqbrdf.capture.mesh import Mesh, load_mesh, plane_mesh, uv_sphere_mesh
 from freqbrdf.observe.occlusion import (
     MIRROR_CENTRE_WEIGHT,
+    _SurfaceRadiance,  # noqa: PLC2701 (the rule itself)
     compact_lights,
     cosine_directions,
     may_be_hidden,
@@ -18,9 +19,11 @@ from freqbrdf.observe.occlusion import (
     occluded_irradiance,
     occlusion_steps,
     self_occluding,
+    uv_texels,
 )
 from freqbrdf.render.occluder import Occluder
 from freqbrdf.sphere.envmap import Envmap, local_directions
+from freqbrdf.texels import rasterise
 
 HEIGHT, WIDTH = 64, 128
 SUN_ROW, SUN_COLUMN = 11, 40  # about 31 degrees from the map's pole (world +y with an identity to_world)
@@ -201,3 +204,37 @@ def test_rays_not_traced_from_texels_above_the_whole_mesh_are_the_rays_that_woul
             mirror_occlusion(occluder, origin, frame, view, visible, shown, observed, size, hidden=hidden),
             mirror_occlusion(occluder, origin, frame, view, visible, shown, observed, size)):
         np.testing.assert_array_equal(traced, full)
+
+
+def test_a_hit_reads_the_texel_that_holds_it_in_uv():
+    """Rays aimed at the bunny's texel points find them by face and barycentric coordinates: the
+    texel read is the texel aimed at (the nearest-texel rule agrees), and an unobserved texel is
+    replaced by its nearest observed one."""
+    mesh = load_mesh(mesh_path("bunny"))
+    texels = rasterise(mesh, 64)
+    uv = uv_texels(mesh.uv, mesh.faces, texels.mask)
+    assert uv.face_xy.shape == (len(mesh.faces), 3, 2)
+    assert np.array_equal(uv.texel_of_pixel.ravel()[texels.texel_index], np.arange(texels.n_texels))
+    assert (uv.texel_of_pixel[~texels.mask] == -1).all()
+
+    rng = np.random.default_rng(5)
+    aimed = rng.choice(np.flatnonzero(~texels.snapped), 300, replace=False)
+    origins = texels.position[aimed] + 0.05 * texels.normal[aimed]
+    occluder = Occluder(mesh)
+    hits, distance, face, barycentric = occluder.first_hits_rows(
+        np.ascontiguousarray(origins.T, np.float32), np.ascontiguousarray(-texels.normal[aimed].T, np.float32))
+    points = origins[hits] - distance[:, None] * texels.normal[aimed][hits]
+    shown = rng.uniform(0.0, 1.0, (texels.n_texels, 3))
+    observed = np.ones(texels.n_texels, bool)
+    located = _SurfaceRadiance(texels.position, shown, observed, texels.texel_size, uv)
+    nearest = _SurfaceRadiance(texels.position, shown, observed, texels.texel_size)
+    read = located.at(points, face, barycentric)
+    same_texel = np.all(read == shown[aimed[hits]], axis=1)
+    assert same_texel.mean() > 0.9  # the rest: the ray met another part first, or an edge texel's neighbour
+    assert np.all(read == nearest.at(points, face, barycentric), axis=1).mean() > 0.9
+    hidden_texel = aimed[hits][same_texel][0]
+    observed[hidden_texel] = False
+    instead = _SurfaceRadiance(texels.position, shown, observed, texels.texel_size, uv).at(points, face, barycentric)
+    row = np.flatnonzero(aimed[hits] == hidden_texel)[0]
+    assert not np.array_equal(instead[row], shown[hidden_texel])
+    assert any(np.array_equal(instead[row], shown[t]) for t in np.flatnonzero(observed))

@@ -654,6 +654,14 @@ def smooth_on_surface(values: np.ndarray, precision: np.ndarray, graph: sparse.c
     diagonal_data = precision + pin
     solution = target.copy()
     graph = graph.tocsr()
+    hops = None
+    if not has_data.all():
+        # A texel without data starts from its nearest texel with data (in hops): the solve then
+        # only spreads what is near, rather than pulling every such texel from the overall mean.
+        hops, _, source = csgraph.dijkstra(graph, unweighted=True, indices=np.flatnonzero(has_data), min_only=True,
+                                           return_predecessors=True)
+        reached = ~has_data & (source >= 0)
+        solution[reached] = values[source[reached]]
     indptr, indices = graph.indptr.astype(np.int64), graph.indices.astype(np.int64)
     weights = graph.data.astype(np.float64)
     robust = np.empty_like(weights)
@@ -669,8 +677,7 @@ def smooth_on_surface(values: np.ndarray, precision: np.ndarray, graph: sparse.c
     # random walk's growth), up to the variance of a value nothing is known of.
     calibration = np.mean(((values - solution) ** 2 * precision)[has_data])
     variance = calibration / (precision + degree[:, None] + pin)
-    if not has_data.all():
-        hops = csgraph.dijkstra(graph, unweighted=True, indices=np.flatnonzero(has_data), min_only=True)
+    if hops is not None:
         variance = np.minimum(variance + calibration / coupling * np.nan_to_num(hops, posinf=np.inf)[:, None],
                               np.maximum(UNIFORM_VARIANCE, variance))
     return solution, np.sqrt(variance) * settings.std_scale

@@ -14,7 +14,9 @@ Private to `freqbrdf.observe.observations`, whose `observe` calls them batch by 
   (docs/method.md#conventions, docs/method.md#band-limit);
 - `_sample_offsets` (numpy): where each texel's selected samples start when packed;
 - `_initialise_signals`: the fitted signals' buffer, with the constant channel at 1 (docs/method.md#forward-model);
-- `_sample_bilinear`, `_bilinear_stencil` and `_blend`: bilinear image samples.
+- `_sample_bilinear`, `_bilinear_stencil` and `_blend`: bilinear image samples;
+- `_lobe_rays`, `_cosine_rays` and `_texels_at_hits`: the rays `freqbrdf.observe.occlusion` traces
+  (each sample's mirror lobe, each texel's cosine rays) and the observed texel holding a hit point in UV.
 
 Compiled on first use and cached on disk (``cache=True``), so they stay at module level.
 """
@@ -242,3 +244,99 @@ def _sample_offsets(selected: np.ndarray) -> np.ndarray:
     offsets = np.zeros(len(selected) + 1, dtype=np.int64)
     np.cumsum(np.count_nonzero(selected, axis=1), out=offsets[1:])
     return offsets
+
+
+@numba.njit(parallel=True, cache=True)
+def _texels_at_hits(face, barycentric, face_xy, texel_of_pixel, observed, ray_origin, points, reach):
+    """Find the observed texel holding each hit point in UV, or -1.
+
+    face (M,) and barycentric (M, 2) (weights of the second and third corners) place each hit on
+    the mesh; face_xy (F, 3, 2) are the faces' corners in texel coordinates (column, row of texel
+    centres); texel_of_pixel (T, T) the row of the texel at each pixel, -1 where none. A texel
+    counts where it is observed and its ray origin (N, 3) lies within reach of the hit's world
+    point (M, 3) (a pixel shared by two charts can hold a texel of the other one).
+    """
+    n_hits = face.shape[0]
+    res = texel_of_pixel.shape[0]
+    texel = np.full(n_hits, -1, dtype=np.int64)
+    reach_squared = reach * reach
+    for k in numba.prange(n_hits):
+        f = face[k]
+        b1 = barycentric[k, 0]
+        b2 = barycentric[k, 1]
+        b0 = 1.0 - b1 - b2
+        x = b0 * face_xy[f, 0, 0] + b1 * face_xy[f, 1, 0] + b2 * face_xy[f, 2, 0]
+        y = b0 * face_xy[f, 0, 1] + b1 * face_xy[f, 1, 1] + b2 * face_xy[f, 2, 1]
+        col = min(max(int(math.floor(x + 0.5)), 0), res - 1)
+        row = min(max(int(math.floor(y + 0.5)), 0), res - 1)
+        t = texel_of_pixel[row, col]
+        if t < 0 or not observed[t]:
+            continue
+        distance_squared = 0.0
+        for axis in range(3):
+            d = ray_origin[t, axis] - points[k, axis]
+            distance_squared += d * d
+        if distance_squared <= reach_squared:
+            texel[k] = t
+    return texel
+
+
+@numba.njit(parallel=True, cache=True)
+def _lobe_rays(ray_origin, texel, mirror, offsets):
+    """Build the rays of each sample's mirror lobe, as `Occluder.first_hits_rows` takes them.
+
+    ray_origin (N, 3); texel (S,) the texel of each sample; mirror (S, 3) its unit mirror
+    direction; offsets (R, 3) the lobe's rays in a frame whose z is the mirror direction (x
+    across it, y along it). Ray k is sample k // R's offset k % R. Returns origins and unit
+    directions (3, S R) float32.
+    """
+    n_samples = texel.shape[0]
+    n_rays = offsets.shape[0]
+    origins = np.empty((3, n_samples * n_rays), dtype=np.float32)
+    directions = np.empty((3, n_samples * n_rays), dtype=np.float32)
+    for s in numba.prange(n_samples):
+        mx, my, mz = mirror[s, 0], mirror[s, 1], mirror[s, 2]
+        # across = mirror x (x axis, or y where the mirror is close to x), normalised
+        if abs(mx) < 0.9:
+            ax, ay, az = 0.0, mz, -my
+        else:
+            ax, ay, az = -mz, 0.0, mx
+        length = math.sqrt(ax * ax + ay * ay + az * az)
+        ax, ay, az = ax / length, ay / length, az / length
+        bx, by, bz = my * az - mz * ay, mz * ax - mx * az, mx * ay - my * ax  # along = mirror x across
+        t = texel[s]
+        for r in range(n_rays):
+            k = s * n_rays + r
+            u, v, w = offsets[r, 0], offsets[r, 1], offsets[r, 2]
+            directions[0, k] = u * ax + v * bx + w * mx
+            directions[1, k] = u * ay + v * by + w * my
+            directions[2, k] = u * az + v * bz + w * mz
+            for axis in range(3):
+                origins[axis, k] = ray_origin[t, axis]
+    return origins, directions
+
+
+@numba.njit(parallel=True, cache=True)
+def _cosine_rays(ray_origin, frame, spin, local, texels):
+    """Build each listed texel's cosine rays turned by its spin, as `Occluder.first_hits_rows` takes them.
+
+    ray_origin (N, 3); frame (N, 3, 3) rows tangent, bitangent, normal; spin (N,) radians;
+    local (R, 3) directions in a frame with z up; texels (n,). Ray k is texel k // R's ray k % R.
+    Returns origins and unit directions (3, n R) float32.
+    """
+    n_texels = texels.shape[0]
+    n_rays = local.shape[0]
+    origins = np.empty((3, n_texels * n_rays), dtype=np.float32)
+    directions = np.empty((3, n_texels * n_rays), dtype=np.float32)
+    for i in numba.prange(n_texels):
+        t = texels[i]
+        c, s = math.cos(spin[t]), math.sin(spin[t])
+        for r in range(n_rays):
+            k = i * n_rays + r
+            along_tangent = local[r, 0] * c - local[r, 1] * s
+            along_bitangent = local[r, 0] * s + local[r, 1] * c
+            for axis in range(3):
+                directions[axis, k] = (along_tangent * frame[t, 0, axis] + along_bitangent * frame[t, 1, axis]
+                                       + local[r, 2] * frame[t, 2, axis])
+                origins[axis, k] = ray_origin[t, axis]
+    return origins, directions

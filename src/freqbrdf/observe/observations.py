@@ -59,6 +59,7 @@ from freqbrdf.observe.occlusion import (
     occluded_irradiance,
     occlusion_steps,
     self_occluding,
+    uv_texels,
 )
 from freqbrdf.progress import SILENT, Reporter
 from freqbrdf.render.occluder import RAYS_PER_BATCH, Occluder
@@ -579,11 +580,12 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
             observed = weight.sum(axis=1) > 0
             # Rays that leave upwards from a texel above all of the mesh meet nothing: not traced.
             hidden = may_be_hidden(ray_origin, normal, capture.mesh.vertices)
+            uv = uv_texels(capture.mesh.uv, capture.mesh.faces, texels.mask)
             irradiance = occluded_irradiance(occluder, capture.envmap, irradiance, ray_origin, frame,
-                                             surface_radiance, observed, texels.texel_size, advance, hidden)
+                                             surface_radiance, observed, texels.texel_size, advance, hidden, uv)
             mirror_occluded, mirror_surface = mirror_occlusion(occluder, ray_origin, frame, view_direction, visible,
                                                               surface_radiance, observed, texels.texel_size, advance,
-                                                              hidden)
+                                                              hidden, uv)
     timings["occlusion"] = time.perf_counter() - tick
 
     tick = time.perf_counter()

@@ -33,12 +33,12 @@ from scipy import ndimage
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from freqbrdf.images import LUMINANCE
-from freqbrdf.observe._kernels import _mirror_directions, _sample_offsets
+from freqbrdf.observe._kernels import _cosine_rays, _lobe_rays, _mirror_directions, _sample_offsets, _texels_at_hits
 from freqbrdf.render.occluder import RAYS_PER_BATCH, Occluder
 from freqbrdf.sphere import envmap as envmaps
 
-__all__ = ["CompactLights", "compact_lights", "may_be_hidden", "mirror_occlusion", "occluded_irradiance",
-           "occlusion_steps", "self_occluding"]
+__all__ = ["CompactLights", "UVTexels", "compact_lights", "may_be_hidden", "mirror_occlusion", "occluded_irradiance",
+           "occlusion_steps", "self_occluding", "uv_texels"]
 
 # A pixel belongs to a compact light where its luminance exceeds this many times the map's mean.
 LIGHT_BRIGHTNESS = 16.0
@@ -252,33 +252,92 @@ def occlusion_steps(n_texels: int, n_views: int = 0) -> int:
     return 1 + -(-n_texels // max(1, RAYS_PER_BATCH // RAYS)) + mirror
 
 
+class UVTexels(NamedTuple):
+    """Where the texels lie in UV, to find the texel that holds a point on the mesh (`uv_texels`).
+
+    Attributes
+    ----------
+    face_xy : (F, 3, 2) float64
+        Each face's corners in texel coordinates (column, row; texel centres at integers).
+    texel_of_pixel : (T, T) int64
+        The row (in texel order) of the texel at each pixel of the texture; -1 where none.
+    """
+
+    face_xy: np.ndarray
+    texel_of_pixel: np.ndarray
+
+
+def uv_texels(uv: np.ndarray, faces: np.ndarray, mask: np.ndarray) -> UVTexels:
+    """Index the texels of a texture by where they lie in UV.
+
+    Parameters
+    ----------
+    uv : (P, 2) array
+        The mesh's texture coordinates per vertex (v up, as in OBJ).
+    faces : (F, 3) int array
+        Its triangles.
+    mask : (T, T) bool
+        The covered texels (`freqbrdf.texels.Texels.mask`), in row-major texel order.
+
+    Returns
+    -------
+    UVTexels
+        The faces' corners in texel coordinates and each pixel's texel.
+    """
+    res = mask.shape[0]
+    uv = np.asarray(uv, np.float64)
+    xy = np.stack([uv[:, 0] * res - 0.5, (1.0 - uv[:, 1]) * res - 0.5], axis=-1)
+    texel_of_pixel = np.full(mask.shape, -1, dtype=np.int64)
+    texel_of_pixel[mask] = np.arange(np.count_nonzero(mask))
+    return UVTexels(np.ascontiguousarray(xy[np.asarray(faces)]), texel_of_pixel)
+
+
 class _SurfaceRadiance:
     """What the object shows at points on it.
 
-    The mean observed radiance of its texel nearest each point (within ``_NEAREST_REACH`` texel
-    sizes), else the mean over its observed texels.
+    The mean observed radiance of the texel that holds each point in UV (where ``uv`` is given,
+    that texel is observed and within ``_NEAREST_REACH`` texel sizes), else of its observed texel
+    nearest the point (within that reach), else the mean over its observed texels.
     """
 
     def __init__(self, ray_origin: np.ndarray, surface_radiance: np.ndarray, observed: np.ndarray,
-                 texel_size: np.ndarray):
+                 texel_size: np.ndarray, uv: UVTexels | None = None):
         self._surface = np.asarray(surface_radiance, np.float64)
+        self._observed = np.asarray(observed, dtype=bool)
+        self._origin = np.ascontiguousarray(ray_origin, np.float64)
         self._shown = np.flatnonzero(observed)
+        self._uv = uv
         self.mean = self._surface[self._shown].mean(axis=0) if len(self._shown) else np.zeros(3)
-        self._tree = cKDTree(np.asarray(ray_origin, np.float64)[self._shown]) if len(self._shown) else None
+        self._tree = None
         self._reach = _NEAREST_REACH * float(np.median(texel_size)) if len(texel_size) else 0.0
 
-    def at(self, points: np.ndarray) -> np.ndarray:
-        """(M, 3) float64 radiance at (M, 3) world points."""
+    def at(self, points: np.ndarray, face: np.ndarray, barycentric: np.ndarray) -> np.ndarray:
+        """(M, 3) float64 radiance at (M, 3) world points, on (M,) faces at (M, 2) barycentrics."""
+        points = np.ascontiguousarray(points, np.float64)
+        radiance = np.empty((len(points), 3))
+        rest = np.arange(len(points))
+        if self._uv is not None and len(self._shown):
+            texel = _texels_at_hits(face, barycentric, self._uv.face_xy, self._uv.texel_of_pixel, self._observed,
+                                    self._origin, points, self._reach)
+            found = texel >= 0
+            radiance[found] = self._surface[texel[found]]
+            rest = np.flatnonzero(~found)
+        if not len(rest):
+            return radiance
+        if not len(self._shown):
+            radiance[rest] = self.mean
+            return radiance
         if self._tree is None:
-            return np.broadcast_to(self.mean, (len(points), 3)).copy()
-        distance, nearest = self._tree.query(np.asarray(points, np.float64), workers=-1)
-        return np.where((distance <= self._reach)[:, None], self._surface[self._shown[nearest]], self.mean)
+            self._tree = cKDTree(self._origin[self._shown])
+        distance, nearest = self._tree.query(points[rest], workers=-1)
+        radiance[rest] = np.where((distance <= self._reach)[:, None], self._surface[self._shown[nearest]], self.mean)
+        return radiance
 
 
 def occluded_irradiance(occluder: Occluder, envmap: envmaps.Envmap, irradiance: np.ndarray, ray_origin: np.ndarray,
                         frame: np.ndarray, surface_radiance: np.ndarray, observed: np.ndarray,
                         texel_size: np.ndarray, advance: Callable[[int], None] = lambda steps: None,
-                        hidden: np.ndarray | None = None) -> np.ndarray:
+                        hidden: np.ndarray | None = None, uv: UVTexels | None = None) -> np.ndarray:
     """Correct each texel's unoccluded irradiance for what the object blocks and shows instead.
 
     Parameters
@@ -305,6 +364,9 @@ def occluded_irradiance(occluder: Occluder, envmap: envmaps.Envmap, irradiance: 
     hidden : (N,) bool, optional
         `may_be_hidden`: only these texels' rays are traced (every ray here leaves upwards); by
         default every texel's.
+    uv : UVTexels, optional
+        `uv_texels` of these texels: a hit reads the texel that holds it in UV; by default the
+        observed texel nearest it.
 
     Returns
     -------
@@ -331,28 +393,23 @@ def occluded_irradiance(occluder: Occluder, envmap: envmaps.Envmap, irradiance: 
     advance(1)
 
     # The rest of the map: cosine rays, each blocked one trading the rest's radiance for the surface's.
-    surface = _SurfaceRadiance(ray_origin, surface_radiance, observed, texel_size)
+    surface = _SurfaceRadiance(ray_origin, surface_radiance, observed, texel_size, uv)
     local = cosine_directions(RAYS)
     spin = 2.0 * math.pi * np.modf(np.arange(n_texels) * (math.sqrt(5.0) - 1.0) / 2.0)[0]
     texels_per_batch = max(1, RAYS_PER_BATCH // RAYS)
+    ray_origin32 = np.ascontiguousarray(ray_origin, np.float32)
+    frame64 = np.ascontiguousarray(frame, np.float64)
     for first in range(0, n_texels, texels_per_batch):
         # Only the texels some of the mesh may hide: every ray here leaves upwards.
         texels = first + np.flatnonzero(hidden[first:first + texels_per_batch])
         if not len(texels):
             advance(1)
             continue
-        cos_spin, sin_spin = np.cos(spin[texels])[:, None], np.sin(spin[texels])[:, None]
-        along_tangent = local[None, :, 0] * cos_spin - local[None, :, 1] * sin_spin  # (n, M)
-        along_bitangent = local[None, :, 0] * sin_spin + local[None, :, 1] * cos_spin
-        basis = np.asarray(frame[texels], np.float64)
-        directions = (along_tangent[..., None] * basis[:, None, 0] + along_bitangent[..., None] * basis[:, None, 1]
-                      + local[None, :, 2, None] * basis[:, None, 2]).reshape(-1, 3)  # (n M, 3)
-        origins = np.repeat(origins_rows[:, texels], RAYS, axis=1)  # (3, n M)
-        distance = occluder.hit_distances_rows(origins, np.ascontiguousarray(directions.T, np.float32))
-        rays = np.flatnonzero(np.isfinite(distance))
+        origins, directions = _cosine_rays(ray_origin32, frame64, spin, local, texels)  # (3, n M)
+        rays, distance, face, barycentric = occluder.first_hits_rows(origins, directions)
         if len(rays):
-            lost = envmaps.lookup(lights.rest, directions[rays]).astype(np.float64)  # (hits, 3)
-            gained = surface.at(origins[:, rays].T.astype(np.float64) + distance[rays, None] * directions[rays])
+            lost = envmaps.lookup(lights.rest, directions[:, rays].T.astype(np.float64)).astype(np.float64)
+            gained = surface.at((origins[:, rays] + distance * directions[:, rays]).T, face, barycentric)
             change = (gained - lost) * (math.pi / RAYS)
             for channel in range(3):
                 corrected[texels, channel] += np.bincount(rays // RAYS, weights=change[:, channel],
@@ -364,7 +421,7 @@ def occluded_irradiance(occluder: Occluder, envmap: envmaps.Envmap, irradiance: 
 def mirror_occlusion(occluder: Occluder, ray_origin: np.ndarray, frame: np.ndarray, view_direction: np.ndarray,
                      visible: np.ndarray, surface_radiance: np.ndarray, observed: np.ndarray, texel_size: np.ndarray,
                      advance: Callable[[int], None] = lambda steps: None,
-                     hidden: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                     hidden: np.ndarray | None = None, uv: UVTexels | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Find how much of each sample's mirror lobe meets the object, and what the object shows there.
 
     Per visible sample, rays from the texel's point: one along the view direction mirrored about
@@ -396,6 +453,9 @@ def mirror_occlusion(occluder: Occluder, ray_origin: np.ndarray, frame: np.ndarr
     hidden : (N,) bool, optional
         `may_be_hidden`: elsewhere only the samples whose lobe may dip below the texel's horizon
         are traced; by default every sample.
+    uv : UVTexels, optional
+        `uv_texels` of these texels: a hit reads the texel that holds it in UV; by default the
+        observed texel nearest it.
 
     Returns
     -------
@@ -409,7 +469,7 @@ def mirror_occlusion(occluder: Occluder, ray_origin: np.ndarray, frame: np.ndarr
     shown = np.zeros((n_texels, n_views, 3), dtype=np.float32)
     if n_texels == 0 or n_views == 0:
         return occluded, shown
-    surface = _SurfaceRadiance(ray_origin, surface_radiance, observed, texel_size)
+    surface = _SurfaceRadiance(ray_origin, surface_radiance, observed, texel_size, uv)
     hidden = np.ones(n_texels, dtype=bool) if hidden is None else np.asarray(hidden, dtype=bool)
     normal = np.asarray(frame[:, 2], np.float64)
     ring = 2.0 * math.pi * np.arange(MIRROR_RING) / MIRROR_RING
@@ -419,6 +479,7 @@ def mirror_occlusion(occluder: Occluder, ray_origin: np.ndarray, frame: np.ndarr
                                                            np.full(MIRROR_RING, math.cos(cone))])])
     weights = np.concatenate([[MIRROR_CENTRE_WEIGHT], np.full(MIRROR_RING, (1.0 - MIRROR_CENTRE_WEIGHT) / MIRROR_RING)])
     texels_per_batch = max(1, RAYS_PER_BATCH // (n_views * len(offsets)))
+    ray_origin32 = np.ascontiguousarray(ray_origin, np.float32)
     for first in range(0, n_texels, texels_per_batch):
         rows = slice(first, min(first + texels_per_batch, n_texels))
         texel, view = np.nonzero(visible[rows])  # the packed order of `_mirror_directions`
@@ -429,19 +490,13 @@ def mirror_occlusion(occluder: Occluder, ray_origin: np.ndarray, frame: np.ndarr
         # A lobe whose every ray leaves upwards from a texel above the whole mesh meets nothing.
         traced = hidden[texel] | (np.einsum("rc,rc->r", mirror, normal[texel]) < math.sin(cone) + _LOBE_MARGIN)
         texel, view, mirror = texel[traced], view[traced], mirror[traced]
-        across = np.cross(mirror, np.where(np.abs(mirror[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]]))
-        across /= np.linalg.norm(across, axis=1, keepdims=True)
-        along = np.cross(mirror, across)
-        origins = np.asarray(ray_origin, np.float64)[texel]
-        share = np.zeros(len(texel))
-        radiance = np.zeros((len(texel), 3))
-        for offset, weight in zip(offsets, weights):
-            directions = offset[0] * across + offset[1] * along + offset[2] * mirror
-            distance = occluder.hit_distances_rows(np.ascontiguousarray(origins.T, np.float32),
-                                                   np.ascontiguousarray(directions.T, np.float32))
-            hits = np.flatnonzero(np.isfinite(distance))
-            share[hits] += weight
-            radiance[hits] += weight * surface.at(origins[hits] + distance[hits, None] * directions[hits])
+        origins, directions = _lobe_rays(ray_origin32, texel, mirror, offsets)  # (3, n R)
+        hits, distance, face, barycentric = occluder.first_hits_rows(origins, directions)
+        sample, hit_weight = hits // len(offsets), weights[hits % len(offsets)]
+        share = np.bincount(sample, hit_weight, minlength=len(texel))
+        shows = surface.at((origins[:, hits] + distance * directions[:, hits]).T, face, barycentric)
+        radiance = np.stack([np.bincount(sample, hit_weight * shows[:, c], minlength=len(texel)) for c in range(3)],
+                            axis=1)
         met = np.flatnonzero(share > 0)
         occluded[texel[met], view[met]] = np.minimum(share[met], 1.0)
         shown[texel[met], view[met]] = radiance[met] / share[met, None]

@@ -6,6 +6,8 @@ optionally towards the environment for self-occlusion (docs/method.md#observatio
 
 from __future__ import annotations
 
+import importlib
+
 import numpy as np
 
 from freqbrdf.render.scenes import mesh_shape, mitsuba, restored_floating_point
@@ -26,6 +28,7 @@ class Occluder:
 
     def __init__(self, mesh):
         self._mitsuba = mitsuba()
+        self._drjit = importlib.import_module("drjit")
         with restored_floating_point():
             self._scene = self._mitsuba.load_dict({"type": "scene", "object": mesh_shape(mesh, {"type": "diffuse"})})
 
@@ -74,8 +77,9 @@ class Occluder:
             hits[rays] = np.asarray(self._scene.ray_test(ray), dtype=bool)
         return hits
 
-    def hit_distances_rows(self, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
-        """Return how far each ray travels before it hits the mesh, rays given as rows.
+    def first_hits_rows(self, origins: np.ndarray, directions: np.ndarray
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Find where the rays that meet the mesh first meet it, rays given as rows.
 
         Rays are traced in batches of RAYS_PER_BATCH.
 
@@ -88,13 +92,30 @@ class Occluder:
 
         Returns
         -------
-        (M,) float32
-            The distance to the first hit; inf where the ray leaves the mesh.
+        hit : (H,) int64
+            The rays that meet the mesh, ascending.
+        distance : (H,) float32
+            How far each travels to its first hit.
+        face : (H,) int64
+            The face it hits (the mesh's face order).
+        barycentric : (H, 2) float32
+            The hit's weights (b1, b2) of the face's second and third corners (the first has
+            1 - b1 - b2).
         """
-        distances = np.full(origins.shape[1], np.inf, dtype=np.float32)
+        dr = self._drjit
+        parts = []
         for rays, ray in self._batches(origins, directions):
-            distances[rays] = np.asarray(self._scene.ray_intersect_preliminary(ray).t, dtype=np.float32)
-        return distances
+            found = self._scene.ray_intersect_preliminary(ray)
+            dr.eval(found.t, found.prim_index, found.prim_uv)  # one traversal for the three
+            distance = np.asarray(found.t, dtype=np.float32)
+            hit = np.flatnonzero(np.isfinite(distance))
+            index = self._mitsuba.UInt32(hit.astype(np.uint32))
+            face = np.asarray(dr.gather(self._mitsuba.UInt32, found.prim_index, index), dtype=np.int64)
+            barycentric = np.asarray(dr.gather(self._mitsuba.Point2f, found.prim_uv, index), dtype=np.float32)
+            parts.append((hit + rays.start, distance[hit], face, barycentric.reshape(2, -1).T))
+        if not parts:
+            return np.empty(0, np.int64), np.empty(0, np.float32), np.empty(0, np.int64), np.empty((0, 2), np.float32)
+        return tuple(np.concatenate([part[k] for part in parts]) for k in range(4))
 
     def _batches(self, origins: np.ndarray, directions: np.ndarray, max_distance: np.ndarray | None = None):
         """Yield (slice, Mitsuba Ray3f) per batch of RAYS_PER_BATCH rays given as rows, in Mitsuba's floating point."""
