@@ -15,8 +15,9 @@ Private to `freqbrdf.observe.observations`, whose `observe` calls them batch by 
 - `_sample_offsets` (numpy): where each texel's selected samples start when packed;
 - `_initialise_signals`: the fitted signals' buffer, with the constant channel at 1 (docs/method.md#forward-model);
 - `_sample_bilinear`, `_bilinear_stencil` and `_blend`: bilinear image samples;
-- `_lobe_rays`, `_cosine_rays` and `_texels_at_hits`: the rays `freqbrdf.observe.occlusion` traces
-  (each sample's mirror lobe, each texel's cosine rays) and the observed texel holding a hit point in UV.
+- `_lobe_rays`, `_cosine_rays`, `_texels_at_hits` and `_lobe_totals`: the rays `freqbrdf.observe.occlusion`
+  traces (each sample's mirror lobe, each texel's cosine rays), the observed texel holding a hit point
+  in UV and what each lobe's hits add up to.
 
 Compiled on first use and cached on disk (``cache=True``), so they stay at module level.
 """
@@ -286,9 +287,9 @@ def _lobe_rays(ray_origin, texel, mirror, offsets):
     """Build the rays of each sample's mirror lobe, as `Occluder.first_hits_rows` takes them.
 
     ray_origin (N, 3); texel (S,) the texel of each sample; mirror (S, 3) its unit mirror
-    direction; offsets (R, 3) the lobe's rays in a frame whose z is the mirror direction (x
-    across it, y along it). Ray k is sample k // R's offset k % R. Returns origins and unit
-    directions (3, S R) float32.
+    direction (any length: normalised here); offsets (R, 3) the lobe's rays in a frame whose z is
+    the mirror direction (x across it, y along it). Ray k is sample k // R's offset k % R. Returns
+    origins and unit directions (3, S R) float32.
     """
     n_samples = texel.shape[0]
     n_rays = offsets.shape[0]
@@ -296,6 +297,8 @@ def _lobe_rays(ray_origin, texel, mirror, offsets):
     directions = np.empty((3, n_samples * n_rays), dtype=np.float32)
     for s in numba.prange(n_samples):
         mx, my, mz = mirror[s, 0], mirror[s, 1], mirror[s, 2]
+        norm = max(math.sqrt(mx * mx + my * my + mz * mz), 1e-12)
+        mx, my, mz = mx / norm, my / norm, mz / norm
         # across = mirror x (x axis, or y where the mirror is close to x), normalised
         if abs(mx) < 0.9:
             ax, ay, az = 0.0, mz, -my
@@ -340,3 +343,23 @@ def _cosine_rays(ray_origin, frame, spin, local, texels):
                                        + local[r, 2] * frame[t, 2, axis])
                 origins[axis, k] = ray_origin[t, axis]
     return origins, directions
+
+
+@numba.njit(cache=True)
+def _lobe_totals(hits, weights, shows, n_samples):
+    """Sum each sample's lobe rays that hit: their weight and their weighted radiance.
+
+    hits (H,) ascending ray indices, ray k being sample k // R's ray k % R with weight weights[k % R]
+    (R,); shows (H, 3) what each hit sees. Returns share (S,) and radiance (S, 3) float64, the sums
+    in ray order.
+    """
+    n_rays = weights.shape[0]
+    share = np.zeros(n_samples)
+    radiance = np.zeros((n_samples, 3))
+    for h in range(hits.shape[0]):
+        s = hits[h] // n_rays
+        w = weights[hits[h] % n_rays]
+        share[s] += w
+        for c in range(3):
+            radiance[s, c] += w * shows[h, c]
+    return share, radiance

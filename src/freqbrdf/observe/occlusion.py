@@ -33,7 +33,14 @@ from scipy import ndimage
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from freqbrdf.images import LUMINANCE
-from freqbrdf.observe._kernels import _cosine_rays, _lobe_rays, _mirror_directions, _sample_offsets, _texels_at_hits
+from freqbrdf.observe._kernels import (
+    _cosine_rays,
+    _lobe_rays,
+    _lobe_totals,
+    _mirror_directions,
+    _sample_offsets,
+    _texels_at_hits,
+)
 from freqbrdf.render.occluder import RAYS_PER_BATCH, Occluder
 from freqbrdf.sphere import envmap as envmaps
 
@@ -471,7 +478,6 @@ def mirror_occlusion(occluder: Occluder, ray_origin: np.ndarray, frame: np.ndarr
         return occluded, shown
     surface = _SurfaceRadiance(ray_origin, surface_radiance, observed, texel_size, uv)
     hidden = np.ones(n_texels, dtype=bool) if hidden is None else np.asarray(hidden, dtype=bool)
-    normal = np.asarray(frame[:, 2], np.float64)
     ring = 2.0 * math.pi * np.arange(MIRROR_RING) / MIRROR_RING
     cone = math.radians(MIRROR_CONE_DEG)
     # (rays, 3): the centre, then the ring, in a frame whose z is the mirror direction.
@@ -482,21 +488,17 @@ def mirror_occlusion(occluder: Occluder, ray_origin: np.ndarray, frame: np.ndarr
     ray_origin32 = np.ascontiguousarray(ray_origin, np.float32)
     for first in range(0, n_texels, texels_per_batch):
         rows = slice(first, min(first + texels_per_batch, n_texels))
-        texel, view = np.nonzero(visible[rows])  # the packed order of `_mirror_directions`
+        # A lobe whose every ray leaves upwards from a texel above the whole mesh meets nothing: the
+        # mirror direction's height over the horizon is the view's (its local z).
+        traced = visible[rows] & (hidden[rows, None] | (view_direction[rows, :, 2] < math.sin(cone) + _LOBE_MARGIN))
+        texel, view = np.nonzero(traced)  # the packed order of `_mirror_directions`
         texel += first
-        mirror = _mirror_directions(np.asarray(frame[rows], np.float64), view_direction[rows], visible[rows],
-                                    _sample_offsets(visible[rows]))
-        mirror /= np.maximum(np.linalg.norm(mirror, axis=1, keepdims=True), 1e-12)  # then a frame around it
-        # A lobe whose every ray leaves upwards from a texel above the whole mesh meets nothing.
-        traced = hidden[texel] | (np.einsum("rc,rc->r", mirror, normal[texel]) < math.sin(cone) + _LOBE_MARGIN)
-        texel, view, mirror = texel[traced], view[traced], mirror[traced]
+        mirror = _mirror_directions(np.asarray(frame[rows], np.float64), view_direction[rows], traced,
+                                    _sample_offsets(traced))  # normalised by `_lobe_rays`
         origins, directions = _lobe_rays(ray_origin32, texel, mirror, offsets)  # (3, n R)
         hits, distance, face, barycentric = occluder.first_hits_rows(origins, directions)
-        sample, hit_weight = hits // len(offsets), weights[hits % len(offsets)]
-        share = np.bincount(sample, hit_weight, minlength=len(texel))
         shows = surface.at((origins[:, hits] + distance * directions[:, hits]).T, face, barycentric)
-        radiance = np.stack([np.bincount(sample, hit_weight * shows[:, c], minlength=len(texel)) for c in range(3)],
-                            axis=1)
+        share, radiance = _lobe_totals(hits, weights, shows, len(texel))
         met = np.flatnonzero(share > 0)
         occluded[texel[met], view[met]] = np.minimum(share[met], 1.0)
         shown[texel[met], view[met]] = radiance[met] / share[met, None]
