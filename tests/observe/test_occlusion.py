@@ -238,3 +238,16 @@ def test_a_hit_reads_the_texel_that_holds_it_in_uv():
     row = np.flatnonzero(aimed[hits] == hidden_texel)[0]
     assert not np.array_equal(instead[row], shown[hidden_texel])
     assert any(np.array_equal(instead[row], shown[t]) for t in np.flatnonzero(observed))
+
+
+def test_an_occluder_traces_the_same_after_giving_back_its_buffers():
+    occluder = Occluder(floor_and_roof())
+    origins = np.ascontiguousarray(np.array([[-0.7, 0.9], [1e-3, 1e-3], [0.0, 0.0]], np.float32))
+    up = np.ascontiguousarray(np.array([[0.0, 0.0], [1.0, 1.0], [0.0, 0.0]], np.float32))
+    before = occluder.first_hits_rows(origins, up)
+    occluder.release_memory()
+    after = occluder.first_hits_rows(origins, up)
+    assert list(before[0]) == [0]  # under the roof only
+    np.testing.assert_allclose(before[1], [0.05 - 1e-3], rtol=1e-5)
+    for found, again in zip(before, after):
+        np.testing.assert_array_equal(found, again)

@@ -586,6 +586,8 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
             mirror_occluded, mirror_surface = mirror_occlusion(occluder, ray_origin, frame, view_direction, visible,
                                                               surface_radiance, observed, texels.texel_size, advance,
                                                               hidden, uv)
+    if occluder is not None:
+        occluder.release_memory()  # the rays' buffers: the stages after this one trace nothing
     timings["occlusion"] = time.perf_counter() - tick
 
     tick = time.perf_counter()

@@ -117,6 +117,13 @@ class Occluder:
             return np.empty(0, np.int64), np.empty(0, np.float32), np.empty(0, np.int64), np.empty((0, 2), np.float32)
         return tuple(np.concatenate([part[k] for part in parts]) for k in range(4))
 
+    def release_memory(self) -> None:
+        """Give back the memory Dr.Jit keeps for the buffers of traced rays (its allocation cache).
+
+        The scene stays loaded; the next trace allocates its buffers again.
+        """
+        self._drjit.flush_malloc_cache()
+
     def _batches(self, origins: np.ndarray, directions: np.ndarray, max_distance: np.ndarray | None = None):
         """Yield (slice, Mitsuba Ray3f) per batch of RAYS_PER_BATCH rays given as rows, in Mitsuba's floating point."""
         mi = self._mitsuba
