@@ -11,12 +11,13 @@ from __future__ import annotations
 
 import json
 import os
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from freqbrdf.calibrate import POORLY_DETERMINED, axis_angle, calibrate, rotation_about
+from freqbrdf.calibrate import MIN_GAIN_SAMPLES, POORLY_DETERMINED, axis_angle, calibrate, rotation_about
 from freqbrdf.capture.layouts import load
 from freqbrdf.config import CalibrationConfig, Config, TexelConfig
 from freqbrdf.images import read_image, write_exr
@@ -152,3 +153,17 @@ def test_a_flat_surface_does_not_register_the_probe():
     found = register_probe(envmap, frame, view, np.ones((50, 8), np.float32),
                            rng.random((50, 8, 3)).astype(np.float32), 25.0)
     assert found.angle_deg == 0.0 and np.array_equal(found.rotation, np.eye(3))
+
+
+def test_a_capture_with_too_few_views_per_texel_keeps_the_maps_scale_and_says_so(clean, clean_calibration):
+    # One view in four (8 of 32): a few samples per texel cannot tell a dielectric's diffuse from its
+    # specular, so the gains would read the model's misfit.
+    assert clean_calibration.samples_per_texel >= MIN_GAIN_SAMPLES
+    given = load(clean)
+    sparse = replace(given, frames=given.frames[::4])
+    capture, found = calibrate(sparse, CONFIG)
+    assert found.samples_per_texel < MIN_GAIN_SAMPLES
+    assert np.all(found.gain == 1.0) and found.gain_measured is None and np.all(found.gain_log_std == 0.0)
+    assert all(frame.exposure in (None, 1.0) or np.allclose(frame.exposure, 1.0) for frame in capture.frames)
+    assert any("too few" in line and "not estimated" in line for line in found.warnings)
+    assert found.to_dict()["samples_per_texel"] == found.samples_per_texel

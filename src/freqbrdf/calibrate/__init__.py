@@ -56,6 +56,10 @@ GAIN_PASSES = 5
 SIGNIFICANT_Z = 2.5
 # A gain whose log std exceeds this is poorly determined by the capture (named in a warning).
 POORLY_DETERMINED = 0.15
+# The gains need texels whose samples tell a dielectric's diffuse from its fixed specular: below this
+# median of samples per seen texel they read the model's misfit, not the exposure
+# (docs/results.md#calibration), and are not estimated (the map's scale is kept, with a warning).
+MIN_GAIN_SAMPLES = 8
 # A frame whose gain is beyond this factor of the others (either way) is one calibration cannot
 # trust: named in a warning, dropped with ``drop_bad_views``.
 BAD_FRAME_FACTOR = 2.0
@@ -85,6 +89,9 @@ class Calibration:
         Photographs left out (``CalibrationConfig.drop_bad_views``).
     texels : int
         Texels that calibrated.
+    samples_per_texel : float
+        The median over the seen coarse texels of the views that see each (clipped samples
+        included); the gains are estimated from `MIN_GAIN_SAMPLES` on.
     seconds : float
         Time taken.
     warnings : list of str
@@ -99,6 +106,7 @@ class Calibration:
     cameras: CameraRefinement | None = None
     dropped_views: list[int] = field(default_factory=list)
     texels: int = 0
+    samples_per_texel: float = 0.0
     seconds: float = 0.0
     warnings: list[str] = field(default_factory=list)
 
@@ -123,7 +131,8 @@ class Calibration:
             ``white_balance``, ``frame_gains`` (per view, where measured and applied, or None),
             ``probe`` (the turn: ``angle_deg``, ``axis``, ``std_deg``, ``rotation``, ``explained``
             before and after, ``significance``; or None), ``cameras`` (per view, see
-            `CameraRefinement.to_dict`; or None), ``dropped_views``, ``texels``, ``seconds``.
+            `CameraRefinement.to_dict`; or None), ``dropped_views``, ``texels``,
+            ``samples_per_texel``, ``seconds``.
         """
         probe = None
         if self.probe is not None:
@@ -139,7 +148,7 @@ class Calibration:
             "frame_gains": None if self.frame_gain is None else self.frame_gain.tolist(),
             "probe": probe, "cameras": None if self.cameras is None else self.cameras.to_dict(),
             "dropped_views": list(self.dropped_views), "texels": self.texels,
-            "seconds": self.seconds,
+            "samples_per_texel": self.samples_per_texel, "seconds": self.seconds,
         }
 
     def summary_line(self) -> str:
@@ -222,6 +231,8 @@ def calibrate(capture: Capture, config: Config = Config(),
         texel_frame = np.stack([texels.tangent, texels.bitangent, texels.normal], axis=1)
         every = observe(capture, coarse_config, texels=texels)
         observations = _exact_texels(every)
+        views = np.count_nonzero(every.visible, axis=1)  # clipped samples included: views are what it counts
+        calibration.samples_per_texel = float(np.median(views[views > 0])) if views.any() else 0.0
         advance(1)
         if settings.probe_rotation:
             sigma = brdf.band_limit_sigma(len(capture.frames)) if config.fit.band_limit else 0.0
@@ -239,7 +250,7 @@ def calibrate(capture: Capture, config: Config = Config(),
             calibration.frame_gain = measured
             observations = _scaled(observations, measured, config)
         gain, log_std, scored = np.ones(3), np.zeros(3), 0
-        if settings.gains:
+        if settings.gains and calibration.samples_per_texel >= MIN_GAIN_SAMPLES:
             search = _search_config(coarse_config)
             current = observations
             for _ in range(GAIN_PASSES):
@@ -320,6 +331,11 @@ def _warnings(capture: Capture, calibration: Calibration, settings) -> list[str]
         lines.append(f"the photographs are {calibration.exposure:.3g}x the environment map's exposure, white balance "
                      f"(R, G, B) {', '.join(f'{value:.3f}' for value in calibration.white_balance)}: corrected "
                      "(calibration); shoot the probe with the photographs' settings or check envmap_scale")
+    if settings.gains and calibration.samples_per_texel < MIN_GAIN_SAMPLES:
+        lines.append(f"the photographs give {calibration.samples_per_texel:.0f} samples per texel (median), too few to "
+                     "tell a dielectric's diffuse from its specular: the exposure and white balance are not estimated "
+                     f"(the environment map's are used); shoot more views (at least {MIN_GAIN_SAMPLES} per texel) or "
+                     "check envmap_scale")
     if settings.gains and np.any(calibration.gain_log_std > POORLY_DETERMINED):
         lines.append(f"the photographs determine the exposure poorly (std of the gains "
                      f"{', '.join(f'{value:.0%}' for value in calibration.gain_log_std)}; few dielectric texels?): "

@@ -254,13 +254,12 @@ def _texels_at_hits(face, barycentric, face_xy, texel_of_pixel, observed, ray_or
     face (M,) and barycentric (M, 2) (weights of the second and third corners) place each hit on
     the mesh; face_xy (F, 3, 2) are the faces' corners in texel coordinates (column, row of texel
     centres); texel_of_pixel (T, T) the row of the texel at each pixel, -1 where none. A texel
-    counts where it is observed and its ray origin (N, 3) lies within reach of the hit's world
-    point (M, 3) (a pixel shared by two charts can hold a texel of the other one).
+    counts where it is observed and its ray origin (N, 3) lies within reach[t] (N,) of the hit's
+    world point (M, 3): a pixel on a chart's border can hold a texel of another chart.
     """
     n_hits = face.shape[0]
     res = texel_of_pixel.shape[0]
     texel = np.full(n_hits, -1, dtype=np.int64)
-    reach_squared = reach * reach
     for k in numba.prange(n_hits):
         f = face[k]
         b1 = barycentric[k, 0]
@@ -277,7 +276,7 @@ def _texels_at_hits(face, barycentric, face_xy, texel_of_pixel, observed, ray_or
         for axis in range(3):
             d = ray_origin[t, axis] - points[k, axis]
             distance_squared += d * d
-        if distance_squared <= reach_squared:
+        if distance_squared <= reach[t] * reach[t]:
             texel[k] = t
     return texel
 

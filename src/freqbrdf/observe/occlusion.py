@@ -66,6 +66,9 @@ MIRROR_CONE_DEG = 12.0
 _LOBE_MARGIN = 1e-6
 # A hit point farther than this many texel sizes from every observed texel shows the mean radiance.
 _NEAREST_REACH = 8.0
+# The texel that holds a hit in UV stands for it only within this many of its own sizes (plus its
+# ray origin's lift): beyond, the pixel belongs to another chart and the nearest texel is read.
+_UV_REACH = 2.0
 # Faces whose plane has a mesh point farther above it than this share of the mesh's extent can
 # shade a texel: the mesh is not convex.
 _CONVEX_TOLERANCE = 1e-6
@@ -303,8 +306,9 @@ class _SurfaceRadiance:
     """What the object shows at points on it.
 
     The mean observed radiance of the texel that holds each point in UV (where ``uv`` is given,
-    that texel is observed and within ``_NEAREST_REACH`` texel sizes), else of its observed texel
-    nearest the point (within that reach), else the mean over its observed texels.
+    that texel is observed and within ``_UV_REACH`` of its own sizes), else of its observed texel
+    nearest the point (within ``_NEAREST_REACH`` median texel sizes), else the mean over its
+    observed texels.
     """
 
     def __init__(self, ray_origin: np.ndarray, surface_radiance: np.ndarray, observed: np.ndarray,
@@ -317,6 +321,7 @@ class _SurfaceRadiance:
         self.mean = self._surface[self._shown].mean(axis=0) if len(self._shown) else np.zeros(3)
         self._tree = None
         self._reach = _NEAREST_REACH * float(np.median(texel_size)) if len(texel_size) else 0.0
+        self._uv_reach = _UV_REACH * np.asarray(texel_size, np.float64)
 
     def at(self, points: np.ndarray, face: np.ndarray, barycentric: np.ndarray) -> np.ndarray:
         """(M, 3) float64 radiance at (M, 3) world points, on (M,) faces at (M, 2) barycentrics."""
@@ -325,7 +330,7 @@ class _SurfaceRadiance:
         rest = np.arange(len(points))
         if self._uv is not None and len(self._shown):
             texel = _texels_at_hits(face, barycentric, self._uv.face_xy, self._uv.texel_of_pixel, self._observed,
-                                    self._origin, points, self._reach)
+                                    self._origin, points, self._uv_reach)
             found = texel >= 0
             radiance[found] = self._surface[texel[found]]
             rest = np.flatnonzero(~found)
