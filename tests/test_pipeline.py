@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from dataclasses import replace
 from types import SimpleNamespace
 
 import numpy as np
@@ -376,3 +377,15 @@ def test_a_fit_of_a_mesh_that_cannot_hide_itself_loads_no_ray_tracer(tmp_path):
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip().splitlines()[-1] == "[]"
+
+
+def test_photographs_much_brighter_than_the_map_are_named(tiny_capture):
+    # Six views: too few for the gains (the map's scale is kept); at 4x the map's exposure most base
+    # colours reach their bound, and the fit says what that suggests.
+    capture = load(tiny_capture)
+    config = Config(texels=TexelConfig(texture_res=32))
+    clean = pipeline.fit(capture, config)
+    bright = pipeline.fit(replace(capture, frames=tuple(replace(frame, exposure=4.0) for frame in capture.frames)), config)
+    assert not any("reached its bound" in line for line in clean.warnings)
+    assert any("reached its bound" in line and "exposure" in line for line in bright.warnings)
+    assert any("too few" in line for line in bright.warnings)  # and why the gains did not correct it

@@ -47,6 +47,12 @@ from freqbrdf.uncertainty.heldout import StdCalibration, calibrate_std
 
 # A fit whose photographs clip this share of the samples says so (a warning in summary.json and on the command line).
 CENSORED_NOTE_FRACTION = 0.01
+# A fit whose per-texel base colour reaches its bound of 1 on this share of the texels says the photographs
+# look brighter than the map lights them (docs/results.md#calibration: clean captures 1-17 %, photographs at
+# 4x the map's exposure 49-98 %): what a capture whose gains are not estimated shows of an exposure mismatch.
+BASE_BOUND_NOTE_FRACTION = 0.3
+# A base colour at least this is at its bound.
+_BASE_AT_BOUND = 0.99
 
 
 @dataclass(eq=False)
@@ -288,6 +294,12 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
     start = time.perf_counter()
     estimate = estimate_materials(observations, config, reporter, angular.recorder() if angular else None)
     timings["estimate"] = time.perf_counter() - start - (angular.seconds if angular else 0.0)
+    at_bound = float(np.mean(np.any(estimate.base_color[estimate.estimated] >= _BASE_AT_BOUND, axis=1))
+                     ) if estimate.estimated.any() else 0.0
+    if at_bound >= BASE_BOUND_NOTE_FRACTION:
+        notes.append(f"the base colour of {at_bound:.0%} of the texels reached its bound of 1: the photographs look "
+                     "brighter than the environment map lights them (an exposure or envmap_scale mismatch?); "
+                     "the base colour is clipped there")
 
     start = time.perf_counter()
     with reporter.stage("entropy", 1) as advance:
