@@ -340,8 +340,29 @@ def _validated_texel_coords(mesh: Mesh, texture_res: int) -> np.ndarray:
             mesh.path,
             f"texture coordinates span [{uv.min():.4g}, {uv.max():.4g}]; a texture atlas needs [0, 1]",
         )
+    return face_texel_coords(uv, mesh.faces, texture_res)
+
+
+def face_texel_coords(uv: np.ndarray, faces: np.ndarray, texture_res: int) -> np.ndarray:
+    """Place each face's corners in texel coordinates of a T x T texture.
+
+    Parameters
+    ----------
+    uv : (P, 2) array
+        Texture coordinates per vertex (v up, as in OBJ).
+    faces : (F, 3) int array
+        The triangles.
+    texture_res : int
+        T.
+
+    Returns
+    -------
+    (F, 3, 2) float64
+        (column, row) of each corner; texel (i, j) is centred at (j, i).
+    """
+    uv = np.asarray(uv, np.float64)
     texel_xy = np.stack([uv[:, 0] * texture_res - 0.5, (1.0 - uv[:, 1]) * texture_res - 0.5], axis=-1)
-    return texel_xy[mesh.faces]
+    return np.ascontiguousarray(texel_xy[np.asarray(faces)])
 
 
 # --------------------------------------------------------------------------------------------

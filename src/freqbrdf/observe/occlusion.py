@@ -43,6 +43,7 @@ from freqbrdf.observe._kernels import (
 )
 from freqbrdf.render.occluder import RAYS_PER_BATCH, Occluder
 from freqbrdf.sphere import envmap as envmaps
+from freqbrdf.texels import face_texel_coords
 
 __all__ = ["CompactLights", "UVTexels", "compact_lights", "may_be_hidden", "mirror_occlusion", "occluded_irradiance",
            "occlusion_steps", "self_occluding", "uv_texels"]
@@ -294,12 +295,9 @@ def uv_texels(uv: np.ndarray, faces: np.ndarray, mask: np.ndarray) -> UVTexels:
     UVTexels
         The faces' corners in texel coordinates and each pixel's texel.
     """
-    res = mask.shape[0]
-    uv = np.asarray(uv, np.float64)
-    xy = np.stack([uv[:, 0] * res - 0.5, (1.0 - uv[:, 1]) * res - 0.5], axis=-1)
     texel_of_pixel = np.full(mask.shape, -1, dtype=np.int64)
     texel_of_pixel[mask] = np.arange(np.count_nonzero(mask))
-    return UVTexels(np.ascontiguousarray(xy[np.asarray(faces)]), texel_of_pixel)
+    return UVTexels(face_texel_coords(uv, faces, mask.shape[0]), texel_of_pixel)
 
 
 class _SurfaceRadiance:
@@ -420,7 +418,7 @@ def occluded_irradiance(occluder: Occluder, envmap: envmaps.Envmap, irradiance: 
         origins, directions = _cosine_rays(ray_origin32, frame64, spin, local, texels)  # (3, n M)
         rays, distance, face, barycentric = occluder.first_hits_rows(origins, directions)
         if len(rays):
-            lost = envmaps.lookup(lights.rest, directions[:, rays].T.astype(np.float64)).astype(np.float64)
+            lost = envmaps.lookup(lights.rest, directions[:, rays].T.astype(np.float64))
             gained = surface.at((origins[:, rays] + distance * directions[:, rays]).T, face, barycentric)
             change = (gained - lost) * (math.pi / RAYS)
             for channel in range(3):
