@@ -83,11 +83,9 @@ def test_exposure_and_white_balance_are_recovered(clean, clean_calibration, tmp_
     np.testing.assert_allclose(clean_calibration.gain_measured, 1.0, atol=0.3)
     # Applied where the texels tell it from 1: the exposure surely; each white-balance ratio is
     # applied as measured or, within its noise of 1, left at 1.
-    applied_exposure = np.exp(np.log(found.gain).mean())
-    np.testing.assert_allclose(applied_exposure, np.exp(np.log(found.gain_measured).mean()), rtol=0.05)
-    ratio, measured_ratio = found.gain / applied_exposure, found.gain_measured / np.exp(
-        np.log(found.gain_measured).mean())
-    assert np.all(np.isclose(ratio, measured_ratio, rtol=0.02) | np.isclose(ratio, 1.0, rtol=0.02))
+    measured_exposure = np.log(found.gain_measured).mean()
+    ratio, measured_ratio = np.log(found.gain) - measured_exposure, np.log(found.gain_measured) - measured_exposure
+    assert np.all(np.isclose(ratio, measured_ratio, atol=1e-9) | np.isclose(ratio, 0.0, atol=1e-9))
     assert np.all(found.gain_log_std > 0) and np.all(found.gain_log_std < POORLY_DETERMINED)  # well determined
     # The corrected capture's photographs are divided by the gains.
     corrected = capture.image(0)
@@ -167,3 +165,20 @@ def test_a_capture_with_too_few_views_per_texel_keeps_the_maps_scale_and_says_so
     assert all(frame.exposure in (None, 1.0) or np.allclose(frame.exposure, 1.0) for frame in capture.frames)
     assert any("too few" in line and "not estimated" in line for line in found.warnings)
     assert found.to_dict()["samples_per_texel"] == found.samples_per_texel
+
+
+def test_a_gain_is_applied_where_it_is_likelier_off_one_than_exactly_one():
+    """The exposure (prior: within a factor e) needs more std than a white-balance ratio (within 10 %)."""
+    from freqbrdf.calibrate import _significant
+    from freqbrdf.calibrate.gains import GainEstimate
+
+    found = GainEstimate(np.ones(3), np.full(3, 0.07), 1000, exposure_log_std=0.065, ratio_log_std=np.full(3, 0.03))
+    # A 10 % white balance (3 std) is applied, a 3 % one (1 std) is not; the same split for the exposure:
+    # 0.2 in log (3 std) is applied, 0.13 (2 std) is not.
+    applied = _significant(np.exp(np.array([0.2 + 0.1, 0.2, 0.2 - 0.1])), found)
+    np.testing.assert_allclose(np.log(applied), [0.3, 0.2, 0.1], atol=1e-12)
+    applied = _significant(np.exp(np.array([0.13 + 0.03, 0.13, 0.13 - 0.03])), found)
+    np.testing.assert_allclose(applied, 1.0, atol=1e-12)
+    # A better-determined ratio (std 0.01) is applied from a smaller size.
+    sharp = GainEstimate(np.ones(3), np.full(3, 0.07), 1000, exposure_log_std=0.065, ratio_log_std=np.full(3, 0.01))
+    np.testing.assert_allclose(np.log(_significant(np.exp(np.array([0.04, 0.0, -0.04])), sharp)), [0.04, 0.0, -0.04])

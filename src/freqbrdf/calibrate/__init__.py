@@ -30,7 +30,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from freqbrdf.calibrate.cameras import BAD_OUTLINE_PX, CameraRefinement, refine_cameras
-from freqbrdf.calibrate.gains import GainEstimate, channel_gains, frame_gains
+from freqbrdf.calibrate.gains import PRIOR_LOG_STD, GainEstimate, channel_gains, frame_gains
 from freqbrdf.calibrate.probe import ProbeRegistration, axis_angle, register_probe, rotation_about
 from freqbrdf.capture.layouts import Capture, read_frame_mask_coverage
 from freqbrdf.config import Config
@@ -52,8 +52,12 @@ PROBE_MAP_HEIGHT = 128
 # where a pass moves every gain by less than CONVERGED (in log).
 CONVERGED = 0.01
 GAIN_PASSES = 5
-# The exposure and each white-balance ratio are applied where they lie this many of their std from 1.
-SIGNIFICANT_Z = 2.5
+# How far a probe's exposure and white balance are from the photographs' when they are not equal (1
+# sigma, in log): the exposure within a factor e (`freqbrdf.calibrate.gains.PRIOR_LOG_STD`), each
+# white-balance ratio within 10 % (a probe shot with another camera or another white-balance
+# setting). Each is applied where the texels say it is more likely off than exactly 1
+# (`_significant`).
+WHITE_BALANCE_PRIOR_LOG_STD = 0.1
 # A gain whose log std exceeds this is poorly determined by the capture (named in a warning).
 POORLY_DETERMINED = 0.15
 # The gains need texels whose samples tell a dielectric's diffuse from its fixed specular: below this
@@ -78,7 +82,7 @@ class Calibration:
         The std of each log gain.
     gain_measured : (3,) float64 or None
         The gains as measured; the exposure and white-balance ratios the texels do not tell from
-        1 (`SIGNIFICANT_Z`) are not applied.
+        1 (`_significant`) are not applied.
     frame_gain : (V, 3) float64 or None
         Relative gain per photograph and channel (geometric mean 1), where measured and applied.
     probe : ProbeRegistration or None
@@ -286,17 +290,27 @@ def _exact_texels(observations: Observations) -> Observations:
 def _significant(gain: np.ndarray, found: GainEstimate) -> np.ndarray:
     """Return the gains with the parts the texels do not tell from 1 set to 1.
 
-    The exposure (the gains' geometric mean) is applied where it lies `SIGNIFICANT_Z` of its std
-    from 1, each channel's white-balance ratio where it lies as far from 1: a gain the model's own
-    misfit could give on a calibrated capture is not applied.
+    The exposure (the gains' geometric mean) and each channel's white-balance ratio to it are each
+    either exactly 1 (the probe shot with the photographs' settings) or off by a normal amount of
+    std tau (`PRIOR_LOG_STD` for the exposure, `WHITE_BALANCE_PRIOR_LOG_STD` for a ratio). A
+    measurement x of std s is applied where the second is the likelier (even prior odds): where
+    (x / s)^2 exceeds (1 + s^2 / tau^2) ln(1 + tau^2 / s^2), about 2.3 std for the exposure and 1.6
+    for a ratio at the model's own misfit. A gain the model's misfit could give on a calibrated
+    capture is not applied.
     """
     log_gain = np.log(gain)
     exposure = float(log_gain.mean())
     ratios = log_gain - exposure
-    if abs(exposure) < SIGNIFICANT_Z * found.exposure_log_std:
+    if not _likelier_off(exposure, found.exposure_log_std, PRIOR_LOG_STD):
         exposure = 0.0
-    ratios = np.where(np.abs(ratios) < SIGNIFICANT_Z * found.ratio_log_std, 0.0, ratios)
+    ratios = np.where(_likelier_off(ratios, found.ratio_log_std, WHITE_BALANCE_PRIOR_LOG_STD), ratios, 0.0)
     return np.exp(exposure + ratios)
+
+
+def _likelier_off(value, std, prior_std):
+    """Whether a log gain measured as ``value`` with ``std`` is likelier off 1 (std ``prior_std``) than exactly 1."""
+    ratio = (np.asarray(std, np.float64) / prior_std) ** 2
+    return (np.asarray(value) / np.maximum(std, 1e-12)) ** 2 > (1.0 + ratio) * np.log1p(1.0 / np.maximum(ratio, 1e-12))
 
 
 def _turned(capture: Capture, rotation: np.ndarray) -> Capture:
