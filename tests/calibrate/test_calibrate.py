@@ -83,9 +83,16 @@ def test_exposure_and_white_balance_are_recovered(clean, clean_calibration, tmp_
     np.testing.assert_allclose(clean_calibration.gain_measured, 1.0, atol=0.3)
     # Applied where the texels tell it from 1: the exposure surely; each white-balance ratio is
     # applied as measured or, within its noise of 1, left at 1.
+    # applied as measured, shrunk towards 1 by the prior (by at most 2 % for the exposure, at most halved
+    # for a ratio, whose prior is narrower).
     measured_exposure = np.log(found.gain_measured).mean()
-    ratio, measured_ratio = np.log(found.gain) - measured_exposure, np.log(found.gain_measured) - measured_exposure
-    assert np.all(np.isclose(ratio, measured_ratio, atol=1e-9) | np.isclose(ratio, 0.0, atol=1e-9))
+    measured_ratio = np.log(found.gain_measured) - measured_exposure
+    left = np.log(found.gain) - measured_exposure  # (the applied ratio) up to 2 % of the exposure
+    slack = 0.02 * abs(measured_exposure)
+    kept_at_one = np.abs(left) <= slack
+    shrunk = (np.sign(left) == np.sign(measured_ratio)) & (np.abs(left) <= np.abs(measured_ratio) + slack) & (
+        np.abs(left) >= 0.5 * np.abs(measured_ratio) - slack)
+    assert np.all(kept_at_one | shrunk)
     assert np.all(found.gain_log_std > 0) and np.all(found.gain_log_std < POORLY_DETERMINED)  # well determined
     # The corrected capture's photographs are divided by the gains.
     corrected = capture.image(0)
@@ -168,17 +175,37 @@ def test_a_capture_with_too_few_views_per_texel_keeps_the_maps_scale_and_says_so
 
 
 def test_a_gain_is_applied_where_it_is_likelier_off_one_than_exactly_one():
-    """The exposure (prior: within a factor e) needs more std than a white-balance ratio (within 10 %)."""
-    from freqbrdf.calibrate import _significant
-    from freqbrdf.calibrate.gains import GainEstimate
+    """The exposure (prior: within a factor e) needs more std than a white-balance ratio (within 10 %);
+    what is applied is that hypothesis's posterior mean."""
+    from freqbrdf.calibrate import WHITE_BALANCE_PRIOR_LOG_STD, _significant
+    from freqbrdf.calibrate.gains import PRIOR_LOG_STD, GainEstimate
 
     found = GainEstimate(np.ones(3), np.full(3, 0.07), 1000, exposure_log_std=0.065, ratio_log_std=np.full(3, 0.03))
+    ratio_shrink = WHITE_BALANCE_PRIOR_LOG_STD ** 2 / (WHITE_BALANCE_PRIOR_LOG_STD ** 2 + 0.03 ** 2)
+    exposure_shrink = PRIOR_LOG_STD ** 2 / (PRIOR_LOG_STD ** 2 + 0.065 ** 2)
     # A 10 % white balance (3 std) is applied, a 3 % one (1 std) is not; the same split for the exposure:
     # 0.2 in log (3 std) is applied, 0.13 (2 std) is not.
     applied = _significant(np.exp(np.array([0.2 + 0.1, 0.2, 0.2 - 0.1])), found)
-    np.testing.assert_allclose(np.log(applied), [0.3, 0.2, 0.1], atol=1e-12)
+    np.testing.assert_allclose(np.log(applied), 0.2 * exposure_shrink + np.array([0.1, 0.0, -0.1]) * ratio_shrink,
+                               atol=1e-12)
     applied = _significant(np.exp(np.array([0.13 + 0.03, 0.13, 0.13 - 0.03])), found)
     np.testing.assert_allclose(applied, 1.0, atol=1e-12)
     # A better-determined ratio (std 0.01) is applied from a smaller size.
     sharp = GainEstimate(np.ones(3), np.full(3, 0.07), 1000, exposure_log_std=0.065, ratio_log_std=np.full(3, 0.01))
-    np.testing.assert_allclose(np.log(_significant(np.exp(np.array([0.04, 0.0, -0.04])), sharp)), [0.04, 0.0, -0.04])
+    applied = np.log(_significant(np.exp(np.array([0.04, 0.0, -0.04])), sharp))
+    np.testing.assert_allclose(applied, np.array([0.04, 0.0, -0.04]) * 0.01 / (0.01 + 0.01 ** 2), atol=1e-12)
+
+
+def test_clipping_widens_the_gains_std_by_the_share_of_texels_it_leaves_out():
+    """Gains read on the texels left after clipping are a selection: a clipped capture's exposure that
+    reads 0.77 at 3 std without clipping is not applied when 43 % of the texels were left out."""
+    from freqbrdf.calibrate import CENSORED_SELECTION_LOG_STD, _significant, _with_selection
+    from freqbrdf.calibrate.gains import GainEstimate
+
+    found = GainEstimate(np.ones(3), np.full(3, 0.09), 300, exposure_log_std=0.085, ratio_log_std=np.full(3, 0.03))
+    gain = np.full(3, 0.77)
+    assert np.all(_significant(gain, found) < 0.8)
+    widened = _with_selection(found, CENSORED_SELECTION_LOG_STD * 0.43)
+    assert widened.exposure_log_std > found.exposure_log_std and np.all(widened.log_std > found.log_std)
+    np.testing.assert_allclose(_significant(gain, widened), 1.0)
+    assert _with_selection(found, 0.0) is found

@@ -58,6 +58,11 @@ GAIN_PASSES = 5
 # setting). Each is applied where the texels say it is more likely off than exactly 1
 # (`_significant`).
 WHITE_BALANCE_PRIOR_LOG_STD = 0.1
+# The gains read the texels without a clipped sample (`_exact_texels`). Where clipping leaves out a
+# share of the seen texels, those left are the darker ones, and the selection biases the gains:
+# this much log std per unit share is added to the exposure's and each ratio's (the calibration
+# study's clipped captures, docs/results.md#calibration: 0.17 in log at 43 % left out).
+CENSORED_SELECTION_LOG_STD = 0.4
 # A gain whose log std exceeds this is poorly determined by the capture (named in a warning).
 POORLY_DETERMINED = 0.15
 # The gains need texels whose samples tell a dielectric's diffuse from its fixed specular: below this
@@ -235,6 +240,9 @@ def calibrate(capture: Capture, config: Config = Config(),
         texel_frame = np.stack([texels.tangent, texels.bitangent, texels.normal], axis=1)
         every = observe(capture, coarse_config, texels=texels)
         observations = _exact_texels(every)
+        seen_texels = int(np.count_nonzero(every.weight.any(axis=1) | (
+            every.censored_weight.any(axis=1) if every.censored_weight is not None else False)))
+        dropped_share = 1.0 - observations.n_texels / max(seen_texels, 1) if observations is not every else 0.0
         views = np.count_nonzero(every.visible, axis=1)  # clipped samples included: views are what it counts
         calibration.samples_per_texel = float(np.median(views[views > 0])) if views.any() else 0.0
         advance(1)
@@ -265,6 +273,8 @@ def calibrate(capture: Capture, config: Config = Config(),
                     break  # the roughness the search found no longer moves with the gain
                 current = _scaled(observations, gain, config)
             calibration.gain_measured = gain
+            found = _with_selection(found, CENSORED_SELECTION_LOG_STD * dropped_share)
+            log_std = found.log_std
             gain = _significant(gain, found)
         calibration.gain, calibration.gain_log_std, calibration.texels = gain, log_std, scored
         advance(1)
@@ -287,6 +297,17 @@ def _exact_texels(observations: Observations) -> Observations:
     return observations.select(exact) if exact.any() else observations
 
 
+def _with_selection(found: GainEstimate, selection_log_std: float) -> GainEstimate:
+    """Return the gains with ``selection_log_std`` added in quadrature to the exposure's and each ratio's std."""
+    if selection_log_std <= 0.0:
+        return found
+    exposure_variance = found.exposure_log_std ** 2 + selection_log_std ** 2
+    ratio_variance = found.ratio_log_std ** 2 + selection_log_std ** 2
+    precision = 1.0 / (exposure_variance + ratio_variance) + 1.0 / PRIOR_LOG_STD ** 2
+    return replace(found, log_std=1.0 / np.sqrt(precision), exposure_log_std=float(np.sqrt(exposure_variance)),
+                   ratio_log_std=np.sqrt(ratio_variance))
+
+
 def _significant(gain: np.ndarray, found: GainEstimate) -> np.ndarray:
     """Return the gains with the parts the texels do not tell from 1 set to 1.
 
@@ -295,16 +316,22 @@ def _significant(gain: np.ndarray, found: GainEstimate) -> np.ndarray:
     std tau (`PRIOR_LOG_STD` for the exposure, `WHITE_BALANCE_PRIOR_LOG_STD` for a ratio). A
     measurement x of std s is applied where the second is the likelier (even prior odds): where
     (x / s)^2 exceeds (1 + s^2 / tau^2) ln(1 + tau^2 / s^2), about 2.3 std for the exposure and 1.6
-    for a ratio at the model's own misfit. A gain the model's misfit could give on a calibrated
-    capture is not applied.
+    for a ratio at the model's own misfit; it is then applied as that hypothesis's posterior
+    mean, x tau^2 / (tau^2 + s^2). A gain the model's misfit could give on a calibrated capture is
+    not applied.
     """
     log_gain = np.log(gain)
     exposure = float(log_gain.mean())
     ratios = log_gain - exposure
-    if not _likelier_off(exposure, found.exposure_log_std, PRIOR_LOG_STD):
-        exposure = 0.0
-    ratios = np.where(_likelier_off(ratios, found.ratio_log_std, WHITE_BALANCE_PRIOR_LOG_STD), ratios, 0.0)
+    exposure = _applied(exposure, found.exposure_log_std, PRIOR_LOG_STD)
+    ratios = _applied(ratios, found.ratio_log_std, WHITE_BALANCE_PRIOR_LOG_STD)
     return np.exp(exposure + ratios)
+
+
+def _applied(value, std, prior_std):
+    """The log gain to apply for a measurement ``value`` of ``std``: 0 where exactly 1 is the likelier, else its posterior mean."""
+    value, variance = np.asarray(value, np.float64), np.maximum(np.asarray(std, np.float64) ** 2, 1e-24)
+    return np.where(_likelier_off(value, np.sqrt(variance), prior_std), value * prior_std ** 2 / (prior_std ** 2 + variance), 0.0)
 
 
 def _likelier_off(value, std, prior_std):
