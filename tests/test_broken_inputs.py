@@ -137,6 +137,10 @@ CASES = [
     Case("no frames key", _drop("frames"), FIT, "frames"),
     Case("empty frames", _top("frames", []), FIT, "frames"),
     Case("frame without file_path", _drop("file_path", frame=2), FIT, "file_path"),
+    Case("every frame one pose", lambda root: _transforms(
+        root, lambda document: document.__setitem__("frames", [document["frames"][0]] * len(document["frames"]))),
+        FIT, "share one camera pose"),
+    Case("principal point outside the image", _top("cx", 500.0), FIT, "principal point"),
     Case("image file missing", _frame(1, "file_path", "images/none.exr"), FIT, "does not exist"),
     Case("frame without transform_matrix", _drop("transform_matrix", frame=0), FIT, "transform_matrix"),
     Case("3x3 transform_matrix", _frame(0, "transform_matrix", np.eye(3).tolist()), FIT, "transform_matrix"),

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import warnings
 
 import numpy as np
 import pytest
@@ -101,6 +102,27 @@ def test_one_view_black_frames_and_a_dark_map(capture_copy):
     edit_frames(capture_copy, lambda document: document.update(frames=document["frames"][:1]))
     with pytest.raises(InputError, match="transforms.json: 1 view: every texel needs samples from at least two"):
         check_capture(load(capture_copy))
+
+
+def test_an_empty_mask_is_named_and_its_view_left_as_given(capture_copy):
+    import imageio.v3 as iio
+
+    from freqbrdf.calibrate import refine_cameras
+    from freqbrdf.capture.layouts import read_frame_mask_coverage
+
+    frames = json.loads((capture_copy / "transforms.json").read_text())["frames"]
+    mask_path = capture_copy / frames[2]["mask_path"]
+    iio.imwrite(mask_path, np.zeros_like(iio.imread(mask_path)))
+    capture = load(capture_copy)
+    check = check_capture(capture)
+    assert check.figures["empty_masks"] == 1
+    assert f"1 of 6 masks are empty (first: {mask_path})" in check.warnings[0]
+    # The camera refinement leaves that view as given, quietly (no numerical warnings).
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        refined = refine_cameras(capture.mesh, [frame.camera for frame in capture.frames],
+                                 [read_frame_mask_coverage(frame) for frame in capture.frames])
+    assert refined.cameras[2] is capture.frames[2].camera
 
 
 def test_an_environment_map_without_light(capture_copy):

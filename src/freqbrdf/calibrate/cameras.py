@@ -268,7 +268,8 @@ class _ViewFit:
     def __init__(self, outline: MeshOutline, coverage: np.ndarray):
         self.outline = outline
         self.distance = signed_distance(coverage)
-        rows, cols = np.gradient(self.distance)
+        # A mask without an edge (empty or full) has no gradient: `refine_camera` leaves its view as given.
+        rows, cols = np.gradient(self.distance) if np.isfinite(self.distance).all() else (self.distance, self.distance)
         self.gradient = (cols, rows)
 
     def outline_points(self, camera: Camera) -> np.ndarray:

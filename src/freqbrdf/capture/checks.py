@@ -7,8 +7,8 @@ the minutes of a fit (the capture format: docs/capture-format.md; what a fit nee
 - the cameras against the mesh: the mesh in front of them (OpenCV's +Z-forward axes put it behind),
   of a size they can resolve (not a mesh in millimetres before cameras a metre away, nor one a
   pixel wide), inside the masks where there are masks (a misaligned mesh is not);
-- the frames: at least two views, not black, not the same pose twice, exposed alike, and HDR (not
-  clipped at 1 or on 8-bit steps);
+- the frames: at least two distinct views, each principal point inside its image, not black, masks
+  not empty, not the same pose twice, exposed alike, and HDR (not clipped at 1 or on 8-bit steps);
 - the fits' SH degree: not far beyond what the views per texel can determine;
 - the environment map: some light, and fine enough for the fits' SH degree.
 
@@ -110,6 +110,16 @@ def check_capture(capture: Capture, read_frames: bool = True, lmax: int | None =
     check.figures["views"] = views
     if views < 2:
         raise InputError(source, f"{views} view: every texel needs samples from at least two views to be estimated")
+    poses = views - len(_duplicate_poses([frame.camera for frame in capture.frames]))
+    if poses < 2:
+        raise InputError(source, f"the {views} frames share one camera pose: every texel needs samples from at least "
+                                 "two views to be estimated (copied entries?)")
+    for index, frame in enumerate(capture.frames):
+        camera = frame.camera
+        if not (0.0 <= camera.cx <= camera.width and 0.0 <= camera.cy <= camera.height):
+            raise InputError(source, f"frame {index}: the principal point (cx, cy) = ({camera.cx:g}, {camera.cy:g}) "
+                                     f"lies outside its {camera.width}x{camera.height} image (pixels, from the "
+                                     "top-left corner)")
     vertices = np.asarray(capture.mesh.vertices, np.float64)
     points, normals = _surface_points_and_normals(vertices, np.asarray(capture.mesh.faces),
                                                   np.asarray(capture.mesh.normals, np.float64))
@@ -243,12 +253,14 @@ def _aggregated(caught: list, views: int) -> list[str]:
 
 def _check_frames(capture: Capture, points: np.ndarray, check: CaptureCheck) -> None:
     """Black frames, exposure, LDR data in HDR files, and the masks' overlap with the projected mesh."""
-    black, overlaps, levels, ldr = [], [], [], []
+    black, overlaps, levels, ldr, empty = [], [], [], [], []
     for index, frame in enumerate(capture.frames):
         image = capture.image(index)
         mask = capture.mask(index)
         if not float(np.max(image)) > BLACK:
             black.append(frame.image_path)
+        if frame.mask_path is not None and not mask.any():
+            empty.append(frame.mask_path)
         object_pixels = image[mask] if mask.any() else image.reshape(-1, 3)
         levels.append(float(np.median(object_pixels.mean(axis=1))))
         if frame.image_path.suffix.lower() in HDR_SUFFIXES and _looks_ldr(image):
@@ -273,6 +285,10 @@ def _check_frames(capture: Capture, points: np.ndarray, check: CaptureCheck) -> 
         raise InputError(black[0], f"every frame is black ({len(black)} of {len(black)}): nothing to estimate from")
     if black:
         check.warnings.append(f"{len(black)} of {len(capture.frames)} frames are black (first: {black[0]})")
+    check.figures["empty_masks"] = len(empty)
+    if empty:
+        check.warnings.append(f"{len(empty)} of {len(capture.frames)} masks are empty (first: {empty[0]}): those "
+                              "frames see nothing of the object")
     if overlaps:
         overlap = float(np.median(overlaps))
         check.figures["mask_overlap"] = overlap
