@@ -218,8 +218,6 @@ def test_load_fit_names_what_is_missing(tmp_path):
 
 
 def _unit_square():
-    from freqbrdf.capture.mesh import Mesh
-
     vertices = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], np.float64)
     return Mesh(vertices=vertices, faces=np.array([[0, 1, 2], [0, 2, 3]]),
                 normals=np.tile([0.0, 0.0, 1.0], (4, 1)), uv=vertices[:, :2].copy())
@@ -389,3 +387,15 @@ def test_photographs_much_brighter_than_the_map_are_named(tiny_capture):
     assert not any("reached its bound" in line for line in clean.warnings)
     assert any("reached its bound" in line and "exposure" in line for line in bright.warnings)
     assert any("too few" in line for line in bright.warnings)  # and why the gains did not correct it
+
+
+def test_overlapping_uv_charts_are_named(tiny_capture):
+    # The bunny with its UV layout folded onto its left half: the right half's faces land on texels
+    # the left half's already hold.
+    capture = load(tiny_capture)
+    config = Config(texels=TexelConfig(texture_res=32))
+    assert not any("overlapping" in line for line in pipeline.fit(capture, config).warnings)
+    uv = np.asarray(capture.mesh.uv, np.float64).copy()
+    uv[:, 0] = np.where(uv[:, 0] < 0.5, uv[:, 0], 1.0 - uv[:, 0])
+    folded = replace(capture, mesh=replace(capture.mesh, uv=uv))
+    assert any("overlapping or mirrored UV charts" in line for line in pipeline.fit(folded, config).warnings)

@@ -51,6 +51,9 @@ CENSORED_NOTE_FRACTION = 0.01
 # look brighter than the map lights them (docs/results.md#calibration: clean captures 1-17 %, photographs at
 # 4x the map's exposure 49-98 %): what a capture whose gains are not estimated shows of an exposure mismatch.
 BASE_BOUND_NOTE_FRACTION = 0.3
+# A fit whose UV layout puts this share of the texels under two or more faces (overlapping or mirrored charts)
+# says that their maps mix those parts of the surface.
+UV_OVERLAP_NOTE_FRACTION = 0.01
 # A base colour at least this is at its bound.
 _BASE_AT_BOUND = 0.99
 
@@ -271,6 +274,10 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
     texels = observations.texels if observations.texels is not None or not whole else rasterise(capture.mesh,
                                                                                                   estimation_res)
     censored_fraction, notes, censored_first = 0.0, [], None
+    if texels is not None and texels.overlap_texels >= UV_OVERLAP_NOTE_FRACTION * len(texels.texel_index):
+        notes.append(f"{texels.overlap_texels / len(texels.texel_index):.0%} of the texels lie under two or more faces "
+                     f"(overlapping or mirrored UV charts in {capture.mesh.path or 'the mesh'}): their maps mix those "
+                     "parts of the surface; give the mesh non-overlapping UVs, or none (freqbrdf then unwraps it)")
     if observations.censored_weight is not None:  # clipped photographs: docs/method.md#censored-samples
         start = time.perf_counter()
         n_censored = int(np.count_nonzero(observations.censored_weight))
