@@ -218,6 +218,8 @@ def test_load_fit_names_what_is_missing(tmp_path):
 
 
 def _unit_square():
+    from freqbrdf.capture.mesh import Mesh
+
     vertices = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], np.float64)
     return Mesh(vertices=vertices, faces=np.array([[0, 1, 2], [0, 2, 3]]),
                 normals=np.tile([0.0, 0.0, 1.0], (4, 1)), uv=vertices[:, :2].copy())

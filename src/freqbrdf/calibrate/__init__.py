@@ -329,7 +329,10 @@ def _significant(gain: np.ndarray, found: GainEstimate) -> np.ndarray:
 
 
 def _applied(value, std, prior_std):
-    """The log gain to apply for a measurement ``value`` of ``std``: 0 where exactly 1 is the likelier, else its posterior mean."""
+    """Return the log gain to apply for a measurement ``value`` of ``std``.
+
+    0 where exactly 1 is the likelier (`_likelier_off`), else the posterior mean under ``prior_std``.
+    """
     value, variance = np.asarray(value, np.float64), np.maximum(np.asarray(std, np.float64) ** 2, 1e-24)
     return np.where(_likelier_off(value, np.sqrt(variance), prior_std), value * prior_std ** 2 / (prior_std ** 2 + variance), 0.0)
 
