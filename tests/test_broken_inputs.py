@@ -173,6 +173,8 @@ CASES = [
     Case("envmap file missing", _top("envmap", "sky.exr"), FIT, "sky.exr"),
     Case("envmap 2x1", _envmap(np.ones((1, 2, 3))), FIT, "envmap.exr"),
     Case("envmap not 2:1", _envmap(np.ones((32, 48, 3))), FIT, "envmap.exr"),
+    Case("envmap a mirror ball (1:1)", _envmap(np.ones((32, 32, 3))), FIT, "mirror-ball"),
+    Case("file_path a folder", _frame(1, "file_path", "images"), FIT, "is a folder"),
     Case("envmap all zero", _envmap(np.zeros((32, 64, 3))), FIT, "no light"),
     Case("envmap with NaN", _envmap(np.full((32, 64, 3), np.nan)), FIT, "non-finite"),
     Case("envmap deeply negative", _envmap(np.full((32, 64, 3), -5.0)), FIT, "negative"),

@@ -115,6 +115,26 @@ def test_exr_without_colour_channels_is_refused_as_radiance(tmp_path, channels):
         np.testing.assert_array_equal(read_mask(tmp_path / "aov.exr"), plane > 0.5)
 
 
+def test_a_multi_layer_exr_is_read_as_its_beauty_pass(tmp_path):
+    """Blender's multi-layer EXR: the Combined layer is the photograph; other colour layers alone are refused."""
+    rng = np.random.default_rng(3)
+    planes = {name: rng.random((5, 4)).astype(np.float32) for name in (
+        "ViewLayer.Combined.R", "ViewLayer.Combined.G", "ViewLayer.Combined.B", "ViewLayer.Combined.A",
+        "ViewLayer.DiffCol.R", "ViewLayer.DiffCol.G", "ViewLayer.DiffCol.B", "ViewLayer.Depth.Z")}
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    with OpenEXR.File(header, {name: plane.copy() for name, plane in planes.items()}) as exr:
+        exr.write(str(tmp_path / "render.exr"))
+    np.testing.assert_array_equal(read_image(tmp_path / "render.exr"),
+                                  np.stack([planes[f"ViewLayer.Combined.{c}"] for c in "RGB"], axis=2))
+    np.testing.assert_array_equal(read_mask(tmp_path / "render.exr"), planes["ViewLayer.Combined.A"] > 0.5)
+    others = {name: plane for name, plane in planes.items() if "Combined" not in name}
+    others.update({f"ViewLayer.GlossCol.{c}": planes[f"ViewLayer.DiffCol.{c}"] for c in "RGB"})
+    with OpenEXR.File(header, {name: plane.copy() for name, plane in others.items()}) as exr:
+        exr.write(str(tmp_path / "passes.exr"))
+    with pytest.raises(InputError, match="2 colour layers .*DiffCol.*GlossCol.*none is the beauty pass"):
+        read_image(tmp_path / "passes.exr")
+
+
 # --- Radiance HDR ------------------------------------------------------------------------------
 
 

@@ -392,8 +392,9 @@ def _read_exr(path: Path, radiance: bool = False) -> np.ndarray:
             planes = {name: channel.pixels for name, channel in exr.channels().items()}
     except Exception as err:  # OpenEXR raises RuntimeError or ValueError on damaged files
         raise InputError(path, f"not a readable OpenEXR file ({err})") from None
-    if all(name in planes for name in "RGB"):
-        names = ["R", "G", "B"] + (["A"] if "A" in planes else [])
+    layer = _colour_layer(path, planes)
+    if layer is not None:
+        names = [layer + name for name in "RGB"] + ([layer + "A"] if layer + "A" in planes else [])
     elif len(planes) == 1 and (not radiance or next(iter(planes)).split(".")[-1].upper() in GREY_CHANNELS):
         names = list(planes)  # a single channel (Y, or any name) is a grey image
     elif radiance:
@@ -405,6 +406,29 @@ def _read_exr(path: Path, radiance: bool = False) -> np.ndarray:
             path, f"needs channels R, G, B or a single channel; found {', '.join(sorted(planes))}"
         )
     return np.stack([planes[name].astype(np.float32) for name in names], axis=2)
+
+
+# Of several colour layers in one EXR, the one a renderer's beauty pass is named by (Blender: ViewLayer.Combined).
+BEAUTY_LAYERS = ("COMBINED", "BEAUTY", "RGBA", "RGB", "COLOR", "COLOUR")
+
+
+def _colour_layer(path: Path, planes: dict) -> str | None:
+    """Return the prefix of the EXR's R, G, B channels; None where no layer holds all three.
+
+    The prefix is "" for bare channels, "ViewLayer.Combined." in a multi-layer file. Bare channels come first; else the only layer with all three, or among several the beauty pass
+    (`BEAUTY_LAYERS`); several others are refused, named.
+    """
+    if all(name in planes for name in "RGB"):
+        return ""
+    prefixes = sorted({name[: -1] for name in planes if name.endswith((".R", ".G", ".B"))})
+    layers = [prefix for prefix in prefixes if all(prefix + channel in planes for channel in "RGB")]
+    if len(layers) <= 1:
+        return layers[0] if layers else None
+    beauty = [prefix for prefix in layers if prefix.rstrip(".").split(".")[-1].upper() in BEAUTY_LAYERS]
+    if len(beauty) == 1:
+        return beauty[0]
+    raise InputError(path, f"holds {len(layers)} colour layers ({', '.join(prefix.rstrip('.') for prefix in layers)}) "
+                           "and none is the beauty pass (Combined): save the photograph's radiance as R, G, B")
 
 
 def _read_ldr(path: Path) -> np.ndarray:

@@ -171,6 +171,10 @@ def test_nerf_style_transforms_with_field_of_view_and_bare_file_paths(tmp_path):
     np.testing.assert_array_equal(capture.image(0), exr)
     np.testing.assert_array_equal(capture.envmap.to_world, np.eye(4))  # default
     assert capture.ground_truth.resolution == 16
+    # Written on Windows: backslash separators read as folders.
+    document["frames"][0]["file_path"] = "train\\r_0.exr"
+    (tmp_path / "transforms.json").write_text(json.dumps(document))
+    assert load(tmp_path).frames[0].image_path == tmp_path / "train" / "r_0.exr"
 
 
 def test_mesh_without_uvs_caches_its_atlas_outside_the_capture(tmp_path, monkeypatch):

@@ -584,11 +584,14 @@ def _check_masks_for_all(source: Path, mask_paths: Sequence[Path | None]) -> Non
 
 
 def string_key(source: Path, where: str, mapping: dict, key: str) -> str:
-    """Return ``mapping[key]``, a non-empty string (a path); `InputError` naming ``source`` if not."""
+    """Return ``mapping[key]``, a non-empty string (a path); `InputError` naming ``source`` if not.
+
+    Windows separators (a backslash, as tools on Windows write paths) are read as ``/``.
+    """
     value = required_key(source, where, mapping, key)
     if not isinstance(value, str) or not value:
         raise InputError(source, f"{where}{key!r} must be a non-empty string (a path)")
-    return value
+    return value.replace("\\", "/") if os.sep == "/" else value
 
 
 def resolve_image(source: Path, what: str, path: Path) -> Path:
@@ -596,6 +599,8 @@ def resolve_image(source: Path, what: str, path: Path) -> Path:
 
     ``what`` names the file for the error message, e.g. "image of frame 3".
     """
+    if path.is_dir():
+        raise InputError(path, f"{what} in {source.name} is a folder, not an image")
     if path.suffix.lower() in IMAGE_SUFFIXES:
         candidates = [path]
     else:

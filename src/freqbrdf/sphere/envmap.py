@@ -84,6 +84,14 @@ class Envmap:
         return self.to_world[:3, :3]
 
 
+
+def _aspect(width: int, height: int) -> tuple[int, int]:
+    """Return the image's aspect as a small ratio, (4, 3); (0, 0) where it is none of 1:1, 4:3, 3:4, 6:1, 1:6."""
+    for ratio in ((1, 1), (4, 3), (3, 4), (6, 1), (1, 6)):
+        if width * ratio[1] == height * ratio[0]:
+            return ratio
+    return (0, 0)
+
 def load_envmap(path: str | Path, to_world: np.ndarray | None = None) -> Envmap:
     """Read an equirectangular HDR map (EXR or Radiance HDR) with a 2:1 aspect ratio.
 
@@ -113,7 +121,11 @@ def load_envmap(path: str | Path, to_world: np.ndarray | None = None) -> Envmap:
     radiance = read_image(path)
     height, width = radiance.shape[:2]
     if width != 2 * height:
-        raise InputError(path, f"environment map must be 2:1 (width = 2 x height), got {width}x{height}")
+        shape = {(1, 1): ": a mirror-ball or angular map? ", (4, 3): ": a cube-map cross? ", (3, 4): ": a cube-map cross? ",
+                 (6, 1): ": a cube-map strip? ", (1, 6): ": a cube-map strip? "}.get(
+            _aspect(width, height), "; ")
+        raise InputError(path, f"environment map must be 2:1 (width = 2 x height), got {width}x{height}{shape}"
+                               "convert it to an equirectangular (latitude-longitude) map")
     if height < 4:
         raise InputError(path, f"environment map of {width}x{height} pixels is too small (at least 8x4)")
     if not np.isfinite(radiance).all():
