@@ -338,3 +338,56 @@ def test_clipped_channels_mark_each_channels_plateau_not_an_hdr_peak():
     found = clipped_channels(image)
     assert found[5:8, 10:14, 0].all() and found[0, 0, 0] and found[2:4, 2:4, 2].all()
     assert found[..., 0].sum() == 13 and found[..., 2].sum() == 4 and not found[..., 1].any()
+
+
+# --- 16-bit PNG --------------------------------------------------------------------------------
+
+
+def _png16(path, values: np.ndarray, colour_type: int) -> None:
+    """Write ``values`` (H, W, C) uint16 as a 16-bit PNG, each row with the next of PNG's five filters."""
+    import struct
+    import zlib
+
+    height, width, channels = values.shape
+    step = 2 * channels
+    raw = values.astype(">u2").view(np.uint8).reshape(height, width * step).astype(np.int32)
+    lines = []
+    for y in range(height):
+        line, previous = raw[y], raw[y - 1] if y else np.zeros_like(raw[y])
+        left = np.concatenate([np.zeros(step, np.int32), line[:-step]])
+        corner = np.concatenate([np.zeros(step, np.int32), previous[:-step]])
+        estimate = left + previous - corner
+        paeth = np.where((np.abs(estimate - left) <= np.abs(estimate - previous))
+                         & (np.abs(estimate - left) <= np.abs(estimate - corner)), left,
+                         np.where(np.abs(estimate - previous) <= np.abs(estimate - corner), previous, corner))
+        predictor = [np.zeros_like(line), left, previous, (left + previous) // 2, paeth][y % 5]
+        lines.append(bytes([y % 5]) + ((line - predictor) % 256).astype(np.uint8).tobytes())
+
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+
+    header = struct.pack(">IIBBBBB", width, height, 16, colour_type, 0, 0, 0)
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(b"".join(lines)))
+                     + chunk(b"IEND", b""))
+
+
+@pytest.mark.parametrize("channels, colour_type", [(3, 2), (4, 6)])
+def test_a_16_bit_png_keeps_its_16_bits(tmp_path, channels, colour_type):
+    """Pillow reads 16-bit colour PNGs as 8 bits; every filter type is undone exactly."""
+    values = np.random.default_rng(5).integers(0, 65536, (11, 9, channels)).astype(np.uint16)
+    _png16(tmp_path / "deep.png", values, colour_type)
+    with pytest.warns(UserWarning, match="16-bit sRGB image linearised"):
+        radiance = read_image(tmp_path / "deep.png")
+    np.testing.assert_allclose(radiance, srgb_to_linear(values[..., :3] / 65535.0), rtol=0, atol=1e-6)
+    if channels == 4:
+        np.testing.assert_array_equal(read_mask(tmp_path / "deep.png"), values[..., 3] / 65535.0 > 0.5)
+
+
+def test_a_16_bit_grey_png_written_by_pillow_reads_alike_both_ways(tmp_path):
+    from PIL import Image
+
+    from freqbrdf.images import _read_png16
+
+    values = (np.arange(40 * 30).reshape(30, 40) * 53 % 65536).astype(np.uint16)
+    Image.fromarray(values).save(tmp_path / "grey.png")
+    np.testing.assert_array_equal(_read_png16(tmp_path / "grey.png")[..., 0], values / np.float32(65535.0))

@@ -17,6 +17,7 @@ import re
 import sys
 import threading
 import warnings
+import zlib
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -128,13 +129,13 @@ def read_image(path: str | Path, validate: bool = False) -> np.ndarray:
         has non-finite or deeply negative pixels (how many, and where the first one is).
     """
     path = Path(path)
-    pixels, is_srgb = _read_pixels(path, radiance=True)  # (H, W, C)
+    pixels, srgb_bits = _read_pixels(path, radiance=True)  # (H, W, C)
     channels = pixels.shape[2]
     rgb = pixels[..., :3] if channels >= 3 else np.repeat(pixels[..., :1], 3, axis=2)
-    if is_srgb:
+    if srgb_bits:
         warnings.warn(
-            f"{path.name}: 8-bit sRGB image linearised as radiance; clipped highlights and "
-            "quantisation bias the result, HDR input (.exr, .hdr) is preferred",
+            f"{path.name}: {srgb_bits}-bit sRGB image linearised as radiance; clipped highlights"
+            f"{' and quantisation' if srgb_bits == 8 else ''} bias the result, HDR input (.exr, .hdr) is preferred",
             CaptureDataWarning,
             stacklevel=2,
         )
@@ -334,8 +335,8 @@ def image_has_alpha(path: str | Path) -> bool:
     return False
 
 
-def _read_pixels(path: Path, radiance: bool = False) -> tuple[np.ndarray, bool]:
-    """Read all channels of the file ``(H, W, C)`` float32, and whether they are sRGB-encoded.
+def _read_pixels(path: Path, radiance: bool = False) -> tuple[np.ndarray, int]:
+    """Read all channels of the file ``(H, W, C)`` float32, and the bits of their sRGB encoding (0: linear).
 
     With ``radiance``, an EXR whose single channel is not a colour (depth ``Z``, alpha ``A``, an
     AOV saved by mistake) is refused.
@@ -350,10 +351,87 @@ def _read_pixels(path: Path, radiance: bool = False) -> tuple[np.ndarray, bool]:
     if not path.is_file():
         raise InputError(path, "is not a file")
     if suffix == ".exr":
-        return _read_exr(path, radiance), False
+        return _read_exr(path, radiance), 0
     if suffix == ".hdr":
-        return _read_rgbe(path), False
-    return _read_ldr(path), True
+        return _read_rgbe(path), 0
+    if suffix == ".png" and _png_header(path)[0] == 16:
+        return _read_png16(path), 16
+    return _read_ldr(path), 8
+
+
+def _png_header(path: Path) -> tuple[int, int, int]:
+    """Return a PNG's bit depth, colour type and interlace method (0, 0, 0 where the header is not a PNG's)."""
+    with open(path, "rb") as file:
+        head = file.read(33)
+    if len(head) < 33 or head[:8] != b"\x89PNG\r\n\x1a\n" or head[12:16] != b"IHDR":
+        return 0, 0, 0
+    return head[24], head[25], head[28]
+
+
+# Channels of a PNG by colour type: grey, RGB, grey + alpha, RGBA (type 3, a palette, has no 16-bit form).
+_PNG_CHANNELS = {0: 1, 2: 3, 4: 2, 6: 4}
+
+
+def _read_png16(path: Path) -> np.ndarray:
+    """Read a 16-bit PNG (H, W, C) float32 in [0, 1]: Pillow reads 16-bit colour as 8 bits."""
+    _, colour, interlace = _png_header(path)
+    if colour not in _PNG_CHANNELS:
+        raise InputError(path, f"not a readable PNG image (colour type {colour} at 16 bits)")
+    if interlace:
+        raise InputError(path, "is an interlaced 16-bit PNG, which is not supported: save it without interlacing")
+    data = path.read_bytes()
+    position, chunks, width, height = 8, [], 0, 0
+    while position + 8 <= len(data):
+        length = int.from_bytes(data[position:position + 4], "big")
+        kind, body = data[position + 4:position + 8], data[position + 8:position + 8 + length]
+        position += 12 + length
+        if kind == b"IHDR":
+            width, height = int.from_bytes(body[:4], "big"), int.from_bytes(body[4:8], "big")
+        elif kind == b"IDAT":
+            chunks.append(body)
+        elif kind == b"IEND":
+            break
+    channels = _PNG_CHANNELS[colour]
+    stride = width * channels * 2
+    try:
+        raw = np.frombuffer(zlib.decompress(b"".join(chunks)), np.uint8)
+        rows = raw[: height * (stride + 1)].reshape(height, stride + 1)
+    except (zlib.error, ValueError) as err:
+        raise InputError(path, f"not a readable PNG image ({err})") from None
+    if not width or not height or np.any(rows[:, 0] > 4):
+        raise InputError(path, "not a readable PNG image (bad filter types)")
+    unfiltered = np.empty((height, stride), np.uint8)
+    _png_unfilter(rows, unfiltered, channels * 2)
+    return (unfiltered.view(">u2").reshape(height, width, channels).astype(np.float32) / np.float32(65535.0))
+
+
+@numba.njit(cache=True)
+def _png_unfilter(rows, out, step):
+    """Undo PNG's per-row filters (none, sub, up, average, Paeth) of ``rows`` (H, 1 + S) into ``out`` (H, S)."""
+    height, stride = out.shape
+    for y in range(height):
+        kind = rows[y, 0]
+        for i in range(stride):
+            value = np.int32(rows[y, 1 + i])
+            left = np.int32(out[y, i - step]) if i >= step else np.int32(0)
+            up = np.int32(out[y - 1, i]) if y > 0 else np.int32(0)
+            corner = np.int32(out[y - 1, i - step]) if y > 0 and i >= step else np.int32(0)
+            if kind == 1:
+                value += left
+            elif kind == 2:
+                value += up
+            elif kind == 3:
+                value += (left + up) // 2
+            elif kind == 4:
+                estimate = left + up - corner
+                distance_left, distance_up, distance_corner = abs(estimate - left), abs(estimate - up), abs(estimate - corner)
+                if distance_left <= distance_up and distance_left <= distance_corner:
+                    value += left
+                elif distance_up <= distance_corner:
+                    value += up
+                else:
+                    value += corner
+            out[y, i] = value & 255
 
 
 @contextlib.contextmanager

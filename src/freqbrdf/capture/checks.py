@@ -239,11 +239,12 @@ def _duplicate_poses(cameras: list) -> list[tuple[int, int]]:
 def _aggregated(caught: list, views: int) -> list[str]:
     """One line per kind of `CaptureDataWarning` the frames raised."""
     messages = [str(warning.message) for warning in caught if issubclass(warning.category, CaptureDataWarning)]
-    srgb = [message for message in messages if "8-bit sRGB" in message]
+    srgb = [message for message in messages if "-bit sRGB image" in message]
     negative = [message for message in messages if "negative" in message]
     lines = []
     if srgb:
-        lines.append(f"{len(srgb)} of {views} frames are 8-bit sRGB, linearised as radiance: clipped highlights and "
+        depths = " or ".join(sorted({message.split("-bit sRGB")[0].split()[-1] for message in srgb}, key=int))
+        lines.append(f"{len(srgb)} of {views} frames are {depths}-bit sRGB, linearised as radiance: clipped highlights and "
                      "quantisation bias the result; HDR input (.exr, .hdr) is preferred")
     if negative:
         lines.append(f"{len(negative)} of {views} frames had slightly negative pixels (HDR merge noise), clamped to "
