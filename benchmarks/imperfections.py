@@ -1,9 +1,9 @@
 """Imperfections of a real capture applied to a rendered one: exposure, white balance, a turned probe,
-camera error, sensor noise, 8-bit data, per-frame exposure.
+camera error, sensor noise, 8-bit data, per-frame exposure, masks grown or shrunk.
 
 `imperfect_capture` copies a capture folder (our layout: transforms.json, images/, masks/, the
 mesh, the map, gt/ and the test views linked, not copied) with the photographs and the
-transforms changed as an `Imperfection` says. The photographs are changed, not the map: the map
+transforms (and the masks, where they are offset) changed as an `Imperfection` says. The photographs are changed, not the map: the map
 is what a user's probe gives, the photographs what their camera gives. Deterministic: the same
 imperfection and seed give the same bytes.
 
@@ -19,9 +19,10 @@ import shutil
 from pathlib import Path
 
 import numpy as np
+from scipy import ndimage
 
 from freqbrdf.calibrate import rotation_about
-from freqbrdf.images import linear_to_srgb, read_image, srgb_to_linear, write_exr
+from freqbrdf.images import linear_to_srgb, read_image, read_mask, srgb_to_linear, write_exr, write_png
 
 
 @dataclasses.dataclass(frozen=True)
@@ -39,6 +40,7 @@ class Imperfection:
     eight_bit: bool = False  # sRGB-encoded at 8 bits, clipped at the 99th percentile of the object, read back
     highlight_clip: float = 0.0  # > 0: HDR values clipped at this quantile of the object's (a sensor's full well)
     frame_exposure_spread: float = 0.0  # each photograph's exposure times exp(N(0, spread))
+    mask_offset_px: int = 0  # every mask grown (> 0, a segmentation's halo) or shrunk (< 0) by this many pixels
     seed: int = 0
 
     def name(self) -> str:
@@ -60,6 +62,8 @@ class Imperfection:
             parts.append(f"clip{self.highlight_clip:g}")
         if self.frame_exposure_spread:
             parts.append(f"frames{self.frame_exposure_spread:g}")
+        if self.mask_offset_px:
+            parts.append(f"masks{self.mask_offset_px:+d}px")
         return "+".join(parts) or "clean"
 
 
@@ -69,6 +73,17 @@ def _unit(vector: np.ndarray) -> np.ndarray:
 
 def _random_unit(rng: np.random.Generator) -> np.ndarray:
     return _unit(rng.normal(size=3))
+
+
+def _offset_masks(source: Path, target: Path, transforms: dict, pixels: int) -> None:
+    """Write every frame's mask grown (pixels > 0) or shrunk (< 0) by ``pixels`` (8-bit PNG)."""
+    for frame in transforms["frames"]:
+        mask = read_mask(source / frame["mask_path"])
+        moved = (ndimage.binary_dilation(mask, iterations=pixels) if pixels > 0
+                 else ndimage.binary_erosion(mask, iterations=-pixels))
+        path = target / frame["mask_path"]
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write_png(path, moved.astype(np.float32))
 
 
 def imperfect_capture(source: Path, target: Path, imperfection: Imperfection) -> Path:
@@ -97,8 +112,10 @@ def imperfect_capture(source: Path, target: Path, imperfection: Imperfection) ->
     transforms = json.loads((source / "transforms.json").read_text())
     rng = np.random.default_rng(imperfection.seed)
     for name in os.listdir(source):
-        if name not in ("transforms.json", "images"):
+        if name not in ("transforms.json", "images") and not (name == "masks" and imperfection.mask_offset_px):
             os.symlink(source / name, scratch / name)
+    if imperfection.mask_offset_px:
+        _offset_masks(source, scratch, transforms, imperfection.mask_offset_px)
     (scratch / "images").mkdir()
     if imperfection.probe_deg:
         turn = np.eye(4)

@@ -76,6 +76,29 @@ def test_exact_cameras_are_kept(bunny):
     assert np.all(found.turn_deg == 0.0) and np.all(found.outline_before_px < 0.3)
 
 
+@pytest.mark.parametrize("pixels", [2, -2])
+def test_a_mask_grown_or_shrunk_moves_no_exact_camera(bunny, tmp_path, pixels):
+    """A segmentation's halo (or erosion) puts the mask's edge a constant distance off the outline: the
+    offset is estimated with the pose instead of the pose taking it."""
+    from scipy import ndimage
+
+    truth = load(bunny)
+    grow = (lambda mask: ndimage.binary_dilation(mask, iterations=pixels)) if pixels > 0 else (
+        lambda mask: ndimage.binary_erosion(mask, iterations=-pixels))
+    masks = [grow(read_frame_mask_coverage(frame) > 0.5).astype(np.float32) for frame in truth.frames]
+    exact = refine_cameras(truth.mesh, [frame.camera for frame in truth.frames], masks)
+    assert np.median(_turn_deg(exact.cameras, truth)) < 0.05 and _turn_deg(exact.cameras, truth).max() < 0.15
+    # The offset is found (a 2-pixel dilation moves the edge 1.5-2 px) and reported.
+    assert np.all(np.abs(exact.mask_offset_px - 1.75 * np.sign(pixels)) < 0.5), exact.mask_offset_px
+    assert len(exact.to_dict()["mask_offset_px"]) == len(truth.frames)
+    if pixels < 0:
+        return  # erosion also cuts thin parts (the ears at 128 x 128): not a constant offset
+    turned = load(_turned_cameras(bunny, tmp_path / "turned", degrees=0.6, shift=0.005))
+    found = refine_cameras(turned.mesh, [frame.camera for frame in turned.frames], masks)
+    after = _turn_deg(found.cameras, truth)  # binary masks, 2 px off, 128 x 128: half the turn is left at most
+    assert np.median(after) < 0.3 and after.max() < 0.8, after
+
+
 def test_calibrate_reports_and_applies_the_cameras(bunny, tmp_path):
     capture = load(_turned_cameras(bunny, tmp_path / "turned", degrees=1.0, shift=0.0, seed=1))
     config = Config(texels=TexelConfig(texture_res=32),
@@ -126,3 +149,18 @@ def test_a_cube_seen_along_an_axis_has_its_outline_on_its_side_faces():
     assert len(outline.edge_start) == 18 and np.all(outline.face_right >= 0)  # closed: 12 faces, 18 edges
     points = outline.contour(np.array([0.3, 0.2, 5.0]))[0]
     assert len(points) > 0 and np.allclose(np.abs(points[:, 2]), 0.5)  # edges of the faces z = +-0.5
+
+
+def test_a_mask_drawn_wider_than_the_object_is_taken_in_as_it_is_read(bunny):
+    from dataclasses import replace
+
+    from freqbrdf.capture.layouts import read_frame_mask
+
+    frame = load(bunny).frames[0]
+    as_drawn = read_frame_mask(frame)
+    taken_in = read_frame_mask(replace(frame, mask_inset_px=1.7))
+    assert taken_in.sum() < as_drawn.sum() and not np.any(taken_in & ~as_drawn)
+    # The rim left out is two pixels wide: every pixel kept is more than 2.2 px from the background.
+    from scipy import ndimage
+    assert np.all(ndimage.distance_transform_edt(as_drawn)[taken_in] > 2.2)
+    assert np.array_equal(read_frame_mask(replace(frame, mask_inset_px=0.0)), as_drawn)

@@ -362,8 +362,12 @@ def _corrected(capture: Capture, calibration: Calibration, drop_bad_views: bool)
             calibration.dropped_views.append(index)
             continue
         factor = 1.0 / (calibration.gain * frame_gain[index])
-        frames.append(frame if np.allclose(factor, 1.0, rtol=0, atol=0) else
-                      replace(frame, exposure=tuple(float(value) for value in factor)))
+        if not np.allclose(factor, 1.0, rtol=0, atol=0):
+            frame = replace(frame, exposure=tuple(float(value) for value in factor))
+        inset = 0.0 if calibration.cameras is None else float(calibration.cameras.mask_offset_px[index])
+        if inset > 0.0:  # a mask drawn wider than the object: its rim holds background
+            frame = replace(frame, mask_inset_px=inset)
+        frames.append(frame)
     return replace(capture, frames=tuple(frames))
 
 

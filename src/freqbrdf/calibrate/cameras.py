@@ -13,7 +13,7 @@ not determine (a sphere's turn about its own centre) where the capture put it.
 from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numba
 import numpy as np
@@ -48,6 +48,10 @@ RESELECT = (0, 1, 3, 6, 10)
 # than the given pose's; else the given pose is (the mask's own noise moves a camera too).
 SIGNIFICANT_RATIO = 1.25
 CONVERGED_RAD = 1e-4
+# A mask whose edge lies this many pixels or more off the mesh's outline at the given pose (median:
+# a segmentation's halo or erosion) has that offset estimated with the pose, so that the pose does
+# not move to take it; closer, the mask is taken as drawn on the outline.
+MASK_OFFSET_PX = 0.5
 # Fewer outline points than this refine nothing.
 MIN_POINTS = 24
 # A view whose outline lies farther than this from its mask's edge after refinement (robust std,
@@ -72,6 +76,9 @@ class CameraRefinement:
         not refined.
     refined : (V,) bool
         Views with a mask and enough outline to refine.
+    mask_offset_px : (V,) float64
+        How far each mask's edge lies outside the mesh's outline, pixels (a segmentation's halo;
+        negative: inside); 0 where closer than `MASK_OFFSET_PX`.
     """
 
     cameras: list[Camera]
@@ -80,6 +87,7 @@ class CameraRefinement:
     outline_before_px: np.ndarray
     outline_after_px: np.ndarray
     refined: np.ndarray
+    mask_offset_px: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def bad_views(self) -> np.ndarray:
@@ -93,7 +101,8 @@ class CameraRefinement:
         -------
         dict
             Per view: ``turn_deg``, ``shift`` (share of distance), ``outline_before_px``,
-            ``outline_after_px`` (None where not refined), ``refined``; ``bad_views``.
+            ``outline_after_px`` (None where not refined), ``refined``, ``mask_offset_px``;
+            ``bad_views``.
         """
         def listed(values):
             return [None if not np.isfinite(value) else float(value) for value in values]
@@ -101,7 +110,8 @@ class CameraRefinement:
         return {"turn_deg": listed(self.turn_deg), "shift": listed(self.shift),
                 "outline_before_px": listed(self.outline_before_px),
                 "outline_after_px": listed(self.outline_after_px),
-                "refined": self.refined.tolist(), "bad_views": self.bad_views.tolist()}
+                "refined": self.refined.tolist(), "mask_offset_px": listed(self.mask_offset_px),
+                "bad_views": self.bad_views.tolist()}
 
 
 @dataclass(frozen=True)
@@ -316,7 +326,7 @@ def _moved(camera: Camera, turn: np.ndarray, shift: np.ndarray) -> Camera:
     return replace(camera, camera_to_world=matrix)
 
 
-def refine_camera(outline: MeshOutline, camera: Camera, coverage: np.ndarray) -> tuple[Camera, float, float]:
+def refine_camera(outline: MeshOutline, camera: Camera, coverage: np.ndarray) -> tuple[Camera, float, float, float]:
     """Refine one camera's pose so that the mesh's outline falls on its mask's edge.
 
     Parameters
@@ -336,38 +346,53 @@ def refine_camera(outline: MeshOutline, camera: Camera, coverage: np.ndarray) ->
     before, after : float
         Robust std of the outline's distance to the mask's edge before and after, pixels (NaN
         where not refined).
+    mask_offset : float
+        How far the mask's edge lies outside the outline, pixels (negative: inside; 0 where it is
+        closer than `MASK_OFFSET_PX` at the given pose).
     """
     view = _ViewFit(outline, coverage)
     if not np.isfinite(view.distance).all():
-        return camera, float("nan"), float("nan")
+        return camera, float("nan"), float("nan"), 0.0
     distance = float(np.linalg.norm(camera.center - outline.centre))
     prior = None
-    correction = np.zeros(6)  # the total turn and shift (as a share of distance) so far
+    # The total turn, shift (as a share of distance) and the mask's edge offset so far: a mask drawn
+    # wider or narrower than the object (a segmentation's halo or erosion) lies a constant distance
+    # off its outline, which the offset takes instead of the pose.
+    correction = np.zeros(7)
     given, before = camera, float("nan")
     for iteration in range(ITERATIONS):
         if iteration in RESELECT:
             points = view.outline_points(camera)
         pixels, residual = view.residuals(camera, points)
         if len(residual) < MIN_POINTS:
-            return given, float("nan"), float("nan")
+            return given, float("nan"), float("nan"), 0.0
         if iteration == 0:
-            before = _robust_std(residual)
+            # A mask off the outline by MASK_OFFSET_PX or more at the given pose has its offset
+            # estimated with the pose; a closer one is taken as drawn on the outline.
+            free_offset = abs(float(np.median(residual))) >= MASK_OFFSET_PX
+            correction[6] = -float(np.median(residual)) if free_offset else 0.0
+            offset = float(correction[6])
+            before = _robust_std(residual + correction[6])
+        residual = residual + correction[6]
         weight = 1.0 / np.sqrt(residual ** 2 + HUBER_PX ** 2)
-        jacobian = view.jacobian(camera, points, pixels, distance)
+        jacobian = np.concatenate([view.jacobian(camera, points, pixels, distance),
+                                   np.full((len(points), 1), 1.0 if free_offset else 0.0)], axis=1)
         normal = jacobian.T @ (weight[:, None] * jacobian)
-        if prior is None:
-            prior = PRIOR_SHARE * np.linalg.eigvalsh(normal)[-1] * np.eye(6)
+        if prior is None:  # on the pose; the offset is free (or held at 0)
+            prior = np.zeros((7, 7))
+            prior[:6, :6] = PRIOR_SHARE * np.linalg.eigvalsh(normal[:6, :6])[-1] * np.eye(6)
+            prior[6, 6] = 0.0 if free_offset else 1.0
         normal = normal + prior
         # The prior pulls the total correction, not each step, towards the given pose.
         step = -np.linalg.solve(normal, jacobian.T @ (weight * residual) + prior @ correction)
         correction += step
-        camera = _moved(camera, step[:3], distance * step[3:])
-        if np.abs(step[:3]).max() < CONVERGED_RAD and np.abs(step[3:]).max() < CONVERGED_RAD:
+        camera = _moved(camera, step[:3], distance * step[3:6])
+        if np.abs(step[:3]).max() < CONVERGED_RAD and np.abs(step[3:6]).max() < CONVERGED_RAD:
             break
-    after = _robust_std(view.residuals(camera, view.outline_points(camera))[1])
+    after = _robust_std(view.residuals(camera, view.outline_points(camera))[1] + correction[6])
     if not after < before / SIGNIFICANT_RATIO:
-        return given, before, before  # the outline fits no better than as given: the camera is kept
-    return camera, before, after
+        return given, before, before, offset  # the outline fits no better than as given: the camera is kept
+    return camera, before, after, float(correction[6])
 
 
 def refine_cameras(mesh: Mesh, cameras: list[Camera], masks) -> CameraRefinement:
@@ -393,7 +418,8 @@ def refine_cameras(mesh: Mesh, cameras: list[Camera], masks) -> CameraRefinement
     # Views are independent: refined on threads (numpy and the kernel release the GIL), collected in order.
     with ThreadPoolExecutor(max_workers=numba.config.NUMBA_NUM_THREADS) as pool:
         found = list(pool.map(lambda pair: refine_camera(outline, *pair), zip(cameras, masks)))
-    for camera, (refined, outline_before, outline_after) in zip(cameras, found):
+    offsets = [offset for *_, offset in found]
+    for camera, (refined, outline_before, outline_after, _) in zip(cameras, found):
         relative = refined.camera_to_world[:3, :3] @ camera.camera_to_world[:3, :3].T
         skew = relative - relative.T
         sine = 0.5 * np.linalg.norm([skew[2, 1], skew[0, 2], skew[1, 0]])
@@ -405,4 +431,4 @@ def refine_cameras(mesh: Mesh, cameras: list[Camera], masks) -> CameraRefinement
         after.append(outline_after)
     after_array = np.array(after, np.float64)
     return CameraRefinement(refined_cameras, np.array(turn), np.array(shift), np.array(before, np.float64),
-                            after_array, np.isfinite(after_array))
+                            after_array, np.isfinite(after_array), np.array(offsets, np.float64))

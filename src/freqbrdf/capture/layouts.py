@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy import ndimage
 
 from freqbrdf.capture.camera import (
     Camera,
@@ -93,6 +94,9 @@ class Frame:
     exposure : (3,) float tuple or None
         The factor per colour channel the image is multiplied by as it is read: the calibration's
         correction of its exposure and white balance (`freqbrdf.calibrate`); None: 1.
+    mask_inset_px : float
+        Pixels the mask is taken in by as it is read (`read_frame_mask`): where the calibration
+        found it drawn wider than the object (a segmentation's halo); 0: as drawn.
     """
 
     camera: Camera
@@ -103,6 +107,7 @@ class Frame:
     envmap_scale: float = 1.0
     mask_from_alpha: bool = False
     exposure: tuple[float, float, float] | None = None
+    mask_inset_px: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -378,14 +383,19 @@ def read_frame_mask(frame: Frame) -> np.ndarray:
     Returns
     -------
     (H, W) bool
-        The mask; all True when the frame has none.
+        The mask; all True when the frame has none. Taken in by ``frame.mask_inset_px``: the
+        pixels whose centre lies within that and half a pixel of its edge are left out.
 
     Raises
     ------
     InputError
         If the mask cannot be read or its size is not its camera's.
     """
-    return read_frame_mask_coverage(frame) > 0.5
+    mask = read_frame_mask_coverage(frame) > 0.5
+    if frame.mask_inset_px > 0.0 and frame.mask_path is not None:
+        # A pixel whose footprint reaches the rim (its centre within the inset and half a pixel) is left out.
+        mask = ndimage.distance_transform_edt(mask) > frame.mask_inset_px + 0.5
+    return mask
 
 
 def read_frame_mask_coverage(frame: Frame) -> np.ndarray:
