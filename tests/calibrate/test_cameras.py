@@ -91,6 +91,10 @@ def test_a_mask_grown_or_shrunk_moves_no_exact_camera(bunny, tmp_path, pixels):
     # The offset is found (a 2-pixel dilation moves the edge 1.5-2 px) and reported.
     assert np.all(np.abs(exact.mask_offset_px - 1.75 * np.sign(pixels)) < 0.5), exact.mask_offset_px
     assert len(exact.to_dict()["mask_offset_px"]) == len(truth.frames)
+    from freqbrdf.calibrate import Calibration, _warnings
+
+    said = _warnings(truth, Calibration(np.ones(3), np.zeros(3), cameras=exact), CalibrationConfig())
+    assert any(("outside" if pixels > 0 else "inside") + " the mesh's outline" in line for line in said), said
     if pixels < 0:
         return  # erosion also cuts thin parts (the ears at 128 x 128): not a constant offset
     turned = load(_turned_cameras(bunny, tmp_path / "turned", degrees=0.6, shift=0.005))

@@ -400,6 +400,13 @@ def _warnings(capture: Capture, calibration: Calibration, settings) -> list[str]
         if np.median(moved) > settings.warn_camera_deg:
             lines.append(f"the cameras were turned by a median {np.median(moved):.2f}° (largest {moved.max():.2f}°) "
                          "to put the mesh's outline on the masks (calibration): check the poses")
+        offset = cameras.mask_offset_px[cameras.refined] if cameras.mask_offset_px.size else np.zeros(0)
+        if offset.size and float(np.median(offset)) != 0.0:
+            median = float(np.median(offset))
+            lines.append(f"the masks' edges lie a median {abs(median):.1f} px {'outside' if median > 0 else 'inside'} the "
+                         f"mesh's outline ({'a segmentation halo' if median > 0 else 'eroded masks'}?): the poses were "
+                         "refined with that offset" + ("; the masks are taken in by it" if median > 0 else
+                                                        "; the object's rim is not observed"))
         bad = cameras.bad_views
         if bad.size:
             names = ", ".join(capture.frames[index].image_path.name for index in bad[:5].tolist())
