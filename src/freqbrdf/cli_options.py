@@ -93,7 +93,8 @@ def calibration_from_options(settings, calibration: str, frame_gains: bool, drop
     """Build the `freqbrdf.config.CalibrationConfig` of ``fit``'s calibration options, checked before any work.
 
     ``auto``: exposure and white balance, the cameras' poses and the map's turn; ``gains``:
-    exposure and white balance only; ``none``: nothing. ``frame_gains`` adds a gain per photograph;
+    exposure and white balance only; ``none``: nothing. ``frame_gains`` applies a gain to every
+    photograph (else, but with ``none``, to those that stand out from the others);
     ``drop_bad_views`` leaves out photographs far from the others (by their gains, with
     ``frame_gains``) or whose outline refining does not bring onto their mask.
     """
@@ -107,5 +108,5 @@ def calibration_from_options(settings, calibration: str, frame_gains: bool, drop
     chosen = {"auto": {"gains": True, "cameras": True, "probe_rotation": True},
               "gains": {"gains": True, "cameras": False, "probe_rotation": False},
               "none": {"gains": False, "cameras": False, "probe_rotation": False}}[calibration]
-    return dataclasses.replace(settings, drop_bad_views=drop_bad_views, frame_gains="on" if frame_gains else "off",
-                               **chosen)
+    frames = "on" if frame_gains else ("off" if calibration == "none" else settings.frame_gains)
+    return dataclasses.replace(settings, drop_bad_views=drop_bad_views, frame_gains=frames, **chosen)
