@@ -29,7 +29,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from freqbrdf.calibrate.cameras import BAD_OUTLINE_PX, CameraRefinement, refine_cameras
+from freqbrdf.calibrate.cameras import BAD_OUTLINE_PX, MASK_OFFSET_PX, CameraRefinement, refine_cameras
 from freqbrdf.calibrate.gains import PRIOR_LOG_STD, GainEstimate, channel_gains, frame_gains
 from freqbrdf.calibrate.probe import ProbeRegistration, axis_angle, register_probe, rotation_about
 from freqbrdf.capture.layouts import Capture, read_frame_mask_coverage
@@ -270,7 +270,7 @@ def calibrate(capture: Capture, config: Config = Config(),
                 calibration.frame_gain = measured
                 observations = _scaled(observations, measured, config)
         gain, log_std, scored = np.ones(3), np.zeros(3), 0
-        if settings.gains and calibration.samples_per_texel >= MIN_GAIN_SAMPLES:
+        if settings.gains and calibration.samples_per_texel >= MIN_GAIN_SAMPLES and not _masks_inside(calibration):
             search = _search_config(coarse_config)
             current = observations
             for _ in range(GAIN_PASSES):
@@ -290,6 +290,19 @@ def calibrate(capture: Capture, config: Config = Config(),
     capture = _corrected(capture, calibration, settings.drop_bad_views)
     calibration.seconds = time.perf_counter() - start
     return capture, calibration
+
+
+def _masks_inside(calibration: Calibration) -> bool:
+    """Whether the masks' edges lie inside the mesh's outline (median over the views, `MASK_OFFSET_PX` or more).
+
+    Eroded masks leave out every texel's most grazing views, where a dielectric's specular rises
+    (its Fresnel term): the gains rest on them, and are not estimated (masks 2 px narrower read a
+    sphere's exposure 1.3, docs/results.md#calibration).
+    """
+    cameras = calibration.cameras
+    if cameras is None or not cameras.mask_offset_px.size or not cameras.refined.any():
+        return False
+    return float(np.median(cameras.mask_offset_px[cameras.refined])) <= -MASK_OFFSET_PX
 
 
 def _standing_out(measured: np.ndarray, log_std: np.ndarray) -> np.ndarray | None:
@@ -411,7 +424,10 @@ def _warnings(capture: Capture, calibration: Calibration, settings) -> list[str]
         lines.append(f"the photographs are {calibration.exposure:.3g}x the environment map's exposure, white balance "
                      f"(R, G, B) {', '.join(f'{value:.3f}' for value in calibration.white_balance)}: corrected "
                      "(calibration); shoot the probe with the photographs' settings or check envmap_scale")
-    if settings.gains and calibration.samples_per_texel < MIN_GAIN_SAMPLES:
+    if settings.gains and _masks_inside(calibration):
+        lines.append("the masks lie inside the object's outline, so the photographs' most grazing views are lost: the "
+                     "exposure and white balance are not estimated (the environment map's are used)")
+    elif settings.gains and calibration.samples_per_texel < MIN_GAIN_SAMPLES:
         lines.append(f"the photographs give {calibration.samples_per_texel:.0f} samples per texel (median), too few to "
                      "tell a dielectric's diffuse from its specular: the exposure and white balance are not estimated "
                      f"(the environment map's are used); shoot more views (at least {MIN_GAIN_SAMPLES} per texel) or "
