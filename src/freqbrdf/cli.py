@@ -290,8 +290,8 @@ def fit(
         "balance, the cameras' poses against the masks, the environment map's turn), gains (exposure and white balance only) or none (the photographs "
         "and the map share one scale and frame, as given)."),
     frame_gains: bool = typer.Option(
-        False, "--frame-gains", help="Apply a relative gain to every photograph (photographs at other shutter speeds "
-        "or with auto-exposure); without it, only to photographs exposed far unlike the others."),
+        False, "--frame-gains", help="Also measure and apply a relative gain per photograph (photographs at other "
+        "shutter speeds or with auto-exposure)."),
     drop_bad_views: bool = typer.Option(
         False, "--drop-bad-views", help="Leave out photographs whose outline refining does not bring onto their mask "
         "(--calibration auto) or, with --frame-gains, whose gain is more than 2x the others' (they are named in a "

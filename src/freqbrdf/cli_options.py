@@ -93,8 +93,7 @@ def calibration_from_options(settings, calibration: str, frame_gains: bool, drop
     """Build the `freqbrdf.config.CalibrationConfig` of ``fit``'s calibration options, checked before any work.
 
     ``auto``: exposure and white balance, the cameras' poses and the map's turn; ``gains``:
-    exposure and white balance only; ``none``: nothing. ``frame_gains`` applies a gain to every
-    photograph (else, but with ``none``, to those that stand out from the others);
+    exposure and white balance only; ``none``: nothing. ``frame_gains`` adds a gain per photograph;
     ``drop_bad_views`` leaves out photographs far from the others (by their gains, with
     ``frame_gains``) or whose outline refining does not bring onto their mask.
     """
@@ -108,5 +107,5 @@ def calibration_from_options(settings, calibration: str, frame_gains: bool, drop
     chosen = {"auto": {"gains": True, "cameras": True, "probe_rotation": True},
               "gains": {"gains": True, "cameras": False, "probe_rotation": False},
               "none": {"gains": False, "cameras": False, "probe_rotation": False}}[calibration]
-    frames = "on" if frame_gains else ("off" if calibration == "none" else settings.frame_gains)
-    return dataclasses.replace(settings, drop_bad_views=drop_bad_views, frame_gains=frames, **chosen)
+    return dataclasses.replace(settings, drop_bad_views=drop_bad_views, frame_gains="on" if frame_gains else "off",
+                               **chosen)

@@ -341,11 +341,10 @@ class CalibrationConfig:
     gains: bool = True
     """Estimate one gain per colour channel between the photographs and the environment map (exposure and white
     balance) with the materials; off: the photographs and the map share one radiometric scale."""
-    frame_gains: Literal["off", "auto", "on"] = "auto"
+    frame_gains: Literal["off", "on"] = "off"
     """A relative gain per photograph, for photographs at other shutter speeds or with auto-exposure: "on"
-    measures and applies every one; "auto" applies those of the photographs that stand out from the others
-    (`freqbrdf.calibrate.FRAME_OUTLIER_SPREADS`): on captures exposed alike the gains add more error than they
-    remove (docs/results.md#calibration)."""
+    measures and applies them. Off by default: on captures exposed alike they add more error than they remove
+    (docs/results.md#calibration)."""
     cameras: bool = True
     """Refine each camera's pose so that the mesh's outline falls on its mask's edge (photographs with a mask)."""
     probe_rotation: bool = True
@@ -375,7 +374,7 @@ class CalibrationConfig:
     @property
     def enabled(self) -> bool:
         """Whether anything is calibrated."""
-        return self.gains or self.cameras or self.probe_rotation or self.frame_gains != "off"
+        return self.gains or self.cameras or self.probe_rotation or self.frame_gains == "on"
 
 
 @dataclass(frozen=True)

@@ -11,8 +11,8 @@ with a `Calibration` that says what was found and how well the photographs deter
    photograph's mask's edge;
 2. the map's turn (`freqbrdf.calibrate.probe`), from how well the mirrored light explains the
    texels' view-dependent radiance;
-3. relative gains per photograph (`freqbrdf.calibrate.gains.frame_gains`): of the photographs
-   that stand out from the others, or of every one where asked (``CalibrationConfig.frame_gains``);
+3. relative gains per photograph (`freqbrdf.calibrate.gains.frame_gains`), where asked
+   (``CalibrationConfig.frame_gains``);
 4. one gain per colour channel between the photographs and the map
    (`freqbrdf.calibrate.gains.channel_gains`), with the materials: up to `GAIN_PASSES` times,
    each on photographs corrected by the passes before, since the roughness the search finds
@@ -69,10 +69,6 @@ POORLY_DETERMINED = 0.15
 # median of samples per seen texel they read the model's misfit, not the exposure
 # (docs/results.md#calibration), and are not estimated (the map's scale is kept, with a warning).
 MIN_GAIN_SAMPLES = 8
-# With frame_gains "auto", a photograph's gain is applied where it lies this many robust spreads of the
-# photographs' gains from their median and at least this factor off (`_standing_out`).
-FRAME_OUTLIER_SPREADS = 4.0
-FRAME_OUTLIER_FACTOR = 1.5
 # A frame whose gain is beyond this factor of the others (either way) is one calibration cannot
 # trust: named in a warning, dropped with ``drop_bad_views``.
 BAD_FRAME_FACTOR = 2.0
@@ -261,14 +257,10 @@ def calibrate(capture: Capture, config: Config = Config(),
                 capture = _turned(capture, calibration.probe.rotation)
                 observations = _exact_texels(observe(capture, coarse_config, texels=texels))
         advance(1)
-        if settings.frame_gains != "off":
-            measured, measured_log_std = frame_gains(observations.view_direction, observations.weight,
-                                                     observations.observed)
-            if settings.frame_gains == "auto":
-                measured = _standing_out(measured, measured_log_std)
-            if measured is not None:
-                calibration.frame_gain = measured
-                observations = _scaled(observations, measured, config)
+        if settings.frame_gains == "on":
+            measured, _ = frame_gains(observations.view_direction, observations.weight, observations.observed)
+            calibration.frame_gain = measured
+            observations = _scaled(observations, measured, config)
         gain, log_std, scored = np.ones(3), np.zeros(3), 0
         if settings.gains and calibration.samples_per_texel >= MIN_GAIN_SAMPLES and not _masks_inside(calibration):
             search = _search_config(coarse_config)
@@ -303,30 +295,6 @@ def _masks_inside(calibration: Calibration) -> bool:
     if cameras is None or not cameras.mask_offset_px.size or not cameras.refined.any():
         return False
     return float(np.median(cameras.mask_offset_px[cameras.refined])) <= -MASK_OFFSET_PX
-
-
-def _standing_out(measured: np.ndarray, log_std: np.ndarray) -> np.ndarray | None:
-    """Return the frame gains (V, 3) of the photographs that stand out from the others, 1 elsewhere; None if none does.
-
-    A photograph stands out where its log gain (the channels' mean) lies `FRAME_OUTLIER_SPREADS` robust
-    spreads (1.4826 median absolute deviations over the photographs) from the photographs' median, as
-    many of its own std (``log_std`` (V, 3): a view that sees few texels reads a gain poorly) and at
-    least a factor `FRAME_OUTLIER_FACTOR` off: alike photographs spread 12-16 %
-    (docs/results.md#calibration). Its gain is taken relative to the others' median.
-    """
-    log_gain = np.log(measured)
-    level = log_gain.mean(axis=1)
-    centre = float(np.median(level))
-    spread = 1.4826 * float(np.median(np.abs(level - centre)))
-    own = np.where(np.isfinite(log_std), log_std, np.inf).mean(axis=1)
-    deviation = np.abs(level - centre)
-    odd = (deviation > max(FRAME_OUTLIER_SPREADS * spread, np.log(FRAME_OUTLIER_FACTOR))) & (
-        deviation > FRAME_OUTLIER_SPREADS * own)
-    if not odd.any():
-        return None
-    gains = np.ones_like(measured)
-    gains[odd] = np.exp(log_gain[odd] - np.median(log_gain[~odd], axis=0))
-    return gains
 
 
 def _exact_texels(observations: Observations) -> Observations:
@@ -462,12 +430,6 @@ def _warnings(capture: Capture, calibration: Calibration, settings) -> list[str]
             lines.append(f"{bad.size} photographs' masks do not fit the mesh's outline after refining their poses "
                          f"(off by more than {BAD_OUTLINE_PX:g} px: {names}): {action}")
     measured = calibration.frame_gain
-    if measured is not None and settings.frame_gains == "auto":
-        odd = np.flatnonzero(np.any(measured != 1.0, axis=1))
-        names = ", ".join(capture.frames[index].image_path.name for index in odd[:5].tolist())
-        largest = float(np.exp(np.abs(np.log(measured[odd]).mean(axis=1)).max()))
-        lines.append(f"{odd.size} photographs are exposed unlike the others (up to {largest:.2f}x: {names}): their gains "
-                     "are corrected (calibration); --frame-gains corrects every photograph's")
     if measured is not None:
         worst = np.abs(np.log(measured)).max(axis=1)
         bad = np.flatnonzero(worst > np.log(BAD_FRAME_FACTOR))
