@@ -171,6 +171,10 @@ class Calibration:
         if self.cameras is not None and self.cameras.refined.any():
             moved = self.cameras.turn_deg[self.cameras.refined]
             line += f"; cameras refined (median turn {np.median(moved):.2f}°, largest {moved.max():.2f}°)"
+            offset = self.cameras.mask_offset_px[self.cameras.refined] if self.cameras.mask_offset_px.size else []
+            if len(offset) and float(np.median(offset)) != 0.0:
+                median = float(np.median(offset))
+                line += f"; masks {abs(median):.1f} px {'wider' if median > 0 else 'narrower'} than the object"
         if self.probe is not None:
             line += f"; probe turned {self.probe.angle_deg:.1f}°" if self.probe.angle_deg > 0.0 else "; probe kept"
         return line
