@@ -22,7 +22,8 @@ from freqbrdf.applications.candidates import (
 )
 from freqbrdf.capture.camera import look_at
 from freqbrdf.capture.camera_layouts import bounding_sphere
-from freqbrdf.capture.layouts import Frame, load, write_transforms
+from freqbrdf.capture.layouts import Frame, load
+from freqbrdf.capture.transforms_file import write_transforms
 from freqbrdf.config import Config, TexelConfig
 from freqbrdf.fileio import OUTPUT_MARKER
 from freqbrdf.synthetic.synth import SynthSettings, synthesize

@@ -14,10 +14,10 @@ from freqbrdf.capture.layouts import (
     Frame,
     load,
     release_decoded_frames,
-    write_transforms,
 )
 from freqbrdf.capture.mesh import Mesh, plane_mesh, save_obj, uv_sphere_mesh
 from freqbrdf.capture.stanford_orb import stanford_orb_envmap_to_world
+from freqbrdf.capture.transforms_file import write_transforms
 from freqbrdf.errors import InputError
 from freqbrdf.images import write_exr, write_png
 from freqbrdf.model.materials import save_material_maps

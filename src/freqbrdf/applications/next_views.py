@@ -80,7 +80,8 @@ def write_next_views(out_dir: str | Path, capture: Capture, picks: Sequence[Pick
      'unseen_area']
     >>> work.cleanup()
     """
-    from freqbrdf.capture.layouts import Frame, write_transforms
+    from freqbrdf.capture.layouts import Frame
+    from freqbrdf.capture.transforms_file import write_transforms
     from freqbrdf.fileio import atomic_directory, write_json
     from freqbrdf.sphere.envmap import load_envmap
 

@@ -42,7 +42,6 @@ from freqbrdf.capture.layouts import (
     load,
     read_frame_image,
     read_frame_mask,
-    write_transforms,
 )
 from freqbrdf.capture.mesh import (
     Mesh,
@@ -55,6 +54,7 @@ from freqbrdf.capture.mesh import (
     uv_sphere_mesh,
 )
 from freqbrdf.capture.stanford_orb import stanford_orb_envmap_to_world
+from freqbrdf.capture.transforms_file import write_transforms
 
 __all__ = [
     "Camera",

@@ -40,10 +40,10 @@ from freqbrdf.capture.layouts import (
     TEST_TRANSFORMS_FILE,
     TRANSFORMS_FILE,
     Frame,
-    write_transforms,
 )
 from freqbrdf.capture.mesh import Mesh, load_mesh, save_obj
 from freqbrdf.capture.stanford_orb import ORB_NORMAL_FIXES, ORB_NOVEL_FILE, stanford_orb_envmap_to_world
+from freqbrdf.capture.transforms_file import write_transforms
 from freqbrdf.errors import InputError
 from freqbrdf.fileio import atomic_directory
 from freqbrdf.images import write_exr, write_png
