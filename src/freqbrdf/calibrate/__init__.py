@@ -171,9 +171,8 @@ class Calibration:
         if self.cameras is not None and self.cameras.refined.any():
             moved = self.cameras.turn_deg[self.cameras.refined]
             line += f"; cameras refined (median turn {np.median(moved):.2f}°, largest {moved.max():.2f}°)"
-            offset = self.cameras.mask_offset_px[self.cameras.refined] if self.cameras.mask_offset_px.size else []
-            if len(offset) and float(np.median(offset)) != 0.0:
-                median = float(np.median(offset))
+            median = self.cameras.median_mask_offset_px
+            if median != 0.0:
                 line += f"; masks {abs(median):.1f} px {'wider' if median > 0 else 'narrower'} than the object"
         if self.probe is not None:
             line += f"; probe turned {self.probe.angle_deg:.1f}°" if self.probe.angle_deg > 0.0 else "; probe kept"
@@ -295,10 +294,7 @@ def _masks_inside(calibration: Calibration) -> bool:
     (its Fresnel term): the gains rest on them, and are not estimated (masks 2 px narrower read a
     sphere's exposure 1.3, docs/results.md#calibration).
     """
-    cameras = calibration.cameras
-    if cameras is None or not cameras.mask_offset_px.size or not cameras.refined.any():
-        return False
-    return float(np.median(cameras.mask_offset_px[cameras.refined])) <= -MASK_OFFSET_PX
+    return calibration.cameras is not None and calibration.cameras.median_mask_offset_px <= -MASK_OFFSET_PX
 
 
 def _exact_texels(observations: Observations) -> Observations:
@@ -420,9 +416,8 @@ def _warnings(capture: Capture, calibration: Calibration, settings) -> list[str]
         if np.median(moved) > settings.warn_camera_deg:
             lines.append(f"the cameras were turned by a median {np.median(moved):.2f}° (largest {moved.max():.2f}°) "
                          "to put the mesh's outline on the masks (calibration): check the poses")
-        offset = cameras.mask_offset_px[cameras.refined] if cameras.mask_offset_px.size else np.zeros(0)
-        if offset.size and float(np.median(offset)) != 0.0:
-            median = float(np.median(offset))
+        median = cameras.median_mask_offset_px
+        if median != 0.0:
             lines.append(f"the masks' edges lie a median {abs(median):.1f} px {'outside' if median > 0 else 'inside'} the "
                          f"mesh's outline ({'a segmentation halo' if median > 0 else 'eroded masks'}?): the poses were "
                          "refined with that offset" + ("; the masks are taken in by it" if median > 0 else

@@ -90,6 +90,12 @@ class CameraRefinement:
     mask_offset_px: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
+    def median_mask_offset_px(self) -> float:
+        """The median of ``mask_offset_px`` over the refined views (0 where none is)."""
+        offsets = self.mask_offset_px[self.refined] if self.mask_offset_px.size else np.zeros(0)
+        return float(np.median(offsets)) if offsets.size else 0.0
+
+    @property
     def bad_views(self) -> np.ndarray:
         """(K,) int: views whose outline still misses the mask's edge by more than `BAD_OUTLINE_PX`."""
         return np.flatnonzero(self.refined & (self.outline_after_px > BAD_OUTLINE_PX))
