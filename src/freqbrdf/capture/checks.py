@@ -110,8 +110,8 @@ def check_capture(capture: Capture, read_frames: bool = True, lmax: int | None =
     check.figures["views"] = views
     if views < 2:
         raise InputError(source, f"{views} view: every texel needs samples from at least two views to be estimated")
-    poses = views - len(_duplicate_poses([frame.camera for frame in capture.frames]))
-    if poses < 2:
+    duplicates = _duplicate_poses([frame.camera for frame in capture.frames])
+    if views - len(duplicates) < 2:
         raise InputError(source, f"the {views} frames share one camera pose: every texel needs samples from at least "
                                  "two views to be estimated (copied entries?)")
     for index, frame in enumerate(capture.frames):
@@ -152,7 +152,6 @@ def check_capture(capture: Capture, read_frames: bool = True, lmax: int | None =
         raise InputError(source, f"--lmax {lmax} fits (lmax+1)^2 = {(lmax + 1) ** 2} SH coefficients per texel, but "
                                  f"at most {counts.max()} views see any point of the mesh: choose --lmax {highest} or "
                                  "lower, or take more views")
-    duplicates = _duplicate_poses(cameras)
     check.figures["duplicate_poses"] = len(duplicates)
     if duplicates:
         first, second = duplicates[0]
