@@ -121,6 +121,24 @@ def test_a_turned_probe_is_registered(clean, clean_calibration, tmp_path):
                                atol=1e-9)
 
 
+@pytest.mark.parametrize("axis", [(1.0, 0.0, 0.0), (0.0, 0.0, 1.0)])
+def test_a_turned_probes_loss_is_the_loss_of_the_capture_observed_with_it(clean, axis):
+    # The registration scores a turn without observing again (harmonics rotated, prefiltered maps read
+    # in the turned frame, irradiance at turned normals): the same loss as observing the turned capture.
+    from freqbrdf.calibrate import _search_config, _turned
+    from freqbrdf.calibrate.probe import _ModelLoss
+    from freqbrdf.observe import observe
+
+    config = Config(texels=TexelConfig(texture_res=32))
+    capture = load(clean)
+    turn = rotation_about(np.array(axis), np.radians(3.0))
+    settings = _search_config(config).estimate
+    cheap = _ModelLoss(observe(capture, config), settings)(turn)
+    observed = _ModelLoss(observe(_turned(capture, turn), config), settings)(np.eye(3))
+    assert cheap == pytest.approx(observed, rel=1e-5)
+    assert cheap != pytest.approx(_ModelLoss(observe(capture, config), settings)(np.eye(3)), rel=1e-3)
+
+
 def test_clipped_highlights_neither_turn_the_probe_nor_move_the_gains(clean, clean_calibration, tmp_path):
     # Highlights clipped (censored samples, docs/method.md#censored-samples): the texels that keep
     # only their dimmer views would prefer a turn and a lower gain if read as measurements.
@@ -145,19 +163,16 @@ def test_calibration_is_deterministic(clean, clean_calibration):
     assert again.to_dict() | {"seconds": 0} == clean_calibration.to_dict() | {"seconds": 0}
 
 
-def test_a_flat_surface_does_not_register_the_probe():
+def test_a_flat_surface_does_not_register_the_probe(clean):
+    # Normals all alike (a plane, a relief): a turn would mimic the lobe's misfit, not register the map.
     from freqbrdf.calibrate import register_probe
-    from freqbrdf.sphere.envmap import Envmap
+    from freqbrdf.config import EstimateConfig
+    from freqbrdf.observe import observe
 
-    rng = np.random.default_rng(0)
-    frame = np.tile(np.eye(3), (50, 1, 1))  # every normal +z: a plane
-    view = rng.normal(size=(50, 8, 3)).astype(np.float32)
-    view[..., 2] = np.abs(view[..., 2])
-    view /= np.linalg.norm(view, axis=-1, keepdims=True)
-    envmap = Envmap(rng.random((16, 32, 3)).astype(np.float32), np.eye(4))
-    found = register_probe(envmap, frame, view, np.ones((50, 8), np.float32),
-                           rng.random((50, 8, 3)).astype(np.float32), 25.0)
-    assert found.angle_deg == 0.0 and np.array_equal(found.rotation, np.eye(3))
+    observations = observe(load(clean), CONFIG)
+    flat = replace(observations, normal=np.tile(np.float32([0.0, 0.0, 1.0]), (observations.n_texels, 1)))
+    found = register_probe(flat, EstimateConfig(robust_passes=0, neighbour_vote=False), 25.0)
+    assert found.angle_deg == 0.0 and np.array_equal(found.rotation, np.eye(3)) and found.log_odds == 0.0
 
 
 def test_a_capture_with_too_few_views_per_texel_keeps_the_maps_scale_and_says_so(clean, clean_calibration):

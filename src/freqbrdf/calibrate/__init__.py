@@ -9,14 +9,14 @@ with a `Calibration` that says what was found and how well the photographs deter
 
 1. each camera's pose (`freqbrdf.calibrate.cameras`), so that the mesh's outline falls on the
    photograph's mask's edge;
-2. the map's turn (`freqbrdf.calibrate.probe`), from how well the mirrored light explains the
-   texels' view-dependent radiance;
-3. relative gains per photograph (`freqbrdf.calibrate.gains.frame_gains`), where asked
+2. relative gains per photograph (`freqbrdf.calibrate.gains.frame_gains`), where asked
    (``CalibrationConfig.frame_gains``);
-4. one gain per colour channel between the photographs and the map
+3. one gain per colour channel between the photographs and the map
    (`freqbrdf.calibrate.gains.channel_gains`), with the materials: up to `GAIN_PASSES` times,
    each on photographs corrected by the passes before, since the roughness the search finds
-   depends on the gain.
+   depends on the gain;
+4. the map's turn (`freqbrdf.calibrate.probe`), by the model's loss on photographs at the map's
+   scale; where the map is turned, the gains again from there.
 
 Sits after `freqbrdf.estimate` (it searches the coarse texels) and before the fit that uses it
 (`freqbrdf.pipeline.fit`).
@@ -35,7 +35,6 @@ from freqbrdf.calibrate.probe import ProbeRegistration, axis_angle, register_pro
 from freqbrdf.capture.layouts import Capture, read_frame_mask_coverage
 from freqbrdf.config import Config
 from freqbrdf.estimate import label_sums
-from freqbrdf.model import brdf
 from freqbrdf.observe.observations import Observations, observe
 from freqbrdf.progress import SILENT, Reporter
 from freqbrdf.sphere import envmap as envmaps
@@ -46,8 +45,6 @@ __all__ = ["Calibration", "CameraRefinement", "GainEstimate", "ProbeRegistration
            "frame_gains", "refine_cameras", "register_probe",
            "rotation_about"]
 
-# Height of the map the probe's turn is scored on (band-limited: its detail is well below this).
-PROBE_MAP_HEIGHT = 128
 # Passes of the channel gains (each on photographs corrected by the ones before); they stop early
 # where a pass moves every gain by less than CONVERGED (in log).
 CONVERGED = 0.01
@@ -138,8 +135,8 @@ class Calibration:
             ``gain`` (applied) and ``gain_std`` (per channel; the std of the gain itself),
             ``gain_measured``, ``exposure``,
             ``white_balance``, ``frame_gains`` (per view, where measured and applied, or None),
-            ``probe`` (the turn: ``angle_deg``, ``axis``, ``std_deg``, ``rotation``, ``explained``
-            before and after, ``significance``; or None), ``cameras`` (per view, see
+            ``probe`` (the turn: ``angle_deg``, ``axis``, ``std_deg``, ``rotation``, the model's ``loss``
+            before and after over before, ``log_odds``; or None), ``cameras`` (per view, see
             `CameraRefinement.to_dict`; or None), ``dropped_views``, ``texels``,
             ``samples_per_texel``, ``seconds``.
         """
@@ -148,8 +145,8 @@ class Calibration:
             axis, _ = axis_angle(self.probe.rotation)
             probe = {"angle_deg": self.probe.angle_deg, "axis": axis.tolist(),
                      "std_deg": None if not np.isfinite(self.probe.std_deg) else self.probe.std_deg,
-                     "rotation": self.probe.rotation.tolist(), "explained": list(self.probe.explained),
-                     "significance": self.probe.significance}
+                     "rotation": self.probe.rotation.tolist(), "loss": list(self.probe.loss),
+                     "log_odds": self.probe.log_odds}
         return {
             "gain": self.gain.tolist(), "gain_std": (self.gain * self.gain_log_std).tolist(),
             "gain_measured": None if self.gain_measured is None else self.gain_measured.tolist(),
@@ -240,7 +237,6 @@ def calibrate(capture: Capture, config: Config = Config(),
                 frame if camera is frame.camera else replace(frame, camera=camera)
                 for frame, camera in zip(capture.frames, calibration.cameras.cameras)))
         advance(1)
-        texel_frame = np.stack([texels.tangent, texels.bitangent, texels.normal], axis=1)
         every = observe(capture, coarse_config, texels=texels)
         observations = _exact_texels(every)
         seen_texels = int(np.count_nonzero(every.weight.any(axis=1) | (
@@ -249,35 +245,31 @@ def calibrate(capture: Capture, config: Config = Config(),
         views = np.count_nonzero(every.visible, axis=1)  # clipped samples included: views are what it counts
         calibration.samples_per_texel = float(np.median(views[views > 0])) if views.any() else 0.0
         advance(1)
-        if settings.probe_rotation:
-            sigma = brdf.band_limit_sigma(len(capture.frames)) if config.fit.band_limit else 0.0
-            lit = envmaps.lowpass_envmap(capture.envmap, sigma) if sigma > 0 else capture.envmap
-            # Band-limited, the map needs few pixels: a coarse copy makes each hypothesis cheap.
-            lit = envmaps.Envmap(envmaps.downsample(lit.radiance, PROBE_MAP_HEIGHT), lit.to_world)
-            calibration.probe = register_probe(lit, texel_frame, every.view_direction, every.weight, every.observed,
-                                               settings.probe_search_deg, every.censored_weight)
-            if calibration.probe.angle_deg > 0.0:
-                capture = _turned(capture, calibration.probe.rotation)
-                observations = _exact_texels(observe(capture, coarse_config, texels=texels))
-        advance(1)
         if settings.frame_gains == "on":
             measured, _ = frame_gains(observations.view_direction, observations.weight, observations.observed)
             calibration.frame_gain = measured
             observations = _scaled(observations, measured, config)
-        gain, log_std, scored = np.ones(3), np.zeros(3), 0
-        if settings.gains and calibration.samples_per_texel >= MIN_GAIN_SAMPLES and not _masks_inside(calibration):
-            search = _search_config(coarse_config)
-            current = observations
-            for _ in range(GAIN_PASSES):
-                params, sums = label_sums(current, search)
-                found = channel_gains(sums, params[:, 3])
-                gain, log_std, scored = gain * found.gain, found.log_std, found.texels
-                if np.all(np.abs(np.log(found.gain)) < CONVERGED):
-                    break  # the roughness the search found no longer moves with the gain
-                current = _scaled(observations, gain, config)
+        search = _search_config(coarse_config)
+        estimate_gains = (settings.gains and calibration.samples_per_texel >= MIN_GAIN_SAMPLES
+                          and not _masks_inside(calibration))
+        gain, found = _channel_gains(observations, search, np.ones(3), config) if estimate_gains else (np.ones(3), None)
+        if settings.probe_rotation:
+            # On photographs at the map's scale: a wrong exposure or white balance would bend the turn.
+            calibration.probe = register_probe(_scaled(observations, gain, config), search.estimate,
+                                               settings.probe_search_deg)
+            if calibration.probe.angle_deg > 0.0:
+                capture = _turned(capture, calibration.probe.rotation)
+                observations = _exact_texels(observe(capture, coarse_config, texels=texels))
+                if calibration.frame_gain is not None:
+                    observations = _scaled(observations, calibration.frame_gain, config)
+                if estimate_gains:
+                    gain, found = _channel_gains(observations, search, gain, config)
+        advance(1)
+        log_std, scored = np.zeros(3), 0
+        if found is not None:
             calibration.gain_measured = gain
             found = _with_selection(found, CENSORED_SELECTION_LOG_STD * dropped_share)
-            log_std = found.log_std
+            log_std, scored = found.log_std, found.texels
             gain = _significant(gain, found)
         calibration.gain, calibration.gain_log_std, calibration.texels = gain, log_std, scored
         advance(1)
@@ -285,6 +277,21 @@ def calibrate(capture: Capture, config: Config = Config(),
     capture = _corrected(capture, calibration, settings.drop_bad_views)
     calibration.seconds = time.perf_counter() - start
     return capture, calibration
+
+
+def _channel_gains(observations: Observations, search: Config, start: np.ndarray,
+                   config: Config) -> tuple[np.ndarray, GainEstimate]:
+    """Return the gains measured from ``start`` on (up to `GAIN_PASSES` passes, `CONVERGED`) and the last pass's estimate."""
+    gain = np.asarray(start, np.float64)
+    current = observations if np.all(gain == 1.0) else _scaled(observations, gain, config)
+    for _ in range(GAIN_PASSES):
+        params, sums = label_sums(current, search)
+        found = channel_gains(sums, params[:, 3])
+        gain = gain * found.gain
+        if np.all(np.abs(np.log(found.gain)) < CONVERGED):
+            break  # the roughness the search found no longer moves with the gain
+        current = _scaled(observations, gain, config)
+    return gain, found
 
 
 def _masks_inside(calibration: Calibration) -> bool:

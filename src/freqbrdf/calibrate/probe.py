@@ -1,34 +1,50 @@
-"""The light probe's registration: the turn of the environment map that best explains the photographs.
+"""The light probe's registration: the turn of the environment map under which the model best explains the photographs.
 
 docs/method.md#calibration. A probe turned into place by hand is off by a few degrees; every
-reflection then reads the wrong part of the map. What a texel shows across its views follows the
-light in its mirror directions: a constant (its diffuse) plus a multiple of that light (its
-specular). `register_probe` scores a turn of the map by how much of the texels' view-dependent
-radiance that regression explains (pooled over the texels, so the texels whose reflections vary
-most, those that carry the map's position, weigh most) and searches the turn: about the map's own
-pole first (the usual hand turn), then about each axis, on grids refined by parabolas. A turn is
-kept only where the texels prefer it over the given registration beyond their spread.
+reflection then reads the wrong part of the map. `register_probe` scores a turn of the map by the
+model's own likelihood: the global search's least-squares loss (base colour, roughness and
+metallic profiled out per texel, `freqbrdf.estimate.search`) summed over the texels whose
+radiance varies most over their views. A turn changes only the light: the map's world-frame
+harmonics (rotated, not transformed again), the prefiltered maps' lookup frame and the
+irradiance (read at turned normals), so that a hypothesis costs one search of a few hundred
+texels. The turn is searched about the map's own pole (the usual hand turn) on a grid, then by
+Newton steps on all three axes; it is applied where the texels make "turned" the likelier than
+"registered exactly" (`PRIOR_TURN_DEG`), as the posterior mean.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from freqbrdf.config import EstimateConfig
+from freqbrdf.estimate.search import run_search_kernel
+from freqbrdf.observe.irradiance import irradiance_map
+from freqbrdf.observe.observations import Observations
 from freqbrdf.sphere import envmap as envmaps
 
 __all__ = ["ProbeRegistration", "axis_angle", "register_probe", "rotation_about"]
 
-# Grid steps of the search, in degrees: about the map's pole, then each axis (coarse, fine).
+# The grid about the map's pole, in degrees.
 POLE_STEP_DEG = 5.0
-AXIS_STEPS = ((2.0, 5), (2.0, 3), (1.0, 2), (0.5, 2))  # (degrees, nodes per side): coarse to fine
-# The texels must prefer the turn found by this many standard errors of their mean improvement.
-MIN_SIGNIFICANCE = 3.0
+# The search about each world axis (coordinate descent): the steps, coarse to fine, in degrees,
+# and the sweeps over the three axes at each.
+AXIS_STEPS_DEG = (4.0, 2.0, 1.0, 0.5)
+AXIS_SWEEPS = 2
+# The texels scored: at least this many views each, the half whose radiance varies most over its
+# views (they carry the map's position), at most this many (evenly over the texture).
+MIN_VIEWS = 8
+MAX_TEXELS = 512
+# A probe turned into place by hand is either registered exactly or off by a normal amount of this
+# std about each axis.
+PRIOR_TURN_DEG = 10.0
+# On a capture whose map is registered exactly the model's own misfit moves the loss's least by
+# about this much (docs/results.md#calibration): added, as a std about each axis, to the curvature's.
+MISFIT_TURN_DEG = 1.0
 # Texels whose normals' mean has this length or more (a plane, a relief: normals within about 25°
 # of one direction) do not register the map: for them a turn mimics the model's own misfit of the
-# lobe's shape (its off-specular shift is one direction for every texel), so a calibrated plane
-# prefers a turn of a few degrees (docs/results.md#calibration).
+# lobe's shape (its off-specular shift is one direction for every texel).
 MAX_NORMAL_ALIGNMENT = 0.9
 
 
@@ -43,20 +59,21 @@ class ProbeRegistration:
     angle_deg : float
         Its angle.
     std_deg : float
-        The std of the turn about each axis (the score's curvature), largest of the three; inf
-        where undetermined.
-    explained : tuple of float
-        The share of the texels' view-dependent radiance explained at the given registration and
-        at the turn found.
-    significance : float
-        The texels' mean improvement over its standard error.
+        The std of the turn (the loss's curvature and `MISFIT_TURN_DEG`) about its least
+        determined axis; inf where undetermined.
+    loss : tuple of float
+        The model's loss on the texels scored at the given registration and at the turn applied,
+        over the first.
+    log_odds : float
+        The log odds of "turned" over "registered exactly" (`PRIOR_TURN_DEG`); the turn is applied
+        where positive.
     """
 
     rotation: np.ndarray
     angle_deg: float
     std_deg: float
-    explained: tuple[float, float]
-    significance: float
+    loss: tuple[float, float]
+    log_odds: float
 
 
 def rotation_about(axis: np.ndarray, angle: float) -> np.ndarray:
@@ -88,168 +105,163 @@ def axis_angle(rotation: np.ndarray) -> tuple[np.ndarray, float]:
     return (axis / norm if norm > 1e-12 else np.array([0.0, 1.0, 0.0])), angle
 
 
-class _Scorer:
-    """The share of view-dependent radiance the mirrored light explains, per texel, for a turn of the map."""
-
-    def __init__(self, envmap: envmaps.Envmap, frame: np.ndarray, view_direction: np.ndarray, weight: np.ndarray,
-                 observed: np.ndarray, censored_weight: np.ndarray | None = None):
-        sampled = weight > 0
-        counts = sampled.sum(axis=1)
-        keep = counts >= 4
-        # The texels whose radiance varies most over their views carry the map's position: the
-        # half above the median variance is scored.
-        grey = np.asarray(observed, np.float64).mean(axis=2)
-        total = np.maximum(weight.sum(axis=1), 1e-30)
-        mean = (weight * grey).sum(axis=1) / total
-        spread = (weight * (grey - mean[:, None]) ** 2).sum(axis=1) / total
-        if keep.sum() > 1:
-            keep &= spread >= np.median(spread[keep])
-        self.envmap = envmap
-        self.sampled = sampled[keep]
-        local = np.asarray(view_direction[keep], np.float64)[self.sampled]  # (M, 3)
-        frames = np.repeat(np.asarray(frame[keep], np.float64), counts[keep], axis=0)  # (M, 3, 3) rows t, b, n
-        # The mirror of the view direction about n, in the world: -x t - y b + z n.
-        self.directions = np.einsum("mi,mij->mj", local * np.array([-1.0, -1.0, 1.0]), frames)
-        self.texel_of = np.repeat(np.arange(int(keep.sum())), counts[keep])
-        self.n_texels = int(keep.sum())
-        w = np.asarray(weight[keep], np.float64)[self.sampled]
-        self.w = w
-        f = np.asarray(observed[keep], np.float64)[self.sampled].mean(axis=1)  # grey
-        self.sum_w = np.bincount(self.texel_of, w, self.n_texels)
-        self.mean_f = np.bincount(self.texel_of, w * f, self.n_texels) / self.sum_w
-        centred = f - self.mean_f[self.texel_of]
-        self.centred_f = centred
-        self.variance_f = np.bincount(self.texel_of, w * centred * centred, self.n_texels)
-        # Censored samples (docs/method.md#censored-samples) of the texels scored: lower bounds.
-        self.n_exact = len(self.directions)
-        self.censored_of = np.zeros(0, np.int64)
-        if censored_weight is not None:
-            held = np.asarray(censored_weight[keep]) > 0
-            frames = np.repeat(np.asarray(frame[keep], np.float64), held.sum(axis=1), axis=0)
-            local = np.asarray(view_direction[keep], np.float64)[held]
-            self.directions = np.concatenate([self.directions,
-                                              np.einsum("mi,mij->mj", local * np.array([-1.0, -1.0, 1.0]), frames)])
-            self.censored_of = np.repeat(np.arange(self.n_texels), held.sum(axis=1))
-            self.censored_w = np.asarray(censored_weight[keep], np.float64)[held]
-            self.censored_f = np.asarray(observed[keep], np.float64)[held].mean(axis=1)
-
-    def unexplained(self, rotation: np.ndarray) -> np.ndarray:
-        """(n,) per texel the weighted residual of f on [1, L] with the map turned by ``rotation``.
-
-        A censored sample adds its shortfall below its lower bound, where the texel's fit predicts less.
-        """
-        to_world = self.envmap.to_world.copy()
-        to_world[:3, :3] = rotation @ to_world[:3, :3]
-        light = envmaps.lookup(envmaps.Envmap(self.envmap.radiance, to_world), self.directions)
-        light = np.asarray(light, np.float64).mean(axis=1)
-        light, censored_light = light[:self.n_exact], light[self.n_exact:]
-        texel, w = self.texel_of, self.w
-        mean_l = np.bincount(texel, w * light, self.n_texels) / self.sum_w
-        centred_l = light - mean_l[texel]
-        covariance = np.bincount(texel, w * centred_l * self.centred_f, self.n_texels)
-        variance_l = np.bincount(texel, w * centred_l * centred_l, self.n_texels)
-        explained = np.where(variance_l > 1e-30, covariance ** 2 / np.maximum(variance_l, 1e-30), 0.0)
-        residual = np.maximum(self.variance_f - explained, 0.0)
-        if len(self.censored_of):
-            slope = np.where(variance_l > 1e-30, covariance / np.maximum(variance_l, 1e-30), 0.0)
-            of = self.censored_of
-            predicted = self.mean_f[of] + slope[of] * (censored_light - mean_l[of])
-            shortfall = np.maximum(self.censored_f - predicted, 0.0)
-            residual = residual + np.bincount(of, self.censored_w * shortfall * shortfall, self.n_texels)
-        return residual
-
-    def total(self, rotation: np.ndarray) -> float:
-        return float(self.unexplained(rotation).sum())
+def _rotation_vector(rotation: np.ndarray) -> np.ndarray:
+    """Return the (3,) axis times angle (radians) of a rotation."""
+    axis, angle = axis_angle(rotation)
+    return axis * angle
 
 
-def _parabola_step(steps: np.ndarray, values: np.ndarray) -> float:
-    best = int(np.argmin(values))
-    if best == 0 or best == len(steps) - 1:
-        return float(steps[best])
-    left, centre, right = values[best - 1], values[best], values[best + 1]
-    denominator = left - 2.0 * centre + right
-    if not denominator > 0.0:
-        return float(steps[best])
-    return float(steps[best] + 0.5 * (steps[1] - steps[0]) * (left - right) / denominator)
+def _rotation_from_vector(vector: np.ndarray) -> np.ndarray:
+    """Return the rotation of a (3,) axis times angle (radians)."""
+    angle = float(np.linalg.norm(vector))
+    return np.eye(3) if angle < 1e-15 else rotation_about(vector / angle, angle)
 
 
-def _significance(before: np.ndarray, after: np.ndarray) -> float:
-    """Return the texels' mean improvement from ``before`` to ``after`` (n,) over its standard error."""
-    improvement = before - after
-    if len(improvement) < 2:
-        return 0.0
-    error = improvement.std(ddof=1) / np.sqrt(len(improvement))
-    return float(improvement.mean() / error) if error > 0.0 else 0.0
+class _ModelLoss:
+    """The global search's least-squares loss of some texels, summed, under the map turned by a rotation."""
+
+    def __init__(self, observations: Observations, settings: EstimateConfig):
+        self.observations = observations
+        self.settings = settings
+        envmap = observations.environment()
+        self.rotation = envmap.rotation.copy()
+        self.harmonics = envmaps.emitter_sh(envmap, observations.lmax)
+        self.normal = observations.normal.astype(np.float64)
+        self.irradiance = irradiance_map(envmap)
+        # The irradiance as observed over the unoccluded one: what the object hides keeps its share.
+        unoccluded = np.asarray(envmaps.lookup(self.irradiance, self.normal), np.float64)
+        self.occlusion = observations.irradiance.astype(np.float64) / np.maximum(unoccluded, 1e-12)
+        self.sum_squared_weight = (observations.weight.astype(np.float64) ** 2).sum(axis=1)
+
+    def __call__(self, turn: np.ndarray) -> float:
+        rotation = turn @ self.rotation
+        # E under the turned map at n is E at turn^T n (a row vector n: n turn).
+        irradiance = np.asarray(envmaps.lookup(self.irradiance, self.normal @ turn), np.float64) * self.occlusion
+        turned = replace(self.observations, irradiance=irradiance.astype(np.float32),
+                         environment_coeffs=envmaps.world_sh(self.harmonics, rotation).astype(np.float32),
+                         environment_rotation=rotation)
+        n = turned.n_texels
+        params, loss, curvature = np.zeros((n, 5)), np.zeros(n), np.zeros(n)
+        run_search_kernel(turned, self.settings, turned.mirrored_coeffs, np.zeros(0), np.zeros((0, 0, 3, 8)), True,
+                          params, loss, curvature)
+        return float((loss * self.sum_squared_weight).sum())
 
 
-def register_probe(envmap: envmaps.Envmap, frame: np.ndarray, view_direction: np.ndarray, weight: np.ndarray,
-                   observed: np.ndarray, search_deg: float,
-                   censored_weight: np.ndarray | None = None) -> ProbeRegistration:
-    """Find the turn of the environment map that best explains the texels' reflections.
+def _scored_texels(observations: Observations) -> np.ndarray:
+    """Return the indices of the texels that score a turn (`MIN_VIEWS`, the varying half, `MAX_TEXELS`)."""
+    weight = observations.weight.astype(np.float64)
+    keep = np.count_nonzero(weight > 0, axis=1) >= MIN_VIEWS
+    grey = observations.observed.astype(np.float64).mean(axis=2)
+    total = np.maximum(weight.sum(axis=1), 1e-30)
+    mean = (weight * grey).sum(axis=1) / total
+    spread = (weight * (grey - mean[:, None]) ** 2).sum(axis=1) / total
+    if keep.sum() > 1:
+        keep &= spread >= np.median(spread[keep])
+    index = np.flatnonzero(keep)
+    if len(index) > MAX_TEXELS:
+        index = index[np.linspace(0, len(index) - 1, MAX_TEXELS).round().astype(np.int64)]
+    return index
+
+
+def _parabola_step(step: float, minus: float, centre: float, plus: float) -> float:
+    """Return the least of the parabola through (-step, minus), (0, centre), (step, plus), within 2 steps of 0."""
+    curvature = minus - 2.0 * centre + plus
+    if not curvature > 0.0:
+        return -step if minus < min(centre, plus) else (step if plus < centre else 0.0)
+    return float(np.clip(0.5 * step * (minus - plus) / curvature, -2.0 * step, 2.0 * step))
+
+
+def _descend(loss: _ModelLoss, rotation: np.ndarray, value: float) -> tuple[np.ndarray, float, np.ndarray]:
+    """Return the turn of least loss near ``rotation`` (coordinate descent), its loss and the loss's curvature (3,).
+
+    On each grid of `AXIS_STEPS_DEG` the world axes are swept in turn (at most `AXIS_SWEEPS` times,
+    until a sweep moves nothing): the loss at plus and minus the step, and at its parabola's least;
+    the best of the four is kept. The curvature is the last grid's, about each axis.
+    """
+    curvature = np.zeros(3)
+    for step_deg in AXIS_STEPS_DEG:
+        step = np.radians(step_deg)
+        for _ in range(AXIS_SWEEPS):
+            moved = False
+            for index, axis in enumerate(np.eye(3)):
+                minus_turn, plus_turn = rotation_about(axis, -step) @ rotation, rotation_about(axis, step) @ rotation
+                minus, plus = loss(minus_turn), loss(plus_turn)
+                curvature[index] = (minus - 2.0 * value + plus) / step ** 2
+                candidates = [(value, rotation), (minus, minus_turn), (plus, plus_turn)]
+                least = _parabola_step(step, minus, value, plus)
+                if least not in (0.0, -step, step):
+                    turned = rotation_about(axis, least) @ rotation
+                    candidates.append((loss(turned), turned))
+                best = min(range(len(candidates)), key=lambda k: candidates[k][0])
+                if best > 0:
+                    value, rotation = candidates[best]
+                    moved = True
+            if not moved:
+                break
+    return rotation, value, curvature
+
+
+def _log_odds(vector: np.ndarray, covariance: np.ndarray, prior_std: float) -> float:
+    """Return ln N(x; 0, S + T) - ln N(x; 0, S): "turned by T = prior_std^2 I" over "not turned", for x of covariance S."""
+    spread = covariance + prior_std ** 2 * np.eye(3)
+    _, log_det_ratio = np.linalg.slogdet(spread @ np.linalg.inv(covariance))
+    quadratic = vector @ np.linalg.solve(covariance, vector) - vector @ np.linalg.solve(spread, vector)
+    return float(0.5 * quadratic - 0.5 * log_det_ratio)
+
+
+def register_probe(observations: Observations, settings: EstimateConfig, search_deg: float) -> ProbeRegistration:
+    """Find the turn of the environment map under which the model best explains the texels' radiance.
 
     Parameters
     ----------
-    envmap : Envmap
-        The map as the capture registers it (band-limited as the observations read it).
-    frame : (N, 3, 3) float
-        Each texel's frame, rows tangent, bitangent, normal (world).
-    view_direction : (N, V, 3) float32
-        Local view directions of the samples.
-    weight : (N, V) float32
-        Their weights (0: no sample).
-    observed : (N, V, 3) float32
-        Their observed radiance.
+    observations : Observations
+        The texels' samples, with the map as the capture registers it (``environment_radiance``,
+        ``environment_rotation``) and the texels' frames; texels with a censored sample left out.
+    settings : EstimateConfig
+        The search that scores a turn (least squares: no robust pass, no neighbour vote).
     search_deg : float
         The largest turn searched about the map's pole; 0: none.
-    censored_weight : (N, V) float32, optional
-        The weights of censored samples (`Observations.censored_weight`), whose ``observed`` is a
-        lower bound: a turn that predicts less there is charged the shortfall.
 
     Returns
     -------
     ProbeRegistration
-        The turn (identity where the texels do not prefer another beyond their spread, or where
-        their normals are too alike to tell a turn from the model's misfit: `MAX_NORMAL_ALIGNMENT`).
+        The turn: identity where "registered exactly" is the likelier, where the loss's curvature
+        leaves the turn undetermined, or where the texels' normals are too alike to tell a turn
+        from the model's misfit (`MAX_NORMAL_ALIGNMENT`).
     """
     identity = np.eye(3)
-    seen = (weight > 0).any(axis=1)
-    if not seen.any() or np.linalg.norm(frame[seen, 2].mean(axis=0)) >= MAX_NORMAL_ALIGNMENT:
-        return ProbeRegistration(identity, 0.0, float("inf"), (0.0, 0.0), 0.0)
-    scorer = _Scorer(envmap, frame, view_direction, weight, observed, censored_weight)
-    if scorer.n_texels == 0 or search_deg <= 0.0 or not scorer.variance_f.sum() > 0.0:
-        return ProbeRegistration(identity, 0.0, float("inf"), (0.0, 0.0), 0.0)
-    total_variance = float(scorer.variance_f.sum())
-    pole = envmap.rotation @ np.array([0.0, 1.0, 0.0])
-    rotation = identity
-    # About the map's pole: the hand turn, over the whole range.
-    steps = np.radians(np.arange(-search_deg, search_deg + 1e-9, POLE_STEP_DEG))
-    values = np.array([scorer.total(rotation_about(pole, step)) for step in steps])
-    rotation = rotation_about(pole, _parabola_step(steps, values)) @ rotation
-    # Then about each world axis, coarse to fine.
-    axes = np.eye(3)
-    for step_deg, nodes in AXIS_STEPS:
-        steps = np.radians(step_deg * np.arange(-nodes, nodes + 1))
-        for axis in axes:
-            values = np.array([scorer.total(rotation_about(axis, step) @ rotation) for step in steps])
-            turned = rotation_about(axis, _parabola_step(steps, values)) @ rotation
-            # A tilt the texels do not prefer beyond their spread is not taken (cameras on one
-            # side determine some axes poorly).
-            if _significance(scorer.unexplained(rotation), scorer.unexplained(turned)) >= MIN_SIGNIFICANCE:
-                rotation = turned
-    # The texels' preference for the turn over the registration given, and the turn's spread.
-    before, after = scorer.unexplained(identity), scorer.unexplained(rotation)
-    significance = _significance(before, after)
-    curvature_step = np.radians(0.5)
-    noise = max(float(after.sum()) / max(scorer.n_texels - 3, 1), 1e-30)
-    stds = []
-    centre = float(after.sum())
-    for axis in axes:
-        plus = scorer.total(rotation_about(axis, curvature_step) @ rotation)
-        minus = scorer.total(rotation_about(axis, -curvature_step) @ rotation)
-        curvature = (plus - 2.0 * centre + minus) / curvature_step ** 2
-        stds.append(np.degrees(np.sqrt(2.0 * noise / curvature)) if curvature > 0 else float("inf"))
-    explained = (1.0 - float(before.sum()) / total_variance, 1.0 - float(after.sum()) / total_variance)
-    if significance < MIN_SIGNIFICANCE:
-        return ProbeRegistration(identity, 0.0, float(max(stds)), (explained[0], explained[0]), significance)
-    _, angle = axis_angle(rotation)
-    return ProbeRegistration(rotation, float(np.degrees(angle)), float(max(stds)), explained, significance)
+    nothing = ProbeRegistration(identity, 0.0, float("inf"), (1.0, 1.0), 0.0)
+    seen = (observations.weight > 0).any(axis=1)
+    if (search_deg <= 0.0 or observations.environment() is None or not seen.any()
+            or np.linalg.norm(observations.normal[seen].mean(axis=0)) >= MAX_NORMAL_ALIGNMENT):
+        return nothing
+    texels = _scored_texels(observations)
+    if len(texels) < 4:
+        return nothing
+    loss = _ModelLoss(observations.select(texels), settings)
+    # About the map's pole, over the whole range (the hand turn): the best node starts Newton.
+    pole = loss.rotation @ np.array([0.0, 1.0, 0.0])
+    turns = [rotation_about(pole, np.radians(angle)) for angle in np.arange(-search_deg, search_deg + 1e-9, POLE_STEP_DEG)]
+    values = [loss(turn) for turn in turns]
+    given = loss(identity)
+    if not given > 0.0:
+        return nothing
+    best = int(np.argmin(values))
+    start, start_value = (turns[best], values[best]) if values[best] < given else (identity, given)
+    rotation, value, curvature = _descend(loss, start, start_value)
+    if not np.all(curvature > 0.0):
+        return ProbeRegistration(identity, 0.0, float("inf"), (1.0, 1.0), 0.0)
+    # The noise: the loss per texel (the texels are the independent units), less the turn's 3; the
+    # model's misfit adds its own spread.
+    noise = value / max(len(texels) - 3, 1)
+    covariance = np.diag(2.0 * noise / curvature) + np.radians(MISFIT_TURN_DEG) ** 2 * identity
+    std_deg = float(np.degrees(np.sqrt(covariance.diagonal().max())))
+    vector = _rotation_vector(rotation)
+    prior = np.radians(PRIOR_TURN_DEG)
+    log_odds = _log_odds(vector, covariance, prior)
+    if log_odds <= 0.0:
+        return ProbeRegistration(identity, 0.0, std_deg, (1.0, 1.0), log_odds)
+    # The posterior mean under the slab: T (S + T)^-1 x.
+    applied = _rotation_from_vector(prior ** 2 * np.linalg.solve(covariance + prior ** 2 * identity, vector))
+    return ProbeRegistration(applied, float(np.degrees(axis_angle(applied)[1])), std_deg,
+                             (1.0, loss(applied) / given), log_odds)

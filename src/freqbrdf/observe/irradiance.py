@@ -40,9 +40,27 @@ def texel_irradiance(envmap: envmaps.Envmap, normals: np.ndarray) -> np.ndarray:
     (N, 3) float32
         Irradiance per normal and channel.
     """
+    return envmaps.lookup(irradiance_map(envmap), normals)
+
+
+def irradiance_map(envmap: envmaps.Envmap) -> envmaps.Envmap:
+    """Return the irradiance E(n) of the map as a world-frame map of `IRRADIANCE_MAP_HEIGHT` rows.
+
+    Read at a normal n (`freqbrdf.sphere.envmap.lookup`) it gives `texel_irradiance`; read at
+    R^T n, the irradiance under the map turned by R.
+
+    Parameters
+    ----------
+    envmap : Envmap
+        The environment, unfiltered.
+
+    Returns
+    -------
+    Envmap
+        (H, 2 H, 3), its to_world the identity.
+    """
     height, width = envmap.radiance.shape[:2]
     lmax = min(envmaps.IRRADIANCE_LMAX, height - 2, (width - 1) // 2)
     kernel = envmaps.clamped_cosine_coeffs(lmax)[sh.sh_degrees(lmax)]  # (K,)
     irradiance_coeffs = envmaps.envmap_sh(envmap, lmax) * kernel[:, None]  # (K, 3), world frame
-    irradiance_map = envmaps.envmap_from_sh(irradiance_coeffs, max(IRRADIANCE_MAP_HEIGHT, lmax + 2))
-    return envmaps.lookup(irradiance_map, normals)
+    return envmaps.envmap_from_sh(irradiance_coeffs, max(IRRADIANCE_MAP_HEIGHT, lmax + 2))
