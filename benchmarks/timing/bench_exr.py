@@ -1,4 +1,4 @@
-"""Choose the fit folder's EXR compression: write time and size of each lossless compression.
+"""Choose the fit folder's EXR compression and PNG level: write time and size of each.
 
 A fit writes eight maps at T x T (three colour, five single-channel). This writes eight maps of
 that shape, taken from the bundled photographic materials (`freqbrdf.assets`, coffee and
@@ -7,7 +7,9 @@ and entropy maps) at T = 512, with each lossless compression that Blender and th
 read (none, RLE, ZIPS, ZIP, PIZ), in turn, REPEATS times, and reads them back to check they are
 lossless. Lossy compressions (PXR24 on float32, B44, DWA) and those that older OpenEXR cannot read
 (ZSTD, HTJ2K) are left out. `freqbrdf.images.write_exr` uses the one these figures choose
-(docs/results.md#speed).
+(docs/results.md#speed). The same maps as the 8-bit pictures a fit writes beside them (sRGB colour,
+a colour map for the scalars) are written as PNG at each zlib level of `PNG_LEVELS`:
+`freqbrdf.images.PNG_COMPRESS_LEVEL` is the fastest within 20 % of the smallest.
 
     python benchmarks/timing/bench_exr.py
 
@@ -24,10 +26,12 @@ from pathlib import Path
 
 import numpy as np
 import OpenEXR
+from matplotlib import colormaps
+from PIL import Image
 from scipy import ndimage
 
 from freqbrdf.assets import material_dir
-from freqbrdf.images import read_image
+from freqbrdf.images import linear_to_srgb, read_image
 from freqbrdf.model.materials import load_material_maps, resize
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/: _common
@@ -36,6 +40,7 @@ from _common import control_seconds, machine, save_results  # noqa: E402
 TEXTURE_RES = 512
 REPEATS = 5
 COMPRESSIONS = ("NO", "RLE", "ZIPS", "ZIP", "PIZ")
+PNG_LEVELS = (1, 3, 6, 9)
 
 
 def fit_like_maps() -> dict[str, np.ndarray]:
@@ -55,6 +60,30 @@ def write_all(maps: dict[str, np.ndarray], folder: Path, compression) -> None:
                   {channel: np.ascontiguousarray(image[..., index], np.float32) for index, channel in enumerate("RGB")})
         with OpenEXR.File({"compression": compression, "type": OpenEXR.scanlineimage}, planes) as exr:
             exr.write(str(folder / f"{name}.exr"))
+
+
+def pictures(maps: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """The maps as the 8-bit pictures a fit writes: sRGB for colour, magma for the scalars."""
+    def quantised(values: np.ndarray) -> np.ndarray:
+        return np.round(np.clip(values, 0.0, 1.0) * 255.0).astype(np.uint8)
+    return {name: quantised(linear_to_srgb(image) if image.ndim == 3 else colormaps["magma"](image)[..., :3])
+            for name, image in maps.items()}
+
+
+def png_levels(maps: dict[str, np.ndarray], scratch: Path) -> dict:
+    """Seconds (median of REPEATS, levels in turn) and bytes of the pictures at each of `PNG_LEVELS`."""
+    images = pictures(maps)
+    rows = {level: {"seconds": []} for level in PNG_LEVELS}
+    for _ in range(REPEATS):
+        for level in PNG_LEVELS:
+            start = time.perf_counter()
+            for name, image in images.items():
+                Image.fromarray(image).save(scratch / f"{name}_{level}.png", format="PNG", compress_level=level)
+            rows[level]["seconds"].append(time.perf_counter() - start)
+    for level in PNG_LEVELS:
+        rows[level]["bytes"] = sum(os.path.getsize(scratch / f"{name}_{level}.png") for name in images)
+        rows[level]["median_s"] = float(np.median(rows[level]["seconds"]))
+    return rows
 
 
 def _read(path: Path, ndim: int) -> np.ndarray:
@@ -80,6 +109,10 @@ def main() -> int:
             rows[name]["lossless"] = all(np.array_equal(_read(folder / f"{map_name}.exr", image.ndim), image)
                                          for map_name, image in maps.items())
             rows[name]["median_s"] = float(np.median(rows[name]["seconds"]))
+        png = png_levels(maps, Path(scratch))
+    smallest_png = min(PNG_LEVELS, key=lambda level: png[level]["bytes"])
+    chosen_png = min((level for level in PNG_LEVELS if png[level]["bytes"] <= 1.2 * png[smallest_png]["bytes"]),
+                     key=lambda level: png[level]["median_s"])
     smallest = min(COMPRESSIONS, key=lambda name: rows[name]["bytes"])
     fastest_small = min((name for name in COMPRESSIONS if rows[name]["bytes"] <= 1.05 * rows[smallest]["bytes"]),
                         key=lambda name: rows[name]["median_s"])
@@ -87,11 +120,16 @@ def main() -> int:
               **machine(), "control_s_before": control_before, "control_s_after": control_seconds(),
               "repeats": REPEATS, "compressions": rows, "smallest": smallest,
               "fastest_within_5_percent_of_smallest": fastest_small,
+              "png_levels": {str(level): row for level, row in png.items()},
+              "png_fastest_within_20_percent_of_smallest": chosen_png,
               "measured": time.strftime("%Y-%m-%d %H:%M")}
     save_results("bench_exr", result)
     for name in COMPRESSIONS:
         print(f"{name:5s} {rows[name]['median_s']:.3f} s  {rows[name]['bytes'] / 2 ** 20:6.2f} MiB  "
               f"lossless {rows[name]['lossless']}")
+    for level in PNG_LEVELS:
+        print(f"PNG level {level} {png[level]['median_s']:.3f} s  {png[level]['bytes'] / 2 ** 20:6.2f} MiB")
+    print(f"PNG: level {chosen_png} (the fastest within 20 % of the smallest)")
     return 0
 
 

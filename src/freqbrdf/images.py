@@ -51,6 +51,10 @@ EXR_SOFTWARE = f"freqbrdf {__version__}"
 REC709_CHROMATICITIES = (0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, 0.3290)
 
 
+# zlib's level for the PNGs `write_png` writes (previews): the fastest within 20 % of the smallest
+# (`benchmarks/timing/bench_exr.py`).
+PNG_COMPRESS_LEVEL = 3
+
 # A channel within this share of its largest value in an image sits on its ceiling; more than
 # CLIPPED_MIN_SHARE of the lit pixels there make the ceiling a clipping plateau (`clipped_channels`).
 CLIPPED_TOLERANCE = 1e-4
@@ -783,4 +787,4 @@ def write_png(path: str | Path, image: np.ndarray) -> None:
         raise ValueError(f"write_png needs (H, W), (H, W, 3) or (H, W, 4), got {pixels.shape}")
     quantised = np.round(np.nan_to_num(np.clip(pixels, 0.0, 1.0)) * 255.0).astype(np.uint8)
     with atomic_path(path) as tmp:
-        Image.fromarray(quantised).save(tmp, format="PNG")
+        Image.fromarray(quantised).save(tmp, format="PNG", compress_level=PNG_COMPRESS_LEVEL)
