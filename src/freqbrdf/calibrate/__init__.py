@@ -256,7 +256,7 @@ def calibrate(capture: Capture, config: Config = Config(),
         if settings.probe_rotation:
             # On photographs at the map's scale: a wrong exposure or white balance would bend the turn.
             calibration.probe = register_probe(_scaled(observations, gain, config), search.estimate,
-                                               settings.probe_search_deg)
+                                               settings.probe_search_deg, dropped_share)
             if calibration.probe.angle_deg > 0.0:
                 capture = _turned(capture, calibration.probe.rotation)
                 observations = _exact_texels(observe(capture, coarse_config, texels=texels))

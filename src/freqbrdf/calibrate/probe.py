@@ -42,6 +42,10 @@ PRIOR_TURN_DEG = 10.0
 # On a capture whose map is registered exactly the model's own misfit moves the loss's least by
 # about this much (docs/results.md#calibration): added, as a std about each axis, to the curvature's.
 MISFIT_TURN_DEG = 1.0
+# The texels with a clipped sample are left out (their highlights are lower bounds); those left are
+# the darker ones, and the selection bends the turn: this much std per unit share of the seen
+# texels left out is added about each axis (docs/results.md#calibration).
+CENSORED_SELECTION_TURN_DEG = 50.0
 # Texels whose normals' mean has this length or more (a plane, a relief: normals within about 25°
 # of one direction) do not register the map: for them a turn mimics the model's own misfit of the
 # lobe's shape (its off-specular shift is one direction for every texel).
@@ -209,7 +213,8 @@ def _log_odds(vector: np.ndarray, covariance: np.ndarray, prior_std: float) -> f
     return float(0.5 * quadratic - 0.5 * log_det_ratio)
 
 
-def register_probe(observations: Observations, settings: EstimateConfig, search_deg: float) -> ProbeRegistration:
+def register_probe(observations: Observations, settings: EstimateConfig, search_deg: float,
+                   left_out_share: float = 0.0) -> ProbeRegistration:
     """Find the turn of the environment map under which the model best explains the texels' radiance.
 
     Parameters
@@ -221,6 +226,9 @@ def register_probe(observations: Observations, settings: EstimateConfig, search_
         The search that scores a turn (least squares: no robust pass, no neighbour vote).
     search_deg : float
         The largest turn searched about the map's pole; 0: none.
+    left_out_share : float, optional
+        The share of the seen texels left out of ``observations`` for a clipped sample: widens the
+        turn's std by `CENSORED_SELECTION_TURN_DEG` per unit.
 
     Returns
     -------
@@ -254,7 +262,8 @@ def register_probe(observations: Observations, settings: EstimateConfig, search_
     # The noise: the loss per texel (the texels are the independent units), less the turn's 3; the
     # model's misfit adds its own spread.
     noise = value / max(len(texels) - 3, 1)
-    covariance = np.diag(2.0 * noise / curvature) + np.radians(MISFIT_TURN_DEG) ** 2 * identity
+    misfit = np.hypot(MISFIT_TURN_DEG, CENSORED_SELECTION_TURN_DEG * left_out_share)
+    covariance = np.diag(2.0 * noise / curvature) + np.radians(misfit) ** 2 * identity
     std_deg = float(np.degrees(np.sqrt(covariance.diagonal().max())))
     vector = _rotation_vector(rotation)
     prior = np.radians(PRIOR_TURN_DEG)
