@@ -42,6 +42,10 @@ PRIOR_TURN_DEG = 10.0
 # On a capture whose map is registered exactly the model's own misfit moves the loss's least by
 # about this much (docs/results.md#calibration): added, as a std about each axis, to the curvature's.
 MISFIT_TURN_DEG = 1.0
+# A turn must also remove this share of the model's loss on the texels scored: on captures whose map
+# is registered exactly the model's misfit prefers turns of a few degrees that remove less
+# (docs/results.md#calibration).
+MIN_LOSS_REDUCTION = 0.05
 # The texels with a clipped sample are left out (their highlights are lower bounds); those left are
 # the darker ones, and the selection bends the turn: this much std per unit share of the seen
 # texels left out is added about each axis (docs/results.md#calibration).
@@ -233,8 +237,8 @@ def register_probe(observations: Observations, settings: EstimateConfig, search_
     Returns
     -------
     ProbeRegistration
-        The turn: identity where "registered exactly" is the likelier, where the loss's curvature
-        leaves the turn undetermined, or where the texels' normals are too alike to tell a turn
+        The turn: identity where "registered exactly" is the likelier, where the turn removes less
+        than `MIN_LOSS_REDUCTION` of the loss, where the loss's curvature leaves it undetermined, or where the texels' normals are too alike to tell a turn
         from the model's misfit (`MAX_NORMAL_ALIGNMENT`).
     """
     identity = np.eye(3)
@@ -268,7 +272,7 @@ def register_probe(observations: Observations, settings: EstimateConfig, search_
     vector = _rotation_vector(rotation)
     prior = np.radians(PRIOR_TURN_DEG)
     log_odds = _log_odds(vector, covariance, prior)
-    if log_odds <= 0.0:
+    if log_odds <= 0.0 or value > (1.0 - MIN_LOSS_REDUCTION) * given:
         return ProbeRegistration(identity, 0.0, std_deg, (1.0, 1.0), log_odds)
     # The posterior mean under the slab: T (S + T)^-1 x.
     applied = _rotation_from_vector(prior ** 2 * np.linalg.solve(covariance + prior ** 2 * identity, vector))
