@@ -210,19 +210,49 @@ def clipped_channels(image: np.ndarray) -> np.ndarray:
     (H, W, 3) bool
         True where a channel is on its clipping plateau; all False where the image has none.
     """
-    image = np.asarray(image)
+    image = np.ascontiguousarray(image, dtype=np.float32)
     clipped = np.zeros(image.shape, bool)
-    n_lit = np.count_nonzero(image.max(axis=2) > 0.0)
+    if image.size == 0:
+        return clipped
+    thresholds = np.empty(image.shape[2], np.float32)
+    at_ceiling = np.zeros(image.shape[2], np.int64)
+    n_lit = _ceiling_counts(image, 1.0 - CLIPPED_TOLERANCE, thresholds, at_ceiling)
     for channel in range(image.shape[2]):
-        values = image[..., channel]
-        ceiling = float(values.max()) if values.size else 0.0
-        if not ceiling > 0.0:
-            continue
-        at_ceiling = values >= ceiling * (1.0 - CLIPPED_TOLERANCE)
-        n_at_ceiling = np.count_nonzero(at_ceiling)
-        if n_at_ceiling >= CLIPPED_MIN_PIXELS and n_at_ceiling >= CLIPPED_MIN_SHARE * n_lit:
-            clipped[..., channel] = at_ceiling
+        if thresholds[channel] > 0.0 and at_ceiling[channel] >= max(CLIPPED_MIN_PIXELS, CLIPPED_MIN_SHARE * n_lit):
+            clipped[..., channel] = image[..., channel] >= thresholds[channel]
     return clipped
+
+
+@numba.njit(cache=True)
+def _ceiling_counts(image, keep, thresholds, at_ceiling):
+    """Find each channel's ceiling threshold (its largest value times keep, in float32) and count the pixels at or above it (numba).
+
+    Writes thresholds (C,) float32 (not above 0 where the channel's largest value is not above 0)
+    and at_ceiling (C,) int64; returns the pixels lit in some channel (largest value above 0).
+    """
+    height, width, channels = image.shape
+    largest = np.full(channels, -np.inf)
+    n_lit = 0
+    for row in range(height):
+        for col in range(width):
+            brightest = -np.inf
+            for channel in range(channels):
+                value = image[row, col, channel]
+                if value > largest[channel]:
+                    largest[channel] = value
+                if value > brightest:
+                    brightest = value
+            if brightest > 0.0:
+                n_lit += 1
+    for channel in range(channels):
+        thresholds[channel] = np.float32(largest[channel] * keep) if largest[channel] > 0.0 else np.float32(0.0)
+        at_ceiling[channel] = 0
+    for row in range(height):
+        for col in range(width):
+            for channel in range(channels):
+                if thresholds[channel] > 0.0 and image[row, col, channel] >= thresholds[channel]:
+                    at_ceiling[channel] += 1
+    return n_lit
 
 
 def read_mask_coverage(path: str | Path, from_alpha: bool = False) -> np.ndarray:
