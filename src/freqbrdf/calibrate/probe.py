@@ -31,7 +31,7 @@ POLE_STEP_DEG = 5.0
 # The search about each world axis (coordinate descent): the steps, coarse to fine, in degrees,
 # and the sweeps over the three axes at each.
 AXIS_STEPS_DEG = (4.0, 2.0, 1.0, 0.5)
-AXIS_SWEEPS = 2
+AXIS_SWEEPS = 1
 # The texels scored: at least this many views each, the half whose radiance varies most over its
 # views (they carry the map's position), at most this many (evenly over the texture).
 MIN_VIEWS = 8
