@@ -224,3 +224,17 @@ def test_clipping_widens_the_gains_std_by_the_share_of_texels_it_leaves_out():
     assert widened.exposure_log_std > found.exposure_log_std and np.all(widened.log_std > found.log_std)
     np.testing.assert_allclose(_significant(gain, widened), 1.0)
     assert _with_selection(found, 0.0) is found
+
+
+def test_a_turn_is_applied_only_where_likelier_than_none():
+    # The spike-and-slab rule of the probe's turn (docs/method.md#calibration): a turn of a few std
+    # against a slab of 10° per axis is likelier than none; one within the misfit is not.
+    from freqbrdf.calibrate.probe import PRIOR_TURN_DEG, _log_odds
+
+    covariance = np.radians(1.0) ** 2 * np.eye(3)
+    prior = np.radians(PRIOR_TURN_DEG)
+    assert _log_odds(np.radians([0.0, 8.0, 0.0]), covariance, prior) > 0.0
+    assert _log_odds(np.radians([0.0, 1.5, 0.0]), covariance, prior) < 0.0
+    assert _log_odds(np.zeros(3), covariance, prior) < 0.0
+    # A wider std (a poorly determined turn, or clipping's selection) needs a larger turn.
+    assert _log_odds(np.radians([0.0, 8.0, 0.0]), 25.0 * covariance, prior) < 0.0
