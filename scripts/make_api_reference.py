@@ -20,7 +20,7 @@ ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "docs" / "api.md"
 PACKAGES = (
     "freqbrdf.sphere", "freqbrdf.model", "freqbrdf.capture", "freqbrdf.texels", "freqbrdf.render",
-    "freqbrdf.observe", "freqbrdf.estimate", "freqbrdf.uncertainty", "freqbrdf.applications",
+    "freqbrdf.observe", "freqbrdf.estimate", "freqbrdf.calibrate", "freqbrdf.uncertainty", "freqbrdf.applications",
     "freqbrdf.outputs", "freqbrdf.pipeline", "freqbrdf.batch", "freqbrdf.synthetic", "freqbrdf.config",
     "freqbrdf.devices",
 )
