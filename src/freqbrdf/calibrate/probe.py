@@ -7,9 +7,10 @@ metallic profiled out per texel, `freqbrdf.estimate.search`) summed over the tex
 radiance varies most over their views. A turn changes only the light: the map's world-frame
 harmonics (rotated, not transformed again), the prefiltered maps' lookup frame and the
 irradiance (read at turned normals), so that a hypothesis costs one search of a few hundred
-texels. The turn is searched about the map's own pole (the usual hand turn) on a grid, then by
-Newton steps on all three axes; it is applied where the texels make "turned" the likelier than
-"registered exactly" (`PRIOR_TURN_DEG`), as the posterior mean.
+texels. The turn is searched about the map's own pole (the usual hand turn) on a grid, then about
+each world axis in turn (coordinate descent); it is applied where the texels make "turned" the
+likelier than "registered exactly" (`PRIOR_TURN_DEG`) and it removes `MIN_LOSS_REDUCTION` of the
+loss, as the posterior mean.
 """
 
 from __future__ import annotations
