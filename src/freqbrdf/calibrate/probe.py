@@ -252,7 +252,7 @@ def register_probe(observations: Observations, settings: EstimateConfig, search_
     if len(texels) < 4:
         return nothing
     loss = _ModelLoss(observations.select(texels), settings)
-    # About the map's pole, over the whole range (the hand turn): the best node starts Newton.
+    # About the map's pole, over the whole range (the hand turn): the best node starts the descent about the axes.
     pole = loss.rotation @ np.array([0.0, 1.0, 0.0])
     turns = [rotation_about(pole, np.radians(angle)) for angle in np.arange(-search_deg, search_deg + 1e-9, POLE_STEP_DEG)]
     values = [loss(turn) for turn in turns]
