@@ -254,9 +254,10 @@ def register_probe(observations: Observations, settings: EstimateConfig, search_
     loss = _ModelLoss(observations.select(texels), settings)
     # About the map's pole, over the whole range (the hand turn): the best node starts the descent about the axes.
     pole = loss.rotation @ np.array([0.0, 1.0, 0.0])
-    turns = [rotation_about(pole, np.radians(angle)) for angle in np.arange(-search_deg, search_deg + 1e-9, POLE_STEP_DEG)]
+    angles = np.arange(-search_deg, search_deg + 1e-9, POLE_STEP_DEG)
+    turns = [rotation_about(pole, np.radians(angle)) for angle in angles]
     values = [loss(turn) for turn in turns]
-    given = loss(identity)
+    given = values[int(np.argmin(np.abs(angles)))] if np.any(angles == 0.0) else loss(identity)
     if not given > 0.0:
         return nothing
     best = int(np.argmin(values))
