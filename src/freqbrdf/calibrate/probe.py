@@ -5,7 +5,7 @@ reflection then reads the wrong part of the map. `register_probe` scores a turn 
 model's own likelihood: the global search's least-squares loss (base colour, roughness and
 metallic profiled out per texel, `freqbrdf.estimate.search`) summed over the texels whose
 radiance varies most over their views. A turn changes only the light: the map's world-frame
-harmonics (rotated, not transformed again), the prefiltered maps' lookup frame and the
+harmonics (rotated by it, not transformed again), the prefiltered maps' lookup frame and the
 irradiance (read at turned normals), so that a hypothesis costs one search of a few hundred
 texels. The turn is searched about the map's own pole (the usual hand turn) on a grid, then about
 each world axis in turn (coordinate descent); it is applied where the texels make "turned" the
@@ -24,6 +24,7 @@ from freqbrdf.estimate.search import run_search_kernel
 from freqbrdf.observe.irradiance import irradiance_map
 from freqbrdf.observe.observations import Observations
 from freqbrdf.sphere import envmap as envmaps
+from freqbrdf.sphere import harmonics as sh
 
 __all__ = ["ProbeRegistration", "axis_angle", "register_probe", "rotation_about"]
 
@@ -134,7 +135,7 @@ class _ModelLoss:
         self.settings = settings
         envmap = observations.environment()
         self.rotation = envmap.rotation.copy()
-        self.harmonics = envmaps.emitter_sh(envmap, observations.lmax)
+        self.harmonics = observations.environment_coeffs.T.astype(np.float64)  # (3, K), world
         self.normal = observations.normal.astype(np.float64)
         self.irradiance = irradiance_map(envmap)
         # The irradiance as observed over the unoccluded one: what the object hides keeps its share.
@@ -147,7 +148,7 @@ class _ModelLoss:
         # E under the turned map at n is E at turn^T n (a row vector n: n turn).
         irradiance = np.asarray(envmaps.lookup(self.irradiance, self.normal @ turn), np.float64) * self.occlusion
         turned = replace(self.observations, irradiance=irradiance.astype(np.float32),
-                         environment_coeffs=envmaps.world_sh(self.harmonics, rotation).astype(np.float32),
+                         environment_coeffs=sh.rotate_sh(self.harmonics, turn).T.astype(np.float32),
                          environment_rotation=rotation)
         n = turned.n_texels
         params, loss, curvature = np.zeros((n, 5)), np.zeros(n), np.zeros(n)

@@ -362,46 +362,8 @@ def envmap_sh(envmap: Envmap, lmax: int) -> np.ndarray:
     pi i / (H - 1)) and transformed exactly for its band limit (`freqbrdf.sht.analysis`), then
     rotated from the emitter's SH frame into the world frame. Needs lmax <= H - 2 and 2 lmax + 1 <= W.
     """
-    return world_sh(_analysis(envmap.radiance, lmax), envmap.rotation)
-
-
-def emitter_sh(envmap: Envmap, lmax: int) -> np.ndarray:
-    """SH coefficients (3, K) float64 of the map in the emitter's own SH frame (`envmap_sh` before its rotation).
-
-    With `world_sh` they give the world-frame coefficients of the map under any turn, one
-    transform for all (`freqbrdf.calibrate.probe`).
-
-    Parameters
-    ----------
-    envmap : Envmap
-        The (H, W, 3) map.
-    lmax : int
-        The highest degree.
-
-    Returns
-    -------
-    (3, K) float64
-        Per channel.
-    """
-    return _analysis(envmap.radiance, lmax)
-
-
-def world_sh(emitter_coeffs: np.ndarray, rotation: np.ndarray) -> np.ndarray:
-    """World-frame SH coefficients (K, 3) float64 of a map of `emitter_sh` coefficients turned into the world by ``rotation``.
-
-    Parameters
-    ----------
-    emitter_coeffs : (3, K) array
-        `emitter_sh` of the map.
-    rotation : (3, 3) array
-        The map's emitter-to-world rotation.
-
-    Returns
-    -------
-    (K, 3) float64
-        As `envmap_sh` of the map with that rotation.
-    """
-    return sh.rotate_sh(emitter_coeffs, np.asarray(rotation, np.float64) @ _EMITTER_FROM_SH_FRAME).T
+    coeffs_sh_frame = _analysis(envmap.radiance, lmax)  # (3, K)
+    return sh.rotate_sh(coeffs_sh_frame, envmap.rotation @ _EMITTER_FROM_SH_FRAME).T
 
 
 def envmap_from_sh(
