@@ -30,7 +30,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from freqbrdf.calibrate.cameras import BAD_OUTLINE_PX, MASK_OFFSET_PX, CameraRefinement, refine_cameras
-from freqbrdf.calibrate.gains import PRIOR_LOG_STD, GainEstimate, channel_gains, frame_gains
+from freqbrdf.calibrate.gains import PRIOR_LOG_STD, GainEstimate, channel_gains, frame_gains, slab_log_odds
 from freqbrdf.calibrate.probe import ProbeRegistration, axis_angle, register_probe, rotation_about
 from freqbrdf.capture.layouts import Capture, read_frame_mask_coverage
 from freqbrdf.config import Config
@@ -136,7 +136,7 @@ class Calibration:
             ``gain_measured``, ``exposure``,
             ``white_balance``, ``frame_gains`` (per view, where measured and applied, or None),
             ``probe`` (the turn: ``angle_deg``, ``axis``, ``std_deg``, ``rotation``, the model's ``loss``
-            before and after over before, ``log_odds``; or None), ``cameras`` (per view, see
+            at the registration given and at the turn found over the first, ``log_odds``; or None), ``cameras`` (per view, see
             `CameraRefinement.to_dict`; or None), ``dropped_views``, ``texels``,
             ``samples_per_texel``, ``seconds``.
         """
@@ -182,6 +182,8 @@ def _scaled(observations: Observations, divisor: np.ndarray, config: Config) -> 
     Per channel the fits scale with the samples; per view the observed radiance is fitted again.
     """
     divisor = np.asarray(divisor, np.float64)
+    if np.all(divisor == 1.0):
+        return observations
     observed = (observations.observed / (divisor if divisor.ndim == 1 else divisor[None])).astype(np.float32)
     surface = observations.mirror_surface
     if divisor.ndim == 1:
@@ -283,7 +285,7 @@ def _channel_gains(observations: Observations, search: Config, start: np.ndarray
                    config: Config) -> tuple[np.ndarray, GainEstimate]:
     """Return the gains measured from ``start`` on (up to `GAIN_PASSES` passes, `CONVERGED`) and the last pass's estimate."""
     gain = np.asarray(start, np.float64)
-    current = observations if np.all(gain == 1.0) else _scaled(observations, gain, config)
+    current = _scaled(observations, gain, config)
     for _ in range(GAIN_PASSES):
         params, sums = label_sums(current, search)
         found = channel_gains(sums, params[:, 3])
@@ -298,8 +300,7 @@ def _masks_inside(calibration: Calibration) -> bool:
     """Whether the masks' edges lie inside the mesh's outline (median over the views, `MASK_OFFSET_PX` or more).
 
     Eroded masks leave out every texel's most grazing views, where a dielectric's specular rises
-    (its Fresnel term): the gains rest on them, and are not estimated (masks 2 px narrower read a
-    sphere's exposure 1.3, docs/results.md#calibration).
+    (its Fresnel term): the gains rest on them, and are not estimated (docs/results.md#calibration).
     """
     return calibration.cameras is not None and calibration.cameras.median_mask_offset_px <= -MASK_OFFSET_PX
 
@@ -359,8 +360,7 @@ def _applied(value, std, prior_std):
 
 def _likelier_off(value, std, prior_std):
     """Whether a log gain measured as ``value`` with ``std`` is likelier off 1 (std ``prior_std``) than exactly 1."""
-    ratio = (np.asarray(std, np.float64) / prior_std) ** 2
-    return (np.asarray(value) / np.maximum(std, 1e-12)) ** 2 > (1.0 + ratio) * np.log1p(1.0 / np.maximum(ratio, 1e-12))
+    return slab_log_odds(value, std, prior_std) > 0.0
 
 
 def _turned(capture: Capture, rotation: np.ndarray) -> Capture:

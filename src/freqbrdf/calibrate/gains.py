@@ -79,6 +79,29 @@ class GainEstimate:
     ratio_log_std: np.ndarray = field(default_factory=lambda: np.full(3, PRIOR_LOG_STD))
 
 
+def slab_log_odds(value, std, prior_std):
+    """Return the log odds of "off by a normal amount of std ``prior_std``" over "exactly 0" for a measurement.
+
+    The spike-and-slab rule of the calibration (docs/method.md#calibration): ``value`` measured with
+    ``std`` (elementwise) is N(0, std^2) under the spike and N(0, std^2 + prior_std^2) under the slab.
+
+    Parameters
+    ----------
+    value, std : float or array
+        The measurement (a log gain, a turn about an axis) and its std.
+    prior_std : float
+        The slab's std.
+
+    Returns
+    -------
+    float64 array
+        ln N(value; 0, std^2 + prior_std^2) - ln N(value; 0, std^2), elementwise.
+    """
+    variance = np.maximum(np.asarray(std, np.float64) ** 2, 1e-24)
+    slab = prior_std ** 2
+    return 0.5 * np.asarray(value, np.float64) ** 2 / variance * slab / (slab + variance) - 0.5 * np.log1p(slab / variance)
+
+
 def _grid_minimum(values: np.ndarray, grid: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Find each row's minimum of ``values`` (n, G) on the grid.
 

@@ -19,6 +19,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from freqbrdf.calibrate.gains import slab_log_odds
 from freqbrdf.config import EstimateConfig
 from freqbrdf.estimate.search import run_search_kernel
 from freqbrdf.observe.irradiance import irradiance_map
@@ -72,8 +73,8 @@ class ProbeRegistration:
         The std of the turn (the loss's curvature and `MISFIT_TURN_DEG`) about its least
         determined axis; inf where undetermined.
     loss : tuple of float
-        The model's loss on the texels scored at the given registration and at the turn applied,
-        over the first.
+        The model's loss on the texels scored at the given registration and at the turn found
+        (before the posterior's shrink towards none), over the first.
     log_odds : float
         The log odds of "turned" over "registered exactly" (`PRIOR_TURN_DEG`); the turn is applied
         where positive.
@@ -212,11 +213,11 @@ def _descend(loss: _ModelLoss, rotation: np.ndarray, value: float) -> tuple[np.n
 
 
 def _log_odds(vector: np.ndarray, covariance: np.ndarray, prior_std: float) -> float:
-    """Return ln N(x; 0, S + T) - ln N(x; 0, S): "turned by T = prior_std^2 I" over "not turned", for x of covariance S."""
-    spread = covariance + prior_std ** 2 * np.eye(3)
-    _, log_det_ratio = np.linalg.slogdet(spread @ np.linalg.inv(covariance))
-    quadratic = vector @ np.linalg.solve(covariance, vector) - vector @ np.linalg.solve(spread, vector)
-    return float(0.5 * quadratic - 0.5 * log_det_ratio)
+    """Return the log odds of "turned by a normal amount of ``prior_std`` per axis" over "not turned".
+
+    For a rotation vector x of diagonal covariance S: the sum over the axes of `slab_log_odds`.
+    """
+    return float(slab_log_odds(vector, np.sqrt(np.diagonal(covariance)), prior_std).sum())
 
 
 def register_probe(observations: Observations, settings: EstimateConfig, search_deg: float,
@@ -240,8 +241,9 @@ def register_probe(observations: Observations, settings: EstimateConfig, search_
     -------
     ProbeRegistration
         The turn: identity where "registered exactly" is the likelier, where the turn removes less
-        than `MIN_LOSS_REDUCTION` of the loss, where the loss's curvature leaves it undetermined, or where the texels' normals are too alike to tell a turn
-        from the model's misfit (`MAX_NORMAL_ALIGNMENT`).
+        than `MIN_LOSS_REDUCTION` of the loss, where the loss's curvature leaves it undetermined,
+        or where the texels' normals are too alike to tell a turn from the model's misfit
+        (`MAX_NORMAL_ALIGNMENT`).
     """
     identity = np.eye(3)
     nothing = ProbeRegistration(identity, 0.0, float("inf"), (1.0, 1.0), 0.0)
@@ -279,5 +281,5 @@ def register_probe(observations: Observations, settings: EstimateConfig, search_
         return ProbeRegistration(identity, 0.0, std_deg, (1.0, 1.0), log_odds)
     # The posterior mean under the slab: T (S + T)^-1 x.
     applied = _rotation_from_vector(prior ** 2 * np.linalg.solve(covariance + prior ** 2 * identity, vector))
-    return ProbeRegistration(applied, float(np.degrees(axis_angle(applied)[1])), std_deg,
-                             (1.0, loss(applied) / given), log_odds)
+    return ProbeRegistration(applied, float(np.degrees(axis_angle(applied)[1])), std_deg, (1.0, value / given),
+                             log_odds)
