@@ -19,7 +19,7 @@ PACKAGE_ROOT = Path(freqbrdf.__file__).resolve().parent
 
 # Lowest first. A module may import its own layer and the layers before it.
 LAYERS: tuple[tuple[str, ...], ...] = (
-    ("_numba_cache", "errors", "config", "devices", "progress", "jit", "fileio", "images", "assets"),  # shared foundation
+    ("_numba_cache", "errors", "config", "devices", "progress", "jit", "fileio", "_codecs", "images", "assets"),  # shared foundation
     ("sphere",),  # SH basis, fits and environment-map transforms
     ("model",),  # what a texel reflects under a light
     ("capture",),
