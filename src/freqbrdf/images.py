@@ -35,6 +35,14 @@ class CaptureDataWarning(UserWarning):
     """Suspicious but usable input data (8-bit frames, tiny negative HDR values): reported once, aggregated."""
 
 
+class SrgbImageWarning(CaptureDataWarning):
+    """An sRGB-encoded image read as radiance; ``bits`` is its depth (8 or 16)."""
+
+    def __init__(self, message: str, bits: int):
+        super().__init__(message)
+        self.bits = bits
+
+
 # Negative pixels no deeper than this share of an image's bright level (its 99.9th percentile) are
 # noise of an HDR merge or a lossy encoding, clamped to 0; deeper ones mean a broken file.
 NEGATIVE_NOISE = 0.01
@@ -138,12 +146,10 @@ def read_image(path: str | Path, validate: bool = False) -> np.ndarray:
     channels = pixels.shape[2]
     rgb = pixels[..., :3] if channels >= 3 else np.repeat(pixels[..., :1], 3, axis=2)
     if srgb_bits:
-        warnings.warn(
+        warnings.warn(SrgbImageWarning(
             f"{path.name}: {srgb_bits}-bit sRGB image linearised as radiance; clipped highlights"
             f"{' and quantisation' if srgb_bits == 8 else ''} bias the result, HDR input (.exr, .hdr) is preferred",
-            CaptureDataWarning,
-            stacklevel=2,
-        )
+            srgb_bits), stacklevel=2)
         rgb = srgb_to_linear(rgb)
     rgb = np.ascontiguousarray(rgb, dtype=np.float32)
     if validate:

@@ -25,7 +25,7 @@ import numpy as np
 
 from freqbrdf.capture.layouts import Capture
 from freqbrdf.errors import InputError
-from freqbrdf.images import HDR_SUFFIXES, CaptureDataWarning
+from freqbrdf.images import HDR_SUFFIXES, CaptureDataWarning, SrgbImageWarning
 from freqbrdf.sphere.sht import check_resolution
 
 __all__ = ["CaptureCheck", "check_capture", "surface_points"]
@@ -237,12 +237,12 @@ def _duplicate_poses(cameras: list) -> list[tuple[int, int]]:
 
 def _aggregated(caught: list, views: int) -> list[str]:
     """One line per kind of `CaptureDataWarning` the frames raised."""
-    messages = [str(warning.message) for warning in caught if issubclass(warning.category, CaptureDataWarning)]
-    srgb = [message for message in messages if "-bit sRGB image" in message]
-    negative = [message for message in messages if "negative" in message]
+    srgb = [warning.message for warning in caught if issubclass(warning.category, SrgbImageWarning)]
+    negative = [str(warning.message) for warning in caught if issubclass(warning.category, CaptureDataWarning)
+                and not issubclass(warning.category, SrgbImageWarning) and "negative" in str(warning.message)]
     lines = []
     if srgb:
-        depths = " or ".join(sorted({message.split("-bit sRGB")[0].split()[-1] for message in srgb}, key=int))
+        depths = " or ".join(str(bits) for bits in sorted({warning.bits for warning in srgb}))
         lines.append(f"{len(srgb)} of {views} frames are {depths}-bit sRGB, linearised as radiance: clipped highlights and "
                      "quantisation bias the result; HDR input (.exr, .hdr) is preferred")
     if negative:
