@@ -42,6 +42,9 @@ class SrgbImageWarning(CaptureDataWarning):
         super().__init__(message)
         self.bits = bits
 
+    def __reduce__(self):  # pickled whole (test workers, Ray), not from its message alone
+        return type(self), (str(self), self.bits)
+
 
 # Negative pixels no deeper than this share of an image's bright level (its 99.9th percentile) are
 # noise of an HDR merge or a lossy encoding, clamped to 0; deeper ones mean a broken file.
