@@ -7,8 +7,9 @@ scenes.WHOLE_SURFACE_QUICK_RENDER) and the calibration study's three (32 views o
 T = 256), each fitted with the defaults. On the atlas texels no view sees: base-colour PSNR,
 roughness and metallic MAE of the fit, and of the fit with those texels filled with the mean of
 its confident seen texels of the same UV chart (`whole_surface.chart_mean_fill`, as the
-whole-surface study's baseline), and of the two blended per texel by inverse variance: the fit's
-std against the spread of those chart texels (`chart_blend`; the metallic blended, then rounded).
+whole-surface study's baseline), and of the fit without the measured shrinkage of those texels
+towards their chart's mean (`freqbrdf.estimate.surface.shrink_unseen_to_charts` patched out: the
+solve's extrapolation alone, docs/method.md#whole-surface-estimate).
 
 Writes benchmarks/results/<name>.{json,md}.
 """
@@ -18,21 +19,19 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-
-import numpy as np
+from unittest import mock
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from whole_surface import chart_mean_fill, chart_texture, parameter_scores, seen_texels, std_textures  # noqa: E402
+from whole_surface import chart_mean_fill, chart_texture, parameter_scores, seen_texels  # noqa: E402
 
 import scenes  # noqa: E402
 from _common import machine, save_results  # noqa: E402
 from freqbrdf import pipeline  # noqa: E402
 from freqbrdf.capture.layouts import load  # noqa: E402
 from freqbrdf.config import Config, TexelConfig  # noqa: E402
-from freqbrdf.estimate.surface import chart_prior  # noqa: E402
-from freqbrdf.model.materials import MaterialMaps  # noqa: E402
+from freqbrdf.estimate import surface  # noqa: E402
 
 CALIBRATION_RENDER = {"views": 32, "resolution": 192, "spp": 32, "texture_res": 256, "test_views": 4}
 CAPTURES = [(name, scenes.WHOLE_SURFACE_QUICK_RENDER) for name in scenes.WHOLE_SURFACE_SCENES] + [
@@ -40,34 +39,11 @@ CAPTURES = [(name, scenes.WHOLE_SURFACE_QUICK_RENDER) for name in scenes.WHOLE_S
 KEYS = ("base_color_psnr", "roughness_mae", "metallic_mae")
 
 
-def chart_blend(maps: MaterialMaps, stds: dict, confident: np.ndarray, unseen: np.ndarray,
-                chart: np.ndarray) -> MaterialMaps:
-    """The maps with every unseen texel the inverse-variance blend of its value and its chart's mean.
-
-    The fit's value weighs 1 / std^2 (its std map); its chart's mean of the confident texels weighs
-    1 / their variance (`freqbrdf.estimate.surface.chart_prior`: all confident texels' where the
-    chart has too few).
-    """
-    blended = MaterialMaps(maps.base_color.copy(), maps.roughness.copy(), maps.metallic.copy())
-    if not confident.any():
-        return blended
-    covered = chart >= 0
-    for name in ("base_color", "roughness", "metallic"):
-        texture = getattr(blended, name)
-        values = getattr(maps, name)[covered].astype(np.float64).reshape(int(covered.sum()), -1)  # (n, C)
-        mean, variance = chart_prior(values, confident[covered], chart[covered])
-        rows = unseen[covered]
-        own = values[rows]
-        std = stds.get(name)
-        own_variance = (np.full_like(own, np.inf) if std is None else
-                        np.nan_to_num(std[covered].astype(np.float64).reshape(-1, own.shape[1])[rows] ** 2, nan=np.inf))
-        chart_variance = np.maximum(variance[rows], 1e-6)
-        weight = chart_variance / (chart_variance + np.maximum(own_variance, 1e-12))  # the fit's share
-        value = weight * own + (1.0 - weight) * mean[rows]
-        if name == "metallic":
-            value = np.round(value)
-        texture[unseen & covered] = value.reshape(texture[unseen & covered].shape).astype(np.float32)
-    return blended
+def fit_without_shrinkage(capture, config: Config) -> pipeline.FitResult:
+    """The fit with the texels without data left at the solve's extrapolation (no measured shrinkage)."""
+    with mock.patch.object(surface, "shrink_unseen_to_charts", lambda values, precision, solution, *rest:
+                           (solution, float("nan"))):
+        return pipeline.fit(capture, config)
 
 
 def run_capture(name: str, render: dict) -> dict | None:
@@ -86,21 +62,25 @@ def run_capture(name: str, render: dict) -> dict | None:
         & (observations.n_samples > 0), fill=False).astype(bool) & seen
     fit = parameter_scores(result.maps, capture.ground_truth, unseen)
     fill = parameter_scores(chart_mean_fill(result.maps, confident, unseen, chart), capture.ground_truth, unseen)
-    blend = parameter_scores(chart_blend(result.maps, std_textures(result), confident, unseen, chart),
-                             capture.ground_truth, unseen)
-    return {"unseen_texels": int(unseen.sum()), "fit": {key: fit[key] for key in KEYS},
-            "chart_mean": {key: fill[key] for key in KEYS}, "blend": {key: blend[key] for key in KEYS}}
+    solve = parameter_scores(fit_without_shrinkage(capture, config).maps, capture.ground_truth, unseen)
+    return {"unseen_texels": int(unseen.sum()), "carry_hops": {key: None if hops != hops else str(hops) if hops == float("inf") else hops
+                                                             for key, hops in result.carry_hops.items()},
+            "fit": {key: fit[key] for key in KEYS}, "solve_alone": {key: solve[key] for key in KEYS},
+            "chart_mean": {key: fill[key] for key in KEYS}}
 
 
 def markdown(results: dict) -> str:
     lines = ["# Unseen texels: the fit against its chart-mean fill", "",
-             "`benchmarks/studies/unseen_fill.py`; on the atlas texels no view sees, fit / chart-mean fill / "
-             "their inverse-variance blend.", "",
-             "| capture | unseen texels | BC dB | R MAE | M MAE |", "|---|---|---|---|---|"]
+             "`benchmarks/studies/unseen_fill.py`; on the atlas texels no view sees: the fit / the fit without the "
+             "measured shrinkage towards the chart mean (the solve's extrapolation alone) / the chart-mean fill. "
+             "Carry: the hops the fit measured its solve to carry (roughness, base colour).", "",
+             "| capture | unseen texels | carry (hops) | BC dB | R MAE | M MAE |", "|---|---|---|---|---|---|"]
     for name, row in results["captures"].items():
-        cells = [f"{row['fit'][key]:.3f} / {row['chart_mean'][key]:.3f}"
-                 + (f" / {row['blend'][key]:.3f}" if "blend" in row else "") for key in KEYS]
-        lines.append(f"| {name} | {row['unseen_texels']} | " + " | ".join(cells) + " |")
+        cells = [f"{row['fit'][key]:.3f} / {row['solve_alone'][key]:.3f} / {row['chart_mean'][key]:.3f}"
+                 for key in KEYS]
+        carry = ", ".join("-" if row["carry_hops"].get(key) is None else f"{float(row['carry_hops'][key]):.1f}"
+                          for key in ("roughness", "base_color"))
+        lines.append(f"| {name} | {row['unseen_texels']} | {carry} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
 

@@ -98,6 +98,10 @@ class FitResult:
     censored_fraction : float
         The share of the samples with a clipped channel, read as lower bounds
         (docs/method.md#censored-samples); summary.json's ``coverage``.
+    carry_hops : dict of str to float
+        With the whole-surface estimate: per parameter ("roughness", "base_color"), how far its
+        solve carries into texels no view sees (`freqbrdf.estimate.surface.shrink_unseen_to_charts`);
+        empty without it.
     """
 
     capture: Capture
@@ -113,6 +117,7 @@ class FitResult:
     observed_capture: Capture | None = None
     surface_fit: guidance.SurfaceFit | None = None
     censored_fraction: float = 0.0
+    carry_hops: dict[str, float] = field(default_factory=dict)
 
 
 def estimation_resolution(capture: Capture, config: Config = Config(), fine: Texels | None = None) -> int:
@@ -273,7 +278,7 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
     whole = config.surface.enabled and config.estimate.method == "global"
     texels = observations.texels if observations.texels is not None or not whole else rasterise(capture.mesh,
                                                                                                   estimation_res)
-    censored_fraction, notes, censored_first = 0.0, [], None
+    censored_fraction, notes, censored_first, carry_hops = 0.0, [], None, {}
     if texels is not None and texels.overlap_texels >= UV_OVERLAP_NOTE_FRACTION * len(texels.texel_index):
         notes.append(f"{texels.overlap_texels / len(texels.texel_index):.0%} of the texels lie under two or more faces "
                      f"(overlapping or mirrored UV charts in {capture.mesh.path or 'the mesh'}): their maps mix those "
@@ -323,6 +328,7 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
         with reporter.stage("whole-surface solve", 1) as advance:
             per_texel = estimate
             estimate, posterior = whole_surface(observations, estimate, texels, config)
+            carry_hops = dict(posterior.carry_hops)
             if keep_surface_fit:
                 surface_fit = guidance.SurfaceFit(observations, texels, per_texel, estimate, posterior)
             advance(1)
@@ -353,7 +359,7 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
     return FitResult(given, observations, estimate, uncertainty, maps, timings, estimation_res,
                      warnings=list(calibration.warnings) + notes, calibration=calibration,
                      std_calibration=std_calibration, observed_capture=capture, surface_fit=surface_fit,
-                     censored_fraction=censored_fraction)
+                     censored_fraction=censored_fraction, carry_hops=carry_hops)
 
 
 def next_views(result: FitResult, candidates: list[Camera], budget: int, config: Config = Config(), *,
@@ -617,7 +623,10 @@ def write_fit(out_dir: str | Path, result: FitResult, config: Config = Config())
                           "views": len(result.capture.frames), "censored_fraction": result.censored_fraction},
              "warnings": list(result.warnings),
              "calibration": None if result.calibration is None else result.calibration.to_dict(),
-             "std_calibration": None if result.std_calibration is None else result.std_calibration.to_dict()}
+             "std_calibration": None if result.std_calibration is None else result.std_calibration.to_dict(),
+             # JSON has no infinity or NaN: null where nothing was measured, "inf" where it carries any distance.
+             "unseen_carry_hops": {name: None if np.isnan(hops) else ("inf" if np.isinf(hops) else round(hops, 2))
+                                   for name, hops in result.carry_hops.items()}}
     out = export.write_fit_outputs(
         out_dir, result.capture.mesh, result.observations, result.estimate, result.uncertainty,
         config, timings=result.timings, extra_summary=extra, maps=result.maps,

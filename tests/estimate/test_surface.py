@@ -14,6 +14,7 @@ from freqbrdf.estimate.surface import (
     chart_prior,
     lookalike_graph,
     metal_posterior,
+    shrink_unseen_to_charts,
     smooth_on_surface,
     surface_graph,
 )
@@ -199,6 +200,57 @@ def test_evaluation_and_report_show_the_std_calibration_and_the_unseen_side(tiny
     write_report(folder)
     page = (folder / "report" / "report.html").read_text(encoding="utf-8")
     assert "Calibration of the std maps" in page and "metallic std" in page and "saw least" in page
+
+
+def _unseen_block(truth: np.ndarray, side: int) -> tuple:
+    """Noisy data of ``truth`` on a side x side grid (one chart) but for a block no view sees, and the solve."""
+    position, normal = grid(side)
+    rng = np.random.default_rng(3)
+    values = truth + rng.normal(0.0, 0.01, truth.shape)
+    precision = np.full(truth.shape, 1.0 / 0.01 ** 2)
+    unseen = (np.abs(position[:, 0] - side / 2) < side / 5) & (np.abs(position[:, 1] - side / 2) < side / 5)
+    precision[unseen] = 0.0
+    graph = surface_graph(position, normal, np.zeros((side * side, 1)), ~unseen, SETTINGS)
+    solution, _ = smooth_on_surface(values, precision, graph, 1.0, 1.0, SETTINGS)
+    return values, precision, solution, graph, np.zeros(side * side, np.int64), unseen
+
+
+def test_a_smooth_gradient_carries_into_the_unseen_texels():
+    side = 40
+    position, _ = grid(side)
+    truth = (0.1 + 0.8 * position[:, 0] / (side - 1))[:, None]
+    values, precision, solution, graph, charts, unseen = _unseen_block(truth, side)
+    shrunk, carry = shrink_unseen_to_charts(values, precision, solution, graph, charts, 1.0, 1.0, SETTINGS)
+    assert carry > 16.0  # measured on held-out balls of the seen texels: the gradient holds
+    assert np.abs(shrunk[unseen] - solution[unseen]).max() < 0.05
+    assert np.abs(shrunk[unseen] - truth[unseen]).max() < 0.05
+    assert np.array_equal(shrunk[~unseen], solution[~unseen])
+
+
+def test_unrelated_cells_fall_back_to_their_charts_mean_away_from_the_data():
+    side = 40
+    position, _ = grid(side)
+    cells = np.random.default_rng(4).uniform(0.0, 1.0, (side // 2, side // 2))
+    truth = cells[(position[:, 1] // 2).astype(int), (position[:, 0] // 2).astype(int)][:, None]
+    values, precision, solution, graph, charts, unseen = _unseen_block(truth, side)
+    shrunk, carry = shrink_unseen_to_charts(values, precision, solution, graph, charts, 1.0, 1.0, SETTINGS)
+    assert carry < 2.0  # a cell says little of the next
+    mean = values[~unseen].mean()
+    deep = unseen & (np.abs(position[:, 0] - side / 2) < 3) & (np.abs(position[:, 1] - side / 2) < 3)
+    assert np.abs(shrunk[deep] - mean).max() < 0.02
+    again = shrink_unseen_to_charts(values.copy(), precision.copy(), solution.copy(), graph.copy(), charts, 1.0, 1.0,
+                                    SETTINGS)
+    assert np.array_equal(again[0], shrunk) and again[1] == carry
+
+
+def test_nothing_to_shrink_where_every_texel_has_data():
+    position, normal = grid(12)
+    values = np.random.default_rng(5).uniform(0.0, 1.0, (144, 1))
+    graph = surface_graph(position, normal, np.zeros((144, 1)), np.ones(144, bool), SETTINGS)
+    solution = values.copy()
+    shrunk, carry = shrink_unseen_to_charts(values, np.ones((144, 1)), solution, graph, np.zeros(144, np.int64), 1.0,
+                                            1.0, SETTINGS)
+    assert shrunk is solution and np.isnan(carry)
 
 
 def test_chart_prior_gives_each_texel_its_charts_seen_mean():

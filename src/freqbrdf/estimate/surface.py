@@ -22,7 +22,8 @@ docs/method.md#whole-surface-estimate, done inside the estimate):
    (the loss's curvature over the noise; weaker with fewer samples than the median, which are
    mostly grazing), and an edge-preserving (Huber) coupling to its neighbours; iteratively
    re-weighted least squares solved by conjugate gradients (`_surface_kernels`). Texels no view
-   sees have no data term: their values come from the solve alone, along the surface.
+   sees have no data term: their values come from the solve along the surface, taken towards
+   their UV chart's mean as far as the solve is measured not to carry (`shrink_unseen_to_charts`).
 4. **Posterior std** of roughness, metallic and base colour: the label's probability (and, for
    the metallic, how much the labels of a texel's neighbourhood disagree: `border_variance`), and each
    texel's precision in the solve with its neighbours', scaled by how far the per-texel
@@ -37,7 +38,7 @@ Deterministic: fixed iteration counts, no random choice, single-threaded sparse 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
@@ -58,7 +59,8 @@ if TYPE_CHECKING:
     from freqbrdf.texels import Texels
 
 __all__ = ["DataPrecision", "SurfaceGraphs", "SurfacePosterior", "border_variance", "chart_prior", "data_precision", "lookalike_graph",
-           "merged_std", "metal_evidence", "metal_posterior", "smooth_on_surface", "surface_graph", "surface_graphs", "uv_charts", "whole_surface"]
+           "merged_std", "metal_evidence", "metal_posterior", "shrink_unseen_to_charts", "smooth_on_surface", "surface_graph",
+           "surface_graphs", "uv_charts", "whole_surface"]
 
 # Apparent albedo floor (log space): keeps black texels' logarithm finite.
 _ALBEDO_FLOOR = 1e-3
@@ -78,6 +80,14 @@ PRIOR_PRECISION = 1e-4
 MIN_CHART_TEXELS = 8
 # A chart's share of metal, as a texel without evidence's prior, is kept this far from 0 and 1.
 CHART_METAL_SHARE_BOUND = 0.02
+# How far the solve carries into texels without data is measured by holding out this share of the
+# texels with data, in balls as wide as those texels lie from data, at most this many hops across;
+# with fewer held-out texels than MIN_HELD_OUT_TEXELS it is not measured.
+HELD_OUT_SHARE = 0.15
+MAX_HELD_OUT_HOPS = 32
+MIN_HELD_OUT_TEXELS = 20
+# The lengths (hops) the extrapolation's decay towards the chart mean is chosen from; inf: no decay.
+CARRY_HOPS = np.concatenate([np.geomspace(0.25, 256.0, 41), [np.inf]])
 
 
 @dataclass(eq=False)
@@ -96,6 +106,11 @@ class SurfacePosterior:
         Texels whose values come from the surface alone (no estimate of their own).
     timings : dict of str to float
         Seconds per step.
+    carry_hops : dict of str to float
+        Per parameter ("roughness", "base_color"), how far (in hops on the surface graph) the
+        solve's extrapolation carries into texels without data, as `shrink_unseen_to_charts`
+        measured it: inf where it holds at any distance, NaN where nothing was measured (every
+        texel has data, or too few do).
     """
 
     metal_probability: np.ndarray
@@ -104,6 +119,7 @@ class SurfacePosterior:
     base_color_std: np.ndarray
     inferred: np.ndarray
     timings: dict
+    carry_hops: dict = field(default_factory=dict)
 
 
 def whole_surface(observations: Observations, estimate: MaterialEstimate, texels: Texels,
@@ -175,6 +191,13 @@ def whole_surface(observations: Observations, estimate: MaterialEstimate, texels
     color, color_spread = smooth_on_surface(params[:, :3], color_precision, color_graph, settings.color_smoothing,
                                             settings.color_huber, settings)
     timings["smooth"] = time.perf_counter() - start
+    start = time.perf_counter()
+    roughness, roughness_length = shrink_unseen_to_charts(params[:, 3:4], roughness_precision[:, None], roughness,
+                                                          graph, charts, settings.roughness_smoothing,
+                                                          settings.roughness_huber, settings)
+    color, color_length = shrink_unseen_to_charts(params[:, :3], color_precision, color, graph, charts,
+                                                  settings.color_smoothing, settings.color_huber, settings)
+    timings["unseen"] = time.perf_counter() - start
 
     solved = replace(
         estimate,
@@ -192,8 +215,93 @@ def whole_surface(observations: Observations, estimate: MaterialEstimate, texels
                                * (labelled[1][:, :3] - labelled[0][:, :3]) ** 2).astype(np.float32),
         inferred=~estimated,
         timings=timings,
+        carry_hops={"roughness": roughness_length, "base_color": color_length},
     )
     return solved, posterior
+
+
+def shrink_unseen_to_charts(values: np.ndarray, precision: np.ndarray, solution: np.ndarray, graph: sparse.csr_matrix,
+                            charts: np.ndarray, smoothing: float, huber: float,
+                            settings: SurfaceConfig) -> tuple[np.ndarray, float]:
+    """Take the texels without data towards their UV chart's mean as far as the solve's extrapolation fails.
+
+    How far a solve carries into texels no view sees depends on the surface: a smooth gradient
+    holds for tens of texels, a pattern of small cells for one or two. It is measured on the
+    capture itself (docs/method.md#whole-surface-estimate, M23): balls of texels with data, as many
+    hops across as the texels without data lie from data (their 90th percentile, at most
+    `MAX_HELD_OUT_HOPS`), `HELD_OUT_SHARE` of them in all, are held out and the solve is run
+    again without them; at a held-out texel h hops from the data kept, the chart mean of the kept
+    texels plus exp(-h / L) times the solve's departure from it predicts the full solve's value,
+    and L is chosen (over `CARRY_HOPS`, infinity included) to predict them best in the least-squares
+    sense. Each texel without data h hops from the data then becomes its chart's mean of the texels
+    with data (`chart_prior`) plus exp(-h / L) times its departure from it.
+
+    Parameters
+    ----------
+    values, precision : (N, C) array
+        The solve's data and precisions (`smooth_on_surface`): the texels with data have some
+        precision.
+    solution : (N, C) float64
+        The solve's values (of all the data).
+    graph : (N, N) scipy.sparse.csr_matrix
+        The surface graph along the mesh (`surface_graph`): texels without data have no look-alikes,
+        so the held-out texels are solved along it too.
+    charts : (N,) int64
+        Each texel's UV chart (`uv_charts`).
+    smoothing, huber : float
+        The solve's settings (`smooth_on_surface`).
+    settings : SurfaceConfig
+        The solve's other settings.
+
+    Returns
+    -------
+    solution : (N, C) float64
+        The values; the texels with data unchanged.
+    carry_hops : float
+        L; inf where the extrapolation holds at every distance measured; NaN where nothing was
+        measured (no texel lacks data, or fewer than `MIN_HELD_OUT_TEXELS` could be held out).
+    """
+    has_data = np.asarray(precision).sum(axis=1) > 0
+    without = ~has_data
+    rows_with = np.flatnonzero(has_data)
+    if not without.any() or len(rows_with) < 2 * MIN_HELD_OUT_TEXELS:
+        return solution, float("nan")
+    graph = graph.tocsr()
+    hops = csgraph.dijkstra(graph, unweighted=True, indices=rows_with, min_only=True)
+    reached = without & np.isfinite(hops)
+    if not reached.any():
+        return solution, float("nan")
+    radius = int(np.clip(np.percentile(hops[reached], 90), 1, MAX_HELD_OUT_HOPS))
+    target = HELD_OUT_SHARE * len(rows_with)
+    n_balls = int(np.clip(target / (3.0 * radius * radius), 1, len(rows_with)))
+    held = _held_out_balls(graph, has_data, radius, n_balls)
+    if held.sum() < 0.5 * target:  # balls smaller than guessed (thin parts, borders): more of them
+        held = _held_out_balls(graph, has_data, radius, int(np.ceil(n_balls * target / max(held.sum(), 1))))
+    kept = has_data & ~held
+    if held.sum() < MIN_HELD_OUT_TEXELS or kept.sum() < MIN_HELD_OUT_TEXELS:
+        return solution, float("nan")
+    trial, _ = smooth_on_surface(values, np.where(held[:, None], 0.0, precision), graph, smoothing, huber, settings)
+    held_hops = csgraph.dijkstra(graph, unweighted=True, indices=np.flatnonzero(kept), min_only=True)
+    scored = held & np.isfinite(held_hops)
+    kept_mean, _ = chart_prior(solution, kept, charts)
+    departure = trial[scored] - kept_mean[scored]
+    target_departure = solution[scored] - kept_mean[scored]
+    costs = [np.sum((np.exp(-held_hops[scored] / length)[:, None] * departure - target_departure) ** 2)
+             for length in CARRY_HOPS]
+    length = float(CARRY_HOPS[int(np.argmin(costs))])
+    mean, _ = chart_prior(solution, has_data, charts)
+    shrunk = solution.copy()
+    shrunk[reached] = mean[reached] + np.exp(-hops[reached] / length)[:, None] * (solution[reached] - mean[reached])
+    return shrunk, length
+
+
+def _held_out_balls(graph: sparse.csr_matrix, has_data: np.ndarray, radius: int, n_balls: int) -> np.ndarray:
+    """(N,) bool: the texels with data within ``radius`` hops of n_balls centres spread evenly over them."""
+    rows_with = np.flatnonzero(has_data)
+    n_balls = min(n_balls, len(rows_with))
+    centres = rows_with[(np.arange(n_balls) * len(rows_with)) // n_balls + len(rows_with) // (2 * n_balls)]
+    reach = csgraph.dijkstra(graph, unweighted=True, indices=centres, min_only=True, limit=radius + 0.5)
+    return np.isfinite(reach) & has_data
 
 
 def merged_std(own_roughness_std: np.ndarray | None, own_base_color: np.ndarray, estimate: MaterialEstimate,
