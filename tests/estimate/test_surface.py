@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import numpy as np
 import pytest
@@ -188,6 +189,9 @@ def test_evaluation_and_report_show_the_std_calibration_and_the_unseen_side(tiny
     folder = pipeline.write_fit(tmp_path / "fit", pipeline.fit(capture, config), config)
     for name in ("metallic_std.exr", "base_color_std.exr", "metallic_std.png", "base_color_std.png"):
         assert (folder / name).is_file(), name
+    carry = json.loads((folder / "summary.json").read_text(encoding="utf-8"))["unseen_carry_hops"]
+    assert set(carry) == {"roughness", "base_color"}  # six views leave part of the atlas unseen
+    assert all(hops == "inf" or hops is None or hops > 0.0 for hops in carry.values()), carry
     metrics = evaluate_fit(load_fit(folder), capture)
     calibration = metrics["calibration"]
     picture = folder / "evaluation" / metrics["unseen_side"]["picture"]
