@@ -226,6 +226,25 @@ def test_clipping_widens_the_gains_std_by_the_share_of_texels_it_leaves_out():
     assert _with_selection(found, 0.0) is found
 
 
+def test_gain_passes_that_walk_widen_the_std_by_their_scatter(monkeypatch):
+    """Passes whose corrections are chance steps (each within its std) multiplied to a gain 0.71x: the
+    spread of where they arrived widens the std so that the walk is not applied."""
+    import freqbrdf.calibrate as calibration
+    from freqbrdf.calibrate.gains import GainEstimate
+
+    steps = iter([1.02, 0.87, 0.95, 0.985, 0.86])  # a walk from 1 to 0.71 in five passes
+    monkeypatch.setattr(calibration, "label_sums", lambda observations, search: (np.zeros((1, 5)), None))
+    monkeypatch.setattr(calibration, "channel_gains", lambda sums, roughness: GainEstimate(
+        np.full(3, next(steps)), np.full(3, 0.17), 350, exposure_log_std=0.165, ratio_log_std=np.full(3, 0.03)))
+    monkeypatch.setattr(calibration, "_scaled", lambda observations, divisor, config: observations)
+    gain, found = calibration._channel_gains(None, Config(), np.ones(3), Config())
+    np.testing.assert_allclose(gain, 1.02 * 0.87 * 0.95 * 0.985 * 0.86)
+    assert found.exposure_log_std > 0.165
+    alone = GainEstimate(np.ones(3), np.full(3, 0.17), 350, exposure_log_std=0.165, ratio_log_std=np.full(3, 0.03))
+    assert np.all(calibration._significant(gain, alone) < 0.8)  # one pass's std alone would apply it
+    np.testing.assert_allclose(calibration._significant(gain, found), 1.0)
+
+
 def test_a_turn_is_applied_only_where_likelier_than_none():
     # The spike-and-slab rule of the probe's turn (docs/method.md#calibration): a turn of a few std
     # against a slab of 10° per axis is likelier than none; one within the misfit is not.

@@ -14,7 +14,7 @@ with a `Calibration` that says what was found and how well the photographs deter
 3. one gain per colour channel between the photographs and the map
    (`freqbrdf.calibrate.gains.channel_gains`), with the materials: up to `GAIN_PASSES` times,
    each on photographs corrected by the passes before, since the roughness the search finds
-   depends on the gain, until a pass's exposure correction lies within its std;
+   depends on the gain;
 4. the map's turn (`freqbrdf.calibrate.probe`), by the model's loss on photographs at the map's
    scale; where the map is turned, the gains again from there.
 
@@ -45,8 +45,9 @@ __all__ = ["Calibration", "CameraRefinement", "GainEstimate", "ProbeRegistration
            "frame_gains", "refine_cameras", "register_probe",
            "rotation_about"]
 
-# Passes of the channel gains at most (each on photographs corrected by the ones before); they stop at
-# the first pass whose exposure correction lies within its own std (docs/results.md#calibration).
+# Passes of the channel gains (each on photographs corrected by the ones before); they stop early
+# where a pass moves every gain by less than CONVERGED (in log).
+CONVERGED = 0.01
 GAIN_PASSES = 5
 # How far a probe's exposure and white balance are from the photographs' when they are not equal (1
 # sigma, in log): the exposure within a factor e (`freqbrdf.calibrate.gains.PRIOR_LOG_STD`), each
@@ -282,24 +283,27 @@ def calibrate(capture: Capture, config: Config = Config(),
 
 def _channel_gains(observations: Observations, search: Config, start: np.ndarray,
                    config: Config) -> tuple[np.ndarray, GainEstimate]:
-    """Return the gains measured from ``start`` on and the last pass's estimate.
+    """Return the gains measured from ``start`` on and the last pass's estimate, its std widened by the passes' scatter.
 
-    Up to `GAIN_PASSES` passes, each on the photographs divided by the gains so far; they stop at
-    the first pass whose exposure correction lies within its own std. Near the gains, further
-    passes only move them by what the texels they select say at random (a pass moves the
-    roughness, and with it which texels calibrate): multiplied together, those steps would walk
-    away from the gains.
+    Up to `GAIN_PASSES` passes, each on the photographs divided by the gains so far, until a pass
+    moves every gain by less than `CONVERGED`. Near the gains a pass moves them by what the texels
+    it selects say at random (the roughness moves, and with it which texels calibrate), and such
+    steps multiplied together can walk away: the spread of the exposure the passes after the first
+    arrive at is added to the std (`_with_selection`), so that such a walk is not taken for a gain.
     """
     gain = np.asarray(start, np.float64)
     current = _scaled(observations, gain, config)
+    arrived = []
     for _ in range(GAIN_PASSES):
         params, sums = label_sums(current, search)
         found = channel_gains(sums, params[:, 3])
         gain = gain * found.gain
-        if abs(float(np.mean(np.log(found.gain)))) < found.exposure_log_std:
-            break  # the correction is within what a pass can tell
+        arrived.append(float(np.mean(np.log(gain))))
+        if np.all(np.abs(np.log(found.gain)) < CONVERGED):
+            break  # the roughness the search found no longer moves with the gain
         current = _scaled(observations, gain, config)
-    return gain, found
+    scatter = float(np.std(arrived[1:], ddof=1)) if len(arrived) >= 3 else 0.0
+    return gain, _with_selection(found, scatter)
 
 
 def _masks_inside(calibration: Calibration) -> bool:
