@@ -280,12 +280,23 @@ def shrink_unseen_to_charts(values: np.ndarray, precision: np.ndarray, solution:
     kept = has_data & ~held
     if held.sum() < MIN_HELD_OUT_TEXELS or kept.sum() < MIN_HELD_OUT_TEXELS:
         return solution, float("nan")
-    trial, _ = smooth_on_surface(values, np.where(held[:, None], 0.0, precision), graph, smoothing, huber, settings)
-    held_hops = csgraph.dijkstra(graph, unweighted=True, indices=np.flatnonzero(kept), min_only=True)
-    scored = held & np.isfinite(held_hops)
+    # The trial solve on the balls and the kept texels within `radius` hops of them: the texels beyond keep
+    # their data and barely move the balls' values. Its coupling is the whole solve's (`smooth_on_surface`
+    # scales it by the median precision of the texels with data).
+    near = np.flatnonzero(np.isfinite(csgraph.dijkstra(graph, unweighted=True, indices=np.flatnonzero(held),
+                                                       min_only=True, limit=radius + 0.5)))
+    sub_graph = graph[near][:, near]
+    sub_precision = np.where(held[near, None], 0.0, precision[near])
+    sub_has = sub_precision.sum(axis=1) > 0
+    whole_scale = float(np.median(np.asarray(precision)[has_data].mean(axis=1)))
+    sub_scale = float(np.median(sub_precision[sub_has].mean(axis=1)))
+    trial, _ = smooth_on_surface(values[near], sub_precision, sub_graph, smoothing * whole_scale / sub_scale, huber,
+                                 settings)
+    held_hops = csgraph.dijkstra(sub_graph, unweighted=True, indices=np.flatnonzero(sub_has), min_only=True)
+    scored = held[near] & np.isfinite(held_hops)
     kept_mean, _ = chart_prior(solution, kept, charts)
-    departure = trial[scored] - kept_mean[scored]
-    target_departure = solution[scored] - kept_mean[scored]
+    departure = trial[scored] - kept_mean[near][scored]
+    target_departure = solution[near][scored] - kept_mean[near][scored]
     costs = [np.sum((np.exp(-held_hops[scored] / length)[:, None] * departure - target_departure) ** 2)
              for length in CARRY_HOPS]
     length = float(CARRY_HOPS[int(np.argmin(costs))])
