@@ -230,7 +230,7 @@ def shrink_unseen_to_charts(values: np.ndarray, precision: np.ndarray, solution:
     capture itself (docs/method.md#whole-surface-estimate, M23): balls of texels with data, as many
     hops across as the texels without data lie from data (their 90th percentile, at most
     `MAX_HELD_OUT_HOPS`), `HELD_OUT_SHARE` of them in all, are held out and the solve is run
-    again without them; at a held-out texel h hops from the data kept, the chart mean of the kept
+    again without them (on the balls and the kept texels as many hops around them); at a held-out texel h hops from the data kept, the chart mean of the kept
     texels plus exp(-h / L) times the solve's departure from it predicts the full solve's value,
     and L is chosen (over `CARRY_HOPS`, infinity included) to predict them best in the least-squares
     sense. Each texel without data h hops from the data then becomes its chart's mean of the texels
