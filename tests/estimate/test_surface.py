@@ -224,11 +224,12 @@ def test_a_smooth_gradient_carries_into_the_unseen_texels():
     position, _ = grid(side)
     truth = (0.1 + 0.8 * position[:, 0] / (side - 1))[:, None]
     values, precision, solution, graph, charts, unseen = _unseen_block(truth, side)
-    shrunk, carry = shrink_unseen_to_charts(values, precision, solution, graph, charts, 1.0, 1.0, SETTINGS)
+    shrunk, carry, std = shrink_unseen_to_charts(values, precision, solution, graph, charts, 1.0, 1.0, SETTINGS)
     assert carry > 16.0  # measured on held-out balls of the seen texels: the gradient holds
     assert np.abs(shrunk[unseen] - solution[unseen]).max() < 0.05
     assert np.abs(shrunk[unseen] - truth[unseen]).max() < 0.05
     assert np.array_equal(shrunk[~unseen], solution[~unseen])
+    assert not std[~unseen].any() and np.all(std[unseen] > 0.0)  # the held-out texels' error by hops
 
 
 def test_unrelated_cells_fall_back_to_their_charts_mean_away_from_the_data():
@@ -237,14 +238,16 @@ def test_unrelated_cells_fall_back_to_their_charts_mean_away_from_the_data():
     cells = np.random.default_rng(4).uniform(0.0, 1.0, (side // 2, side // 2))
     truth = cells[(position[:, 1] // 2).astype(int), (position[:, 0] // 2).astype(int)][:, None]
     values, precision, solution, graph, charts, unseen = _unseen_block(truth, side)
-    shrunk, carry = shrink_unseen_to_charts(values, precision, solution, graph, charts, 1.0, 1.0, SETTINGS)
+    shrunk, carry, std = shrink_unseen_to_charts(values, precision, solution, graph, charts, 1.0, 1.0, SETTINGS)
     assert carry < 2.0  # a cell says little of the next
     mean = values[~unseen].mean()
     deep = unseen & (np.abs(position[:, 0] - side / 2) < 3) & (np.abs(position[:, 1] - side / 2) < 3)
     assert np.abs(shrunk[deep] - mean).max() < 0.02
+    # Far from data the std is the error of the chart mean itself: the cells' spread (uniform: 0.29).
+    assert 0.2 < std[deep].min() < 0.4
     again = shrink_unseen_to_charts(values.copy(), precision.copy(), solution.copy(), graph.copy(), charts, 1.0, 1.0,
                                     SETTINGS)
-    assert np.array_equal(again[0], shrunk) and again[1] == carry
+    assert np.array_equal(again[0], shrunk) and again[1] == carry and np.array_equal(again[2], std)
 
 
 def test_nothing_to_shrink_where_every_texel_has_data():
@@ -252,9 +255,9 @@ def test_nothing_to_shrink_where_every_texel_has_data():
     values = np.random.default_rng(5).uniform(0.0, 1.0, (144, 1))
     graph = surface_graph(position, normal, np.zeros((144, 1)), np.ones(144, bool), SETTINGS)
     solution = values.copy()
-    shrunk, carry = shrink_unseen_to_charts(values, np.ones((144, 1)), solution, graph, np.zeros(144, np.int64), 1.0,
-                                            1.0, SETTINGS)
-    assert shrunk is solution and np.isnan(carry)
+    shrunk, carry, std = shrink_unseen_to_charts(values, np.ones((144, 1)), solution, graph, np.zeros(144, np.int64),
+                                                 1.0, 1.0, SETTINGS)
+    assert shrunk is solution and np.isnan(carry) and not std.any()
 
 
 def test_chart_prior_gives_each_texel_its_charts_seen_mean():

@@ -192,11 +192,13 @@ def whole_surface(observations: Observations, estimate: MaterialEstimate, texels
                                             settings.color_huber, settings)
     timings["smooth"] = time.perf_counter() - start
     start = time.perf_counter()
-    roughness, roughness_length = shrink_unseen_to_charts(params[:, 3:4], roughness_precision[:, None], roughness,
-                                                          graph, charts, settings.roughness_smoothing,
-                                                          settings.roughness_huber, settings)
-    color, color_length = shrink_unseen_to_charts(params[:, :3], color_precision, color, graph, charts,
-                                                  settings.color_smoothing, settings.color_huber, settings)
+    roughness, roughness_length, unseen_std = shrink_unseen_to_charts(
+        params[:, 3:4], roughness_precision[:, None], roughness, graph, charts, settings.roughness_smoothing,
+        settings.roughness_huber, settings)
+    roughness_spread = np.maximum(roughness_spread, unseen_std[:, None])
+    color, color_length, unseen_std = shrink_unseen_to_charts(params[:, :3], color_precision, color, graph, charts,
+                                                              settings.color_smoothing, settings.color_huber, settings)
+    color_spread = np.maximum(color_spread, unseen_std[:, None])
     timings["unseen"] = time.perf_counter() - start
 
     solved = replace(
@@ -222,7 +224,7 @@ def whole_surface(observations: Observations, estimate: MaterialEstimate, texels
 
 def shrink_unseen_to_charts(values: np.ndarray, precision: np.ndarray, solution: np.ndarray, graph: sparse.csr_matrix,
                             charts: np.ndarray, smoothing: float, huber: float,
-                            settings: SurfaceConfig) -> tuple[np.ndarray, float]:
+                            settings: SurfaceConfig) -> tuple[np.ndarray, float, np.ndarray]:
     """Take the texels without data towards their UV chart's mean as far as the solve's extrapolation fails.
 
     How far a solve carries into texels no view sees depends on the surface: a smooth gradient
@@ -234,7 +236,9 @@ def shrink_unseen_to_charts(values: np.ndarray, precision: np.ndarray, solution:
     texels plus exp(-h / L) times the solve's departure from it predicts the full solve's value,
     and L is chosen (over `CARRY_HOPS`, infinity included) to predict them best in the least-squares
     sense. Each texel without data h hops from the data then becomes its chart's mean of the texels
-    with data (`chart_prior`) plus exp(-h / L) times its departure from it.
+    with data (`chart_prior`) plus exp(-h / L) times its departure from it, and its std at least the
+    root mean square error of that prediction against the held-out texels' own values as far from the
+    data kept (never less farther out).
 
     Parameters
     ----------
@@ -260,17 +264,20 @@ def shrink_unseen_to_charts(values: np.ndarray, precision: np.ndarray, solution:
     carry_hops : float
         L; inf where the extrapolation holds at every distance measured; NaN where nothing was
         measured (no texel lacks data, or fewer than `MIN_HELD_OUT_TEXELS` could be held out).
+    std : (N,) float64
+        The held-out error as far from data, for the texels without data; 0 elsewhere and where
+        nothing was measured.
     """
     has_data = np.asarray(precision).sum(axis=1) > 0
     without = ~has_data
     rows_with = np.flatnonzero(has_data)
     if not without.any() or len(rows_with) < 2 * MIN_HELD_OUT_TEXELS:
-        return solution, float("nan")
+        return solution, float("nan"), np.zeros(len(solution))
     graph = graph.tocsr()
     hops = csgraph.dijkstra(graph, unweighted=True, indices=rows_with, min_only=True)
     reached = without & np.isfinite(hops)
     if not reached.any():
-        return solution, float("nan")
+        return solution, float("nan"), np.zeros(len(solution))
     radius = int(np.clip(np.percentile(hops[reached], 90), 1, MAX_HELD_OUT_HOPS))
     target = HELD_OUT_SHARE * len(rows_with)
     n_balls = int(np.clip(target / (3.0 * radius * radius), 1, len(rows_with)))
@@ -279,7 +286,7 @@ def shrink_unseen_to_charts(values: np.ndarray, precision: np.ndarray, solution:
         held = _held_out_balls(graph, has_data, radius, int(np.ceil(n_balls * target / max(held.sum(), 1))))
     kept = has_data & ~held
     if held.sum() < MIN_HELD_OUT_TEXELS or kept.sum() < MIN_HELD_OUT_TEXELS:
-        return solution, float("nan")
+        return solution, float("nan"), np.zeros(len(solution))
     # The trial solve on the balls and the kept texels within `radius` hops of them: the texels beyond keep
     # their data and barely move the balls' values. Its coupling is the whole solve's (`smooth_on_surface`
     # scales it by the median precision of the texels with data).
@@ -300,10 +307,20 @@ def shrink_unseen_to_charts(values: np.ndarray, precision: np.ndarray, solution:
     costs = [np.sum((np.exp(-held_hops[scored] / length)[:, None] * departure - target_departure) ** 2)
              for length in CARRY_HOPS]
     length = float(CARRY_HOPS[int(np.argmin(costs))])
+    # How far off that prediction is from the held-out texels' own values, by hops from the data kept
+    # (never nearer data surer): the std of a texel without data as far from data.
+    predicted = kept_mean[near][scored] + np.exp(-held_hops[scored] / length)[:, None] * departure
+    squared = np.mean((predicted - np.asarray(values, np.float64)[near][scored]) ** 2, axis=1)
+    by_hop = np.clip(held_hops[scored], 1, radius).astype(np.int64)
+    counts = np.bincount(by_hop, minlength=radius + 1)[1:]
+    sums = np.bincount(by_hop, squared, minlength=radius + 1)[1:]
+    error = np.sqrt(np.maximum.accumulate(np.where(counts > 0, sums / np.maximum(counts, 1), 0.0)))
     mean, _ = chart_prior(solution, has_data, charts)
     shrunk = solution.copy()
     shrunk[reached] = mean[reached] + np.exp(-hops[reached] / length)[:, None] * (solution[reached] - mean[reached])
-    return shrunk, length
+    std = np.zeros(len(solution))
+    std[reached] = error[np.clip(hops[reached], 1, radius).astype(np.int64) - 1]
+    return shrunk, length, std
 
 
 def _held_out_balls(graph: sparse.csr_matrix, has_data: np.ndarray, radius: int, n_balls: int) -> np.ndarray:
