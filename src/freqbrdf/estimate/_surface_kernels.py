@@ -2,9 +2,10 @@
 
 The Huber re-weighting of the graph's edges and a Jacobi-preconditioned conjugate-gradient solve
 of (diag(d_c) + D - W) x_c = b_c for every channel c at once, on the graph in CSR form. One
-thread: an iteration is a few sparse passes, and on a shared machine threads that wait for each
-other at every pass cost far more than they save
-(docs/results.md#the-whole-surface-estimate-the-default). Dot products are summed per block
+thread per solve: an iteration is a few sparse passes, and on a shared machine threads that wait for
+each other at every pass cost far more than they save
+(docs/results.md#the-whole-surface-estimate-the-default); they release the GIL, so that independent
+solves run side by side. Dot products are summed per block
 of `BLOCK` rows, then over the blocks in order.
 """
 
@@ -17,7 +18,7 @@ import numpy as np
 BLOCK = 4096
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def huber_weights(indptr, indices, weights, x, huber, coupling, robust, degree):
     """Write robust[k] = coupling w_k min(1, huber / |x_i - x_j|) per edge k = (i, j) and each row's sum.
 
@@ -126,7 +127,7 @@ def _new_direction(direction, z, beta):
             direction[i, c] = z[i, c] + beta[c] * direction[i, c]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def conjugate_gradients(indptr, indices, robust, degree, diagonal, rhs, x, iterations,
                         tolerance):
     """Solve (diag(diagonal_c) + D - W) x_c = rhs_c in place from the given x (Jacobi-preconditioned CG).

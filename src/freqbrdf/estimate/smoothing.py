@@ -16,7 +16,7 @@ from freqbrdf.config import SurfaceConfig
 from freqbrdf.estimate._surface_kernels import conjugate_gradients, huber_weights
 from freqbrdf.model.materials import UNIFORM_VARIANCE
 
-__all__ = ["CARRY_HOPS", "HELD_OUT_SHARE", "MAX_HELD_OUT_HOPS", "MIN_CHART_TEXELS", "MIN_HELD_OUT_TEXELS",
+__all__ = ["CARRY_HOPS", "HELD_OUT_ENOUGH", "HELD_OUT_PER_UNSEEN", "HELD_OUT_SHARE", "MAX_HELD_OUT_HOPS", "MIN_CHART_TEXELS", "MIN_HELD_OUT_TEXELS",
            "PRIOR_PRECISION", "chart_prior", "shrink_unseen_to_charts", "smooth_on_surface"]
 
 # The precision that pins a texel without data to the mean of the estimated texels, relative to
@@ -26,8 +26,11 @@ PRIOR_PRECISION = 1e-4
 MIN_CHART_TEXELS = 8
 # How far the solve carries into texels without data is measured by holding out this share of the
 # texels with data, in balls as wide as those texels lie from data, at most this many hops across;
-# with fewer held-out texels than MIN_HELD_OUT_TEXELS it is not measured.
+# with fewer held-out texels than MIN_HELD_OUT_TEXELS it is not measured. Where few texels lack data,
+# fewer are held out: at most the larger of HELD_OUT_ENOUGH and HELD_OUT_PER_UNSEEN per texel without data.
 HELD_OUT_SHARE = 0.15
+HELD_OUT_ENOUGH = 2000
+HELD_OUT_PER_UNSEEN = 10
 MAX_HELD_OUT_HOPS = 32
 MIN_HELD_OUT_TEXELS = 20
 # The lengths (hops) the extrapolation's decay towards the chart mean is chosen from; inf: no decay.
@@ -162,7 +165,8 @@ def shrink_unseen_to_charts(values: np.ndarray, precision: np.ndarray, solution:
     holds for tens of texels, a pattern of small cells for one or two. It is measured on the
     capture itself (docs/method.md#whole-surface-estimate, M23): balls of texels with data, as many
     hops across as the texels without data lie from data (their 90th percentile, at most
-    `MAX_HELD_OUT_HOPS`), `HELD_OUT_SHARE` of them in all, are held out and the solve is run
+    `MAX_HELD_OUT_HOPS`), `HELD_OUT_SHARE` of them in all (at most the larger of `HELD_OUT_ENOUGH` and
+    `HELD_OUT_PER_UNSEEN` per texel without data), are held out and the solve is run
     again without them (on the balls and the kept texels as many hops around them); at a held-out texel h hops from the data kept, the chart mean of the kept
     texels plus exp(-h / L) times the solve's departure from it predicts the full solve's value,
     and L is chosen (over `CARRY_HOPS`, infinity included) to predict them best in the least-squares
@@ -210,7 +214,7 @@ def shrink_unseen_to_charts(values: np.ndarray, precision: np.ndarray, solution:
     if not reached.any():
         return solution, float("nan"), np.zeros(len(solution))
     radius = int(np.clip(np.percentile(hops[reached], 90), 1, MAX_HELD_OUT_HOPS))
-    target = HELD_OUT_SHARE * len(rows_with)
+    target = min(HELD_OUT_SHARE * len(rows_with), max(HELD_OUT_ENOUGH, HELD_OUT_PER_UNSEEN * int(reached.sum())))
     n_balls = int(np.clip(target / (3.0 * radius * radius), 1, len(rows_with)))
     held = _held_out_balls(graph, has_data, radius, n_balls)
     if held.sum() < 0.5 * target:  # balls smaller than guessed (thin parts, borders): more of them

@@ -38,6 +38,7 @@ Deterministic: fixed iteration counts, no random choice, single-threaded sparse 
 from __future__ import annotations
 
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, NamedTuple
 
@@ -180,20 +181,15 @@ def whole_surface(observations: Observations, estimate: MaterialEstimate, texels
     data = data_precision(observations, estimate, metal, settings)
     roughness_precision = data.roughness * data.few
     color_precision = data.color * data.few[:, None]
-    roughness, roughness_spread = smooth_on_surface(params[:, 3:4], roughness_precision[:, None], graph,
-                                                    settings.roughness_smoothing, settings.roughness_huber, settings)
-    color, color_spread = smooth_on_surface(params[:, :3], color_precision, color_graph, settings.color_smoothing,
-                                            settings.color_huber, settings)
+    # Roughness and base colour are solved apart, each on one thread (`_surface_kernels`): side by side.
+    with ThreadPoolExecutor(2) as pool:
+        roughness_solve = pool.submit(_solve_and_shrink, params[:, 3:4], roughness_precision[:, None], graph, charts,
+                                      settings.roughness_smoothing, settings.roughness_huber, settings)
+        color_solve = pool.submit(_solve_and_shrink, params[:, :3], color_precision, color_graph, charts,
+                                  settings.color_smoothing, settings.color_huber, settings, graph)
+        roughness, roughness_spread, roughness_length = roughness_solve.result()
+        color, color_spread, color_length = color_solve.result()
     timings["smooth"] = time.perf_counter() - start
-    start = time.perf_counter()
-    roughness, roughness_length, unseen_std = shrink_unseen_to_charts(
-        params[:, 3:4], roughness_precision[:, None], roughness, graph, charts, settings.roughness_smoothing,
-        settings.roughness_huber, settings)
-    roughness_spread = np.maximum(roughness_spread, unseen_std[:, None])
-    color, color_length, unseen_std = shrink_unseen_to_charts(params[:, :3], color_precision, color, graph, charts,
-                                                              settings.color_smoothing, settings.color_huber, settings)
-    color_spread = np.maximum(color_spread, unseen_std[:, None])
-    timings["unseen"] = time.perf_counter() - start
 
     solved = replace(
         estimate,
@@ -278,6 +274,21 @@ class DataPrecision(NamedTuple):
     few: np.ndarray
     typical_samples: float
 
+
+
+def _solve_and_shrink(values: np.ndarray, precision: np.ndarray, graph: sparse.csr_matrix, charts: np.ndarray,
+                      smoothing: float, huber: float, settings: SurfaceConfig,
+                      surface: sparse.csr_matrix | None = None) -> tuple[np.ndarray, np.ndarray, float]:
+    """`smooth_on_surface` on ``graph``, then `shrink_unseen_to_charts` along ``surface`` (default ``graph``).
+
+    Returns the solution (N, C), its std (N, C) (at least the held-out error where a texel has no
+    data) and the carry length in hops.
+    """
+    solution, spread = smooth_on_surface(values, precision, graph, smoothing, huber, settings)
+    solution, length, unseen_std = shrink_unseen_to_charts(values, precision, solution,
+                                                           graph if surface is None else surface, charts, smoothing,
+                                                           huber, settings)
+    return solution, np.maximum(spread, unseen_std[:, None]), length
 
 def data_precision(observations: Observations, estimate: MaterialEstimate, metal: np.ndarray,
                    settings: SurfaceConfig) -> DataPrecision:

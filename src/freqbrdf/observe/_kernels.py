@@ -13,6 +13,7 @@ Private to `freqbrdf.observe.observations`, whose `observe` calls them batch by 
   the samples and the band-limited environment looked up there, written beside the radiance
   (docs/method.md#conventions, docs/method.md#band-limit);
 - `_sample_offsets` (numpy): where each texel's selected samples start when packed;
+- `_weighted_view_sums`: per texel, the weighted sum of a value over its samples (`mean_over_views`);
 - `_initialise_signals`: the fitted signals' buffer, with the constant channel at 1 (docs/method.md#forward-model);
 - `_sample_bilinear`, `_bilinear_stencil` and `_blend`: bilinear image samples;
 - `_lobe_rays`, `_cosine_rays`, `_texels_at_hits` and `_lobe_totals`: the rays `freqbrdf.observe.occlusion`
@@ -362,3 +363,26 @@ def _lobe_totals(hits, weights, shows, n_samples):
         for c in range(3):
             radiance[s, c] += w * shows[h, c]
     return share, radiance
+
+
+@numba.njit(parallel=True, cache=True)
+def _weighted_view_sums(weight, values):
+    """Per texel: (sum_v w_v, sum_v w_v x_v per channel), in float64.
+
+    weight (N, V), values (N, V, C) of any float type; each texel summed over its views in order.
+    Returns total (N,) and sums (N, C).
+    """
+    n_texels, n_views = weight.shape
+    n_channels = values.shape[2]
+    total = np.zeros(n_texels)
+    sums = np.zeros((n_texels, n_channels))
+    for t in numba.prange(n_texels):
+        for v in range(n_views):
+            w = np.float64(weight[t, v])
+            if w == 0.0:
+                continue
+            total[t] += w
+            for c in range(n_channels):
+                sums[t, c] += w * np.float64(values[t, v, c])
+    return total, sums
+

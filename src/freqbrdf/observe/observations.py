@@ -51,6 +51,7 @@ from freqbrdf.observe._kernels import (
     _sample_offsets,
     _shadow_rays,
     _unpack_samples,
+    _weighted_view_sums,
 )
 from freqbrdf.observe.irradiance import texel_irradiance
 from freqbrdf.observe.occlusion import (
@@ -704,9 +705,7 @@ def mean_over_views(weight: np.ndarray, values: np.ndarray) -> np.ndarray:
     (N, 3) float64
         The mean; 0 for a texel without samples.
     """
-    weight = np.asarray(weight, np.float64)
-    total = weight.sum(axis=1)
-    summed = np.einsum("nv,nvc->nc", weight, values, dtype=np.float64)
+    total, summed = _weighted_view_sums(np.ascontiguousarray(weight), np.ascontiguousarray(values))
     return np.where(total[:, None] > 0, summed / np.maximum(total, 1e-30)[:, None], 0.0)
 
 
