@@ -413,7 +413,7 @@ def search_texel(t, samples, light, recurrence, options, tables, environment_lig
         curvature[t] = _loss_curvature(voted_r, profiled_f, objective) / total_weight
         if label_loss.shape[0] > 0 and voted_r != estimate_r:
             _record_labels(voted_r, objective, quadratics, label_state, total_weight, label_loss[t],
-                           label_base_color[t])
+                           label_base_color[t], np.bool_(True))
         return
     if not search:
         return
@@ -458,13 +458,10 @@ def search_texel(t, samples, light, recurrence, options, tables, environment_lig
             best_f += sample_weight[s] * sample_weight[s] * residual[s] * residual[s]
     else:
         centre_f = best_f
-    curvature[t] = _loss_curvature(best_r, centre_f, objective) / total_weight
-    params[t, 0], params[t, 1], params[t, 2] = best_state[0], best_state[1], best_state[2]
-    params[t, 3], params[t, 4] = best_r, best_state[3]
-    loss[t] = max(best_f, 0.0) / total_weight
     if label_loss.shape[0] > 0:
+        # After a robust pass the last probe was at best_r (centre_f): its quadratics give the labels.
         _record_labels(best_r, objective, quadratics, label_state, total_weight, label_loss[t],
-                       label_base_color[t])
+                       label_base_color[t], np.bool_(robust_passes == 0))
         # The sums at the estimate (the probe at best_r left them in moments), then at the
         # roughness nodes label_moments has room for, evenly on [0, 1].
         n_slots = estimates.label_moments.shape[1]
@@ -476,6 +473,10 @@ def search_texel(t, samples, light, recurrence, options, tables, environment_lig
                     estimates.label_moments[t, slot, c, index] = moments[c, index]
                 estimates.label_moments[t, slot, c, 14] = squared_values[c]
                 estimates.label_moments[t, slot, c, 15] = scale[c]
+    curvature[t] = _loss_curvature(best_r, centre_f, objective) / total_weight
+    params[t, 0], params[t, 1], params[t, 2] = best_state[0], best_state[1], best_state[2]
+    params[t, 3], params[t, 4] = best_r, best_state[3]
+    loss[t] = max(best_f, 0.0) / total_weight
 
 
 # The CPU chunk's copies of `new_search_scratch` and `search_texel`, inlined into it (numba IR), so that

@@ -463,13 +463,15 @@ def _loss_curvature(best_r, centre_f, objective):
 
 
 @borrowing_jit
-def _record_labels(roughness, objective, quadratics, label_state, total_weight, label_loss, label_base_color):
+def _record_labels(roughness, objective, quadratics, label_state, total_weight, label_loss, label_base_color, probe):
     """Write the loss and base colour of a dielectric (m = 0) and a metal (m = 1) at a roughness.
 
     Base colour re-fitted (`metallic_terms`): what the samples say about the metal label
-    (`freqbrdf.estimate.surface`). Probes the roughness, so the probe's state changes.
+    (`freqbrdf.estimate.surface`). With ``probe`` the roughness is probed first (the probe's state
+    changes); without, quadratics must hold the last probe's, at that roughness.
     """
-    _roughness_objective(roughness, objective)
+    if probe:
+        _roughness_objective(roughness, objective)
     for label in range(2):
         label_f = metallic_terms(np.float64(label), quadratics, label_state)[0]
         label_loss[label] = max(label_f, 0.0) / total_weight

@@ -208,6 +208,9 @@ def environment_weight(roughness: np.ndarray, blend: tuple[float, float]) -> np.
 # Larger maps are resampled to this height (degrees up to 510): bounds the memory of the
 # prefiltered stack and its transforms.
 PREFILTER_MAX_HEIGHT = 512
+# A prefiltered map holds the degrees up to the last whose lobe gain is at least this share of the
+# largest: beyond it the GGX gains are their table's noise, and the synthesis stops there.
+PREFILTER_GAIN_FLOOR = 1e-3
 
 
 def prefiltered_environment(envmap, n_nodes: int, skip_degrees: int = 0) -> np.ndarray:
@@ -215,7 +218,8 @@ def prefiltered_environment(envmap, n_nodes: int, skip_degrees: int = 0) -> np.n
 
     The map is filtered by `tables.ggx_lobe_gains` at roughness j `tables.PREFILTER_STEP`, every
     degree the map holds (at most `PREFILTER_MAX_HEIGHT` rows) from ``skip_degrees`` on (the
-    environment light holds the degrees below). Node 0, a mirror, is the map itself (averaged in
+    environment light holds the degrees below) whose gain is at least `PREFILTER_GAIN_FLOOR` of the
+    largest. Node 0, a mirror, is the map itself (averaged in
     pixel space to the stack's size, `envmap.downsample`): cut at the map's band limit it would ring
     around bright lights (Gibbs). The next nodes' lobes are filtered in SH as the rest: read raw as
     well, roughness between them would mix a sharp map into a blurred one.
@@ -238,6 +242,10 @@ def prefiltered_environment(envmap, n_nodes: int, skip_degrees: int = 0) -> np.n
     out_height = min(height, PREFILTER_MAX_HEIGHT, (width + 1) // 2)
     lmax = min(height - 2, (width - 1) // 2, out_height - 2)
     gains = np.stack([ggx_lobe_gains(node * PREFILTER_STEP, lmax) for node in range(n_nodes)])
+    magnitude = np.abs(gains)
+    held = magnitude >= PREFILTER_GAIN_FLOOR * magnitude.max(axis=1, keepdims=True)
+    last = lmax - np.argmax(held[:, ::-1], axis=1)  # (n_nodes,) the last degree held
+    gains[np.arange(lmax + 1)[None, :] > last[:, None]] = 0.0
     gains[:, :skip_degrees] = 0.0
     resample = out_height if out_height != height else None
     maps = np.empty((n_nodes, out_height, 2 * out_height, 3), np.float32)

@@ -515,16 +515,26 @@ def zonal_filters(envmap: Envmap, gains: np.ndarray, height: int | None = None) 
     # The filter is zonal, so it commutes with rotations: filter in the map's own SH frame and
     # skip the two rotations to and from the world frame (dense and slow at high degree).
     coeffs = _analysis(envmap.radiance, lmax)  # (3, K)
-    gains_by_degree = np.ascontiguousarray(gains[:, sh.sh_degrees(lmax)].T)  # (K, M)
-    # Several filters per synthesis (they share its Legendre functions), as many as keep its
-    # complex spectra within _SYNTHESIS_SAMPLES.
+    # Each filter is synthesised up to its last nonzero gain, several filters per synthesis (they
+    # share its Legendre functions) as long as they keep its complex spectra within
+    # _SYNTHESIS_SAMPLES and need at least half its degrees.
+    nonzero = gains != 0.0
+    last = np.where(nonzero.any(axis=1), gains.shape[1] - 1 - np.argmax(nonzero[:, ::-1], axis=1), 0)
     chunk = max(1, _SYNTHESIS_SAMPLES // (3 * height * width))
     out = np.empty((len(gains), height, width, 3), np.float32)
-    for first in range(0, len(gains), chunk):
+    first = 0
+    while first < len(gains):
+        stop = first + 1
+        while stop < min(first + chunk, len(gains)) and 2 * last[stop] >= last[first] and last[stop] <= last[first]:
+            stop += 1
+        degrees = int(last[first: stop].max())
+        n_coeffs = (degrees + 1) ** 2
+        gains_by_degree = np.ascontiguousarray(gains[first: stop, sh.sh_degrees(degrees)].T)  # (K, n)
         # (K, n, 3), by flat index first: the layout the synthesis reads, so it need not transpose
-        part = gains_by_degree[:, first: first + chunk, None] * coeffs.T[:, None, :]
+        part = gains_by_degree[:, :, None] * coeffs.T[:n_coeffs, None, :]
         count = part.shape[1]
-        _synthesis(part.reshape(len(part), -1).T.reshape(count, 3, -1), height, width, out=out[first: first + count])
+        _synthesis(part.reshape(len(part), -1).T.reshape(count, 3, -1), height, width, out=out[first: stop])
+        first = stop
     return out
 
 
