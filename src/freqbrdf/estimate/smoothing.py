@@ -8,6 +8,8 @@ carry (`shrink_unseen_to_charts`, M23). Used by `freqbrdf.estimate.surface.whole
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from scipy import sparse
 from scipy.sparse import csgraph
@@ -16,8 +18,9 @@ from freqbrdf.config import SurfaceConfig
 from freqbrdf.estimate._surface_kernels import conjugate_gradients, huber_weights
 from freqbrdf.model.materials import UNIFORM_VARIANCE
 
-__all__ = ["CARRY_HOPS", "HELD_OUT_ENOUGH", "HELD_OUT_PER_UNSEEN", "HELD_OUT_SHARE", "MAX_HELD_OUT_HOPS", "MIN_CHART_TEXELS", "MIN_HELD_OUT_TEXELS",
-           "PRIOR_PRECISION", "chart_prior", "shrink_unseen_to_charts", "smooth_on_surface"]
+__all__ = ["CARRY_HOPS", "HELD_OUT_ENOUGH", "HELD_OUT_PER_UNSEEN", "HELD_OUT_SHARE", "MAX_HELD_OUT_HOPS",
+           "MIN_CHART_TEXELS", "MIN_HELD_OUT_TEXELS", "PRIOR_PRECISION", "HeldOutTrial", "chart_prior", "held_out_trial",
+           "shrink_by_trial", "shrink_unseen_to_charts", "smooth_on_surface"]
 
 # The precision that pins a texel without data to the mean of the estimated texels, relative to
 # the coupling: only decides components of the graph that no estimated texel reaches.
@@ -203,16 +206,41 @@ def shrink_unseen_to_charts(values: np.ndarray, precision: np.ndarray, solution:
         The held-out error as far from data, for the texels without data; 0 elsewhere and where
         nothing was measured.
     """
+    trial = held_out_trial(values, precision, graph, smoothing, huber, settings)
+    return shrink_by_trial(trial, values, solution, charts)
+
+
+class HeldOutTrial(NamedTuple):
+    """The trial solve of `held_out_trial`: what `shrink_by_trial` needs besides the whole solve."""
+
+    has_data: np.ndarray  # (N,) bool: some precision
+    hops: np.ndarray  # (N,) hops from the nearest texel with data
+    reached: np.ndarray  # (N,) bool: without data, connected to data
+    radius: int  # the held-out balls' radius
+    kept: np.ndarray  # (N,) bool: with data, not held out
+    near: np.ndarray  # (M,) int64: the texels of the trial solve
+    solution: np.ndarray  # (M, C) its values
+    held_hops: np.ndarray  # (M,) hops from the data kept
+    scored: np.ndarray  # (M,) bool: held out and reached
+
+
+def held_out_trial(values: np.ndarray, precision: np.ndarray, graph: sparse.csr_matrix, smoothing: float, huber: float,
+                   settings: SurfaceConfig) -> HeldOutTrial | None:
+    """Run `shrink_unseen_to_charts`' trial solve without the held-out balls; None where nothing can be measured.
+
+    Independent of the whole solve, so that the two can run side by side. Arguments as
+    `shrink_unseen_to_charts`.
+    """
     has_data = np.asarray(precision).sum(axis=1) > 0
     without = ~has_data
     rows_with = np.flatnonzero(has_data)
     if not without.any() or len(rows_with) < 2 * MIN_HELD_OUT_TEXELS:
-        return solution, float("nan"), np.zeros(len(solution))
+        return None
     graph = graph.tocsr()
     hops = csgraph.dijkstra(graph, unweighted=True, indices=rows_with, min_only=True)
     reached = without & np.isfinite(hops)
     if not reached.any():
-        return solution, float("nan"), np.zeros(len(solution))
+        return None
     radius = int(np.clip(np.percentile(hops[reached], 90), 1, MAX_HELD_OUT_HOPS))
     target = min(HELD_OUT_SHARE * len(rows_with), max(HELD_OUT_ENOUGH, HELD_OUT_PER_UNSEEN * int(reached.sum())))
     n_balls = int(np.clip(target / (3.0 * radius * radius), 1, len(rows_with)))
@@ -221,7 +249,7 @@ def shrink_unseen_to_charts(values: np.ndarray, precision: np.ndarray, solution:
         held = _held_out_balls(graph, has_data, radius, int(np.ceil(n_balls * target / max(held.sum(), 1))))
     kept = has_data & ~held
     if held.sum() < MIN_HELD_OUT_TEXELS or kept.sum() < MIN_HELD_OUT_TEXELS:
-        return solution, float("nan"), np.zeros(len(solution))
+        return None
     # The trial solve on the balls and the kept texels within `radius` hops of them: the texels beyond keep
     # their data and barely move the balls' values. Its coupling is the whole solve's (`smooth_on_surface`
     # scales it by the median precision of the texels with data).
@@ -235,9 +263,17 @@ def shrink_unseen_to_charts(values: np.ndarray, precision: np.ndarray, solution:
     trial, _ = smooth_on_surface(values[near], sub_precision, sub_graph, smoothing * whole_scale / sub_scale, huber,
                                  settings)
     held_hops = csgraph.dijkstra(sub_graph, unweighted=True, indices=np.flatnonzero(sub_has), min_only=True)
-    scored = held[near] & np.isfinite(held_hops)
+    return HeldOutTrial(has_data, hops, reached, radius, kept, near, trial, held_hops, held[near] & np.isfinite(held_hops))
+
+
+def shrink_by_trial(trial: HeldOutTrial | None, values: np.ndarray, solution: np.ndarray,
+                    charts: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
+    """Finish `shrink_unseen_to_charts` from its trial solve (`held_out_trial`) and the whole solve's ``solution``."""
+    if trial is None:
+        return solution, float("nan"), np.zeros(len(solution))
+    has_data, hops, reached, radius, kept, near, trial_solution, held_hops, scored = trial
     kept_mean, _ = chart_prior(solution, kept, charts)
-    departure = trial[scored] - kept_mean[near][scored]
+    departure = trial_solution[scored] - kept_mean[near][scored]
     target_departure = solution[near][scored] - kept_mean[near][scored]
     costs = [np.sum((np.exp(-held_hops[scored] / length)[:, None] * departure - target_departure) ** 2)
              for length in CARRY_HOPS]

@@ -57,6 +57,8 @@ from freqbrdf.estimate.smoothing import (  # noqa: F401  (the solve's names, als
     MIN_HELD_OUT_TEXELS,
     PRIOR_PRECISION,
     chart_prior,
+    held_out_trial,
+    shrink_by_trial,
     shrink_unseen_to_charts,
     smooth_on_surface,
 )
@@ -181,14 +183,26 @@ def whole_surface(observations: Observations, estimate: MaterialEstimate, texels
     data = data_precision(observations, estimate, metal, settings)
     roughness_precision = data.roughness * data.few
     color_precision = data.color * data.few[:, None]
-    # Roughness and base colour are solved apart, each on one thread (`_surface_kernels`): side by side.
+    # Roughness and base colour are solved apart, and each texel-without-data trial (`held_out_trial`) apart from
+    # its whole solve, each on one thread (`_surface_kernels`): side by side, the longest first.
+    roughness_args = (params[:, 3:4], roughness_precision[:, None])
+    color_args = (params[:, :3], color_precision)
     with ThreadPoolExecutor(2) as pool:
-        roughness_solve = pool.submit(_solve_and_shrink, params[:, 3:4], roughness_precision[:, None], graph, charts,
-                                      settings.roughness_smoothing, settings.roughness_huber, settings)
-        color_solve = pool.submit(_solve_and_shrink, params[:, :3], color_precision, color_graph, charts,
-                                  settings.color_smoothing, settings.color_huber, settings, graph)
-        roughness, roughness_spread, roughness_length = roughness_solve.result()
-        color, color_spread, color_length = color_solve.result()
+        color_solve = pool.submit(smooth_on_surface, *color_args, color_graph, settings.color_smoothing,
+                                  settings.color_huber, settings)
+        roughness_solve = pool.submit(smooth_on_surface, *roughness_args, graph, settings.roughness_smoothing,
+                                      settings.roughness_huber, settings)
+        roughness_trial = pool.submit(held_out_trial, *roughness_args, graph, settings.roughness_smoothing,
+                                      settings.roughness_huber, settings)
+        color_trial = pool.submit(held_out_trial, *color_args, graph, settings.color_smoothing, settings.color_huber,
+                                  settings)
+        roughness, roughness_spread = roughness_solve.result()
+        color, color_spread = color_solve.result()
+        roughness, roughness_length, unseen_std = shrink_by_trial(roughness_trial.result(), params[:, 3:4], roughness,
+                                                                  charts)
+        roughness_spread = np.maximum(roughness_spread, unseen_std[:, None])
+        color, color_length, unseen_std = shrink_by_trial(color_trial.result(), params[:, :3], color, charts)
+        color_spread = np.maximum(color_spread, unseen_std[:, None])
     timings["smooth"] = time.perf_counter() - start
 
     solved = replace(
@@ -276,19 +290,6 @@ class DataPrecision(NamedTuple):
 
 
 
-def _solve_and_shrink(values: np.ndarray, precision: np.ndarray, graph: sparse.csr_matrix, charts: np.ndarray,
-                      smoothing: float, huber: float, settings: SurfaceConfig,
-                      surface: sparse.csr_matrix | None = None) -> tuple[np.ndarray, np.ndarray, float]:
-    """`smooth_on_surface` on ``graph``, then `shrink_unseen_to_charts` along ``surface`` (default ``graph``).
-
-    Returns the solution (N, C), its std (N, C) (at least the held-out error where a texel has no
-    data) and the carry length in hops.
-    """
-    solution, spread = smooth_on_surface(values, precision, graph, smoothing, huber, settings)
-    solution, length, unseen_std = shrink_unseen_to_charts(values, precision, solution,
-                                                           graph if surface is None else surface, charts, smoothing,
-                                                           huber, settings)
-    return solution, np.maximum(spread, unseen_std[:, None]), length
 
 def data_precision(observations: Observations, estimate: MaterialEstimate, metal: np.ndarray,
                    settings: SurfaceConfig) -> DataPrecision:
