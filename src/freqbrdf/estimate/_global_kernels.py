@@ -303,6 +303,13 @@ def search_texel(t, samples, light, recurrence, options, tables, environment_lig
     buffers = SearchBuffers(roughness_grid, best_state, roughness_brent, node_loss, sample_weight)
     # np.int64, np.bool_ and below: a literal constant where a variable goes (here into a record)
     # makes numba compile the callee once more for the literal's type.
+    # The neighbour vote (below) concerns only texels whose candidate roughness or metallic
+    # lies more than a grid cell away: the others skip the preparation too.
+    voting = candidate.shape[0] > 0
+    far_roughness = voting and abs(candidate[t, 0] - params[t, 3]) * (roughness_grid - 1) > 1.0
+    far_metallic = voting and abs(candidate[t, 1] - params[t, 4]) * (metallic_grid - 1) > 1.0
+    if voting and not (far_roughness or far_metallic):
+        return
     traced = samples.mirror_occluded.shape[1] > 0
     any_occluded = False
     n = np.int64(0)
@@ -325,12 +332,7 @@ def search_texel(t, samples, light, recurrence, options, tables, environment_lig
         n += 1
     if n < MIN_SAMPLES:
         return
-    # The neighbour vote (below) concerns only texels whose candidate roughness or metallic
-    # lies more than a grid cell away: the others skip the preparation too.
-    voting = candidate.shape[0] > 0
-    far_roughness = voting and abs(candidate[t, 0] - params[t, 3]) * (roughness_grid - 1) > 1.0
-    far_metallic = voting and abs(candidate[t, 1] - params[t, 4]) * (metallic_grid - 1) > 1.0
-    if voting and not ((far_roughness or far_metallic) and 3 * n > FITTED_PARAMETERS):
+    if voting and 3 * n <= FITTED_PARAMETERS:
         return
     cross(normal[t], tangent[t], bitangent)
     prefiltered_cached[:] = False
