@@ -100,6 +100,8 @@ QUICK_RELIGHT_SPP = 4
 CONSTANT = (0.5, 0.5, 0.0)  # base colour, roughness, metallic
 METAL_THRESHOLD = 0.5
 ROUGH_DIELECTRIC = 0.5  # roughness from which a dielectric counts as rough (for the goals)
+# Draws of Gaussian errors of the std itself (`std_scores`' ideal rho).
+CALIBRATED_DRAWS = 4
 COVERAGE_GOAL = (0.60, 0.76)  # a 1-sigma interval should hold the truth for about 68 % of texels
 
 
@@ -186,7 +188,13 @@ def std_scores(std: np.ndarray, estimate: np.ndarray, truth: np.ndarray, texels:
         return {"texels": 0, "spearman": None, "coverage_1sigma": None, "coverage_2sigma": None}
     sigma, error = sigma[finite], error[finite]
     rho = sparsification(sigma, error).spearman
+    # The rho a std of this spread reaches at best if each error were Gaussian with exactly that std:
+    # where every texel is about as uncertain, no std can rank the errors.
+    rng = np.random.default_rng(0)
+    ideal = [sparsification(sigma, np.abs(sigma * rng.standard_normal(len(sigma)))).spearman
+             for _ in range(CALIBRATED_DRAWS)]
     return {"texels": int(finite.sum()), "spearman": None if math.isnan(rho) else rho,
+            "spearman_if_calibrated": float(np.nanmean(ideal)) if np.any(np.isfinite(ideal)) else None,
             "coverage_1sigma": float(np.mean(error <= sigma)), "coverage_2sigma": float(np.mean(error <= 2 * sigma)),
             "mean_std": float(sigma.mean()), "mean_error": float(error.mean())}
 
@@ -394,7 +402,8 @@ def markdown(results: dict) -> str:
            "BC = base-colour PSNR (dB), R / M = roughness / metallic MAE; diel.->metal = dielectric texels "
            "(true metallic < 0.5) estimated > 0.5; metal est. = mean estimate on true metals; chart-mean fill = "
            "the method's unseen texels filled with the mean of its confident texels of the same UV chart; "
-           "std: Spearman rho with |error| / fraction within 1 std, on seen texels (unseen in brackets).", ""]
+           "std: Spearman rho with |error| [the rho it would reach were each error Gaussian of exactly that std] / "
+           "fraction within 1 std, on seen texels (unseen in brackets).", ""]
     settings = results["settings"]
     out += [f"Capture: {settings['render']}; Mitsuba inverse: {settings['inverse']}; relighting "
             f"{settings['relight_spp']} spp.", "",
@@ -419,7 +428,8 @@ def markdown(results: dict) -> str:
                          f"{_fmt(fill['base_color_psnr'], 2)} / {_fmt(fill['roughness_mae'])} / "
                          f"{_fmt(fill['metallic_mae'])}")
             std_text = "; ".join(
-                f"{parameter}: {_fmt(s['seen']['spearman'], 2)} / {_fmt(s['seen']['coverage_1sigma'], percent=True)} "
+                f"{parameter}: {_fmt(s['seen']['spearman'], 2)} [{_fmt(s['seen'].get('spearman_if_calibrated'), 2)}] / "
+                f"{_fmt(s['seen']['coverage_1sigma'], percent=True)} "
                 f"({_fmt(s['unseen']['spearman'], 2)} / {_fmt(s['unseen']['coverage_1sigma'], percent=True)})"
                 for parameter, s in row["std"].items()) or "-"
             seconds = row["seconds"]["total"]
