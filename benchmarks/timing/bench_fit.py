@@ -5,7 +5,8 @@ time (from just before the process starts until it has exited), its CPU seconds 
 memory (wait4: the child's own), the load average before it, and the seconds per stage from the
 fit folder's summary.json. What no stage counts (``untimed``: interpreter start, imports, reading
 the capture's description, process exit) is the wall time minus the stages. The import time of
-the modules a fit needs is measured separately, also in fresh processes.
+the modules a fit needs is measured separately, also in fresh processes. They run with Python's
+bytecode cache on, as a user's do (`user_environment`), whatever this machine's environment says.
 
 The default capture is studies/compare_estimators.py's plane (scenes.compare_capture: 64 views of
 256 x 256, T = 512), rendered into benchmarks/.cache/ if it is missing.
@@ -63,13 +64,23 @@ def capture_folder(name_or_path: str) -> Path:
     return compare_capture(name_or_path)
 
 
+def user_environment(extra: dict | None = None) -> dict:
+    """The environment a user's fit runs in: this process's, with Python's bytecode cache on.
+
+    A machine that sets PYTHONDONTWRITEBYTECODE (sandboxes and CI often do) compiles the package's
+    modules from source at every start, which an installed package never does: the fits here
+    write and read the cache, as a user's do.
+    """
+    return {**{key: value for key, value in os.environ.items() if key != "PYTHONDONTWRITEBYTECODE"}, **(extra or {})}
+
+
 def one_fit(capture: Path, out: Path, options: list[str], env: dict | None = None) -> dict:
     control = control_seconds()
     load = os.getloadavg()[0]
     start = time.perf_counter()
     with tempfile.TemporaryFile() as errors:
         child = subprocess.Popen([*fit_command(), "fit", str(capture), "--out", str(out), "--quiet", *options],
-                                 stdout=subprocess.DEVNULL, stderr=errors, env=env)
+                                 stdout=subprocess.DEVNULL, stderr=errors, env=env or user_environment())
         # The child's own resources (wait4), not the largest of every child so far.
         _, status, usage = os.wait4(child.pid, 0)
         wall = time.perf_counter() - start
@@ -96,7 +107,8 @@ def one_fit(capture: Path, out: Path, options: list[str], env: dict | None = Non
 def import_seconds(env: dict | None = None) -> float:
     """Seconds to import the fit's modules in a fresh interpreter."""
     code = f"import time; start = time.perf_counter(); {FIT_IMPORTS}; print(time.perf_counter() - start)"
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env)
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                          env=env or user_environment())
     return float(done.stdout.strip().splitlines()[-1])
 
 
@@ -110,7 +122,7 @@ def fits_in_turn(jobs: dict[str, tuple[Path, list[str]]], pairs: int, scratch: P
     warm-up each (numba's kernels compiled or loaded); print ``stage``'s seconds of each run."""
     for name, (capture, options) in jobs.items():
         subprocess.run([*fit_command(), "fit", str(capture), "--out", str(scratch / f"warm_{name}"), "--quiet",
-                        *options, "--texture-res", "32"], capture_output=True, check=True)
+                        *options, "--texture-res", "32"], capture_output=True, check=True, env=user_environment())
     runs = {name: [] for name in jobs}
     for round_index in range(pairs):
         order = list(jobs) if round_index % 2 == 0 else list(reversed(jobs))
@@ -148,7 +160,7 @@ def baseline_sources(ref: str) -> dict:
                                  check=True)
         subprocess.run(["tar", "-x", "-C", str(partial)], input=archive.stdout, check=True)
         partial.rename(folder)
-    return {**os.environ, "PYTHONPATH": str(folder / "src")}
+    return user_environment({"PYTHONPATH": str(folder / "src")})
 
 
 PROFILE_ROWS = 25
@@ -160,7 +172,7 @@ def profile_summary(capture: Path, out: Path, options: list[str], scratch: Path)
 
     path = scratch / "fit.prof"
     subprocess.run([sys.executable, "-m", "cProfile", "-o", str(path), "-m", "freqbrdf.cli", "fit", str(capture),
-                    "--out", str(out), "--quiet", *options], capture_output=True, check=True)
+                    "--out", str(out), "--quiet", *options], capture_output=True, check=True, env=user_environment())
     statistics_ = pstats.Stats(str(path))
     total = statistics_.total_tt
     root = str(Path(__file__).resolve().parents[2])
@@ -247,7 +259,8 @@ def main(argv=None) -> int:
             # Untimed, at a small texture size: numba compiles the kernels here if its cache is cold
             # (a run that compiles them runs again from the cache, see freqbrdf.jit), not in a timed run.
             subprocess.run([*fit_command(), "fit", str(capture), "--out", str(Path(scratch) / "warm_up"), "--quiet",
-                            "--texture-res", "32", *options], capture_output=True, check=True, env=env)
+                            "--texture-res", "32", *options], capture_output=True, check=True,
+                           env=env or user_environment())
         for index in range(args.runs):
             for name, env in trees.items():
                 runs[name].append(one_fit(capture, Path(scratch) / "fit", options, env))

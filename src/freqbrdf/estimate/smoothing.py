@@ -226,10 +226,26 @@ class HeldOutTrial(NamedTuple):
 
 def held_out_trial(values: np.ndarray, precision: np.ndarray, graph: sparse.csr_matrix, smoothing: float, huber: float,
                    settings: SurfaceConfig) -> HeldOutTrial | None:
-    """Run `shrink_unseen_to_charts`' trial solve without the held-out balls; None where nothing can be measured.
+    """Run `shrink_unseen_to_charts`' trial solve without the held-out balls.
 
-    Independent of the whole solve, so that the two can run side by side. Arguments as
-    `shrink_unseen_to_charts`.
+    Independent of the whole solve, so that the two can run side by side.
+
+    Parameters
+    ----------
+    values, precision : (N, C) array
+        The solve's data and precisions (`smooth_on_surface`).
+    graph : (N, N) scipy.sparse.csr_matrix
+        The surface graph along the mesh (`surface_graph`).
+    smoothing, huber : float
+        The solve's settings (`smooth_on_surface`).
+    settings : SurfaceConfig
+        The solve's other settings.
+
+    Returns
+    -------
+    HeldOutTrial or None
+        The trial; None where nothing can be measured (no texel lacks data, none without data is
+        connected to data, or fewer than `MIN_HELD_OUT_TEXELS` could be held out or kept).
     """
     has_data = np.asarray(precision).sum(axis=1) > 0
     without = ~has_data
@@ -268,7 +284,28 @@ def held_out_trial(values: np.ndarray, precision: np.ndarray, graph: sparse.csr_
 
 def shrink_by_trial(trial: HeldOutTrial | None, values: np.ndarray, solution: np.ndarray,
                     charts: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
-    """Finish `shrink_unseen_to_charts` from its trial solve (`held_out_trial`) and the whole solve's ``solution``."""
+    """Finish `shrink_unseen_to_charts` from its trial solve and the whole solve.
+
+    Parameters
+    ----------
+    trial : HeldOutTrial or None
+        `held_out_trial` of the same values, precisions and graph.
+    values : (N, C) array
+        The solve's data.
+    solution : (N, C) float64
+        The whole solve's values (`smooth_on_surface`).
+    charts : (N,) int64
+        Each texel's UV chart (`uv_charts`).
+
+    Returns
+    -------
+    solution : (N, C) float64
+        The values; the texels with data unchanged.
+    carry_hops : float
+        L (`shrink_unseen_to_charts`); NaN where ``trial`` is None.
+    std : (N,) float64
+        The held-out error as far from data, for the texels without data; 0 elsewhere.
+    """
     if trial is None:
         return solution, float("nan"), np.zeros(len(solution))
     has_data, hops, reached, radius, kept, near, trial_solution, held_hops, scored = trial
