@@ -232,14 +232,8 @@ def held_out_trial(values: np.ndarray, precision: np.ndarray, graph: sparse.csr_
 
     Parameters
     ----------
-    values, precision : (N, C) array
-        The solve's data and precisions (`smooth_on_surface`).
-    graph : (N, N) scipy.sparse.csr_matrix
-        The surface graph along the mesh (`surface_graph`).
-    smoothing, huber : float
-        The solve's settings (`smooth_on_surface`).
-    settings : SurfaceConfig
-        The solve's other settings.
+    values, precision, graph, smoothing, huber, settings
+        As `shrink_unseen_to_charts`: (N, C) data and precisions, the (N, N) surface graph, the solve's settings.
 
     Returns
     -------
