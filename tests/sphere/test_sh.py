@@ -249,3 +249,20 @@ def test_appendix_fig1_exponential_regulariser_recovers_the_brdf_filter():
             errors[regulariser].append(np.mean(np.abs(np.log(spectra[1] / spectra[0] / true_ratio))))
     median = {name: float(np.median(values)) for name, values in errors.items()}
     assert median["exponential"] < 0.5 * median["constant"] < 0.5 * median["none"], median
+
+
+def test_fit_sh_writes_into_a_block_of_a_larger_array():
+    rng = np.random.default_rng(3)
+    directions = rng.normal(size=(6, 40, 3)).astype(np.float32)
+    directions /= np.linalg.norm(directions, axis=-1, keepdims=True)
+    weights = rng.uniform(0.5, 1.0, size=(6, 40)).astype(np.float32)
+    values = rng.uniform(size=(6, 40, 2)).astype(np.float32)
+    whole = sh.fit_sh(directions, weights, values, lmax=2, reg_lambda=1e-3, device="cpu")
+    larger = np.full((9, 2, 9), np.nan, np.float32)
+    fit = sh.fit_sh(directions, weights, values, lmax=2, reg_lambda=1e-3, device="cpu", coeffs_out=larger[2:8])
+    assert np.shares_memory(fit.coeffs, larger)
+    np.testing.assert_array_equal(larger[2:8], whole.coeffs)
+    assert np.isnan(larger[:2]).all() and np.isnan(larger[8:]).all()
+    with pytest.raises(ValueError, match="coeffs_out"):
+        sh.fit_sh(directions, weights, values, lmax=2, reg_lambda=1e-3, device="cpu",
+               coeffs_out=np.empty((6, 2, 9), np.float64))

@@ -595,15 +595,18 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
     # In blocks of texels, so that the bar moves; each texel's fit is its own, whatever the blocks.
     blocks = [slice(start, start + FIT_BLOCK) for start in range(0, max(len(weight), 1), FIT_BLOCK)]
     with reporter.stage("fitting SH spectra", len(blocks)) as advance:
+        # Each block's coefficients written in place: no second copy of them all (fresh memory is slow to map).
+        single = all(array.dtype == np.float32 for array in (view_direction, weight, signals))
+        coeffs = np.empty((len(weight), signals.shape[2], sh.num_coeffs(config.fit.lmax)),
+                          np.float32 if single else np.float64)
         parts = []
         for rows in blocks:
             parts.append(sh.fit_sh(
                 view_direction[rows], weight[rows], signals[rows], config.fit.lmax, config.fit.reg_lambda,
-                config.fit.regulariser, config.fit.scale_lambda_with_weight, config.device,
+                config.fit.regulariser, config.fit.scale_lambda_with_weight, config.device, coeffs_out=coeffs[rows],
             ))
             advance(1)
-    fit = parts[0] if len(parts) == 1 else sh.SHFit(*(np.concatenate([getattr(part, name) for part in parts])
-                                                       for name in ("coeffs", "n_samples", "status")))
+    fit = sh.SHFit(coeffs, *(np.concatenate([getattr(part, name) for part in parts]) for name in ("n_samples", "status")))
     timings["fits"] = time.perf_counter() - tick
 
     n_samples = fit.n_samples

@@ -475,6 +475,7 @@ def fit_sh(
     regulariser: RegulariserKind = "exponential",
     scale_lambda_with_weight: bool = True,
     device: str = "auto",
+    coeffs_out: np.ndarray | None = None,
 ) -> SHFit:
     """Fit SH to each texel's samples by weighted, degree-regularised least squares (docs/method.md#sh-fit).
 
@@ -512,11 +513,14 @@ def fit_sh(
     device : {"auto", "cpu", "cuda"}, optional
         Where the normal equations are built and solved (`freqbrdf.devices.resolve_device`); the
         SVD fallback runs on the CPU. The backends agree to rounding (docs/results.md).
+    coeffs_out : (N, C, K) array, optional
+        C-contiguous, float32 where all inputs are float32 (else float64): the coefficients are
+        written there (e.g. a block of a larger array) instead of into a new array.
 
     Returns
     -------
     SHFit
-        Coefficients (N, C, K), sample counts and status per texel.
+        Coefficients (N, C, K) (``coeffs_out`` where given), sample counts and status per texel.
 
     Raises
     ------
@@ -560,7 +564,14 @@ def fit_sh(
         # float32 and float64 pass through without a copy; anything else becomes float64
         return np.ascontiguousarray(array if array.dtype in (np.float32, np.float64) else array.astype(np.float64))
 
-    coeffs = np.empty((n_texels, values.shape[2], n_coeffs), dtype=out_dtype)
+    shape = (n_texels, values.shape[2], n_coeffs)
+    if coeffs_out is None:
+        coeffs = np.empty(shape, dtype=out_dtype)
+    elif coeffs_out.shape != shape or coeffs_out.dtype != out_dtype or not coeffs_out.flags.c_contiguous:
+        raise ValueError(f"coeffs_out must be C-contiguous {np.dtype(out_dtype).name} {shape}, got "
+                         f"{coeffs_out.dtype.name} {coeffs_out.shape}")
+    else:
+        coeffs = coeffs_out
     n_samples = np.empty(n_texels, dtype=np.int32)
     solved = np.empty(n_texels, dtype=np.bool_)
     inputs = (as_kernel_input(directions), as_kernel_input(weights), as_kernel_input(values))
