@@ -42,6 +42,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, NamedTuple
 
+import numba
 import numpy as np
 from scipy import ndimage, sparse
 from scipy.spatial import cKDTree
@@ -184,10 +185,11 @@ def whole_surface(observations: Observations, estimate: MaterialEstimate, texels
     roughness_precision = data.roughness * data.few
     color_precision = data.color * data.few[:, None]
     # Roughness and base colour are solved apart, and each texel-without-data trial (`held_out_trial`) apart from
-    # its whole solve, each on one thread (`_surface_kernels`): side by side, the longest first.
+    # its whole solve, each on one thread (`_surface_kernels`): side by side on as many as numba may use (a batch
+    # worker's share), at most two, the longest first.
     roughness_args = (params[:, 3:4], roughness_precision[:, None])
     color_args = (params[:, :3], color_precision)
-    with ThreadPoolExecutor(2) as pool:
+    with ThreadPoolExecutor(max(1, min(2, numba.get_num_threads()))) as pool:
         color_solve = pool.submit(smooth_on_surface, *color_args, color_graph, settings.color_smoothing,
                                   settings.color_huber, settings)
         roughness_solve = pool.submit(smooth_on_surface, *roughness_args, graph, settings.roughness_smoothing,
