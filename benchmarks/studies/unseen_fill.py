@@ -8,7 +8,7 @@ T = 256), each fitted with the defaults. On the atlas texels no view sees: base-
 roughness and metallic MAE of the fit, and of the fit with those texels filled with the mean of
 its confident seen texels of the same UV chart (`whole_surface.chart_mean_fill`, as the
 whole-surface study's baseline), and of the fit without the measured shrinkage of those texels
-towards their chart's mean (`freqbrdf.estimate.surface.shrink_unseen_to_charts` patched out: the
+towards their chart's mean (`freqbrdf.estimate.surface.shrink_by_trial` patched out: the
 solve's extrapolation alone, docs/method.md#whole-surface-estimate).
 
 Writes benchmarks/results/<name>.{json,md}.
@@ -20,6 +20,8 @@ import argparse
 import sys
 from pathlib import Path
 from unittest import mock
+
+import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -41,8 +43,8 @@ KEYS = ("base_color_psnr", "roughness_mae", "metallic_mae")
 
 def fit_without_shrinkage(capture, config: Config) -> pipeline.FitResult:
     """The fit with the texels without data left at the solve's extrapolation (no measured shrinkage)."""
-    with mock.patch.object(surface, "shrink_unseen_to_charts", lambda values, precision, solution, *rest:
-                           (solution, float("nan"))):
+    with mock.patch.object(surface, "shrink_by_trial", lambda trial, values, solution, charts:
+                           (solution, float("nan"), np.zeros(len(solution)))):
         return pipeline.fit(capture, config)
 
 
