@@ -32,7 +32,8 @@ docs/method.md#whole-surface-estimate, done inside the estimate):
    The fit reports a roughness std no narrower than the spread of the texel's own estimate
    (`freqbrdf.pipeline.fit`): neighbours share the model's errors, which their precision ignores.
 
-Deterministic: fixed iteration counts, no random choice, single-threaded sparse products.
+Deterministic: fixed iteration counts, no random choice, each solve's sparse products on one thread (the solves
+run side by side, whatever the thread count, with the same results).
 """
 
 from __future__ import annotations

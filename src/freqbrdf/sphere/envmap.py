@@ -527,7 +527,7 @@ def zonal_filters(envmap: Envmap, gains: np.ndarray, height: int | None = None) 
         stop = first + 1
         while stop < min(first + chunk, len(gains)) and 2 * last[stop] >= last[first] and last[stop] <= last[first]:
             stop += 1
-        degrees = int(last[first: stop].max())
+        degrees = int(last[first])  # the group's most
         n_coeffs = (degrees + 1) ** 2
         gains_by_degree = np.ascontiguousarray(gains[first: stop, sh.sh_degrees(degrees)].T)  # (K, n)
         # (K, n, 3), by flat index first: the layout the synthesis reads, so it need not transpose
