@@ -100,6 +100,29 @@ def test_exr_rgba_drops_alpha_and_single_grey_channel_is_grey(tmp_path):
     np.testing.assert_array_equal(read_mask(tmp_path / "rgba.exr"), planes["A"] > 0.5)
 
 
+def test_an_exr_cropped_to_its_pixels_or_with_overscan_reads_as_its_frame(tmp_path):
+    """A renderer's crop (data window inside the display window: Arnold's autocrop) is placed in its frame,
+    zeros around it; overscan beyond the frame is dropped."""
+    rng = np.random.default_rng(4)
+    planes = {name: rng.random((4, 6)).astype(np.float32) for name in "RGBA"}
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage,
+              "dataWindow": ((2, 1), (7, 4)), "displayWindow": ((0, 0), (9, 7))}
+    with OpenEXR.File(header, {name: plane.copy() for name, plane in planes.items()}) as exr:
+        exr.write(str(tmp_path / "crop.exr"))
+    image = read_image(tmp_path / "crop.exr")
+    assert image.shape == (8, 10, 3)
+    np.testing.assert_array_equal(image[1:5, 2:8], np.stack([planes[c] for c in "RGB"], axis=2))
+    image[1:5, 2:8] = 0.0
+    assert not image.any()
+    mask = read_mask(tmp_path / "crop.exr")
+    assert mask.shape == (8, 10) and mask.sum() == (planes["A"] > 0.5).sum() and not mask[0].any()
+    header.update(dataWindow=((-1, -1), (4, 2)), displayWindow=((0, 0), (2, 1)))  # overscan of one pixel
+    with OpenEXR.File(header, {name: plane.copy() for name, plane in planes.items()}) as exr:
+        exr.write(str(tmp_path / "overscan.exr"))
+    np.testing.assert_array_equal(read_image(tmp_path / "overscan.exr"),
+                                  np.stack([planes[c][1:3, 1:4] for c in "RGB"], axis=2))
+
+
 @pytest.mark.parametrize("channels", [("Z",), ("A",), ("depth.Z",), ("Z", "A")])
 def test_exr_without_colour_channels_is_refused_as_radiance(tmp_path, channels):
     """A renderer's depth or alpha AOV saved in place of a photograph is refused, naming its channels."""

@@ -436,9 +436,13 @@ GREY_CHANNELS = ("Y", "L", "R", "G", "B", "GRAY", "GREY", "LUMINANCE")
 def _read_exr(path: Path, radiance: bool = False) -> np.ndarray:
     try:
         with _native_output_silenced(), OpenEXR.File(str(path), separate_channels=True) as exr:
+            header = {key: exr.header()[key] for key in ("dataWindow", "displayWindow") if key in exr.header()}
             planes = {name: channel.pixels for name, channel in exr.channels().items()}
     except Exception as err:  # OpenEXR raises RuntimeError or ValueError on damaged files
         raise InputError(path, f"not a readable OpenEXR file ({err})") from None
+    if "dataWindow" in header and "displayWindow" in header:
+        planes = {name: _in_display_window(plane, header["dataWindow"], header["displayWindow"])
+                  for name, plane in planes.items()}
     layer = _colour_layer(path, planes)
     if layer is not None:
         names = [layer + name for name in "RGB"] + ([layer + "A"] if layer + "A" in planes else [])
@@ -453,6 +457,26 @@ def _read_exr(path: Path, radiance: bool = False) -> np.ndarray:
             path, f"needs channels R, G, B or a single channel; found {', '.join(sorted(planes))}"
         )
     return np.stack([planes[name].astype(np.float32) for name in names], axis=2)
+
+
+def _in_display_window(plane: np.ndarray, data_window, display_window) -> np.ndarray:
+    """Return an EXR channel's pixels over its display window, the picture's frame.
+
+    A renderer may store only a part of the frame (the data window: Arnold's and Blender's crops to
+    the non-empty pixels) or more (overscan). Pixels outside the data window are 0; those outside
+    the display window are dropped. Windows are ((x_min, y_min), (x_max, y_max)), inclusive.
+    """
+    (data_x, data_y), (data_x_max, data_y_max) = (np.asarray(corner, np.int64) for corner in data_window)
+    (frame_x, frame_y), (frame_x_max, frame_y_max) = (np.asarray(corner, np.int64) for corner in display_window)
+    if (data_x, data_y, data_x_max, data_y_max) == (frame_x, frame_y, frame_x_max, frame_y_max):
+        return plane
+    frame = np.zeros((frame_y_max - frame_y + 1, frame_x_max - frame_x + 1), plane.dtype)
+    top, left = max(data_y, frame_y), max(data_x, frame_x)
+    bottom, right = min(data_y_max, frame_y_max), min(data_x_max, frame_x_max)
+    if bottom >= top and right >= left:
+        frame[top - frame_y: bottom - frame_y + 1, left - frame_x: right - frame_x + 1] = \
+            plane[top - data_y: bottom - data_y + 1, left - data_x: right - data_x + 1]
+    return frame
 
 
 # Of several colour layers in one EXR, the one a renderer's beauty pass is named by (Blender: ViewLayer.Combined).
