@@ -123,6 +123,32 @@ def test_occluded_irradiance_is_deterministic():
     assert np.array_equal(occluded_irradiance(*arguments), occluded_irradiance(*arguments))
 
 
+def test_the_occluder_traces_on_numba_s_threads_with_the_same_hits():
+    """Mitsuba traces on as many threads as the fit's numba kernels (a batch task's CPUs), hit for hit the same."""
+    import drjit
+    import numba
+
+    rng = np.random.default_rng(1)
+    origins = np.column_stack([rng.uniform(-1, 1, 500), np.full(500, 1e-3), rng.uniform(-1, 1, 500)])
+    directions = rng.normal(size=(500, 3))
+    directions[:, 1] = np.abs(directions[:, 1])
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    threads, traced = numba.get_num_threads(), drjit.thread_count()
+    try:
+        numba.set_num_threads(1)
+        one = Occluder(floor_and_roof())
+        assert drjit.thread_count() == 1
+        hits_on_one = one.hits(origins, directions)
+        numba.set_num_threads(threads)
+        every = Occluder(floor_and_roof())
+        assert drjit.thread_count() == threads
+        np.testing.assert_array_equal(every.hits(origins, directions), hits_on_one)
+        assert 0 < hits_on_one.sum() < 500
+    finally:
+        numba.set_num_threads(threads)
+        drjit.set_thread_count(traced)
+
+
 def test_occluded_irradiance_reports_every_step():
     envmap = sun_map()
     occluder = Occluder(floor_and_roof())

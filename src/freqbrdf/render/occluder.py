@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import importlib
 
+import numba
 import numpy as np
 
 from freqbrdf.render.scenes import mesh_shape, mitsuba, restored_floating_point
@@ -29,6 +30,11 @@ class Occluder:
     def __init__(self, mesh):
         self._mitsuba = mitsuba()
         self._drjit = importlib.import_module("drjit")
+        # Trace on as many threads as the fit's numba kernels run (NUMBA_NUM_THREADS: a batch task's
+        # CPUs), not on every core of the machine, which other tasks share.
+        threads = numba.get_num_threads()
+        if self._drjit.thread_count() != threads:
+            self._drjit.set_thread_count(threads)
         with restored_floating_point():
             self._scene = self._mitsuba.load_dict({"type": "scene", "object": mesh_shape(mesh, {"type": "diffuse"})})
 
