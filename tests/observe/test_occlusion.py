@@ -128,6 +128,8 @@ def test_the_occluder_traces_on_numba_s_threads_with_the_same_hits():
     import drjit
     import numba
 
+    from freqbrdf.observe.observations import _occluder
+
     rng = np.random.default_rng(1)
     origins = np.column_stack([rng.uniform(-1, 1, 500), np.full(500, 1e-3), rng.uniform(-1, 1, 500)])
     directions = rng.normal(size=(500, 3))
@@ -135,13 +137,15 @@ def test_the_occluder_traces_on_numba_s_threads_with_the_same_hits():
     directions /= np.linalg.norm(directions, axis=1, keepdims=True)
     threads, traced = numba.get_num_threads(), drjit.thread_count()
     try:
+        mesh = floor_and_roof()
         numba.set_num_threads(1)
-        one = Occluder(floor_and_roof())
+        one = _occluder(mesh)
         assert drjit.thread_count() == 1
         hits_on_one = one.hits(origins, directions)
         numba.set_num_threads(threads)
-        every = Occluder(floor_and_roof())
-        assert drjit.thread_count() == threads
+        every = _occluder(mesh)  # the same scene, traced on the threads numba has now
+        assert every is one and drjit.thread_count() == threads
+        assert Occluder(mesh, 1) is not None and drjit.thread_count() == 1
         np.testing.assert_array_equal(every.hits(origins, directions), hits_on_one)
         assert 0 < hits_on_one.sum() < 500
     finally:

@@ -17,6 +17,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+import numba
 import numpy as np
 
 from freqbrdf.capture.camera import Camera, look_at, read_cameras
@@ -157,7 +158,8 @@ def _visible(capture: Capture, texels: Texels, cameras: Sequence[Camera]) -> lis
     ray_origin = position + offset[:, None] * normal
     if not len(cameras):
         return []
-    return camera_samples(cameras, position, normal, ray_origin, Occluder(capture.mesh))
+    return camera_samples(cameras, position, normal, ray_origin,
+                          Occluder(capture.mesh, numba.get_num_threads()))
 
 
 def sample_candidates(capture: Capture, count: int, hemisphere: bool = False) -> list[Camera]:

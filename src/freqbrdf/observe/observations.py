@@ -34,6 +34,7 @@ import time
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
+import numba
 import numpy as np
 
 from freqbrdf.capture.layouts import Capture
@@ -653,9 +654,13 @@ _LAST_OCCLUDER: list = []
 
 
 def _occluder(mesh) -> Occluder:
-    """Return an `Occluder` of ``mesh``, the last one made when it was made for this very mesh object."""
+    """Return an `Occluder` of ``mesh``, the last one made when it was made for this very mesh object.
+
+    It traces on the threads the fit's kernels run on (``NUMBA_NUM_THREADS``: a batch task's CPUs).
+    """
     if not (_LAST_OCCLUDER and _LAST_OCCLUDER[0] is mesh):
         _LAST_OCCLUDER[:] = [mesh, Occluder(mesh)]
+    _LAST_OCCLUDER[1].set_threads(numba.get_num_threads())
     return _LAST_OCCLUDER[1]
 
 

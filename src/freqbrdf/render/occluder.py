@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import importlib
 
-import numba
 import numpy as np
 
 from freqbrdf.render.scenes import mesh_shape, mitsuba, restored_floating_point
@@ -25,18 +24,28 @@ class Occluder:
     ----------
     mesh : Mesh
         The occluding geometry.
+    threads : int, optional
+        Threads the rays are traced on (`set_threads`); None: Dr.Jit's own count, every core.
     """
 
-    def __init__(self, mesh):
+    def __init__(self, mesh, threads: int | None = None):
         self._mitsuba = mitsuba()
         self._drjit = importlib.import_module("drjit")
-        # Trace on as many threads as the fit's numba kernels run (NUMBA_NUM_THREADS: a batch task's
-        # CPUs), not on every core of the machine, which other tasks share.
-        threads = numba.get_num_threads()
-        if self._drjit.thread_count() != threads:
-            self._drjit.set_thread_count(threads)
+        if threads is not None:
+            self.set_threads(threads)
         with restored_floating_point():
             self._scene = self._mitsuba.load_dict({"type": "scene", "object": mesh_shape(mesh, {"type": "diffuse"})})
+
+    def set_threads(self, threads: int) -> None:
+        """Trace on ``threads`` threads: the fit's own (a batch task's CPUs), not every core of a shared machine.
+
+        Parameters
+        ----------
+        threads : int
+            At least 1. Dr.Jit's setting is the process's: it holds for every `Occluder`.
+        """
+        if self._drjit.thread_count() != threads:
+            self._drjit.set_thread_count(threads)
 
     def hits(self, origins: np.ndarray, directions: np.ndarray, max_distance: np.ndarray | None = None) -> np.ndarray:
         """Test which rays hit the mesh.
