@@ -337,7 +337,6 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
         timings["surface"] = time.perf_counter() - start
         timings.update({f"surface.{step}": seconds for step, seconds in posterior.timings.items()})
 
-    _widen_by_calibration(uncertainty, estimate, calibration)
     if censored_first is not None:
         _widen_by_censoring(uncertainty, estimate, *censored_first)
     std_calibration = None
@@ -345,6 +344,8 @@ def fit(capture: Capture, config: Config = Config(), reporter: Reporter = SILENT
         start = time.perf_counter()
         std_calibration = calibrate_std(observations, uncertainty, config, estimate)
         timings["std_calibration"] = time.perf_counter() - start
+    # After the held-out views: every fold reads the photographs with the same gains, so none shows their error.
+    _widen_by_calibration(uncertainty, estimate, calibration)
 
     if fine is not None:
         start = time.perf_counter()
@@ -437,10 +438,10 @@ def _widen_by_censoring(uncertainty: Uncertainty, estimate: MaterialEstimate, ro
 def _widen_by_calibration(uncertainty: Uncertainty, estimate: MaterialEstimate, calibration: Calibration) -> None:
     """Add what the calibration leaves undetermined to the base colour's std (docs/method.md#calibration).
 
-    A base colour b estimated from photographs divided by a gain of log std s is off by about b s:
-    added in quadrature, per channel.
+    A base colour b estimated from photographs divided by a gain whose log is off by a std s
+    (`Calibration.gain_error_log_std`) is off by about b s: added in quadrature, per channel.
     """
-    spread = np.nan_to_num(np.asarray(estimate.base_color, np.float64)) * calibration.gain_log_std[None, :]
+    spread = np.nan_to_num(np.asarray(estimate.base_color, np.float64)) * calibration.gain_error_log_std[None, :]
     if not np.any(spread > 0.0):
         return
     own = (np.zeros_like(spread) if uncertainty.base_color_std is None

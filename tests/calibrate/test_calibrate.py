@@ -211,6 +211,23 @@ def test_a_gain_is_applied_where_it_is_likelier_off_one_than_exactly_one():
     np.testing.assert_allclose(applied, np.array([0.04, 0.0, -0.04]) * 0.01 / (0.01 + 0.01 ** 2), atol=1e-12)
 
 
+def test_the_applied_gains_error_std_weighs_the_measurement_by_how_likely_the_decision_is_wrong():
+    """A gain read at 1 within its std is not applied and its error std is a fraction of the measured std;
+    one clearly off 1 is applied with about its measured std; a gain at the threshold is the most uncertain."""
+    from freqbrdf.calibrate import _decision_log_std, _significant
+    from freqbrdf.calibrate.gains import GainEstimate
+
+    found = GainEstimate(np.ones(3), np.full(3, 0.09), 300, exposure_log_std=0.085, ratio_log_std=np.full(3, 0.03))
+    near_one = np.exp(np.full(3, -0.05))
+    np.testing.assert_allclose(_significant(near_one, found), 1.0)
+    assert np.all(_decision_log_std(near_one, found) < 0.5 * np.hypot(0.085, 0.03))
+    far = np.full(3, 2.0)
+    assert np.all(_significant(far, found) > 1.9)
+    np.testing.assert_allclose(_decision_log_std(far, found), np.hypot(0.085, 0.03), rtol=0.05)
+    threshold = np.exp(np.full(3, 0.2))  # 2.35 std: the two hypotheses about as likely
+    assert np.all(_decision_log_std(threshold, found) > _decision_log_std(far, found))
+
+
 def test_clipping_widens_the_gains_std_by_the_share_of_texels_it_leaves_out():
     """Gains read on the texels left after clipping are a selection: a clipped capture's exposure that
     reads 0.77 at 3 std without clipping is not applied when 43 % of the texels were left out."""

@@ -85,6 +85,10 @@ class Calibration:
     gain_measured : (3,) float64 or None
         The gains as measured; the exposure and white-balance ratios the texels do not tell from
         1 (`_significant`) are not applied.
+    gain_error_log_std : (3,) float64
+        The std of the applied log gains' error (`_decision_log_std`): about ``gain_log_std``
+        where a gain is applied; where it is not, that std weighed by how likely the gain is off 1
+        after all. What the base colour's std takes in.
     frame_gain : (V, 3) float64 or None
         Relative gain per photograph and channel (geometric mean 1), where measured and applied.
     probe : ProbeRegistration or None
@@ -107,6 +111,7 @@ class Calibration:
     gain: np.ndarray
     gain_log_std: np.ndarray
     gain_measured: np.ndarray | None = None
+    gain_error_log_std: np.ndarray = field(default_factory=lambda: np.zeros(3))
     frame_gain: np.ndarray | None = None
     probe: ProbeRegistration | None = None
     cameras: CameraRefinement | None = None
@@ -133,6 +138,7 @@ class Calibration:
         -------
         dict
             ``gain`` (applied) and ``gain_std`` (per channel; the std of the gain itself),
+            ``gain_error_std`` (the std of the applied gain's error, `gain_error_log_std`),
             ``gain_measured``, ``exposure``,
             ``white_balance``, ``frame_gains`` (per view, where measured and applied, or None),
             ``probe`` (the turn: ``angle_deg``, ``axis``, ``std_deg``, ``rotation``, the model's ``loss``
@@ -149,6 +155,7 @@ class Calibration:
                      "log_odds": self.probe.log_odds}
         return {
             "gain": self.gain.tolist(), "gain_std": (self.gain * self.gain_log_std).tolist(),
+            "gain_error_std": (self.gain * self.gain_error_log_std).tolist(),
             "gain_measured": None if self.gain_measured is None else self.gain_measured.tolist(),
             "exposure": self.exposure, "white_balance": self.white_balance.tolist(),
             "frame_gains": None if self.frame_gain is None else self.frame_gain.tolist(),
@@ -272,6 +279,7 @@ def calibrate(capture: Capture, config: Config = Config(),
             calibration.gain_measured = gain
             found = _with_selection(found, CENSORED_SELECTION_LOG_STD * dropped_share)
             log_std, scored = found.log_std, found.texels
+            calibration.gain_error_log_std = _decision_log_std(gain, found)
             gain = _significant(gain, found)
         calibration.gain, calibration.gain_log_std, calibration.texels = gain, log_std, scored
         advance(1)
@@ -357,6 +365,31 @@ def _significant(gain: np.ndarray, found: GainEstimate) -> np.ndarray:
     exposure = _applied(exposure, found.exposure_log_std, PRIOR_LOG_STD)
     ratios = _applied(ratios, found.ratio_log_std, WHITE_BALANCE_PRIOR_LOG_STD)
     return np.exp(exposure + ratios)
+
+
+def _decision_log_std(gain: np.ndarray, found: GainEstimate) -> np.ndarray:
+    """Return the std (3,) of the error of the log gains `_significant` applies, per channel.
+
+    Under the spike-and-slab posterior of a measurement x of std s (`_significant`), the gain is off
+    1 with probability p = sigmoid(`slab_log_odds`), then by x tau^2 / (tau^2 + s^2) with variance
+    s^2 tau^2 / (tau^2 + s^2). Applying a (that mean, or 0) is off by a - mean with that variance
+    in the first case and by a in the second: the expected square of the error, for the exposure
+    and for each ratio, added.
+    """
+    log_gain = np.log(gain)
+    exposure = float(log_gain.mean())
+    return np.sqrt(_decision_variance(exposure, found.exposure_log_std, PRIOR_LOG_STD)
+                   + _decision_variance(log_gain - exposure, found.ratio_log_std, WHITE_BALANCE_PRIOR_LOG_STD))
+
+
+def _decision_variance(value, std, prior_std):
+    """Return the expected squared error of `_applied` for a measurement ``value`` of ``std`` (`_decision_log_std`)."""
+    value, variance = np.asarray(value, np.float64), np.maximum(np.asarray(std, np.float64) ** 2, 1e-24)
+    shrink = prior_std ** 2 / (prior_std ** 2 + variance)
+    mean, slab_variance = value * shrink, variance * shrink
+    off = 1.0 / (1.0 + np.exp(-np.clip(slab_log_odds(value, np.sqrt(variance), prior_std), -700.0, 700.0)))
+    applied = _applied(value, np.sqrt(variance), prior_std)
+    return off * ((applied - mean) ** 2 + slab_variance) + (1.0 - off) * applied ** 2
 
 
 def _applied(value, std, prior_std):
