@@ -7,7 +7,8 @@ Scenes: the calibration study's three path-traced captures of the whole-surface 
 calibration is on (`freqbrdf.uncertainty.heldout`). Per std (roughness, metallic, the base
 colour's mean over RGB), on the texels a view sees: Spearman's rho with its parameter's absolute
 error and the shares of errors within 1 and 2 std, for the std as modelled ("before": the
-calibrated std divided by its factor), scaled by fold factor x misfit scale also where that is
+calibrated std divided by its factor; the base colour's without the gains' error, which is added after the folds),
+scaled by fold factor x misfit scale also where that is
 below 1 ("two-sided"), and as the fit writes it ("after": two-sided where each fold keeps
 ``UncertaintyConfig.heldout_narrow_views`` views, else only widened). Also the factor the truth would ask for (the 68th percentile of error / std
 before), the factors, the held-out coverage and the calibration's share of the fit's time.
@@ -95,11 +96,15 @@ def run_scene(scene: str, render: dict) -> dict:
         if std is None:
             continue
         std = np.asarray(std, np.float64)
+        written = result.estimate.to_texture(std.mean(axis=1) if std.ndim == 2 else std, fill=np.nan)
+        if name == "base_color":  # the gains' error is added after the folds: their std is the one without it
+            gains = np.nan_to_num(result.estimate.base_color) * result.calibration.gain_error_log_std[None, :]
+            std = np.sqrt(np.maximum(std ** 2 - gains ** 2, 0.0))
         std = std.mean(axis=1) if std.ndim == 2 else std
         texture = result.estimate.to_texture(std, fill=np.nan)
         error = np.abs(getattr(result.maps, name) - getattr(capture.ground_truth, name))
         error = error.mean(axis=-1) if error.ndim == 3 else error
-        keep = seen & np.isfinite(texture)
+        keep = seen & np.isfinite(texture) & np.isfinite(written)
         factor = found.factors.get(name, 1.0)
         before = texture[keep] / factor
         finer = {rule: scores(result.estimate.to_texture(values, fill=np.nan)[keep], error[keep])
@@ -107,7 +112,7 @@ def run_scene(scene: str, render: dict) -> dict:
         rows[name] = {"before": scores(before, error[keep]),
                       "two_sided": scores(before * found.fold_factors.get(name, 1.0) * found.misfit_scale
                                           if name in found.factors else before, error[keep]),
-                      "after": scores(texture[keep], error[keep]),
+                      "after": scores(written[keep], error[keep]),
                       "truth_factor": float(np.quantile(error[keep] / np.maximum(before, 1e-12), 0.68)),
                       **finer}
         print(f"[{scene}] {name}: {rows[name]}", flush=True)
