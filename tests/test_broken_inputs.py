@@ -154,8 +154,8 @@ CASES = [
                                                             or d.update(camera_angle_x=-0.5)), FIT, "camera_angle_x"),
     Case("zero focal length", _top("fl_x", 0), FIT, "fl_x"),
     Case("image size unlike w/h", _top("w", 64), FIT, "pixels but its camera is"),
-    Case("lens distortion", _top("k1", 0.1), FIT, "undistort"),
-    Case("fisheye camera model", _top("camera_model", "OPENCV_FISHEYE"), FIT, "pinhole only"),
+    Case("lens distortion that folds the image", _top("k1", -40.0), FIT, "folds the image"),
+    Case("equirectangular camera model", _top("camera_model", "EQUIRECTANGULAR"), FIT, "is not supported"),
     # the mesh
     Case("no mesh key", _drop("mesh"), FIT, "add \"mesh\""),
     Case("mesh file missing", _top("mesh", "gone.obj"), FIT, "gone.obj"),

@@ -228,7 +228,10 @@ def identity_with(row, column, value):
         (lambda d: d.update(envmap_to_world=np.diag([2.0, 2, 2, 1]).tolist()),
          "envmap_to_world is not rigid"),
         (lambda d: d.update(envmap_scale=-1), "'envmap_scale' must be a positive number"),
-        (lambda d: d.update(k1=0.1), "frame 0: lens distortion (k1) is not supported"),
+        (lambda d: d.update(k1=-40.0), "frame 0: the lens distortion (k1 = -40) folds the image"),
+        (lambda d: d.update(k2="0.1"), "frame 0: 'k2' must be a finite number"),
+        (lambda d: d.update(camera_model="OPENCV_FISHEYE", p1=0.01), "frame 0: a fisheye lens (OPENCV_FISHEYE) has no"),
+        (lambda d: d.update(camera_model="EQUIRECTANGULAR"), "frame 0: camera_model 'EQUIRECTANGULAR' is not supp"),
     ],
 )
 def test_bad_transforms_content(tmp_path, change, problem):

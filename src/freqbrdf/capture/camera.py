@@ -8,13 +8,14 @@ the principal point (cx, cy) is given in the same coordinates, so cx = width / 2
 centre.
 
 `read_cameras` reads the cameras of a ``transforms.json`` without its images; the parsing helpers
-below it (`read_json_object`, `frame_entries`, `frame_camera`, `positive_number`, `required_key`)
+below it (`read_json_object`, `frame_entries`, `frame_camera`, `frame_lens`, `positive_number`, `required_key`)
 are shared with `freqbrdf.capture.layouts` and raise `InputError` naming the file.
 """
 
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,12 +23,15 @@ from typing import Any
 
 import numpy as np
 
+from freqbrdf.capture.lens import LensDistortion, unfolded
 from freqbrdf.errors import InputError
 
 # How far R^T R may stray from the identity: transforms stored as text with 6-7 significant digits
 # are orthonormal to about 1e-6, while a scaled or sheared matrix misses by far more.
 RIGID_TOLERANCE = 1e-3
-PINHOLE_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "OPENCV")
+# Camera models read: pinholes, and lenses whose distortion the photographs are undistorted by as they
+# are read (`freqbrdf.capture.lens`).
+CAMERA_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "OPENCV", "OPENCV_FISHEYE")
 DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
 
 
@@ -437,8 +441,8 @@ def frame_camera(
     Raises
     ------
     InputError
-        If a key is missing or invalid, the camera model is not a pinhole, or the lens has
-        distortion.
+        If a key is missing or invalid or the camera model is not one of `CAMERA_MODELS` (a
+        lens's distortion is read by `frame_lens`).
     """
     where = f"frame {index}: "
 
@@ -446,16 +450,9 @@ def frame_camera(
         return entry.get(key, document.get(key))
 
     camera_model = value("camera_model")
-    if camera_model is not None and camera_model not in PINHOLE_MODELS:
+    if camera_model is not None and camera_model not in CAMERA_MODELS:
         raise InputError(
-            source, f"{where}camera_model {camera_model!r} is not supported (pinhole only)"
-        )
-    distorted = [key for key in DISTORTION_KEYS if value(key) not in (None, 0, 0.0)]
-    if distorted:
-        raise InputError(
-            source,
-            f"{where}lens distortion ({', '.join(distorted)}) is not supported; "
-            "undistort the images",
+            source, f"{where}camera_model {camera_model!r} is not supported ({', '.join(CAMERA_MODELS)})"
         )
     if value("w") is not None and value("h") is not None:
         width, height = (positive_number(source, where, key, value(key)) for key in ("w", "h"))
@@ -483,6 +480,63 @@ def frame_camera(
         required_key(source, where, entry, "transform_matrix"), source, f"{where}transform_matrix"
     )
     return Camera(camera_to_world, fx, fy, cx, cy, width, height)
+
+
+def frame_lens(source: Path, index: int, entry: dict, document: dict, camera: Camera) -> LensDistortion | None:
+    """Read a frame's lens distortion (`freqbrdf.capture.lens`).
+
+    ``camera_model`` ``OPENCV`` (or none given) with any of ``k1``-``k4``, ``p1``, ``p2`` non-zero is
+    OpenCV's radial-tangential model; ``OPENCV_FISHEYE`` (or instant-ngp's ``"is_fisheye": true``)
+    its fisheye model, whatever its coefficients. Frame keys override the document's.
+
+    Parameters
+    ----------
+    source : Path
+        The transforms file, for error messages.
+    index : int
+        The frame's index, for error messages.
+    entry : dict
+        The frame's entry.
+    document : dict
+        The whole transforms document (its top-level keys are the defaults).
+    camera : Camera
+        The frame's pinhole intrinsics (`frame_camera`): the lens must not fold its image.
+
+    Returns
+    -------
+    LensDistortion or None
+        None for a pinhole photograph.
+
+    Raises
+    ------
+    InputError
+        If a coefficient is not a finite number, a fisheye has tangential terms, or the distortion
+        folds the image (its radius does not grow from the centre to the corners).
+    """
+    where = f"frame {index}: "
+
+    def value(key: str) -> Any:
+        return entry.get(key, document.get(key))
+
+    coefficients = {}
+    for key in DISTORTION_KEYS:
+        raw = value(key)
+        if raw is not None and (isinstance(raw, bool) or not isinstance(raw, (int, float)) or not math.isfinite(raw)):
+            raise InputError(source, f"{where}{key!r} must be a finite number, got {raw!r}")
+        coefficients[key] = 0.0 if raw is None else float(raw)
+    fisheye = value("camera_model") == "OPENCV_FISHEYE" or value("is_fisheye") is True
+    if fisheye and (coefficients["p1"] or coefficients["p2"]):
+        raise InputError(source, f"{where}a fisheye lens (OPENCV_FISHEYE) has no tangential terms p1, p2")
+    if not fisheye and not any(coefficients.values()):
+        return None
+    radial = tuple(coefficients[key] for key in ("k1", "k2", "k3", "k4"))
+    lens = LensDistortion("fisheye" if fisheye else "opencv", radial,
+                          (0.0, 0.0) if fisheye else (coefficients["p1"], coefficients["p2"]))
+    if not unfolded(lens, camera):
+        named = ", ".join(f"{key} = {coefficients[key]:g}" for key in DISTORTION_KEYS if coefficients[key])
+        raise InputError(source, f"{where}the lens distortion ({named or 'fisheye'}) folds the image: the distorted "
+                                 "radius does not grow from its centre to its corners; check the coefficients")
+    return lens
 
 
 def positive_number(source: Path, where: str, key: str, value: Any) -> float:

@@ -37,6 +37,7 @@ from scipy import ndimage
 from freqbrdf.capture.camera import (
     Camera,
     check_rigid,
+    frame_lens,
     required_key,
 )
 from freqbrdf.capture.camera import (
@@ -51,6 +52,7 @@ from freqbrdf.capture.camera import (
 from freqbrdf.capture.camera import (
     read_json_object as _read_json,
 )
+from freqbrdf.capture.lens import LensDistortion, undistort_image
 from freqbrdf.capture.mesh import Mesh, load_mesh
 from freqbrdf.errors import InputError
 from freqbrdf.images import IMAGE_SUFFIXES, image_has_alpha, read_image, read_mask_coverage
@@ -94,6 +96,9 @@ class Frame:
     mask_inset_px : float
         Pixels the mask is taken in by as it is read (`read_frame_mask`): where the calibration
         found it drawn wider than the object (a segmentation's halo); 0: as drawn.
+    lens : LensDistortion or None
+        The lens's distortion: the image and the mask are resampled onto the camera's pinhole
+        image as they are read (`freqbrdf.capture.lens`); None: a pinhole photograph.
     """
 
     camera: Camera
@@ -105,6 +110,7 @@ class Frame:
     mask_from_alpha: bool = False
     exposure: tuple[float, float, float] | None = None
     mask_inset_px: float = 0.0
+    lens: LensDistortion | None = None
 
 
 @dataclass(frozen=True)
@@ -361,7 +367,8 @@ def read_frame_image(frame: Frame) -> np.ndarray:
         If the image cannot be read, has non-finite or negative pixels, or its size is not its
         camera's.
     """
-    image = _DECODED.get(frame.image_path, ("image",), lambda: read_image(frame.image_path, validate=True))
+    image = _DECODED.get(frame.image_path, ("image", *_lens_key(frame)),
+                         lambda: _pinhole(frame, frame.image_path, read_image(frame.image_path, validate=True)))
     _check_size(frame.image_path, image.shape[:2], frame.camera)
     if frame.exposure is not None:
         image = image * np.asarray(frame.exposure, dtype=np.float32)
@@ -414,11 +421,29 @@ def read_frame_mask_coverage(frame: Frame) -> np.ndarray:
         If the mask cannot be read or its size is not its camera's.
     """
     if frame.mask_path is None:
-        return np.ones((frame.camera.height, frame.camera.width), dtype=np.float32)
-    coverage = _DECODED.get(frame.mask_path, ("mask", frame.mask_from_alpha),
-                            lambda: read_mask_coverage(frame.mask_path, from_alpha=frame.mask_from_alpha))
+        whole = np.ones((frame.camera.height, frame.camera.width), dtype=np.float32)
+        return whole if frame.lens is None else _pinhole(frame, frame.image_path, whole)  # the pixels the lens saw
+    coverage = _DECODED.get(frame.mask_path, ("mask", frame.mask_from_alpha, *_lens_key(frame)),
+                            lambda: _pinhole(frame, frame.mask_path,
+                                             read_mask_coverage(frame.mask_path, from_alpha=frame.mask_from_alpha)))
     _check_size(frame.mask_path, coverage.shape, frame.camera)
     return coverage
+
+
+def _lens_key(frame: Frame) -> tuple:
+    """Return what a decoded file's resampling depends on: the lens and the camera's intrinsics (none for a pinhole)."""
+    if frame.lens is None:
+        return ()
+    camera = frame.camera
+    return (frame.lens, camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height)
+
+
+def _pinhole(frame: Frame, path: Path, pixels: np.ndarray) -> np.ndarray:
+    """Return a decoded image or mask of ``frame`` resampled onto its pinhole image (as read where it has no lens)."""
+    if frame.lens is None:
+        return pixels
+    _check_size(path, pixels.shape[:2], frame.camera)
+    return undistort_image(pixels, frame.camera, frame.lens)
 
 
 def _load_ours(transforms_path: Path) -> Capture:
@@ -540,7 +565,8 @@ def _parse_frames(source: Path, document: dict, reconstruction: np.ndarray | Non
             pose[:3, :3] = reconstruction[:3, :3] @ pose[:3, :3] / np.cbrt(np.linalg.det(reconstruction[:3, :3]))
             pose[:3, 3] = reconstruction[:3, :3] @ pose[:3, 3] + reconstruction[:3, 3]
             camera = dataclasses.replace(camera, camera_to_world=pose)
-        frame = Frame(camera, image_path, mask_path, mask_from_alpha=from_alpha)
+        frame = Frame(camera, image_path, mask_path, mask_from_alpha=from_alpha,
+                      lens=frame_lens(source, index, entry, document, camera))
         if light is not None:
             frame = dataclasses.replace(frame, **_test_light(source, index, {**document, **entry}, light))
         frames.append(frame)
