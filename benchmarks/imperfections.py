@@ -1,5 +1,5 @@
 """Imperfections of a real capture applied to a rendered one: exposure, white balance, a turned probe,
-camera error, sensor noise, 8-bit data, per-frame exposure, masks grown or shrunk.
+camera error, sensor noise, 8-bit data, per-frame exposure, masks grown or shrunk, a lens's distortion.
 
 `imperfect_capture` copies a capture folder (our layout: transforms.json, images/, masks/, the
 mesh, the map, gt/ and the test views linked, not copied) with the photographs and the
@@ -22,6 +22,9 @@ import numpy as np
 from scipy import ndimage
 
 from freqbrdf.calibrate import rotation_about
+from freqbrdf.capture.camera import Camera
+from freqbrdf.capture.layouts import load
+from freqbrdf.capture.lens import LensDistortion, distort
 from freqbrdf.images import linear_to_srgb, read_image, read_mask, srgb_to_linear, write_exr, write_png
 
 
@@ -41,6 +44,8 @@ class Imperfection:
     highlight_clip: float = 0.0  # > 0: HDR values clipped at this quantile of the object's (a sensor's full well)
     frame_exposure_spread: float = 0.0  # each photograph's exposure times exp(N(0, spread))
     mask_offset_px: int = 0  # every mask grown (> 0, a segmentation's halo) or shrunk (< 0) by this many pixels
+    lens_k1: float = 0.0  # photographs and masks through an OpenCV lens of radial k1 (k2 = -k1 / 4, p1 = p2 = k1 / 100)
+    lens_declared: bool = True  # the lens written in transforms.json (else the photographs pass for pinhole ones)
     seed: int = 0
 
     def name(self) -> str:
@@ -64,7 +69,15 @@ class Imperfection:
             parts.append(f"frames{self.frame_exposure_spread:g}")
         if self.mask_offset_px:
             parts.append(f"masks{self.mask_offset_px:+d}px")
+        if self.lens_k1:
+            parts.append(f"lens{self.lens_k1:g}" + ("" if self.lens_declared else "_undeclared"))
         return "+".join(parts) or "clean"
+
+    def lens(self) -> LensDistortion | None:
+        """The lens the photographs are taken through (None: a pinhole)."""
+        if not self.lens_k1:
+            return None
+        return LensDistortion("opencv", (self.lens_k1, -self.lens_k1 / 4, 0.0, 0.0), (self.lens_k1 / 100, self.lens_k1 / 100))
 
 
 def _unit(vector: np.ndarray) -> np.ndarray:
@@ -84,6 +97,21 @@ def _offset_masks(source: Path, target: Path, transforms: dict, pixels: int) -> 
         path = target / frame["mask_path"]
         path.parent.mkdir(parents=True, exist_ok=True)
         write_png(path, moved.astype(np.float32))
+
+
+def _through_lens(pixels: np.ndarray, camera: Camera, lens: LensDistortion) -> np.ndarray:
+    """The photograph (H, W[, C]) a lens takes of what the pinhole photograph ``pixels`` shows (bilinear)."""
+    rows, columns = np.mgrid[0:camera.height, 0:camera.width].astype(np.float64)
+    x_d, y_d = (columns + 0.5 - camera.cx) / camera.fx, (rows + 0.5 - camera.cy) / camera.fy
+    x, y = x_d.copy(), y_d.copy()
+    for _ in range(50):  # the pinhole ray the lens bends onto each pixel: `distort` inverted by fixed point
+        x_f, y_f = distort(x, y, lens)
+        x, y = x - (x_f - x_d), y - (y_f - y_d)
+    coordinates = np.stack([y * camera.fy + camera.cy - 0.5, x * camera.fx + camera.cx - 0.5])
+    planes = pixels[..., None] if pixels.ndim == 2 else pixels
+    out = np.stack([ndimage.map_coordinates(planes[..., c].astype(np.float64), coordinates, order=1, mode="nearest")
+                    for c in range(planes.shape[2])], axis=-1).astype(np.float32)
+    return out[..., 0] if pixels.ndim == 2 else out
 
 
 def imperfect_capture(source: Path, target: Path, imperfection: Imperfection) -> Path:
@@ -111,18 +139,30 @@ def imperfect_capture(source: Path, target: Path, imperfection: Imperfection) ->
     scratch.mkdir(parents=True)
     transforms = json.loads((source / "transforms.json").read_text())
     rng = np.random.default_rng(imperfection.seed)
+    lens = imperfection.lens()
+    own_masks = bool(imperfection.mask_offset_px) or lens is not None
     for name in os.listdir(source):
-        if name not in ("transforms.json", "images") and not (name == "masks" and imperfection.mask_offset_px):
+        if name not in ("transforms.json", "images") and not (name == "masks" and own_masks):
             os.symlink(source / name, scratch / name)
     if imperfection.mask_offset_px:
         _offset_masks(source, scratch, transforms, imperfection.mask_offset_px)
+    cameras = [frame.camera for frame in load(source).frames] if lens is not None else []
+    if lens is not None:
+        for frame, camera in zip(transforms["frames"], cameras):
+            mask = read_mask(scratch / frame["mask_path"] if imperfection.mask_offset_px else source / frame["mask_path"])
+            path = scratch / frame["mask_path"]
+            path.parent.mkdir(parents=True, exist_ok=True)
+            write_png(path, (_through_lens(mask.astype(np.float32), camera, lens) > 0.5).astype(np.float32))
+        if imperfection.lens_declared:
+            transforms.update(camera_model="OPENCV", k1=lens.radial[0], k2=lens.radial[1], p1=lens.tangential[0],
+                              p2=lens.tangential[1])
     (scratch / "images").mkdir()
     if imperfection.probe_deg:
         turn = np.eye(4)
         turn[:3, :3] = rotation_about(_unit(np.array(imperfection.probe_axis, np.float64)), np.radians(imperfection.probe_deg))
         transforms["envmap_to_world"] = (turn @ np.array(transforms.get("envmap_to_world", np.eye(4)))).tolist()
     gain = imperfection.exposure * np.array(imperfection.white_balance, np.float32)
-    for frame in transforms["frames"]:
+    for index, frame in enumerate(transforms["frames"]):
         matrix = np.array(frame["transform_matrix"], np.float64)
         if imperfection.camera_deg:
             matrix[:3, :3] = rotation_about(_random_unit(rng), np.radians(imperfection.camera_deg)) @ matrix[:3, :3]
@@ -130,6 +170,8 @@ def imperfect_capture(source: Path, target: Path, imperfection: Imperfection) ->
             matrix[:3, 3] += imperfection.camera_shift * np.linalg.norm(matrix[:3, 3]) * _random_unit(rng)
         frame["transform_matrix"] = matrix.tolist()
         image = read_image(source / frame["file_path"]) * gain
+        if lens is not None:
+            image = _through_lens(image, cameras[index], lens)
         if imperfection.frame_exposure_spread:
             image = image * np.float32(np.exp(rng.normal(0.0, imperfection.frame_exposure_spread)))
         if imperfection.shot_noise or imperfection.read_noise:
