@@ -1,5 +1,6 @@
 """Imperfections of a real capture applied to a rendered one: exposure, white balance, a turned probe,
-camera error, sensor noise, 8-bit data, per-frame exposure, masks grown or shrunk, a lens's distortion.
+camera error, sensor noise, 8-bit data, per-frame exposure, masks grown or shrunk; and a lens's distortion
+(`lens_capture`, from a render at twice the resolution).
 
 `imperfect_capture` copies a capture folder (our layout: transforms.json, images/, masks/, the
 mesh, the map, gt/ and the test views linked, not copied) with the photographs and the
@@ -22,7 +23,6 @@ import numpy as np
 from scipy import ndimage
 
 from freqbrdf.calibrate import rotation_about
-from freqbrdf.capture.camera import Camera
 from freqbrdf.capture.layouts import load
 from freqbrdf.capture.lens import LensDistortion, distort
 from freqbrdf.images import linear_to_srgb, read_image, read_mask, srgb_to_linear, write_exr, write_png
@@ -44,8 +44,6 @@ class Imperfection:
     highlight_clip: float = 0.0  # > 0: HDR values clipped at this quantile of the object's (a sensor's full well)
     frame_exposure_spread: float = 0.0  # each photograph's exposure times exp(N(0, spread))
     mask_offset_px: int = 0  # every mask grown (> 0, a segmentation's halo) or shrunk (< 0) by this many pixels
-    lens_k1: float = 0.0  # photographs and masks through an OpenCV lens of radial k1 (k2 = -k1 / 4, p1 = p2 = k1 / 100)
-    lens_declared: bool = True  # the lens written in transforms.json (else the photographs pass for pinhole ones)
     seed: int = 0
 
     def name(self) -> str:
@@ -69,15 +67,7 @@ class Imperfection:
             parts.append(f"frames{self.frame_exposure_spread:g}")
         if self.mask_offset_px:
             parts.append(f"masks{self.mask_offset_px:+d}px")
-        if self.lens_k1:
-            parts.append(f"lens{self.lens_k1:g}" + ("" if self.lens_declared else "_undeclared"))
         return "+".join(parts) or "clean"
-
-    def lens(self) -> LensDistortion | None:
-        """The lens the photographs are taken through (None: a pinhole)."""
-        if not self.lens_k1:
-            return None
-        return LensDistortion("opencv", (self.lens_k1, -self.lens_k1 / 4, 0.0, 0.0), (self.lens_k1 / 100, self.lens_k1 / 100))
 
 
 def _unit(vector: np.ndarray) -> np.ndarray:
@@ -97,21 +87,6 @@ def _offset_masks(source: Path, target: Path, transforms: dict, pixels: int) -> 
         path = target / frame["mask_path"]
         path.parent.mkdir(parents=True, exist_ok=True)
         write_png(path, moved.astype(np.float32))
-
-
-def _through_lens(pixels: np.ndarray, camera: Camera, lens: LensDistortion) -> np.ndarray:
-    """The photograph (H, W[, C]) a lens takes of what the pinhole photograph ``pixels`` shows (bilinear)."""
-    rows, columns = np.mgrid[0:camera.height, 0:camera.width].astype(np.float64)
-    x_d, y_d = (columns + 0.5 - camera.cx) / camera.fx, (rows + 0.5 - camera.cy) / camera.fy
-    x, y = x_d.copy(), y_d.copy()
-    for _ in range(50):  # the pinhole ray the lens bends onto each pixel: `distort` inverted by fixed point
-        x_f, y_f = distort(x, y, lens)
-        x, y = x - (x_f - x_d), y - (y_f - y_d)
-    coordinates = np.stack([y * camera.fy + camera.cy - 0.5, x * camera.fx + camera.cx - 0.5])
-    planes = pixels[..., None] if pixels.ndim == 2 else pixels
-    out = np.stack([ndimage.map_coordinates(planes[..., c].astype(np.float64), coordinates, order=1, mode="nearest")
-                    for c in range(planes.shape[2])], axis=-1).astype(np.float32)
-    return out[..., 0] if pixels.ndim == 2 else out
 
 
 def imperfect_capture(source: Path, target: Path, imperfection: Imperfection) -> Path:
@@ -139,30 +114,18 @@ def imperfect_capture(source: Path, target: Path, imperfection: Imperfection) ->
     scratch.mkdir(parents=True)
     transforms = json.loads((source / "transforms.json").read_text())
     rng = np.random.default_rng(imperfection.seed)
-    lens = imperfection.lens()
-    own_masks = bool(imperfection.mask_offset_px) or lens is not None
     for name in os.listdir(source):
-        if name not in ("transforms.json", "images") and not (name == "masks" and own_masks):
+        if name not in ("transforms.json", "images") and not (name == "masks" and imperfection.mask_offset_px):
             os.symlink(source / name, scratch / name)
     if imperfection.mask_offset_px:
         _offset_masks(source, scratch, transforms, imperfection.mask_offset_px)
-    cameras = [frame.camera for frame in load(source).frames] if lens is not None else []
-    if lens is not None:
-        for frame, camera in zip(transforms["frames"], cameras):
-            mask = read_mask(scratch / frame["mask_path"] if imperfection.mask_offset_px else source / frame["mask_path"])
-            path = scratch / frame["mask_path"]
-            path.parent.mkdir(parents=True, exist_ok=True)
-            write_png(path, (_through_lens(mask.astype(np.float32), camera, lens) > 0.5).astype(np.float32))
-        if imperfection.lens_declared:
-            transforms.update(camera_model="OPENCV", k1=lens.radial[0], k2=lens.radial[1], p1=lens.tangential[0],
-                              p2=lens.tangential[1])
     (scratch / "images").mkdir()
     if imperfection.probe_deg:
         turn = np.eye(4)
         turn[:3, :3] = rotation_about(_unit(np.array(imperfection.probe_axis, np.float64)), np.radians(imperfection.probe_deg))
         transforms["envmap_to_world"] = (turn @ np.array(transforms.get("envmap_to_world", np.eye(4)))).tolist()
     gain = imperfection.exposure * np.array(imperfection.white_balance, np.float32)
-    for index, frame in enumerate(transforms["frames"]):
+    for frame in transforms["frames"]:
         matrix = np.array(frame["transform_matrix"], np.float64)
         if imperfection.camera_deg:
             matrix[:3, :3] = rotation_about(_random_unit(rng), np.radians(imperfection.camera_deg)) @ matrix[:3, :3]
@@ -170,8 +133,6 @@ def imperfect_capture(source: Path, target: Path, imperfection: Imperfection) ->
             matrix[:3, 3] += imperfection.camera_shift * np.linalg.norm(matrix[:3, 3]) * _random_unit(rng)
         frame["transform_matrix"] = matrix.tolist()
         image = read_image(source / frame["file_path"]) * gain
-        if lens is not None:
-            image = _through_lens(image, cameras[index], lens)
         if imperfection.frame_exposure_spread:
             image = image * np.float32(np.exp(rng.normal(0.0, imperfection.frame_exposure_spread)))
         if imperfection.shot_noise or imperfection.read_noise:
@@ -191,3 +152,83 @@ def imperfect_capture(source: Path, target: Path, imperfection: Imperfection) ->
     shutil.rmtree(target, ignore_errors=True)
     scratch.rename(target)
     return target
+
+
+def lens_capture(source: Path, fine: Path, target: Path, lens: LensDistortion, declared: bool) -> Path:
+    """Write ``source`` as photographed through ``lens`` into ``target`` (reused where already written).
+
+    Each pixel of a photograph (and of its mask's coverage, then cut at 0.5) is the mean of 2 x 2
+    sub-pixels, each read bilinearly from ``fine`` (the same capture rendered at twice the
+    resolution) at the pinhole ray the lens bends onto it: one resampling of the scene, as a
+    lens's photograph has, the rest of the blur the renderer's pixel filter.
+
+    Parameters
+    ----------
+    source : Path
+        A capture folder in our layout (its cameras, mesh, map, gt/ and test views are kept).
+    fine : Path
+        The same capture rendered at twice the resolution (the same cameras).
+    target : Path
+        The folder to write.
+    lens : LensDistortion
+        The lens.
+    declared : bool
+        Write the lens into transforms.json (``camera_model`` OPENCV and its coefficients); else the
+        photographs pass for pinhole ones.
+
+    Returns
+    -------
+    Path
+        ``target``.
+    """
+    source, fine, target = Path(source).resolve(), Path(fine).resolve(), Path(target)
+    if (target / "transforms.json").is_file():
+        return target
+    scratch = target.with_name(target.name + ".partial")
+    shutil.rmtree(scratch, ignore_errors=True)
+    scratch.mkdir(parents=True)
+    transforms = json.loads((source / "transforms.json").read_text())
+    for name in os.listdir(source):
+        if name not in ("transforms.json", "images", "masks"):
+            os.symlink(source / name, scratch / name)
+    cameras = [frame.camera for frame in load(source).frames]
+    fine_frames = load(fine).frames
+    for frame, camera, fine_frame in zip(transforms["frames"], cameras, fine_frames):
+        coordinates = _lens_coordinates(camera, fine_frame.camera, lens)
+        image = _supersampled(read_image(fine_frame.image_path), coordinates)
+        mask = _supersampled(read_mask(fine_frame.mask_path).astype(np.float32), coordinates) > 0.5
+        for relative, pixels in ((frame["file_path"], image), (frame["mask_path"], mask.astype(np.float32))):
+            (scratch / relative).parent.mkdir(parents=True, exist_ok=True)
+            (write_exr if relative.endswith(".exr") else write_png)(scratch / relative, pixels)
+    if declared:
+        transforms.update(camera_model="OPENCV", k1=lens.radial[0], k2=lens.radial[1], k3=lens.radial[2],
+                          k4=lens.radial[3], p1=lens.tangential[0], p2=lens.tangential[1])
+    (scratch / "transforms.json").write_text(json.dumps(transforms, indent=1))
+    shutil.rmtree(target, ignore_errors=True)
+    scratch.rename(target)
+    return target
+
+
+def _lens_coordinates(camera, fine_camera, lens: LensDistortion) -> np.ndarray:
+    """(4, 2, H, W): for each pixel's 2 x 2 sub-pixels, the (row, column) of the fine render its pinhole ray meets."""
+    found = []
+    for row_offset in (0.25, 0.75):
+        for column_offset in (0.25, 0.75):
+            rows, columns = np.mgrid[0:camera.height, 0:camera.width].astype(np.float64)
+            x_d = (columns + column_offset - camera.cx) / camera.fx
+            y_d = (rows + row_offset - camera.cy) / camera.fy
+            x, y = x_d.copy(), y_d.copy()
+            for _ in range(50):  # `distort` inverted by fixed point (mild lenses converge)
+                x_f, y_f = distort(x, y, lens)
+                x, y = x - (x_f - x_d), y - (y_f - y_d)
+            found.append(np.stack([y * fine_camera.fy + fine_camera.cy - 0.5, x * fine_camera.fx + fine_camera.cx - 0.5]))
+    return np.stack(found)
+
+
+def _supersampled(pixels: np.ndarray, coordinates: np.ndarray) -> np.ndarray:
+    """The mean over the sub-pixels of bilinear reads of ``pixels`` (H', W'[, C]) at ``coordinates`` (4, 2, H, W)."""
+    planes = pixels[..., None] if pixels.ndim == 2 else pixels
+    out = np.mean([np.stack([ndimage.map_coordinates(planes[..., c].astype(np.float64), where, order=1, mode="nearest")
+                             for c in range(planes.shape[2])], axis=-1) for where in coordinates], axis=0)
+    out = out.astype(np.float32)
+    return out[..., 0] if pixels.ndim == 2 else out

@@ -5,8 +5,9 @@ intrinsics, in OpenCV's models (docs/capture-format.md): ``OPENCV`` (radial k1..
 in r², tangential p1, p2) and ``OPENCV_FISHEYE`` (the angle from the axis distorted by k1..k4). The
 rest of freqbrdf projects with the pinhole (`freqbrdf.capture.camera.Camera`), so each photograph and
 its mask are resampled, once, onto the pinhole image of the same size and intrinsics: every pinhole
-pixel reads the photograph bilinearly where the lens put its ray. Pinhole pixels whose ray falls
-outside the photograph read 0 and are not object (their mask coverage is 0).
+pixel reads the photograph where the lens put its ray, by cubic B-spline interpolation (sharper than
+bilinear reads, which blur highlights into rougher lobes: docs/results.md#lens-distortion), negative
+ringing cut at 0. Pinhole pixels whose ray falls outside the photograph read 0 and are not object.
 
 Normalised image coordinates follow OpenCV: x = (u - cx) / fx, y = (v - cy) / fy with u, v in the
 pixel coordinates of `freqbrdf.capture.camera` (y runs down the image).
@@ -131,7 +132,7 @@ def undistort_image(image: np.ndarray, camera, lens: LensDistortion) -> np.ndarr
     Returns
     -------
     (H, W) or (H, W, C) float32
-        The pinhole image: bilinear reads of the photograph, 0 where the ray falls outside it.
+        The pinhole image: cubic reads of the photograph (at least 0), 0 where the ray falls outside it.
     """
     from scipy import ndimage  # a lens's resampling only
 
@@ -141,5 +142,6 @@ def undistort_image(image: np.ndarray, camera, lens: LensDistortion) -> np.ndarr
     out = np.empty(planes.shape, np.float32)
     for channel in range(planes.shape[2]):
         out[..., channel] = ndimage.map_coordinates(np.asarray(planes[..., channel], np.float32), coordinates,
-                                                    order=1, mode="constant", cval=0.0)
+                                                    order=3, mode="constant", cval=0.0)
+    np.maximum(out, 0.0, out=out)  # the cubic's ringing at an edge: radiance and coverage are not negative
     return out[..., 0] if image.ndim == 2 else out
