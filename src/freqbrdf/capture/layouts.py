@@ -348,13 +348,16 @@ def release_decoded_frames() -> None:
     _DECODED.clear()
 
 
-def read_frame_image(frame: Frame) -> np.ndarray:
+def read_frame_image(frame: Frame, as_taken: bool = False) -> np.ndarray:
     """Read a frame's image.
 
     Parameters
     ----------
     frame : Frame
         The frame.
+    as_taken : bool, optional
+        Through its lens, as photographed (for a reader that projects through ``frame.lens``
+        itself); by default resampled onto the camera's pinhole image.
 
     Returns
     -------
@@ -367,8 +370,9 @@ def read_frame_image(frame: Frame) -> np.ndarray:
         If the image cannot be read, has non-finite or negative pixels, or its size is not its
         camera's.
     """
-    image = _DECODED.get(frame.image_path, ("image", *_lens_key(frame)),
-                         lambda: _pinhole(frame, frame.image_path, read_image(frame.image_path, validate=True)))
+    lens = None if as_taken else frame.lens
+    image = _DECODED.get(frame.image_path, ("image", *_lens_key(frame, lens)),
+                         lambda: _pinhole(frame, lens, frame.image_path, read_image(frame.image_path, validate=True)))
     _check_size(frame.image_path, image.shape[:2], frame.camera)
     if frame.exposure is not None:
         image = image * np.asarray(frame.exposure, dtype=np.float32)
@@ -376,13 +380,15 @@ def read_frame_image(frame: Frame) -> np.ndarray:
     return image
 
 
-def read_frame_mask(frame: Frame) -> np.ndarray:
+def read_frame_mask(frame: Frame, as_taken: bool = False) -> np.ndarray:
     """Read a frame's object mask.
 
     Parameters
     ----------
     frame : Frame
         The frame.
+    as_taken : bool, optional
+        Through its lens (see `read_frame_image`).
 
     Returns
     -------
@@ -395,20 +401,22 @@ def read_frame_mask(frame: Frame) -> np.ndarray:
     InputError
         If the mask cannot be read or its size is not its camera's.
     """
-    mask = read_frame_mask_coverage(frame) > 0.5
+    mask = read_frame_mask_coverage(frame, as_taken) > 0.5
     if frame.mask_inset_px > 0.0 and frame.mask_path is not None:
         # A pixel whose footprint reaches the rim (its centre within the inset and half a pixel) is left out.
         mask = ndimage.distance_transform_edt(mask) > frame.mask_inset_px + 0.5
     return mask
 
 
-def read_frame_mask_coverage(frame: Frame) -> np.ndarray:
+def read_frame_mask_coverage(frame: Frame, as_taken: bool = False) -> np.ndarray:
     """Read a frame's object mask as coverage (an anti-aliased mask's edge pixels between 0 and 1).
 
     Parameters
     ----------
     frame : Frame
         The frame.
+    as_taken : bool, optional
+        Through its lens (see `read_frame_image`).
 
     Returns
     -------
@@ -420,30 +428,31 @@ def read_frame_mask_coverage(frame: Frame) -> np.ndarray:
     InputError
         If the mask cannot be read or its size is not its camera's.
     """
+    lens = None if as_taken else frame.lens
     if frame.mask_path is None:
         whole = np.ones((frame.camera.height, frame.camera.width), dtype=np.float32)
-        return whole if frame.lens is None else _pinhole(frame, frame.image_path, whole)  # the pixels the lens saw
-    coverage = _DECODED.get(frame.mask_path, ("mask", frame.mask_from_alpha, *_lens_key(frame)),
-                            lambda: _pinhole(frame, frame.mask_path,
+        return _pinhole(frame, lens, frame.image_path, whole)  # through a lens: the pixels it saw
+    coverage = _DECODED.get(frame.mask_path, ("mask", frame.mask_from_alpha, *_lens_key(frame, lens)),
+                            lambda: _pinhole(frame, lens, frame.mask_path,
                                              read_mask_coverage(frame.mask_path, from_alpha=frame.mask_from_alpha)))
     _check_size(frame.mask_path, coverage.shape, frame.camera)
     return coverage
 
 
-def _lens_key(frame: Frame) -> tuple:
+def _lens_key(frame: Frame, lens: LensDistortion | None) -> tuple:
     """Return what a decoded file's resampling depends on: the lens and the camera's intrinsics (none for a pinhole)."""
-    if frame.lens is None:
+    if lens is None:
         return ()
     camera = frame.camera
-    return (frame.lens, camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height)
+    return (lens, camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height)
 
 
-def _pinhole(frame: Frame, path: Path, pixels: np.ndarray) -> np.ndarray:
-    """Return a decoded image or mask of ``frame`` resampled onto its pinhole image (as read where it has no lens)."""
-    if frame.lens is None:
+def _pinhole(frame: Frame, lens: LensDistortion | None, path: Path, pixels: np.ndarray) -> np.ndarray:
+    """Return a decoded image or mask of ``frame`` resampled through ``lens`` onto its pinhole image (None: as read)."""
+    if lens is None:
         return pixels
     _check_size(path, pixels.shape[:2], frame.camera)
-    return undistort_image(pixels, frame.camera, frame.lens)
+    return undistort_image(pixels, frame.camera, lens)
 
 
 def _load_ours(transforms_path: Path) -> Capture:

@@ -4,10 +4,11 @@ Structure-from-motion (COLMAP, nerfstudio) gives each camera a distortion beside
 intrinsics, in OpenCV's models (docs/capture-format.md): ``OPENCV`` (radial k1..k4 as a polynomial
 in r², tangential p1, p2) and ``OPENCV_FISHEYE`` (the angle from the axis distorted by k1..k4). The
 rest of freqbrdf projects with the pinhole (`freqbrdf.capture.camera.Camera`), so each photograph and
-its mask are resampled, once, onto the pinhole image of the same size and intrinsics: every pinhole
-pixel reads the photograph where the lens put its ray, by cubic B-spline interpolation (sharper than
-bilinear reads, which blur highlights into rougher lobes: docs/results.md#lens-distortion), negative
-ringing cut at 0. Pinhole pixels whose ray falls outside the photograph read 0 and are not object.
+its mask are read through the lens: the observations project each texel with the pinhole and then
+through the lens (`distort_pixels`) and read the photograph as taken, once, where its ray lands; the
+other readers (the masks' outlines, the checks, the relit views) read the photograph resampled onto
+the pinhole image of the same size and intrinsics (`undistort_image`: cubic B-spline reads, negative
+ringing cut at 0; pinhole pixels whose ray falls outside the photograph read 0 and are not object).
 
 Normalised image coordinates follow OpenCV: x = (u - cx) / fx, y = (v - cy) / fy with u, v in the
 pixel coordinates of `freqbrdf.capture.camera` (y runs down the image).
@@ -20,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["LensDistortion", "distort", "undistort_image", "unfolded"]
+__all__ = ["LensDistortion", "distort", "distort_pixels", "undistort_image", "unfolded"]
 
 #: Camera models whose distortion is read (COLMAP's names, as nerfstudio writes them).
 DISTORTED_MODELS = ("OPENCV", "FULL_OPENCV", "OPENCV_FISHEYE")
@@ -74,6 +75,27 @@ def distort(x: np.ndarray, y: np.ndarray, lens: LensDistortion) -> tuple[np.ndar
     xy = x * y
     return (x * radial + 2.0 * p1 * xy + p2 * (r2 + 2.0 * x * x),
             y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * xy)
+
+
+def distort_pixels(x: np.ndarray, y: np.ndarray, camera, lens: LensDistortion) -> tuple[np.ndarray, np.ndarray]:
+    """Map pinhole pixel coordinates to where the lens images them in the photograph.
+
+    Parameters
+    ----------
+    x, y : (...) float64
+        Pixel coordinates of the camera's pinhole image (`freqbrdf.capture.camera`).
+    camera : Camera
+        The pinhole intrinsics.
+    lens : LensDistortion
+        The lens.
+
+    Returns
+    -------
+    (...) float64, (...) float64
+        The photograph's pixel coordinates.
+    """
+    x_d, y_d = distort((x - camera.cx) / camera.fx, (y - camera.cy) / camera.fy, lens)
+    return x_d * camera.fx + camera.cx, y_d * camera.fy + camera.cy
 
 
 def unfolded(lens: LensDistortion, camera) -> bool:

@@ -37,7 +37,8 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from freqbrdf.capture.layouts import Capture
+from freqbrdf.capture.layouts import Capture, read_frame_image, read_frame_mask
+from freqbrdf.capture.lens import distort_pixels
 from freqbrdf.config import Config
 from freqbrdf.errors import InputError
 from freqbrdf.fileio import atomic_path
@@ -519,8 +520,10 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
     with reporter.stage("observing views", n_views) as advance:
         for batch in _view_batches(capture, n_texels):
             tick = time.perf_counter()
-            images = np.stack([capture.image(view) for view in batch])  # (B, H, W, 3)
-            masks = np.stack([capture.mask(view) for view in batch]).astype(np.float32)[..., None]
+            # As photographed: a frame with a lens is read where the lens puts each texel (`_through_lenses`).
+            images = np.stack([read_frame_image(capture.frames[view], as_taken=True) for view in batch])  # (B, H, W, 3)
+            masks = np.stack([read_frame_mask(capture.frames[view], as_taken=True)
+                              for view in batch]).astype(np.float32)[..., None]
             # Clipped channels (8-bit data, blown highlights) are lower bounds: censored samples.
             ceilings = np.stack([clipped_channels(image) for image in images])
             if ceilings.any():
@@ -542,6 +545,7 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
             seen = np.empty((n_texels, len(batch)), dtype=bool)  # facing; then also unoccluded
             _project_kernel(position, normal, camera_to_world, intrinsics, images.shape[2],
                             images.shape[1], pixels, cos_theta, seen, n_facing)
+            _through_lenses([capture.frames[view] for view in batch], pixels, seen, n_facing)
             timings["projection"] += time.perf_counter() - tick
 
             tick = time.perf_counter()
@@ -647,6 +651,23 @@ def observe(capture: Capture, config: Config = Config(), reporter: Reporter = SI
 
 # ---------------------------------------------------------------------------------------------
 # Helpers
+
+def _through_lenses(frames: list, pixels: np.ndarray, seen: np.ndarray, n_facing: np.ndarray) -> None:
+    """Move the projected pixels (N, B, 2) of the batch's frames that have a lens to where it images them.
+
+    A texel the lens puts outside its photograph is no longer seen there (``seen`` (N, B) and ``n_facing`` (N,)).
+    """
+    for b, photograph in enumerate(frames):
+        if photograph.lens is None:
+            continue
+        rows = np.flatnonzero(seen[:, b])
+        camera = photograph.camera
+        x, y = distort_pixels(pixels[rows, b, 0], pixels[rows, b, 1], camera, photograph.lens)
+        pixels[rows, b, 0], pixels[rows, b, 1] = x, y
+        outside = (x < 0.0) | (x > camera.width) | (y < 0.0) | (y > camera.height)
+        seen[rows[outside], b] = False
+        n_facing[rows[outside]] -= 1
+
 
 # The last mesh loaded for ray tests and its `Occluder`: calibration and observation trace the same
 # mesh, and building the ray-tracing scene is a share of a fit.
