@@ -67,6 +67,18 @@ def test_a_photograph_through_a_lens_is_read_back_as_its_pinhole_photograph(lens
     assert np.abs(back[inside] - pinhole[inside]).max() < 0.02
 
 
+def test_the_observations_and_the_pinhole_resampling_read_the_same_place_of_the_photograph():
+    """`distort_pixels` (the observations' projection) and `undistort_image` (the other readers) agree."""
+    from freqbrdf.capture.lens import _sample_coordinates, distort_pixels
+
+    cam = camera(32, 30.0)
+    rows, columns = np.mgrid[0:32, 0:32] + 0.5
+    x, y = distort_pixels(columns, rows, cam, BARREL)
+    coordinates = _sample_coordinates(32, 32, cam.fx, cam.fy, cam.cx, cam.cy, BARREL)
+    np.testing.assert_allclose(coordinates[0], y - 0.5, atol=1e-12)
+    np.testing.assert_allclose(coordinates[1], x - 0.5, atol=1e-12)
+
+
 def test_a_lens_that_folds_the_image_is_told():
     cam = camera()
     assert unfolded(BARREL, cam)
