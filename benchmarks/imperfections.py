@@ -89,6 +89,14 @@ def _offset_masks(source: Path, target: Path, transforms: dict, pixels: int) -> 
         write_png(path, moved.astype(np.float32))
 
 
+def _scratch_of(source: Path, target: Path) -> tuple[Path, dict]:
+    """Make ``target``'s empty scratch folder (renamed into place when written) and read ``source``'s transforms."""
+    scratch = target.with_name(target.name + ".partial")
+    shutil.rmtree(scratch, ignore_errors=True)
+    scratch.mkdir(parents=True)
+    return scratch, json.loads((source / "transforms.json").read_text())
+
+
 def imperfect_capture(source: Path, target: Path, imperfection: Imperfection) -> Path:
     """Write ``source`` with ``imperfection`` applied into ``target`` (reused where already written).
 
@@ -109,10 +117,7 @@ def imperfect_capture(source: Path, target: Path, imperfection: Imperfection) ->
     source, target = Path(source).resolve(), Path(target)
     if (target / "transforms.json").is_file():
         return target
-    scratch = target.with_name(target.name + ".partial")
-    shutil.rmtree(scratch, ignore_errors=True)
-    scratch.mkdir(parents=True)
-    transforms = json.loads((source / "transforms.json").read_text())
+    scratch, transforms = _scratch_of(source, target)
     rng = np.random.default_rng(imperfection.seed)
     for name in os.listdir(source):
         if name not in ("transforms.json", "images") and not (name == "masks" and imperfection.mask_offset_px):
@@ -184,10 +189,7 @@ def lens_capture(source: Path, fine: Path, target: Path, lens: LensDistortion, d
     source, fine, target = Path(source).resolve(), Path(fine).resolve(), Path(target)
     if (target / "transforms.json").is_file():
         return target
-    scratch = target.with_name(target.name + ".partial")
-    shutil.rmtree(scratch, ignore_errors=True)
-    scratch.mkdir(parents=True)
-    transforms = json.loads((source / "transforms.json").read_text())
+    scratch, transforms = _scratch_of(source, target)
     for name in os.listdir(source):
         if name not in ("transforms.json", "images", "masks"):
             os.symlink(source / name, scratch / name)

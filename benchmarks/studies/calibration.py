@@ -217,5 +217,18 @@ def main(argv=None) -> int:
     return 0
 
 
+def scene_study_main(argv, doc: str, name: str, study: str, run_scene, markdown) -> int:
+    """Run a study of the calibration study's captures (``--scenes``): ``run_scene(scene)`` for each, saved as
+    benchmarks/results/<name>.json with the machine and the commit, and ``markdown(results)`` as <name>.md."""
+    parser = argparse.ArgumentParser(description=doc.splitlines()[0])
+    parser.add_argument("--scenes", default=",".join(SCENES))
+    args = parser.parse_args(argv)
+    results = {"study": study, **machine(), "commit": source_commit(), "render": RENDER, "texture_res": TEXTURE_RES,
+               "scenes": {scene: run_scene(scene) for scene in args.scenes.split(",")}}
+    save_results(name, results)
+    (Path(__file__).resolve().parents[1] / "results" / f"{name}.md").write_text(markdown(results))
+    return 0
+
+
 if __name__ == "__main__":
     raise SystemExit(main())

@@ -15,7 +15,6 @@ Writes benchmarks/results/gain_std.{json,md}.
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
@@ -24,11 +23,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from calibration import RENDER, SCENES, TEXTURE_RES  # noqa: E402
+from calibration import RENDER, TEXTURE_RES, scene_study_main  # noqa: E402
 from whole_surface import seen_texels, std_scores, std_textures  # noqa: E402
 
 import scenes  # noqa: E402
-from _common import machine, save_results, source_commit  # noqa: E402
 from freqbrdf import pipeline  # noqa: E402
 from freqbrdf.capture.layouts import load  # noqa: E402
 from freqbrdf.config import Config, TexelConfig  # noqa: E402
@@ -80,15 +78,7 @@ def markdown(results: dict) -> str:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--scenes", default=",".join(SCENES))
-    args = parser.parse_args(argv)
-    results = {"study": "the base colour's std under a wrong exposure or white balance", **machine(),
-               "commit": source_commit(), "render": RENDER, "texture_res": TEXTURE_RES,
-               "scenes": {scene: run_scene(scene) for scene in args.scenes.split(",")}}
-    save_results("gain_std", results)
-    (Path(__file__).resolve().parents[1] / "results" / "gain_std.md").write_text(markdown(results))
-    return 0
+    return scene_study_main(argv, __doc__, "gain_std", "the base colour's std under a wrong exposure or white balance", run_scene, markdown)
 
 
 if __name__ == "__main__":

@@ -15,7 +15,6 @@ Writes benchmarks/results/lens.{json,md}.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import sys
 import time
@@ -24,11 +23,10 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from calibration import RENDER, SCENES, TEXTURE_RES, scores  # noqa: E402
+from calibration import RENDER, TEXTURE_RES, scene_study_main, scores  # noqa: E402
 from whole_surface import seen_texels  # noqa: E402
 
 import scenes  # noqa: E402
-from _common import machine, save_results, source_commit  # noqa: E402
 from freqbrdf import pipeline  # noqa: E402
 from freqbrdf.capture.layouts import load  # noqa: E402
 from freqbrdf.capture.lens import LensDistortion  # noqa: E402
@@ -91,15 +89,7 @@ def markdown(results: dict) -> str:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--scenes", default=",".join(SCENES))
-    args = parser.parse_args(argv)
-    results = {"study": "photographs through a lens, its distortion declared and not", **machine(),
-               "commit": source_commit(), "render": RENDER, "texture_res": TEXTURE_RES,
-               "scenes": {scene: run_scene(scene) for scene in args.scenes.split(",")}}
-    save_results("lens", results)
-    (Path(__file__).resolve().parents[1] / "results" / "lens.md").write_text(markdown(results))
-    return 0
+    return scene_study_main(argv, __doc__, "lens", "photographs through a lens, its distortion declared and not", run_scene, markdown)
 
 
 if __name__ == "__main__":
