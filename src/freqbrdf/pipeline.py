@@ -616,7 +616,12 @@ def write_fit(out_dir: str | Path, result: FitResult, config: Config = Config())
     start = time.perf_counter()
     capture_root = Path(result.capture.root).resolve()
     check_output_folder(out_dir, {"the capture": capture_root})
+    lenses = [frame.lens for frame in result.capture.frames if frame.lens is not None]
     extra = {"capture": str(capture_root), "layout": result.capture.layout,
+             # The lenses the photographs were read through (docs/capture-format.md): None for pinholes.
+             "lens": None if not lenses else {"frames": len(lenses), "distortions": [
+                 {"model": lens.model, "radial": list(lens.radial), "tangential": list(lens.tangential)}
+                 for lens in dict.fromkeys(lenses)]},
              "estimation_res": result.estimation_res or result.estimate.texture_res,
              # The views of the capture, also where the observations were taken to finer texels
              # without their samples (`to_texels`).

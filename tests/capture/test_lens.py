@@ -146,3 +146,10 @@ def test_a_capture_through_a_lens_is_observed_as_the_pinhole_capture(tmp_path):
     assert np.mean(mask != masks[0]) < 0.25 * np.mean(masks[0] != (read_mask_coverage(frame.mask_path) > 0.5))
     no_mask = read_frame_mask_coverage(type(frame)(frame.camera, frame.image_path, lens=PINCUSHION))
     assert no_mask.min() < 0.5 < no_mask.max() == pytest.approx(1.0)  # the corners the lens did not see
+    # summary.json says which lens the photographs were read through
+    from freqbrdf import pipeline
+
+    folder = pipeline.write_fit(tmp_path / "fit", pipeline.fit(lens_capture, config), config)
+    summary = json.loads((folder / "summary.json").read_text())
+    assert summary["lens"] == {"frames": len(document["frames"]), "distortions": [
+        {"model": "opencv", "radial": [1.0, 0.0, 0.0, 0.0], "tangential": [0.01, -0.005]}]}
