@@ -93,6 +93,8 @@ def test_frame_lens_reads_the_models_of_a_transforms_file(tmp_path):
     assert frame_lens(source, 0, {"k1": -0.5, "k2": 0.1, "p1": 0.01, "p2": -0.005}, {}, cam) == BARREL
     assert frame_lens(source, 0, {}, {"camera_model": "OPENCV_FISHEYE"}, cam) == LensDistortion("fisheye", (0.0,) * 4)
     assert frame_lens(source, 0, {"k1": 0.05}, {"is_fisheye": True}, cam).model == "fisheye"  # instant-ngp's flag
+    assert frame_lens(source, 0, {"k1": 0.05}, {"camera_model": "SIMPLE_RADIAL"}, cam) == LensDistortion(
+        "opencv", (0.05, 0.0, 0.0, 0.0))  # COLMAP's radial models are OpenCV's radial part
     with pytest.raises(InputError, match="'k3' must be a finite number"):
         frame_lens(source, 2, {"k3": float("nan")}, {}, cam)
 

@@ -31,7 +31,7 @@ from freqbrdf.errors import InputError
 RIGID_TOLERANCE = 1e-3
 # Camera models read: pinholes, and lenses whose distortion the photographs are undistorted by as they
 # are read (`freqbrdf.capture.lens`).
-CAMERA_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "OPENCV", "OPENCV_FISHEYE")
+CAMERA_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV", "OPENCV_FISHEYE")
 DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
 
 
@@ -485,8 +485,8 @@ def frame_camera(
 def frame_lens(source: Path, index: int, entry: dict, document: dict, camera: Camera) -> LensDistortion | None:
     """Read a frame's lens distortion (`freqbrdf.capture.lens`).
 
-    ``camera_model`` ``OPENCV`` (or none given) with any of ``k1``-``k4``, ``p1``, ``p2`` non-zero is
-    OpenCV's radial-tangential model; ``OPENCV_FISHEYE`` (or instant-ngp's ``"is_fisheye": true``)
+    ``camera_model`` ``OPENCV`` (COLMAP's ``SIMPLE_RADIAL`` and ``RADIAL`` are its radial part; or
+    none given) with any of ``k1``-``k4``, ``p1``, ``p2`` non-zero is OpenCV's radial-tangential model; ``OPENCV_FISHEYE`` (or instant-ngp's ``"is_fisheye": true``)
     its fisheye model, whatever its coefficients. Frame keys override the document's.
 
     Parameters
