@@ -431,10 +431,10 @@ def read_frame_mask_coverage(frame: Frame, as_taken: bool = False) -> np.ndarray
     lens = None if as_taken else frame.lens
     if frame.mask_path is None:
         whole = np.ones((frame.camera.height, frame.camera.width), dtype=np.float32)
-        return _pinhole(frame, lens, frame.image_path, whole)  # through a lens: the pixels it saw
+        return np.minimum(_pinhole(frame, lens, frame.image_path, whole), np.float32(1.0))  # through a lens: what it saw
     coverage = _DECODED.get(frame.mask_path, ("mask", frame.mask_from_alpha, *_lens_key(frame, lens)),
-                            lambda: _pinhole(frame, lens, frame.mask_path,
-                                             read_mask_coverage(frame.mask_path, from_alpha=frame.mask_from_alpha)))
+                            lambda: np.minimum(_pinhole(frame, lens, frame.mask_path, read_mask_coverage(
+                                frame.mask_path, from_alpha=frame.mask_from_alpha)), np.float32(1.0)))
     _check_size(frame.mask_path, coverage.shape, frame.camera)
     return coverage
 
