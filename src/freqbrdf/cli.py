@@ -360,7 +360,9 @@ def fit(
             + (f" (estimated on {result.estimation_res} x {result.estimation_res} texels)"
                if result.estimation_res < coverage["texture_res"] else "")
             + (f"; {summary['trust']['trusted_fraction']:.0%} of the surface trusted (every std <= "
-               f"{summary['trust']['threshold']:g}: trust.exr)" if "trust" in summary else ""),
+               f"{summary['trust']['threshold']:g}: trust.exr)" if "trust" in summary else "")
+            + (f"; {summary['lens']['frames']} photographs read through their lens's distortion"
+               if summary.get("lens") else ""),
             soft_wrap=True,  # no line break inside a path
         )
 
