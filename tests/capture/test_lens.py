@@ -100,9 +100,13 @@ def test_frame_lens_reads_the_models_of_a_transforms_file(tmp_path):
 
 
 PINCUSHION = LensDistortion("opencv", (1.0, 0.0, 0.0, 0.0), (0.01, -0.005))
+FISHEYE = LensDistortion("fisheye", (-0.3, 0.0, 0.0, 0.0))
+LENS_KEYS = {PINCUSHION: {"camera_model": "OPENCV", "k1": 1.0, "p1": 0.01, "p2": -0.005},
+             FISHEYE: {"camera_model": "OPENCV_FISHEYE", "k1": -0.3}}
 
 
-def test_a_capture_through_a_lens_is_observed_as_the_pinhole_capture(tmp_path):
+@pytest.mark.parametrize("lens", [PINCUSHION, FISHEYE], ids=["pincushion", "fisheye"])
+def test_a_capture_through_a_lens_is_observed_as_the_pinhole_capture(tmp_path, lens):
     """The example capture (its photographs made smooth, so that resampling them twice loses nothing)
     through a pincushion lens: with the lens in transforms.json the texels' samples and the masks are
     the pinhole capture's, without it they are not; the pixels the lens did not see are not object."""
@@ -122,18 +126,18 @@ def test_a_capture_through_a_lens_is_observed_as_the_pinhole_capture(tmp_path):
         smooth = np.stack([2.0 + np.sin(columns / 6.0 + index), 2.0 + np.cos(rows / 5.0), 2.0 + np.sin((rows - columns) / 8.0)],
                           axis=-1).astype(np.float32)
         write_exr(pinhole_root / frame["file_path"], smooth)
-        write_exr(lens_root / frame["file_path"], through_lens(smooth, cam, PINCUSHION))
+        write_exr(lens_root / frame["file_path"], through_lens(smooth, cam, lens))
         masks[index] = read_mask_coverage(pinhole_root / frame["mask_path"]) > 0.5
-        coverage = through_lens(masks[index].astype(np.float32), cam, PINCUSHION)
+        coverage = through_lens(masks[index].astype(np.float32), cam, lens)
         write_png(lens_root / frame["mask_path"], np.repeat((coverage > 0.5)[..., None], 3, axis=2).astype(np.float32))
     undeclared = dict(document)
     (lens_root / "transforms.json").write_text(json.dumps(undeclared))
     config = Config(texels=TexelConfig(texture_res=16))
     ignored = observe(load(lens_root), config)
-    declared_document = {**document, "camera_model": "OPENCV", "k1": 1.0, "p1": 0.01, "p2": -0.005}
+    declared_document = {**document, **LENS_KEYS[lens]}
     (lens_root / "transforms.json").write_text(json.dumps(declared_document))
     lens_capture = load(lens_root)
-    assert all(frame.lens == PINCUSHION for frame in lens_capture.frames)
+    assert all(frame.lens == lens for frame in lens_capture.frames)
     declared = observe(lens_capture, config)
     truth = observe(load(pinhole_root), config)
 
@@ -146,7 +150,7 @@ def test_a_capture_through_a_lens_is_observed_as_the_pinhole_capture(tmp_path):
     assert read_frame_image(frame).shape == (cam.height, cam.width, 3)
     mask = read_frame_mask_coverage(frame) > 0.5
     assert np.mean(mask != masks[0]) < 0.25 * np.mean(masks[0] != (read_mask_coverage(frame.mask_path) > 0.5))
-    no_mask = read_frame_mask_coverage(type(frame)(frame.camera, frame.image_path, lens=PINCUSHION))
+    no_mask = read_frame_mask_coverage(type(frame)(frame.camera, frame.image_path, lens=PINCUSHION))  # corners unseen
     assert no_mask.min() < 0.5 < no_mask.max() == pytest.approx(1.0)  # the corners the lens did not see
     # summary.json says which lens the photographs were read through
     from freqbrdf import pipeline
@@ -154,4 +158,4 @@ def test_a_capture_through_a_lens_is_observed_as_the_pinhole_capture(tmp_path):
     folder = pipeline.write_fit(tmp_path / "fit", pipeline.fit(lens_capture, config), config)
     summary = json.loads((folder / "summary.json").read_text())
     assert summary["lens"] == {"frames": len(document["frames"]), "distortions": [
-        {"model": "opencv", "radial": [1.0, 0.0, 0.0, 0.0], "tangential": [0.01, -0.005]}]}
+        {"model": lens.model, "radial": list(lens.radial), "tangential": list(lens.tangential)}]}
