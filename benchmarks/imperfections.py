@@ -24,7 +24,7 @@ from scipy import ndimage
 
 from freqbrdf.calibrate import rotation_about
 from freqbrdf.capture.layouts import load
-from freqbrdf.capture.lens import LensDistortion, distort
+from freqbrdf.capture.lens import LensDistortion, undistort
 from freqbrdf.images import linear_to_srgb, read_image, read_mask, srgb_to_linear, write_exr, write_png
 
 
@@ -219,10 +219,7 @@ def _lens_coordinates(camera, fine_camera, lens: LensDistortion) -> np.ndarray:
             rows, columns = np.mgrid[0:camera.height, 0:camera.width].astype(np.float64)
             x_d = (columns + column_offset - camera.cx) / camera.fx
             y_d = (rows + row_offset - camera.cy) / camera.fy
-            x, y = x_d.copy(), y_d.copy()
-            for _ in range(50):  # `distort` inverted by fixed point (mild lenses converge)
-                x_f, y_f = distort(x, y, lens)
-                x, y = x - (x_f - x_d), y - (y_f - y_d)
+            x, y = undistort(x_d, y_d, lens)
             found.append(np.stack([y * fine_camera.fy + fine_camera.cy - 0.5, x * fine_camera.fx + fine_camera.cx - 0.5]))
     return np.stack(found)
 

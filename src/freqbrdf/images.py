@@ -436,7 +436,7 @@ GREY_CHANNELS = ("Y", "L", "R", "G", "B", "GRAY", "GREY", "LUMINANCE")
 def _read_exr(path: Path, radiance: bool = False) -> np.ndarray:
     try:
         with _native_output_silenced(), OpenEXR.File(str(path), separate_channels=True) as exr:
-            header = {key: exr.header()[key] for key in ("dataWindow", "displayWindow") if key in exr.header()}
+            header = dict(exr.header())  # a copy: the file's header is emptied when it closes
             planes = {name: channel.pixels for name, channel in exr.channels().items()}
     except Exception as err:  # OpenEXR raises RuntimeError or ValueError on damaged files
         raise InputError(path, f"not a readable OpenEXR file ({err})") from None

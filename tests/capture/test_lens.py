@@ -10,7 +10,7 @@ from scipy import ndimage
 
 from freqbrdf.capture.camera import Camera, frame_lens, look_at
 from freqbrdf.capture.layouts import load, read_frame_image, read_frame_mask_coverage
-from freqbrdf.capture.lens import LensDistortion, distort, undistort_image, unfolded
+from freqbrdf.capture.lens import LensDistortion, distort, undistort, undistort_image, unfolded
 from freqbrdf.config import Config, TexelConfig
 from freqbrdf.errors import InputError
 from freqbrdf.images import read_mask_coverage, write_exr, write_png
@@ -23,19 +23,10 @@ def camera(size=24, focal=33.0):
     return Camera(look_at([0.0, 0.0, 3.0], [0.0, 0.0, 0.0]), focal, focal, size / 2, size / 2, size, size)
 
 
-def pinhole_coordinates(x_d: np.ndarray, y_d: np.ndarray, lens: LensDistortion) -> tuple[np.ndarray, np.ndarray]:
-    """Invert `distort` by fixed-point iteration (mild lenses converge)."""
-    x, y = x_d.copy(), y_d.copy()
-    for _ in range(50):
-        x_f, y_f = distort(x, y, lens)
-        x, y = x - (x_f - x_d), y - (y_f - y_d)
-    return x, y
-
-
 def through_lens(pinhole: np.ndarray, cam: Camera, lens: LensDistortion) -> np.ndarray:
     """The photograph a lens takes of a scene whose pinhole photograph is ``pinhole`` (H, W[, C])."""
     rows, columns = np.mgrid[0:cam.height, 0:cam.width].astype(np.float64)
-    x, y = pinhole_coordinates((columns + 0.5 - cam.cx) / cam.fx, (rows + 0.5 - cam.cy) / cam.fy, lens)
+    x, y = undistort((columns + 0.5 - cam.cx) / cam.fx, (rows + 0.5 - cam.cy) / cam.fy, lens)
     coordinates = np.stack([y * cam.fy + cam.cy - 0.5, x * cam.fx + cam.cx - 0.5])
     planes = pinhole[..., None] if pinhole.ndim == 2 else pinhole
     out = np.stack([ndimage.map_coordinates(planes[..., c].astype(np.float64), coordinates, order=1, mode="nearest")
@@ -77,6 +68,12 @@ def test_the_observations_and_the_pinhole_resampling_read_the_same_place_of_the_
     coordinates = _sample_coordinates(32, 32, cam.fx, cam.fy, cam.cx, cam.cy, BARREL)
     np.testing.assert_allclose(coordinates[0], y - 0.5, atol=1e-12)
     np.testing.assert_allclose(coordinates[1], x - 0.5, atol=1e-12)
+
+
+def test_undistort_inverts_distort():
+    x, y = np.meshgrid(np.linspace(-0.5, 0.5, 9), np.linspace(-0.4, 0.4, 7))
+    for lens in (BARREL, LensDistortion("fisheye", (0.05, -0.01, 0.0, 0.0))):
+        np.testing.assert_allclose(undistort(*distort(x, y, lens), lens), (x, y), atol=1e-10)
 
 
 def test_a_lens_that_folds_the_image_is_told():

@@ -29,8 +29,8 @@ from freqbrdf.errors import InputError
 # How far R^T R may stray from the identity: transforms stored as text with 6-7 significant digits
 # are orthonormal to about 1e-6, while a scaled or sheared matrix misses by far more.
 RIGID_TOLERANCE = 1e-3
-# Camera models read: pinholes, and lenses whose distortion the photographs are undistorted by as they
-# are read (`freqbrdf.capture.lens`).
+# Camera models read: pinholes, and lenses whose distortion the photographs are read through
+# (`frame_lens`, `freqbrdf.capture.lens`).
 CAMERA_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV", "OPENCV_FISHEYE")
 DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
 
@@ -486,8 +486,9 @@ def frame_lens(source: Path, index: int, entry: dict, document: dict, camera: Ca
     """Read a frame's lens distortion (`freqbrdf.capture.lens`).
 
     ``camera_model`` ``OPENCV`` (COLMAP's ``SIMPLE_RADIAL`` and ``RADIAL`` are its radial part; or
-    none given) with any of ``k1``-``k4``, ``p1``, ``p2`` non-zero is OpenCV's radial-tangential model; ``OPENCV_FISHEYE`` (or instant-ngp's ``"is_fisheye": true``)
-    its fisheye model, whatever its coefficients. Frame keys override the document's.
+    none given) with any of ``k1``-``k4``, ``p1``, ``p2`` non-zero is OpenCV's radial-tangential
+    model; ``OPENCV_FISHEYE`` (or instant-ngp's ``"is_fisheye": true``) its fisheye model, whatever
+    its coefficients. Frame keys override the document's.
 
     Parameters
     ----------

@@ -97,8 +97,9 @@ class Frame:
         Pixels the mask is taken in by as it is read (`read_frame_mask`): where the calibration
         found it drawn wider than the object (a segmentation's halo); 0: as drawn.
     lens : LensDistortion or None
-        The lens's distortion: the image and the mask are resampled onto the camera's pinhole
-        image as they are read (`freqbrdf.capture.lens`); None: a pinhole photograph.
+        The lens's distortion (`freqbrdf.capture.lens`): the observations read the photograph
+        through it (``as_taken``), other readers get it resampled onto the camera's pinhole image;
+        None: a pinhole photograph.
     """
 
     camera: Camera
@@ -429,12 +430,15 @@ def read_frame_mask_coverage(frame: Frame, as_taken: bool = False) -> np.ndarray
         If the mask cannot be read or its size is not its camera's.
     """
     lens = None if as_taken else frame.lens
-    if frame.mask_path is None:
-        whole = np.ones((frame.camera.height, frame.camera.width), dtype=np.float32)
-        return np.minimum(_pinhole(frame, lens, frame.image_path, whole), np.float32(1.0))  # through a lens: what it saw
+    whole = np.ones((frame.camera.height, frame.camera.width), dtype=np.float32)
+    if frame.mask_path is None and lens is None:
+        return whole
+    if frame.mask_path is None:  # through a lens: the pixels it saw
+        return _DECODED.get(frame.image_path, ("lens coverage", *_lens_key(frame, lens)),
+                            lambda: _pinhole(frame, lens, frame.image_path, whole, coverage=True))
     coverage = _DECODED.get(frame.mask_path, ("mask", frame.mask_from_alpha, *_lens_key(frame, lens)),
-                            lambda: np.minimum(_pinhole(frame, lens, frame.mask_path, read_mask_coverage(
-                                frame.mask_path, from_alpha=frame.mask_from_alpha)), np.float32(1.0)))
+                            lambda: _pinhole(frame, lens, frame.mask_path, read_mask_coverage(
+                                frame.mask_path, from_alpha=frame.mask_from_alpha), coverage=True))
     _check_size(frame.mask_path, coverage.shape, frame.camera)
     return coverage
 
@@ -447,12 +451,17 @@ def _lens_key(frame: Frame, lens: LensDistortion | None) -> tuple:
     return (lens, camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height)
 
 
-def _pinhole(frame: Frame, lens: LensDistortion | None, path: Path, pixels: np.ndarray) -> np.ndarray:
-    """Return a decoded image or mask of ``frame`` resampled through ``lens`` onto its pinhole image (None: as read)."""
+def _pinhole(frame: Frame, lens: LensDistortion | None, path: Path, pixels: np.ndarray,
+             coverage: bool = False) -> np.ndarray:
+    """Return a decoded image or mask of ``frame`` resampled through ``lens`` onto its pinhole image (None: as read).
+
+    A mask's ``coverage`` stays at most 1 (the resampling rings at its edge).
+    """
     if lens is None:
         return pixels
     _check_size(path, pixels.shape[:2], frame.camera)
-    return undistort_image(pixels, frame.camera, lens)
+    found = undistort_image(pixels, frame.camera, lens)
+    return np.minimum(found, np.float32(1.0), out=found) if coverage else found
 
 
 def _load_ours(transforms_path: Path) -> Capture:

@@ -21,10 +21,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["LensDistortion", "distort", "distort_pixels", "undistort_image", "unfolded"]
+__all__ = ["LensDistortion", "distort", "distort_pixels", "undistort", "undistort_image", "unfolded"]
 
-#: Camera models whose distortion is read (COLMAP's names, as nerfstudio writes them).
-DISTORTED_MODELS = ("OPENCV", "FULL_OPENCV", "OPENCV_FISHEYE")
+# Fixed-point steps of `undistort`: a lens that does not fold its image converges well within them.
+UNDISTORT_STEPS = 50
 
 
 @dataclass(frozen=True)
@@ -75,6 +75,30 @@ def distort(x: np.ndarray, y: np.ndarray, lens: LensDistortion) -> tuple[np.ndar
     xy = x * y
     return (x * radial + 2.0 * p1 * xy + p2 * (r2 + 2.0 * x * x),
             y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * xy)
+
+
+def undistort(x_d: np.ndarray, y_d: np.ndarray, lens: LensDistortion) -> tuple[np.ndarray, np.ndarray]:
+    """Invert `distort`: the pinhole normalised coordinates the lens images at ``x_d``, ``y_d``.
+
+    By fixed-point steps x <- x - (distort(x) - x_d), as OpenCV's ``undistortPoints``.
+
+    Parameters
+    ----------
+    x_d, y_d : (...) float64
+        Distorted normalised coordinates.
+    lens : LensDistortion
+        The lens (`unfolded` over the coordinates given).
+
+    Returns
+    -------
+    (...) float64, (...) float64
+        The pinhole normalised coordinates.
+    """
+    x, y = np.array(x_d, np.float64), np.array(y_d, np.float64)
+    for _ in range(UNDISTORT_STEPS):
+        x_f, y_f = distort(x, y, lens)
+        x, y = x - (x_f - x_d), y - (y_f - y_d)
+    return x, y
 
 
 def distort_pixels(x: np.ndarray, y: np.ndarray, camera, lens: LensDistortion) -> tuple[np.ndarray, np.ndarray]:
