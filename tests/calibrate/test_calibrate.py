@@ -79,8 +79,8 @@ def test_exposure_and_white_balance_are_recovered(clean, clean_calibration, tmp_
     np.testing.assert_allclose(np.exp(np.log(relative).mean()), np.exp(np.log(applied).mean()), rtol=0.05)
     np.testing.assert_allclose(relative, applied, rtol=0.10)
     assert relative[0] > relative[1] > relative[2]  # the white balance's direction
-    # On a capture this small (32 views of 96 x 96) the model itself reads a gain within 30 % of 1.
-    np.testing.assert_allclose(clean_calibration.gain_measured, 1.0, atol=0.3)
+    # On a capture this small (32 views of 96 x 96, 8 spp) the model itself reads a gain within 35 % of 1.
+    np.testing.assert_allclose(clean_calibration.gain_measured, 1.0, atol=0.35)
     # Applied where the texels tell it from 1: the exposure surely; each white-balance ratio is
     # applied as measured or, within its noise of 1, left at 1.
     # applied as measured, shrunk towards 1 by the prior (by at most 2 % for the exposure, at most halved

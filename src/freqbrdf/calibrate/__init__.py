@@ -226,8 +226,9 @@ def calibrate(capture: Capture, config: Config = Config(),
     Returns
     -------
     capture : Capture
-        The capture corrected: each frame's ``exposure`` (1 / (gain x frame gain)), the map turned,
-        bad views dropped where asked. The same object where nothing is calibrated.
+        The capture corrected: each frame's ``exposure`` (1 / (gain x frame gain)), its refined
+        camera and, where its mask is wider than the object, ``mask_inset_px``; the map turned, bad
+        views dropped where asked. The same object where nothing is calibrated.
     calibration : Calibration
         What was found.
     """
@@ -242,9 +243,7 @@ def calibrate(capture: Capture, config: Config = Config(),
         if settings.cameras:
             calibration.cameras = refine_cameras(capture.mesh, [frame.camera for frame in capture.frames],
                                                  (read_frame_mask_coverage(frame) for frame in capture.frames))
-            capture = replace(capture, frames=tuple(
-                frame if camera is frame.camera else replace(frame, camera=camera)
-                for frame, camera in zip(capture.frames, calibration.cameras.cameras)))
+            capture = _refined(capture, calibration.cameras)
         advance(1)
         every = observe(capture, coarse_config, texels=texels)
         observations = _exact_texels(every)
@@ -354,7 +353,7 @@ def _significant(gain: np.ndarray, found: GainEstimate) -> np.ndarray:
     either exactly 1 (the probe shot with the photographs' settings) or off by a normal amount of
     std tau (`PRIOR_LOG_STD` for the exposure, `WHITE_BALANCE_PRIOR_LOG_STD` for a ratio). A
     measurement x of std s is applied where the second is the likelier (even prior odds): where
-    (x / s)^2 exceeds (1 + s^2 / tau^2) ln(1 + tau^2 / s^2), about 2.3 std for the exposure and 1.6
+    (x / s)^2 exceeds (1 + s^2 / tau^2) ln(1 + tau^2 / s^2), about 2.1 std for the exposure and 1.6
     for a ratio at the model's own misfit; it is then applied as that hypothesis's posterior
     mean, x tau^2 / (tau^2 + s^2). A gain the model's misfit could give on a calibrated capture is
     not applied.
@@ -413,6 +412,23 @@ def _turned(capture: Capture, rotation: np.ndarray) -> Capture:
     return replace(capture, envmap=envmaps.Envmap(capture.envmap.radiance, to_world))
 
 
+def _refined(capture: Capture, cameras: CameraRefinement) -> Capture:
+    """Return the capture with the refined cameras, each mask drawn wider than the object taken in by its offset.
+
+    A mask wider than the object holds background at its rim: taken in before the gains and the
+    probe read the photographs, as in the fit.
+    """
+    frames = []
+    for index, (frame, camera) in enumerate(zip(capture.frames, cameras.cameras)):
+        if camera is not frame.camera:
+            frame = replace(frame, camera=camera)
+        inset = float(cameras.mask_offset_px[index])
+        if inset > 0.0:
+            frame = replace(frame, mask_inset_px=inset)
+        frames.append(frame)
+    return replace(capture, frames=tuple(frames))
+
+
 def _corrected(capture: Capture, calibration: Calibration, drop_bad_views: bool) -> Capture:
     """Return the capture with every frame's exposure set (and bad views dropped where asked)."""
     frame_gain = calibration.frame_gain if calibration.frame_gain is not None else np.ones((len(capture.frames), 3))
@@ -427,9 +443,6 @@ def _corrected(capture: Capture, calibration: Calibration, drop_bad_views: bool)
         factor = 1.0 / (calibration.gain * frame_gain[index])
         if not np.allclose(factor, 1.0, rtol=0, atol=0):
             frame = replace(frame, exposure=tuple(float(value) for value in factor))
-        inset = 0.0 if calibration.cameras is None else float(calibration.cameras.mask_offset_px[index])
-        if inset > 0.0:  # a mask drawn wider than the object: its rim holds background
-            frame = replace(frame, mask_inset_px=inset)
         frames.append(frame)
     return replace(capture, frames=tuple(frames))
 

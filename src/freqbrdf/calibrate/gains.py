@@ -11,9 +11,11 @@ metal), in the photographs' units, relative to its own radiance. The search reco
 channel the weighted sums the two labels' losses come from, at the estimated roughness and at a
 grid of roughness nodes (`freqbrdf.estimate.label_sums`), so the misfit of any gain is closed form
 (`freqbrdf.calibrate._kernels`). Each texel's minimiser over a grid of log gains is its own
-estimate, weighted by its curvature over its misfit; the exposure and the white-balance ratios are
-weighted medians over the texels; their std adds the model's own misfit on calibrated captures,
-and a prior of one log unit keeps a gain the texels do not determine (an all-metal object) near 1.
+estimate. The exposure is their median, one vote a texel (their readings scatter by the model's
+misfit, which a texel's own precision does not see); the white-balance ratios, in which what the
+channels share cancels, are medians weighted by each texel's curvature over its misfit. Their std
+adds the model's own misfit on calibrated captures, and a prior of one log unit keeps a gain the
+texels do not determine (an all-metal object) near 1.
 
 `frame_gains` compares each photograph with what the other views say of the same texels (a
 low-degree SH fit of the texels' radiance, left out one view at a time), for captures whose frames
@@ -38,16 +40,17 @@ PRIOR_LOG_STD = 1.0
 # lies on the grid's edge says nothing; wider grids let in texels whose minimum is the model's misfit
 # (docs/results.md#calibration).
 LOG_GAIN_GRID = np.log(2.0) * np.arange(-2.0, 2.0001, 0.05)
-# A texel's misfit floor, as a share of the texels' median misfit: a near-exact fit does not take over.
-MISFIT_FLOOR = 0.05
 # The per-frame gains' prediction of a sample from the texel's other views: an SH fit of this degree and
 # ridge (low: the other views must determine it).
 FRAME_GAIN_LMAX = 2
 FRAME_GAIN_RIDGE = 1e-3
 # The std of the exposure and of a white-balance ratio that the model's own misfit gives on a
 # calibrated capture, added to the texels' spread (docs/results.md#calibration: the clean scenes').
-MODEL_EXPOSURE_LOG_STD = 0.06
+MODEL_EXPOSURE_LOG_STD = 0.10
 MODEL_RATIO_LOG_STD = 0.03
+# A texel's misfit floor in the white-balance ratios' weights, as a share of the texels' median misfit:
+# a near-exact fit does not take over.
+MISFIT_FLOOR = 0.05
 # Texels estimated rougher than this do not calibrate: their lobe is not told apart from the diffuse.
 MAX_ROUGHNESS = 0.6
 # A base colour at or above this is at its bound: the loss's minimum is the bound's kink.
@@ -126,18 +129,19 @@ def channel_gains(moments: np.ndarray, roughness: np.ndarray | None = None) -> G
 
     Each texel's label (dielectric or metal) is the one that fits it best at its best gain. With
     that label, its loss summed over the channels over `LOG_GAIN_GRID` gives the texel's own log
-    gain (the parabola through its grid minimum) and how sharply its data determine it (the
-    curvature over the misfit: an inverse variance); each channel's loss alone gives the texel's
-    log gain of that channel, taken relative to its common one (a white-balance ratio, in which
-    what the channels share cancels). The exposure is the weighted median of the texels' common
-    log gains, each channel's ratio the weighted median of theirs (normalised to a geometric mean
-    of 1). A texel says nothing where its loss has no minimum inside the grid (a metal, whose free
+    gain (the parabola through its grid minimum); each channel's loss alone gives the texel's log
+    gain of that channel, taken relative to its common one (a white-balance ratio, in which what
+    the channels share cancels). The exposure is the median of the texels' common log gains, every
+    texel one vote: the readings scatter by the model's misfit far beyond what a texel's own
+    curvature says, and weighting by it lets the few texels the model fits most sharply decide
+    (docs/results.md#calibration). Each channel's ratio is the median of theirs weighted by the
+    texel's curvature over its misfit (an inverse variance), normalised to a geometric mean of 1. A texel says nothing where its loss has no minimum inside the grid (a metal, whose free
     base colour takes any gain) or where its base colour sits at a bound (the minimum is then the
     bound's kink, not the data's) or where its estimated roughness is above `MAX_ROUGHNESS` (a lobe
     that wide is not told apart from the diffuse: rough dielectrics bias the gains). Each texel's
     loss at a gain is its least over the roughness slots and the two labels, so that a gain is not
-    judged at a roughness found under another. The std is the weighted spread over the effective
-    number of texels with `MODEL_EXPOSURE_LOG_STD` (`MODEL_RATIO_LOG_STD`) added in quadrature, and the prior of `PRIOR_LOG_STD` keeps a gain that few texels determine near 1.
+    judged at a roughness found under another. The std is the (weighted) spread over the square root of the
+    (effective) number of texels with `MODEL_EXPOSURE_LOG_STD` (`MODEL_RATIO_LOG_STD`) added in quadrature, and the prior of `PRIOR_LOG_STD` keeps a gain that few texels determine near 1.
 
     Parameters
     ----------
@@ -166,7 +170,7 @@ def channel_gains(moments: np.ndarray, roughness: np.ndarray | None = None) -> G
     curves = np.empty((len(moments), len(grid)))
     choice = np.empty((len(moments), len(grid)), np.int64)
     texel_gain_curves(moments, grid, curves, choice)
-    position, minimum, curvature, usable = _grid_minimum(curves, grid)
+    position, _, _, usable = _grid_minimum(curves, grid)
     # The roughness slot and label that fit the texel best at its best gain node, and with them
     # each channel's loss over the gains.
     rows = np.arange(len(moments))
@@ -178,16 +182,15 @@ def channel_gains(moments: np.ndarray, roughness: np.ndarray | None = None) -> G
     usable &= np.all(at_best < BASE_BOUND, axis=1) & np.any(at_best > 0.0, axis=1)
     if usable.sum() < 2:
         return GainEstimate(np.ones(3), np.full(3, PRIOR_LOG_STD), 0)
-    weight = _weights(minimum, curvature, usable)
-    exposure, exposure_variance = _robust_mean(position, weight, usable)
+    exposure, exposure_variance = _robust_mean(position[usable])
     ratios, ratio_variance = np.zeros(3), np.zeros(3)
     for c in range(3):
         channel_position, channel_minimum, channel_curvature, channel_usable = _grid_minimum(texel_loss[:, :, c], grid)
         both = usable & channel_usable
         if both.sum() < 2:
             continue
-        channel_weight = _weights(channel_minimum, channel_curvature, both)
-        ratios[c], ratio_variance[c] = _robust_mean(channel_position - position, channel_weight, both)
+        ratios[c], ratio_variance[c] = _robust_mean((channel_position - position)[both],
+                                                    _precision(channel_minimum, channel_curvature, both)[both])
     ratios -= ratios.mean()
     log_gain = exposure + ratios
     # The texels' errors are not independent: the model's own misfit moves them together.
@@ -200,19 +203,19 @@ def channel_gains(moments: np.ndarray, roughness: np.ndarray | None = None) -> G
                         float(np.sqrt(exposure_variance)), np.sqrt(ratio_variance))
 
 
-def _weights(minimum: np.ndarray, curvature: np.ndarray, usable: np.ndarray) -> np.ndarray:
-    """Inverse variances of texels' log gains: curvature over misfit (floored), 0 where not usable."""
+def _precision(minimum: np.ndarray, curvature: np.ndarray, usable: np.ndarray) -> np.ndarray:
+    """Texels' inverse variances of a log gain: curvature over misfit (floored), 0 where not usable."""
     floor = max(MISFIT_FLOOR * float(np.median(minimum[usable])), 1e-12)
     return np.where(usable, curvature / (np.maximum(minimum, 0.0) + floor), 0.0)
 
 
-def _robust_mean(values: np.ndarray, weight: np.ndarray, usable: np.ndarray) -> tuple[float, float]:
-    """Return the weighted median of the usable values and the variance of that estimate.
+def _robust_mean(values: np.ndarray, weight: np.ndarray | None = None) -> tuple[float, float]:
+    """Return the weighted median of values (n,) (weights (n,), None: one each) and its variance.
 
-    The variance is the weighted spread (as 1.4826 median absolute deviations) over the effective
-    number of texels, times pi / 2 (a median's efficiency).
+    The variance is the weighted spread (as 1.4826 median absolute deviations) squared over the
+    effective number of values, times pi / 2 (a median's efficiency).
     """
-    values, weight = values[usable], weight[usable]
+    weight = np.ones(len(values)) if weight is None else weight
     centre = _weighted_median(values, weight)
     spread = 1.4826 * _weighted_median(np.abs(values - centre), weight)
     effective = float(np.sum(weight) ** 2 / max(np.sum(weight ** 2), 1e-300))
