@@ -191,24 +191,21 @@ def test_a_capture_with_too_few_views_per_texel_keeps_the_maps_scale_and_says_so
 
 def test_a_gain_is_applied_where_it_is_likelier_off_one_than_exactly_one():
     """The exposure (prior: within a factor e) needs more std than a white-balance ratio (within 10 %);
-    what is applied is that hypothesis's posterior mean."""
-    from freqbrdf.calibrate import WHITE_BALANCE_PRIOR_LOG_STD, _significant
-    from freqbrdf.calibrate.gains import PRIOR_LOG_STD, GainEstimate
+    what is applied is the measurement itself."""
+    from freqbrdf.calibrate import _significant
+    from freqbrdf.calibrate.gains import GainEstimate
 
     found = GainEstimate(np.ones(3), np.full(3, 0.07), 1000, exposure_log_std=0.065, ratio_log_std=np.full(3, 0.03))
-    ratio_shrink = WHITE_BALANCE_PRIOR_LOG_STD ** 2 / (WHITE_BALANCE_PRIOR_LOG_STD ** 2 + 0.03 ** 2)
-    exposure_shrink = PRIOR_LOG_STD ** 2 / (PRIOR_LOG_STD ** 2 + 0.065 ** 2)
     # A 10 % white balance (3 std) is applied, a 3 % one (1 std) is not; the same split for the exposure:
     # 0.2 in log (3 std) is applied, 0.13 (2 std) is not.
     applied = _significant(np.exp(np.array([0.2 + 0.1, 0.2, 0.2 - 0.1])), found)
-    np.testing.assert_allclose(np.log(applied), 0.2 * exposure_shrink + np.array([0.1, 0.0, -0.1]) * ratio_shrink,
-                               atol=1e-12)
+    np.testing.assert_allclose(np.log(applied), 0.2 + np.array([0.1, 0.0, -0.1]), atol=1e-12)
     applied = _significant(np.exp(np.array([0.13 + 0.03, 0.13, 0.13 - 0.03])), found)
     np.testing.assert_allclose(applied, 1.0, atol=1e-12)
-    # A better-determined ratio (std 0.01) is applied from a smaller size.
+    # A better-determined ratio (std 0.01) is applied from a smaller size; the exposure (2 std) is not.
     sharp = GainEstimate(np.ones(3), np.full(3, 0.07), 1000, exposure_log_std=0.065, ratio_log_std=np.full(3, 0.01))
-    applied = np.log(_significant(np.exp(np.array([0.04, 0.0, -0.04])), sharp))
-    np.testing.assert_allclose(applied, np.array([0.04, 0.0, -0.04]) * 0.01 / (0.01 + 0.01 ** 2), atol=1e-12)
+    applied = np.log(_significant(np.exp(np.array([0.13 + 0.04, 0.13, 0.13 - 0.04])), sharp))
+    np.testing.assert_allclose(applied, np.array([0.04, 0.0, -0.04]), atol=1e-12)
 
 
 def test_the_applied_gains_error_std_weighs_the_measurement_by_how_likely_the_decision_is_wrong():

@@ -354,9 +354,11 @@ def _significant(gain: np.ndarray, found: GainEstimate) -> np.ndarray:
     std tau (`PRIOR_LOG_STD` for the exposure, `WHITE_BALANCE_PRIOR_LOG_STD` for a ratio). A
     measurement x of std s is applied where the second is the likelier (even prior odds): where
     (x / s)^2 exceeds (1 + s^2 / tau^2) ln(1 + tau^2 / s^2), about 2.1 std for the exposure and 1.6
-    for a ratio at the model's own misfit; it is then applied as that hypothesis's posterior
-    mean, x tau^2 / (tau^2 + s^2). A gain the model's misfit could give on a calibrated capture is
-    not applied.
+    for a ratio at the model's own misfit; it is then applied as measured: the normal slab decides
+    whether a gain is off, but how far off a probe shot at another setting is has heavier tails
+    (daylight against tungsten is a factor 2), and shrinking x by tau^2 / (tau^2 + s^2) left a 20 %
+    white balance 2-4 % short (docs/results.md#calibration). A gain the model's misfit could give on
+    a calibrated capture is not applied.
     """
     log_gain = np.log(gain)
     exposure = float(log_gain.mean())
@@ -370,10 +372,9 @@ def _decision_log_std(gain: np.ndarray, found: GainEstimate) -> np.ndarray:
     """Return the std (3,) of the error of the log gains `_significant` applies, per channel.
 
     Under the spike-and-slab posterior of a measurement x of std s (`_significant`), the gain is off
-    1 with probability p = sigmoid(`slab_log_odds`), then by x tau^2 / (tau^2 + s^2) with variance
-    s^2 tau^2 / (tau^2 + s^2). Applying a (that mean, or 0) is off by a - mean with that variance
-    in the first case and by a in the second: the expected square of the error, for the exposure
-    and for each ratio, added.
+    1 with probability p = sigmoid(`slab_log_odds`), then by x with variance s^2 (the slab's heavy
+    tails). Applying a (x, or 0) is off by a - x with that variance in the first case and by a in
+    the second: the expected square of the error, for the exposure and for each ratio, added.
     """
     log_gain = np.log(gain)
     exposure = float(log_gain.mean())
@@ -384,20 +385,18 @@ def _decision_log_std(gain: np.ndarray, found: GainEstimate) -> np.ndarray:
 def _decision_variance(value, std, prior_std):
     """Return the expected squared error of `_applied` for a measurement ``value`` of ``std`` (`_decision_log_std`)."""
     value, variance = np.asarray(value, np.float64), np.maximum(np.asarray(std, np.float64) ** 2, 1e-24)
-    shrink = prior_std ** 2 / (prior_std ** 2 + variance)
-    mean, slab_variance = value * shrink, variance * shrink
     off = 1.0 / (1.0 + np.exp(-np.clip(slab_log_odds(value, np.sqrt(variance), prior_std), -700.0, 700.0)))
     applied = _applied(value, np.sqrt(variance), prior_std)
-    return off * ((applied - mean) ** 2 + slab_variance) + (1.0 - off) * applied ** 2
+    return off * ((applied - value) ** 2 + variance) + (1.0 - off) * applied ** 2
 
 
 def _applied(value, std, prior_std):
     """Return the log gain to apply for a measurement ``value`` of ``std``.
 
-    0 where exactly 1 is the likelier (`_likelier_off`), else the posterior mean under ``prior_std``.
+    0 where exactly 1 is the likelier (`_likelier_off`), else the measurement (`_significant`).
     """
-    value, variance = np.asarray(value, np.float64), np.maximum(np.asarray(std, np.float64) ** 2, 1e-24)
-    return np.where(_likelier_off(value, np.sqrt(variance), prior_std), value * prior_std ** 2 / (prior_std ** 2 + variance), 0.0)
+    value = np.asarray(value, np.float64)
+    return np.where(_likelier_off(value, std, prior_std), value, 0.0)
 
 
 def _likelier_off(value, std, prior_std):
