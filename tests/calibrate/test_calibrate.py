@@ -246,7 +246,7 @@ def test_gain_passes_that_walk_widen_the_std_by_their_scatter(monkeypatch):
     import freqbrdf.calibrate as calibration
     from freqbrdf.calibrate.gains import GainEstimate
 
-    steps = iter([1.02, 0.87, 0.95, 0.985, 0.86])  # a walk from 1 to 0.71 in five passes
+    steps = iter([1.02, 0.87, 0.95, 0.985, 0.86, 1.0])  # a walk from 1 to 0.71 in five passes, then still
     monkeypatch.setattr(calibration, "label_sums", lambda observations, search: (np.zeros((1, 5)), None))
     monkeypatch.setattr(calibration, "channel_gains", lambda sums, roughness: GainEstimate(
         np.full(3, next(steps)), np.full(3, 0.17), 350, exposure_log_std=0.165, ratio_log_std=np.full(3, 0.03)))
@@ -257,6 +257,24 @@ def test_gain_passes_that_walk_widen_the_std_by_their_scatter(monkeypatch):
     alone = GainEstimate(np.ones(3), np.full(3, 0.17), 350, exposure_log_std=0.165, ratio_log_std=np.full(3, 0.03))
     assert np.all(calibration._significant(gain, alone) < 0.8)  # one pass's std alone would apply it
     np.testing.assert_allclose(calibration._significant(gain, found), 1.0)
+
+
+def test_passes_after_the_ratio_passes_move_the_exposure_only(monkeypatch):
+    """The exposure converges slowly and keeps its passes; the white balance moves in the first
+    `RATIO_PASSES`, so that its chance steps do not walk."""
+    import freqbrdf.calibrate as calibration
+    from freqbrdf.calibrate.gains import GainEstimate
+
+    tilt = np.array([1.02, 1.0, 0.98])
+    steps = iter([1.3 * tilt] * calibration.RATIO_PASSES + [1.1 * tilt, 1.0 * tilt])
+    monkeypatch.setattr(calibration, "label_sums", lambda observations, search: (np.zeros((1, 5)), None))
+    monkeypatch.setattr(calibration, "channel_gains", lambda sums, roughness: GainEstimate(
+        next(steps), np.full(3, 0.1), 350, exposure_log_std=0.1, ratio_log_std=np.full(3, 0.03)))
+    monkeypatch.setattr(calibration, "_scaled", lambda observations, divisor, config: observations)
+    gain, _ = calibration._channel_gains(None, Config(), np.ones(3), Config())
+    exposure = np.exp(np.log(tilt).mean())
+    expected = (1.3 * tilt) ** calibration.RATIO_PASSES * 1.1 * exposure * exposure
+    np.testing.assert_allclose(gain, expected, rtol=1e-12)
 
 
 def test_a_turn_is_applied_only_where_likelier_than_none():

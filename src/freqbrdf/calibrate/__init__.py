@@ -46,9 +46,12 @@ __all__ = ["Calibration", "CameraRefinement", "GainEstimate", "ProbeRegistration
            "rotation_about"]
 
 # Passes of the channel gains (each on photographs corrected by the ones before); they stop early
-# where a pass moves every gain by less than CONVERGED (in log).
-CONVERGED = 0.01
-GAIN_PASSES = 5
+# where a pass moves every gain by less than CONVERGED (in log). The white balance moves in the first
+# RATIO_PASSES only, the exposure in all (it converges slowly: the roughness follows the gain part of
+# the way, docs/results.md#calibration).
+CONVERGED = 0.005
+RATIO_PASSES = 5
+GAIN_PASSES = 10
 # How far a probe's exposure and white balance are from the photographs' when they are not equal (1
 # sigma, in log): the exposure within a factor e (`freqbrdf.calibrate.gains.PRIOR_LOG_STD`), each
 # white-balance ratio within 10 % (a probe shot with another camera or another white-balance
@@ -293,24 +296,31 @@ def _channel_gains(observations: Observations, search: Config, start: np.ndarray
     """Return the gains measured from ``start`` on and the last pass's estimate, its std widened by the passes' scatter.
 
     Up to `GAIN_PASSES` passes, each on the photographs divided by the gains so far, until a pass
-    moves every gain by less than `CONVERGED`. Near the gains a pass moves them by what the texels
+    moves every gain by less than `CONVERGED`; after `RATIO_PASSES` a pass moves the exposure only
+    (the ratios' chance steps would walk). Near the gains a pass moves them by what the texels
     it selects say at random (the roughness moves, and with it which texels calibrate), and such
     steps multiplied together can walk away: the spread of the exposure the passes after the first
-    arrive at is added to the std (`_with_selection`), so that such a walk is not taken for a gain.
+    arrive at is added to the exposure's std, that of each white-balance ratio over the passes that
+    moved it to the ratio's (`_with_selection`), so that such a walk is not taken for a gain.
     """
     gain = np.asarray(start, np.float64)
     current = _scaled(observations, gain, config)
     arrived = []
-    for _ in range(GAIN_PASSES):
+    for index in range(GAIN_PASSES):
         params, sums = label_sums(current, search)
         found = channel_gains(sums, params[:, 3])
-        gain = gain * found.gain
-        arrived.append(float(np.mean(np.log(gain))))
-        if np.all(np.abs(np.log(found.gain)) < CONVERGED):
+        step = found.gain if index < RATIO_PASSES else np.full(3, np.exp(np.mean(np.log(found.gain))))
+        gain = gain * step
+        arrived.append(np.log(gain))
+        if np.all(np.abs(np.log(step)) < CONVERGED):
             break  # the roughness the search found no longer moves with the gain
         current = _scaled(observations, gain, config)
-    scatter = float(np.std(arrived[1:], ddof=1)) if len(arrived) >= 3 else 0.0
-    return gain, _with_selection(found, scatter)
+    arrived = np.array(arrived)  # (passes, 3)
+    exposure = arrived.mean(axis=1)
+    ratios = (arrived - exposure[:, None])[:RATIO_PASSES]
+    exposure_scatter = float(np.std(exposure[1:], ddof=1)) if len(exposure) >= 3 else 0.0
+    ratio_scatter = np.std(ratios[1:], axis=0, ddof=1) if len(ratios) >= 3 else np.zeros(3)
+    return gain, _with_selection(found, exposure_scatter, ratio_scatter)
 
 
 def _masks_inside(calibration: Calibration) -> bool:
@@ -335,12 +345,17 @@ def _exact_texels(observations: Observations) -> Observations:
     return observations.select(exact) if exact.any() else observations
 
 
-def _with_selection(found: GainEstimate, selection_log_std: float) -> GainEstimate:
-    """Return the gains with ``selection_log_std`` added in quadrature to the exposure's and each ratio's std."""
-    if selection_log_std <= 0.0:
+def _with_selection(found: GainEstimate, exposure_log_std: float,
+                    ratio_log_std: float | np.ndarray | None = None) -> GainEstimate:
+    """Return the gains with more std added in quadrature: the exposure's and each white-balance ratio's.
+
+    ``ratio_log_std`` is per ratio (3,) or one for all; None: ``exposure_log_std``.
+    """
+    ratio_log_std = exposure_log_std if ratio_log_std is None else np.asarray(ratio_log_std, np.float64)
+    if exposure_log_std <= 0.0 and np.all(np.asarray(ratio_log_std) <= 0.0):
         return found
-    exposure_variance = found.exposure_log_std ** 2 + selection_log_std ** 2
-    ratio_variance = found.ratio_log_std ** 2 + selection_log_std ** 2
+    exposure_variance = found.exposure_log_std ** 2 + exposure_log_std ** 2
+    ratio_variance = found.ratio_log_std ** 2 + np.asarray(ratio_log_std, np.float64) ** 2
     precision = 1.0 / (exposure_variance + ratio_variance) + 1.0 / PRIOR_LOG_STD ** 2
     return replace(found, log_std=1.0 / np.sqrt(precision), exposure_log_std=float(np.sqrt(exposure_variance)),
                    ratio_log_std=np.sqrt(ratio_variance))
