@@ -46,10 +46,11 @@ __all__ = ["Calibration", "CameraRefinement", "GainEstimate", "ProbeRegistration
            "rotation_about"]
 
 # Passes of the channel gains (each on photographs corrected by the ones before); they stop early
-# where a pass moves every gain by less than CONVERGED (in log). The white balance moves in the first
-# RATIO_PASSES only, the exposure in all (it converges slowly: the roughness follows the gain part of
-# the way, docs/results.md#calibration).
+# where a pass moves the exposure by less than CONVERGED and each white-balance ratio by less than
+# RATIO_CONVERGED (in log). The white balance moves in the first RATIO_PASSES only, the exposure in all
+# (it converges slowly: the roughness follows the gain part of the way, docs/results.md#calibration).
 CONVERGED = 0.005
+RATIO_CONVERGED = 0.01
 RATIO_PASSES = 5
 GAIN_PASSES = 10
 # How far a probe's exposure and white balance are from the photographs' when they are not equal (1
@@ -296,7 +297,8 @@ def _channel_gains(observations: Observations, search: Config, start: np.ndarray
     """Return the gains measured from ``start`` on and the last pass's estimate, its std widened by the passes' scatter.
 
     Up to `GAIN_PASSES` passes, each on the photographs divided by the gains so far, until a pass
-    moves every gain by less than `CONVERGED`; after `RATIO_PASSES` a pass moves the exposure only
+    moves the exposure by less than `CONVERGED` and each ratio by less than `RATIO_CONVERGED`;
+    after `RATIO_PASSES` a pass moves the exposure only
     (the ratios' chance steps would walk). Near the gains a pass moves them by what the texels
     it selects say at random (the roughness moves, and with it which texels calibrate), and such
     steps multiplied together can walk away: the spread of the exposure the passes after the first
@@ -312,7 +314,8 @@ def _channel_gains(observations: Observations, search: Config, start: np.ndarray
         step = found.gain if index < RATIO_PASSES else np.full(3, np.exp(np.mean(np.log(found.gain))))
         gain = gain * step
         arrived.append(np.log(gain))
-        if np.all(np.abs(np.log(step)) < CONVERGED):
+        log_step = np.log(step)
+        if abs(log_step.mean()) < CONVERGED and np.all(np.abs(log_step - log_step.mean()) < RATIO_CONVERGED):
             break  # the roughness the search found no longer moves with the gain
         current = _scaled(observations, gain, config)
     arrived = np.array(arrived)  # (passes, 3)
