@@ -297,13 +297,13 @@ def _channel_gains(observations: Observations, search: Config, start: np.ndarray
     """Return the gains measured from ``start`` on and the last pass's estimate, its std widened by the passes' scatter.
 
     Up to `GAIN_PASSES` passes, each on the photographs divided by the gains so far, until a pass
-    moves the exposure by less than `CONVERGED` and each ratio by less than `RATIO_CONVERGED`;
-    after `RATIO_PASSES` a pass moves the exposure only
-    (the ratios' chance steps would walk). Near the gains a pass moves them by what the texels
-    it selects say at random (the roughness moves, and with it which texels calibrate), and such
-    steps multiplied together can walk away: the spread of the exposure the passes after the first
-    arrive at is added to the exposure's std, that of each white-balance ratio over the passes that
-    moved it to the ratio's (`_with_selection`), so that such a walk is not taken for a gain.
+    moves the exposure by less than `CONVERGED` and each ratio by less than `RATIO_CONVERGED`; after
+    `RATIO_PASSES` a pass moves the exposure only (the ratios' chance steps would walk). Near the
+    gains a pass moves them by what the texels it selects say at random (the roughness moves, and
+    with it which texels calibrate), and such steps multiplied together can walk away: the spread of
+    the exposure the passes after the first arrive at is added to the exposure's std, that of each
+    white-balance ratio over the passes that moved it to the ratio's (`_with_selection`), so that
+    such a walk is not taken for a gain.
     """
     gain = np.asarray(start, np.float64)
     current = _scaled(observations, gain, config)

@@ -130,18 +130,20 @@ def channel_gains(moments: np.ndarray, roughness: np.ndarray | None = None) -> G
     Each texel's label (dielectric or metal) is the one that fits it best at its best gain. With
     that label, its loss summed over the channels over `LOG_GAIN_GRID` gives the texel's own log
     gain (the parabola through its grid minimum); each channel's loss alone gives the texel's log
-    gain of that channel, taken relative to its common one (a white-balance ratio, in which what
-    the channels share cancels). The exposure is the median of the texels' common log gains, every
-    texel one vote: the readings scatter by the model's misfit far beyond what a texel's own
-    curvature says, and weighting by it lets the few texels the model fits most sharply decide
+    gain of that channel, taken relative to its common one (a white-balance ratio, in which what the
+    channels share cancels). The exposure is the median of the texels' common log gains, every texel
+    one vote: the readings scatter by the model's misfit far beyond what a texel's own curvature
+    says, and weighting by it lets the few texels the model fits most sharply decide
     (docs/results.md#calibration). Each channel's ratio is the median of theirs weighted by the
-    texel's curvature over its misfit (an inverse variance), normalised to a geometric mean of 1. A texel says nothing where its loss has no minimum inside the grid (a metal, whose free
-    base colour takes any gain) or where its base colour sits at a bound (the minimum is then the
-    bound's kink, not the data's) or where its estimated roughness is above `MAX_ROUGHNESS` (a lobe
-    that wide is not told apart from the diffuse: rough dielectrics bias the gains). Each texel's
-    loss at a gain is its least over the roughness slots and the two labels, so that a gain is not
-    judged at a roughness found under another. The std is the (weighted) spread over the square root of the
-    (effective) number of texels with `MODEL_EXPOSURE_LOG_STD` (`MODEL_RATIO_LOG_STD`) added in quadrature, and the prior of `PRIOR_LOG_STD` keeps a gain that few texels determine near 1.
+    texel's curvature over its misfit (an inverse variance), normalised to a geometric mean of 1. A
+    texel says nothing where its loss has no minimum inside the grid (a metal, whose free base
+    colour takes any gain) or where its base colour sits at a bound (the minimum is then the bound's
+    kink, not the data's) or where its estimated roughness is above `MAX_ROUGHNESS` (a lobe that
+    wide is not told apart from the diffuse: rough dielectrics bias the gains). Each texel's loss at
+    a gain is its least over the roughness slots and the two labels, so that a gain is not judged at
+    a roughness found under another. The std is the (weighted) spread over the square root of the
+    (effective) number of texels with `MODEL_EXPOSURE_LOG_STD` (`MODEL_RATIO_LOG_STD`) added in
+    quadrature, and the prior of `PRIOR_LOG_STD` keeps a gain that few texels determine near 1.
 
     Parameters
     ----------
