@@ -289,3 +289,29 @@ def test_a_turn_is_applied_only_where_likelier_than_none():
     assert _log_odds(np.zeros(3), covariance, prior) < 0.0
     # A wider std (a poorly determined turn, or clipping's selection) needs a larger turn.
     assert _log_odds(np.radians([0.0, 8.0, 0.0]), 25.0 * covariance, prior) < 0.0
+
+
+def test_frame_gains_follow_a_photographs_gain_exactly():
+    """A photograph multiplied by k moves every pair it is in by log k: its gain moves by k (the frames'
+    geometric mean held at 1), the others' by the normalisation only; a frame's std is finite where it
+    has pairs."""
+    from freqbrdf.calibrate.gains import frame_gains
+
+    rng = np.random.default_rng(3)
+    n_texels, n_views = 400, 12
+    # Views on a ring around each texel's normal; the radiance varies smoothly with the direction.
+    angles = np.linspace(0.0, 2.0 * np.pi, n_views, endpoint=False)
+    directions = np.stack([0.7 * np.cos(angles), 0.7 * np.sin(angles), np.full(n_views, np.sqrt(1 - 0.49))], axis=1)
+    view_direction = np.broadcast_to(directions, (n_texels, n_views, 3)).astype(np.float32).copy()
+    albedo = rng.uniform(0.2, 0.8, (n_texels, 1, 3))
+    observed = (albedo * (1.0 + 0.2 * np.cos(angles)[None, :, None])
+                * rng.lognormal(0.0, 0.02, (n_texels, n_views, 3))).astype(np.float32)
+    weight = np.ones((n_texels, n_views), np.float32)
+    gain, log_std = frame_gains(view_direction, weight, observed)
+    brighter = observed.copy()
+    brighter[:, 4] *= 1.6
+    moved, _ = frame_gains(view_direction, weight, brighter)
+    shift = np.log(moved) - np.log(gain)
+    np.testing.assert_allclose(shift[4], np.log(1.6) * (1.0 - 1.0 / n_views), atol=1e-6)  # float32 photographs
+    np.testing.assert_allclose(np.delete(shift, 4, axis=0), -np.log(1.6) / n_views, atol=1e-6)
+    assert np.all(np.isfinite(log_std))

@@ -10,7 +10,7 @@ with a `Calibration` that says what was found and how well the photographs deter
 1. each camera's pose (`freqbrdf.calibrate.cameras`), so that the mesh's outline falls on the
    photograph's mask's edge;
 2. relative gains per photograph (`freqbrdf.calibrate.gains.frame_gains`), where asked
-   (``CalibrationConfig.frame_gains``);
+   (``CalibrationConfig.frame_gains``), each applied where likelier off the others than alike;
 3. one gain per colour channel between the photographs and the map
    (`freqbrdf.calibrate.gains.channel_gains`), with the materials: up to `GAIN_PASSES` times,
    each on photographs corrected by the passes before, since the roughness the search finds
@@ -73,6 +73,12 @@ MIN_GAIN_SAMPLES = 8
 # A frame whose gain is beyond this factor of the others (either way) is one calibration cannot
 # trust: named in a warning, dropped with ``drop_bad_views``.
 BAD_FRAME_FACTOR = 2.0
+# A photograph's exposure against the others' is either the same or off by a normal amount of this std
+# (in log: auto-exposure moves it by a stop or so); the pairs' own misfit on photographs exposed alike
+# (the view dependence between nearby directions) adds FRAME_MODEL_LOG_STD to each frame's std
+# (docs/results.md#calibration).
+FRAME_PRIOR_LOG_STD = 0.7
+FRAME_MODEL_LOG_STD = 0.10
 
 
 @dataclass
@@ -258,9 +264,9 @@ def calibrate(capture: Capture, config: Config = Config(),
         calibration.samples_per_texel = float(np.median(views[views > 0])) if views.any() else 0.0
         advance(1)
         if settings.frame_gains == "on":
-            measured, _ = frame_gains(observations.view_direction, observations.weight, observations.observed)
-            calibration.frame_gain = measured
-            observations = _scaled(observations, measured, config)
+            calibration.frame_gain = _significant_frames(*frame_gains(
+                observations.view_direction, observations.weight, observations.observed))
+            observations = _scaled(observations, calibration.frame_gain, config)
         search = _search_config(coarse_config)
         estimate_gains = (settings.gains and calibration.samples_per_texel >= MIN_GAIN_SAMPLES
                           and not _masks_inside(calibration))
@@ -384,6 +390,24 @@ def _significant(gain: np.ndarray, found: GainEstimate) -> np.ndarray:
     exposure = _applied(exposure, found.exposure_log_std, PRIOR_LOG_STD)
     ratios = _applied(ratios, found.ratio_log_std, WHITE_BALANCE_PRIOR_LOG_STD)
     return np.exp(exposure + ratios)
+
+
+def _significant_frames(gain: np.ndarray, log_std: np.ndarray) -> np.ndarray:
+    """Return the frames' gains (V, 3) with those the pairs do not tell from the others' set to 1.
+
+    Each frame's exposure (its gains' geometric mean; its channels alike) is the same as the others'
+    or off by a normal amount of std `FRAME_PRIOR_LOG_STD`; measured with its pairs' std and
+    `FRAME_MODEL_LOG_STD` in quadrature, it is applied as measured where the second is the likelier
+    (`_significant`'s rule): on photographs exposed alike the pairs' misfit reads 0.08-0.12 in log
+    (docs/results.md#calibration), which applied to every frame would cost more than it mends.
+    """
+    log_gain = np.log(gain).mean(axis=1)
+    finite = np.isfinite(log_std)
+    measured = finite.any(axis=1)  # frames in enough pairs
+    own_variance = (np.where(finite, log_std, 0.0) ** 2).sum(axis=1) / np.maximum(finite.sum(axis=1), 1)
+    std = np.sqrt(own_variance + FRAME_MODEL_LOG_STD ** 2)
+    applied = np.where(measured, _applied(log_gain, std, FRAME_PRIOR_LOG_STD), 0.0)
+    return np.repeat(np.exp(applied)[:, None], 3, axis=1)
 
 
 def _decision_log_std(gain: np.ndarray, found: GainEstimate) -> np.ndarray:

@@ -17,20 +17,19 @@ channels share cancels, are medians weighted by each texel's curvature over its 
 adds the model's own misfit on calibrated captures, and a prior of one log unit keeps a gain the
 texels do not determine (an all-metal object) near 1.
 
-`frame_gains` compares each photograph with what the other views say of the same texels (a
-low-degree SH fit of the texels' radiance, left out one view at a time), for captures whose frames
-are exposed differently.
+`frame_gains` compares the photographs two by two, on the texels both see from nearby directions
+(where a texel shows about the same radiance to both, whatever its material), and solves for one
+gain per photograph that explains every pair's ratio, for captures whose frames are exposed
+differently.
 """
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from freqbrdf.calibrate._kernels import channel_gain_curves, texel_gain_curves
-from freqbrdf.sphere import harmonics as sh
 
 __all__ = ["GainEstimate", "channel_gains", "frame_gains"]
 
@@ -40,10 +39,10 @@ PRIOR_LOG_STD = 1.0
 # lies on the grid's edge says nothing; wider grids let in texels whose minimum is the model's misfit
 # (docs/results.md#calibration).
 LOG_GAIN_GRID = np.log(2.0) * np.arange(-2.0, 2.0001, 0.05)
-# The per-frame gains' prediction of a sample from the texel's other views: an SH fit of this degree and
-# ridge (low: the other views must determine it).
-FRAME_GAIN_LMAX = 2
-FRAME_GAIN_RIDGE = 1e-3
+# Two photographs' ratio is read on the texels both see from directions at most this far apart (degrees)
+# and where there are at least FRAME_PAIR_TEXELS of them (docs/results.md#calibration).
+FRAME_PAIR_DEG = 40.0
+FRAME_PAIR_TEXELS = 10
 # The std of the exposure and of a white-balance ratio that the model's own misfit gives on a
 # calibrated capture, added to the texels' spread (docs/results.md#calibration: the clean scenes').
 MODEL_EXPOSURE_LOG_STD = 0.10
@@ -232,16 +231,15 @@ def _weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
 
 
 def frame_gains(view_direction: np.ndarray, weight: np.ndarray, observed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Estimate a relative gain per photograph and channel from what the other views predict.
+    """Estimate a relative gain per photograph and channel from the photographs' pairwise ratios.
 
-    Each texel's samples are fitted by a low-degree SH (degree `FRAME_GAIN_LMAX`, ridge
-    `FRAME_GAIN_RIDGE`) and each sample compared with the fit's leave-one-out prediction (the
-    residual over 1 - its leverage: the fit of the other views); a photograph exposed k times the
-    others is k times that prediction at every texel it sees. The median of log(sample /
-    prediction) over the texels is its log gain; the gains are then taken relative to their
-    geometric mean (the absolute scale is `channel_gains`'s). Only the half of the texels whose
-    samples their other views predict most consistently vote (highlights that the other views
-    miss would bias a view's ratio).
+    Two photographs u and v that see a texel from directions less than `FRAME_PAIR_DEG` apart see
+    about the same radiance there, whatever its material: the median over such texels (at least
+    `FRAME_PAIR_TEXELS`) of log(f_u / f_v) reads log g_u - log g_v. The log gains are the weighted
+    least-squares solution over all pairs (weights the square root of each pair's texels, Huber's
+    on the pairs' residuals, three passes), with a geometric mean of 1 over the photographs in
+    pairs. A gain the photographs multiply moves every pair's ratio by it, so the estimate follows
+    it exactly (what remains is the view dependence of nearby directions, the same at any gain).
 
     Parameters
     ----------
@@ -255,49 +253,52 @@ def frame_gains(view_direction: np.ndarray, weight: np.ndarray, observed: np.nda
     Returns
     -------
     gain : (V, 3) float64
-        Relative gain per view and channel (geometric mean 1 over the views with samples; 1 for
-        views without any).
+        Relative gain per view and channel (geometric mean 1 over the views in pairs; 1 for the
+        others).
     log_std : (V, 3) float64
-        The std of each log gain (the spread of the texels' log ratios, as 1.4826 median absolute
-        deviations, over the square root of their count); inf without enough samples.
+        The std of each log gain: its pairs' residuals (1.4826 median absolute deviations) over the
+        square root of their count; inf for a view in fewer than two pairs.
     """
-    n_texels, n_views = weight.shape
-    basis = sh.eval_sh(np.asarray(view_direction, np.float64).reshape(-1, 3), FRAME_GAIN_LMAX).reshape(
-        n_texels, n_views, -1)  # (N, V, K)
-    w = np.asarray(weight, np.float64)
-    gram = np.einsum("nv,nvk,nvl->nkl", w, basis, basis) + FRAME_GAIN_RIDGE * np.eye(basis.shape[2])
-    inverse = np.linalg.inv(gram)  # (N, K, K)
-    values = np.asarray(observed, np.float64)
-    coeffs = np.einsum("nkl,nv,nvl,nvc->nkc", inverse, w, basis, values)
-    fitted = np.einsum("nvk,nkc->nvc", basis, coeffs)
-    leverage = w * np.einsum("nvk,nkl,nvl->nv", basis, inverse, basis)
-    # Texels with several more samples than unknowns: the prediction is the other views'.
-    enough = (w > 0).sum(axis=1) >= 2 * basis.shape[2]
-    predicted = values - (values - fitted) / np.maximum(1.0 - leverage, 1e-3)[..., None]
-    usable = (w > 0) & enough[:, None] & (leverage < 0.9) & np.all(predicted > 0, axis=2) & np.all(values > 0, axis=2)
-    ratio_all = np.log(np.where(usable[..., None], values, 1.0) / np.where(usable[..., None], predicted, 1.0))
-    # Texels whose other views predict each view well (mostly diffuse: no highlight the others miss)
-    # carry the frames' gains; the half most consistent across their views is used.
-    grey = np.where(usable, ratio_all.mean(axis=2), np.nan)
-    with warnings.catch_warnings():  # texels without a usable sample give NaN, and are left out
-        warnings.simplefilter("ignore", RuntimeWarning)
-        centre = np.nanmedian(grey, axis=1)
-        spread = np.nanmedian(np.abs(grey - centre[:, None]), axis=1)
-    consistent = np.isfinite(spread)
-    if consistent.sum() > 1:
-        consistent &= spread <= np.median(spread[consistent])
-    usable &= consistent[:, None]
-    log_gain = np.zeros((n_views, 3))
-    log_std = np.full((n_views, 3), np.inf)
-    for view in range(n_views):
-        rows = usable[:, view]
-        if rows.sum() < 8:
-            continue
-        ratio = np.log(values[rows, view] / predicted[rows, view])  # (n, 3)
-        median = np.median(ratio, axis=0)
-        log_gain[view] = median
-        log_std[view] = 1.4826 * np.median(np.abs(ratio - median), axis=0) / np.sqrt(rows.sum())
-    seen = np.isfinite(log_std[:, 0])
-    if seen.any():
-        log_gain[seen] -= log_gain[seen].mean(axis=0)
+    n_views = weight.shape[1]
+    seen = (np.asarray(weight) > 0) & np.all(np.asarray(observed) > 0, axis=2)
+    log_radiance = np.log(np.where(seen[..., None], observed, 1.0).astype(np.float64))
+    directions = np.asarray(view_direction, np.float64)
+    closest = np.cos(np.radians(FRAME_PAIR_DEG))
+    first, second, ratios, counts = [], [], [], []
+    for u in range(n_views - 1):
+        both = seen[:, u, None] & seen[:, u + 1:]  # (N, V - u - 1)
+        both &= np.einsum("nk,nvk->nv", directions[:, u], directions[:, u + 1:]) >= closest
+        for offset in np.flatnonzero(both.sum(axis=0) >= FRAME_PAIR_TEXELS):
+            rows = both[:, offset]
+            v = u + 1 + offset
+            first.append(u)
+            second.append(v)
+            ratios.append(np.median(log_radiance[rows, u] - log_radiance[rows, v], axis=0))
+            counts.append(rows.sum())
+    log_gain, log_std = np.zeros((n_views, 3)), np.full((n_views, 3), np.inf)
+    if not first:
+        return np.ones((n_views, 3)), log_std
+    first, second, ratios = np.array(first), np.array(second), np.array(ratios)
+    pairs = len(first)
+    design = np.zeros((pairs + 1, n_views))
+    design[np.arange(pairs), first] = 1.0
+    design[np.arange(pairs), second] = -1.0
+    paired = np.zeros(n_views, bool)
+    paired[first] = paired[second] = True
+    design[pairs, paired] = 1.0  # the geometric mean of the paired views' gains is 1
+    base_weight = np.sqrt(np.array(counts, np.float64))
+    for c in range(3):
+        pair_weight = base_weight.copy()
+        for _ in range(3):
+            rows_weight = np.append(pair_weight, base_weight.sum())
+            solution = np.linalg.lstsq(design * rows_weight[:, None], np.append(ratios[:, c], 0.0) * rows_weight,
+                                       rcond=None)[0]
+            residual = ratios[:, c] - (solution[first] - solution[second])
+            scale = 1.4826 * float(np.median(np.abs(residual))) + 1e-9
+            pair_weight = base_weight * np.minimum(1.0, 1.5 * scale / np.maximum(np.abs(residual), 1e-12))
+        log_gain[paired, c] = solution[paired]
+        for view in np.flatnonzero(paired):
+            mine = (first == view) | (second == view)
+            if mine.sum() >= 2:
+                log_std[view, c] = 1.4826 * float(np.median(np.abs(residual[mine]))) / np.sqrt(mine.sum())
     return np.exp(log_gain), log_std
