@@ -343,8 +343,8 @@ class CalibrationConfig:
     balance) with the materials; off: the photographs and the map share one radiometric scale."""
     frame_gains: Literal["off", "on"] = "off"
     """A relative gain per photograph, for photographs at other shutter speeds or with auto-exposure: "on"
-    measures and applies them. Off by default: on captures exposed alike they add more error than they remove
-    (docs/results.md#calibration)."""
+    measures them from the photographs' pairwise ratios and applies each where likelier off the others than
+    alike. Off by default: the frames it corrects can move the exposure's reading (docs/results.md#calibration)."""
     cameras: bool = True
     """Refine each camera's pose so that the mesh's outline falls on its mask's edge (photographs with a mask)."""
     probe_rotation: bool = True
