@@ -360,11 +360,11 @@ def _with_selection(found: GainEstimate, exposure_log_std: float,
 
     ``ratio_log_std`` is per ratio (3,) or one for all; None: ``exposure_log_std``.
     """
-    ratio_log_std = exposure_log_std if ratio_log_std is None else np.asarray(ratio_log_std, np.float64)
-    if exposure_log_std <= 0.0 and np.all(np.asarray(ratio_log_std) <= 0.0):
+    ratio_log_std = np.asarray(exposure_log_std if ratio_log_std is None else ratio_log_std, np.float64)
+    if exposure_log_std <= 0.0 and np.all(ratio_log_std <= 0.0):
         return found
     exposure_variance = found.exposure_log_std ** 2 + exposure_log_std ** 2
-    ratio_variance = found.ratio_log_std ** 2 + np.asarray(ratio_log_std, np.float64) ** 2
+    ratio_variance = found.ratio_log_std ** 2 + ratio_log_std ** 2
     precision = 1.0 / (exposure_variance + ratio_variance) + 1.0 / PRIOR_LOG_STD ** 2
     return replace(found, log_std=1.0 / np.sqrt(precision), exposure_log_std=float(np.sqrt(exposure_variance)),
                    ratio_log_std=np.sqrt(ratio_variance))
