@@ -34,6 +34,7 @@ from __future__ import annotations
 import hashlib
 import math
 import time
+import weakref
 from collections.abc import Iterator
 from typing import TYPE_CHECKING, NamedTuple
 
@@ -87,6 +88,10 @@ _HIGH_NODES = round(1.0 / PREFILTER_STEP) + 1
 # The last prefiltered stack: `angular_loss` and `hypothesis_moments` run many times on the same
 # observations (uncertainty, sharing, blocks of texels), and its transforms are costly.
 _PREFILTERED_CACHE: dict = {}
+# The digest of the last map the stack was keyed by, with a weak reference to that array: the
+# searches of one fit call `_prefiltered_stack` a hundred times or more on the same map, and hashing
+# it each time costs more than a search of a block. A map is not modified in place once observed.
+_LAST_DIGEST: list = [None, ""]
 
 
 class EstimatorResult(NamedTuple):
@@ -609,6 +614,15 @@ def _light_inputs(observations: Observations,
     return tangent, environment, prefiltered
 
 
+def _digest(radiance: np.ndarray) -> str:
+    """Return the hex digest of a map's radiance, remembered for the array last asked about."""
+    last = _LAST_DIGEST[0]() if _LAST_DIGEST[0] is not None else None
+    if last is not radiance:
+        digest = hashlib.blake2b(np.ascontiguousarray(radiance).tobytes(), digest_size=16).hexdigest()
+        _LAST_DIGEST[:] = [weakref.ref(radiance), digest]
+    return _LAST_DIGEST[1]
+
+
 def _prefiltered_stack(observations: Observations, n_full: int, high_degrees: int | None) -> tuple:
     """Return (stack (H W, nodes, 3) float32, H, W) of the prefiltered maps for the kernels.
 
@@ -619,8 +633,7 @@ def _prefiltered_stack(observations: Observations, n_full: int, high_degrees: in
     radiance = observations.environment_radiance
     # The maps are filtered in the map's own frame (zonal filters commute with rotations): a turn
     # of the map (`freqbrdf.calibrate`) keeps them.
-    key = (hashlib.blake2b(np.ascontiguousarray(radiance).tobytes(), digest_size=16).hexdigest(), radiance.shape,
-           n_full, high_degrees)
+    key = (_digest(radiance), radiance.shape, n_full, high_degrees)
     if key not in _PREFILTERED_CACHE:
         envmap = observations.environment()
         maps = prefiltered_environment(envmap, n_full)

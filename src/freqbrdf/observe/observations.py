@@ -734,7 +734,9 @@ def mean_over_views(weight: np.ndarray, values: np.ndarray) -> np.ndarray:
     (N, 3) float64
         The mean; 0 for a texel without samples.
     """
-    total, summed = _weighted_view_sums(np.ascontiguousarray(weight), np.ascontiguousarray(values))
+    # Strided views (a channel slice of the signals) are read in place: a copy of (N, V, 3) costs
+    # more than the sums.
+    total, summed = _weighted_view_sums(weight, values)
     return np.where(total[:, None] > 0, summed / np.maximum(total, 1e-30)[:, None], 0.0)
 
 

@@ -19,6 +19,7 @@ theta_i = pi i / (H - 1), both poles included) in the frame E with polar axis = 
 from __future__ import annotations
 
 import math
+import weakref
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -42,6 +43,9 @@ _EMITTER_FROM_SH_FRAME = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [-1.0, 0.0
 # Map samples (maps x rings x columns) per `zonal_filters` synthesis, at most: its complex
 # spectra and its float64 maps then take 64 MiB each.
 _SYNTHESIS_SAMPLES = 2**23
+# The last analysis (`_analysis`): a weak reference to the map's radiance, the degree, the coefficients.
+# A map is not modified in place once read.
+_LAST_ANALYSIS: list = [None, -1, None]
 
 
 @dataclass
@@ -408,13 +412,19 @@ def _analysis(radiance: np.ndarray, lmax: int) -> np.ndarray:
     """(H, W, 3) map -> (3, K) real SH coefficients in the emitter's SH frame (no rotation).
 
     The map is read as samples on a Clenshaw-Curtis grid (Mitsuba's rows sit on theta =
-    pi i / (H - 1)) and transformed exactly for its band limit (`freqbrdf.sht.analysis`).
+    pi i / (H - 1)) and transformed exactly for its band limit (`freqbrdf.sht.analysis`). The
+    last map's transform is remembered (`_LAST_ANALYSIS`): a fit filters one map several times.
     """
+    last, last_lmax, coeffs = _LAST_ANALYSIS
+    if last is not None and last() is radiance and last_lmax == lmax:
+        return coeffs.copy()
     height, width = radiance.shape[:2]
     _check_resolution(height, width, lmax)
     # Reversed columns run with increasing phi_E = 2 pi (j' + 0.5) / W.
     sh_frame_maps = np.ascontiguousarray(radiance[:, ::-1, :].transpose(2, 0, 1), dtype=np.float64)
-    return sht.analysis(sh_frame_maps, lmax, phi0=math.pi / width)
+    coeffs = sht.analysis(sh_frame_maps, lmax, phi0=math.pi / width)
+    _LAST_ANALYSIS[:] = [weakref.ref(radiance), lmax, coeffs.copy()]
+    return coeffs
 
 
 def _synthesis(coeffs_sh_frame: np.ndarray, height: int, width: int, out: np.ndarray | None = None) -> np.ndarray:
