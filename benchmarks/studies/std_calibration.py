@@ -45,15 +45,16 @@ from freqbrdf.uncertainty.heldout import COVERAGE, _relative_misfit  # noqa: E40
 STDS = ("roughness", "metallic", "base_color")
 VARIANTS = ("before", "two_sided", "after")
 # Finer rules measured against the fit's one factor per std (`finer_rules`).
-FINER = ("by_label", "by_samples", "misfit_term")
+FINER = ("by_label", "by_samples", "misfit_term", "misfit_scale")
 
 
 def finer_rules(result, name: str, before: np.ndarray) -> dict:
     """Per texel (N,), the std ``before`` calibrated by finer rules than one factor per std.
 
     From the folds' deviations on the calibration's texels: one factor per metal label of the
-    estimate ("by_label"), per tercile of the samples per texel ("by_samples"); and the fit's
-    calibrated std with each texel's relative misfit added as a variance ("misfit_term"). Only
+    estimate ("by_label"), per tercile of the samples per texel ("by_samples"); the fit's
+    calibrated std with each texel's relative misfit added as a variance ("misfit_term"); and the std
+    times the misfit scale alone, without the folds' factor ("misfit_scale"). Only
     where the fit estimated on the maps' texels (the calibration's rows are theirs); else {}.
     """
     found = result.std_calibration
@@ -74,7 +75,8 @@ def finer_rules(result, name: str, before: np.ndarray) -> dict:
     misfit = np.nan_to_num(_relative_misfit(result.observations, result.estimate.loss))
     return {"by_label": before * np.where(metal, factor(metal[rows]), factor(~metal[rows])),
             "by_samples": before * np.choose(tercile, [factor(tercile[rows] == k) for k in range(3)]),
-            "misfit_term": np.sqrt(np.square(before * found.factors[name]) + misfit)}
+            "misfit_term": np.sqrt(np.square(before * found.factors[name]) + misfit),
+            "misfit_scale": before * found.misfit_scale}
 
 
 def scores(std: np.ndarray, error: np.ndarray) -> dict:
@@ -138,8 +140,10 @@ def markdown(results: dict) -> str:
                          + " / ".join(f"{row[v]['within_2']:.0%}" for v in VARIANTS)
                          + f" | {row['truth_factor']:.2f} |")
     lines += ["", "Finer rules than one factor per std, 1 std coverage / rho: one factor per metal label, per tercile of "
-              "the samples per texel, and the texel's relative misfit added to the calibrated std as a variance:", "",
-              "| scene | std | one factor | by label | by samples | misfit term |", "|---|---|---|---|---|---|"]
+              "the samples per texel, the texel's relative misfit added to the calibrated std as a variance, and the misfit "
+              "scale alone (no fold factor):", "",
+              "| scene | std | one factor | by label | by samples | misfit term | misfit scale alone |",
+              "|---|---|---|---|---|---|---|"]
     for scene, found in results["scenes"].items():
         for name, row in found["stds"].items():
             if all(rule in row for rule in FINER):

@@ -18,8 +18,12 @@ as well as the true one) moves no fold and need not raise the misfit, so folds t
 than the std says do not show the std too wide. With more views per fold the factor also narrows
 an over-wide std.
 
-Roughness and base colour are calibrated; the metallic std is reported only (its errors are
-labels, mostly exactly right, which a scale cannot calibrate).
+The roughness std is scaled by the folds and the misfit. The base colour's, the whole-surface
+posterior's, by the misfit alone: the folds re-estimate each texel from its own samples, whose noise
+the whole-surface solve averages over its neighbours, so their deviations say how wide a texel's own
+estimate is, not the solved one (docs/results.md#held-out-std-calibration); its fold factor is
+reported. The metallic std is reported only (its errors are labels, mostly exactly right, which a
+scale cannot calibrate).
 """
 
 from __future__ import annotations
@@ -38,12 +42,13 @@ if TYPE_CHECKING:
     from freqbrdf.observe.observations import Observations
     from freqbrdf.uncertainty._result import Uncertainty
 
-__all__ = ["CALIBRATED", "COVERAGE", "FACTOR_RANGE", "StdCalibration", "calibrate_std", "heldout_texels"]
+__all__ = ["CALIBRATED", "COVERAGE", "FACTOR_RANGE", "FOLD_CALIBRATED", "StdCalibration", "calibrate_std", "heldout_texels"]
 
 # The share of errors one std covers for a normal error: the target of the calibration.
 COVERAGE = 0.68
-# The std maps the calibration scales.
+# The std maps the calibration scales, and those of them the folds' factor scales (the others by the misfit alone).
 CALIBRATED = ("roughness", "base_color")
+FOLD_CALIBRATED = ("roughness",)
 # The factors are kept within this range: a handful of texels says little.
 FACTOR_RANGE = (0.125, 8.0)
 
@@ -59,9 +64,10 @@ class StdCalibration:
     texels : int
         The texels re-estimated per fold.
     factors : dict of str to float
-        Per calibrated std ("roughness", "base_color"): the factor it was multiplied by,
-        fold factor x misfit_scale within `FACTOR_RANGE`, at least 1 where the folds keep fewer
-        than ``UncertaintyConfig.heldout_narrow_views`` views.
+        Per calibrated std ("roughness", "base_color"): the factor it was multiplied by, within
+        `FACTOR_RANGE`: the roughness's fold factor x misfit_scale, at least 1 where the folds
+        keep fewer than ``UncertaintyConfig.heldout_narrow_views`` views; the base colour's
+        misfit_scale (`FOLD_CALIBRATED`).
     fold_factors : dict of str to float
         Per std (also "metallic"): the factor the held-out folds alone ask for.
     misfit : float
@@ -241,8 +247,11 @@ def calibrate_std(observations: Observations, uncertainty: Uncertainty, config: 
         result.coverage_before[name] = float(np.mean(ratio <= 1.0))
         if name not in CALIBRATED:
             continue
-        factor = float(np.clip(fold_factor * misfit_scale if narrow else max(1.0, fold_factor * misfit_scale),
-                               *FACTOR_RANGE))
+        if name in FOLD_CALIBRATED:
+            factor = float(np.clip(fold_factor * misfit_scale if narrow else max(1.0, fold_factor * misfit_scale),
+                                   *FACTOR_RANGE))
+        else:
+            factor = float(np.clip(misfit_scale, *FACTOR_RANGE))
         result.factors[name] = factor
         result.coverage_after[name] = float(np.mean(ratio <= factor))
         scaled = (np.asarray(getattr(uncertainty, f"{name}_std"), np.float64) * factor).astype(np.float32)
