@@ -90,7 +90,8 @@ _HIGH_NODES = round(1.0 / PREFILTER_STEP) + 1
 _PREFILTERED_CACHE: dict = {}
 # The digest of the last map the stack was keyed by, with a weak reference to that array: the
 # searches of one fit call `_prefiltered_stack` a hundred times or more on the same map, and hashing
-# it each time costs more than a search of a block. A map is not modified in place once observed.
+# it each time costs more than a search of a block (a 2K map: seconds a fit). The array is made
+# read-only (`_digest`), so that an edit in place fails rather than meets a stale stack.
 _LAST_DIGEST: list = [None, ""]
 
 
@@ -615,12 +616,19 @@ def _light_inputs(observations: Observations,
 
 
 def _digest(radiance: np.ndarray) -> str:
-    """Return the hex digest of a map's radiance, remembered for the array last asked about."""
+    """Return the hex digest of a map's radiance, remembered for the array last asked about.
+
+    Remembered only for an array that owns its data, which is then made read-only: a view's data
+    could change through its base, so a view is hashed each time.
+    """
     last = _LAST_DIGEST[0]() if _LAST_DIGEST[0] is not None else None
-    if last is not radiance:
-        digest = hashlib.blake2b(np.ascontiguousarray(radiance).tobytes(), digest_size=16).hexdigest()
+    if last is radiance and not radiance.flags.writeable:
+        return _LAST_DIGEST[1]
+    digest = hashlib.blake2b(np.ascontiguousarray(radiance).tobytes(), digest_size=16).hexdigest()
+    if radiance.base is None:
+        radiance.flags.writeable = False
         _LAST_DIGEST[:] = [weakref.ref(radiance), digest]
-    return _LAST_DIGEST[1]
+    return digest
 
 
 def _prefiltered_stack(observations: Observations, n_full: int, high_degrees: int | None) -> tuple:

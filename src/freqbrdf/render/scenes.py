@@ -231,7 +231,8 @@ def envmap_emitter(envmap: Envmap) -> dict:
     mi = mitsuba()
     return {
         "type": "envmap",
-        "bitmap": mi.Bitmap(np.ascontiguousarray(envmap.radiance, dtype=np.float32)),
+        # A writeable array (Mitsuba takes no read-only one; a transformed map's radiance is read-only).
+        "bitmap": mi.Bitmap(np.require(envmap.radiance, np.float32, ["C", "W"])),
         "to_world": mi.ScalarTransform4f(np.asarray(envmap.to_world, np.float64)),
     }
 

@@ -43,9 +43,9 @@ _EMITTER_FROM_SH_FRAME = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [-1.0, 0.0
 # Map samples (maps x rings x columns) per `zonal_filters` synthesis, at most: its complex
 # spectra and its float64 maps then take 64 MiB each.
 _SYNTHESIS_SAMPLES = 2**23
-# The last analysis (`_analysis`): a weak reference to the map's radiance, the degree, the coefficients.
-# A map is not modified in place once read.
-_LAST_ANALYSIS: list = [None, -1, None]
+# The last map's analyses (`_analysis`): a weak reference to its radiance and its coefficients per degree.
+# The radiance is then read-only, so that an edit in place fails rather than meets stale coefficients.
+_LAST_ANALYSIS: list = [None, {}]
 
 
 @dataclass
@@ -55,7 +55,8 @@ class Envmap:
     Attributes
     ----------
     radiance : (H, W, 3) float32
-        Linear radiance, row 0 at the top (the north pole, local +y); made C-contiguous.
+        Linear radiance, row 0 at the top (the north pole, local +y); made C-contiguous, and an
+        array of its own (a view is copied). Read-only once a fit has transformed it: edit a copy.
     to_world : (4, 4) float64
         Emitter-to-world transform; its linear part must be a rotation.
 
@@ -71,6 +72,8 @@ class Envmap:
 
     def __post_init__(self):
         self.radiance = np.ascontiguousarray(self.radiance, dtype=np.float32)
+        if self.radiance.base is not None:  # its own copy: a transform of it is remembered (`_analysis`)
+            self.radiance = self.radiance.copy()
         self.to_world = np.asarray(self.to_world, dtype=np.float64)
         if self.radiance.ndim != 3 or self.radiance.shape[2] != 3 or min(self.radiance.shape[:2]) < 2:
             raise ValueError(f"radiance must be (H, W, 3) with H, W >= 2, got {self.radiance.shape}")
@@ -414,16 +417,23 @@ def _analysis(radiance: np.ndarray, lmax: int) -> np.ndarray:
     The map is read as samples on a Clenshaw-Curtis grid (Mitsuba's rows sit on theta =
     pi i / (H - 1)) and transformed exactly for its band limit (`freqbrdf.sht.analysis`). The
     last map's transform is remembered (`_LAST_ANALYSIS`): a fit filters one map several times.
+    Remembered for an array that owns its data, which is made read-only; a view is transformed each
+    time (its data could change through its base).
     """
-    last, last_lmax, coeffs = _LAST_ANALYSIS
-    if last is not None and last() is radiance and last_lmax == lmax:
-        return coeffs.copy()
+    last, by_degree = _LAST_ANALYSIS
+    remembered = last is not None and last() is radiance and not radiance.flags.writeable
+    if remembered and lmax in by_degree:
+        return by_degree[lmax].copy()
     height, width = radiance.shape[:2]
     _check_resolution(height, width, lmax)
     # Reversed columns run with increasing phi_E = 2 pi (j' + 0.5) / W.
     sh_frame_maps = np.ascontiguousarray(radiance[:, ::-1, :].transpose(2, 0, 1), dtype=np.float64)
     coeffs = sht.analysis(sh_frame_maps, lmax, phi0=math.pi / width)
-    _LAST_ANALYSIS[:] = [weakref.ref(radiance), lmax, coeffs.copy()]
+    if radiance.base is None:
+        radiance.flags.writeable = False
+        if not remembered:
+            _LAST_ANALYSIS[:] = [weakref.ref(radiance), {}]
+        _LAST_ANALYSIS[1][lmax] = coeffs.copy()
     return coeffs
 
 
