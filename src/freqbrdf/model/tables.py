@@ -329,6 +329,12 @@ def ggx_lobe_gains(roughness: float, lmax: int) -> np.ndarray:
     (lmax + 1,) float64
         The gain per degree.
     """
+    return _ggx_lobe_gains(float(roughness), int(lmax)).copy()
+
+
+@functools.lru_cache(maxsize=64)
+def _ggx_lobe_gains(roughness: float, lmax: int) -> np.ndarray:
+    """`ggx_lobe_gains`, remembered: the prefiltered stacks ask for the same nodes again."""
     alpha = max(roughness * roughness, ALPHA_MIN)
     u = (np.arange(_GAIN_STRATA) + 0.5) / _GAIN_STRATA
     cos_half_squared = 1.0 / (1.0 + alpha * alpha * u / (1.0 - u))

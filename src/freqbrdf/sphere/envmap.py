@@ -43,9 +43,10 @@ _EMITTER_FROM_SH_FRAME = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [-1.0, 0.0
 # Map samples (maps x rings x columns) per `zonal_filters` synthesis, at most: its complex
 # spectra and its float64 maps then take 64 MiB each.
 _SYNTHESIS_SAMPLES = 2**23
-# The last map's analyses (`_analysis`): a weak reference to its radiance and its coefficients per degree.
-# The radiance is then read-only, so that an edit in place fails rather than meets stale coefficients.
-_LAST_ANALYSIS: list = [None, {}]
+# What was computed from the last map (`_remembered`): a weak reference to its radiance and the results
+# by key (its SH analysis per degree, its downsampled copies per height). The radiance is then
+# read-only, so that an edit in place fails rather than meets stale results.
+_LAST_MAP: list = [None, {}]
 
 
 @dataclass
@@ -319,6 +320,13 @@ def downsample(radiance: np.ndarray, height: int) -> np.ndarray:
     """
     if height >= radiance.shape[0]:
         return np.array(radiance, np.float32)
+    if isinstance(radiance, np.ndarray):  # the last map's are remembered (`_remembered`)
+        return _remembered(radiance, ("downsample", height), lambda: _downsampled(radiance, height))
+    return _downsampled(radiance, height)
+
+
+def _downsampled(radiance, height: int) -> np.ndarray:
+    """`downsample`'s averaging."""
     width = 2 * height
     source = Envmap(np.ascontiguousarray(radiance, np.float32), np.eye(4))
     steps = math.ceil(radiance.shape[0] / height) + 1
@@ -416,25 +424,36 @@ def _analysis(radiance: np.ndarray, lmax: int) -> np.ndarray:
 
     The map is read as samples on a Clenshaw-Curtis grid (Mitsuba's rows sit on theta =
     pi i / (H - 1)) and transformed exactly for its band limit (`freqbrdf.sht.analysis`). The
-    last map's transform is remembered (`_LAST_ANALYSIS`): a fit filters one map several times.
-    Remembered for an array that owns its data, which is made read-only; a view is transformed each
-    time (its data could change through its base).
+    last map's transforms are remembered (`_remembered`): a fit filters one map several times.
     """
-    last, by_degree = _LAST_ANALYSIS
-    remembered = last is not None and last() is radiance and not radiance.flags.writeable
-    if remembered and lmax in by_degree:
-        return by_degree[lmax].copy()
     height, width = radiance.shape[:2]
     _check_resolution(height, width, lmax)
-    # Reversed columns run with increasing phi_E = 2 pi (j' + 0.5) / W.
-    sh_frame_maps = np.ascontiguousarray(radiance[:, ::-1, :].transpose(2, 0, 1), dtype=np.float64)
-    coeffs = sht.analysis(sh_frame_maps, lmax, phi0=math.pi / width)
-    if radiance.base is None:
+
+    def transform() -> np.ndarray:
+        # Reversed columns run with increasing phi_E = 2 pi (j' + 0.5) / W.
+        sh_frame_maps = np.ascontiguousarray(radiance[:, ::-1, :].transpose(2, 0, 1), dtype=np.float64)
+        return sht.analysis(sh_frame_maps, lmax, phi0=math.pi / width)
+
+    return _remembered(radiance, ("analysis", lmax), transform)
+
+
+def _remembered(radiance: np.ndarray, key: tuple, compute) -> np.ndarray:
+    """Return ``compute()`` (an array), remembered for the last map by ``key`` (`_LAST_MAP`); a copy.
+
+    Remembered for an array that owns its data, which is made read-only; a view's results are
+    computed each time (its data could change through its base).
+    """
+    last, results = _LAST_MAP
+    remembered = last is not None and last() is radiance and not radiance.flags.writeable
+    if remembered and key in results:
+        return results[key].copy()
+    value = compute()
+    if isinstance(radiance, np.ndarray) and radiance.base is None:
         radiance.flags.writeable = False
         if not remembered:
-            _LAST_ANALYSIS[:] = [weakref.ref(radiance), {}]
-        _LAST_ANALYSIS[1][lmax] = coeffs.copy()
-    return coeffs
+            _LAST_MAP[:] = [weakref.ref(radiance), {}]
+        _LAST_MAP[1][key] = value.copy()
+    return value
 
 
 def _synthesis(coeffs_sh_frame: np.ndarray, height: int, width: int, out: np.ndarray | None = None) -> np.ndarray:
