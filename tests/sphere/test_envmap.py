@@ -214,3 +214,26 @@ def test_load_envmap_checks_aspect_ratio(tmp_path):
     images.write_exr(tmp_path / "square.exr", good[:, :8])
     with pytest.raises(InputError, match="2:1"):
         em.load_envmap(tmp_path / "square.exr")
+
+
+def test_a_maps_transforms_are_remembered_and_its_radiance_then_read_only():
+    rng = np.random.default_rng(3)
+    pixels = rng.uniform(0.0, 2.0, (16, 32, 4)).astype(np.float32)
+    envmap = em.Envmap(pixels[..., :3])  # a view: the map takes a copy of its own
+    assert envmap.radiance.base is None and not np.shares_memory(envmap.radiance, pixels)
+    first = em.envmap_sh(envmap, 4)
+    assert not envmap.radiance.flags.writeable  # an edit in place would meet stale transforms
+    with pytest.raises(ValueError):
+        envmap.radiance[0, 0, 0] = 5.0
+    np.testing.assert_array_equal(em.envmap_sh(envmap, 4), first)
+    # Another degree, another map, the same contents: computed again, each as its own.
+    np.testing.assert_allclose(em.envmap_sh(envmap, 2), first[:9], rtol=1e-12, atol=1e-12)
+    edited = envmap.radiance.copy()
+    edited[0] *= 3.0
+    assert not np.allclose(em.envmap_sh(em.Envmap(edited), 4), first)
+    assert em.radiance_digest(envmap.radiance) == em.radiance_digest(envmap.radiance.copy())
+    assert em.radiance_digest(edited) != em.radiance_digest(envmap.radiance)
+    # A view is never frozen nor remembered: its base could change under it.
+    view = pixels[..., :3]
+    em.downsample(view, 8)
+    assert view.flags.writeable and pixels.flags.writeable

@@ -31,10 +31,8 @@ port (`freqbrdf.estimate._cuda_kernels`) where ``Config.device`` resolves to CUD
 
 from __future__ import annotations
 
-import hashlib
 import math
 import time
-import weakref
 from collections.abc import Iterator
 from typing import TYPE_CHECKING, NamedTuple
 
@@ -74,6 +72,7 @@ from freqbrdf.model.tables import (
 )
 from freqbrdf.observe.observations import Observations
 from freqbrdf.progress import Reporter
+from freqbrdf.sphere import envmap as envmaps
 from freqbrdf.sphere import harmonics as sh
 
 if TYPE_CHECKING:
@@ -88,11 +87,6 @@ _HIGH_NODES = round(1.0 / PREFILTER_STEP) + 1
 # The last prefiltered stack: `angular_loss` and `hypothesis_moments` run many times on the same
 # observations (uncertainty, sharing, blocks of texels), and its transforms are costly.
 _PREFILTERED_CACHE: dict = {}
-# The digest of the last map the stack was keyed by, with a weak reference to that array: the
-# searches of one fit call `_prefiltered_stack` a hundred times or more on the same map, and hashing
-# it each time costs more than a search of a block (a 2K map: seconds a fit). The array is made
-# read-only (`_digest`), so that an edit in place fails rather than meets a stale stack.
-_LAST_DIGEST: list = [None, ""]
 
 
 class EstimatorResult(NamedTuple):
@@ -615,22 +609,6 @@ def _light_inputs(observations: Observations,
     return tangent, environment, prefiltered
 
 
-def _digest(radiance: np.ndarray) -> str:
-    """Return the hex digest of a map's radiance, remembered for the array last asked about.
-
-    Remembered only for an array that owns its data, which is then made read-only: a view's data
-    could change through its base, so a view is hashed each time.
-    """
-    last = _LAST_DIGEST[0]() if _LAST_DIGEST[0] is not None else None
-    if last is radiance and not radiance.flags.writeable:
-        return _LAST_DIGEST[1]
-    digest = hashlib.blake2b(np.ascontiguousarray(radiance).tobytes(), digest_size=16).hexdigest()
-    if radiance.base is None:
-        radiance.flags.writeable = False
-        _LAST_DIGEST[:] = [weakref.ref(radiance), digest]
-    return digest
-
-
 def _prefiltered_stack(observations: Observations, n_full: int, high_degrees: int | None) -> tuple:
     """Return (stack (H W, nodes, 3) float32, H, W) of the prefiltered maps for the kernels.
 
@@ -641,7 +619,9 @@ def _prefiltered_stack(observations: Observations, n_full: int, high_degrees: in
     radiance = observations.environment_radiance
     # The maps are filtered in the map's own frame (zonal filters commute with rotations): a turn
     # of the map (`freqbrdf.calibrate`) keeps them.
-    key = (_digest(radiance), radiance.shape, n_full, high_degrees)
+    # The searches of one fit ask a hundred times or more for the same map: its digest is remembered
+    # (`envmaps.radiance_digest`).
+    key = (envmaps.radiance_digest(radiance), radiance.shape, n_full, high_degrees)
     if key not in _PREFILTERED_CACHE:
         envmap = observations.environment()
         maps = prefiltered_environment(envmap, n_full)

@@ -18,6 +18,7 @@ theta_i = pi i / (H - 1), both poles included) in the frame E with polar axis = 
 
 from __future__ import annotations
 
+import hashlib
 import math
 import weakref
 from dataclasses import dataclass, field
@@ -44,7 +45,7 @@ _EMITTER_FROM_SH_FRAME = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [-1.0, 0.0
 # spectra and its float64 maps then take 64 MiB each.
 _SYNTHESIS_SAMPLES = 2**23
 # What was computed from the last map (`_remembered`): a weak reference to its radiance and the results
-# by key (its SH analysis per degree, its downsampled copies per height). The radiance is then
+# by key (its digest, its SH analysis per degree, its downsampled copies per height). The radiance is then
 # read-only, so that an edit in place fails rather than meets stale results.
 _LAST_MAP: list = [None, {}]
 
@@ -320,9 +321,7 @@ def downsample(radiance: np.ndarray, height: int) -> np.ndarray:
     """
     if height >= radiance.shape[0]:
         return np.array(radiance, np.float32)
-    if isinstance(radiance, np.ndarray):  # the last map's are remembered (`_remembered`)
-        return _remembered(radiance, ("downsample", height), lambda: _downsampled(radiance, height))
-    return _downsampled(radiance, height)
+    return _remembered(radiance, ("downsample", height), lambda: _downsampled(radiance, height))
 
 
 def _downsampled(radiance, height: int) -> np.ndarray:
@@ -437,23 +436,42 @@ def _analysis(radiance: np.ndarray, lmax: int) -> np.ndarray:
     return _remembered(radiance, ("analysis", lmax), transform)
 
 
-def _remembered(radiance: np.ndarray, key: tuple, compute) -> np.ndarray:
-    """Return ``compute()`` (an array), remembered for the last map by ``key`` (`_LAST_MAP`); a copy.
+def radiance_digest(radiance: np.ndarray) -> str:
+    """Return a digest of a map's radiance (BLAKE2b, 32 hex digits), remembered for the last map.
+
+    Parameters
+    ----------
+    radiance : (H, W, 3) array
+        The map's radiance (`Envmap.radiance`); an array that owns its data becomes read-only
+        (`_remembered`).
+
+    Returns
+    -------
+    str
+        The digest: equal for equal contents.
+    """
+    return _remembered(radiance, ("digest",), lambda: hashlib.blake2b(
+        np.ascontiguousarray(radiance).tobytes(), digest_size=16).hexdigest())
+
+
+def _remembered(radiance: np.ndarray, key: tuple, compute):
+    """Return ``compute()``, remembered for the last map by ``key`` (`_LAST_MAP`); arrays as copies.
 
     Remembered for an array that owns its data, which is made read-only; a view's results are
     computed each time (its data could change through its base).
     """
     last, results = _LAST_MAP
     remembered = last is not None and last() is radiance and not radiance.flags.writeable
-    if remembered and key in results:
-        return results[key].copy()
-    value = compute()
-    if isinstance(radiance, np.ndarray) and radiance.base is None:
+    if not (remembered and key in results):
+        value = compute()
+        if not (isinstance(radiance, np.ndarray) and radiance.base is None):
+            return value
         radiance.flags.writeable = False
         if not remembered:
             _LAST_MAP[:] = [weakref.ref(radiance), {}]
-        _LAST_MAP[1][key] = value.copy()
-    return value
+        _LAST_MAP[1][key] = value
+    value = _LAST_MAP[1][key]
+    return value.copy() if isinstance(value, np.ndarray) else value
 
 
 def _synthesis(coeffs_sh_frame: np.ndarray, height: int, width: int, out: np.ndarray | None = None) -> np.ndarray:
