@@ -146,7 +146,7 @@ def test_clipped_highlights_neither_turn_the_probe_nor_move_the_gains(clean, cle
     assert found.probe.angle_deg < 1.0
     # The gains read only the texels without a censored sample (fewer: a wider std) and stay within
     # that std of the clean capture's.
-    assert found.texels < clean_calibration.texels
+    assert np.all(found.gain_log_std > clean_calibration.gain_log_std)
     spread = np.hypot(found.gain_log_std, clean_calibration.gain_log_std)
     assert np.all(np.abs(np.log(found.gain_measured / clean_calibration.gain_measured)) < 2.0 * spread)
 
@@ -250,6 +250,7 @@ def test_gain_passes_that_walk_widen_the_std_by_their_scatter(monkeypatch):
     monkeypatch.setattr(calibration, "label_sums", lambda observations, search: (np.zeros((1, 5)), None))
     monkeypatch.setattr(calibration, "channel_gains", lambda sums, roughness: GainEstimate(
         np.full(3, next(steps)), np.full(3, 0.17), 350, exposure_log_std=0.165, ratio_log_std=np.full(3, 0.03)))
+    monkeypatch.setattr(calibration, "_dielectric_exposure", lambda *args: None)  # the passes alone
     monkeypatch.setattr(calibration, "_scaled", lambda observations, divisor, config: observations)
     gain, found = calibration._channel_gains(None, Config(), np.ones(3), Config())
     np.testing.assert_allclose(gain, 1.02 * 0.87 * 0.95 * 0.985 * 0.86)
@@ -270,11 +271,67 @@ def test_passes_after_the_ratio_passes_move_the_exposure_only(monkeypatch):
     monkeypatch.setattr(calibration, "label_sums", lambda observations, search: (np.zeros((1, 5)), None))
     monkeypatch.setattr(calibration, "channel_gains", lambda sums, roughness: GainEstimate(
         next(steps), np.full(3, 0.1), 350, exposure_log_std=0.1, ratio_log_std=np.full(3, 0.03)))
+    monkeypatch.setattr(calibration, "_dielectric_exposure", lambda *args: None)  # the passes alone
     monkeypatch.setattr(calibration, "_scaled", lambda observations, divisor, config: observations)
     gain, _ = calibration._channel_gains(None, Config(), np.ones(3), Config())
     exposure = np.exp(np.log(tilt).mean())
     expected = (1.3 * tilt) ** calibration.RATIO_PASSES * 1.1 * exposure * exposure
     np.testing.assert_allclose(gain, expected, rtol=1e-12)
+
+
+class _Texels:
+    """Stands for Observations in `_dielectric_exposure`: n texels, `select` keeps a count."""
+
+    def __init__(self, n):
+        self.n_texels = n
+
+    def select(self, rows):
+        return _Texels(int(np.count_nonzero(rows)))
+
+
+def _dielectric_search(monkeypatch, metallic, reading):
+    """Mock the search (every texel of roughness 0.2 and the given metallic) and the readings at a gain."""
+    import freqbrdf.calibrate as calibration
+    from freqbrdf.calibrate.gains import GainEstimate
+
+    applied = {}
+
+    def label_sums(texels, search):
+        params = np.zeros((texels.n_texels, 5))
+        params[:, 3], params[:, 4] = 0.2, metallic[:texels.n_texels]
+        sums = np.zeros((texels.n_texels, 2, 3, 16))
+        sums[:, 0, :, 14] = 1.0
+        return params, sums
+
+    def scaled(texels, divisor, config):
+        applied["log_exposure"] = float(np.mean(np.log(divisor)))
+        return texels
+
+    monkeypatch.setattr(calibration, "label_sums", label_sums)
+    monkeypatch.setattr(calibration, "_scaled", scaled)
+    monkeypatch.setattr(calibration, "channel_gains", lambda sums, roughness, model_std: GainEstimate(
+        np.full(3, np.exp(reading(applied["log_exposure"]))), np.full(3, 0.05), len(sums),
+        exposure_log_std=model_std, ratio_log_std=np.full(3, 0.03)))
+    return calibration
+
+
+def test_the_dielectrics_exposure_reaches_the_fixed_point_the_passes_approach(monkeypatch):
+    """Readings that recover half the remaining error a pass (the roughness follows the gain half the
+    way) reach their fixed point in two passes and a check, not in many."""
+    truth = np.log(1.1)
+    calibration = _dielectric_search(monkeypatch, np.zeros(500), lambda x: -0.5 * (x - truth))
+    log_exposure, std, texels = calibration._dielectric_exposure(_Texels(500), Config(), np.full(3, 1.3), Config())
+    assert log_exposure == pytest.approx(truth, abs=1e-12)
+    assert std == calibration.DIELECTRIC_EXPOSURE_LOG_STD and texels == 500
+
+
+def test_the_dielectrics_exposure_needs_enough_dielectric_texels(monkeypatch):
+    """Texels found metal or part-metal do not read it; too few dielectrics leave the passes' reading."""
+    metallic = np.where(np.arange(500) < 99, 0.0, 0.5)
+    calibration = _dielectric_search(monkeypatch, metallic, lambda x: 0.0)
+    assert calibration._dielectric_exposure(_Texels(500), Config(), np.ones(3), Config()) is None
+    metallic[99] = calibration.DIELECTRIC_MAX_METALLIC
+    assert calibration._dielectric_exposure(_Texels(500), Config(), np.ones(3), Config())[2] == 100
 
 
 def test_a_turn_is_applied_only_where_likelier_than_none():

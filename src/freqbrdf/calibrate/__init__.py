@@ -53,6 +53,20 @@ CONVERGED = 0.005
 RATIO_CONVERGED = 0.01
 RATIO_PASSES = 5
 GAIN_PASSES = 10
+# The exposure read again on the texels the passes' last search finds dielectric (metallic at most
+# DIELECTRIC_MAX_METALLIC) with a lobe told from the diffuse (roughness at most DIELECTRIC_MAX_ROUGHNESS):
+# the texels of every label over-read it where metals and part-metals pass for dielectrics (their
+# specular is stronger than F0 = 0.04 allows) and under-read it where rough dielectrics pass for
+# smoother ones; on the dielectrics the model's misfit is DIELECTRIC_EXPOSURE_LOG_STD
+# (docs/results.md#calibration). Read where at least MIN_DIELECTRIC_TEXELS of them are found, in up
+# to DIELECTRIC_PASSES passes on the same texels, each step the last one's over the contraction the
+# passes measure (the roughness follows the gain part of the way; at least CONTRACTION_FLOOR).
+DIELECTRIC_MAX_METALLIC = 0.05
+DIELECTRIC_MAX_ROUGHNESS = 0.3
+MIN_DIELECTRIC_TEXELS = 100
+DIELECTRIC_PASSES = 4
+DIELECTRIC_EXPOSURE_LOG_STD = 0.05
+CONTRACTION_FLOOR = 0.25
 # How far a probe's exposure and white balance are from the photographs' when they are not equal (1
 # sigma, in log): the exposure within a factor e (`freqbrdf.calibrate.gains.PRIOR_LOG_STD`), each
 # white-balance ratio within 10 % (a probe shot with another camera or another white-balance
@@ -329,7 +343,59 @@ def _channel_gains(observations: Observations, search: Config, start: np.ndarray
     ratios = (arrived - exposure[:, None])[:RATIO_PASSES]
     exposure_scatter = float(np.std(exposure[1:], ddof=1)) if len(exposure) >= 3 else 0.0
     ratio_scatter = np.std(ratios[1:], axis=0, ddof=1) if len(ratios) >= 3 else np.zeros(3)
-    return gain, _with_selection(found, exposure_scatter, ratio_scatter)
+    found = _with_selection(found, exposure_scatter, ratio_scatter)
+    dielectric = _dielectric_exposure(observations, search, gain, config)
+    if dielectric is None:
+        return gain, found
+    gain = gain * np.exp(dielectric[0] - np.mean(np.log(gain)))
+    exposure_variance = dielectric[1] ** 2
+    precision = 1.0 / (exposure_variance + found.ratio_log_std ** 2) + 1.0 / PRIOR_LOG_STD ** 2
+    return gain, replace(found, log_std=1.0 / np.sqrt(precision), exposure_log_std=dielectric[1], texels=dielectric[2])
+
+
+def _dielectric_exposure(observations: Observations, search: Config, gain: np.ndarray,
+                         config: Config) -> tuple[float, float, int] | None:
+    """Read the exposure again on the texels found dielectric at ``gain``: (log exposure, its std, texels), or None.
+
+    The texels the search at ``gain`` finds dielectric with a lobe told from the diffuse
+    (`DIELECTRIC_MAX_METALLIC`, `DIELECTRIC_MAX_ROUGHNESS`) are kept, at least
+    `MIN_DIELECTRIC_TEXELS` of them (else None: the passes' reading stands). On them, up to
+    `DIELECTRIC_PASSES` passes of `channel_gains` (each on the photographs divided by the gains so
+    far) move the exposure, the white balance kept, until a step is below `CONVERGED`. The roughness
+    the search finds follows the gain part of the way, so each step is the pass's reading over the
+    contraction the last two passes measured (between `CONTRACTION_FLOOR` and 1): the fixed point
+    in a few passes rather than many. The std is the last pass's, with `DIELECTRIC_EXPOSURE_LOG_STD`.
+    """
+    params, sums = label_sums(_scaled(observations, gain, config), search)
+    kept = ((params[:, 4] <= DIELECTRIC_MAX_METALLIC) & (params[:, 3] <= DIELECTRIC_MAX_ROUGHNESS)
+            & (sums[:, 0, :, 14].sum(axis=1) > 0.0))
+    if kept.sum() < MIN_DIELECTRIC_TEXELS:
+        return None
+    texels = observations.select(kept)
+    params, sums = params[kept], sums[kept]
+    log_exposure = float(np.mean(np.log(gain)))
+    steps: list[tuple[float, float]] = []
+    found = None
+    for index in range(DIELECTRIC_PASSES):
+        if index > 0:
+            params, sums = label_sums(_scaled(texels, gain, config), search)
+        reading = channel_gains(sums, params[:, 3], DIELECTRIC_EXPOSURE_LOG_STD)
+        if reading.texels < 2:
+            break
+        found = reading
+        step = float(np.mean(np.log(reading.gain)))
+        steps.append((log_exposure, step))
+        if abs(step) < CONVERGED:
+            break
+        contraction = 1.0
+        if len(steps) >= 2 and steps[-1][0] != steps[-2][0]:
+            slope = (steps[-2][1] - steps[-1][1]) / (steps[-1][0] - steps[-2][0])
+            contraction = min(max(slope, CONTRACTION_FLOOR), 1.0)
+        log_exposure += step / contraction
+        gain = gain * np.exp(step / contraction)
+    if found is None:
+        return None
+    return log_exposure, found.exposure_log_std, found.texels
 
 
 def _masks_inside(calibration: Calibration) -> bool:

@@ -123,7 +123,8 @@ def _grid_minimum(values: np.ndarray, grid: np.ndarray) -> tuple[np.ndarray, np.
     return grid[index] + shift, minimum, np.where(usable, curvature, 0.0), usable
 
 
-def channel_gains(moments: np.ndarray, roughness: np.ndarray | None = None) -> GainEstimate:
+def channel_gains(moments: np.ndarray, roughness: np.ndarray | None = None,
+                  model_exposure_log_std: float = MODEL_EXPOSURE_LOG_STD) -> GainEstimate:
     """Estimate the gain per colour channel from the texels' label sums.
 
     Each texel's label (dielectric or metal) is the one that fits it best at its best gain. With
@@ -152,6 +153,10 @@ def channel_gains(moments: np.ndarray, roughness: np.ndarray | None = None) -> G
         are left out.
     roughness : (N,) float64, optional
         The texels' estimated roughness (slot 0's); None: slot 0 is not used.
+    model_exposure_log_std : float, optional
+        The exposure's std that the model's misfit gives on calibrated captures (added to the
+        texels' spread): `MODEL_EXPOSURE_LOG_STD` on every texel, less on the dielectrics of
+        `freqbrdf.calibrate` (``DIELECTRIC_EXPOSURE_LOG_STD``).
 
     Returns
     -------
@@ -195,7 +200,7 @@ def channel_gains(moments: np.ndarray, roughness: np.ndarray | None = None) -> G
     ratios -= ratios.mean()
     log_gain = exposure + ratios
     # The texels' errors are not independent: the model's own misfit moves them together.
-    exposure_variance += MODEL_EXPOSURE_LOG_STD ** 2
+    exposure_variance += model_exposure_log_std ** 2
     ratio_variance = ratio_variance + MODEL_RATIO_LOG_STD ** 2
     variance = exposure_variance + ratio_variance
     precision = 1.0 / np.maximum(variance, 1e-12) + 1.0 / PRIOR_LOG_STD ** 2
