@@ -289,12 +289,12 @@ class _Texels:
         return _Texels(int(np.count_nonzero(rows)))
 
 
-def _dielectric_search(monkeypatch, metallic, reading):
+def _dielectric_search(monkeypatch, metallic, reading, log_exposure=0.0):
     """Mock the search (every texel of roughness 0.2 and the given metallic) and the readings at a gain."""
     import freqbrdf.calibrate as calibration
     from freqbrdf.calibrate.gains import GainEstimate
 
-    applied = {}
+    applied = {"log_exposure": log_exposure}  # the gain of the first search, handed in
 
     def label_sums(texels, search):
         params = np.zeros((texels.n_texels, 5))
@@ -319,8 +319,10 @@ def test_the_dielectrics_exposure_reaches_the_fixed_point_the_passes_approach(mo
     """Readings that recover half the remaining error a pass (the roughness follows the gain half the
     way) reach their fixed point in two passes and a check, not in many."""
     truth = np.log(1.1)
-    calibration = _dielectric_search(monkeypatch, np.zeros(500), lambda x: -0.5 * (x - truth))
-    log_exposure, std, texels = calibration._dielectric_exposure(_Texels(500), Config(), np.full(3, 1.3), Config())
+    calibration = _dielectric_search(monkeypatch, np.zeros(500), lambda x: -0.5 * (x - truth), np.log(1.3))
+    start = np.full(3, 1.3)
+    log_exposure, std, texels = calibration._dielectric_exposure(_Texels(500), Config(), start, Config(),
+                                                                 calibration.label_sums(_Texels(500), None))
     assert log_exposure == pytest.approx(truth, abs=1e-12)
     assert std == calibration.DIELECTRIC_EXPOSURE_LOG_STD and texels == 500
 
@@ -329,9 +331,11 @@ def test_the_dielectrics_exposure_needs_enough_dielectric_texels(monkeypatch):
     """Texels found metal or part-metal do not read it; too few dielectrics leave the passes' reading."""
     metallic = np.where(np.arange(500) < 99, 0.0, 0.5)
     calibration = _dielectric_search(monkeypatch, metallic, lambda x: 0.0)
-    assert calibration._dielectric_exposure(_Texels(500), Config(), np.ones(3), Config()) is None
+    searched = calibration.label_sums(_Texels(500), None)
+    assert calibration._dielectric_exposure(_Texels(500), Config(), np.ones(3), Config(), searched) is None
     metallic[99] = calibration.DIELECTRIC_MAX_METALLIC
-    assert calibration._dielectric_exposure(_Texels(500), Config(), np.ones(3), Config())[2] == 100
+    searched = calibration.label_sums(_Texels(500), None)
+    assert calibration._dielectric_exposure(_Texels(500), Config(), np.ones(3), Config(), searched)[2] == 100
 
 
 def test_a_turn_is_applied_only_where_likelier_than_none():

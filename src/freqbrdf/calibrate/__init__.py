@@ -328,6 +328,7 @@ def _channel_gains(observations: Observations, search: Config, start: np.ndarray
     gain = np.asarray(start, np.float64)
     current = _scaled(observations, gain, config)
     arrived = []
+    searched = None
     for index in range(GAIN_PASSES):
         params, sums = label_sums(current, search)
         found = channel_gains(sums, params[:, 3])
@@ -336,7 +337,8 @@ def _channel_gains(observations: Observations, search: Config, start: np.ndarray
         arrived.append(np.log(gain))
         log_step = np.log(step)
         if abs(log_step.mean()) < CONVERGED and np.all(np.abs(log_step - log_step.mean()) < RATIO_CONVERGED):
-            break  # the roughness the search found no longer moves with the gain
+            searched = gain  # the roughness the search found no longer moves with the gain: its texels stand
+            break
         current = _scaled(observations, gain, config)
     arrived = np.array(arrived)  # (passes, 3)
     exposure = arrived.mean(axis=1)
@@ -344,7 +346,9 @@ def _channel_gains(observations: Observations, search: Config, start: np.ndarray
     exposure_scatter = float(np.std(exposure[1:], ddof=1)) if len(exposure) >= 3 else 0.0
     ratio_scatter = np.std(ratios[1:], axis=0, ddof=1) if len(ratios) >= 3 else np.zeros(3)
     found = _with_selection(found, exposure_scatter, ratio_scatter)
-    dielectric = _dielectric_exposure(observations, search, gain, config)
+    if searched is not gain:  # the passes did not settle: the dielectrics are picked at the gains reached
+        params, sums = label_sums(_scaled(observations, gain, config), search)
+    dielectric = _dielectric_exposure(observations, search, gain, config, (params, sums))
     if dielectric is None:
         return gain, found
     gain = gain * np.exp(dielectric[0] - np.mean(np.log(gain)))
@@ -353,11 +357,12 @@ def _channel_gains(observations: Observations, search: Config, start: np.ndarray
     return gain, replace(found, log_std=1.0 / np.sqrt(precision), exposure_log_std=dielectric[1], texels=dielectric[2])
 
 
-def _dielectric_exposure(observations: Observations, search: Config, gain: np.ndarray,
-                         config: Config) -> tuple[float, float, int] | None:
+def _dielectric_exposure(observations: Observations, search: Config, gain: np.ndarray, config: Config,
+                         searched: tuple[np.ndarray, np.ndarray]) -> tuple[float, float, int] | None:
     """Read the exposure again on the texels found dielectric at ``gain``: (log exposure, its std, texels), or None.
 
-    The texels the search at ``gain`` finds dielectric with a lobe told from the diffuse
+    ``searched`` is the search's (params, sums) on the photographs divided by about ``gain``
+    (`label_sums`; the passes' last where it moved the gains by less than `CONVERGED`). The texels it finds dielectric with a lobe told from the diffuse
     (`DIELECTRIC_MAX_METALLIC`, `DIELECTRIC_MAX_ROUGHNESS`) are kept, at least
     `MIN_DIELECTRIC_TEXELS` of them (else None: the passes' reading stands). On them, up to
     `DIELECTRIC_PASSES` passes of `channel_gains` (each on the photographs divided by the gains so
@@ -366,7 +371,7 @@ def _dielectric_exposure(observations: Observations, search: Config, gain: np.nd
     contraction the last two passes measured (between `CONTRACTION_FLOOR` and 1): the fixed point
     in a few passes rather than many. The std is the last pass's, with `DIELECTRIC_EXPOSURE_LOG_STD`.
     """
-    params, sums = label_sums(_scaled(observations, gain, config), search)
+    params, sums = searched
     kept = ((params[:, 4] <= DIELECTRIC_MAX_METALLIC) & (params[:, 3] <= DIELECTRIC_MAX_ROUGHNESS)
             & (sums[:, 0, :, 14].sum(axis=1) > 0.0))
     if kept.sum() < MIN_DIELECTRIC_TEXELS:
