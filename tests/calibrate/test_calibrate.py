@@ -250,9 +250,8 @@ def test_gain_passes_that_walk_widen_the_std_by_their_scatter(monkeypatch):
     monkeypatch.setattr(calibration, "label_sums", lambda observations, search: (np.zeros((1, 5)), None))
     monkeypatch.setattr(calibration, "channel_gains", lambda sums, roughness: GainEstimate(
         np.full(3, next(steps)), np.full(3, 0.17), 350, exposure_log_std=0.165, ratio_log_std=np.full(3, 0.03)))
-    monkeypatch.setattr(calibration, "_dielectric_exposure", lambda *args: None)  # the passes alone
     monkeypatch.setattr(calibration, "_scaled", lambda observations, divisor, config: observations)
-    gain, found = calibration._channel_gains(None, Config(), np.ones(3), Config())
+    gain, found, _ = calibration._channel_gains(None, Config(), np.ones(3), Config())
     np.testing.assert_allclose(gain, 1.02 * 0.87 * 0.95 * 0.985 * 0.86)
     assert found.exposure_log_std > 0.165
     alone = GainEstimate(np.ones(3), np.full(3, 0.17), 350, exposure_log_std=0.165, ratio_log_std=np.full(3, 0.03))
@@ -271,9 +270,8 @@ def test_passes_after_the_ratio_passes_move_the_exposure_only(monkeypatch):
     monkeypatch.setattr(calibration, "label_sums", lambda observations, search: (np.zeros((1, 5)), None))
     monkeypatch.setattr(calibration, "channel_gains", lambda sums, roughness: GainEstimate(
         next(steps), np.full(3, 0.1), 350, exposure_log_std=0.1, ratio_log_std=np.full(3, 0.03)))
-    monkeypatch.setattr(calibration, "_dielectric_exposure", lambda *args: None)  # the passes alone
     monkeypatch.setattr(calibration, "_scaled", lambda observations, divisor, config: observations)
-    gain, _ = calibration._channel_gains(None, Config(), np.ones(3), Config())
+    gain, _, _ = calibration._channel_gains(None, Config(), np.ones(3), Config())
     exposure = np.exp(np.log(tilt).mean())
     expected = (1.3 * tilt) ** calibration.RATIO_PASSES * 1.1 * exposure * exposure
     np.testing.assert_allclose(gain, expected, rtol=1e-12)

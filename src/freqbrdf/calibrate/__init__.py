@@ -284,7 +284,8 @@ def calibrate(capture: Capture, config: Config = Config(),
         search = _search_config(coarse_config)
         estimate_gains = (settings.gains and calibration.samples_per_texel >= MIN_GAIN_SAMPLES
                           and not _masks_inside(calibration))
-        gain, found = _channel_gains(observations, search, np.ones(3), config) if estimate_gains else (np.ones(3), None)
+        gain, found, last_search = (_channel_gains(observations, search, np.ones(3), config) if estimate_gains
+                                    else (np.ones(3), None, None))
         if settings.probe_rotation:
             # On photographs at the map's scale: a wrong exposure or white balance would bend the turn.
             calibration.probe = register_probe(_scaled(observations, gain, config), search.estimate,
@@ -295,7 +296,9 @@ def calibrate(capture: Capture, config: Config = Config(),
                 if calibration.frame_gain is not None:
                     observations = _scaled(observations, calibration.frame_gain, config)
                 if estimate_gains:
-                    gain, found = _channel_gains(observations, search, gain, config)
+                    gain, found, last_search = _channel_gains(observations, search, gain, config)
+        if found is not None:  # last: on the capture as registered (a turned map moves the dielectrics' reading)
+            gain, found = _dielectric_refined(observations, search, gain, found, config, last_search)
         advance(1)
         log_std, scored = np.zeros(3), 0
         if found is not None:
@@ -313,10 +316,11 @@ def calibrate(capture: Capture, config: Config = Config(),
 
 
 def _channel_gains(observations: Observations, search: Config, start: np.ndarray,
-                   config: Config) -> tuple[np.ndarray, GainEstimate]:
-    """Return the gains measured from ``start`` on and the last pass's estimate, its std widened by the passes' scatter.
+                   config: Config) -> tuple[np.ndarray, GainEstimate, tuple[np.ndarray, np.ndarray] | None]:
+    """Return the gains measured from ``start`` on, the last pass's estimate and the passes' last search.
 
-    Up to `GAIN_PASSES` passes, each on the photographs divided by the gains so far, until a pass
+    The estimate's std is widened by the passes' scatter; the search (`label_sums`'s params and
+    sums) is returned where the passes settled, else None. Up to `GAIN_PASSES` passes, each on the photographs divided by the gains so far, until a pass
     moves the exposure by less than `CONVERGED` and each ratio by less than `RATIO_CONVERGED`; after
     `RATIO_PASSES` a pass moves the exposure only (the ratios' chance steps would walk). Near the
     gains a pass moves them by what the texels it selects say at random (the roughness moves, and
@@ -345,16 +349,25 @@ def _channel_gains(observations: Observations, search: Config, start: np.ndarray
     ratios = (arrived - exposure[:, None])[:RATIO_PASSES]
     exposure_scatter = float(np.std(exposure[1:], ddof=1)) if len(exposure) >= 3 else 0.0
     ratio_scatter = np.std(ratios[1:], axis=0, ddof=1) if len(ratios) >= 3 else np.zeros(3)
-    found = _with_selection(found, exposure_scatter, ratio_scatter)
-    if searched is not gain:  # the passes did not settle: the dielectrics are picked at the gains reached
-        params, sums = label_sums(_scaled(observations, gain, config), search)
-    dielectric = _dielectric_exposure(observations, search, gain, config, (params, sums))
+    return gain, _with_selection(found, exposure_scatter, ratio_scatter), (params, sums) if searched is gain else None
+
+
+def _dielectric_refined(observations: Observations, search: Config, gain: np.ndarray, found: GainEstimate,
+                        config: Config, searched: tuple[np.ndarray, np.ndarray] | None) -> tuple[np.ndarray, GainEstimate]:
+    """Return the gains with the exposure read again on the dielectrics (`_dielectric_exposure`), and their estimate.
+
+    ``searched``: a search on the photographs divided by about ``gain`` (None: searched here). Where
+    too few dielectrics are found, ``gain`` and ``found`` as given.
+    """
+    if searched is None:
+        searched = label_sums(_scaled(observations, gain, config), search)
+    dielectric = _dielectric_exposure(observations, search, gain, config, searched)
     if dielectric is None:
         return gain, found
-    gain = gain * np.exp(dielectric[0] - np.mean(np.log(gain)))
-    exposure_variance = dielectric[1] ** 2
-    precision = 1.0 / (exposure_variance + found.ratio_log_std ** 2) + 1.0 / PRIOR_LOG_STD ** 2
-    return gain, replace(found, log_std=1.0 / np.sqrt(precision), exposure_log_std=dielectric[1], texels=dielectric[2])
+    log_exposure, exposure_log_std, texels = dielectric
+    gain = gain * np.exp(log_exposure - np.mean(np.log(gain)))
+    precision = 1.0 / (exposure_log_std ** 2 + found.ratio_log_std ** 2) + 1.0 / PRIOR_LOG_STD ** 2
+    return gain, replace(found, log_std=1.0 / np.sqrt(precision), exposure_log_std=exposure_log_std, texels=texels)
 
 
 def _dielectric_exposure(observations: Observations, search: Config, gain: np.ndarray, config: Config,
