@@ -122,7 +122,8 @@ class Calibration:
     dropped_views : list of int
         Photographs left out (``CalibrationConfig.drop_bad_views``).
     texels : int
-        Texels that calibrated.
+        Texels that read the exposure: the dielectrics where they read it (`_dielectric_exposure`),
+        else every texel that determines a gain.
     samples_per_texel : float
         The median over the seen coarse texels of the views that see each (clipped samples
         included); the gains are estimated from `MIN_GAIN_SAMPLES` on.
