@@ -336,6 +336,21 @@ def test_the_dielectrics_exposure_needs_enough_dielectric_texels(monkeypatch):
     assert calibration._dielectric_exposure(_Texels(500), Config(), np.ones(3), Config(), searched)[2] == 100
 
 
+def test_a_secant_step_reaches_a_linear_fixed_point():
+    """Readings -c (x - x*) (a pass recovers a share c of the error) give x* from two passes; the
+    contraction is clamped (a reading that hardly moves with the gain is amplified at most 1 / floor)."""
+    from freqbrdf.calibrate import CONTRACTION_FLOOR, _secant_step
+
+    def reading(x):
+        return -0.4 * (x - 0.3)
+
+    first = (0.0, reading(0.0))
+    assert _secant_step([first]) == first[1]
+    second = (first[1], reading(first[1]))
+    assert second[0] + _secant_step([first, second]) == pytest.approx(0.3, abs=1e-12)
+    assert _secant_step([(0.0, 0.1), (0.1, 0.099)]) == pytest.approx(0.099 / CONTRACTION_FLOOR)
+
+
 def test_a_turn_is_applied_only_where_likelier_than_none():
     # The spike-and-slab rule of the probe's turn (docs/method.md#calibration): a turn of a few std
     # against a slab of 10° per axis is likelier than none; one within the misfit is not.

@@ -406,15 +406,27 @@ def _dielectric_exposure(observations: Observations, search: Config, gain: np.nd
         steps.append((log_exposure, step))
         if abs(step) < CONVERGED:
             break
-        contraction = 1.0
-        if len(steps) >= 2 and steps[-1][0] != steps[-2][0]:
-            slope = (steps[-2][1] - steps[-1][1]) / (steps[-1][0] - steps[-2][0])
-            contraction = min(max(slope, CONTRACTION_FLOOR), 1.0)
-        log_exposure += step / contraction
-        gain = gain * np.exp(step / contraction)
+        move = _secant_step(steps)
+        log_exposure += move
+        gain = gain * np.exp(move)
     if found is None:
         return None
     return log_exposure, found.exposure_log_std, found.texels
+
+
+def _secant_step(steps: list[tuple[float, float]]) -> float:
+    """Return the exposure's next step (log) from the passes' (log exposure searched at, its reading).
+
+    A pass reads the remaining error only in part (the roughness the search finds follows the gain
+    part of the way): its reading d_k at x_k is about -c (x_k - x*). The step is d_k / c, c the
+    contraction the last two passes measured, (d_{k-1} - d_k) / (x_k - x_{k-1}), clamped to
+    [`CONTRACTION_FLOOR`, 1]; the reading itself on the first pass.
+    """
+    x, d = steps[-1]
+    if len(steps) < 2 or steps[-2][0] == x:
+        return d
+    contraction = (steps[-2][1] - d) / (x - steps[-2][0])
+    return d / min(max(contraction, CONTRACTION_FLOOR), 1.0)
 
 
 def _masks_inside(calibration: Calibration) -> bool:
