@@ -14,7 +14,8 @@ with a `Calibration` that says what was found and how well the photographs deter
 3. one gain per colour channel between the photographs and the map
    (`freqbrdf.calibrate.gains.channel_gains`), with the materials: up to `GAIN_PASSES` times,
    each on photographs corrected by the passes before, since the roughness the search finds
-   depends on the gain;
+   depends on the gain; the exposure then read again on the texels found dielectric (metals and
+   part-metals over-read it), last, on the capture as registered;
 4. the map's turn (`freqbrdf.calibrate.probe`), by the model's loss on photographs at the map's
    scale; where the map is turned, the gains again from there.
 
@@ -321,8 +322,9 @@ def _channel_gains(observations: Observations, search: Config, start: np.ndarray
     """Return the gains measured from ``start`` on, the last pass's estimate and the passes' last search.
 
     The estimate's std is widened by the passes' scatter; the search (`label_sums`'s params and
-    sums) is returned where the passes settled, else None. Up to `GAIN_PASSES` passes, each on the photographs divided by the gains so far, until a pass
-    moves the exposure by less than `CONVERGED` and each ratio by less than `RATIO_CONVERGED`; after
+    sums) is returned where the passes settled, else None. Up to `GAIN_PASSES` passes, each on the
+    photographs divided by the gains so far, until a pass moves the exposure by less than
+    `CONVERGED` and each ratio by less than `RATIO_CONVERGED`; after
     `RATIO_PASSES` a pass moves the exposure only (the ratios' chance steps would walk). Near the
     gains a pass moves them by what the texels it selects say at random (the roughness moves, and
     with it which texels calibrate), and such steps multiplied together can walk away: the spread of
@@ -376,8 +378,9 @@ def _dielectric_exposure(observations: Observations, search: Config, gain: np.nd
     """Read the exposure again on the texels found dielectric at ``gain``: (log exposure, its std, texels), or None.
 
     ``searched`` is the search's (params, sums) on the photographs divided by about ``gain``
-    (`label_sums`; the passes' last where it moved the gains by less than `CONVERGED`). The texels it finds dielectric with a lobe told from the diffuse
-    (`DIELECTRIC_MAX_METALLIC`, `DIELECTRIC_MAX_ROUGHNESS`) are kept, at least
+    (`label_sums`; the passes' last where it moved the gains by less than `CONVERGED`). The
+    texels it finds dielectric with a lobe told from the diffuse (`DIELECTRIC_MAX_METALLIC`,
+    `DIELECTRIC_MAX_ROUGHNESS`) are kept, at least
     `MIN_DIELECTRIC_TEXELS` of them (else None: the passes' reading stands). On them, up to
     `DIELECTRIC_PASSES` passes of `channel_gains` (each on the photographs divided by the gains so
     far) move the exposure, the white balance kept, until a step is below `CONVERGED`. The roughness
