@@ -351,6 +351,16 @@ def test_a_secant_step_reaches_a_linear_fixed_point():
     assert _secant_step([(0.0, 0.1), (0.1, 0.099)]) == pytest.approx(0.099 / CONTRACTION_FLOOR)
 
 
+def test_a_turn_is_kept_where_it_removes_enough_loss_or_the_odds_are_decisive():
+    # The misfit's own turns on registered maps: likelier at small odds, removing 2-3 % of the loss.
+    from freqbrdf.calibrate.probe import DECISIVE_LOG_ODDS, MIN_LOSS_REDUCTION, _turn_kept
+
+    assert not _turn_kept(1.7, 0.98)
+    assert _turn_kept(1.7, 1.0 - MIN_LOSS_REDUCTION)
+    assert _turn_kept(DECISIVE_LOG_ODDS, 0.97)  # a turned map whose loss the material's misfit dominates
+    assert not _turn_kept(-0.3, 0.5)
+
+
 def test_a_turn_is_applied_only_where_likelier_than_none():
     # The spike-and-slab rule of the probe's turn (docs/method.md#calibration): a turn of a few std
     # against a slab of 10° per axis is likelier than none; one within the misfit is not.

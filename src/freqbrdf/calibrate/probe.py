@@ -10,7 +10,7 @@ irradiance (read at turned normals), so that a hypothesis costs one search of a 
 texels. The turn is searched about the map's own pole (the usual hand turn) on a grid, then about
 each world axis in turn (coordinate descent); it is applied where the texels make "turned" the
 likelier than "registered exactly" (`PRIOR_TURN_DEG`) and it removes `MIN_LOSS_REDUCTION` of the
-loss, as the posterior mean.
+loss or its log odds are decisive (`DECISIVE_LOG_ODDS`), as the posterior mean.
 """
 
 from __future__ import annotations
@@ -49,6 +49,11 @@ MISFIT_TURN_DEG = 1.0
 # is registered exactly the model's misfit prefers turns of a few degrees that remove less
 # (docs/results.md#calibration).
 MIN_LOSS_REDUCTION = 0.05
+# ... unless the texels make "turned" overwhelmingly the likelier (log odds at least this: 150 to 1):
+# the misfit's turns on registered maps reach log odds of 2 at most, a map turned 10 degrees on a
+# photographic material whose misfit dominates the loss removes 3 % of it at log odds 23
+# (docs/results.md#calibration).
+DECISIVE_LOG_ODDS = 5.0
 # The texels with a clipped sample are left out (their highlights are lower bounds); those left are
 # the darker ones, and the selection bends the turn: this much std per unit share of the seen
 # texels left out is added about each axis (docs/results.md#calibration).
@@ -212,6 +217,15 @@ def _descend(loss: _ModelLoss, rotation: np.ndarray, value: float) -> tuple[np.n
     return rotation, value, curvature
 
 
+def _turn_kept(log_odds: float, loss_ratio: float) -> bool:
+    """Whether a turn of these log odds (turned over registered) and loss (over the given map's) is applied.
+
+    Likelier turned than not, and either removing `MIN_LOSS_REDUCTION` of the loss or decisive
+    (`DECISIVE_LOG_ODDS`).
+    """
+    return log_odds > 0.0 and (loss_ratio <= 1.0 - MIN_LOSS_REDUCTION or log_odds >= DECISIVE_LOG_ODDS)
+
+
 def _log_odds(vector: np.ndarray, covariance: np.ndarray, prior_std: float) -> float:
     """Return the log odds of "turned by a normal amount of ``prior_std`` per axis" over "not turned".
 
@@ -241,7 +255,8 @@ def register_probe(observations: Observations, settings: EstimateConfig, search_
     -------
     ProbeRegistration
         The turn: identity where "registered exactly" is the likelier, where the turn removes less
-        than `MIN_LOSS_REDUCTION` of the loss, where the loss's curvature leaves it undetermined,
+        than `MIN_LOSS_REDUCTION` of the loss at log odds under `DECISIVE_LOG_ODDS`, where the
+        loss's curvature leaves it undetermined,
         or where the texels' normals are too alike to tell a turn from the model's misfit
         (`MAX_NORMAL_ALIGNMENT`).
     """
@@ -277,7 +292,7 @@ def register_probe(observations: Observations, settings: EstimateConfig, search_
     vector = _rotation_vector(rotation)
     prior = np.radians(PRIOR_TURN_DEG)
     log_odds = _log_odds(vector, covariance, prior)
-    if log_odds <= 0.0 or value > (1.0 - MIN_LOSS_REDUCTION) * given:
+    if not _turn_kept(log_odds, value / given):
         return ProbeRegistration(identity, 0.0, std_deg, (1.0, 1.0), log_odds)
     # The posterior mean under the slab: T (S + T)^-1 x.
     applied = _rotation_from_vector(prior ** 2 * np.linalg.solve(covariance + prior ** 2 * identity, vector))
