@@ -156,6 +156,13 @@ def test_calibration_none_leaves_the_capture_as_given(clean):
     nothing = CONFIG.replace(calibration=CalibrationConfig(gains=False, cameras=False, probe_rotation=False, frame_gains="off"))
     capture, found = calibrate(given, nothing)
     assert capture is given and np.all(found.gain == 1.0) and found.probe is None and not found.warnings
+    assert found.exposure_from == "" and found.to_dict()["exposure_from"] == ""
+
+
+def test_the_summary_says_which_texels_read_the_exposure(clean_calibration):
+    # The small synthetic capture: fewer than MIN_DIELECTRIC_TEXELS dielectrics or enough, either is named.
+    recorded = clean_calibration.to_dict()
+    assert recorded["exposure_from"] in ("dielectrics", "every texel") and recorded["texels"] >= 2
 
 
 def test_calibration_is_deterministic(clean, clean_calibration):

@@ -125,6 +125,9 @@ class Calibration:
     texels : int
         Texels that read the exposure: the dielectrics where they read it (`_dielectric_exposure`),
         else every texel that determines a gain.
+    exposure_from : str
+        Which texels read the exposure: "dielectrics", "every texel" (fewer than
+        `MIN_DIELECTRIC_TEXELS` dielectrics found) or "" (the gains not estimated).
     samples_per_texel : float
         The median over the seen coarse texels of the views that see each (clipped samples
         included); the gains are estimated from `MIN_GAIN_SAMPLES` on.
@@ -143,6 +146,7 @@ class Calibration:
     cameras: CameraRefinement | None = None
     dropped_views: list[int] = field(default_factory=list)
     texels: int = 0
+    exposure_from: str = ""
     samples_per_texel: float = 0.0
     seconds: float = 0.0
     warnings: list[str] = field(default_factory=list)
@@ -169,7 +173,7 @@ class Calibration:
             ``white_balance``, ``frame_gains`` (per view, where measured and applied, or None),
             ``probe`` (the turn: ``angle_deg``, ``axis``, ``std_deg``, ``rotation``, the model's ``loss``
             at the registration given and at the turn found over the first, ``log_odds``; or None), ``cameras`` (per view, see
-            `CameraRefinement.to_dict`; or None), ``dropped_views``, ``texels``,
+            `CameraRefinement.to_dict`; or None), ``dropped_views``, ``texels``, ``exposure_from``,
             ``samples_per_texel``, ``seconds``.
         """
         probe = None
@@ -186,7 +190,7 @@ class Calibration:
             "exposure": self.exposure, "white_balance": self.white_balance.tolist(),
             "frame_gains": None if self.frame_gain is None else self.frame_gain.tolist(),
             "probe": probe, "cameras": None if self.cameras is None else self.cameras.to_dict(),
-            "dropped_views": list(self.dropped_views), "texels": self.texels,
+            "dropped_views": list(self.dropped_views), "texels": self.texels, "exposure_from": self.exposure_from,
             "samples_per_texel": self.samples_per_texel, "seconds": self.seconds,
         }
 
@@ -300,7 +304,8 @@ def calibrate(capture: Capture, config: Config = Config(),
                 if estimate_gains:
                     gain, found, last_search = _channel_gains(observations, search, gain, config)
         if found is not None:  # last: on the capture as registered (a turned map moves the dielectrics' reading)
-            gain, found = _dielectric_refined(observations, search, gain, found, config, last_search)
+            gain, found, on_dielectrics = _dielectric_refined(observations, search, gain, found, config, last_search)
+            calibration.exposure_from = "dielectrics" if on_dielectrics else "every texel"
         advance(1)
         log_std, scored = np.zeros(3), 0
         if found is not None:
@@ -356,21 +361,22 @@ def _channel_gains(observations: Observations, search: Config, start: np.ndarray
 
 
 def _dielectric_refined(observations: Observations, search: Config, gain: np.ndarray, found: GainEstimate,
-                        config: Config, searched: tuple[np.ndarray, np.ndarray] | None) -> tuple[np.ndarray, GainEstimate]:
-    """Return the gains with the exposure read again on the dielectrics (`_dielectric_exposure`), and their estimate.
+                        config: Config, searched: tuple[np.ndarray, np.ndarray] | None
+                        ) -> tuple[np.ndarray, GainEstimate, bool]:
+    """Return the gains with the exposure read again on the dielectrics, their estimate, and whether they read it.
 
-    ``searched``: a search on the photographs divided by about ``gain`` (None: searched here). Where
-    too few dielectrics are found, ``gain`` and ``found`` as given.
+    The dielectrics' reading: `_dielectric_exposure`. ``searched``: a search on the photographs divided by about ``gain`` (None: searched here). Where
+    too few dielectrics are found, ``gain`` and ``found`` as given, and False.
     """
     if searched is None:
         searched = label_sums(_scaled(observations, gain, config), search)
     dielectric = _dielectric_exposure(observations, search, gain, config, searched)
     if dielectric is None:
-        return gain, found
+        return gain, found, False
     log_exposure, exposure_log_std, texels = dielectric
     gain = gain * np.exp(log_exposure - np.mean(np.log(gain)))
     precision = 1.0 / (exposure_log_std ** 2 + found.ratio_log_std ** 2) + 1.0 / PRIOR_LOG_STD ** 2
-    return gain, replace(found, log_std=1.0 / np.sqrt(precision), exposure_log_std=exposure_log_std, texels=texels)
+    return gain, replace(found, log_std=1.0 / np.sqrt(precision), exposure_log_std=exposure_log_std, texels=texels), True
 
 
 def _dielectric_exposure(observations: Observations, search: Config, gain: np.ndarray, config: Config,

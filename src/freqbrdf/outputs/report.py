@@ -579,7 +579,10 @@ def _calibration_paragraph(summary: dict) -> str:
     lines = []
     if found:
         gains = ", ".join(f"{gain:.3f} ± {std:.3f}" for gain, std in zip(found["gain"], found["gain_std"]))
-        lines.append(f"Calibration: the photographs are {gains} (R, G, B) times the environment map's radiance")
+        source = {"dielectrics": f", the exposure read on {found.get('texels', 0)} texels found dielectric",
+                  "every texel": f", the exposure read on {found.get('texels', 0)} texels of every material (too few "
+                                 "dielectrics)"}.get(found.get("exposure_from", ""), "")
+        lines.append(f"Calibration: the photographs are {gains} (R, G, B) times the environment map's radiance{source}")
         probe = found.get("probe")
         if probe is not None:
             spread = "" if probe.get("std_deg") is None else f" (± {probe['std_deg']:.1f}°)"
