@@ -359,13 +359,27 @@ def rotation_matrix_sh(rotation: np.ndarray, lmax: int) -> np.ndarray:
         raise ValueError(f"rotation must be (3, 3), got {rotation.shape}")
     if not np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-6) or np.linalg.det(rotation) < 0:
         raise ValueError("rotation must be a proper rotation matrix (orthonormal, det +1)")
-    directions, weights = sphere_quadrature(2 * lmax)
-    basis = eval_sh(directions, lmax)  # (N, K)
+    directions, weighted_basis, mixed = _rotation_quadrature(lmax)
     rotated_basis = eval_sh(directions @ rotation, lmax)  # (N, K): Y_i(R^T w_n)
-    matrix = (basis * weights[:, None]).T @ rotated_basis
-    degrees = sh_degrees(lmax)
-    matrix[degrees[:, None] != degrees[None, :]] = 0.0  # rotations never mix degrees
+    matrix = weighted_basis @ rotated_basis
+    matrix[mixed] = 0.0  # rotations never mix degrees
     return matrix
+
+
+@functools.lru_cache(maxsize=8)
+def _rotation_quadrature(lmax: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Return `rotation_matrix_sh`'s quadrature, the same for every rotation (read-only).
+
+    The nodes (N, 3), the basis at them times the weights, transposed (K, N), and the (K, K) mask
+    of coefficient pairs of different degrees.
+    """
+    directions, weights = sphere_quadrature(2 * lmax)
+    weighted_basis = (eval_sh(directions, lmax) * weights[:, None]).T
+    degrees = sh_degrees(lmax)
+    mixed = degrees[:, None] != degrees[None, :]
+    for array in (directions, weighted_basis, mixed):
+        array.setflags(write=False)
+    return directions, weighted_basis, mixed
 
 
 def rotate_sh(coeffs: np.ndarray, rotation: np.ndarray) -> np.ndarray:
