@@ -356,6 +356,8 @@ def test_a_secant_step_reaches_a_linear_fixed_point():
     second = (first[1], reading(first[1]))
     assert second[0] + _secant_step([first, second]) == pytest.approx(0.3, abs=1e-12)
     assert _secant_step([(0.0, 0.1), (0.1, 0.099)]) == pytest.approx(0.099 / CONTRACTION_FLOOR)
+    assert _secant_step([(0.0, 0.1), (0.1, 0.1)]) == 0.1  # no contraction measured: the reading
+    assert _secant_step([(0.0, 0.1), (0.1, -0.05)]) == -0.05  # across the fixed point: the reading
 
 
 def test_a_turn_is_kept_where_it_removes_enough_loss_or_the_odds_are_decisive():

@@ -427,12 +427,15 @@ def _secant_step(steps: list[tuple[float, float]]) -> float:
     """Return the exposure's next step (log) from the passes' (log exposure searched at, its reading).
 
     A pass reads the remaining error only in part (the roughness the search finds follows the gain
-    part of the way): its reading d_k at x_k is about -c (x_k - x*). The step is d_k / c, c the
-    contraction the last two passes measured, (d_{k-1} - d_k) / (x_k - x_{k-1}), clamped to
-    [`CONTRACTION_FLOOR`, 1]; the reading itself on the first pass.
+    part of the way): its reading d_k at x_k is about -c (x_k - x*). Where the last two readings
+    measure a contraction (the same sign, the last smaller), the step is d_k / c, c =
+    (d_{k-1} - d_k) / (x_k - x_{k-1}) clamped to [`CONTRACTION_FLOOR`, 1]; else (the first pass,
+    readings that do not shrink: a flat valley, where amplifying would only walk) the reading itself.
     """
     x, d = steps[-1]
     if len(steps) < 2 or steps[-2][0] == x:
+        return d
+    if not (np.sign(steps[-2][1]) == np.sign(d) and abs(d) < abs(steps[-2][1])):
         return d
     contraction = (steps[-2][1] - d) / (x - steps[-2][0])
     return d / min(max(contraction, CONTRACTION_FLOOR), 1.0)
