@@ -340,7 +340,7 @@ def _channel_gains(observations: Observations, search: Config, start: np.ndarray
     gain = np.asarray(start, np.float64)
     current = _scaled(observations, gain, config)
     arrived = []
-    searched = None
+    settled = False
     for index in range(GAIN_PASSES):
         params, sums = label_sums(current, search)
         found = channel_gains(sums, params[:, 3])
@@ -349,7 +349,7 @@ def _channel_gains(observations: Observations, search: Config, start: np.ndarray
         arrived.append(np.log(gain))
         log_step = np.log(step)
         if abs(log_step.mean()) < CONVERGED and np.all(np.abs(log_step - log_step.mean()) < RATIO_CONVERGED):
-            searched = gain  # the roughness the search found no longer moves with the gain: its texels stand
+            settled = True  # the roughness the search found no longer moves with the gain: its texels stand
             break
         current = _scaled(observations, gain, config)
     arrived = np.array(arrived)  # (passes, 3)
@@ -357,7 +357,7 @@ def _channel_gains(observations: Observations, search: Config, start: np.ndarray
     ratios = (arrived - exposure[:, None])[:RATIO_PASSES]
     exposure_scatter = float(np.std(exposure[1:], ddof=1)) if len(exposure) >= 3 else 0.0
     ratio_scatter = np.std(ratios[1:], axis=0, ddof=1) if len(ratios) >= 3 else np.zeros(3)
-    return gain, _with_selection(found, exposure_scatter, ratio_scatter), (params, sums) if searched is gain else None
+    return gain, _with_selection(found, exposure_scatter, ratio_scatter), (params, sums) if settled else None
 
 
 def _dielectric_refined(observations: Observations, search: Config, gain: np.ndarray, found: GainEstimate,
@@ -365,8 +365,10 @@ def _dielectric_refined(observations: Observations, search: Config, gain: np.nda
                         ) -> tuple[np.ndarray, GainEstimate, bool]:
     """Return the gains with the exposure read again on the dielectrics, their estimate, and whether they read it.
 
-    The dielectrics' reading: `_dielectric_exposure`. ``searched``: a search on the photographs divided by about ``gain`` (None: searched here). Where
-    too few dielectrics are found, ``gain`` and ``found`` as given, and False.
+    The dielectrics' reading: `_dielectric_exposure`. ``searched``: a search on the photographs
+    divided by about ``gain`` (None: searched here). Where too few dielectrics are found, ``gain``
+    and ``found`` as given, and False. The estimate keeps the passes' white-balance std; its
+    exposure std is the dielectrics'.
     """
     if searched is None:
         searched = label_sums(_scaled(observations, gain, config), search)
@@ -375,8 +377,8 @@ def _dielectric_refined(observations: Observations, search: Config, gain: np.nda
         return gain, found, False
     log_exposure, exposure_log_std, texels = dielectric
     gain = gain * np.exp(log_exposure - np.mean(np.log(gain)))
-    precision = 1.0 / (exposure_log_std ** 2 + found.ratio_log_std ** 2) + 1.0 / PRIOR_LOG_STD ** 2
-    return gain, replace(found, log_std=1.0 / np.sqrt(precision), exposure_log_std=exposure_log_std, texels=texels), True
+    refined = _with_selection(replace(found, exposure_log_std=0.0, texels=texels), exposure_log_std, 0.0)
+    return gain, refined, True
 
 
 def _dielectric_exposure(observations: Observations, search: Config, gain: np.ndarray, config: Config,
