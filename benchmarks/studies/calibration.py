@@ -2,9 +2,10 @@
 
     python benchmarks/studies/calibration.py [--scenes a,b] [--cases "a;b"] [--quick]
 
-Scenes: three of the whole-surface suite (scenes.WHOLE_SURFACE_SCENES: the bunny with metal islands
-under an overcast sky, the sphere of gradients under the lobby map, the dragon with a photographic
-material under a turned sunset), rendered by Mitsuba once at 32 views of 192 x 192, 32 spp,
+Scenes: the six of the whole-surface suite (scenes.WHOLE_SURFACE_SCENES: among them the bunny with
+metal islands under an overcast sky, the sphere of gradients under the lobby map, the dragon with a
+photographic material under a turned sunset, the studies that read this one's captures (`SCENES`)
+take these three), rendered by Mitsuba once at 32 views of 192 x 192, 32 spp,
 T = 256. Each case (`CASES`) copies the clean capture with imperfections applied
 to it as a user's camera and probe have them (`imperfections.imperfect_capture`): exposure 0.25-4x,
 white balance +-20 % per channel, the map turned 5-20 degrees about the up axis and 10 about
@@ -200,7 +201,7 @@ def _camera_cell(cameras: dict | None) -> str:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--scenes", default=",".join(SCENES))
+    parser.add_argument("--scenes", default=",".join(scenes.WHOLE_SURFACE_SCENES))
     parser.add_argument("--cases", default=";".join(CASES), help="case names separated by semicolons")
     parser.add_argument("--quick", action="store_true")
     args = parser.parse_args(argv)

@@ -285,7 +285,7 @@ def test_passes_after_the_ratio_passes_move_the_exposure_only(monkeypatch):
 
 
 class _Texels:
-    """Stands for Observations in `_dielectric_exposure`: n texels, `select` keeps a count."""
+    """Stands for Observations in `_dielectric_gains`: n texels, `select` keeps a count."""
 
     def __init__(self, n):
         self.n_texels = n
@@ -326,10 +326,10 @@ def test_the_dielectrics_exposure_reaches_the_fixed_point_the_passes_approach(mo
     truth = np.log(1.1)
     calibration = _dielectric_search(monkeypatch, np.zeros(500), lambda x: -0.5 * (x - truth), np.log(1.3))
     start = np.full(3, 1.3)
-    log_exposure, std, texels = calibration._dielectric_exposure(_Texels(500), Config(), start, Config(),
-                                                                 calibration.label_sums(_Texels(500), None))
-    assert log_exposure == pytest.approx(truth, abs=1e-12)
-    assert std == calibration.DIELECTRIC_EXPOSURE_LOG_STD and texels == 500
+    gain, found = calibration._dielectric_gains(_Texels(500), Config(), start, Config(),
+                                                calibration.label_sums(_Texels(500), None))
+    np.testing.assert_allclose(np.log(gain), truth, atol=1e-12)
+    assert found.exposure_log_std == calibration.DIELECTRIC_EXPOSURE_LOG_STD and found.texels == 500
 
 
 def test_the_dielectrics_exposure_needs_enough_dielectric_texels(monkeypatch):
@@ -337,10 +337,24 @@ def test_the_dielectrics_exposure_needs_enough_dielectric_texels(monkeypatch):
     metallic = np.where(np.arange(500) < 99, 0.0, 0.5)
     calibration = _dielectric_search(monkeypatch, metallic, lambda x: 0.0)
     searched = calibration.label_sums(_Texels(500), None)
-    assert calibration._dielectric_exposure(_Texels(500), Config(), np.ones(3), Config(), searched) is None
+    assert calibration._dielectric_gains(_Texels(500), Config(), np.ones(3), Config(), searched) is None
     metallic[99] = calibration.DIELECTRIC_MAX_METALLIC
     searched = calibration.label_sums(_Texels(500), None)
-    assert calibration._dielectric_exposure(_Texels(500), Config(), np.ones(3), Config(), searched)[2] == 100
+    assert calibration._dielectric_gains(_Texels(500), Config(), np.ones(3), Config(), searched)[1].texels == 100
+
+
+def test_a_pass_moves_a_ratio_only_where_it_reads_more_than_the_texels_scatter():
+    """A white-balance ratio within the texels' chance is not a step (steps of chance, multiplied, walk)."""
+    import freqbrdf.calibrate as calibration
+    from freqbrdf.calibrate.gains import MODEL_RATIO_LOG_STD, GainEstimate
+
+    scatter = np.array([0.05, 0.05, 0.05])
+    ratio_std = np.sqrt(scatter ** 2 + MODEL_RATIO_LOG_STD ** 2)
+    reading = GainEstimate(np.exp(np.log(1.2) + np.array([0.2, 0.03, -0.23])), np.full(3, 0.1), 500,
+                           exposure_log_std=0.1, ratio_log_std=ratio_std)
+    step = calibration._gain_step(reading, True)
+    np.testing.assert_allclose(step, np.log(1.2) + np.array([0.2, 0.0, -0.23]))
+    np.testing.assert_allclose(calibration._gain_step(reading, False), np.full(3, np.log(1.2)))
 
 
 def test_a_secant_step_reaches_a_linear_fixed_point():

@@ -31,7 +31,14 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from freqbrdf.calibrate.cameras import BAD_OUTLINE_PX, MASK_OFFSET_PX, CameraRefinement, refine_cameras
-from freqbrdf.calibrate.gains import PRIOR_LOG_STD, GainEstimate, channel_gains, frame_gains, slab_log_odds
+from freqbrdf.calibrate.gains import (
+    MODEL_RATIO_LOG_STD,
+    PRIOR_LOG_STD,
+    GainEstimate,
+    channel_gains,
+    frame_gains,
+    slab_log_odds,
+)
 from freqbrdf.calibrate.probe import ProbeRegistration, axis_angle, register_probe, rotation_about
 from freqbrdf.capture.layouts import Capture, read_frame_mask_coverage
 from freqbrdf.config import Config
@@ -49,12 +56,14 @@ __all__ = ["Calibration", "CameraRefinement", "GainEstimate", "ProbeRegistration
 # Passes of the channel gains (each on photographs corrected by the ones before); they stop early
 # where a pass moves the exposure by less than CONVERGED and each white-balance ratio by less than
 # RATIO_CONVERGED (in log). The white balance moves in the first RATIO_PASSES only, the exposure in all
-# (it converges slowly: the roughness follows the gain part of the way, docs/results.md#calibration).
+# (it converges slowly: the roughness follows the gain part of the way, docs/results.md#calibration);
+# a ratio moves where a pass reads it at least RATIO_STEP_STD times the texels' scatter (`_gain_step`).
 CONVERGED = 0.005
 RATIO_CONVERGED = 0.01
 RATIO_PASSES = 5
+RATIO_STEP_STD = 1.0
 GAIN_PASSES = 10
-# The exposure read again on the texels the passes' last search finds dielectric (metallic at most
+# The gains read again on the texels the passes' last search finds dielectric (metallic at most
 # DIELECTRIC_MAX_METALLIC) with a lobe told from the diffuse (roughness at most DIELECTRIC_MAX_ROUGHNESS):
 # the texels of every label over-read it where metals and part-metals pass for dielectrics (their
 # specular is stronger than F0 = 0.04 allows) and under-read it where rough dielectrics pass for
@@ -344,10 +353,9 @@ def _channel_gains(observations: Observations, search: Config, start: np.ndarray
     for index in range(GAIN_PASSES):
         params, sums = label_sums(current, search)
         found = channel_gains(sums, params[:, 3])
-        step = found.gain if index < RATIO_PASSES else np.full(3, np.exp(np.mean(np.log(found.gain))))
-        gain = gain * step
+        log_step = _gain_step(found, index < RATIO_PASSES)
+        gain = gain * np.exp(log_step)
         arrived.append(np.log(gain))
-        log_step = np.log(step)
         if abs(log_step.mean()) < CONVERGED and np.all(np.abs(log_step - log_step.mean()) < RATIO_CONVERGED):
             settled = True  # the roughness the search found no longer moves with the gain: its texels stand
             break
@@ -363,38 +371,37 @@ def _channel_gains(observations: Observations, search: Config, start: np.ndarray
 def _dielectric_refined(observations: Observations, search: Config, gain: np.ndarray, found: GainEstimate,
                         config: Config, searched: tuple[np.ndarray, np.ndarray] | None
                         ) -> tuple[np.ndarray, GainEstimate, bool]:
-    """Return the gains with the exposure read again on the dielectrics, their estimate, and whether they read it.
+    """Return the gains read again on the dielectrics, their estimate, and whether they read them.
 
-    The dielectrics' reading: `_dielectric_exposure`. ``searched``: a search on the photographs
+    The dielectrics' reading: `_dielectric_gains`. ``searched``: a search on the photographs
     divided by about ``gain`` (None: searched here). Where too few dielectrics are found, ``gain``
-    and ``found`` as given, and False. The estimate keeps the passes' white-balance std; its
-    exposure std is the dielectrics'.
+    and ``found`` as given, and False.
     """
     if searched is None:
         searched = label_sums(_scaled(observations, gain, config), search)
-    dielectric = _dielectric_exposure(observations, search, gain, config, searched)
+    dielectric = _dielectric_gains(observations, search, gain, config, searched)
     if dielectric is None:
         return gain, found, False
-    log_exposure, exposure_log_std, texels = dielectric
-    gain = gain * np.exp(log_exposure - np.mean(np.log(gain)))
-    refined = _with_selection(replace(found, exposure_log_std=0.0, texels=texels), exposure_log_std, 0.0)
-    return gain, refined, True
+    return (*dielectric, True)
 
 
-def _dielectric_exposure(observations: Observations, search: Config, gain: np.ndarray, config: Config,
-                         searched: tuple[np.ndarray, np.ndarray]) -> tuple[float, float, int] | None:
-    """Read the exposure again on the texels found dielectric at ``gain``: (log exposure, its std, texels), or None.
+def _dielectric_gains(observations: Observations, search: Config, gain: np.ndarray, config: Config,
+                      searched: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, GainEstimate] | None:
+    """Read the gains again on the texels found dielectric at ``gain``: (gains, their estimate), or None.
 
     ``searched`` is the search's (params, sums) on the photographs divided by about ``gain``
     (`label_sums`; the passes' last where it moved the gains by less than `CONVERGED`). The
     texels it finds dielectric with a lobe told from the diffuse (`DIELECTRIC_MAX_METALLIC`,
-    `DIELECTRIC_MAX_ROUGHNESS`) are kept, at least
-    `MIN_DIELECTRIC_TEXELS` of them (else None: the passes' reading stands). On them, up to
-    `DIELECTRIC_PASSES` passes of `channel_gains` (each on the photographs divided by the gains so
-    far) move the exposure, the white balance kept, until a step is below `CONVERGED`. The roughness
-    the search finds follows the gain part of the way, so each step is the pass's reading over the
-    contraction the last two passes measured (between `CONTRACTION_FLOOR` and 1): the fixed point
-    in a few passes rather than many. The std is the last pass's, with `DIELECTRIC_EXPOSURE_LOG_STD`.
+    `DIELECTRIC_MAX_ROUGHNESS`) are kept, at least `MIN_DIELECTRIC_TEXELS` of them (else None:
+    the passes' reading stands). Their specular is white (F0 = 0.04 in every channel): its colour
+    is the light's, so they read the white balance too, where every texel's reading is led by
+    coloured metals and part-metals taken for dielectrics. On them, up to `DIELECTRIC_PASSES`
+    passes of `channel_gains` (each on the photographs divided by the gains so far) move the gains
+    until a step is below `CONVERGED` (`RATIO_CONVERGED` for a ratio). The roughness the search
+    finds follows the gain part of the way, so each exposure step is the pass's reading over the
+    contraction the last two passes measured (between `CONTRACTION_FLOOR` and 1): the fixed point in
+    a few passes rather than many. The std is the last pass's, the exposure's with
+    `DIELECTRIC_EXPOSURE_LOG_STD`.
     """
     params, sums = searched
     kept = ((params[:, 4] <= DIELECTRIC_MAX_METALLIC) & (params[:, 3] <= DIELECTRIC_MAX_ROUGHNESS)
@@ -403,26 +410,42 @@ def _dielectric_exposure(observations: Observations, search: Config, gain: np.nd
         return None
     texels = observations.select(kept)
     params, sums = params[kept], sums[kept]
-    log_exposure = float(np.mean(np.log(gain)))
+    log_gain = np.log(np.asarray(gain, np.float64))
     steps: list[tuple[float, float]] = []
     found = None
     for index in range(DIELECTRIC_PASSES):
         if index > 0:
-            params, sums = label_sums(_scaled(texels, gain, config), search)
+            params, sums = label_sums(_scaled(texels, np.exp(log_gain), config), search)
         reading = channel_gains(sums, params[:, 3], DIELECTRIC_EXPOSURE_LOG_STD)
         if reading.texels < 2:
             break
         found = reading
-        step = float(np.mean(np.log(reading.gain)))
-        steps.append((log_exposure, step))
-        if abs(step) < CONVERGED:
+        step = _gain_step(reading, True)
+        exposure_step = float(np.log(reading.gain).mean())
+        steps.append((float(log_gain.mean()), exposure_step))
+        ratio_step = step - exposure_step
+        if abs(exposure_step) < CONVERGED and np.all(np.abs(ratio_step) < RATIO_CONVERGED):
             break
-        move = _secant_step(steps)
-        log_exposure += move
-        gain = gain * np.exp(move)
+        log_gain = log_gain + _secant_step(steps) + ratio_step
     if found is None:
         return None
-    return log_exposure, found.exposure_log_std, found.texels
+    return np.exp(log_gain), found
+
+def _gain_step(found: GainEstimate, move_ratios: bool) -> np.ndarray:
+    """Return a pass's step (3,) of log gains: its exposure, and each white-balance ratio it tells from 0.
+
+    A ratio moves where its reading is at least `RATIO_STEP_STD` times the texels' scatter (its
+    std without the model's misfit, `MODEL_RATIO_LOG_STD`, which is the same at every pass): below,
+    a pass reads the texels' chance, and such steps multiplied pass after pass walk away (a dragon
+    with metal islands under an indoor map: 0.73, 1.14, 1.34 on a calibrated capture;
+    docs/results.md#calibration).
+    """
+    log_gain = np.log(found.gain)
+    exposure = float(log_gain.mean())
+    ratios = log_gain - exposure
+    scatter = np.sqrt(np.maximum(found.ratio_log_std ** 2 - MODEL_RATIO_LOG_STD ** 2, 0.0))
+    moved = move_ratios & (np.abs(ratios) >= RATIO_STEP_STD * scatter)
+    return exposure + np.where(moved, ratios, 0.0)
 
 
 def _secant_step(steps: list[tuple[float, float]]) -> float:

@@ -134,12 +134,17 @@ def channel_gains(moments: np.ndarray, roughness: np.ndarray | None = None,
     channels share cancels). The exposure is the median of the texels' common log gains, every texel
     one vote: the readings scatter by the model's misfit far beyond what a texel's own curvature
     says, and weighting by it lets the few texels the model fits most sharply decide
-    (docs/results.md#calibration). Each channel's ratio is the median of theirs weighted by the
-    texel's curvature over its misfit (an inverse variance), normalised to a geometric mean of 1. A
-    texel says nothing where its loss has no minimum inside the grid (a metal, whose free base
-    colour takes any gain) or where its base colour sits at a bound (the minimum is then the bound's
-    kink, not the data's) or where its estimated roughness is above `MAX_ROUGHNESS` (a lobe that
-    wide is not told apart from the diffuse: rough dielectrics bias the gains). Each texel's loss at
+    (docs/results.md#calibration). A texel whose base colour reaches 1 at its best gain reads the
+    bound's kink: its samples alone would read a lower gain, but no base colour exceeds 1, so the
+    gain is at least the kink's. In the median it votes on the side of the kink it lies on (a
+    censored median); left out, the bright texels' low readings went missing and the exposure
+    walked upwards pass after pass (docs/results.md#calibration). Each channel's ratio is the median
+    of theirs weighted by the texel's curvature over its misfit (an inverse variance), normalised to
+    a geometric mean of 1, over the texels whose base colour lies inside its bounds (a channel at
+    its kink says nothing of its ratio). A texel says nothing where its loss has no minimum inside
+    the grid (a metal, whose free base colour takes any gain) or where its estimated roughness is
+    above `MAX_ROUGHNESS` (a lobe that wide is not told apart from the diffuse: rough dielectrics
+    bias the gains). Each texel's loss at
     a gain is its least over the roughness slots and the two labels, so that a gain is not judged at
     a roughness found under another. The std is the (weighted) spread over the square root of the
     (effective) number of texels with `MODEL_EXPOSURE_LOG_STD` (`MODEL_RATIO_LOG_STD`) added in
@@ -184,11 +189,13 @@ def channel_gains(moments: np.ndarray, roughness: np.ndarray | None = None,
     texel_loss, texel_base = np.empty((len(moments), len(grid), 3)), np.empty((len(moments), len(grid), 3))
     channel_gain_curves(moments, grid, np.ascontiguousarray(choice[rows, node]), texel_loss, texel_base)
     at_best = texel_base[rows, node]  # (N, 3)
-    usable &= slot_roughness[:, 0] <= MAX_ROUGHNESS
-    usable &= np.all(at_best < BASE_BOUND, axis=1) & np.any(at_best > 0.0, axis=1)
+    usable &= (slot_roughness[:, 0] <= MAX_ROUGHNESS) & np.any(at_best > 0.0, axis=1)
     if usable.sum() < 2:
         return GainEstimate(np.ones(3), np.full(3, PRIOR_LOG_STD), 0)
+    # A texel at its base colour's bound votes at the bound's kink: on the side of the median it lies on.
     exposure, exposure_variance = _robust_mean(position[usable])
+    readers = int(usable.sum())
+    usable &= np.all(at_best < BASE_BOUND, axis=1)
     ratios, ratio_variance = np.zeros(3), np.zeros(3)
     for c in range(3):
         channel_position, channel_minimum, channel_curvature, channel_usable = _grid_minimum(texel_loss[:, :, c], grid)
@@ -205,7 +212,7 @@ def channel_gains(moments: np.ndarray, roughness: np.ndarray | None = None,
     variance = exposure_variance + ratio_variance
     precision = 1.0 / np.maximum(variance, 1e-12) + 1.0 / PRIOR_LOG_STD ** 2
     shrunk = log_gain / np.maximum(variance, 1e-12) / precision
-    return GainEstimate(np.exp(shrunk), 1.0 / np.sqrt(precision), int(usable.sum()),
+    return GainEstimate(np.exp(shrunk), 1.0 / np.sqrt(precision), readers,
                         float(np.sqrt(exposure_variance)), np.sqrt(ratio_variance))
 
 
