@@ -299,8 +299,8 @@ def calibrate(capture: Capture, config: Config = Config(),
         search = _search_config(coarse_config)
         estimate_gains = (settings.gains and calibration.samples_per_texel >= MIN_GAIN_SAMPLES
                           and not _masks_inside(calibration))
-        gain, found, last_search = (_channel_gains(observations, search, np.ones(3), config) if estimate_gains
-                                    else (np.ones(3), None, None))
+        gain, found, on_dielectrics = (_read_gains(observations, search, np.ones(3), config) if estimate_gains
+                                       else (np.ones(3), None, False))
         if settings.probe_rotation:
             # On photographs at the map's scale: a wrong exposure or white balance would bend the turn.
             calibration.probe = register_probe(_scaled(observations, gain, config), search.estimate,
@@ -310,10 +310,9 @@ def calibrate(capture: Capture, config: Config = Config(),
                 observations = _exact_texels(observe(capture, coarse_config, texels=texels))
                 if calibration.frame_gain is not None:
                     observations = _scaled(observations, calibration.frame_gain, config)
-                if estimate_gains:
-                    gain, found, last_search = _channel_gains(observations, search, gain, config)
-        if found is not None:  # last: on the capture as registered (a turned map moves the dielectrics' reading)
-            gain, found, on_dielectrics = _dielectric_refined(observations, search, gain, found, config, last_search)
+                if estimate_gains:  # read again under the map as registered (a turn moves every reading)
+                    gain, found, on_dielectrics = _read_gains(observations, search, gain, config)
+        if found is not None:
             calibration.exposure_from = "dielectrics" if on_dielectrics else "every texel"
         advance(1)
         log_std, scored = np.zeros(3), 0
@@ -329,6 +328,17 @@ def calibrate(capture: Capture, config: Config = Config(),
     capture = _corrected(capture, calibration, settings.drop_bad_views)
     calibration.seconds = time.perf_counter() - start
     return capture, calibration
+
+
+def _read_gains(observations: Observations, search: Config, start: np.ndarray,
+                config: Config) -> tuple[np.ndarray, GainEstimate, bool]:
+    """Return the gains from ``start`` on, their estimate, and whether the dielectrics read them.
+
+    The passes on every texel (`_channel_gains`), then the dielectrics' reading from there
+    (`_dielectric_refined`).
+    """
+    gain, found, last_search = _channel_gains(observations, search, start, config)
+    return _dielectric_refined(observations, search, gain, found, config, last_search)
 
 
 def _channel_gains(observations: Observations, search: Config, start: np.ndarray,

@@ -58,6 +58,9 @@ DECISIVE_LOG_ODDS = 5.0
 # the darker ones, and the selection bends the turn: this much std per unit share of the seen
 # texels left out is added about each axis (docs/results.md#calibration).
 CENSORED_SELECTION_TURN_DEG = 50.0
+# The std of the turn about an axis the loss does not curve about at the least the descent found (a
+# flat or noisy direction): far wider than the prior, so that the turn about it is not applied.
+UNDETERMINED_TURN_DEG = 180.0
 # Texels whose normals' mean has this length or more (a plane, a relief: normals within about 25°
 # of one direction) do not register the map: for them a turn mimics the model's own misfit of the
 # lobe's shape (its off-specular shift is one direction for every texel).
@@ -256,7 +259,8 @@ def register_probe(observations: Observations, settings: EstimateConfig, search_
     ProbeRegistration
         The turn: identity where "registered exactly" is the likelier, where the turn removes less
         than `MIN_LOSS_REDUCTION` of the loss at log odds under `DECISIVE_LOG_ODDS`, where the
-        loss's curvature leaves it undetermined,
+        loss curves about none of the axes (about some: the turn about the others; ``std_deg``
+        theirs),
         or where the texels' normals are too alike to tell a turn from the model's misfit
         (`MAX_NORMAL_ALIGNMENT`).
     """
@@ -281,14 +285,18 @@ def register_probe(observations: Observations, settings: EstimateConfig, search_
     best = int(np.argmin(values))
     start, start_value = (turns[best], values[best]) if values[best] < given else (identity, given)
     rotation, value, curvature = _descend(loss, start, start_value)
-    if not np.all(curvature > 0.0):
+    determined = curvature > 0.0
+    if not determined.any():
         return ProbeRegistration(identity, 0.0, float("inf"), (1.0, 1.0), 0.0)
     # The noise: the loss per texel (the texels are the independent units), less the turn's 3; the
-    # model's misfit adds its own spread.
+    # model's misfit adds its own spread. An axis the loss does not curve about leaves the turn about
+    # it undetermined (`UNDETERMINED_TURN_DEG`), not the turn about the others.
     noise = value / max(len(texels) - 3, 1)
     misfit = np.hypot(MISFIT_TURN_DEG, CENSORED_SELECTION_TURN_DEG * left_out_share)
-    covariance = np.diag(2.0 * noise / curvature) + np.radians(misfit) ** 2 * identity
-    std_deg = float(np.degrees(np.sqrt(covariance.diagonal().max())))
+    variance = np.where(determined, 2.0 * noise / np.where(determined, curvature, 1.0),
+                        np.radians(UNDETERMINED_TURN_DEG) ** 2)
+    covariance = np.diag(variance) + np.radians(misfit) ** 2 * identity
+    std_deg = float(np.degrees(np.sqrt(covariance.diagonal()[determined].max())))
     vector = _rotation_vector(rotation)
     prior = np.radians(PRIOR_TURN_DEG)
     log_odds = _log_odds(vector, covariance, prior)
