@@ -70,11 +70,13 @@ GAIN_PASSES = 10
 # smoother ones; on the dielectrics the model's misfit is DIELECTRIC_EXPOSURE_LOG_STD
 # (docs/results.md#calibration). Read where at least MIN_DIELECTRIC_TEXELS of them are found, in up
 # to DIELECTRIC_PASSES passes on the same texels, each step the last one's over the contraction the
-# passes measure (the roughness follows the gain part of the way; at least CONTRACTION_FLOOR).
+# passes measure (the roughness follows the gain part of the way; at least CONTRACTION_FLOOR); the
+# dielectrics are picked DIELECTRIC_PICKS times, each at the gains the last reading reached.
 DIELECTRIC_MAX_METALLIC = 0.05
 DIELECTRIC_MAX_ROUGHNESS = 0.3
 MIN_DIELECTRIC_TEXELS = 100
 DIELECTRIC_PASSES = 4
+DIELECTRIC_PICKS = 2
 DIELECTRIC_EXPOSURE_LOG_STD = 0.05
 CONTRACTION_FLOOR = 0.25
 # How far a probe's exposure and white balance are from the photographs' when they are not equal (1
@@ -384,14 +386,22 @@ def _dielectric_refined(observations: Observations, search: Config, gain: np.nda
     """Return the gains read again on the dielectrics, their estimate, and whether they read them.
 
     The dielectrics' reading: `_dielectric_gains`. ``searched``: a search on the photographs
-    divided by about ``gain`` (None: searched here). Where too few dielectrics are found, ``gain``
-    and ``found`` as given, and False.
+    divided by about ``gain`` (None: searched here). Which texels pass for smooth dielectrics
+    depends on the gain they are searched at (a capture read from far off picks others), so they
+    are picked again at the gains they read, `DIELECTRIC_PICKS` times in all. Where too few
+    dielectrics are found, ``gain`` and ``found`` as given, and False.
     """
     if searched is None:
         searched = label_sums(_scaled(observations, gain, config), search)
     dielectric = _dielectric_gains(observations, search, gain, config, searched)
     if dielectric is None:
         return gain, found, False
+    for _ in range(DIELECTRIC_PICKS - 1):
+        again = _dielectric_gains(observations, search, dielectric[0], config,
+                                  label_sums(_scaled(observations, dielectric[0], config), search))
+        if again is None:
+            break
+        dielectric = again
     return (*dielectric, True)
 
 
