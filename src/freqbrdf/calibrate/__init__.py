@@ -301,8 +301,11 @@ def calibrate(capture: Capture, config: Config = Config(),
         search = _search_config(coarse_config)
         estimate_gains = (settings.gains and calibration.samples_per_texel >= MIN_GAIN_SAMPLES
                           and not _masks_inside(calibration))
-        gain, found, on_dielectrics = (_read_gains(observations, search, np.ones(3), config) if estimate_gains
-                                       else (np.ones(3), None, False))
+        # Where clipping left texels out, the smooth dielectrics left are those whose highlights stayed
+        # under the ceiling in every channel: their colour is the ceiling's choice, not the light's.
+        white_balance = dropped_share == 0.0
+        gain, found, on_dielectrics = (_read_gains(observations, search, np.ones(3), config, white_balance)
+                                       if estimate_gains else (np.ones(3), None, False))
         if settings.probe_rotation:
             # On photographs at the map's scale: a wrong exposure or white balance would bend the turn.
             calibration.probe = register_probe(_scaled(observations, gain, config), search.estimate,
@@ -313,7 +316,7 @@ def calibrate(capture: Capture, config: Config = Config(),
                 if calibration.frame_gain is not None:
                     observations = _scaled(observations, calibration.frame_gain, config)
                 if estimate_gains:  # read again under the map as registered (a turn moves every reading)
-                    gain, found, on_dielectrics = _read_gains(observations, search, gain, config)
+                    gain, found, on_dielectrics = _read_gains(observations, search, gain, config, white_balance)
         if found is not None:
             calibration.exposure_from = "dielectrics" if on_dielectrics else "every texel"
         advance(1)
@@ -332,15 +335,15 @@ def calibrate(capture: Capture, config: Config = Config(),
     return capture, calibration
 
 
-def _read_gains(observations: Observations, search: Config, start: np.ndarray,
-                config: Config) -> tuple[np.ndarray, GainEstimate, bool]:
+def _read_gains(observations: Observations, search: Config, start: np.ndarray, config: Config,
+                white_balance: bool) -> tuple[np.ndarray, GainEstimate, bool]:
     """Return the gains from ``start`` on, their estimate, and whether the dielectrics read them.
 
     The passes on every texel (`_channel_gains`), then the dielectrics' reading from there
-    (`_dielectric_refined`).
+    (`_dielectric_refined`; the white balance too where ``white_balance``).
     """
     gain, found, last_search = _channel_gains(observations, search, start, config)
-    return _dielectric_refined(observations, search, gain, found, config, last_search)
+    return _dielectric_refined(observations, search, gain, found, config, last_search, white_balance)
 
 
 def _channel_gains(observations: Observations, search: Config, start: np.ndarray,
@@ -381,7 +384,7 @@ def _channel_gains(observations: Observations, search: Config, start: np.ndarray
 
 
 def _dielectric_refined(observations: Observations, search: Config, gain: np.ndarray, found: GainEstimate,
-                        config: Config, searched: tuple[np.ndarray, np.ndarray] | None
+                        config: Config, searched: tuple[np.ndarray, np.ndarray] | None, white_balance: bool = True
                         ) -> tuple[np.ndarray, GainEstimate, bool]:
     """Return the gains read again on the dielectrics, their estimate, and whether they read them.
 
@@ -389,24 +392,30 @@ def _dielectric_refined(observations: Observations, search: Config, gain: np.nda
     divided by about ``gain`` (None: searched here). Which texels pass for smooth dielectrics
     depends on the gain they are searched at (a capture read from far off picks others), so they
     are picked again at the gains they read, `DIELECTRIC_PICKS` times in all. Where too few
-    dielectrics are found, ``gain`` and ``found`` as given, and False.
+    dielectrics are found, ``gain`` and ``found`` as given, and False. Without ``white_balance`` they
+    read the exposure only, and the estimate keeps the passes' white-balance std.
     """
     if searched is None:
         searched = label_sums(_scaled(observations, gain, config), search)
-    dielectric = _dielectric_gains(observations, search, gain, config, searched)
+    dielectric = _dielectric_gains(observations, search, gain, config, searched, white_balance)
     if dielectric is None:
         return gain, found, False
     for _ in range(DIELECTRIC_PICKS - 1):
         again = _dielectric_gains(observations, search, dielectric[0], config,
-                                  label_sums(_scaled(observations, dielectric[0], config), search))
+                                  label_sums(_scaled(observations, dielectric[0], config), search), white_balance)
         if again is None:
             break
         dielectric = again
-    return (*dielectric, True)
+    gain, reading = dielectric
+    if not white_balance:
+        reading = _with_selection(replace(found, exposure_log_std=0.0, ratio_log_std=np.zeros(3),
+                                          texels=reading.texels), reading.exposure_log_std, found.ratio_log_std)
+    return gain, reading, True
 
 
 def _dielectric_gains(observations: Observations, search: Config, gain: np.ndarray, config: Config,
-                      searched: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, GainEstimate] | None:
+                      searched: tuple[np.ndarray, np.ndarray], white_balance: bool = True
+                      ) -> tuple[np.ndarray, GainEstimate] | None:
     """Read the gains again on the texels found dielectric at ``gain``: (gains, their estimate), or None.
 
     ``searched`` is the search's (params, sums) on the photographs divided by about ``gain``
@@ -421,7 +430,7 @@ def _dielectric_gains(observations: Observations, search: Config, gain: np.ndarr
     finds follows the gain part of the way, so each exposure step is the pass's reading over the
     contraction the last two passes measured (between `CONTRACTION_FLOOR` and 1): the fixed point in
     a few passes rather than many. The std is the last pass's, the exposure's with
-    `DIELECTRIC_EXPOSURE_LOG_STD`.
+    `DIELECTRIC_EXPOSURE_LOG_STD`. Without ``white_balance`` the ratios are kept as given.
     """
     params, sums = searched
     kept = ((params[:, 4] <= DIELECTRIC_MAX_METALLIC) & (params[:, 3] <= DIELECTRIC_MAX_ROUGHNESS)
@@ -440,7 +449,7 @@ def _dielectric_gains(observations: Observations, search: Config, gain: np.ndarr
         if reading.texels < 2:
             break
         found = reading
-        step = _gain_step(reading, True)
+        step = _gain_step(reading, white_balance)
         exposure_step = float(np.log(reading.gain).mean())
         steps.append((float(log_gain.mean()), exposure_step))
         ratio_step = step - exposure_step
@@ -450,6 +459,7 @@ def _dielectric_gains(observations: Observations, search: Config, gain: np.ndarr
     if found is None:
         return None
     return np.exp(log_gain), found
+
 
 def _gain_step(found: GainEstimate, move_ratios: bool) -> np.ndarray:
     """Return a pass's step (3,) of log gains: its exposure, and each white-balance ratio it tells from 0.
