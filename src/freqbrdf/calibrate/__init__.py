@@ -544,7 +544,7 @@ def _significant(gain: np.ndarray, found: GainEstimate) -> np.ndarray:
     std tau (`PRIOR_LOG_STD` for the exposure, `WHITE_BALANCE_PRIOR_LOG_STD` for a ratio). A
     measurement x of std s is applied where the second is the likelier (even prior odds): where
     (x / s)^2 exceeds (1 + s^2 / tau^2) ln(1 + tau^2 / s^2), about 2.1 std for the exposure and 1.6
-    for a ratio at the dielectrics' misfit (1.3 at every texel's); it is then applied as measured: the normal slab decides
+    for a ratio at the model's own misfit; it is then applied as measured: the normal slab decides
     whether a gain is off, but how far off a probe shot at another setting is has heavier tails
     (daylight against tungsten is a factor 2), and shrinking x by tau^2 / (tau^2 + s^2) left a 20 %
     white balance 2-4 % short (docs/results.md#calibration). A gain the model's misfit could give on
