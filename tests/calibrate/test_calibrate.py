@@ -314,7 +314,7 @@ def _dielectric_search(monkeypatch, metallic, reading, log_exposure=0.0):
 
     monkeypatch.setattr(calibration, "label_sums", label_sums)
     monkeypatch.setattr(calibration, "_scaled", scaled)
-    monkeypatch.setattr(calibration, "channel_gains", lambda sums, roughness, model_std, ratio_std: GainEstimate(
+    monkeypatch.setattr(calibration, "channel_gains", lambda sums, roughness, model_std: GainEstimate(
         np.full(3, np.exp(reading(applied["log_exposure"]))), np.full(3, 0.05), len(sums),
         exposure_log_std=model_std, ratio_log_std=np.full(3, 0.03)))
     return calibration
@@ -352,9 +352,9 @@ def test_a_pass_moves_a_ratio_only_where_it_reads_more_than_the_texels_scatter()
     ratio_std = np.sqrt(scatter ** 2 + MODEL_RATIO_LOG_STD ** 2)
     reading = GainEstimate(np.exp(np.log(1.2) + np.array([0.2, 0.03, -0.23])), np.full(3, 0.1), 500,
                            exposure_log_std=0.1, ratio_log_std=ratio_std)
-    step = calibration._gain_step(reading, True, MODEL_RATIO_LOG_STD)
+    step = calibration._gain_step(reading, True)
     np.testing.assert_allclose(step, np.log(1.2) + np.array([0.2, 0.0, -0.23]))
-    np.testing.assert_allclose(calibration._gain_step(reading, False, MODEL_RATIO_LOG_STD), np.full(3, np.log(1.2)))
+    np.testing.assert_allclose(calibration._gain_step(reading, False), np.full(3, np.log(1.2)))
 
 
 def test_a_secant_step_reaches_a_linear_fixed_point():

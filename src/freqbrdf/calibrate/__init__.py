@@ -68,8 +68,7 @@ GAIN_PASSES = 10
 # the texels of every label over-read it where metals and part-metals pass for dielectrics (their
 # specular is stronger than F0 = 0.04 allows) and under-read it where rough dielectrics pass for
 # smoother ones; on the dielectrics the model's misfit is DIELECTRIC_EXPOSURE_LOG_STD
-# (DIELECTRIC_RATIO_LOG_STD for a white-balance ratio; docs/results.md#calibration). Read where at
-# least MIN_DIELECTRIC_TEXELS of them are found, in up
+# (docs/results.md#calibration). Read where at least MIN_DIELECTRIC_TEXELS of them are found, in up
 # to DIELECTRIC_PASSES passes on the same texels, each step the last one's over the contraction the
 # passes measure (the roughness follows the gain part of the way; at least CONTRACTION_FLOOR); the
 # dielectrics are picked DIELECTRIC_PICKS times, each at the gains the last reading reached.
@@ -79,7 +78,6 @@ MIN_DIELECTRIC_TEXELS = 100
 DIELECTRIC_PASSES = 4
 DIELECTRIC_PICKS = 2
 DIELECTRIC_EXPOSURE_LOG_STD = 0.05
-DIELECTRIC_RATIO_LOG_STD = 0.03
 CONTRACTION_FLOOR = 0.25
 # How far a probe's exposure and white balance are from the photographs' when they are not equal (1
 # sigma, in log): the exposure within a factor e (`freqbrdf.calibrate.gains.PRIOR_LOG_STD`), each
@@ -370,7 +368,7 @@ def _channel_gains(observations: Observations, search: Config, start: np.ndarray
     for index in range(GAIN_PASSES):
         params, sums = label_sums(current, search)
         found = channel_gains(sums, params[:, 3])
-        log_step = _gain_step(found, index < RATIO_PASSES, MODEL_RATIO_LOG_STD)
+        log_step = _gain_step(found, index < RATIO_PASSES)
         gain = gain * np.exp(log_step)
         arrived.append(np.log(gain))
         if abs(log_step.mean()) < CONVERGED and np.all(np.abs(log_step - log_step.mean()) < RATIO_CONVERGED):
@@ -447,11 +445,11 @@ def _dielectric_gains(observations: Observations, search: Config, gain: np.ndarr
     for index in range(DIELECTRIC_PASSES):
         if index > 0:
             params, sums = label_sums(_scaled(texels, np.exp(log_gain), config), search)
-        reading = channel_gains(sums, params[:, 3], DIELECTRIC_EXPOSURE_LOG_STD, DIELECTRIC_RATIO_LOG_STD)
+        reading = channel_gains(sums, params[:, 3], DIELECTRIC_EXPOSURE_LOG_STD)
         if reading.texels < 2:
             break
         found = reading
-        step = _gain_step(reading, white_balance, DIELECTRIC_RATIO_LOG_STD)
+        step = _gain_step(reading, white_balance)
         exposure_step = float(np.log(reading.gain).mean())
         steps.append((float(log_gain.mean()), exposure_step))
         ratio_step = step - exposure_step
@@ -463,11 +461,11 @@ def _dielectric_gains(observations: Observations, search: Config, gain: np.ndarr
     return np.exp(log_gain), found
 
 
-def _gain_step(found: GainEstimate, move_ratios: bool, model_ratio_log_std: float) -> np.ndarray:
+def _gain_step(found: GainEstimate, move_ratios: bool) -> np.ndarray:
     """Return a pass's step (3,) of log gains: its exposure, and each white-balance ratio it tells from 0.
 
     A ratio moves where its reading is at least `RATIO_STEP_STD` times the texels' scatter (its
-    std without the model's misfit, ``model_ratio_log_std``, which is the same at every pass): below,
+    std without the model's misfit, `MODEL_RATIO_LOG_STD`, which is the same at every pass): below,
     a pass reads the texels' chance, and such steps multiplied pass after pass walk away (a dragon
     with metal islands under an indoor map: 0.73, 1.14, 1.34 on a calibrated capture;
     docs/results.md#calibration).
@@ -475,7 +473,7 @@ def _gain_step(found: GainEstimate, move_ratios: bool, model_ratio_log_std: floa
     log_gain = np.log(found.gain)
     exposure = float(log_gain.mean())
     ratios = log_gain - exposure
-    scatter = np.sqrt(np.maximum(found.ratio_log_std ** 2 - model_ratio_log_std ** 2, 0.0))
+    scatter = np.sqrt(np.maximum(found.ratio_log_std ** 2 - MODEL_RATIO_LOG_STD ** 2, 0.0))
     moved = move_ratios & (np.abs(ratios) >= RATIO_STEP_STD * scatter)
     return exposure + np.where(moved, ratios, 0.0)
 

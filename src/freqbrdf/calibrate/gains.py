@@ -43,11 +43,10 @@ LOG_GAIN_GRID = np.log(2.0) * np.arange(-2.0, 2.0001, 0.05)
 # and where there are at least FRAME_PAIR_TEXELS of them (docs/results.md#calibration).
 FRAME_PAIR_DEG = 40.0
 FRAME_PAIR_TEXELS = 10
-# The std of the exposure and of a white-balance ratio that the model's own misfit gives when every
-# texel reads them, added to the texels' spread (docs/results.md#calibration: the clean scenes'; the
-# white balance read on every texel of the six scenes' captures, 6.5 % RMS).
+# The std of the exposure and of a white-balance ratio that the model's own misfit gives on a
+# calibrated capture, added to the texels' spread (docs/results.md#calibration: the clean scenes').
 MODEL_EXPOSURE_LOG_STD = 0.10
-MODEL_RATIO_LOG_STD = 0.06
+MODEL_RATIO_LOG_STD = 0.03
 # A texel's misfit floor in the white-balance ratios' weights, as a share of the texels' median misfit:
 # a near-exact fit does not take over.
 MISFIT_FLOOR = 0.05
@@ -125,8 +124,7 @@ def _grid_minimum(values: np.ndarray, grid: np.ndarray) -> tuple[np.ndarray, np.
 
 
 def channel_gains(moments: np.ndarray, roughness: np.ndarray | None = None,
-                  model_exposure_log_std: float = MODEL_EXPOSURE_LOG_STD,
-                  model_ratio_log_std: float = MODEL_RATIO_LOG_STD) -> GainEstimate:
+                  model_exposure_log_std: float = MODEL_EXPOSURE_LOG_STD) -> GainEstimate:
     """Estimate the gain per colour channel from the texels' label sums.
 
     Each texel's label (dielectric or metal) is the one that fits it best at its best gain. With
@@ -149,7 +147,7 @@ def channel_gains(moments: np.ndarray, roughness: np.ndarray | None = None,
     bias the gains). Each texel's loss at
     a gain is its least over the roughness slots and the two labels, so that a gain is not judged at
     a roughness found under another. The std is the (weighted) spread over the square root of the
-    (effective) number of texels with ``model_exposure_log_std`` (``model_ratio_log_std``) added in
+    (effective) number of texels with `MODEL_EXPOSURE_LOG_STD` (`MODEL_RATIO_LOG_STD`) added in
     quadrature, and the prior of `PRIOR_LOG_STD` keeps a gain that few texels determine near 1.
 
     Parameters
@@ -164,9 +162,6 @@ def channel_gains(moments: np.ndarray, roughness: np.ndarray | None = None,
         The exposure's std that the model's misfit gives on calibrated captures (added to the
         texels' spread): `MODEL_EXPOSURE_LOG_STD` on every texel, less on the dielectrics of
         `freqbrdf.calibrate` (``DIELECTRIC_EXPOSURE_LOG_STD``).
-    model_ratio_log_std : float, optional
-        The same for each white-balance ratio: `MODEL_RATIO_LOG_STD` on every texel (coloured metals
-        taken for dielectrics lead it), less on the dielectrics (``DIELECTRIC_RATIO_LOG_STD``).
 
     Returns
     -------
@@ -213,7 +208,7 @@ def channel_gains(moments: np.ndarray, roughness: np.ndarray | None = None,
     log_gain = exposure + ratios
     # The texels' errors are not independent: the model's own misfit moves them together.
     exposure_variance += model_exposure_log_std ** 2
-    ratio_variance = ratio_variance + model_ratio_log_std ** 2
+    ratio_variance = ratio_variance + MODEL_RATIO_LOG_STD ** 2
     variance = exposure_variance + ratio_variance
     precision = 1.0 / np.maximum(variance, 1e-12) + 1.0 / PRIOR_LOG_STD ** 2
     shrunk = log_gain / np.maximum(variance, 1e-12) / precision
