@@ -134,11 +134,12 @@ class Calibration:
     dropped_views : list of int
         Photographs left out (``CalibrationConfig.drop_bad_views``).
     texels : int
-        Texels that read the exposure: the dielectrics where they read it (`_dielectric_exposure`),
+        Texels that read the exposure: the dielectrics where they read it (`_dielectric_gains`),
         else every texel that determines a gain.
     exposure_from : str
-        Which texels read the exposure: "dielectrics", "every texel" (fewer than
-        `MIN_DIELECTRIC_TEXELS` dielectrics found) or "" (the gains not estimated).
+        Which texels read the exposure (and, where no clipping left texels out, the white
+        balance): "dielectrics", "every texel" (fewer than `MIN_DIELECTRIC_TEXELS` dielectrics
+        found) or "" (the gains not estimated).
     samples_per_texel : float
         The median over the seen coarse texels of the views that see each (clipped samples
         included); the gains are estimated from `MIN_GAIN_SAMPLES` on.

@@ -579,7 +579,7 @@ def _calibration_paragraph(summary: dict) -> str:
     lines = []
     if found:
         gains = ", ".join(f"{gain:.3f} ± {std:.3f}" for gain, std in zip(found["gain"], found["gain_std"]))
-        source = {"dielectrics": f", the exposure read on {found.get('texels', 0)} texels found dielectric",
+        source = {"dielectrics": f", read on {found.get('texels', 0)} texels found dielectric",
                   "every texel": f", the exposure read on {found.get('texels', 0)} texels of every material (too few "
                                  "dielectrics)"}.get(found.get("exposure_from", ""), "")
         lines.append(f"Calibration: the photographs are {gains} (R, G, B) times the environment map's radiance{source}")
