@@ -38,6 +38,7 @@ from freqbrdf.estimate._search_kernels import (
     _roughness_objective,
     _search_roughness,
     _weighted_sums,
+    record_label_sums,
 )
 from freqbrdf.model._kernels import (
     azimuthal_coefficients,
@@ -88,6 +89,7 @@ class SearchScratch(NamedTuple):
     scanned: np.ndarray
     no_rows: np.ndarray
     no_moments: np.ndarray
+    no_sums: np.ndarray
     local_environment: np.ndarray
     quadrature_world: np.ndarray
     quadrature_basis: np.ndarray
@@ -234,6 +236,7 @@ def new_search_scratch(n_views, lmax, tables, environment_light, prefiltered_lig
             scanned[node_rows[node]] = True
     no_rows = np.full(0, -1, dtype=np.int64)
     no_moments = np.zeros((0, 3, 8))
+    no_sums = np.zeros((0, 3, 16))
     # The environment in the texel's frame, then in each sample's mirrored view frame.
     n_points = quadrature.shape[0]
     local_environment = np.empty((environment.shape[0], 3))
@@ -261,7 +264,7 @@ def new_search_scratch(n_views, lmax, tables, environment_light, prefiltered_lig
         xyz, unit, basis, sh_scratch, packed_cos, omega, packed_proj, values, table_row, table_frac,
         burley_terms, diffuse_moments, column, albedo, diffuse_factor, own_filtered, filtered, sample_weight,
         residual, kernel, kernel_derivative, moments, quadratics, squared_values, scale, state, best_state,
-        label_state, roughness_brent, node_loss, scanned, no_rows, no_moments, local_environment,
+        label_state, roughness_brent, node_loss, scanned, no_rows, no_moments, no_sums, local_environment,
         quadrature_world, quadrature_basis, quadrature_scratch, quadrature_values, azimuthal, environment_nodes,
         environment_cached, bitangent, prefiltered_nodes, prefiltered_cached, corner, stencil_frac,
         high_filtered, occluded, surface_light,
@@ -292,7 +295,7 @@ def search_texel(t, samples, light, recurrence, options, tables, environment_lig
         xyz, unit, basis, sh_scratch, packed_cos, omega, packed_proj, values, table_row, table_frac,
         burley_terms, diffuse_moments, column, albedo, diffuse_factor, own_filtered, filtered, sample_weight,
         residual, kernel, kernel_derivative, moments, quadratics, squared_values, scale, state, best_state,
-        label_state, roughness_brent, node_loss, scanned, no_rows, no_moments, local_environment,
+        label_state, roughness_brent, node_loss, scanned, no_rows, no_moments, no_sums, local_environment,
         quadrature_world, quadrature_basis, quadrature_scratch, quadrature_values, azimuthal, environment_nodes,
         environment_cached, bitangent, prefiltered_nodes, prefiltered_cached, corner, stencil_frac,
         high_filtered, occluded, surface_light,
@@ -421,8 +424,13 @@ def search_texel(t, samples, light, recurrence, options, tables, environment_lig
         return
     # A robust pass refines the roughness to _BRENT_XTOL: this search need only find its cell.
     first_xtol = _BRENT_COARSE_XTOL if robust_passes > 0 else _BRENT_XTOL
+    # Where label_moments' roughness slots are the grid's nodes, the scan (at the least-squares
+    # weights) records their sums: the nodes are not probed again below.
+    n_slots = estimates.label_moments.shape[1]
+    slots_scanned = estimates.label_moments.shape[0] > 0 and n_slots - 2 == roughness_grid - 1
     best_r, best_f = _search_roughness(objective, buffers, np.int64(0), roughness_grid - 1, first_xtol, node_rows,
-                                       hypothesis_moments[t] if node_rows.shape[0] > 0 else no_moments)
+                                       hypothesis_moments[t] if node_rows.shape[0] > 0 else no_moments,
+                                       estimates.label_moments[t, 1:] if slots_scanned else no_sums)
     if robust_passes > 0:
         # Towards the paper's L1 loss sum_v w |r_v| (IRLS): weight each sample by
         # w / max(|r|, delta), delta a tenth of the texel's mean |r| so that near-exact
@@ -445,7 +453,7 @@ def search_texel(t, samples, light, recurrence, options, tables, environment_lig
             node = int(round(best_r * (roughness_grid - 1)))
             best_r, best_f = _search_roughness(objective, buffers, max(node - _ROBUST_NODES, 0),
                                                min(node + _ROBUST_NODES, roughness_grid - 1), _BRENT_XTOL,
-                                               no_rows, no_moments)
+                                               no_rows, no_moments, no_sums)
         for s in range(n):  # back to least squares for the curvature
             omega[s] = sample_weight[s] * sample_weight[s]
         _weighted_sums(n, omega, values, burley_terms, diffuse_moments, squared_values)
@@ -465,16 +473,12 @@ def search_texel(t, samples, light, recurrence, options, tables, environment_lig
         _record_labels(best_r, objective, quadratics, label_state, total_weight, label_loss[t],
                        label_base_color[t], np.bool_(robust_passes == 0))
         # The sums at the estimate (the probe at best_r left them in moments), then at the
-        # roughness nodes label_moments has room for, evenly on [0, 1].
-        n_slots = estimates.label_moments.shape[1]
-        for slot in range(n_slots if estimates.label_moments.shape[0] > 0 else 0):
+        # roughness nodes label_moments has room for, evenly on [0, 1] (where the scan did not).
+        recorded_slots = 1 if slots_scanned else n_slots
+        for slot in range(recorded_slots if estimates.label_moments.shape[0] > 0 else 0):
             if slot > 0:
                 _roughness_objective((slot - 1) / max(n_slots - 2, 1), objective)
-            for c in range(3):
-                for index in range(14):
-                    estimates.label_moments[t, slot, c, index] = moments[c, index]
-                estimates.label_moments[t, slot, c, 14] = squared_values[c]
-                estimates.label_moments[t, slot, c, 15] = scale[c]
+            record_label_sums(objective, estimates.label_moments[t, slot])
     curvature[t] = _loss_curvature(best_r, centre_f, objective) / total_weight
     params[t, 0], params[t, 1], params[t, 2] = best_state[0], best_state[1], best_state[2]
     params[t, 3], params[t, 4] = best_r, best_state[3]

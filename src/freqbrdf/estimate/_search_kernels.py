@@ -324,7 +324,7 @@ def _keep_state(state, best_state):
 
 
 @borrowing_jit
-def _search_roughness(objective, buffers, first_node, last_node, xtol, node_rows, node_moments):
+def _search_roughness(objective, buffers, first_node, last_node, xtol, node_rows, node_moments, node_sums):
     """Search the roughness: scan the grid's nodes first_node..last_node, then Brent in the best cell.
 
     Brent (to xtol) runs unless the loss rises inwards from a boundary node, and starts from the
@@ -332,7 +332,9 @@ def _search_roughness(objective, buffers, first_node, last_node, xtol, node_rows
     seen wins: returns (roughness, loss), its base colour and metallic in buffers.best_state
     (`_roughness_objective` leaves each probe's in objective.probe.state). A node whose node_rows
     entry (`_node_rows`; (0,): none) is a row i >= 0 records its hypothesis moments into
-    node_moments[i] (R, 3, 8), with the samples' weights buffers.sample_weight (n,).
+    node_moments[i] (R, 3, 8), with the samples' weights buffers.sample_weight (n,). Where
+    node_sums (G, 3, 16) has a row per node (else (0, 3, 16)), each node i writes the weighted sums
+    its labels' losses come from into row i (`record_label_sums`).
     """
     state, roughness_grid, best_state = objective.probe.state, buffers.roughness_grid, buffers.best_state
     roughness_brent, node_loss, sample_weight = buffers.brent, buffers.node_loss, buffers.sample_weight
@@ -343,6 +345,8 @@ def _search_roughness(objective, buffers, first_node, last_node, xtol, node_rows
         node_loss[i] = _roughness_objective(r, objective)
         if node_rows.shape[0] > 0 and node_rows[i] >= 0:
             _record_hypothesis(objective, sample_weight, node_moments[node_rows[i]])
+        if node_sums.shape[0] > 0:
+            record_label_sums(objective, node_sums[i])
         if node_loss[i] < best_f:
             best_node, best_r, best_f = i, r, node_loss[i]
             _keep_state(state, best_state)
@@ -370,6 +374,17 @@ def _search_roughness(objective, buffers, first_node, last_node, xtol, node_rows
         if search:
             brent_start(roughness_brent, max(node_r - cell, 0.0), min(node_r + cell, 1.0), xtol)
     return _brent_run(objective, buffers, best_r, best_f, search)
+
+
+@borrowing_jit
+def record_label_sums(objective, out):
+    """Write per channel the last probe's 14 `metallic_quadratics` sums, sum w^2 f^2 and the diffuse scale into out (3, 16)."""
+    moments, squared_values, scale = objective.probe.moments, objective.texel.squared_values, objective.texel.diffuse_scale
+    for c in range(3):
+        for index in range(14):
+            out[c, index] = moments[c, index]
+        out[c, 14] = squared_values[c]
+        out[c, 15] = scale[c]
 
 
 @borrowing_jit
