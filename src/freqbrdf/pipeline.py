@@ -48,8 +48,8 @@ from freqbrdf.uncertainty.heldout import StdCalibration, calibrate_std
 # A fit whose photographs clip this share of the samples says so (a warning in summary.json and on the command line).
 CENSORED_NOTE_FRACTION = 0.01
 # A fit whose per-texel base colour reaches its bound of 1 on this share of the texels says the photographs
-# look brighter than the map lights them (docs/results.md#calibration: clean captures 1-17 %, photographs at
-# 4x the map's exposure 49-98 %): what a capture whose gains are not estimated shows of an exposure mismatch.
+# look brighter than the map lights them (docs/results.md#calibration: far more often on photographs exposed
+# above the map than on calibrated ones): what a capture whose gains are not estimated shows of an exposure mismatch.
 BASE_BOUND_NOTE_FRACTION = 0.3
 # A fit whose UV layout puts this share of the texels under two or more faces (overlapping or mirrored charts)
 # says that their maps mix those parts of the surface.

@@ -88,7 +88,7 @@ WHITE_BALANCE_PRIOR_LOG_STD = 0.1
 # The gains read the texels without a clipped sample (`_exact_texels`). Where clipping leaves out a
 # share of the seen texels, those left are the darker ones, and the selection biases the gains:
 # this much log std per unit share is added to the exposure's and each ratio's (the calibration
-# study's clipped captures, docs/results.md#calibration: 0.17 in log at 43 % left out).
+# study's clipped captures, docs/results.md#calibration).
 CENSORED_SELECTION_LOG_STD = 0.4
 # A gain whose log std exceeds this is poorly determined by the capture (named in a warning).
 POORLY_DETERMINED = 0.15
@@ -467,9 +467,8 @@ def _gain_step(found: GainEstimate, move_ratios: bool) -> np.ndarray:
 
     A ratio moves where its reading is at least `RATIO_STEP_STD` times the texels' scatter (its
     std without the model's misfit, `MODEL_RATIO_LOG_STD`, which is the same at every pass): below,
-    a pass reads the texels' chance, and such steps multiplied pass after pass walk away (a dragon
-    with metal islands under an indoor map: 0.73, 1.14, 1.34 on a calibrated capture;
-    docs/results.md#calibration).
+    a pass reads the texels' chance, and such steps multiplied pass after pass walk away, on
+    calibrated captures too (docs/results.md#calibration).
     """
     log_gain = np.log(found.gain)
     exposure = float(log_gain.mean())
@@ -545,8 +544,8 @@ def _significant(gain: np.ndarray, found: GainEstimate) -> np.ndarray:
     (x / s)^2 exceeds (1 + s^2 / tau^2) ln(1 + tau^2 / s^2), about 2.1 std for the exposure and 1.6
     for a ratio at the model's own misfit; it is then applied as measured: the normal slab decides
     whether a gain is off, but how far off a probe shot at another setting is has heavier tails
-    (daylight against tungsten is a factor 2), and shrinking x by tau^2 / (tau^2 + s^2) left a 20 %
-    white balance 2-4 % short (docs/results.md#calibration). A gain the model's misfit could give on
+    (daylight against tungsten is a factor 2), and shrinking x by tau^2 / (tau^2 + s^2) left a large
+    white balance short (docs/results.md#calibration). A gain the model's misfit could give on
     a calibrated capture is not applied.
     """
     log_gain = np.log(gain)

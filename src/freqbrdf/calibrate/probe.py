@@ -50,9 +50,8 @@ MISFIT_TURN_DEG = 1.0
 # (docs/results.md#calibration).
 MIN_LOSS_REDUCTION = 0.05
 # ... unless the texels make "turned" overwhelmingly the likelier (log odds at least this: 150 to 1):
-# the misfit's turns on registered maps reach log odds of 2 at most, a map turned 10 degrees on a
-# photographic material whose misfit dominates the loss removes 3 % of it at log odds 23
-# (docs/results.md#calibration).
+# a map turned by hand on a material whose misfit dominates the loss removes little of it, at log
+# odds far beyond the misfit's own turns on registered maps (docs/results.md#calibration).
 DECISIVE_LOG_ODDS = 5.0
 # The texels with a clipped sample are left out (their highlights are lower bounds); those left are
 # the darker ones, and the selection bends the turn: this much std per unit share of the seen
