@@ -151,6 +151,16 @@ def test_clipped_highlights_neither_turn_the_probe_nor_move_the_gains(clean, cle
     assert np.all(np.abs(np.log(found.gain_measured / clean_calibration.gain_measured)) < 2.0 * spread)
 
 
+def test_a_turned_probe_is_registered_on_clipped_photographs(clean, tmp_path):
+    # Every seen texel scores the turn with its clipped samples left out: the texels without a
+    # clipped sample alone are those whose views met no bright part of the map, a selection that
+    # widened the turn's std until no turn was found (docs/method.md#calibration).
+    turn = rotation_about(np.array([0.0, 1.0, 0.0]), np.radians(8.0))
+    _, found = calibrate(load(_copy(clean, tmp_path / "turned_clipped", turn=turn, clip_quantile=0.95)), CONFIG)
+    _, angle = axis_angle(found.probe.rotation @ turn)
+    assert np.degrees(angle) < 2.0, f"found {found.probe.angle_deg:.2f} deg, {np.degrees(angle):.2f} deg left"
+
+
 def test_calibration_none_leaves_the_capture_as_given(clean):
     given = load(clean)
     nothing = CONFIG.replace(calibration=CalibrationConfig(gains=False, cameras=False, probe_rotation=False, frame_gains="off"))

@@ -309,8 +309,12 @@ def calibrate(capture: Capture, config: Config = Config(),
                                        if estimate_gains else (np.ones(3), None, False))
         if settings.probe_rotation:
             # On photographs at the map's scale: a wrong exposure or white balance would bend the turn.
-            calibration.probe = register_probe(_scaled(observations, gain, config), search.estimate,
-                                               settings.probe_search_deg, dropped_share)
+            # Every seen texel scores it, its clipped samples left out: leaving out the texels with a
+            # clipped sample would keep those whose views met no bright part of the map, a selection
+            # by where the light is that a turn can explain (docs/results.md#calibration).
+            scored = every if calibration.frame_gain is None else _scaled(every, calibration.frame_gain, config)
+            calibration.probe = register_probe(_scaled(scored, gain, config), search.estimate,
+                                               settings.probe_search_deg)
             if calibration.probe.angle_deg > 0.0:
                 capture = _turned(capture, calibration.probe.rotation)
                 observations = _exact_texels(observe(capture, coarse_config, texels=texels))

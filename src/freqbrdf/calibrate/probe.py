@@ -53,10 +53,6 @@ MIN_LOSS_REDUCTION = 0.05
 # a map turned by hand on a material whose misfit dominates the loss removes little of it, at log
 # odds far beyond the misfit's own turns on registered maps (docs/results.md#calibration).
 DECISIVE_LOG_ODDS = 5.0
-# The texels with a clipped sample are left out (their highlights are lower bounds); those left are
-# the darker ones, and the selection bends the turn: this much std per unit share of the seen
-# texels left out is added about each axis (docs/results.md#calibration).
-CENSORED_SELECTION_TURN_DEG = 50.0
 # The std of the turn about an axis the loss does not curve about at the least the descent found (a
 # flat or noisy direction): far wider than the prior, so that the turn about it is not applied.
 UNDETERMINED_TURN_DEG = 180.0
@@ -236,22 +232,18 @@ def _log_odds(vector: np.ndarray, covariance: np.ndarray, prior_std: float) -> f
     return float(slab_log_odds(vector, np.sqrt(np.diagonal(covariance)), prior_std).sum())
 
 
-def register_probe(observations: Observations, settings: EstimateConfig, search_deg: float,
-                   left_out_share: float = 0.0) -> ProbeRegistration:
+def register_probe(observations: Observations, settings: EstimateConfig, search_deg: float) -> ProbeRegistration:
     """Find the turn of the environment map under which the model best explains the texels' radiance.
 
     Parameters
     ----------
     observations : Observations
         The texels' samples, with the map as the capture registers it (``environment_radiance``,
-        ``environment_rotation``) and the texels' frames; texels with a censored sample left out.
+        ``environment_rotation``) and the texels' frames; clipped samples at weight 0.
     settings : EstimateConfig
         The search that scores a turn (least squares: no robust pass, no neighbour vote).
     search_deg : float
         The largest turn searched about the map's pole; 0: none.
-    left_out_share : float, optional
-        The share of the seen texels left out of ``observations`` for a clipped sample: widens the
-        turn's std by `CENSORED_SELECTION_TURN_DEG` per unit.
 
     Returns
     -------
@@ -291,10 +283,9 @@ def register_probe(observations: Observations, settings: EstimateConfig, search_
     # model's misfit adds its own spread. An axis the loss does not curve about leaves the turn about
     # it undetermined (`UNDETERMINED_TURN_DEG`), not the turn about the others.
     noise = value / max(len(texels) - 3, 1)
-    misfit = np.hypot(MISFIT_TURN_DEG, CENSORED_SELECTION_TURN_DEG * left_out_share)
     variance = np.where(determined, 2.0 * noise / np.where(determined, curvature, 1.0),
                         np.radians(UNDETERMINED_TURN_DEG) ** 2)
-    covariance = np.diag(variance) + np.radians(misfit) ** 2 * identity
+    covariance = np.diag(variance) + np.radians(MISFIT_TURN_DEG) ** 2 * identity
     std_deg = float(np.degrees(np.sqrt(covariance.diagonal()[determined].max())))
     vector = _rotation_vector(rotation)
     prior = np.radians(PRIOR_TURN_DEG)
