@@ -289,9 +289,11 @@ def calibrate(capture: Capture, config: Config = Config(),
         advance(1)
         every = observe(capture, coarse_config, texels=texels)
         observations = _exact_texels(every)
-        seen_texels = int(np.count_nonzero(every.weight.any(axis=1) | (
-            every.censored_weight.any(axis=1) if every.censored_weight is not None else False)))
-        dropped_share = 1.0 - observations.n_texels / max(seen_texels, 1) if observations is not every else 0.0
+        # The share of the seen texels left out of the gains for a clipped sample.
+        censored = every.censored_weight.any(axis=1) if every.censored_weight is not None else False
+        seen_texels = int(np.count_nonzero(every.weight.any(axis=1) | censored))
+        dropped_share = (int(np.count_nonzero(censored)) / max(seen_texels, 1)
+                         if observations is not every else 0.0)
         views = np.count_nonzero(every.visible, axis=1)  # clipped samples included: views are what it counts
         calibration.samples_per_texel = float(np.median(views[views > 0])) if views.any() else 0.0
         advance(1)
