@@ -10,7 +10,7 @@ T = 256. Each case (`CASES`) copies the clean capture with imperfections applied
 to it as a user's camera and probe have them (`imperfections.imperfect_capture`): exposure 0.25-4x,
 white balance +-20 % per channel, the map turned 5-20 degrees about the up axis and 10 about
 another, cameras turned 0.5-1 degree and moved 0.5-1 % of their distance, sensor noise, 8-bit
-clipped sRGB data, HDR data clipped in its highlights (each also with the map turned 10 degrees), masks 2 px wider or narrower than the
+clipped sRGB data, HDR data clipped in its highlights (each also with the map turned 10 degrees, 8-bit also at 2x), masks 2 px wider or narrower than the
 object (a segmentation's halo or erosion), and several at once. Each copy is fitted by `freqbrdf.pipeline.fit` with the
 default settings (T = 256) with calibration off (``CalibrationConfig`` all off) and on (the
 default), and scored on the texels a view sees: base-colour PSNR, roughness and metallic MAE,
@@ -69,6 +69,7 @@ CASES = {
     "highlights clipped (HDR at the 97th percentile)": Imperfection(highlight_clip=0.97),
     "8-bit sRGB, probe 10 deg (up)": Imperfection(eight_bit=True, probe_deg=10.0),
     "highlights clipped, probe 10 deg (up)": Imperfection(highlight_clip=0.97, probe_deg=10.0),
+    "8-bit sRGB, exposure 2": Imperfection(eight_bit=True, exposure=2.0),
     "masks 2 px wider": Imperfection(mask_offset_px=2),
     "masks 2 px narrower": Imperfection(mask_offset_px=-2),
     "combined (2x, wb, 10 deg, noise)": Imperfection(exposure=2.0, white_balance=(1.1, 1.0, 0.9), probe_deg=10.0,

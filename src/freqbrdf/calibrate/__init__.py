@@ -85,10 +85,11 @@ CONTRACTION_FLOOR = 0.25
 # setting). Each is applied where the texels say it is more likely off than exactly 1
 # (`_significant`).
 WHITE_BALANCE_PRIOR_LOG_STD = 0.1
-# The gains read the texels without a clipped sample (`_exact_texels`). Where clipping leaves out a
-# share of the seen texels, those left are the darker ones, and the selection biases the gains:
-# this much log std per unit share is added to the exposure's and each ratio's (the calibration
-# study's clipped captures, docs/results.md#calibration).
+# Where photographs clip, the white balance reads the texels without a clipped sample
+# (`_exact_texels`), the exposure then every seen texel with its clipped samples left out
+# (`_read_clipped_gains`); both selections bias the gains: this much log std per unit share of the
+# seen texels with a clipped sample (`_clipped_share`) is added to the exposure's and each ratio's
+# (the calibration study's clipped captures, docs/results.md#calibration).
 CENSORED_SELECTION_LOG_STD = 0.4
 # A gain whose log std exceeds this is poorly determined by the capture (named in a warning).
 POORLY_DETERMINED = 0.15
@@ -289,11 +290,7 @@ def calibrate(capture: Capture, config: Config = Config(),
         advance(1)
         every = observe(capture, coarse_config, texels=texels)
         observations = _exact_texels(every)
-        # The share of the seen texels left out of the gains for a clipped sample.
-        censored = every.censored_weight.any(axis=1) if every.censored_weight is not None else False
-        seen_texels = int(np.count_nonzero(every.weight.any(axis=1) | censored))
-        dropped_share = (int(np.count_nonzero(censored)) / max(seen_texels, 1)
-                         if observations is not every else 0.0)
+        dropped_share = _clipped_share(every) if observations is not every else 0.0
         views = np.count_nonzero(every.visible, axis=1)  # clipped samples included: views are what it counts
         calibration.samples_per_texel = float(np.median(views[views > 0])) if views.any() else 0.0
         advance(1)
@@ -301,29 +298,27 @@ def calibrate(capture: Capture, config: Config = Config(),
             calibration.frame_gain = _significant_frames(*frame_gains(
                 observations.view_direction, observations.weight, observations.observed))
             observations = _scaled(observations, calibration.frame_gain, config)
+            every = _scaled(every, calibration.frame_gain, config) if dropped_share > 0.0 else observations
         search = _search_config(coarse_config)
         estimate_gains = (settings.gains and calibration.samples_per_texel >= MIN_GAIN_SAMPLES
                           and not _masks_inside(calibration))
-        # Where clipping left texels out, the smooth dielectrics left are those whose highlights stayed
-        # under the ceiling in every channel: their colour is the ceiling's choice, not the light's.
-        white_balance = dropped_share == 0.0
-        gain, found, on_dielectrics = (_read_gains(observations, search, np.ones(3), config, white_balance)
+        gain, found, on_dielectrics = (_read_clipped_gains(observations, every, search, np.ones(3), config)
                                        if estimate_gains else (np.ones(3), None, False))
         if settings.probe_rotation:
             # On photographs at the map's scale: a wrong exposure or white balance would bend the turn.
             # Every seen texel scores it, its clipped samples left out: leaving out the texels with a
             # clipped sample would keep those whose views met no bright part of the map, a selection
             # by where the light is that a turn can explain (docs/results.md#calibration).
-            scored = every if calibration.frame_gain is None else _scaled(every, calibration.frame_gain, config)
-            calibration.probe = register_probe(_scaled(scored, gain, config), search.estimate,
+            calibration.probe = register_probe(_scaled(every, gain, config), search.estimate,
                                                settings.probe_search_deg)
             if calibration.probe.angle_deg > 0.0:
                 capture = _turned(capture, calibration.probe.rotation)
-                observations = _exact_texels(observe(capture, coarse_config, texels=texels))
+                every = observe(capture, coarse_config, texels=texels)
                 if calibration.frame_gain is not None:
-                    observations = _scaled(observations, calibration.frame_gain, config)
+                    every = _scaled(every, calibration.frame_gain, config)
+                observations = _exact_texels(every)
                 if estimate_gains:  # read again under the map as registered (a turn moves every reading)
-                    gain, found, on_dielectrics = _read_gains(observations, search, gain, config, white_balance)
+                    gain, found, on_dielectrics = _read_clipped_gains(observations, every, search, gain, config)
         if found is not None:
             calibration.exposure_from = "dielectrics" if on_dielectrics else "every texel"
         advance(1)
@@ -342,26 +337,48 @@ def calibrate(capture: Capture, config: Config = Config(),
     return capture, calibration
 
 
+def _read_clipped_gains(exact: Observations, every: Observations, search: Config, start: np.ndarray,
+                        config: Config) -> tuple[np.ndarray, GainEstimate, bool]:
+    """Return the gains from ``start`` on, their estimate, and whether the dielectrics read the exposure.
+
+    ``exact``: the texels without a clipped sample (`_exact_texels`), ``every``: every seen texel
+    with its clipped samples at weight 0. Without clipping (``exact`` is ``every``), `_read_gains`.
+    With it, the white balance is read on ``exact`` (every texel's passes: the smooth dielectrics
+    left there are those whose highlights stayed under the ceiling in every channel, their colour
+    the ceiling's choice, so they read the exposure only), then the exposure again on ``every``
+    from there, the ratios kept: the texels without a clipped sample are the darker ones, a
+    selection that biased the exposure (docs/results.md#calibration), while the clipped samples'
+    own selection is by colour (one channel clips first), which the exposure does not see.
+    """
+    if exact is every:
+        return _read_gains(exact, search, start, config, True)
+    gain, found, _ = _read_gains(exact, search, start, config, False)
+    gain, exposure, on_dielectrics = _read_gains(every, search, gain, config, False, ratios=False)
+    return gain, _with_selection(replace(exposure, ratio_log_std=np.zeros(3)), 0.0, found.ratio_log_std), on_dielectrics
+
+
 def _read_gains(observations: Observations, search: Config, start: np.ndarray, config: Config,
-                white_balance: bool) -> tuple[np.ndarray, GainEstimate, bool]:
+                white_balance: bool, ratios: bool = True) -> tuple[np.ndarray, GainEstimate, bool]:
     """Return the gains from ``start`` on, their estimate, and whether the dielectrics read them.
 
-    The passes on every texel (`_channel_gains`), then the dielectrics' reading from there
-    (`_dielectric_refined`; the white balance too where ``white_balance``).
+    The passes on every texel (`_channel_gains`; the white-balance ratios only where ``ratios``),
+    then the dielectrics' reading from there (`_dielectric_refined`; the white balance too where
+    ``white_balance``).
     """
-    gain, found, last_search = _channel_gains(observations, search, start, config)
+    gain, found, last_search = _channel_gains(observations, search, start, config, ratios)
     return _dielectric_refined(observations, search, gain, found, config, last_search, white_balance)
 
 
-def _channel_gains(observations: Observations, search: Config, start: np.ndarray,
-                   config: Config) -> tuple[np.ndarray, GainEstimate, tuple[np.ndarray, np.ndarray] | None]:
+def _channel_gains(observations: Observations, search: Config, start: np.ndarray, config: Config,
+                   ratios: bool = True) -> tuple[np.ndarray, GainEstimate, tuple[np.ndarray, np.ndarray] | None]:
     """Return the gains measured from ``start`` on, the last pass's estimate and the passes' last search.
 
     The estimate's std is widened by the passes' scatter; the search (`label_sums`'s params and
     sums) is returned where the passes settled, else None. Up to `GAIN_PASSES` passes, each on the
     photographs divided by the gains so far, until a pass moves the exposure by less than
     `CONVERGED` and each ratio by less than `RATIO_CONVERGED`; after
-    `RATIO_PASSES` a pass moves the exposure only (the ratios' chance steps would walk). Near the
+    `RATIO_PASSES` (without ``ratios``: from the first) a pass moves the exposure only (the ratios'
+    chance steps would walk). Near the
     gains a pass moves them by what the texels it selects say at random (the roughness moves, and
     with it which texels calibrate), and such steps multiplied together can walk away: the spread of
     the exposure the passes after the first arrive at is added to the exposure's std, that of each
@@ -375,7 +392,7 @@ def _channel_gains(observations: Observations, search: Config, start: np.ndarray
     for index in range(GAIN_PASSES):
         params, sums = label_sums(current, search)
         found = channel_gains(sums, params[:, 3])
-        log_step = _gain_step(found, index < RATIO_PASSES)
+        log_step = _gain_step(found, ratios and index < RATIO_PASSES)
         gain = gain * np.exp(log_step)
         arrived.append(np.log(gain))
         if abs(log_step.mean()) < CONVERGED and np.all(np.abs(log_step - log_step.mean()) < RATIO_CONVERGED):
@@ -511,6 +528,15 @@ def _masks_inside(calibration: Calibration) -> bool:
     return calibration.cameras is not None and calibration.cameras.median_mask_offset_px <= -MASK_OFFSET_PX
 
 
+def _clipped_share(observations: Observations) -> float:
+    """Return the share of the seen texels with a clipped sample (docs/method.md#censored-samples)."""
+    if observations.censored_weight is None:
+        return 0.0
+    censored = (observations.censored_weight > 0.0).any(axis=1)
+    seen = int(np.count_nonzero((observations.weight > 0.0).any(axis=1) | censored))
+    return int(np.count_nonzero(censored)) / max(seen, 1)
+
+
 def _exact_texels(observations: Observations) -> Observations:
     """Return the observations of the texels without a censored sample, for the gains.
 
@@ -521,7 +547,7 @@ def _exact_texels(observations: Observations) -> Observations:
     if observations.censored_weight is None:
         return observations
     exact = ~(observations.censored_weight > 0.0).any(axis=1)
-    return observations.select(exact) if exact.any() else observations
+    return observations.select(exact) if exact.any() and not exact.all() else observations
 
 
 def _with_selection(found: GainEstimate, exposure_log_std: float,
