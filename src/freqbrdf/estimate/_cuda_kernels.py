@@ -53,6 +53,7 @@ def _slot_scratch(scratch, slot):
         scratch.scanned[slot],
         scratch.no_rows[slot],
         scratch.no_moments[slot],
+        scratch.no_sums[slot],
         scratch.local_environment[slot],
         scratch.quadrature_world[slot],
         scratch.quadrature_basis[slot],
