@@ -284,6 +284,22 @@ def test_clipped_photographs_read_the_white_balance_on_exact_texels_and_the_expo
     assert [(c[0], c[2]) for c in calls] == [(every, True)]
 
 
+def test_the_clipped_share_counts_the_seen_texels_only():
+    """Unseen texels (no sample at all) are neither clipped nor kept: 1 of the 4 seen texels has a
+    clipped sample, whatever the number of unseen ones."""
+    from types import SimpleNamespace
+
+    from freqbrdf.calibrate import _clipped_share
+
+    weight = np.zeros((10, 3), np.float32)
+    weight[:4] = 1.0
+    censored = np.zeros((10, 3), np.float32)
+    censored[0, 1] = 1.0
+    weight[0, 1] = 0.0
+    assert _clipped_share(SimpleNamespace(weight=weight, censored_weight=censored)) == pytest.approx(0.25)
+    assert _clipped_share(SimpleNamespace(weight=weight, censored_weight=None)) == 0.0
+
+
 def test_gain_passes_that_walk_widen_the_std_by_their_scatter(monkeypatch):
     """Passes whose corrections are chance steps (each within its std) multiplied to a gain 0.71x: the
     spread of where they arrived widens the std so that the walk is not applied."""
