@@ -258,30 +258,36 @@ def test_clipping_widens_the_gains_std_by_the_share_of_texels_it_leaves_out():
 
 
 def test_clipped_photographs_read_the_white_balance_on_exact_texels_and_the_exposure_on_every_texel(monkeypatch):
-    """Where photographs clip, the texels without a clipped sample read the white balance (the
-    dielectrics no ratio), then every seen texel reads the exposure from there, the ratios kept."""
+    """Where photographs clip, the texels without a clipped sample read the white balance (every
+    texel's passes), then every seen texel reads the exposure from there (the dielectrics' too), the
+    ratios kept."""
     import freqbrdf.calibrate as calibration
     from freqbrdf.calibrate.gains import GainEstimate
 
     exact, every, calls = object(), object(), []
 
+    def passes(observations, search, start, config, ratios=True):
+        calls.append((observations, "passes", ratios))
+        # a white balance and a low exposure (the darker texels)
+        return np.array([0.9, 0.75, 0.6]), GainEstimate(np.ones(3), np.full(3, 0.1), 300, 0.1,
+                                                        np.array([0.02, 0.03, 0.04])), None
+
     def read(observations, search, start, config, white_balance, ratios=True):
-        calls.append((observations, np.asarray(start).copy(), white_balance, ratios))
-        if observations is exact:  # a white balance and a low exposure (the darker texels)
-            return np.array([0.9, 0.75, 0.6]), GainEstimate(np.ones(3), np.full(3, 0.1), 300, 0.1,
-                                                             np.array([0.02, 0.03, 0.04])), False
+        calls.append((observations, white_balance, ratios, np.asarray(start).copy()))
         return start * 1.2, GainEstimate(np.ones(3), np.full(3, 0.1), 400, 0.08, np.full(3, 0.5)), True
 
+    monkeypatch.setattr(calibration, "_channel_gains", passes)
     monkeypatch.setattr(calibration, "_read_gains", read)
     gain, found, on_dielectrics = calibration._read_clipped_gains(exact, every, None, np.ones(3), None)
-    assert [(c[0], c[2], c[3]) for c in calls] == [(exact, False, True), (every, False, False)]
-    np.testing.assert_allclose(calls[1][1], [0.9, 0.75, 0.6])
+    assert calls[0] == (exact, "passes", True)
+    assert calls[1][:3] == (every, False, False)
+    np.testing.assert_allclose(calls[1][3], [0.9, 0.75, 0.6])
     np.testing.assert_allclose(gain, 1.2 * np.array([0.9, 0.75, 0.6]))
     assert on_dielectrics and found.exposure_log_std == pytest.approx(0.08)
     np.testing.assert_allclose(found.ratio_log_std, [0.02, 0.03, 0.04])
     calls.clear()  # without clipping: one reading, the white balance too
     calibration._read_clipped_gains(every, every, None, np.ones(3), None)
-    assert [(c[0], c[2]) for c in calls] == [(every, True)]
+    assert [(c[0], c[1]) for c in calls] == [(every, True)]
 
 
 def test_the_clipped_share_counts_the_seen_texels_only():

@@ -343,16 +343,17 @@ def _read_clipped_gains(exact: Observations, every: Observations, search: Config
 
     ``exact``: the texels without a clipped sample (`_exact_texels`), ``every``: every seen texel
     with its clipped samples at weight 0. Without clipping (``exact`` is ``every``), `_read_gains`.
-    With it, the white balance is read on ``exact`` (every texel's passes: the smooth dielectrics
-    left there are those whose highlights stayed under the ceiling in every channel, their colour
-    the ceiling's choice, so they read the exposure only), then the exposure again on ``every``
-    from there, the ratios kept: the texels without a clipped sample are the darker ones, a
-    selection that biased the exposure (docs/results.md#calibration), while the clipped samples'
-    own selection is by colour (one channel clips first), which the exposure does not see.
+    With it, the white balance is read on ``exact`` by every texel's passes (`_channel_gains`; the
+    smooth dielectrics left there are those whose highlights stayed under the ceiling in every
+    channel, their colour the ceiling's choice), then the exposure on ``every`` from there, the
+    ratios kept (`_read_gains`, the dielectrics' exposure included): the texels without a clipped
+    sample are the darker ones, a selection that biased the exposure (docs/results.md#calibration),
+    while the clipped samples' own selection is by colour (one channel clips first), which the
+    exposure does not see.
     """
     if exact is every:
         return _read_gains(exact, search, start, config, True)
-    gain, found, _ = _read_gains(exact, search, start, config, False)
+    gain, found, _ = _channel_gains(exact, search, start, config)
     gain, exposure, on_dielectrics = _read_gains(every, search, gain, config, False, ratios=False)
     return gain, _with_selection(replace(exposure, ratio_log_std=np.zeros(3)), 0.0, found.ratio_log_std), on_dielectrics
 
