@@ -366,9 +366,10 @@ def refine_camera(outline: MeshOutline, camera: Camera, coverage: np.ndarray) ->
     # off its outline, which the offset takes instead of the pose.
     correction = np.zeros(7)
     given, before = camera, float("nan")
+    moved = 0.0  # the largest step since the points were found (turn, or shift as a share of distance)
     for iteration in range(ITERATIONS):
         if iteration in RESELECT:
-            points = view.outline_points(camera)
+            points, moved = view.outline_points(camera), 0.0
         pixels, residual = view.residuals(camera, points)
         if len(residual) < MIN_POINTS:
             return given, float("nan"), float("nan"), 0.0
@@ -393,9 +394,12 @@ def refine_camera(outline: MeshOutline, camera: Camera, coverage: np.ndarray) ->
         step = -np.linalg.solve(normal, jacobian.T @ (weight * residual) + prior @ correction)
         correction += step
         camera = _moved(camera, step[:3], distance * step[3:6])
+        moved = max(moved, float(np.abs(step[:6]).max()))
         if np.abs(step[:3]).max() < CONVERGED_RAD and np.abs(step[3:6]).max() < CONVERGED_RAD:
             break
-    after = _robust_std(view.residuals(camera, view.outline_points(camera))[1] + correction[6])
+    if moved >= CONVERGED_RAD:  # else the outline is the one last found: the pose has barely moved since
+        points = view.outline_points(camera)
+    after = _robust_std(view.residuals(camera, points)[1] + correction[6])
     if not after < before / SIGNIFICANT_RATIO:
         return given, before, before, offset  # the outline fits no better than as given: the camera is kept
     return camera, before, after, float(correction[6])
