@@ -342,6 +342,27 @@ def test_with_views_is_what_observing_only_those_views_gives(checker_bunny):
         dropped.with_views(keep[:-1], config)
 
 
+def test_at_most_views_keeps_each_texels_samples_evenly_over_its_views(checker_bunny):
+    """A texel with more samples than asked keeps that many, its first and last view among them and
+    each kept sample as observed; one with fewer keeps them all; the per-texel fits are kept."""
+    whole = observe(checker_bunny[0], Config(texels=TexelConfig(texture_res=TEXTURE_RES)))
+    counts = np.count_nonzero(whole.weight > 0, axis=1)
+    most = 3
+    assert counts.max() > most and (counts[counts > 0] <= most).any()  # both kinds of texel
+    thinned = whole.at_most_views(most)
+    assert thinned.n_views == most and thinned.n_texels == whole.n_texels
+    np.testing.assert_array_equal(thinned.n_samples, np.minimum(counts, most))
+    np.testing.assert_array_equal(thinned.observed_coeffs, whole.observed_coeffs)
+    for texel in np.flatnonzero(counts > 0):
+        views = np.flatnonzero(whole.weight[texel] > 0)
+        kept = thinned.weight[texel] > 0
+        expected = views[np.rint(np.linspace(0, len(views) - 1, most)).astype(int)] if len(views) > most else views
+        for name in ("weight", "observed", "view_direction", "mirrored"):
+            np.testing.assert_array_equal(getattr(thinned, name)[texel][kept], getattr(whole, name)[texel][expected],
+                                          err_msg=name)
+    assert whole.at_most_views(whole.n_views) is whole
+
+
 @pytest.mark.slow
 def test_observe_command_writes_observations_and_maps(checker_bunny, tmp_path, monkeypatch, capsys):
     capture, observations, _ = checker_bunny

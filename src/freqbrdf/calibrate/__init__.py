@@ -63,6 +63,10 @@ RATIO_CONVERGED = 0.01
 RATIO_PASSES = 5
 RATIO_STEP_STD = 1.0
 GAIN_PASSES = 10
+# A texel seen in more views than this calibrates with this many of its samples, evenly over its views:
+# what the gains and the turn read is the model's misfit on each texel, which more samples of the same
+# texel do not average away, while the searches' time grows with them (docs/results.md#calibration).
+MAX_VIEWS = 32
 # The gains read again on the texels the passes' last search finds dielectric (metallic at most
 # DIELECTRIC_MAX_METALLIC) with a lobe told from the diffuse (roughness at most DIELECTRIC_MAX_ROUGHNESS):
 # the texels of every label over-read it where metals and part-metals pass for dielectrics (their
@@ -247,6 +251,12 @@ def _scaled(observations: Observations, divisor: np.ndarray, config: Config) -> 
     return replace(observations, observed=observed, observed_coeffs=fit.coeffs)
 
 
+def _at_most_views(observations: Observations, every: Observations) -> tuple[Observations, Observations]:
+    """Return both observations with at most `MAX_VIEWS` samples a texel (`Observations.at_most_views`), alike where the same."""
+    thinned = observations.at_most_views(MAX_VIEWS)
+    return thinned, (thinned if every is observations else every.at_most_views(MAX_VIEWS))
+
+
 def _search_config(config: Config) -> Config:
     """Return the estimator's settings for calibration: least squares on the coarse texels."""
     return config.replace(estimate=replace(config.estimate, robust_passes=0, neighbour_vote=False))
@@ -299,6 +309,7 @@ def calibrate(capture: Capture, config: Config = Config(),
                 observations.view_direction, observations.weight, observations.observed))
             observations = _scaled(observations, calibration.frame_gain, config)
             every = _scaled(every, calibration.frame_gain, config) if dropped_share > 0.0 else observations
+        observations, every = _at_most_views(observations, every)
         search = _search_config(coarse_config)
         estimate_gains = (settings.gains and calibration.samples_per_texel >= MIN_GAIN_SAMPLES
                           and not _masks_inside(calibration))
@@ -316,7 +327,7 @@ def calibrate(capture: Capture, config: Config = Config(),
                 every = observe(capture, coarse_config, texels=texels)
                 if calibration.frame_gain is not None:
                     every = _scaled(every, calibration.frame_gain, config)
-                observations = _exact_texels(every)
+                observations, every = _at_most_views(_exact_texels(every), every)
                 if estimate_gains:  # read again under the map as registered (a turn moves every reading)
                     gain, found, on_dielectrics = _read_clipped_gains(observations, every, search, gain, config)
         if found is not None:

@@ -267,6 +267,44 @@ class Observations:
                    if isinstance(getattr(self, item.name), np.ndarray) and item.name not in _SHARED_ARRAYS}
         return replace(self, **changes, texels=None)
 
+    def at_most_views(self, max_views: int) -> Observations:
+        """Return the observations with at most ``max_views`` samples a texel, evenly over its views.
+
+        A texel's samples (views with a weight or a censored weight) beyond ``max_views`` are
+        thinned to ``max_views`` spread evenly over the views' order; the per-sample arrays hold
+        each texel's kept samples first, then slots of weight 0, so that the view axis no longer
+        names the photographs. The per-texel arrays (its SH fits from every sample among them)
+        are kept but ``n_samples``, which counts the kept samples.
+
+        Parameters
+        ----------
+        max_views : int
+            The most samples kept a texel, at least 2.
+
+        Returns
+        -------
+        Observations
+            N texels, min(V, max_views) slots; the same object where no texel has more samples.
+        """
+        has_sample = self.weight > 0
+        if self.censored_weight is not None:
+            has_sample |= self.censored_weight > 0
+        counts = np.count_nonzero(has_sample, axis=1)
+        if max_views < 2 or counts.max(initial=0) <= max_views:
+            return self
+        slot = np.arange(max_views)
+        order = np.argsort(~has_sample, axis=1, kind="stable")  # each texel's samples first, in the views' order
+        spread = np.rint(slot[None, :] * ((counts[:, None] - 1) / (max_views - 1))).astype(np.int64)
+        views = np.take_along_axis(order, np.where(counts[:, None] > max_views, spread, slot[None, :]), axis=1)
+        changes = {}
+        for name in _SAMPLE_ARRAYS:
+            array = getattr(self, name)
+            if array is not None:
+                index = views.reshape(views.shape + (1,) * (array.ndim - 2))
+                changes[name] = np.take_along_axis(array, index, axis=1)
+        n_samples = np.count_nonzero(changes["weight"] > 0, axis=1).astype(self.n_samples.dtype)
+        return replace(self, **changes, n_samples=n_samples)
+
     def texel_fields(self, rows) -> Observations:
         """Return the per-texel fields of some of the texels, without their samples.
 
