@@ -441,6 +441,34 @@ def test_a_turn_is_kept_where_it_removes_enough_loss_or_the_odds_are_decisive():
     assert _turn_kept(1.7, 1.0 - MIN_LOSS_REDUCTION)
     assert _turn_kept(DECISIVE_LOG_ODDS, 0.97)  # a turned map whose loss the material's misfit dominates
     assert not _turn_kept(-0.3, 0.5)
+    assert not _turn_kept(DECISIVE_LOG_ODDS + 10.0, 1.0)  # the exposure's range explains what the turn does
+
+
+def test_a_turn_is_judged_with_the_exposure_free_over_its_range():
+    from freqbrdf.calibrate.probe import EXPOSURE_RANGE_STD, _least_over_exposure
+
+    def loss(turn, exposure=1.0):  # least where the photographs are 1.2x too dark for the map
+        return 1.0 + (np.log(exposure) - np.log(1.2)) ** 2
+
+    read = loss(np.eye(3))
+    assert _least_over_exposure(loss, np.eye(3), read, 0.0) == read  # a known exposure: as read
+    std = np.log(1.2) / EXPOSURE_RANGE_STD
+    assert _least_over_exposure(loss, np.eye(3), read, std) == pytest.approx(1.0)
+    assert 1.0 < _least_over_exposure(loss, np.eye(3), read, 0.5 * std) < read  # the range ends short of it
+
+
+def test_a_turns_loss_at_another_exposure_is_the_loss_of_the_photographs_divided_by_it(clean):
+    from freqbrdf.calibrate import _search_config
+    from freqbrdf.calibrate.probe import _ModelLoss
+    from freqbrdf.observe import observe
+
+    config = Config(texels=TexelConfig(texture_res=32))
+    observations = observe(load(clean), config)
+    settings = _search_config(config).estimate
+    turn = rotation_about(np.array([0.0, 1.0, 0.0]), np.radians(3.0))
+    darker = replace(observations, observed=(observations.observed / 1.3).astype(np.float32))
+    assert _ModelLoss(observations, settings)(turn, 1.3) == pytest.approx(
+        1.3 ** 2 * _ModelLoss(darker, settings)(turn), rel=1e-6)
 
 
 def test_a_turn_is_applied_only_where_likelier_than_none():

@@ -321,7 +321,8 @@ def calibrate(capture: Capture, config: Config = Config(),
             # clipped sample would keep those whose views met no bright part of the map, a selection
             # by where the light is that a turn can explain (docs/results.md#calibration).
             calibration.probe = register_probe(_scaled(every, gain, config), search.estimate,
-                                               settings.probe_search_deg)
+                                               settings.probe_search_deg,
+                                               found.exposure_log_std if found is not None else 0.0)
             if calibration.probe.angle_deg > 0.0:
                 capture = _turned(capture, calibration.probe.rotation)
                 every = observe(capture, coarse_config, texels=texels)

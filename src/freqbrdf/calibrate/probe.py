@@ -53,6 +53,9 @@ MIN_LOSS_REDUCTION = 0.05
 # a map turned by hand on a material whose misfit dominates the loss removes little of it, at log
 # odds far beyond the misfit's own turns on registered maps (docs/results.md#calibration).
 DECISIVE_LOG_ODDS = 5.0
+# A turn is judged with the exposure free over this many of its std either side of the exposure read
+# (`register_probe`'s ``exposure_log_std``), in steps of one std.
+EXPOSURE_RANGE_STD = 2
 # The std of the turn about an axis the loss does not curve about at the least the descent found (a
 # flat or noisy direction): far wider than the prior, so that the turn about it is not applied.
 UNDETERMINED_TURN_DEG = 180.0
@@ -147,18 +150,21 @@ class _ModelLoss:
         self.occlusion = observations.irradiance.astype(np.float64) / np.maximum(unoccluded, 1e-12)
         self.sum_squared_weight = (observations.weight.astype(np.float64) ** 2).sum(axis=1)
 
-    def __call__(self, turn: np.ndarray) -> float:
+    def __call__(self, turn: np.ndarray, exposure: float = 1.0) -> float:
+        """Return the loss under the map turned by ``turn``, the photographs divided by ``exposure`` (in their units)."""
         rotation = turn @ self.rotation
         # E under the turned map at n is E at turn^T n (a row vector n: n turn).
         irradiance = np.asarray(envmaps.lookup(self.irradiance, self.normal @ turn), np.float64) * self.occlusion
+        observed = self.observations.observed
         turned = replace(self.observations, irradiance=irradiance.astype(np.float32),
                          environment_coeffs=sh.rotate_sh(self.harmonics, turn).T.astype(np.float32),
-                         environment_rotation=rotation)
+                         environment_rotation=rotation,
+                         observed=observed if exposure == 1.0 else (observed / exposure).astype(np.float32))
         n = turned.n_texels
         params, loss, curvature = np.zeros((n, 5)), np.zeros(n), np.zeros(n)
         run_search_kernel(turned, self.settings, turned.mirrored_coeffs, np.zeros(0), np.zeros((0, 0, 3, 8)), True,
                           params, loss, curvature)
-        return float((loss * self.sum_squared_weight).sum())
+        return float((loss * self.sum_squared_weight).sum()) * exposure ** 2
 
 
 def _scored_texels(observations: Observations) -> np.ndarray:
@@ -218,10 +224,22 @@ def _descend(loss: _ModelLoss, rotation: np.ndarray, value: float) -> tuple[np.n
 def _turn_kept(log_odds: float, loss_ratio: float) -> bool:
     """Whether a turn of these log odds (turned over registered) and loss (over the given map's) is applied.
 
-    Likelier turned than not, and either removing `MIN_LOSS_REDUCTION` of the loss or decisive
-    (`DECISIVE_LOG_ODDS`).
+    Likelier turned than not, removing some of the loss, and either removing `MIN_LOSS_REDUCTION` of
+    it or decisive (`DECISIVE_LOG_ODDS`).
     """
-    return log_odds > 0.0 and (loss_ratio <= 1.0 - MIN_LOSS_REDUCTION or log_odds >= DECISIVE_LOG_ODDS)
+    return log_odds > 0.0 and loss_ratio < 1.0 and (loss_ratio <= 1.0 - MIN_LOSS_REDUCTION
+                                                     or log_odds >= DECISIVE_LOG_ODDS)
+
+
+def _least_over_exposure(loss: _ModelLoss, turn: np.ndarray, value: float, exposure_log_std: float) -> float:
+    """Return the least of the loss under ``turn`` (``value`` at the exposure as read) over the exposure's range.
+
+    The range: `EXPOSURE_RANGE_STD` about the exposure as read, in steps of its std; none where it is 0.
+    """
+    if exposure_log_std <= 0.0:
+        return value
+    steps = np.arange(-EXPOSURE_RANGE_STD, EXPOSURE_RANGE_STD + 1)
+    return min([value] + [loss(turn, float(np.exp(step * exposure_log_std))) for step in steps if step != 0])
 
 
 def _log_odds(vector: np.ndarray, covariance: np.ndarray, prior_std: float) -> float:
@@ -232,7 +250,8 @@ def _log_odds(vector: np.ndarray, covariance: np.ndarray, prior_std: float) -> f
     return float(slab_log_odds(vector, np.sqrt(np.diagonal(covariance)), prior_std).sum())
 
 
-def register_probe(observations: Observations, settings: EstimateConfig, search_deg: float) -> ProbeRegistration:
+def register_probe(observations: Observations, settings: EstimateConfig, search_deg: float,
+                   exposure_log_std: float = 0.0) -> ProbeRegistration:
     """Find the turn of the environment map under which the model best explains the texels' radiance.
 
     Parameters
@@ -244,6 +263,11 @@ def register_probe(observations: Observations, settings: EstimateConfig, search_
         The search that scores a turn (least squares: no robust pass, no neighbour vote).
     search_deg : float
         The largest turn searched about the map's pole; 0: none.
+    exposure_log_std : float, optional
+        The std of the log exposure the photographs were divided by (0: known). A turn found is
+        judged by how much of the loss it removes with the exposure free over its range
+        (`EXPOSURE_RANGE_STD`), the registered map's likewise: a wrong exposure lets a turn that
+        brings brighter light into the lobes remove loss that the right exposure removes as well.
 
     Returns
     -------
@@ -290,6 +314,9 @@ def register_probe(observations: Observations, settings: EstimateConfig, search_
     vector = _rotation_vector(rotation)
     prior = np.radians(PRIOR_TURN_DEG)
     log_odds = _log_odds(vector, covariance, prior)
+    if log_odds > 0.0 and value < given:
+        value = _least_over_exposure(loss, rotation, value, exposure_log_std)
+        given = _least_over_exposure(loss, identity, given, exposure_log_std)
     if not _turn_kept(log_odds, value / given):
         return ProbeRegistration(identity, 0.0, std_deg, (1.0, 1.0), log_odds)
     # The posterior mean under the slab: T (S + T)^-1 x.
