@@ -1,6 +1,6 @@
 """Calibration from the photographs (issue #40): a real capture's imperfections, with calibration off and on.
 
-    python benchmarks/studies/calibration.py [--scenes a,b] [--cases "a;b"] [--quick]
+    python benchmarks/studies/calibration.py [--scenes a,b] [--cases "a;b"] [--quick] [--views 32]
 
 Scenes: the six of the whole-surface suite (scenes.WHOLE_SURFACE_SCENES: among them the bunny with
 metal islands under an overcast sky, the sphere of gradients under the lobby map, the dragon with a
@@ -18,8 +18,9 @@ dielectrics called metal; the calibration's gains against the applied ones (rela
 clean capture's own, what the model reads as 1 there), the probe's turn left over, and the seconds
 of calibration and of the fit.
 
-Writes benchmarks/results/calibration.{json,md} (``--quick``: four cases, calibration_quick.*), after
-each scene, merged into what is there.
+Writes benchmarks/results/calibration.{json,md} (``--quick``: four cases, calibration_quick.*;
+``--views N`` other than 32: the scenes rendered at N views, calibration_<N>views.*), after each
+scene, merged into what is there.
 """
 
 from __future__ import annotations
@@ -173,7 +174,8 @@ def markdown(results: dict) -> str:
              "Errors on the texels a view sees (`benchmarks/studies/calibration.py`); each cell: calibration "
              "off / on. BC: base-colour PSNR (dB), R, M: roughness and metallic MAE, D->M: dielectrics called "
              "metal. Gain: the calibration's gain over the clean capture's, against the applied one "
-             "(relative error per channel).", ""]
+             "(relative error per channel). Captures: {views} views of {resolution} x {resolution}, T = {texture_res}."
+             .format(**{**RENDER, **results.get("render", {}), "texture_res": TEXTURE_RES}), ""]
     for scene, found in results["scenes"].items():
         lines += [f"## {scene}", "", "| case | BC dB | R MAE | M MAE | D->M | gain error (R, G, B) | probe left (deg) "
                   "| cameras' turn (deg): given / refined, median (largest) | calibrate s | fit s (on) |",
@@ -207,15 +209,21 @@ def main(argv=None) -> int:
     parser.add_argument("--scenes", default=",".join(scenes.WHOLE_SURFACE_SCENES))
     parser.add_argument("--cases", default=";".join(CASES), help="case names separated by semicolons")
     parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--views", type=int, default=RENDER["views"],
+                        help="photographs a capture (other than 32: calibration_<N>views.*)")
     args = parser.parse_args(argv)
+    render = {**RENDER, "views": args.views}
     name = "calibration_quick" if args.quick else "calibration"
+    if args.views != RENDER["views"]:
+        name += f"_{args.views}views"
     path = Path(__file__).resolve().parents[1] / "results" / f"{name}.json"
     results = json.loads(path.read_text()) if path.is_file() else {"scenes": {}}
     results["machine"] = machine()
+    results["render"] = render
     for scene in args.scenes.split(","):
         cases = list(QUICK_CASES) if args.quick else args.cases.split(";")
         earlier = results["scenes"].get(scene, {}).get("cases")
-        results["scenes"][scene] = run_scene(scene, RENDER, cases, earlier, source_commit())
+        results["scenes"][scene] = run_scene(scene, render, cases, earlier, source_commit())
         save_results(name, results)
         (path.with_suffix(".md")).write_text(markdown(results))
     return 0
