@@ -270,22 +270,22 @@ class EstimateConfig:
     environment_light: bool = True
     """Rough lobes read the environment's own SH (l <= 5) through the GGX lobe's exact response instead of the texel's
     fit of its mirrored samples: with the prefiltered light, what puts global ahead.
-    docs/results.md#the-environment-light"""
+    docs/results.md#the-environment-light-and-the-prefiltered-light"""
     environment_blend: tuple[float, float] = (0.3, 0.6)
     """Roughness over which the environment light's share rises from 0 to 1 (smoothstep): smooth lobes keep the
-    sharp features its l <= 5 SH lacks. docs/results.md#the-environment-light"""
+    sharp features its l <= 5 SH lacks. docs/results.md#the-environment-light-and-the-prefiltered-light"""
     burley_environment: bool = True
     """With burley, average Burley's view dependence over the environment's own light instead of uniform light: no
     longer too dark at grazing views, for a few % of the estimate.
-    docs/results.md#burley-under-the-environment-light"""
+    docs/results.md#the-reflection-model"""
     prefiltered_light: bool = True
     """Smooth lobes read the environment map prefiltered by the GGX lobe at their world mirror direction instead of the
-    texel's SH fit, which cannot hold sharp reflections. docs/results.md#the-prefiltered-light"""
+    texel's SH fit, which cannot hold sharp reflections. docs/results.md#the-environment-light-and-the-prefiltered-light"""
 
     # --- global estimator: after the search ---
     neighbour_vote: bool = True
     """Texels over a grid cell from their 5 x 5 neighbours' median roughness (metallic) move towards it unless their
-    data reject it: it lowered every texture error measured. docs/results.md#the-neighbour-vote"""
+    data reject it: it lowered every texture error measured. docs/results.md#search-grids-and-the-robust-pass"""
 
     # --- the "g1" specular model (the paper estimator, or global with specular_model "g1") ---
     fresnel: bool = True
