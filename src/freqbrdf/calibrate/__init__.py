@@ -66,7 +66,7 @@ GAIN_PASSES = 10
 # A texel seen in more views than this calibrates with this many of its samples, evenly over its views:
 # what the gains and the turn read is the model's misfit on each texel, which more samples of the same
 # texel do not average away, while the searches' time grows with them (docs/results.md#calibration).
-MAX_VIEWS = 16
+MAX_VIEWS = 32
 # The gains read again on the texels the passes' last search finds dielectric (metallic at most
 # DIELECTRIC_MAX_METALLIC) with a lobe told from the diffuse (roughness at most DIELECTRIC_MAX_ROUGHNESS):
 # the texels of every label over-read it where metals and part-metals pass for dielectrics (their
