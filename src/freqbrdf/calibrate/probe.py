@@ -10,7 +10,8 @@ irradiance (read at turned normals), so that a hypothesis costs one search of a 
 texels. The turn is searched about the map's own pole (the usual hand turn) on a grid, then about
 each world axis in turn (coordinate descent); it is applied where the texels make "turned" the
 likelier than "registered exactly" (`PRIOR_TURN_DEG`) and it removes `MIN_LOSS_REDUCTION` of the
-loss or its log odds are decisive (`DECISIVE_LOG_ODDS`), as the posterior mean.
+loss or its log odds are decisive (`DECISIVE_LOG_ODDS`), as the posterior mean; what it removes is
+measured with the exposure free over its range (`EXPOSURE_RANGE_STD`).
 """
 
 from __future__ import annotations
