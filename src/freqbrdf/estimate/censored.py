@@ -19,14 +19,8 @@ import numpy as np
 from freqbrdf.config import Config
 from freqbrdf.estimate.search import predict_samples
 from freqbrdf.model import brdf
-from freqbrdf.observe.observations import (
-    CONSTANT,
-    MIRRORED,
-    OBSERVED,
-    Observations,
-    fit_signals,
-    texel_alpha_bound,
-)
+from freqbrdf.observe.observations import Observations
+from freqbrdf.observe.signals import CONSTANT, MIRRORED, OBSERVED, fit_signals, texel_alpha_bound
 
 __all__ = ["impute_censored"]
 

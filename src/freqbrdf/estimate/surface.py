@@ -64,7 +64,7 @@ from freqbrdf.estimate.smoothing import (  # noqa: F401  (the solve's names, als
     shrink_unseen_to_charts,
     smooth_on_surface,
 )
-from freqbrdf.observe.observations import mean_over_views
+from freqbrdf.observe.signals import mean_over_views
 
 if TYPE_CHECKING:
     from freqbrdf.estimate import MaterialEstimate

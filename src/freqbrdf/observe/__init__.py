@@ -9,8 +9,10 @@ only when an occluder is made: importing this package does not import it.
 Modules
 -------
 observations
-    `Observations` (its samples, spectra, saving and loading), the stage `observe`,
-    `texel_alpha_bound` and `mean_over_views`.
+    `Observations` (its samples, spectra, saving and loading) and the stage `observe`.
+signals
+    The signals a texel's samples are fitted on (`fit_signals`), `mean_over_views`,
+    `texel_alpha_bound`.
 irradiance
     `texel_irradiance`: the irradiance at the normals from the environment's SH.
 occlusion
@@ -29,11 +31,10 @@ from freqbrdf.observe.observations import (
     RAY_OFFSET_OBJECT,
     RAY_OFFSET_TEXELS,
     Observations,
-    mean_over_views,
     observe,
-    texel_alpha_bound,
 )
 from freqbrdf.observe.occlusion import CompactLights, compact_lights, occluded_irradiance, self_occluding
+from freqbrdf.observe.signals import mean_over_views, texel_alpha_bound
 from freqbrdf.observe.visibility import camera_samples
 
 __all__ = [
