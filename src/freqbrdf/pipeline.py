@@ -541,7 +541,8 @@ def uncertainty_to_texels(observations: Observations, uncertainty: Uncertainty, 
         parent = _parent_texels(observations.texture_res, observations.texel_index, fine)
     fine_observations = replace(observations.texel_fields(parent), texture_res=fine.texture_res,
                                 texel_index=fine.texel_index)
-    changes = {name: getattr(uncertainty, name)[parent]
+    # np.take: a gather along the first axis; the same as indexing, several times faster on the (N, R, R) likelihood.
+    changes = {name: np.take(getattr(uncertainty, name), parent, axis=0)
                for name in ("flags", "likelihood", "best_alpha", "best_ks", "channel", "roughness_std", "metallic_std",
                             "base_color_std")
                if getattr(uncertainty, name) is not None}
