@@ -509,3 +509,26 @@ def test_frame_gains_follow_a_photographs_gain_exactly():
     np.testing.assert_allclose(shift[4], np.log(1.6) * (1.0 - 1.0 / n_views), atol=1e-6)  # float32 photographs
     np.testing.assert_allclose(np.delete(shift, 4, axis=0), -np.log(1.6) / n_views, atol=1e-6)
     assert np.all(np.isfinite(log_std))
+
+
+@pytest.mark.parametrize("scale", [1e-3, 1e3])
+def test_a_map_in_other_units_is_recovered(clean, clean_calibration, tmp_path, scale):
+    # A probe merged in absolute units beside photographs in [0, 1]: orders of magnitude apart, beyond
+    # the passes' reach from gain 1; they start from the photographs' order of magnitude (`_gains_start`).
+    _, found = calibrate(load(_copy(clean, tmp_path / "units", gain=(scale,) * 3)), CONFIG)
+    relative = found.gain_measured / clean_calibration.gain_measured
+    np.testing.assert_allclose(relative, scale, rtol=0.2)
+    assert np.ptp(np.log(relative)) < 0.1  # no white balance made up on the way
+
+
+def test_the_passes_start_from_the_photographs_order_of_magnitude_only_where_far_from_one(clean):
+    from freqbrdf.calibrate import FAR_EXPOSURE, _exposure_order, _gains_start
+    from freqbrdf.observe import observe
+
+    observations = observe(load(clean), Config(texels=TexelConfig(texture_res=32)))
+    order = _exposure_order(observations)
+    assert 1.0 / FAR_EXPOSURE < order < FAR_EXPOSURE  # a calibrated capture: the passes start from 1
+    np.testing.assert_array_equal(_gains_start(observations), np.ones(3))
+    darker = replace(observations, observed=(observations.observed * 1e-3).astype(np.float32))
+    assert _exposure_order(darker) == pytest.approx(1e-3 * order, rel=1e-4)  # linear in the photographs
+    np.testing.assert_allclose(_gains_start(darker), 1e-3 * order, rtol=1e-4)

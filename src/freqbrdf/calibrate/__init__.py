@@ -97,6 +97,13 @@ WHITE_BALANCE_PRIOR_LOG_STD = 0.1
 CENSORED_SELECTION_LOG_STD = 0.4
 # A gain whose log std exceeds this is poorly determined by the capture (named in a warning).
 POORLY_DETERMINED = 0.15
+# The passes recover an exposure from gain 1 within a factor of about 20 either way (a map in absolute
+# units beside photographs in [0, 1] lies orders beyond: the passes settle on a wrong white balance,
+# docs/results.md#calibration). Where the photographs' radiance over what a surface of TYPICAL_ALBEDO
+# reflects of its irradiance (`_exposure_order`) lies beyond FAR_EXPOSURE either way, the passes
+# start from it.
+TYPICAL_ALBEDO = 0.3
+FAR_EXPOSURE = 10.0
 # The gains need texels whose samples tell a dielectric's diffuse from its fixed specular: below this
 # median of samples per seen texel they read the model's misfit, not the exposure
 # (docs/results.md#calibration), and are not estimated (the map's scale is kept, with a warning).
@@ -313,7 +320,7 @@ def calibrate(capture: Capture, config: Config = Config(),
         search = _search_config(coarse_config)
         estimate_gains = (settings.gains and calibration.samples_per_texel >= MIN_GAIN_SAMPLES
                           and not _masks_inside(calibration))
-        gain, found, on_dielectrics = (_read_clipped_gains(observations, every, search, np.ones(3), config)
+        gain, found, on_dielectrics = (_read_clipped_gains(observations, every, search, _gains_start(every), config)
                                        if estimate_gains else (np.ones(3), None, False))
         if settings.probe_rotation:
             # On photographs at the map's scale: a wrong exposure or white balance would bend the turn.
@@ -347,6 +354,29 @@ def calibrate(capture: Capture, config: Config = Config(),
     capture = _corrected(capture, calibration, settings.drop_bad_views)
     calibration.seconds = time.perf_counter() - start
     return capture, calibration
+
+
+def _exposure_order(observations: Observations) -> float:
+    """Return the photographs' scale against the map's to an order of magnitude (1: alike).
+
+    The median over the seen samples of the radiance over what a Lambertian surface of
+    `TYPICAL_ALBEDO` reflects of the texel's irradiance E / pi: within a factor of a few of the
+    gain wherever the albedos lie in 0.05-1 (NaN where no sample is seen or lit).
+    """
+    irradiance = observations.irradiance.astype(np.float64).mean(axis=1)
+    lit = (observations.weight > 0.0) & (irradiance > 0.0)[:, None]
+    if not lit.any():
+        return float("nan")
+    texel, view = np.nonzero(lit)
+    radiance = observations.observed[texel, view].astype(np.float64).mean(axis=1)
+    return float(np.median(radiance / (TYPICAL_ALBEDO * irradiance[texel] / np.pi)))
+
+
+def _gains_start(observations: Observations) -> np.ndarray:
+    """Return (3,) the gains the passes start from: 1, or `_exposure_order` where beyond `FAR_EXPOSURE`."""
+    order = _exposure_order(observations)
+    far = np.isfinite(order) and order > 0.0 and abs(np.log(order)) > np.log(FAR_EXPOSURE)
+    return np.full(3, order) if far else np.ones(3)
 
 
 def _read_clipped_gains(exact: Observations, every: Observations, search: Config, start: np.ndarray,
