@@ -532,3 +532,44 @@ def test_the_passes_start_from_the_photographs_order_of_magnitude_only_where_far
     darker = replace(observations, observed=(observations.observed * 1e-3).astype(np.float32))
     assert _exposure_order(darker) == pytest.approx(1e-3 * order, rel=1e-4)  # linear in the photographs
     np.testing.assert_allclose(_gains_start(darker), 1e-3 * order, rtol=1e-4)
+
+
+@pytest.mark.parametrize("quarters", [1, 2, 3])
+def test_a_map_whose_azimuth_starts_a_quarter_turn_off_is_registered(clean, clean_calibration, tmp_path, quarters):
+    # Tools disagree on where an equirectangular map's azimuth starts: a map off by quarter turns about
+    # its pole (beyond the hand turn's search) is found by `convention_turn`, then refined.
+    turn = rotation_about(np.array([0.0, 1.0, 0.0]), np.radians(90.0 * quarters + 4.0))
+    capture, found = calibrate(load(_copy(clean, tmp_path / "convention", turn=turn)), CONFIG)
+    _, angle = axis_angle(found.probe.rotation @ turn)
+    assert np.degrees(angle) < 1.5, f"found {found.probe.angle_deg:.2f} deg, {np.degrees(angle):.2f} deg left"
+    np.testing.assert_allclose(capture.envmap.rotation, found.probe.rotation @ turn @ load(clean).envmap.rotation,
+                               atol=1e-9)
+    relative = found.gain_measured / clean_calibration.gain_measured  # the gains read under the map as turned
+    np.testing.assert_allclose(relative, 1.0, rtol=0.05)
+
+
+def test_a_quarter_turn_is_taken_for_the_convention_only_where_it_removes_most_of_the_loss(clean, monkeypatch):
+    from freqbrdf.calibrate import _search_config, probe
+    from freqbrdf.observe import observe
+
+    config = Config(texels=TexelConfig(texture_res=32))
+    observations = observe(load(clean), config)
+    settings = _search_config(config).estimate
+    np.testing.assert_array_equal(probe.convention_turn(observations, settings, 25.0), np.eye(3))  # registered
+    assert np.array_equal(probe.convention_turn(observations, settings, 0.0), np.eye(3))  # not searched
+    # A quarter turn that leaves just more than the share of the loss is not taken; just less, it is,
+    # where it does so with the exposure free too.
+    def scored(half_turn, given_at_other_exposures=None):
+        def loss(self, turn, exposure=1.0):
+            angle = round(float(np.degrees(axis_angle(turn)[1])))
+            if angle == 0 and exposure != 1.0 and given_at_other_exposures is not None:
+                return given_at_other_exposures
+            return {0: 1.0, 90: 2.0, 180: half_turn}[angle]
+        return loss
+
+    share = probe.CONVENTION_LOSS_SHARE
+    for half_turn, other, taken in ((1.001 * share, None, False), (0.999 * share, None, True),
+                                    (0.999 * share, 1.1, True), (0.999 * share, 0.9, False)):
+        monkeypatch.setattr(probe._ModelLoss, "__call__", scored(half_turn, other))
+        turn = probe.convention_turn(observations, settings, 25.0)
+        assert np.degrees(axis_angle(turn)[1]) == pytest.approx(180.0 if taken else 0.0), (half_turn, other)

@@ -39,7 +39,7 @@ from freqbrdf.calibrate.gains import (
     frame_gains,
     slab_log_odds,
 )
-from freqbrdf.calibrate.probe import ProbeRegistration, axis_angle, register_probe, rotation_about
+from freqbrdf.calibrate.probe import ProbeRegistration, axis_angle, convention_turn, register_probe, rotation_about
 from freqbrdf.capture.layouts import Capture, read_frame_mask_coverage
 from freqbrdf.config import Config
 from freqbrdf.estimate import label_sums
@@ -50,7 +50,7 @@ from freqbrdf.sphere import harmonics as sh
 from freqbrdf.texels import rasterise
 
 __all__ = ["Calibration", "CameraRefinement", "GainEstimate", "ProbeRegistration", "axis_angle", "calibrate", "channel_gains",
-           "frame_gains", "refine_cameras", "register_probe",
+           "convention_turn", "frame_gains", "refine_cameras", "register_probe",
            "rotation_about"]
 
 # Passes of the channel gains (each on photographs corrected by the ones before); they stop early
@@ -306,6 +306,12 @@ def calibrate(capture: Capture, config: Config = Config(),
             capture = _refined(capture, calibration.cameras)
         advance(1)
         every = observe(capture, coarse_config, texels=texels)
+        search = _search_config(coarse_config)
+        convention = (convention_turn(_scaled(every, _gains_start(every), config), search.estimate,
+                                      settings.probe_search_deg) if settings.probe_rotation else np.eye(3))
+        if not np.array_equal(convention, np.eye(3)):  # the map's azimuth starts elsewhere: observed again
+            capture = _turned(capture, convention)
+            every = observe(capture, coarse_config, texels=texels)
         observations = _exact_texels(every)
         dropped_share = _clipped_share(every) if observations is not every else 0.0
         views = np.count_nonzero(every.visible, axis=1)  # clipped samples included: views are what it counts
@@ -317,7 +323,6 @@ def calibrate(capture: Capture, config: Config = Config(),
             observations = _scaled(observations, calibration.frame_gain, config)
             every = _scaled(every, calibration.frame_gain, config) if dropped_share > 0.0 else observations
         observations, every = _at_most_views(observations, every)
-        search = _search_config(coarse_config)
         estimate_gains = (settings.gains and calibration.samples_per_texel >= MIN_GAIN_SAMPLES
                           and not _masks_inside(calibration))
         gain, found, on_dielectrics = (_read_clipped_gains(observations, every, search, _gains_start(every), config)
@@ -330,8 +335,11 @@ def calibrate(capture: Capture, config: Config = Config(),
             calibration.probe = register_probe(_scaled(every, gain, config), search.estimate,
                                                settings.probe_search_deg,
                                                found.exposure_log_std if found is not None else 0.0)
-            if calibration.probe.angle_deg > 0.0:
+            turned = calibration.probe.angle_deg > 0.0
+            if turned:
                 capture = _turned(capture, calibration.probe.rotation)
+            calibration.probe = _after(calibration.probe, convention)
+            if turned:
                 every = observe(capture, coarse_config, texels=texels)
                 if calibration.frame_gain is not None:
                     every = _scaled(every, calibration.frame_gain, config)
@@ -683,6 +691,14 @@ def _applied(value, std, prior_std):
 def _likelier_off(value, std, prior_std):
     """Whether a log gain measured as ``value`` with ``std`` is likelier off 1 (std ``prior_std``) than exactly 1."""
     return slab_log_odds(value, std, prior_std) > 0.0
+
+
+def _after(probe: ProbeRegistration, convention: np.ndarray) -> ProbeRegistration:
+    """Return the registration with the convention's quarter turn (`convention_turn`) applied before it."""
+    if np.array_equal(convention, np.eye(3)):
+        return probe
+    rotation = probe.rotation @ convention
+    return replace(probe, rotation=rotation, angle_deg=float(np.degrees(axis_angle(rotation)[1])))
 
 
 def _turned(capture: Capture, rotation: np.ndarray) -> Capture:

@@ -28,7 +28,7 @@ from freqbrdf.observe.observations import Observations
 from freqbrdf.sphere import envmap as envmaps
 from freqbrdf.sphere import harmonics as sh
 
-__all__ = ["ProbeRegistration", "axis_angle", "register_probe", "rotation_about"]
+__all__ = ["ProbeRegistration", "axis_angle", "convention_turn", "register_probe", "rotation_about"]
 
 # The grid about the map's pole, in degrees.
 POLE_STEP_DEG = 5.0
@@ -60,6 +60,14 @@ EXPOSURE_RANGE_STD = 2
 # The std of the turn about an axis the loss does not curve about at the least the descent found (a
 # flat or noisy direction): far wider than the prior, so that the turn about it is not applied.
 UNDETERMINED_TURN_DEG = 180.0
+# Tools disagree on where an equirectangular map's azimuth starts (by quarter turns about its pole): a
+# quarter turn is taken for the map's convention where it leaves at most this share of the given
+# registration's loss, at the photographs' scale as given and with the exposure free over a factor
+# CONVENTION_EXPOSURE_RANGE either way (the gains are read after it): on the calibration study's
+# captures every quarter turn raises the loss but on clipped photographs at 2x the map's exposure,
+# whose clipped samples select by where the light is (docs/results.md#calibration).
+CONVENTION_LOSS_SHARE = 0.8
+CONVENTION_EXPOSURE_RANGE = 2.0
 # Texels whose normals' mean has this length or more (a plane, a relief: normals within about 25°
 # of one direction) do not register the map: for them a turn mimics the model's own misfit of the
 # lobe's shape (its off-specular shift is one direction for every texel).
@@ -251,6 +259,63 @@ def _log_odds(vector: np.ndarray, covariance: np.ndarray, prior_std: float) -> f
     return float(slab_log_odds(vector, np.sqrt(np.diagonal(covariance)), prior_std).sum())
 
 
+def convention_turn(observations: Observations, settings: EstimateConfig, search_deg: float) -> np.ndarray:
+    """Return the quarter turn of the map about its pole that its azimuth convention is off by (identity: none).
+
+    Each quarter turn (90, 180, 270 degrees about the map's pole) is scored by the model's loss
+    (`_ModelLoss`, on the texels `register_probe` scores); the least is taken where it leaves at
+    most `CONVENTION_LOSS_SHARE` of the given registration's loss, at the photographs' scale and
+    with the exposure free (`CONVENTION_EXPOSURE_RANGE`). `register_probe` then refines the turn
+    from there.
+
+    Parameters
+    ----------
+    observations : Observations
+        As `register_probe` takes them.
+    settings : EstimateConfig
+        The search that scores a turn.
+    search_deg : float
+        `register_probe`'s range; 0: the map is not registered, identity.
+
+    Returns
+    -------
+    (3, 3) float64
+        The world rotation to apply before the map's to_world.
+    """
+    identity = np.eye(3)
+    loss = _registration_loss(observations, settings, search_deg)
+    if loss is None:
+        return identity
+    pole = loss.rotation @ np.array([0.0, 1.0, 0.0])
+    given = loss(identity)
+    turns = [rotation_about(pole, np.radians(angle)) for angle in (90.0, 180.0, 270.0)]
+    values = [loss(turn) for turn in turns]
+    best = int(np.argmin(values))
+    if not (given > 0.0 and values[best] <= CONVENTION_LOSS_SHARE * given):
+        return identity
+    exposures = np.exp(np.linspace(-1.0, 1.0, 5) * np.log(CONVENTION_EXPOSURE_RANGE))
+
+    def least(turn: np.ndarray) -> float:
+        return min(loss(turn, float(exposure)) for exposure in exposures)
+
+    return turns[best] if least(turns[best]) <= CONVENTION_LOSS_SHARE * least(identity) else identity
+
+
+def _registration_loss(observations: Observations, settings: EstimateConfig, search_deg: float) -> _ModelLoss | None:
+    """Return the loss that scores the map's turns, or None where the texels cannot register it.
+
+    None where nothing is searched (``search_deg`` 0), the capture has no map, no texel is seen,
+    the seen texels' normals are too alike to tell a turn from the model's misfit
+    (`MAX_NORMAL_ALIGNMENT`) or fewer than 4 texels score it (`_scored_texels`).
+    """
+    seen = (observations.weight > 0).any(axis=1)
+    if (search_deg <= 0.0 or observations.environment() is None or not seen.any()
+            or np.linalg.norm(observations.normal[seen].mean(axis=0)) >= MAX_NORMAL_ALIGNMENT):
+        return None
+    texels = _scored_texels(observations)
+    return _ModelLoss(observations.select(texels), settings) if len(texels) >= 4 else None
+
+
 def register_probe(observations: Observations, settings: EstimateConfig, search_deg: float,
                    exposure_log_std: float = 0.0) -> ProbeRegistration:
     """Find the turn of the environment map under which the model best explains the texels' radiance.
@@ -282,14 +347,9 @@ def register_probe(observations: Observations, settings: EstimateConfig, search_
     """
     identity = np.eye(3)
     nothing = ProbeRegistration(identity, 0.0, float("inf"), (1.0, 1.0), 0.0)
-    seen = (observations.weight > 0).any(axis=1)
-    if (search_deg <= 0.0 or observations.environment() is None or not seen.any()
-            or np.linalg.norm(observations.normal[seen].mean(axis=0)) >= MAX_NORMAL_ALIGNMENT):
+    loss = _registration_loss(observations, settings, search_deg)
+    if loss is None:
         return nothing
-    texels = _scored_texels(observations)
-    if len(texels) < 4:
-        return nothing
-    loss = _ModelLoss(observations.select(texels), settings)
     # About the map's pole, over the whole range (the hand turn): the best node starts the descent about the axes.
     pole = loss.rotation @ np.array([0.0, 1.0, 0.0])
     angles = np.arange(-search_deg, search_deg + 1e-9, POLE_STEP_DEG)
@@ -307,7 +367,7 @@ def register_probe(observations: Observations, settings: EstimateConfig, search_
     # The noise: the loss per texel (the texels are the independent units), less the turn's 3; the
     # model's misfit adds its own spread. An axis the loss does not curve about leaves the turn about
     # it undetermined (`UNDETERMINED_TURN_DEG`), not the turn about the others.
-    noise = value / max(len(texels) - 3, 1)
+    noise = value / max(loss.observations.n_texels - 3, 1)
     variance = np.where(determined, 2.0 * noise / np.where(determined, curvature, 1.0),
                         np.radians(UNDETERMINED_TURN_DEG) ** 2)
     covariance = np.diag(variance) + np.radians(MISFIT_TURN_DEG) ** 2 * identity
