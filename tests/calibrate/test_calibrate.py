@@ -546,6 +546,9 @@ def test_a_map_whose_azimuth_starts_a_quarter_turn_off_is_registered(clean, clea
                                atol=1e-9)
     relative = found.gain_measured / clean_calibration.gain_measured  # the gains read under the map as turned
     np.testing.assert_allclose(relative, 1.0, rtol=0.05)
+    assert found.probe.convention_deg == pytest.approx(90.0 * min(quarters, 4 - quarters))
+    assert found.to_dict()["probe"]["convention_deg"] == found.probe.convention_deg
+    assert any("azimuth convention" in line for line in found.warnings)
 
 
 def test_a_quarter_turn_is_taken_for_the_convention_only_where_it_removes_most_of_the_loss(clean, monkeypatch):

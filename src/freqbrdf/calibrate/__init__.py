@@ -196,8 +196,10 @@ class Calibration:
             ``gain_measured``, ``exposure``,
             ``white_balance``, ``frame_gains`` (per view, where measured and applied, or None),
             ``probe`` (the turn: ``angle_deg``, ``axis``, ``std_deg``, ``rotation``, the model's ``loss``
-            at the registration given and at the turn found over the first, ``log_odds``; or None), ``cameras`` (per view, see
-            `CameraRefinement.to_dict`; or None), ``dropped_views``, ``texels``, ``exposure_from``,
+            at the registration given and at the turn found over the first, ``log_odds``,
+            ``convention_deg``: the quarter turn of the azimuth convention within it; or None),
+            ``cameras`` (per view, see `CameraRefinement.to_dict`; or None), ``dropped_views``,
+            ``texels``, ``exposure_from``,
             ``samples_per_texel``, ``seconds``.
         """
         probe = None
@@ -206,7 +208,7 @@ class Calibration:
             probe = {"angle_deg": self.probe.angle_deg, "axis": axis.tolist(),
                      "std_deg": None if not np.isfinite(self.probe.std_deg) else self.probe.std_deg,
                      "rotation": self.probe.rotation.tolist(), "loss": list(self.probe.loss),
-                     "log_odds": self.probe.log_odds}
+                     "log_odds": self.probe.log_odds, "convention_deg": self.probe.convention_deg}
         return {
             "gain": self.gain.tolist(), "gain_std": (self.gain * self.gain_log_std).tolist(),
             "gain_error_std": (self.gain * self.gain_error_log_std).tolist(),
@@ -698,7 +700,8 @@ def _after(probe: ProbeRegistration, convention: np.ndarray) -> ProbeRegistratio
     if np.array_equal(convention, np.eye(3)):
         return probe
     rotation = probe.rotation @ convention
-    return replace(probe, rotation=rotation, angle_deg=float(np.degrees(axis_angle(rotation)[1])))
+    return replace(probe, rotation=rotation, angle_deg=float(np.degrees(axis_angle(rotation)[1])),
+                   convention_deg=float(np.degrees(axis_angle(convention)[1])))
 
 
 def _turned(capture: Capture, rotation: np.ndarray) -> Capture:
@@ -768,7 +771,8 @@ def _warnings(capture: Capture, calibration: Calibration, settings) -> list[str]
         axis, _ = axis_angle(probe.rotation)
         lines.append(f"the environment map was turned {probe.angle_deg:.1f}° about "
                      f"({', '.join(f'{value:.2f}' for value in axis)}) to match the photographs' reflections "
-                     "(calibration): check envmap_to_world")
+                     + (f"(calibration; {probe.convention_deg:.0f}° of it a quarter turn of its azimuth convention): "
+                        if probe.convention_deg > 0.0 else "(calibration): ") + "check envmap_to_world")
     cameras = calibration.cameras
     if cameras is not None and cameras.refined.any():
         moved = cameras.turn_deg[cameras.refined]

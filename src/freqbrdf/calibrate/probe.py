@@ -93,6 +93,9 @@ class ProbeRegistration:
     log_odds : float
         The log odds of "turned" over "registered exactly" (`PRIOR_TURN_DEG`); the turn is applied
         where positive.
+    convention_deg : float
+        The quarter turn about the map's pole its azimuth convention was found off by
+        (`convention_turn`), included in ``rotation``; the other fields are of the turn after it.
     """
 
     rotation: np.ndarray
@@ -100,6 +103,7 @@ class ProbeRegistration:
     std_deg: float
     loss: tuple[float, float]
     log_odds: float
+    convention_deg: float = 0.0
 
 
 def rotation_about(axis: np.ndarray, angle: float) -> np.ndarray:
