@@ -197,7 +197,7 @@ class Calibration:
             ``white_balance``, ``frame_gains`` (per view, where measured and applied, or None),
             ``probe`` (the turn: ``angle_deg``, ``axis``, ``std_deg``, ``rotation``, the model's ``loss``
             at the registration given and at the turn found over the first, ``log_odds``,
-            ``convention_deg``: the quarter turn of the azimuth convention within it; or None),
+            ``convention_deg``: the turn of the map's convention within it; or None),
             ``cameras`` (per view, see `CameraRefinement.to_dict`; or None), ``dropped_views``,
             ``texels``, ``exposure_from``,
             ``samples_per_texel``, ``seconds``.
@@ -771,7 +771,8 @@ def _warnings(capture: Capture, calibration: Calibration, settings) -> list[str]
         axis, _ = axis_angle(probe.rotation)
         lines.append(f"the environment map was turned {probe.angle_deg:.1f}° about "
                      f"({', '.join(f'{value:.2f}' for value in axis)}) to match the photographs' reflections "
-                     + (f"(calibration; {probe.convention_deg:.0f}° of it a quarter turn of its azimuth convention): "
+                     + (f"(calibration; {probe.convention_deg:.0f}° of it the map's convention: where its azimuth starts, "
+                        "which axis is up): "
                         if probe.convention_deg > 0.0 else "(calibration): ") + "check envmap_to_world")
     cameras = calibration.cameras
     if cameras is not None and cameras.refined.any():

@@ -60,14 +60,17 @@ EXPOSURE_RANGE_STD = 2
 # The std of the turn about an axis the loss does not curve about at the least the descent found (a
 # flat or noisy direction): far wider than the prior, so that the turn about it is not applied.
 UNDETERMINED_TURN_DEG = 180.0
-# Tools disagree on where an equirectangular map's azimuth starts (by quarter turns about its pole): a
-# quarter turn is taken for the map's convention where it leaves at most this share of the given
-# registration's loss, at the photographs' scale as given and with the exposure free over a factor
-# CONVENTION_EXPOSURE_RANGE either way (the gains are read after it): on the calibration study's
-# captures every quarter turn raises the loss but on clipped photographs at 2x the map's exposure,
-# whose clipped samples select by where the light is (docs/results.md#calibration).
+# Tools disagree on where an equirectangular map's azimuth starts (by quarter turns about its pole) and
+# on which world axis is up: a turn between such conventions is taken for the map's where it leaves at
+# most this share of the given registration's loss, at the photographs' scale as given and with the
+# exposure free over a factor CONVENTION_EXPOSURE_RANGE either way (the gains are read after it): on
+# the calibration study's captures every such turn raises the loss but on clipped photographs at 2x
+# the map's exposure, whose clipped samples select by where the light is (docs/results.md#calibration).
 CONVENTION_LOSS_SHARE = 0.8
 CONVENTION_EXPOSURE_RANGE = 2.0
+# The world's up axes captures are made in (Mitsuba's and most tools' +y, Blender's +z): the map's pole
+# is tried on each, at each quarter turn about it.
+WORLD_UP_AXES = ((0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
 # Texels whose normals' mean has this length or more (a plane, a relief: normals within about 25°
 # of one direction) do not register the map: for them a turn mimics the model's own misfit of the
 # lobe's shape (its off-specular shift is one direction for every texel).
@@ -94,8 +97,8 @@ class ProbeRegistration:
         The log odds of "turned" over "registered exactly" (`PRIOR_TURN_DEG`); the turn is applied
         where positive.
     convention_deg : float
-        The quarter turn about the map's pole its azimuth convention was found off by
-        (`convention_turn`), included in ``rotation``; the other fields are of the turn after it.
+        The turn the map's convention was found off by (`convention_turn`: where its azimuth starts,
+        which world axis is up), included in ``rotation``; the other fields are of the turn after it.
     """
 
     rotation: np.ndarray
@@ -264,13 +267,14 @@ def _log_odds(vector: np.ndarray, covariance: np.ndarray, prior_std: float) -> f
 
 
 def convention_turn(observations: Observations, settings: EstimateConfig, search_deg: float) -> np.ndarray:
-    """Return the quarter turn of the map about its pole that its azimuth convention is off by (identity: none).
+    """Return the turn the map's convention is off by: where its azimuth starts, which axis is up (identity: none).
 
-    Each quarter turn (90, 180, 270 degrees about the map's pole) is scored by the model's loss
-    (`_ModelLoss`, on the texels `register_probe` scores); the least is taken where it leaves at
-    most `CONVENTION_LOSS_SHARE` of the given registration's loss, at the photographs' scale and
-    with the exposure free (`CONVENTION_EXPOSURE_RANGE`). `register_probe` then refines the turn
-    from there.
+    Each turn that puts the map's pole on one of `WORLD_UP_AXES` at a quarter turn about it (the
+    quarter turns about the pole as given among them) is scored by the model's loss (`_ModelLoss`,
+    on the texels `register_probe` scores); the least is taken where it leaves at most
+    `CONVENTION_LOSS_SHARE` of the given registration's loss, at the photographs' scale and with
+    the exposure free (`CONVENTION_EXPOSURE_RANGE`). `register_probe` then refines the turn from
+    there.
 
     Parameters
     ----------
@@ -290,9 +294,8 @@ def convention_turn(observations: Observations, settings: EstimateConfig, search
     loss = _registration_loss(observations, settings, search_deg)
     if loss is None:
         return identity
-    pole = loss.rotation @ np.array([0.0, 1.0, 0.0])
     given = loss(identity)
-    turns = [rotation_about(pole, np.radians(angle)) for angle in (90.0, 180.0, 270.0)]
+    turns = _convention_turns(loss.rotation @ np.array([0.0, 1.0, 0.0]))
     values = [loss(turn) for turn in turns]
     best = int(np.argmin(values))
     if not (given > 0.0 and values[best] <= CONVENTION_LOSS_SHARE * given):
@@ -303,6 +306,27 @@ def convention_turn(observations: Observations, settings: EstimateConfig, search
         return min(loss(turn, float(exposure)) for exposure in exposures)
 
     return turns[best] if least(turns[best]) <= CONVENTION_LOSS_SHARE * least(identity) else identity
+
+
+def _convention_turns(pole: np.ndarray) -> list[np.ndarray]:
+    """Return the turns that take the map's ``pole`` (3,) onto each of `WORLD_UP_AXES`, at each quarter turn about it.
+
+    The identity (the map as given) is left out.
+    """
+    turns = []
+    for up in np.asarray(WORLD_UP_AXES):
+        axis = np.cross(pole, up)
+        sine, cosine = float(np.linalg.norm(axis)), float(pole @ up)
+        if sine > 1e-9:
+            tilt = rotation_about(axis / sine, float(np.arctan2(sine, cosine)))
+        else:  # the pole on the up axis, or opposite it: a half turn about any axis across it
+            across = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 0.0, 1.0])
+            tilt = np.eye(3) if cosine > 0.0 else rotation_about(across / np.linalg.norm(across), np.pi)
+        for quarter in range(4):
+            turn = rotation_about(up, np.radians(90.0 * quarter)) @ tilt
+            if not np.allclose(turn, np.eye(3), atol=1e-9):
+                turns.append(turn)
+    return turns
 
 
 def _registration_loss(observations: Observations, settings: EstimateConfig, search_deg: float) -> _ModelLoss | None:
