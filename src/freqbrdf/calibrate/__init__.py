@@ -311,7 +311,7 @@ def calibrate(capture: Capture, config: Config = Config(),
         search = _search_config(coarse_config)
         convention = (convention_turn(_scaled(every, _gains_start(every), config), search.estimate,
                                       settings.probe_search_deg) if settings.probe_rotation else np.eye(3))
-        if not np.array_equal(convention, np.eye(3)):  # the map's azimuth starts elsewhere: observed again
+        if not np.array_equal(convention, np.eye(3)):  # a map of another convention: observed again
             capture = _turned(capture, convention)
             every = observe(capture, coarse_config, texels=texels)
         observations = _exact_texels(every)
@@ -696,7 +696,7 @@ def _likelier_off(value, std, prior_std):
 
 
 def _after(probe: ProbeRegistration, convention: np.ndarray) -> ProbeRegistration:
-    """Return the registration with the convention's quarter turn (`convention_turn`) applied before it."""
+    """Return the registration with the convention's turn (`convention_turn`) applied before it."""
     if np.array_equal(convention, np.eye(3)):
         return probe
     rotation = probe.rotation @ convention

@@ -63,9 +63,10 @@ UNDETERMINED_TURN_DEG = 180.0
 # Tools disagree on where an equirectangular map's azimuth starts (by quarter turns about its pole) and
 # on which world axis is up: a turn between such conventions is taken for the map's where it leaves at
 # most this share of the given registration's loss, at the photographs' scale as given and with the
-# exposure free over a factor CONVENTION_EXPOSURE_RANGE either way (the gains are read after it): on
-# the calibration study's captures every such turn raises the loss but on clipped photographs at 2x
-# the map's exposure, whose clipped samples select by where the light is (docs/results.md#calibration).
+# exposure free over a factor CONVENTION_EXPOSURE_RANGE either way (the gains are read after it): at
+# the given scale alone clipped photographs at 2x the map's exposure, whose clipped samples select by
+# where the light is, took a false one; on the calibration study's captures none is taken but on its
+# maps tilted 10° (the pole back to +y, docs/results.md#calibration).
 CONVENTION_LOSS_SHARE = 0.8
 CONVENTION_EXPOSURE_RANGE = 2.0
 # The world's up axes captures are made in (Mitsuba's and most tools' +y, Blender's +z): the map's pole
