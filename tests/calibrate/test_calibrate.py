@@ -586,3 +586,19 @@ def test_a_quarter_turn_is_taken_for_the_convention_only_where_it_removes_most_o
         monkeypatch.setattr(probe._ModelLoss, "__call__", scored(half_turn, other))
         turn = probe.convention_turn(observations, settings, 25.0)
         assert np.degrees(axis_angle(turn)[1]) == pytest.approx(180.0 if taken else 0.0), (half_turn, other)
+
+
+def test_a_sparse_capture_under_a_map_in_other_units_takes_the_photographs_order_of_magnitude(clean, tmp_path):
+    # Too few samples a texel to estimate the gains, but the map 1000x off: its order of magnitude is
+    # applied, with a wide std (`ORDER_LOG_STD`) that the base colour's std takes in.
+    from freqbrdf.calibrate import ORDER_LOG_STD
+
+    given = load(_copy(clean, tmp_path / "sparse_units", gain=(1e-3,) * 3))
+    sparse = replace(given, frames=given.frames[::4])
+    capture, found = calibrate(sparse, CONFIG)
+    assert found.samples_per_texel < MIN_GAIN_SAMPLES and found.gain_measured is None
+    assert np.all(np.abs(np.log(found.gain / 1e-3)) < np.log(2.0)), found.gain  # within a factor 2
+    assert np.ptp(found.gain) == 0.0
+    np.testing.assert_allclose(found.gain_log_std, ORDER_LOG_STD)
+    np.testing.assert_allclose(found.gain_error_log_std, ORDER_LOG_STD)
+    assert any("order of magnitude" in line for line in found.warnings)

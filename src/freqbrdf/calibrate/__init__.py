@@ -104,6 +104,10 @@ POORLY_DETERMINED = 0.15
 # start from it.
 TYPICAL_ALBEDO = 0.3
 FAR_EXPOSURE = 10.0
+# Where the gains cannot be estimated (too few samples a texel, masks inside the outline) but the
+# photographs' order of magnitude lies beyond FAR_EXPOSURE, it is applied with this log std (the
+# calibration study's clean captures read 0.59-1.47 at gain 1).
+ORDER_LOG_STD = 0.5
 # The gains need texels whose samples tell a dielectric's diffuse from its fixed specular: below this
 # median of samples per seen texel they read the model's misfit, not the exposure
 # (docs/results.md#calibration), and are not estimated (the map's scale is kept, with a warning).
@@ -327,8 +331,13 @@ def calibrate(capture: Capture, config: Config = Config(),
         observations, every = _at_most_views(observations, every)
         estimate_gains = (settings.gains and calibration.samples_per_texel >= MIN_GAIN_SAMPLES
                           and not _masks_inside(calibration))
-        gain, found, on_dielectrics = (_read_clipped_gains(observations, every, search, _gains_start(every), config)
+        start_gain = _gains_start(every)
+        gain, found, on_dielectrics = (_read_clipped_gains(observations, every, search, start_gain, config)
                                        if estimate_gains else (np.ones(3), None, False))
+        # Not estimated, a map orders of magnitude off still takes the photographs' order of magnitude.
+        from_order = settings.gains and not estimate_gains and not np.all(start_gain == 1.0)
+        if from_order:
+            gain = start_gain
         if settings.probe_rotation:
             # On photographs at the map's scale: a wrong exposure or white balance would bend the turn.
             # Every seen texel scores it, its clipped samples left out: leaving out the texels with a
@@ -358,6 +367,8 @@ def calibrate(capture: Capture, config: Config = Config(),
             log_std, scored = found.log_std, found.texels
             calibration.gain_error_log_std = _decision_log_std(gain, found)
             gain = _significant(gain, found)
+        if from_order:
+            log_std = calibration.gain_error_log_std = np.full(3, ORDER_LOG_STD)
         calibration.gain, calibration.gain_log_std, calibration.texels = gain, log_std, scored
         advance(1)
     calibration.warnings = _warnings(capture, calibration, settings)
@@ -754,14 +765,15 @@ def _warnings(capture: Capture, calibration: Calibration, settings) -> list[str]
         lines.append(f"the photographs are {calibration.exposure:.3g}x the environment map's exposure, white balance "
                      f"(R, G, B) {', '.join(f'{value:.3f}' for value in calibration.white_balance)}: corrected "
                      "(calibration); shoot the probe with the photographs' settings or check envmap_scale")
+    kept = ("(the environment map's are used)" if np.all(calibration.gain == 1.0)
+            else f"(the photographs' order of magnitude, {calibration.exposure:.3g}x the map's, is used)")
     if settings.gains and _masks_inside(calibration):
         lines.append("the masks lie inside the object's outline, so the photographs' most grazing views are lost: the "
-                     "exposure and white balance are not estimated (the environment map's are used)")
+                     f"exposure and white balance are not estimated {kept}")
     elif settings.gains and calibration.samples_per_texel < MIN_GAIN_SAMPLES:
         lines.append(f"the photographs give {calibration.samples_per_texel:.0f} samples per texel (median), too few to "
-                     "tell a dielectric's diffuse from its specular: the exposure and white balance are not estimated "
-                     f"(the environment map's are used); shoot more views (at least {MIN_GAIN_SAMPLES} per texel) or "
-                     "check envmap_scale")
+                     f"tell a dielectric's diffuse from its specular: the exposure and white balance are not estimated "
+                     f"{kept}; shoot more views (at least {MIN_GAIN_SAMPLES} per texel) or check envmap_scale")
     if settings.gains and np.any(calibration.gain_log_std > POORLY_DETERMINED):
         lines.append(f"the photographs determine the exposure poorly (std of the gains "
                      f"{', '.join(f'{value:.0%}' for value in calibration.gain_log_std)}; few dielectric texels?): "
