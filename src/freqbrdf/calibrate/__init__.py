@@ -31,10 +31,20 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from freqbrdf.calibrate.cameras import BAD_OUTLINE_PX, MASK_OFFSET_PX, CameraRefinement, refine_cameras
-from freqbrdf.calibrate.gains import (
+from freqbrdf.calibrate.gains import (  # noqa: F401  (the decision rules' names, also read through this package)
+    FRAME_MODEL_LOG_STD,
+    FRAME_PRIOR_LOG_STD,
     MODEL_RATIO_LOG_STD,
     PRIOR_LOG_STD,
+    WHITE_BALANCE_PRIOR_LOG_STD,
     GainEstimate,
+    _applied,
+    _decision_log_std,
+    _decision_variance,
+    _likelier_off,
+    _significant,
+    _significant_frames,
+    _with_selection,
     channel_gains,
     frame_gains,
     slab_log_odds,
@@ -83,12 +93,6 @@ DIELECTRIC_PASSES = 4
 DIELECTRIC_PICKS = 2
 DIELECTRIC_EXPOSURE_LOG_STD = 0.05
 CONTRACTION_FLOOR = 0.25
-# How far a probe's exposure and white balance are from the photographs' when they are not equal (1
-# sigma, in log): the exposure within a factor e (`freqbrdf.calibrate.gains.PRIOR_LOG_STD`), each
-# white-balance ratio within 10 % (a probe shot with another camera or another white-balance
-# setting). Each is applied where the texels say it is more likely off than exactly 1
-# (`_significant`).
-WHITE_BALANCE_PRIOR_LOG_STD = 0.1
 # Where photographs clip, the white balance reads the texels without a clipped sample
 # (`_exact_texels`), the exposure then every seen texel with its clipped samples left out
 # (`_read_clipped_gains`); both selections bias the gains: this much log std per unit share of the
@@ -115,12 +119,6 @@ MIN_GAIN_SAMPLES = 8
 # A frame whose gain is beyond this factor of the others (either way) is one calibration cannot
 # trust: named in a warning, dropped with ``drop_bad_views``.
 BAD_FRAME_FACTOR = 2.0
-# A photograph's exposure against the others' is either the same or off by a normal amount of this std
-# (in log: auto-exposure moves it by a stop or so); the pairs' own misfit on photographs exposed alike
-# (the view dependence between nearby directions) adds FRAME_MODEL_LOG_STD to each frame's std
-# (docs/results.md#calibration).
-FRAME_PRIOR_LOG_STD = 0.7
-FRAME_MODEL_LOG_STD = 0.10
 
 
 @dataclass
@@ -313,7 +311,8 @@ def calibrate(capture: Capture, config: Config = Config(),
         advance(1)
         every = observe(capture, coarse_config, texels=texels)
         search = _search_config(coarse_config)
-        convention = (convention_turn(_scaled(every, _gains_start(every), config), search.estimate,
+        start_gain = _gains_start(every)
+        convention = (convention_turn(_scaled(every, start_gain, config), search.estimate,
                                       settings.probe_search_deg) if settings.probe_rotation else np.eye(3))
         if not np.array_equal(convention, np.eye(3)):  # a map of another convention: observed again
             capture = _turned(capture, convention)
@@ -331,7 +330,6 @@ def calibrate(capture: Capture, config: Config = Config(),
         observations, every = _at_most_views(observations, every)
         estimate_gains = (settings.gains and calibration.samples_per_texel >= MIN_GAIN_SAMPLES
                           and not _masks_inside(calibration))
-        start_gain = _gains_start(every)
         gain, found, on_dielectrics = (_read_clipped_gains(observations, every, search, start_gain, config)
                                        if estimate_gains else (np.ones(3), None, False))
         # Not estimated, a map orders of magnitude off still takes the photographs' order of magnitude.
@@ -612,98 +610,6 @@ def _exact_texels(observations: Observations) -> Observations:
         return observations
     exact = ~(observations.censored_weight > 0.0).any(axis=1)
     return observations.select(exact) if exact.any() and not exact.all() else observations
-
-
-def _with_selection(found: GainEstimate, exposure_log_std: float,
-                    ratio_log_std: float | np.ndarray | None = None) -> GainEstimate:
-    """Return the gains with more std added in quadrature: the exposure's and each white-balance ratio's.
-
-    ``ratio_log_std`` is per ratio (3,) or one for all; None: ``exposure_log_std``.
-    """
-    ratio_log_std = np.asarray(exposure_log_std if ratio_log_std is None else ratio_log_std, np.float64)
-    if exposure_log_std <= 0.0 and np.all(ratio_log_std <= 0.0):
-        return found
-    exposure_variance = found.exposure_log_std ** 2 + exposure_log_std ** 2
-    ratio_variance = found.ratio_log_std ** 2 + ratio_log_std ** 2
-    precision = 1.0 / (exposure_variance + ratio_variance) + 1.0 / PRIOR_LOG_STD ** 2
-    return replace(found, log_std=1.0 / np.sqrt(precision), exposure_log_std=float(np.sqrt(exposure_variance)),
-                   ratio_log_std=np.sqrt(ratio_variance))
-
-
-def _significant(gain: np.ndarray, found: GainEstimate) -> np.ndarray:
-    """Return the gains with the parts the texels do not tell from 1 set to 1.
-
-    The exposure (the gains' geometric mean) and each channel's white-balance ratio to it are each
-    either exactly 1 (the probe shot with the photographs' settings) or off by a normal amount of
-    std tau (`PRIOR_LOG_STD` for the exposure, `WHITE_BALANCE_PRIOR_LOG_STD` for a ratio). A
-    measurement x of std s is applied where the second is the likelier (even prior odds): where
-    (x / s)^2 exceeds (1 + s^2 / tau^2) ln(1 + tau^2 / s^2), about 2.1 std for the exposure and 1.6
-    for a ratio at the model's own misfit; it is then applied as measured: the normal slab decides
-    whether a gain is off, but how far off a probe shot at another setting is has heavier tails
-    (daylight against tungsten is a factor 2), and shrinking x by tau^2 / (tau^2 + s^2) left a large
-    white balance short (docs/results.md#calibration). A gain the model's misfit could give on
-    a calibrated capture is not applied.
-    """
-    log_gain = np.log(gain)
-    exposure = float(log_gain.mean())
-    ratios = log_gain - exposure
-    exposure = _applied(exposure, found.exposure_log_std, PRIOR_LOG_STD)
-    ratios = _applied(ratios, found.ratio_log_std, WHITE_BALANCE_PRIOR_LOG_STD)
-    return np.exp(exposure + ratios)
-
-
-def _significant_frames(gain: np.ndarray, log_std: np.ndarray) -> np.ndarray:
-    """Return the frames' gains (V, 3) with those the pairs do not tell from the others' set to 1.
-
-    Each frame's exposure (its gains' geometric mean; its channels alike) is the same as the others'
-    or off by a normal amount of std `FRAME_PRIOR_LOG_STD`; measured with its pairs' std and
-    `FRAME_MODEL_LOG_STD` in quadrature, it is applied as measured where the second is the likelier
-    (`_significant`'s rule): on photographs exposed alike the pairs' misfit reads 0.08-0.12 in log
-    (docs/results.md#calibration), which applied to every frame would cost more than it mends.
-    """
-    log_gain = np.log(gain).mean(axis=1)
-    finite = np.isfinite(log_std)
-    measured = finite.any(axis=1)  # frames in enough pairs
-    own_variance = (np.where(finite, log_std, 0.0) ** 2).sum(axis=1) / np.maximum(finite.sum(axis=1), 1)
-    std = np.sqrt(own_variance + FRAME_MODEL_LOG_STD ** 2)
-    applied = np.where(measured, _applied(log_gain, std, FRAME_PRIOR_LOG_STD), 0.0)
-    return np.repeat(np.exp(applied)[:, None], 3, axis=1)
-
-
-def _decision_log_std(gain: np.ndarray, found: GainEstimate) -> np.ndarray:
-    """Return the std (3,) of the error of the log gains `_significant` applies, per channel.
-
-    Under the spike-and-slab posterior of a measurement x of std s (`_significant`), the gain is off
-    1 with probability p = sigmoid(`slab_log_odds`), then by x with variance s^2 (the slab's heavy
-    tails). Applying a (x, or 0) is off by a - x with that variance in the first case and by a in
-    the second: the expected square of the error, for the exposure and for each ratio, added.
-    """
-    log_gain = np.log(gain)
-    exposure = float(log_gain.mean())
-    return np.sqrt(_decision_variance(exposure, found.exposure_log_std, PRIOR_LOG_STD)
-                   + _decision_variance(log_gain - exposure, found.ratio_log_std, WHITE_BALANCE_PRIOR_LOG_STD))
-
-
-def _decision_variance(value, std, prior_std):
-    """Return the expected squared error of `_applied` for a measurement ``value`` of ``std`` (`_decision_log_std`)."""
-    value, variance = np.asarray(value, np.float64), np.maximum(np.asarray(std, np.float64) ** 2, 1e-24)
-    off = 1.0 / (1.0 + np.exp(-np.clip(slab_log_odds(value, np.sqrt(variance), prior_std), -700.0, 700.0)))
-    applied = _applied(value, np.sqrt(variance), prior_std)
-    return off * ((applied - value) ** 2 + variance) + (1.0 - off) * applied ** 2
-
-
-def _applied(value, std, prior_std):
-    """Return the log gain to apply for a measurement ``value`` of ``std``.
-
-    0 where exactly 1 is the likelier (`_likelier_off`), else the measurement (`_significant`).
-    """
-    value = np.asarray(value, np.float64)
-    return np.where(_likelier_off(value, std, prior_std), value, 0.0)
-
-
-def _likelier_off(value, std, prior_std):
-    """Whether a log gain measured as ``value`` with ``std`` is likelier off 1 (std ``prior_std``) than exactly 1."""
-    return slab_log_odds(value, std, prior_std) > 0.0
 
 
 def _after(probe: ProbeRegistration, convention: np.ndarray) -> ProbeRegistration:

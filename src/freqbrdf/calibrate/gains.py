@@ -21,11 +21,15 @@ texels do not determine (an all-metal object) near 1.
 (where a texel shows about the same radiance to both, whatever its material), and solves for one
 gain per photograph that explains every pair's ratio, for captures whose frames are exposed
 differently.
+
+The decision rules (`_significant`, `_significant_frames`, `_decision_log_std`): each gain is
+either exactly 1 or off by a normal amount (spike and slab), applied where the texels make "off"
+the likelier, and the error of that decision's outcome.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -47,6 +51,18 @@ FRAME_PAIR_TEXELS = 10
 # calibrated capture, added to the texels' spread (docs/results.md#calibration: the clean scenes').
 MODEL_EXPOSURE_LOG_STD = 0.10
 MODEL_RATIO_LOG_STD = 0.03
+# How far a probe's exposure and white balance are from the photographs' when they are not equal (1
+# sigma, in log): the exposure within a factor e (`PRIOR_LOG_STD`), each
+# white-balance ratio within 10 % (a probe shot with another camera or another white-balance
+# setting). Each is applied where the texels say it is more likely off than exactly 1
+# (`_significant`).
+WHITE_BALANCE_PRIOR_LOG_STD = 0.1
+# A photograph's exposure against the others' is either the same or off by a normal amount of this std
+# (in log: auto-exposure moves it by a stop or so); the pairs' own misfit on photographs exposed alike
+# (the view dependence between nearby directions) adds FRAME_MODEL_LOG_STD to each frame's std
+# (docs/results.md#calibration).
+FRAME_PRIOR_LOG_STD = 0.7
+FRAME_MODEL_LOG_STD = 0.10
 # A texel's misfit floor in the white-balance ratios' weights, as a share of the texels' median misfit:
 # a near-exact fit does not take over.
 MISFIT_FLOOR = 0.05
@@ -314,3 +330,95 @@ def frame_gains(view_direction: np.ndarray, weight: np.ndarray, observed: np.nda
             if mine.sum() >= 2:
                 log_std[view, c] = 1.4826 * float(np.median(np.abs(residual[mine]))) / np.sqrt(mine.sum())
     return np.exp(log_gain), log_std
+
+
+def _with_selection(found: GainEstimate, exposure_log_std: float,
+                    ratio_log_std: float | np.ndarray | None = None) -> GainEstimate:
+    """Return the gains with more std added in quadrature: the exposure's and each white-balance ratio's.
+
+    ``ratio_log_std`` is per ratio (3,) or one for all; None: ``exposure_log_std``.
+    """
+    ratio_log_std = np.asarray(exposure_log_std if ratio_log_std is None else ratio_log_std, np.float64)
+    if exposure_log_std <= 0.0 and np.all(ratio_log_std <= 0.0):
+        return found
+    exposure_variance = found.exposure_log_std ** 2 + exposure_log_std ** 2
+    ratio_variance = found.ratio_log_std ** 2 + ratio_log_std ** 2
+    precision = 1.0 / (exposure_variance + ratio_variance) + 1.0 / PRIOR_LOG_STD ** 2
+    return replace(found, log_std=1.0 / np.sqrt(precision), exposure_log_std=float(np.sqrt(exposure_variance)),
+                   ratio_log_std=np.sqrt(ratio_variance))
+
+
+def _significant(gain: np.ndarray, found: GainEstimate) -> np.ndarray:
+    """Return the gains with the parts the texels do not tell from 1 set to 1.
+
+    The exposure (the gains' geometric mean) and each channel's white-balance ratio to it are each
+    either exactly 1 (the probe shot with the photographs' settings) or off by a normal amount of
+    std tau (`PRIOR_LOG_STD` for the exposure, `WHITE_BALANCE_PRIOR_LOG_STD` for a ratio). A
+    measurement x of std s is applied where the second is the likelier (even prior odds): where
+    (x / s)^2 exceeds (1 + s^2 / tau^2) ln(1 + tau^2 / s^2), about 2.1 std for the exposure and 1.6
+    for a ratio at the model's own misfit; it is then applied as measured: the normal slab decides
+    whether a gain is off, but how far off a probe shot at another setting is has heavier tails
+    (daylight against tungsten is a factor 2), and shrinking x by tau^2 / (tau^2 + s^2) left a large
+    white balance short (docs/results.md#calibration). A gain the model's misfit could give on
+    a calibrated capture is not applied.
+    """
+    log_gain = np.log(gain)
+    exposure = float(log_gain.mean())
+    ratios = log_gain - exposure
+    exposure = _applied(exposure, found.exposure_log_std, PRIOR_LOG_STD)
+    ratios = _applied(ratios, found.ratio_log_std, WHITE_BALANCE_PRIOR_LOG_STD)
+    return np.exp(exposure + ratios)
+
+
+def _significant_frames(gain: np.ndarray, log_std: np.ndarray) -> np.ndarray:
+    """Return the frames' gains (V, 3) with those the pairs do not tell from the others' set to 1.
+
+    Each frame's exposure (its gains' geometric mean; its channels alike) is the same as the others'
+    or off by a normal amount of std `FRAME_PRIOR_LOG_STD`; measured with its pairs' std and
+    `FRAME_MODEL_LOG_STD` in quadrature, it is applied as measured where the second is the likelier
+    (`_significant`'s rule): on photographs exposed alike the pairs' misfit reads 0.08-0.12 in log
+    (docs/results.md#calibration), which applied to every frame would cost more than it mends.
+    """
+    log_gain = np.log(gain).mean(axis=1)
+    finite = np.isfinite(log_std)
+    measured = finite.any(axis=1)  # frames in enough pairs
+    own_variance = (np.where(finite, log_std, 0.0) ** 2).sum(axis=1) / np.maximum(finite.sum(axis=1), 1)
+    std = np.sqrt(own_variance + FRAME_MODEL_LOG_STD ** 2)
+    applied = np.where(measured, _applied(log_gain, std, FRAME_PRIOR_LOG_STD), 0.0)
+    return np.repeat(np.exp(applied)[:, None], 3, axis=1)
+
+
+def _decision_log_std(gain: np.ndarray, found: GainEstimate) -> np.ndarray:
+    """Return the std (3,) of the error of the log gains `_significant` applies, per channel.
+
+    Under the spike-and-slab posterior of a measurement x of std s (`_significant`), the gain is off
+    1 with probability p = sigmoid(`slab_log_odds`), then by x with variance s^2 (the slab's heavy
+    tails). Applying a (x, or 0) is off by a - x with that variance in the first case and by a in
+    the second: the expected square of the error, for the exposure and for each ratio, added.
+    """
+    log_gain = np.log(gain)
+    exposure = float(log_gain.mean())
+    return np.sqrt(_decision_variance(exposure, found.exposure_log_std, PRIOR_LOG_STD)
+                   + _decision_variance(log_gain - exposure, found.ratio_log_std, WHITE_BALANCE_PRIOR_LOG_STD))
+
+
+def _decision_variance(value, std, prior_std):
+    """Return the expected squared error of `_applied` for a measurement ``value`` of ``std`` (`_decision_log_std`)."""
+    value, variance = np.asarray(value, np.float64), np.maximum(np.asarray(std, np.float64) ** 2, 1e-24)
+    off = 1.0 / (1.0 + np.exp(-np.clip(slab_log_odds(value, np.sqrt(variance), prior_std), -700.0, 700.0)))
+    applied = _applied(value, np.sqrt(variance), prior_std)
+    return off * ((applied - value) ** 2 + variance) + (1.0 - off) * applied ** 2
+
+
+def _applied(value, std, prior_std):
+    """Return the log gain to apply for a measurement ``value`` of ``std``.
+
+    0 where exactly 1 is the likelier (`_likelier_off`), else the measurement (`_significant`).
+    """
+    value = np.asarray(value, np.float64)
+    return np.where(_likelier_off(value, std, prior_std), value, 0.0)
+
+
+def _likelier_off(value, std, prior_std):
+    """Whether a log gain measured as ``value`` with ``std`` is likelier off 1 (std ``prior_std``) than exactly 1."""
+    return slab_log_odds(value, std, prior_std) > 0.0

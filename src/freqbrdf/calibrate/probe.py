@@ -301,12 +301,14 @@ def convention_turn(observations: Observations, settings: EstimateConfig, search
     best = int(np.argmin(values))
     if not (given > 0.0 and values[best] <= CONVENTION_LOSS_SHARE * given):
         return identity
-    exposures = np.exp(np.linspace(-1.0, 1.0, 5) * np.log(CONVENTION_EXPOSURE_RANGE))
+    # The other exposures over the range (the exposure as given is scored above).
+    exposures = np.exp(np.array([-1.0, -0.5, 0.5, 1.0]) * np.log(CONVENTION_EXPOSURE_RANGE))
 
-    def least(turn: np.ndarray) -> float:
-        return min(loss(turn, float(exposure)) for exposure in exposures)
+    def least(turn: np.ndarray, at_given: float) -> float:
+        return min([at_given] + [loss(turn, float(exposure)) for exposure in exposures])
 
-    return turns[best] if least(turns[best]) <= CONVENTION_LOSS_SHARE * least(identity) else identity
+    kept = least(turns[best], values[best]) <= CONVENTION_LOSS_SHARE * least(identity, given)
+    return turns[best] if kept else identity
 
 
 def _convention_turns(pole: np.ndarray) -> list[np.ndarray]:
